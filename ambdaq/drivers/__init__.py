@@ -1,0 +1,1 @@
+"""Transports, protocols, device drivers, simulated devices and the rig physics they serve."""

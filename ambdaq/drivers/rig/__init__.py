@@ -1,0 +1,1 @@
+"""Rig physics: closed-loop simulations of AMB machines that feed the simulated devices."""

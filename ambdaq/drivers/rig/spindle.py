@@ -1,0 +1,596 @@
+"""The simulated grinding spindle of seed 000: a rigid rotor on five AMB axes under digital PID.
+
+Physics (all SI):
+
+* Rigid rotor, mass 4.38 kg, Jp 0.0014 kg m^2, Jt 0.0362 kg m^2 (seed 000, section 2.2), radial
+  bearings at ``a`` and ``b`` from the centre of mass; the gyroscopic moment Jp*Omega couples the
+  two tilt planes.  The state is kept in bearing coordinates (front_x, front_y, rear_x, rear_y,
+  axial), so the gap sensors, which we take as co-located with the bearings, read states directly.
+  Seed 000 gives no bearing positions; we take a = b = 0.11 m, where the tilt mode's effective
+  mass per bearing Jt/(2a^2) is 1.50 kg, the one-axis model's m of seed 000 eq. 1.  (With a wider
+  span, e.g. 0.15 m, the tilt mode's mass drops to 0.8 kg and the mode lands near 480 Hz with
+  zeta 0.08, where the amplifier and D/A lags have eaten the derivative's phase lead.)
+* Linearised magnet force F = Kx x + Ki i (Table 1: front Ki 273 N/A, Kx 1.77e6 N/m; rear 182,
+  1.18e6).  The coil pair is driven differentially about the bias I0 with each coil current
+  limited to 0..8 A; the force uses the differential law ((I0+i)^2 - (I0-i)^2)/(4 I0), which is
+  exactly i while both coils conduct and saturates as the amplifier does.
+* Amplifier G_A(s) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (seed 000 eq. 2), Kamp 0.8 A/V,
+  zeta 1.7, wn 1800 Hz front / 2500 Hz rear.
+* Controller at h = 100 us: 16-bit A/D on the sensor voltage (Ks = 10,000 V/m, +-10 V),
+  PID with P 1.6, I 1, D 0.0015 s front / 0.002 s rear (seed 000 eq. 3).  The printed eq. 3 is
+  garbled, so we use the standard parallel PID with a Tustin integrator (the readable term
+  I h(z+1)/(2(z-1)) of eq. 3) and a backward-Euler filtered derivative D s/(1 + s Tf) with
+  Tf = (D/P)/Nd, Nd = 15.  Output on a 12-bit D/A (+-10 V), held for one period (ZOH).
+* Sensor signal s = x + r(theta) + noise, with electrical runout r(theta) = sum R_k sin(k theta +
+  phi_k) fixed to the rotor angle (eq. 5); the y sensor sits 90 deg from the x sensor on the same
+  target track, so r_y(theta) = r_x(theta - pi/2).
+* Command error e = (s - r_c) - x_ref with feedforward r_c = sum w_k0 sin k theta + w_k1 cos k theta
+  (eq. 10); the LMS mode adapts w_k <- w_k + mu e [sin k theta, cos k theta] (eq. 9).
+* Mass unbalance per bearing plane, force U Omega^2 at angle theta + phase; gravity on y.
+* Housing accelerometers read the bearing reaction force on an effective housing mass (the housing
+  on soft mounts, above their resonance): a = -(F_mag - F_static)/M_h.
+
+The axial bearing is not described in seed 000; its values here are assumptions, marked below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import numpy as np
+from numba import njit
+from scipy.linalg import expm
+
+from ..signals import SampleBlock, SignalGroup
+from .speed import RPM_TO_RAD_S, SpeedProfile
+
+AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
+N_AXES = 5
+N_HARMONICS = 8  # harmonics 1X..8X carried by the runout model and the feedforward
+MU_BIN_RPM = 100.0  # resolution of the LMS step-size schedule over speed
+MU_BINS = 601  # 0 .. 60,000 rpm
+SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
+GRAVITY = 9.81
+
+FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
+FF_MODES = {"off": FF_OFF, "table": FF_TABLE, "lms": FF_LMS}
+
+# seed 000, section 3.3: mu = -0.001 below 5,500 rpm, 0 (weights held) to 6,500, +0.001 above.
+PAPER_MU_SCHEDULE = ((0.0, 5500.0, -0.001), (5500.0, 6500.0, 0.0), (6500.0, 60000.0, 0.001))
+
+
+@dataclass(frozen=True)
+class BearingAxis:
+    """One AMB control axis: magnet, amplifier and PID.
+
+    Parameters
+    ----------
+    ki : float
+        Current gain, in N/A.
+    kx : float
+        Position (negative) stiffness, in N/m.
+    bias : float
+        Bias current I0, in A.
+    amp_gain : float
+        Amplifier DC gain Kamp, in A/V.
+    amp_wn_hz : float
+        Amplifier natural frequency, in Hz.
+    amp_zeta : float
+        Amplifier damping ratio.
+    pid_p : float
+        Proportional gain, in V/V.
+    pid_i : float
+        Integral gain, in 1/s.
+    pid_d : float
+        Derivative gain, in s.
+    housing_mass : float
+        Effective housing mass the bearing reaction acts on, in kg.
+    """
+
+    ki: float
+    kx: float
+    bias: float
+    amp_gain: float
+    amp_wn_hz: float
+    amp_zeta: float
+    pid_p: float
+    pid_i: float
+    pid_d: float
+    housing_mass: float
+
+
+def _runout_table(amps_um: list[float], phases_deg: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    amp = np.zeros(N_HARMONICS)
+    ph = np.zeros(N_HARMONICS)
+    amp[: len(amps_um)] = np.asarray(amps_um) * 1e-6
+    ph[: len(phases_deg)] = np.deg2rad(phases_deg)
+    return amp, ph
+
+
+def _default_runout() -> tuple[np.ndarray, np.ndarray]:
+    """Electrical runout, amplitude (m) and phase (rad) per axis and harmonic (1X first).
+
+    Seed 000 measured 15 um (front) and 30 um (rear) on the spindle, 1X and 2X dominant.
+    """
+    front = _runout_table([9.0, 5.0, 1.5, 1.0, 0.5, 0.3], [30, 110, 200, 300, 45, 160])
+    rear = _runout_table([16.0, 9.0, 3.0, 1.5, 0.8, 0.4], [250, 20, 140, 75, 330, 210])
+    axial = _runout_table([1.5, 0.8, 0.3], [90, 10, 270])
+    k = np.arange(1, N_HARMONICS + 1)
+    amp = np.zeros((N_AXES, N_HARMONICS))
+    ph = np.zeros((N_AXES, N_HARMONICS))
+    for a, (track, shift) in enumerate(
+        [(front, 0.0), (front, -np.pi / 2), (rear, 0.0), (rear, -np.pi / 2), (axial, 0.0)]
+    ):
+        amp[a] = track[0]
+        # the y sensor is 90 deg round from x on the same track: r_y(theta) = r_x(theta - pi/2)
+        ph[a] = np.mod(track[1] + k * shift, 2 * np.pi)
+    return amp, ph
+
+
+@dataclass(frozen=True)
+class SpindleParams:
+    """Parameters of the simulated spindle rig (defaults: seed 000, Table 1 and section 2)."""
+
+    mass: float = 4.38  # kg
+    jp: float = 0.0014  # kg m^2, polar
+    jt: float = 0.0362  # kg m^2, transverse
+    a: float = 0.11  # m, centre of mass to front bearing
+    b: float = 0.11  # m, centre of mass to rear bearing
+    front: BearingAxis = BearingAxis(273.0, 1.77e6, 2.1, 0.8, 1800.0, 1.7, 1.6, 1.0, 0.0015, 12.0)
+    rear: BearingAxis = BearingAxis(182.0, 1.18e6, 2.1, 0.8, 2500.0, 1.7, 1.6, 1.0, 0.002, 12.0)
+    # assumed: seed 000 gives no thrust-bearing data
+    axial: BearingAxis = BearingAxis(200.0, 0.8e6, 2.1, 0.8, 2500.0, 1.7, 1.6, 1.0, 0.002, 25.0)
+    sample_rate: float = 10_000.0  # Hz
+    sensor_gain: float = 1.0e4  # V/m
+    adc_bits: int = 16
+    adc_range: float = 10.0  # +-V
+    dac_bits: int = 12
+    dac_range: float = 10.0  # +-V
+    coil_max_current: float = 8.0  # A
+    derivative_filter: float = 15.0  # Nd
+    gap_noise: float = 0.2e-6  # m rms
+    current_noise: float = 2e-3  # A rms
+    accel_noise: float = 0.05  # m/s^2 rms
+    runout_amp: np.ndarray = field(default_factory=lambda: _default_runout()[0])  # m
+    runout_phase: np.ndarray = field(default_factory=lambda: _default_runout()[1])  # rad
+    unbalance: tuple[float, float] = (2.0e-6, 3.0e-6)  # kg m, front and rear planes
+    unbalance_phase: tuple[float, float] = (0.0, 2.0)  # rad
+
+    @property
+    def axes(self) -> tuple[BearingAxis, ...]:
+        return (self.front, self.front, self.rear, self.rear, self.axial)
+
+    def runout_sin_cos(self) -> tuple[np.ndarray, np.ndarray]:
+        """Runout as sin and cos coefficients: R sin(k theta + phi) = A sin k theta + B cos k theta."""
+        return self.runout_amp * np.cos(self.runout_phase), self.runout_amp * np.sin(self.runout_phase)
+
+    def bearing_gravity(self) -> np.ndarray:
+        """Static gravity load per axis in bearing coordinates, in N (negative: downwards)."""
+        span = self.a + self.b
+        f = np.zeros(N_AXES)
+        f[1] = -self.mass * GRAVITY * self.b / span
+        f[3] = -self.mass * GRAVITY * self.a / span
+        return f
+
+
+SPINDLE = SpindleParams()
+
+
+def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time rotor model in bearing coordinates.
+
+    Parameters
+    ----------
+    p : SpindleParams
+        Rig parameters.
+    omega : float
+        Rotor speed, in rad/s (sets the gyroscopic coupling Jp*Omega).
+
+    Returns
+    -------
+    A : ndarray, shape (10, 10)
+        State matrix for [positions (5), velocities (5)] in AXES order, with the negative
+        magnet stiffness Kx included.
+    B : ndarray, shape (10, 5)
+        Input matrix for the bearing forces, in N.
+    """
+    a, b = p.a, p.b
+    # q_b = T q_c with q_c = [x, theta_y, y, theta_x] and q_b = [x1, y1, x2, y2]
+    T = np.array([[1, a, 0, 0], [0, 0, 1, a], [1, -b, 0, 0], [0, 0, 1, -b]], dtype=float)
+    Mc_inv = np.diag([1 / p.mass, 1 / p.jt, 1 / p.mass, 1 / p.jt])
+    Gc = np.zeros((4, 4))
+    Gc[1, 3] = p.jp * omega  # Jt theta_y'' + Jp Omega theta_x' = M_y
+    Gc[3, 1] = -p.jp * omega  # Jt theta_x'' - Jp Omega theta_y' = M_x
+    T_inv = np.linalg.inv(T)
+    Minv_b = T @ Mc_inv @ T.T  # bearing forces -> bearing accelerations
+    G_b = T @ Mc_inv @ Gc @ T_inv  # velocity coupling in bearing coordinates
+    Minv = np.zeros((N_AXES, N_AXES))
+    Minv[:4, :4] = Minv_b
+    Minv[4, 4] = 1 / p.mass
+    G = np.zeros((N_AXES, N_AXES))
+    G[:4, :4] = G_b
+    kx = np.array([ax.kx for ax in p.axes])
+    A = np.zeros((10, 10))
+    A[:5, 5:] = np.eye(5)
+    A[5:, :5] = Minv * kx[None, :]
+    A[5:, 5:] = -G
+    B = np.zeros((10, 5))
+    B[5:, :] = Minv
+    return A, B
+
+
+def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    E = expm(M * h)
+    return E[:n, :n].copy(), E[:n, n:].copy()
+
+
+def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH-discretised amplifier G_A (seed 000 eq. 2): state [i, di/dt], input in V, step h (s)."""
+    wn = 2 * np.pi * ax.amp_wn_hz
+    A = np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]])
+    B = np.array([[0.0], [wn**2 * ax.amp_gain]])
+    Phi, Gam = zoh(A, B, h)
+    return Phi, Gam[:, 0]
+
+
+def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndarray:
+    """LMS step size per harmonic and 100-rpm speed bin from ``(rpm_from, rpm_to, mu)`` rows.
+
+    ``schedule`` may also be a mapping harmonic (1-based) -> rows, to schedule harmonics apart.
+    """
+    table = np.zeros((N_HARMONICS, MU_BINS))
+    if schedule is None:
+        return table
+    per_harm = schedule if isinstance(schedule, dict) else {k: schedule for k in range(1, N_HARMONICS + 1)}
+    centres = (np.arange(MU_BINS) + 0.5) * MU_BIN_RPM
+    for k, rows in per_harm.items():
+        for lo, hi, mu in rows:
+            table[k - 1, (centres >= lo) & (centres < hi)] = mu
+    return table
+
+
+@njit(cache=True, fastmath=True)
+def _simulate(
+    theta, omega, gap_noise, cur_noise, acc_noise, noise_sd,  # per-step inputs, unit normals
+    z, amp, ctl, w, st,  # state (modified in place)
+    Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
+    ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
+    mu_tab, ff_mode, c,  # c: scalar constants
+    out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
+):
+    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax]
+    h = c[0]
+    ks = c[1]
+    adc_lsb = c[2]
+    adc_rng = c[3]
+    dac_lsb = c[4]
+    dac_rng = c[5]
+    imax = c[6]
+    inv_ks = 1.0 / ks
+    inv_adc = 1.0 / adc_lsb if adc_lsb > 0.0 else 0.0
+    inv_dac = 1.0 / dac_lsb if dac_lsb > 0.0 else 0.0
+    inv_4b = 1.0 / (4.0 * bias)
+    inv_mh = 1.0 / mh
+    nh = run_s.shape[1]
+    sk = np.empty(nh)
+    ck = np.empty(nh)
+    F = np.empty(5)
+    znew = np.empty(10)
+    two_pi = 2.0 * np.pi
+    for k in range(theta.shape[0]):
+        th = theta[k]
+        om = omega[k]
+        s1 = np.sin(th)
+        c1 = np.cos(th)
+        sk[0] = s1
+        ck[0] = c1
+        for j in range(1, nh):  # sin/cos of k*theta by the angle-addition recurrence
+            sk[j] = sk[j - 1] * c1 + ck[j - 1] * s1
+            ck[j] = ck[j - 1] * c1 - sk[j - 1] * s1
+        rev = np.floor(th / two_pi)
+        out_rot[k, 0] = th - rev * two_pi
+        out_rot[k, 1] = om
+        out_rot[k, 2] = 1.0 if rev > st[0] else 0.0
+        st[0] = rev
+        mbin = int(om * 60.0 / two_pi / 100.0)
+        if mbin >= mu_tab.shape[1]:
+            mbin = mu_tab.shape[1] - 1
+        th_mid = th + 0.5 * h * om
+        for a in range(5):
+            pos = z[a]
+            r = 0.0
+            for j in range(nh):
+                r += run_s[a, j] * sk[j] + run_c[a, j] * ck[j]
+            # sensor voltage through the 16-bit A/D
+            v = ks * (pos + r + noise_sd[0] * gap_noise[k, a])
+            if v > adc_rng:
+                v = adc_rng
+            elif v < -adc_rng:
+                v = -adc_rng
+            if adc_lsb > 0.0:
+                v = np.floor(v * inv_adc + 0.5) * adc_lsb
+            s_meas = v * inv_ks
+            # feedforward r_c with the weights of the previous step (eq. 10)
+            rc = 0.0
+            if ff_mode > 0:
+                for j in range(nh):
+                    rc += w[a, j, 0] * sk[j] + w[a, j, 1] * ck[j]
+            e = s_meas - rc
+            if ff_mode == 2:  # LMS update, eq. 9
+                for j in range(nh):
+                    mu = mu_tab[j, mbin]
+                    w[a, j, 0] += mu * e * sk[j]
+                    w[a, j, 1] += mu * e * ck[j]
+            # PID on the error voltage: Tustin integral, backward-Euler filtered derivative
+            ev = ks * e
+            integ = ctl[a, 0] + pid_i[a] * h * 0.5 * (ev + ctl[a, 2])
+            if integ > dac_rng:
+                integ = dac_rng
+            elif integ < -dac_rng:
+                integ = -dac_rng
+            deriv = ad[a] * ctl[a, 1] + bd[a] * (ev - ctl[a, 2])
+            ctl[a, 0] = integ
+            ctl[a, 1] = deriv
+            ctl[a, 2] = ev
+            u = -(pid_p[a] * ev + integ + deriv)
+            if u > dac_rng:
+                u = dac_rng
+            elif u < -dac_rng:
+                u = -dac_rng
+            if dac_lsb > 0.0:
+                u = np.floor(u * inv_dac + 0.5) * dac_lsb
+            # amplifier step and the differential coil-current law with 0..imax per coil
+            i0 = amp[a, 0]
+            i1 = Pa[a, 0, 0] * i0 + Pa[a, 0, 1] * amp[a, 1] + Ga[a, 0] * u
+            amp[a, 1] = Pa[a, 1, 0] * i0 + Pa[a, 1, 1] * amp[a, 1] + Ga[a, 1] * u
+            amp[a, 0] = i1
+            b0 = bias[a]
+            hi0 = min(max(b0 + i0, 0.0), imax)
+            lo0 = min(max(b0 - i0, 0.0), imax)
+            hi1 = min(max(b0 + i1, 0.0), imax)
+            lo1 = min(max(b0 - i1, 0.0), imax)
+            ieff0 = (hi0 * hi0 - lo0 * lo0) * inv_4b[a]
+            ieff1 = (hi1 * hi1 - lo1 * lo1) * inv_4b[a]
+            fmag = kx[a] * pos + ki[a] * ieff0
+            # unbalance: x axes cos, y axes sin of (theta + phase), evaluated mid-step
+            fu = unb[a] * om * om * np.cos(th_mid + unb_ph[a])
+            F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
+            out_gap[k, a] = s_meas
+            out_cur[k, a] = i0 + noise_sd[1] * cur_noise[k, a]
+            out_err[k, a] = e
+            out_ff[k, a] = rc
+            out_acc[k, a] = -(fmag - fstat[a]) * inv_mh[a] + noise_sd[2] * acc_noise[k, a]
+            out_run[k, a] = r
+            out_pos[k, a] = pos
+        for i in range(10):
+            acc = 0.0
+            for j in range(10):
+                acc += Phi[i, j] * z[j]
+            for j in range(5):
+                acc += Gam[i, j] * F[j]
+            znew[i] = acc
+        for i in range(10):
+            z[i] = znew[i]
+
+
+def _groups(truth: bool) -> list[SignalGroup]:
+    m5 = ("m",) * 5
+    groups = [
+        SignalGroup("/amb/gap", "Gap", AXES, m5),
+        SignalGroup("/amb/current", "Current", AXES, ("A",) * 5),
+        SignalGroup("/amb/error", "Error", AXES, m5),
+        SignalGroup("/amb/ff", "Feedforward", AXES, m5),
+        SignalGroup("/amb/accel", "Accel", AXES, ("m/s^2",) * 5),
+        SignalGroup("/amb/rotor", "Rotor", ("angle", "speed", "keyphasor"), ("rad", "rad/s", "1")),
+    ]
+    if truth:
+        groups += [
+            SignalGroup("/truth/runout", "Runout", AXES, m5),
+            SignalGroup("/truth/position", "Position", AXES, m5),
+        ]
+    return groups
+
+
+class SpindleRig:
+    """Closed-loop simulation of the seed 000 spindle, stepped in blocks of control periods.
+
+    Parameters
+    ----------
+    params : SpindleParams
+        Rig parameters (defaults: seed 000).
+    seed : int
+        Seed of the noise generator; the run is deterministic for a given seed.
+    speed : SpeedProfile
+        Rotor speed profile.
+    truth : bool
+        Also produce the ``/truth/runout`` and ``/truth/position`` groups.
+    ff_mode : {"off", "table", "lms"}
+        Feedforward of the simulated controller.
+    mu_schedule : rows of (rpm_from, rpm_to, mu), optional
+        LMS step-size schedule; default: seed 000's sign-switched schedule.
+    noise : bool
+        Add sensor, current and accelerometer noise and quantise on the A/D and D/A.
+    """
+
+    profile = "spindle"
+
+    def __init__(
+        self,
+        params: SpindleParams = SPINDLE,
+        *,
+        seed: int = 0,
+        speed: SpeedProfile = SpeedProfile(0.0, 0.0),
+        truth: bool = False,
+        ff_mode: str = "off",
+        mu_schedule=PAPER_MU_SCHEDULE,
+        noise: bool = True,
+    ) -> None:
+        self.params = params
+        self.seed = seed
+        self.speed = speed
+        self.truth = truth
+        self.noise = noise
+        self.period_ns = int(round(1e9 / params.sample_rate))
+        self.h = self.period_ns * 1e-9
+        self._rng = np.random.default_rng(seed)
+        self._mu = mu_table(mu_schedule)
+        self._ff_mode = FF_MODES["off"]
+        self.set_feedforward(ff_mode)
+        self.step_index = 0
+        self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._init_constants()
+        self._init_state()
+
+    # --- configuration -------------------------------------------------------------------
+
+    def _init_constants(self) -> None:
+        p = self.params
+        axes = p.axes
+        h = self.h
+        self._ki = np.array([ax.ki for ax in axes])
+        self._kx = np.array([ax.kx for ax in axes])
+        self._bias = np.array([ax.bias for ax in axes])
+        self._pid_p = np.array([ax.pid_p for ax in axes])
+        self._pid_i = np.array([ax.pid_i for ax in axes])
+        kd = np.array([ax.pid_d for ax in axes])
+        tf = kd / self._pid_p / p.derivative_filter  # Tf = Td / Nd, Td = D / P
+        self._ad = tf / (tf + h)
+        self._bd = kd / (tf + h)
+        self._mh = np.array([ax.housing_mass for ax in axes])
+        self._fgrav = p.bearing_gravity()
+        self._fstat = -self._fgrav
+        self._Pa = np.empty((5, 2, 2))
+        self._Ga = np.empty((5, 2))
+        for i, ax in enumerate(axes):
+            self._Pa[i], self._Ga[i] = amplifier_matrices(ax, h)
+        self._unb = np.array([p.unbalance[0], p.unbalance[0], p.unbalance[1], p.unbalance[1], 0.0])
+        ph = np.array(p.unbalance_phase)
+        self._unb_ph = np.array([ph[0], ph[0] - np.pi / 2, ph[1], ph[1] - np.pi / 2, 0.0])
+        self._run_s, self._run_c = p.runout_sin_cos()
+        adc_lsb = 2 * p.adc_range / 2**p.adc_bits if self.noise else 0.0
+        dac_lsb = 2 * p.dac_range / 2**p.dac_bits if self.noise else 0.0
+        self._c = np.array([h, p.sensor_gain, adc_lsb, p.adc_range, dac_lsb, p.dac_range, p.coil_max_current])
+        self._noise_sd = np.array([p.gap_noise, p.current_noise, p.accel_noise]) * (1.0 if self.noise else 0.0)
+
+    def _init_state(self) -> None:
+        """Start at the static equilibrium: rotor centred, gravity carried by the integrators."""
+        self._z = np.zeros(10)
+        self._amp = np.zeros((5, 2))
+        self._ctl = np.zeros((5, 3))  # integral, derivative, previous error voltage
+        i_static = self._fstat / self._ki
+        self._amp[:, 0] = i_static
+        amp_gain = np.array([ax.amp_gain for ax in self.params.axes])
+        self._ctl[:, 0] = -i_static / amp_gain  # u = -integral at zero error
+        self._w = np.zeros((5, N_HARMONICS, 2))
+        theta0, _ = self.speed.angle_speed(np.zeros(1))
+        self._st = np.array([np.floor(theta0[0] / (2 * np.pi))])
+
+    def set_feedforward(self, mode: str, table: np.ndarray | None = None) -> None:
+        """Switch the controller's feedforward.
+
+        Parameters
+        ----------
+        mode : {"off", "table", "lms"}
+            ``table`` applies fixed weights, ``lms`` adapts them from the present ones (eq. 9).
+        table : ndarray, shape (5, n_harmonics, 2), optional
+            Weights [sin, cos] per axis and harmonic (1X first), in m; loaded before switching.
+        """
+        if mode not in FF_MODES:
+            raise ValueError(f"feedforward mode must be one of {sorted(FF_MODES)}, not {mode!r}")
+        if table is not None:
+            t = np.asarray(table, dtype=float)
+            if t.ndim != 3 or t.shape[0] != N_AXES or t.shape[2] != 2 or t.shape[1] > N_HARMONICS:
+                raise ValueError(f"feedforward table must be (5, <= {N_HARMONICS}, 2), not {t.shape}")
+            self._w[:] = 0.0
+            self._w[:, : t.shape[1], :] = t
+        self._ff_mode = FF_MODES[mode]
+
+    @property
+    def feedforward_weights(self) -> np.ndarray:
+        """Present feedforward weights, shape (5, 8, 2): [sin, cos] per axis and harmonic, in m."""
+        return self._w.copy()
+
+    def signal_groups(self) -> list[SignalGroup]:
+        """The signal groups this rig produces, in the order of the block's values."""
+        return _groups(self.truth)
+
+    # --- stepping --------------------------------------------------------------------------
+
+    def _discrete_rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray]:
+        """ZOH rotor matrices at the bucketed speed ``omega_q`` (rad/s), cached per rig."""
+        key = round(omega_q / SPEED_BUCKET_RAD_S)
+        if key not in self._rotor_cache:
+            self._rotor_cache[key] = zoh(*rotor_matrices(self.params, omega_q), self.h)
+        return self._rotor_cache[key]
+
+    def run(self, n: int) -> SampleBlock:
+        """Advance the closed loop by ``n`` control periods and return their samples."""
+        steps = self.step_index + np.arange(n, dtype=np.int64)
+        t = steps * self.h
+        theta, omega = self.speed.angle_speed(t)
+        # unit normals in float32 (half the cost of float64); scaled to SI inside the kernel
+        noise = self._rng.standard_normal((3, n, 5), dtype=np.float32)
+        if not self.noise:
+            noise[:] = 0.0
+        outs = [np.empty((n, 5)) for _ in range(4)] + [np.empty((n, 5)), np.empty((n, 3))]
+        out_run = np.empty((n, 5))
+        out_pos = np.empty((n, 5))
+        # split the block where the speed crosses into another gyroscopic bucket
+        bucket = np.round(omega / SPEED_BUCKET_RAD_S)
+        edges = np.concatenate(([0], np.flatnonzero(np.diff(bucket)) + 1, [n]))
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            if hi <= lo:
+                continue
+            Phi, Gam = self._discrete_rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
+            sl = slice(lo, hi)
+            _simulate(
+                theta[sl], omega[sl], noise[0, sl], noise[1, sl], noise[2, sl], self._noise_sd,
+                self._z, self._amp, self._ctl, self._w, self._st,
+                Phi, Gam, self._Pa, self._Ga,
+                self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
+                self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
+                self._mu, self._ff_mode, self._c,
+                outs[0][sl], outs[1][sl], outs[2][sl], outs[3][sl], outs[4][sl], outs[5][sl],
+                out_run[sl], out_pos[sl],
+            )
+        self.step_index += n
+        groups = self.signal_groups()
+        arrays = outs + ([out_run, out_pos] if self.truth else [])
+        return SampleBlock(
+            device_time_ns=steps * self.period_ns,
+            seq=(steps & 0xFFFFFFFF).astype(np.uint32),
+            values={g.topic: arr for g, arr in zip(groups, arrays)},
+        )
+
+    # --- linear analysis of the simulated loop --------------------------------------------------
+
+    def closed_loop_matrix(self, rpm: float) -> np.ndarray:
+        """One-step transition matrix of the simulated closed loop, linearised at ``rpm`` (rpm).
+
+        Obtained by stepping the simulation kernel itself from unit perturbations of its state
+        with noise, runout, unbalance, gravity and quantisation off, so it is the Jacobian of the
+        code that runs, not of a separate model.  The loop is stable iff its spectral radius < 1.
+        """
+        quiet = replace(
+            self.params, unbalance=(0.0, 0.0), runout_amp=np.zeros_like(self.params.runout_amp)
+        )
+        probe = SpindleRig(quiet, speed=SpeedProfile(rpm, rpm), noise=False)
+        probe._fgrav = np.zeros(5)
+        probe._fstat = np.zeros(5)
+        n_state = 10 + 10 + 15
+        M = np.empty((n_state, n_state))
+        scale = 1e-9  # small enough that nothing saturates
+        for col in range(n_state):
+            x = np.zeros(n_state)
+            x[col] = scale
+            probe._z[:] = x[:10]
+            probe._amp[:] = x[10:20].reshape(5, 2)
+            probe._ctl[:] = x[20:35].reshape(5, 3)
+            probe.step_index = 0
+            probe.run(1)
+            M[:, col] = np.concatenate([probe._z, probe._amp.ravel(), probe._ctl.ravel()]) / scale
+        return M

@@ -1,0 +1,64 @@
+"""Signal groups and sample blocks: the seam between devices and the recorder.
+
+A device declares the signal groups it produces (:class:`SignalGroup`, one MCAP topic each) and
+then yields :class:`SampleBlock` objects: a run of consecutive sample instants with the device's
+clock, its sequence numbers, and one ``(n, n_fields)`` array per group.  The recorder never knows
+whether a block came from the in-process simulator or from a driver on a real bus.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SignalGroup:
+    """One group of signals sampled at the same instants, recorded as one MCAP topic.
+
+    Parameters
+    ----------
+    topic : str
+        MCAP topic, e.g. ``"/amb/gap"``.
+    type_name : str
+        Message type name, e.g. ``"Gap"``; the schema is ``ambdaq_msgs/msg/<type_name>``.
+    fields : tuple of str
+        Field names, named after the rig's axes (``front_x`` ...).
+    units : tuple of str
+        SI unit of each field (``m``, ``A``, ``m/s^2``, ``rad`` ...).
+    """
+
+    topic: str
+    type_name: str
+    fields: tuple[str, ...]
+    units: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.fields) != len(self.units):
+            raise ValueError(f"{self.topic}: {len(self.fields)} fields but {len(self.units)} units")
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive samples of one device.
+
+    Parameters
+    ----------
+    device_time_ns : ndarray of int64, shape (n,)
+        Sample instants on the device's clock, in ns.
+    seq : ndarray of uint32, shape (n,)
+        Device sequence numbers; a gap means lost samples.
+    values : dict of str to ndarray of float64, shape (n, n_fields)
+        One array per topic, columns in the order of the group's ``fields``, SI units.
+    host_time_ns : ndarray of int64, shape (n,)
+        Sample instants mapped to the host clock, in ns (MCAP ``log_time``).
+    """
+
+    device_time_ns: np.ndarray
+    seq: np.ndarray
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+    host_time_ns: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.device_time_ns.shape[0])

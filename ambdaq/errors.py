@@ -1,0 +1,24 @@
+"""The exception tree every layer raises and the CLI maps to exit codes.
+
+``AmbdaqError`` is the root.  ``BadInputError`` (exit 2) is for anything the user can fix by
+changing what they typed or gave us: a malformed URL, an unknown option, a truncated or foreign
+file.  ``DeviceError`` (exit 1) is for runtime failures of devices and I/O.
+"""
+
+
+class AmbdaqError(Exception):
+    """Base of all ambdaq errors; the message is one actionable line."""
+
+    exit_code = 1
+
+
+class BadInputError(AmbdaqError):
+    """Bad usage or bad input: a URL, an option, a file that is not what it should be."""
+
+    exit_code = 2
+
+
+class DeviceError(AmbdaqError):
+    """A device or I/O failure at run time (device vanished, write failed)."""
+
+    exit_code = 1
