@@ -253,7 +253,7 @@ def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndar
     return table
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
     theta, omega, gap_noise, cur_noise, acc_noise, noise_sd,  # per-step inputs, unit normals
     z, amp, ctl, w, st,  # state (modified in place)

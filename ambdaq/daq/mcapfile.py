@@ -1,0 +1,487 @@
+"""MCAP at block speed: a chunk writer that encodes whole blocks with numpy, and a reader that
+decodes whole chunks through the message index.
+
+The file is standard MCAP (https://mcap.dev/spec): magic, header, schemas and channels, chunks
+each followed by their message indexes, metadata and attachments, data end, summary (schemas,
+channels, statistics, chunk/attachment/metadata indexes, summary offsets), footer, magic.  The
+non-hot records are serialised by the official ``mcap`` package's record classes; only Message
+records, Chunks and Message Indexes are built here, from numpy arrays.
+
+Crash safety: every chunk is written and flushed to the OS as soon as it closes, and the
+recorder closes one at least twice a second, so a killed writer leaves a file whose complete
+chunks :func:`scan_records` recovers.
+"""
+
+from __future__ import annotations
+
+import io
+import mmap
+import os
+import struct
+import zlib
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import BinaryIO, Iterator
+
+import lz4.frame
+import numpy as np
+import zstandard
+from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+from .. import __version__
+from ..errors import BadInputError
+from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE
+
+MAGIC = b"\x89MCAP0\r\n"
+LIBRARY = f"ambdaq/{__version__}"
+COMPRESSIONS = ("zstd", "lz4", "none")
+FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
+_INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+
+
+def compress(data: bytes | memoryview, method: str) -> bytes:
+    """Compress chunk records with ``method`` ("zstd", "lz4" or "none")."""
+    if method == "zstd":
+        return _ZSTD_C.compress(data)
+    if method == "lz4":
+        return lz4.frame.compress(data, compression_level=0, content_checksum=True)
+    return bytes(data)
+
+
+def decompress(data: bytes, method: str, size: int) -> bytes:
+    """Decompress chunk records; ``size`` is the uncompressed size in bytes."""
+    if method == "zstd":
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if method == "lz4":
+        return lz4.frame.decompress(data)
+    if method == "":
+        return data
+    raise BadInputError(f"unsupported chunk compression {method!r}")
+
+
+# level 1 with a frame checksum: corruption is caught on decompression at xxhash speed
+_ZSTD_C = zstandard.ZstdCompressor(level=1, write_checksum=True)
+
+
+@dataclass
+class _OpenChunk:
+    """Messages of the chunk being built: record bytes and per-channel index pieces."""
+
+    parts: list[bytes] = field(default_factory=list)
+    size: int = 0
+    start: int = 2**64 - 1
+    end: int = 0
+    index: dict[int, list[np.ndarray]] = field(default_factory=lambda: defaultdict(list))
+
+
+class BlockWriter:
+    """Writes an MCAP file block by block.
+
+    Parameters
+    ----------
+    stream : binary file object
+        Where to write; must support ``tell``.
+    compression : {"zstd", "lz4", "none"}
+        Chunk compression.
+    chunk_size : int
+        Close a chunk when its uncompressed records reach this many bytes.
+    profile : str
+        MCAP profile string of the header.
+    """
+
+    def __init__(
+        self, stream: BinaryIO, *, compression: str = "zstd", chunk_size: int = 4 << 20, profile: str = ""
+    ) -> None:
+        if compression not in COMPRESSIONS:
+            raise BadInputError(f"compression must be one of {', '.join(COMPRESSIONS)}, not {compression!r}")
+        self._out = stream
+        self._compression = compression
+        self._chunk_size = chunk_size
+        self._schemas: dict[int, Schema] = {}
+        self._channels: dict[int, Channel] = {}
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._counts: dict[int, int] = defaultdict(int)
+        self._start = 2**64 - 1
+        self._end = 0
+        self._chunk = _OpenChunk()
+        self._finished = False
+        self._out.write(MAGIC)
+        self._write_record(Header(profile=profile, library=LIBRARY))
+
+    # --- records outside chunks ---------------------------------------------------------------
+
+    def _write_record(self, record) -> int:
+        builder = RecordBuilder()
+        record.write(builder)
+        data = builder.end()
+        offset = self._out.tell()
+        self._out.write(data)
+        return offset
+
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Register a schema; returns its id."""
+        sid = len(self._schemas) + 1
+        self._schemas[sid] = Schema(id=sid, name=name, encoding=encoding, data=data)
+        self._write_record(self._schemas[sid])
+        return sid
+
+    def add_channel(self, topic: str, schema_id: int, message_encoding: str, metadata: dict[str, str]) -> int:
+        """Register a channel; returns its id."""
+        cid = len(self._channels) + 1
+        self._channels[cid] = Channel(
+            id=cid, topic=topic, message_encoding=message_encoding, schema_id=schema_id, metadata=metadata
+        )
+        self._write_record(self._channels[cid])
+        return cid
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write a metadata record (name -> string map)."""
+        rec = Metadata(name=name, metadata=dict(data))
+        offset = self._write_record(rec)
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=self._out.tell() - offset, name=name))
+
+    def add_attachment(self, name: str, media_type: str, data: bytes, log_time: int) -> None:
+        """Write an attachment (e.g. the rig file); ``log_time`` in ns."""
+        rec = Attachment(log_time=log_time, create_time=log_time, name=name, media_type=media_type, data=data)
+        offset = self._out.tell()
+        self._write_record(rec)
+        self._attachment_indexes.append(
+            AttachmentIndex(
+                offset=offset,
+                length=self._out.tell() - offset,
+                log_time=log_time,
+                create_time=log_time,
+                data_size=len(data),
+                name=name,
+                media_type=media_type,
+            )
+        )
+
+    # --- messages ------------------------------------------------------------------------------
+
+    def add_messages(self, records: np.ndarray, layout: list[tuple[int, int, int]], log_time: np.ndarray) -> None:
+        """Append a block of Message records, interleaved by sample instant.
+
+        Parameters
+        ----------
+        records : ndarray of uint8, shape (n, row_size)
+            Row i holds, back to back, the complete Message records of every channel for
+            sample instant i.
+        layout : list of (channel_id, offset, size)
+            Where each channel's record sits in a row, in bytes.
+        log_time : ndarray of uint64, shape (n,)
+            Log time of each row, in ns (non-decreasing).
+        """
+        n, row = records.shape
+        if n == 0:
+            return
+        chunk = self._chunk
+        base = chunk.size
+        rows = base + np.arange(n, dtype=np.uint64) * np.uint64(row)
+        for cid, offset, _size in layout:
+            idx = np.empty(n, dtype=_INDEX_DTYPE)
+            idx["log_time"] = log_time
+            idx["offset"] = rows + np.uint64(offset)
+            chunk.index[cid].append(idx)
+            self._counts[cid] += n
+        chunk.parts.append(records.tobytes())
+        chunk.size += n * row
+        chunk.start = min(chunk.start, int(log_time[0]))
+        chunk.end = max(chunk.end, int(log_time[-1]))
+        if chunk.size >= self._chunk_size:
+            self.close_chunk()
+
+    def close_chunk(self) -> None:
+        """Compress and write the open chunk and its message indexes, then flush to the OS."""
+        chunk = self._chunk
+        if chunk.size == 0:
+            return
+        data = b"".join(chunk.parts)
+        self._write_chunk(data, chunk.start, chunk.end, {cid: np.concatenate(p) for cid, p in chunk.index.items()})
+        self._chunk = _OpenChunk()
+
+    def _write_chunk(self, data: bytes, start: int, end: int, index: dict[int, np.ndarray]) -> None:
+        method = self._compression
+        packed = compress(data, method)
+        name = b"" if method == "none" else method.encode()
+        offset = self._out.tell()
+        header = struct.pack(
+            "<BQQQQI", Opcode.CHUNK, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(packed), start, end, len(data), zlib.crc32(data)
+        ) + struct.pack("<I", len(name)) + name + struct.pack("<Q", len(packed))
+        self._out.write(header)
+        self._out.write(packed)
+        chunk_length = self._out.tell() - offset
+        index_start = self._out.tell()
+        index_offsets = {}
+        for cid, idx in index.items():
+            index_offsets[cid] = self._out.tell()
+            body = idx.tobytes()
+            self._out.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid, len(body)))
+            self._out.write(body)
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start,
+                message_end_time=end,
+                chunk_start_offset=offset,
+                chunk_length=chunk_length,
+                message_index_offsets=index_offsets,
+                message_index_length=self._out.tell() - index_start,
+                compression=name.decode(),
+                compressed_size=len(packed),
+                uncompressed_size=len(data),
+            )
+        )
+        self._start = min(self._start, start)
+        self._end = max(self._end, end)
+        self._out.flush()
+
+    def add_chunk_records(self, data: bytes) -> None:
+        """Write already-built chunk records (Message records only), indexing them by a scan.
+
+        Used by recovery to re-emit the messages of chunks from a damaged file.
+        """
+        index: dict[int, list[tuple[int, int]]] = defaultdict(list)
+        for op, pos, body in iter_records(data, 0):
+            if op == MESSAGE_OPCODE:
+                cid, _seq, log_time = struct.unpack_from("<HIQ", body, 0)
+                index[cid].append((log_time, pos))
+                self._counts[cid] += 1
+        if not index:
+            return
+        arrays = {cid: np.array(rows, dtype=np.uint64).view(_INDEX_DTYPE).ravel() for cid, rows in index.items()}
+        start = min(int(a["log_time"].min()) for a in arrays.values())
+        end = max(int(a["log_time"].max()) for a in arrays.values())
+        self._write_chunk(data, start, end, arrays)
+
+    # --- finish --------------------------------------------------------------------------------
+
+    def finish(self) -> None:
+        """Close the open chunk, write data end, the summary and the footer."""
+        if self._finished:
+            return
+        self._finished = True
+        self.close_chunk()
+        self._write_record(DataEnd(data_section_crc=0))
+        summary_start = self._out.tell()
+        builder = RecordBuilder()
+        offsets: list[SummaryOffset] = []
+
+        def group(opcode: int, records) -> None:
+            start = builder.count
+            for r in records:
+                r.write(builder)
+            if builder.count > start:
+                offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
+                                             group_length=builder.count - start))
+
+        stats = Statistics(
+            message_count=sum(self._counts.values()),
+            schema_count=len(self._schemas),
+            channel_count=len(self._channels),
+            attachment_count=len(self._attachment_indexes),
+            metadata_count=len(self._metadata_indexes),
+            chunk_count=len(self._chunk_indexes),
+            message_start_time=self._start if self._counts else 0,
+            message_end_time=self._end,
+            channel_message_counts=dict(self._counts),
+        )
+        group(Opcode.SCHEMA, self._schemas.values())
+        group(Opcode.CHANNEL, self._channels.values())
+        group(Opcode.STATISTICS, [stats])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        summary_offset_start = summary_start + builder.count
+        for o in offsets:
+            o.write(builder)
+        summary = builder.end()
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+        self._out.write(summary)
+        self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+        self._out.write(MAGIC)
+        self._out.flush()
+
+
+# --- reading -------------------------------------------------------------------------------------
+
+
+def iter_records(data, pos: int, end: int | None = None) -> Iterator[tuple[int, int, memoryview]]:
+    """Walk MCAP records in ``data`` from ``pos`` to ``end``: yields (opcode, offset, body).
+
+    Stops silently at the first record that runs past the end (a truncated tail).
+    """
+    view = memoryview(data)
+    end = len(view) if end is None else end
+    while pos + 9 <= end:
+        op, length = struct.unpack_from("<BQ", view, pos)
+        if pos + 9 + length > end:
+            return
+        yield op, pos, view[pos + 9 : pos + 9 + length]
+        pos += 9 + length
+
+
+def _read(cls, body: memoryview):
+    return cls.read(ReadDataStream(io.BytesIO(body)))
+
+
+@dataclass
+class Summary:
+    """What the summary section of a finished file says."""
+
+    schemas: dict[int, Schema]
+    channels: dict[int, Channel]
+    statistics: Statistics | None
+    chunk_indexes: list[ChunkIndex]
+    attachment_indexes: list[AttachmentIndex]
+    metadata_indexes: list[MetadataIndex]
+
+
+class McapFile:
+    """A finished MCAP file opened for fast reading (memory-mapped).
+
+    Raises :class:`~ambdaq.errors.BadInputError` for anything that is not a complete MCAP file,
+    naming ``ambdaq recover`` when the file looks like an unfinished recording.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            with open(self.path, "rb") as fh:
+                size = os.fstat(fh.fileno()).st_size
+                if size == 0:
+                    raise BadInputError(f"{self.path}: empty file, not an MCAP file")
+                self._data = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        except FileNotFoundError:
+            raise BadInputError(f"{self.path}: no such file") from None
+        except IsADirectoryError:
+            raise BadInputError(f"{self.path}: is a directory, not an MCAP file") from None
+        except PermissionError:
+            raise BadInputError(f"{self.path}: permission denied") from None
+        data = self._data
+        if data[: len(MAGIC)] != MAGIC:
+            raise BadInputError(f"{self.path}: not an MCAP file (bad magic bytes)")
+        if len(data) < len(MAGIC) * 2 + 9 + FOOTER_SIZE or data[-len(MAGIC) :] != MAGIC:
+            raise BadInputError(
+                f"{self.path}: MCAP file is truncated or unfinished (no footer); "
+                f"rebuild it with: ambdaq recover {self.path} -o FIXED.mcap"
+            )
+        fpos = len(data) - len(MAGIC) - FOOTER_SIZE
+        op, length, summary_start, summary_offset_start, crc = struct.unpack_from("<BQQQI", data, fpos)
+        if op != Opcode.FOOTER or length != 20 or summary_start == 0 or summary_start > fpos:
+            raise BadInputError(
+                f"{self.path}: MCAP file has no usable summary; rebuild it with: ambdaq recover {self.path} -o FIXED.mcap"
+            )
+        if crc != 0:
+            calc = zlib.crc32(data[summary_start : fpos + 1 + 8 + 16])
+            if calc != crc:
+                raise BadInputError(f"{self.path}: MCAP summary is corrupted (CRC mismatch); try: ambdaq recover")
+        self.summary = self._read_summary(summary_start, fpos)
+
+    def _read_summary(self, start: int, end: int) -> Summary:
+        s = Summary({}, {}, None, [], [], [])
+        try:
+            for op, _pos, body in iter_records(self._data, start, end):
+                if op == Opcode.SCHEMA:
+                    r = _read(Schema, body)
+                    s.schemas[r.id] = r
+                elif op == Opcode.CHANNEL:
+                    r = _read(Channel, body)
+                    s.channels[r.id] = r
+                elif op == Opcode.STATISTICS:
+                    s.statistics = _read(Statistics, body)
+                elif op == Opcode.CHUNK_INDEX:
+                    s.chunk_indexes.append(_read(ChunkIndex, body))
+                elif op == Opcode.ATTACHMENT_INDEX:
+                    s.attachment_indexes.append(_read(AttachmentIndex, body))
+                elif op == Opcode.METADATA_INDEX:
+                    s.metadata_indexes.append(_read(MetadataIndex, body))
+        except Exception as err:  # any parse failure of the summary is a corrupted file
+            raise BadInputError(f"{self.path}: MCAP summary is corrupted ({err}); try: ambdaq recover") from None
+        return s
+
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """All metadata records, name -> map."""
+        out = {}
+        for idx in self.summary.metadata_indexes:
+            op, length = struct.unpack_from("<BQ", self._data, idx.offset)
+            out[idx.name] = _read(Metadata, memoryview(self._data)[idx.offset + 9 : idx.offset + 9 + length]).metadata
+        return out
+
+    def attachments(self) -> dict[str, bytes]:
+        """All attachments, name -> bytes."""
+        out = {}
+        for idx in self.summary.attachment_indexes:
+            op, length = struct.unpack_from("<BQ", self._data, idx.offset)
+            out[idx.name] = _read(Attachment, memoryview(self._data)[idx.offset + 9 : idx.offset + 9 + length]).data
+        return out
+
+    def chunk_records(self, ci: ChunkIndex) -> bytes:
+        """The decompressed records of one chunk."""
+        pos = ci.chunk_start_offset
+        try:
+            op, _length, _s, _e, usize, _crc, nlen = struct.unpack_from("<BQQQQII", self._data, pos)
+            p = pos + 1 + 8 + 8 + 8 + 8 + 4 + 4
+            method = self._data[p : p + nlen].decode()
+            p += nlen
+            (clen,) = struct.unpack_from("<Q", self._data, p)
+            p += 8
+            if op != Opcode.CHUNK or p + clen > len(self._data):
+                raise ValueError("not a chunk")
+            packed = self._data[p : p + clen]
+        except Exception as err:
+            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
+        try:
+            return decompress(packed, method, usize)
+        except BadInputError:
+            raise
+        except Exception as err:
+            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
+
+    def message_index(self, ci: ChunkIndex, channel_id: int) -> np.ndarray:
+        """(log_time, offset) of a channel's messages in one chunk, from its Message Index."""
+        pos = ci.message_index_offsets[channel_id]
+        op, _length, cid, nbytes = struct.unpack_from("<BQHI", self._data, pos)
+        if op != Opcode.MESSAGE_INDEX or cid != channel_id:
+            raise BadInputError(f"{self.path}: message index at byte {pos} is corrupted; try: ambdaq recover")
+        return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
+
+
+def gather_payloads(records: bytes, offsets: np.ndarray, payload_dtype: np.dtype) -> np.ndarray:
+    """Payloads of the Message records at ``offsets`` in ``records``, as a compact structured array.
+
+    Where the records sit at a constant stride (every file ambdaq writes) the payload bytes are
+    copied out in one strided pass; otherwise each record is gathered by index.
+    """
+    n = offsets.shape[0]
+    size = payload_dtype.itemsize
+    if n == 0:
+        return np.empty(0, dtype=payload_dtype)
+    starts = offsets.astype(np.int64) + MESSAGE_HEADER_SIZE
+    buf = np.frombuffer(records, dtype=np.uint8)
+    if starts.min() < 0 or starts.max() + size > buf.shape[0]:
+        raise BadInputError("message index points past the end of its chunk")
+    stride = int(starts[1] - starts[0]) if n > 1 else size
+    if stride >= size and (n == 1 or np.all(np.diff(starts) == stride)):
+        rows = np.ndarray(shape=(n, size), dtype=np.uint8, buffer=buf, offset=int(starts[0]), strides=(stride, 1))
+    else:
+        rows = buf[starts[:, None] + np.arange(size)]
+    return np.ascontiguousarray(rows).view(payload_dtype).ravel()

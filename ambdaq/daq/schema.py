@@ -1,0 +1,111 @@
+"""Message schemas: ros2msg text and the fixed CDR layout of every ambdaq message.
+
+Every topic carries one message per sample instant with the same fixed layout::
+
+    int64   device_time   # device clock, ns
+    uint32  seq           # device sequence number
+    uint32  status        # device status bits, 0 = ok
+    float64 <field>       # one per signal, SI units
+
+Encoded as little-endian CDR (4-byte encapsulation header ``00 01 00 00``), every member is
+naturally aligned with no padding, so a message is a fixed-size byte record and a whole block of
+messages is one numpy structured array.  Foxglove and ``mcap-ros2-support`` decode it from the
+ros2msg schema stored in the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..drivers.signals import SignalGroup
+
+SCHEMA_PACKAGE = "ambdaq_msgs/msg"
+CDR_LE_HEADER = 0x00000100  # bytes 00 01 00 00 read as little-endian uint32
+HEADER_FIELDS = ("device_time", "seq", "status")
+# MCAP Message record: opcode u8, length u64, channel_id u16, sequence u32, log_time u64,
+# publish_time u64, then the payload
+MESSAGE_OPCODE = 0x05
+MESSAGE_HEADER_SIZE = 1 + 8 + 2 + 4 + 8 + 8
+
+
+@dataclass(frozen=True)
+class TopicLayout:
+    """The wire layout of one signal group's messages.
+
+    Parameters
+    ----------
+    group : SignalGroup
+        The signal group (topic, fields, units).
+    """
+
+    group: SignalGroup
+
+    @property
+    def schema_name(self) -> str:
+        return f"{SCHEMA_PACKAGE}/{self.group.type_name}"
+
+    @property
+    def schema_text(self) -> str:
+        lines = [
+            f"# {self.group.topic}: one message per sample instant, SI units",
+            "int64 device_time  # device clock, ns",
+            "uint32 seq  # device sequence number",
+            "uint32 status  # device status bits, 0 = ok",
+        ]
+        lines += [f"float64 {f}  # {u}" for f, u in zip(self.group.fields, self.group.units)]
+        return "\n".join(lines) + "\n"
+
+    @property
+    def payload_dtype(self) -> np.dtype:
+        """Structured dtype of one CDR payload (encapsulation header included)."""
+        names = ["cdr_header", *HEADER_FIELDS, *self.group.fields]
+        formats = ["<u4", "<i8", "<u4", "<u4"] + ["<f8"] * len(self.group.fields)
+        offsets = [0, 4, 12, 16] + [20 + 8 * i for i in range(len(self.group.fields))]
+        return np.dtype({"names": names, "formats": formats, "offsets": offsets})
+
+    @property
+    def payload_size(self) -> int:
+        return 20 + 8 * len(self.group.fields)
+
+    def record_dtype(self, prefix: str = "") -> list[tuple[str, str]]:
+        """Fields of one whole MCAP Message record (header + payload), names prefixed."""
+        return [
+            (prefix + "opcode", "u1"),
+            (prefix + "length", "<u8"),
+            (prefix + "channel", "<u2"),
+            (prefix + "sequence", "<u4"),
+            (prefix + "log_time", "<u8"),
+            (prefix + "publish_time", "<u8"),
+            (prefix + "cdr_header", "<u4"),
+            (prefix + "device_time", "<i8"),
+            (prefix + "seq", "<u4"),
+            (prefix + "status", "<u4"),
+            (prefix + "values", "<f8", (len(self.group.fields),)),
+        ]
+
+
+def parse_schema(name: str, text: str) -> SignalGroup | None:
+    """Recover the signal group from an ambdaq ros2msg schema; ``None`` if it is not one of ours."""
+    if not name.startswith(SCHEMA_PACKAGE + "/"):
+        return None
+    members = []
+    for line in text.splitlines():
+        body, _, comment = line.partition("#")
+        parts = body.split()
+        if len(parts) == 2:
+            members.append((parts[0], parts[1], comment.strip()))
+    head = [(t, n) for t, n, _ in members[:3]]
+    if head != [("int64", "device_time"), ("uint32", "seq"), ("uint32", "status")]:
+        return None
+    values = members[3:]
+    if not values or any(t != "float64" for t, _, _ in values):
+        return None
+    topic = text.splitlines()[0].lstrip("# ").split(":")[0] if text.startswith("#") else ""
+    return SignalGroup(
+        topic=topic,
+        type_name=name.rsplit("/", 1)[-1],
+        fields=tuple(n for _, n, _ in values),
+        units=tuple(c for _, _, c in values),
+    )
