@@ -136,21 +136,26 @@ class BlockWriter:
         self._out.write(data)
         return offset
 
-    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
-        """Register a schema; returns its id."""
-        sid = len(self._schemas) + 1
+    def add_schema(self, name: str, encoding: str, data: bytes, schema_id: int | None = None) -> int:
+        """Register a schema (id: the next free one, or ``schema_id``); returns its id."""
+        sid = schema_id if schema_id is not None else len(self._schemas) + 1
         self._schemas[sid] = Schema(id=sid, name=name, encoding=encoding, data=data)
         self._write_record(self._schemas[sid])
         return sid
 
-    def add_channel(self, topic: str, schema_id: int, message_encoding: str, metadata: dict[str, str]) -> int:
-        """Register a channel; returns its id."""
-        cid = len(self._channels) + 1
+    def add_channel(
+        self, topic: str, schema_id: int, message_encoding: str, metadata: dict[str, str], channel_id: int | None = None
+    ) -> int:
+        """Register a channel (id: the next free one, or ``channel_id``); returns its id."""
+        cid = channel_id if channel_id is not None else len(self._channels) + 1
         self._channels[cid] = Channel(
             id=cid, topic=topic, message_encoding=message_encoding, schema_id=schema_id, metadata=metadata
         )
         self._write_record(self._channels[cid])
         return cid
+
+    def channel_topic(self, channel_id: int) -> str:
+        return self._channels[channel_id].topic
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a metadata record (name -> string map)."""

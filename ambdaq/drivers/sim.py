@@ -44,6 +44,8 @@ class SimSource:
         Release blocks in real time.
     block_s : float
         Block length, in s.
+    calibration : dict, optional
+        Calibration notes from the rig file, stored with the device's calibration.
     """
 
     def __init__(
@@ -55,6 +57,7 @@ class SimSource:
         truth: bool | None = None,
         paced: bool = True,
         block_s: float = 0.01,
+        calibration: dict[str, str] | None = None,
     ) -> None:
         if url.target not in PROFILES:
             raise BadInputError(f"unknown simulated rig {url.target!r}: profiles are {', '.join(sorted(PROFILES))}")
@@ -79,6 +82,7 @@ class SimSource:
         self.sample_rate = self.rig.params.sample_rate
         self.paced = paced
         self.block = max(1, int(round(block_s * self.sample_rate)))
+        self._rig_calibration = dict(calibration or {})
         self._remaining: int | None = None
         self._t0 = 0.0
 
@@ -102,6 +106,7 @@ class SimSource:
             "adc_bits": str(p.adc_bits),
             "dac_bits": str(p.dac_bits),
             "units": "SI: m, A, m/s^2, rad, rad/s",
+            **self._rig_calibration,
         }
 
     def start(self, n_samples: int | None) -> None:

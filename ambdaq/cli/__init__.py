@@ -1,0 +1,1 @@
+"""The ``ambdaq`` command line: thin click wrappers over the library."""

@@ -1,0 +1,26 @@
+"""``ambdaq export``: recordings to CSV, NPZ or Parquet."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..daq.export import FORMATS, export
+from ..daq.reader import load
+from .options import window_options
+
+
+@click.command("export")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", type=click.Choice(FORMATS), required=True)
+@click.option("--topic", "topics", multiple=True, help="Topic to export (repeatable); default all.")
+@window_options
+@click.option("-o", "--output", type=click.Path(), required=True,
+              help="Output: a .npz file; for csv/parquet a file (one topic) or a directory.")
+@click.option("--overwrite", is_flag=True, help="Replace existing files.")
+def command(file, fmt, topics, start, end, output, overwrite):
+    """Export topics of FILE with time, device time, seq and every field in SI units."""
+    rec = load(file, topics=list(topics) or None, start=start, end=end)
+    for path in export(rec, fmt, Path(output), overwrite=overwrite):
+        click.echo(str(path))

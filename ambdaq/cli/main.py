@@ -1,0 +1,61 @@
+"""The ``ambdaq`` command group and its error handling.
+
+Exit codes: 0 success, 1 runtime failure (device, I/O), 2 bad usage or bad input.  Errors are one
+line on stderr; ``--debug`` (or ``AMBDAQ_DEBUG=1``) shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import click
+
+from .. import __version__
+from ..errors import AmbdaqError
+
+
+class AmbdaqGroup(click.Group):
+    """A click group that turns library errors into one line and the documented exit code."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
+        except AmbdaqError as err:
+            if ctx.meta.get("ambdaq.debug"):
+                raise
+            click.echo(f"ambdaq: error: {err}", err=True)
+            ctx.exit(err.exit_code)
+        except OSError as err:
+            if ctx.meta.get("ambdaq.debug"):
+                raise
+            click.echo(f"ambdaq: error: {err}", err=True)
+            ctx.exit(1)
+        except Exception as err:  # a bug: one line, the traceback with --debug
+            if ctx.meta.get("ambdaq.debug"):
+                raise
+            click.echo(f"ambdaq: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", err=True)
+            ctx.exit(1)
+
+
+@click.group(cls=AmbdaqGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--debug", is_flag=True, envvar="AMBDAQ_DEBUG", help="Show tracebacks instead of one-line errors.")
+@click.version_option(__version__, prog_name="ambdaq")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """Data acquisition and tuning for active magnetic bearing machines."""
+    ctx.meta["ambdaq.debug"] = debug
+
+
+def _register() -> None:
+    from . import export, info, plot, record, recover, sim
+
+    for module in (record, sim, info, export, plot, recover):
+        cli.add_command(module.command)
+
+
+_register()
+
+
+def main() -> None:
+    """Console entry point."""
+    cli(prog_name="ambdaq")

@@ -1,0 +1,58 @@
+"""Options shared by several commands, defined once."""
+
+from __future__ import annotations
+
+import re
+
+import click
+
+SIZE_UNITS = {"": 1, "k": 10**3, "m": 10**6, "g": 10**9, "ki": 2**10, "mi": 2**20, "gi": 2**30}
+
+
+class ByteSize(click.ParamType):
+    """A size in bytes: ``500000``, ``100M``, ``1G``, ``64MiB``."""
+
+    name = "SIZE"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int):
+            return value
+        m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmg]i?)?b?\s*", str(value).lower())
+        if not m:
+            self.fail(f"{value!r} is not a size: expected e.g. 500000, 100M, 1G, 64MiB", param, ctx)
+        size = int(float(m.group(1)) * SIZE_UNITS[m.group(2) or ""])
+        if size <= 0:
+            self.fail("size must be > 0", param, ctx)
+        return size
+
+
+def output_options(f):
+    """-o, splitting, compression, overwrite."""
+    f = click.option("--overwrite", is_flag=True, help="Replace existing output files.")(f)
+    f = click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
+                     help="Chunk compression.")(f)
+    f = click.option("--split-duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+                     help="Start a new file every SECONDS of data (NAME_000.mcap, NAME_001.mcap ...).")(f)
+    f = click.option("--split-size", type=ByteSize(), help="Start a new file when one reaches SIZE (e.g. 100M).")(f)
+    f = click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Output MCAP file.")(f)
+    return f
+
+
+def report_options(f):
+    """-q and --json."""
+    f = click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary on stdout.")(f)
+    f = click.option("-q", "--quiet", is_flag=True, help="No progress or summary on the terminal.")(f)
+    return f
+
+
+def speed_option(f):
+    return click.option(
+        "--rpm", "speed", metavar="SPEED",
+        help="Rotor speed: RPM, FROM:TO (ramp over the run), FROM:TO:SECONDS, or slowroll (800 rpm).",
+    )(f)
+
+
+def window_options(f):
+    f = click.option("--end", type=float, metavar="SECONDS", help="End of the time window (s from the start).")(f)
+    f = click.option("--start", type=float, metavar="SECONDS", help="Start of the time window (s from the start).")(f)
+    return f

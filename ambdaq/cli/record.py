@@ -1,0 +1,78 @@
+"""``ambdaq record``: record devices (or a rig file) into MCAP."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
+from ..drivers.devices import open_device
+from ..drivers.rigfile import load_rig
+from ..errors import BadInputError
+from .options import output_options, report_options, speed_option
+
+
+def run_recording(sources, output: str, *, duration, split_size, split_duration, compression, overwrite, quiet,
+                  as_json, rig_file: Path | None = None) -> None:
+    """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim)."""
+    options = RecordOptions(duration_s=duration, split_size=split_size, split_duration_s=split_duration,
+                            compression=compression)
+    recorder = Recorder(sources, Path(output), options, command=" ".join(sys.argv), rig_file=rig_file,
+                        overwrite=overwrite)
+    tty = sys.stderr.isatty()
+
+    def progress(p: Progress) -> None:
+        if p.elapsed_s >= 1.0:  # only for anything longer than a second
+            print_progress(p)
+
+    result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=0.5 if tty else 5.0)
+    if not quiet and tty:
+        sys.stderr.write("\n")
+    if as_json:
+        click.echo(json.dumps(result.as_dict(), indent=2))
+    elif not quiet:
+        size = sum(f.stat().st_size for f in result.files) / 1e6
+        how = " (stopped)" if result.stopped_by_user else ""
+        click.echo(
+            f"recorded {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops "
+            f"-> {', '.join(str(f) for f in result.files)} ({size:.1f} MB)",
+            err=True,
+        )
+
+
+@click.command("record")
+@click.option("--device", "devices", multiple=True, metavar="URL", envvar="AMBDAQ_DEVICE",
+              help="Device URL, e.g. sim://spindle?seed=3 (repeatable).")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False), help="Rig file (TOML) listing devices.")
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+              help="Recording length; default: until Ctrl-C.")
+@speed_option
+@click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")
+@output_options
+@report_options
+def command(devices, rig_path, duration, speed, truth, output, split_size, split_duration, compression, overwrite,
+            quiet, as_json):
+    """Record devices in real time into an MCAP file.
+
+    \b
+    Examples:
+      ambdaq record --device sim://spindle --duration 10 --rpm 30000 -o run.mcap
+      ambdaq record --rig lab.toml --split-duration 60 -o long.mcap
+    """
+    if not devices and not rig_path:
+        raise BadInputError("nothing to record: give --device URL or --rig FILE")
+    sources = []
+    for i, url in enumerate(devices):
+        sources.append(open_device(url, name="rig" if len(devices) == 1 else f"dev{i}", speed=speed,
+                                   truth=truth or None))
+    rig = load_rig(rig_path) if rig_path else None
+    if rig is not None:
+        for d in rig.devices:
+            sources.append(open_device(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
+                                       calibration=d.calibration))
+    run_recording(sources, output, duration=duration, split_size=split_size, split_duration=split_duration,
+                  compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json,
+                  rig_file=rig.path if rig else None)

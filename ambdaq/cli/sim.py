@@ -1,0 +1,41 @@
+"""``ambdaq sim``: the simulated rigs outside real time."""
+
+from __future__ import annotations
+
+import click
+
+from ..drivers.devices import open_device
+from ..drivers.rig.profiles import PROFILES
+from .options import output_options, report_options, speed_option
+from .record import run_recording
+
+
+@click.group("sim")
+def command() -> None:
+    """Simulated rigs: generate data unpaced."""
+
+
+@command.command("generate")
+@click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Noise seed; the run is deterministic per seed.")
+@speed_option
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), required=True, metavar="SECONDS")
+@click.option("--truth", is_flag=True, help="Also write /truth/runout and /truth/position.")
+@click.option("--ff", type=click.Choice(["off", "lms"]), default="off", show_default=True,
+              help="Feedforward of the simulated controller (lms: seed 000's adaptive runout cancellation).")
+@click.option("--noise/--no-noise", default=True, show_default=True, help="Sensor noise and A/D, D/A quantisation.")
+@output_options
+@report_options
+def generate(profile, seed, speed, duration, truth, ff, noise, output, split_size, split_duration, compression,
+             overwrite, quiet, as_json):
+    """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
+
+    \b
+    Example:
+      ambdaq sim generate --duration 60 --rpm 0:50000 --truth -o runup.mcap
+    """
+    url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
+    source = open_device(url, speed=speed or "0", truth=truth, paced=False)
+    source.block = int(source.sample_rate)  # one-second blocks: the writer encodes whole blocks
+    run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
+                  compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)

@@ -1,0 +1,89 @@
+"""Export recordings to CSV, NPZ or Parquet (``ambdaq export``).
+
+Every format carries, per topic, ``time`` (s since the first sample), ``log_time_ns``,
+``device_time_ns``, ``seq`` and one column per field in SI units.
+CSV and Parquet write one file per topic (``OUT/amb_gap.csv`` ...; a single topic may be written
+to ``OUT.csv`` directly); NPZ writes one archive with keys ``<topic>/<column>``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadInputError
+from .reader import Recording, TopicData
+
+FORMATS = ("csv", "npz", "parquet")
+
+
+def _columns(t: TopicData) -> dict[str, np.ndarray]:
+    cols = {"time": t.time, "log_time_ns": t.log_time, "device_time_ns": t.device_time, "seq": t.seq}
+    cols.update(t.fields)
+    return cols
+
+
+def topic_filename(topic: str) -> str:
+    """``/amb/gap`` -> ``amb_gap``."""
+    return topic.strip("/").replace("/", "_")
+
+
+def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> list[Path]:
+    """Write the topics of ``rec`` to ``out`` in ``fmt``; returns the files written.
+
+    Parameters
+    ----------
+    rec : Recording
+        Loaded topics (see :func:`ambdaq.daq.load`).
+    fmt : {"csv", "npz", "parquet"}
+        Output format.
+    out : Path
+        A file (npz, or csv/parquet with one topic) or a directory (csv/parquet, several topics).
+    overwrite : bool
+        Replace existing files.
+    """
+    if fmt not in FORMATS:
+        raise BadInputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
+    out = Path(out)
+    if fmt == "npz":
+        target = out if out.suffix == ".npz" else out.with_suffix(".npz")
+        _check(target, overwrite)
+        arrays = {f"{t.topic}/{name}": col for t in rec.topics.values() for name, col in _columns(t).items()}
+        np.savez(target, **arrays)
+        return [target]
+    single = len(rec.topics) == 1 and out.suffix == f".{fmt}"
+    if single:
+        targets = {next(iter(rec.topics)): out}
+    else:
+        if out.suffix:
+            raise BadInputError(f"{out}: several topics need a directory for {fmt} export (or pick one --topic)")
+        out.mkdir(parents=True, exist_ok=True)
+        targets = {t: out / f"{topic_filename(t)}.{fmt}" for t in rec.topics}
+    for target in targets.values():
+        _check(target, overwrite)
+    for topic, target in targets.items():
+        cols = _columns(rec.topics[topic])
+        if fmt == "csv":
+            _write_csv(target, cols)
+        else:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            pq.write_table(pa.table(cols), target)
+    return list(targets.values())
+
+
+def _check(path: Path, overwrite: bool) -> None:
+    if path.exists() and not overwrite:
+        raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+
+
+def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """CSV with integer columns kept integer (ns time stamps do not survive float64)."""
+    names = list(cols)
+    table = np.empty(len(cols["time"]), dtype=[(n, cols[n].dtype) for n in names])
+    for n in names:
+        table[n] = cols[n]
+    fmts = ["%.9f" if n == "time" else ("%.9g" if cols[n].dtype.kind == "f" else "%d") for n in names]
+    np.savetxt(path, table, delimiter=",", fmt=fmts, header=",".join(names), comments="")

@@ -1,0 +1,79 @@
+"""What a recording holds: topics, rates, duration, drops and metadata (``ambdaq info``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .mcapfile import McapFile
+from .reader import ambdaq_channels
+
+
+def describe(path: str | Path) -> dict:
+    """Summary of a finished MCAP file as a JSON-ready dict.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording.
+    """
+    f = McapFile(path)
+    s = f.summary
+    st = s.statistics
+    meta = f.metadata()
+    per_topic = {t: json.loads(v) for t, v in meta.get("ambdaq.statistics", {}).items()}
+    start = st.message_start_time if st else 0
+    end = st.message_end_time if st else 0
+    duration = (end - start) * 1e-9
+    ours = ambdaq_channels(f)
+    topics = []
+    for cid, ch in sorted(s.channels.items()):
+        count = st.channel_message_counts.get(cid, 0) if st else 0
+        schema = s.schemas.get(ch.schema_id)
+        ts = per_topic.get(ch.topic, {})
+        topics.append(
+            {
+                "topic": ch.topic,
+                "schema": schema.name if schema else "",
+                "messages": count,
+                "rate_hz": round((count - 1) / duration, 3) if duration > 0 and count > 1 else 0.0,
+                "drops": ts.get("drops"),
+                "device": ts.get("device", (ch.metadata or {}).get("device", "")),
+                "fields": list(ours[ch.topic][1].fields) if ch.topic in ours else [],
+            }
+        )
+    return {
+        "path": str(f.path),
+        "size_bytes": f.path.stat().st_size,
+        "start_ns": start,
+        "end_ns": end,
+        "duration_s": round(duration, 6),
+        "messages": st.message_count if st else 0,
+        "chunks": len(s.chunk_indexes),
+        "compression": sorted({ci.compression or "none" for ci in s.chunk_indexes}),
+        "topics": topics,
+        "metadata": {k: v for k, v in meta.items() if k != "ambdaq.statistics"},
+        "attachments": [a.name for a in s.attachment_indexes],
+    }
+
+
+def format_text(d: dict) -> str:
+    """``describe``'s dict as the human-readable text ``ambdaq info`` prints."""
+    lines = [
+        f"file:        {d['path']} ({d['size_bytes'] / 1e6:.1f} MB)",
+        f"duration:    {d['duration_s']:.3f} s",
+        f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'})",
+        "",
+        f"{'topic':<18} {'messages':>10} {'rate Hz':>10} {'drops':>7}  fields",
+    ]
+    for t in d["topics"]:
+        drops = "-" if t["drops"] is None else str(t["drops"])
+        lines.append(f"{t['topic']:<18} {t['messages']:>10} {t['rate_hz']:>10.1f} {drops:>7}  {', '.join(t['fields'])}")
+    for name, meta in d["metadata"].items():
+        lines.append("")
+        lines.append(f"[{name}]")
+        lines += [f"  {k} = {v}" for k, v in meta.items()]
+    if d["attachments"]:
+        lines.append("")
+        lines.append("attachments: " + ", ".join(d["attachments"]))
+    return "\n".join(lines)

@@ -1,0 +1,83 @@
+"""Rig files (TOML): the devices of one machine with their URLs, names and calibrations.
+
+.. code-block:: toml
+
+    name = "spindle-lab"
+
+    [[device]]
+    name = "rig"
+    url = "sim://spindle?seed=3"
+    rpm = "30000"                 # optional speed command
+
+    [device.calibration]          # optional, stored in the recording's metadata
+    note = "sensor gains from 2026-11-01 slow roll"
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import BadInputError
+from .url import parse_device_url
+
+
+@dataclass(frozen=True)
+class DeviceEntry:
+    """One device of a rig file."""
+
+    name: str
+    url: str
+    rpm: str | None = None
+    calibration: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RigFile:
+    """A parsed rig file."""
+
+    path: Path
+    name: str
+    devices: tuple[DeviceEntry, ...]
+
+
+def load_rig(path: str | Path) -> RigFile:
+    """Read and check a rig file; every problem is one :class:`BadInputError` line."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInputError(f"{path}: no such rig file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise BadInputError(f"{path}: not a valid TOML rig file ({err})") from None
+    unknown = sorted(set(doc) - {"name", "device"})
+    if unknown:
+        raise BadInputError(f"{path}: unknown key {unknown[0]!r}; a rig file has 'name' and [[device]] tables")
+    entries = doc.get("device")
+    if not isinstance(entries, list) or not entries:
+        raise BadInputError(f"{path}: no [[device]] tables")
+    devices = []
+    for i, e in enumerate(entries):
+        where = f"{path}: device {i + 1}"
+        if not isinstance(e, dict) or "url" not in e:
+            raise BadInputError(f"{where}: needs url = \"scheme://...\"")
+        bad = sorted(set(e) - {"name", "url", "rpm", "calibration"})
+        if bad:
+            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: name, url, rpm, calibration)")
+        parse_device_url(str(e["url"]))
+        cal = e.get("calibration", {})
+        if not isinstance(cal, dict):
+            raise BadInputError(f"{where}: calibration must be a table")
+        devices.append(
+            DeviceEntry(
+                name=str(e.get("name", f"dev{i}")),
+                url=str(e["url"]),
+                rpm=None if "rpm" not in e else str(e["rpm"]),
+                calibration={str(k): str(v) for k, v in cal.items()},
+            )
+        )
+    names = [d.name for d in devices]
+    if len(set(names)) != len(names):
+        raise BadInputError(f"{path}: device names must be unique ({', '.join(names)})")
+    return RigFile(path, str(doc.get("name", path.stem)), tuple(devices))
