@@ -1,0 +1,136 @@
+"""Linear models of one AMB control axis: digital PID, amplifier, equivalent stiffness and damping.
+
+The controlled bearing acts on the rotor like a spring-damper whose coefficients depend on
+frequency (seed 001 eq. 19 and 21):
+
+    Keq(w) = -Kx + Ki Re G(jw),    Ceq(w) = Ki Im G(jw) / w,
+
+with G the loop from rotor displacement to coil current: sensor gain Ks, the digital controller
+C(z) at z = exp(jwh), the D/A's zero-order hold and the amplifier G_A (seed 000 eq. 2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: float) -> np.ndarray:
+    """Frequency response of the digital PID used by the simulated controller.
+
+    Parallel form with a Tustin integrator I h (z+1) / (2 (z-1)) (the readable term of seed 000
+    eq. 3) and a backward-Euler filtered derivative D (1 - z^-1) / (Tf + h - Tf z^-1),
+    Tf = (D/P)/Nd.
+
+    Parameters
+    ----------
+    f : ndarray
+        Frequencies, in Hz.
+    p : float
+        Proportional gain, in V/V.
+    i : float
+        Integral gain, in 1/s.
+    d : float
+        Derivative gain, in s.
+    nd : float
+        Derivative filter factor Nd.
+    h : float
+        Sample period, in s.
+
+    Returns
+    -------
+    ndarray of complex
+        C(exp(j 2 pi f h)), in V/V.
+    """
+    z = np.exp(1j * 2 * np.pi * np.asarray(f, dtype=float) * h)
+    tf = d / p / nd
+    integral = i * h * (z + 1) / (2 * (z - 1))
+    derivative = d * (1 - 1 / z) / (tf + h - tf / z)
+    return p + integral + derivative
+
+
+def amplifier_response(f: np.ndarray, *, gain: float, wn_hz: float, zeta: float) -> np.ndarray:
+    """G_A(jw) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (seed 000 eq. 2).
+
+    Parameters
+    ----------
+    f : ndarray
+        Frequencies, in Hz.
+    gain : float
+        DC gain Kamp, in A/V.
+    wn_hz : float
+        Natural frequency, in Hz.
+    zeta : float
+        Damping ratio.
+    """
+    s = 1j * 2 * np.pi * np.asarray(f, dtype=float)
+    wn = 2 * np.pi * wn_hz
+    return wn**2 * gain / (s**2 + 2 * zeta * wn * s + wn**2)
+
+
+def zoh_response(f: np.ndarray, *, h: float) -> np.ndarray:
+    """Zero-order hold (1 - exp(-s h)) / (s h) of a D/A held for ``h`` s, at ``f`` Hz."""
+    s = 1j * 2 * np.pi * np.asarray(f, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (1 - np.exp(-s * h)) / (s * h)
+    return np.where(s == 0, 1.0, out)
+
+
+@dataclass(frozen=True)
+class StiffnessDamping:
+    """Equivalent stiffness (N/m) and damping (N s/m) of a bearing axis over frequency (Hz)."""
+
+    f: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+
+
+def equivalent_stiffness_damping(
+    f: np.ndarray,
+    *,
+    ki: float,
+    kx: float,
+    sensor_gain: float,
+    p: float,
+    i: float,
+    d: float,
+    nd: float,
+    h: float,
+    amp_gain: float,
+    amp_wn_hz: float,
+    amp_zeta: float,
+) -> StiffnessDamping:
+    """Keq and Ceq of a digitally controlled AMB axis (seed 001 eq. 19, 21).
+
+    Parameters
+    ----------
+    f : ndarray
+        Frequencies, in Hz (> 0 for the damping).
+    ki : float
+        Current gain, in N/A.
+    kx : float
+        Negative position stiffness, in N/m.
+    sensor_gain : float
+        Gap sensor gain Ks, in V/m.
+    p, i, d, nd, h : float
+        PID gains (V/V, 1/s, s), derivative filter factor and sample period (s); see
+        :func:`pid_response`.
+    amp_gain, amp_wn_hz, amp_zeta : float
+        Amplifier gain (A/V), natural frequency (Hz) and damping ratio.
+
+    Returns
+    -------
+    StiffnessDamping
+    """
+    f = np.asarray(f, dtype=float)
+    g = (
+        sensor_gain
+        * pid_response(f, p=p, i=i, d=d, nd=nd, h=h)
+        * zoh_response(f, h=h)
+        * amplifier_response(f, gain=amp_gain, wn_hz=amp_wn_hz, zeta=amp_zeta)
+    )
+    w = 2 * np.pi * f
+    with np.errstate(divide="ignore", invalid="ignore"):
+        damping = ki * g.imag / w
+    return StiffnessDamping(f, -kx + ki * g.real, damping)

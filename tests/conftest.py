@@ -1,0 +1,33 @@
+"""Shared fixtures: CLI runner and small recordings generated once per session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from ambdaq.cli.main import cli
+
+
+@pytest.fixture
+def run_cli():
+    """Invoke ``ambdaq ARGS...`` through click's runner; returns the result (exit_code, output)."""
+    runner = CliRunner()
+
+    def invoke(*args: str):
+        return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+    return invoke
+
+
+@pytest.fixture(scope="session")
+def spindle_file(tmp_path_factory) -> Path:
+    """2 s of the spindle at 30,000 rpm with ground truth, generated unpaced."""
+    out = tmp_path_factory.mktemp("rec") / "spindle.mcap"
+    result = CliRunner().invoke(
+        cli, ["sim", "generate", "--duration", "2", "--rpm", "30000", "--truth", "-q", "-o", str(out)],
+        catch_exceptions=False,
+    )
+    assert result.exit_code == 0, result.output
+    return out
