@@ -19,6 +19,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Protocol
 
+import numpy as np
+
 from .. import __version__
 from ..drivers.signals import SampleBlock, SignalGroup
 from ..errors import BadInputError, DeviceError
@@ -123,10 +125,6 @@ class _Reader(threading.Thread):
         self.q.put((self.source, None))
 
 
-class _SigTerm(Exception):
-    pass
-
-
 class Recorder:
     """Record ``sources`` into ``output`` (see :class:`RecordOptions`).
 
@@ -171,7 +169,7 @@ class Recorder:
         if not overwrite and self._name(0).exists():
             raise BadInputError(f"{self._name(0)} exists: choose another -o or pass --overwrite")
 
-    def _open_part(self, index: int, start_ns: int) -> RecordingWriter:
+    def _new_writer(self, index: int, start_ns: int) -> RecordingWriter:
         path = self._name(index)
         if path.exists():
             if not self._overwrite:
@@ -201,92 +199,100 @@ class Recorder:
         opts = self.options
         q: queue.Queue = queue.Queue()
         stop = threading.Event()
-        start_host_ns = self._start_host_ns = time.time_ns()
+        self._start_ns = time.time_ns()
         for s in self.sources:
-            n = None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate))
-            s.start(n)
+            s.start(None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate)))
         readers = [_Reader(s, q, stop) for s in self.sources]
-        part = 0
-        writer = self._open_part(part, start_host_ns)
-        files = [writer.path]
-        totals: dict[str, TopicStats] = {}
-        part_start_ns = start_host_ns
+        self._totals: dict[str, TopicStats] = {}
+        self._files: list[Path] = []
+        self._open_part(self._start_ns)
         t0 = time.monotonic()
         last_flush = last_progress = t0
         live = len(readers)
-        user_stop = False
         failure: Exception | None = None
-        old_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
-
-        def on_term(signum, frame):
-            raise _SigTerm()
-
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, on_term)
+        # Ctrl-C and SIGTERM only raise a flag: the loop stops between blocks, never mid-write
+        user_stop = threading.Event()
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                handlers[sig] = signal.signal(sig, lambda signum, frame: user_stop.set())
         for r in readers:
             r.start()
         try:
-            while live:
+            while live and not user_stop.is_set():
                 try:
                     source, item = q.get(timeout=0.1)
                 except queue.Empty:
-                    item = source = None
+                    source, item = None, None
                 if isinstance(item, Exception):
                     failure = item
-                    stop.set()
-                elif item is None and source is not None:
+                    break
+                if item is None and source is not None:
                     live -= 1
                 elif item is not None:
-                    block = self._on_host_clock(item)
-                    if self._split and self._part_full(writer, part_start_ns, int(block.host_time_ns[0])):
-                        self._merge(totals, writer)
-                        writer.close()
-                        part += 1
-                        part_start_ns = int(block.host_time_ns[0])
-                        writer = self._open_part(part, part_start_ns)
-                        files.append(writer.path)
-                    writer.write(source.name, block)
+                    self._write(source.name, self._on_host_clock(item))
                 now = time.monotonic()
                 if now - last_flush >= opts.flush_interval_s:
-                    writer.flush()
+                    self._writer.flush()
                     last_flush = now
                 if on_progress is not None and now - last_progress >= progress_interval_s:
                     last_progress = now
-                    on_progress(self._progress(totals, writer, now - t0))
-        except (KeyboardInterrupt, _SigTerm):
-            user_stop = True
+                    on_progress(self._progress(now - t0))
         finally:
             stop.set()
             for s in self.sources:
                 s.close()
             for r in readers:
                 r.join(timeout=2.0)
-            self._drain(q, writer)
-            self._merge(totals, writer)
-            writer.close()
-            if old_term is not None:
-                signal.signal(signal.SIGTERM, old_term)
+            for sig, old in handlers.items():
+                signal.signal(sig, old)
+            self._drain(q)
+            self._merge(self._totals, self._writer)
+            self._writer.close()
         if failure is not None:
             raise DeviceError(f"device failed after {time.monotonic() - t0:.1f} s: {failure}") from failure
-        samples = max((st.samples for st in totals.values()), default=0)
-        drops = sum(st.drops for st in totals.values())
-        rate = max((s.sample_rate for s in self.sources), default=1.0)
+        samples, drops = self._counts(self._totals)
+        rate = max(s.sample_rate for s in self.sources)
         return RecordResult(
-            files=files,
+            files=list(self._files),
             duration_s=samples / rate,
             samples=samples,
             drops=drops,
-            stopped_by_user=user_stop,
-            topics={t: {"samples": st.samples, "drops": st.drops} for t, st in totals.items()},
+            stopped_by_user=user_stop.is_set(),
+            topics={t: {"samples": st.samples, "drops": st.drops} for t, st in self._totals.items()},
         )
 
-    def _part_full(self, writer: RecordingWriter, part_start_ns: int, t_ns: int) -> bool:
-        o = self.options
-        if o.split_size is not None and writer.bytes_written >= o.split_size:
-            return True
-        return o.split_duration_s is not None and (t_ns - part_start_ns) >= o.split_duration_s * 1e9
+    def _open_part(self, start_ns: int) -> None:
+        """Close the present part (if any) and start the next one at ``start_ns``."""
+        if self._files:
+            self._merge(self._totals, self._writer)
+            self._writer.close()
+        self._writer = self._new_writer(len(self._files), start_ns)
+        self._files.append(self._writer.path)
+        self._part_start_ns = start_ns
 
-    def _drain(self, q: queue.Queue, writer: RecordingWriter) -> None:
+    def _write(self, device: str, block: SampleBlock) -> None:
+        """Write ``block``, cutting it at the exact sample where a split falls."""
+        if not self._split:
+            self._writer.write(device, block)
+            return
+        o = self.options
+        pos, n = 0, len(block)
+        while pos < n:
+            end = min(n, pos + 1000)  # the size limit is checked at least every 1000 samples
+            if o.split_duration_s is not None:
+                boundary = self._part_start_ns + int(round(o.split_duration_s * 1e9))
+                cut = int(np.searchsorted(block.host_time_ns, boundary, "left"))
+                if cut <= pos:
+                    self._open_part(boundary)
+                    continue
+                end = min(end, cut)
+            if o.split_size is not None and self._writer.bytes_written >= o.split_size:
+                self._open_part(int(block.host_time_ns[pos]))
+            self._writer.write(device, block.slice(pos, end))
+            pos = end
+
+    def _drain(self, q: queue.Queue) -> None:
         """Blocks already read when the recording stopped are written, not lost."""
         while True:
             try:
@@ -294,12 +300,21 @@ class Recorder:
             except queue.Empty:
                 return
             if isinstance(item, SampleBlock) and len(item):
-                writer.write(source.name, self._on_host_clock(item))
+                self._write(source.name, self._on_host_clock(item))
 
     def _on_host_clock(self, block: SampleBlock) -> SampleBlock:
         """Map device time to host time.  In-process devices start their clock at 0 when the
         recording starts, so the mapping is the start offset."""
-        return SampleBlock(block.device_time_ns, block.seq, block.values, block.device_time_ns + self._start_host_ns)
+        return SampleBlock(block.device_time_ns, block.seq, block.values, block.device_time_ns + self._start_ns)
+
+    @staticmethod
+    def _counts(stats: dict[str, TopicStats]) -> tuple[int, int]:
+        """Samples (of the longest device) and drops (summed over devices, not topics)."""
+        per_device: dict[str, tuple[int, int]] = {}
+        for st in stats.values():
+            per_device[st.device] = (max(per_device.get(st.device, (0, 0))[0], st.samples),
+                                     max(per_device.get(st.device, (0, 0))[1], st.drops))
+        return max((v[0] for v in per_device.values()), default=0), sum(v[1] for v in per_device.values())
 
     @staticmethod
     def _merge(totals: dict[str, TopicStats], writer: RecordingWriter) -> None:
@@ -308,16 +323,16 @@ class Recorder:
             acc.samples += st.samples
             acc.drops += st.drops
 
-    @staticmethod
-    def _progress(totals: dict[str, TopicStats], writer: RecordingWriter, elapsed: float) -> Progress:
-        stats = writer.statistics()
-        samples = max((totals.get(t, TopicStats("")).samples + st.samples for t, st in stats.items()), default=0)
-        drops = sum(totals.get(t, TopicStats("")).drops + st.drops for t, st in stats.items())
+    def _progress(self, elapsed: float) -> Progress:
+        totals = {t: TopicStats(st.device, st.samples, st.drops) for t, st in self._totals.items()}
+        self._merge(totals, self._writer)
+        samples, drops = self._counts(totals)
         return Progress(elapsed, samples, drops, samples / elapsed if elapsed > 0 else 0.0)
 
 
-def print_progress(p: Progress, stream=sys.stderr) -> None:
+def print_progress(p: Progress, stream=None) -> None:
     """One status line, redrawn in place on a terminal."""
+    stream = sys.stderr if stream is None else stream
     text = f"recording {p.elapsed_s:7.1f} s  {p.samples:>10d} samples  {p.drops:>6d} drops  {p.rate_hz:10.0f} samples/s"
     end = "\r" if stream.isatty() else "\n"
     stream.write(text + end)

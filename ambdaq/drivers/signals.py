@@ -62,3 +62,12 @@ class SampleBlock:
 
     def __len__(self) -> int:
         return int(self.device_time_ns.shape[0])
+
+    def slice(self, start: int, stop: int) -> "SampleBlock":
+        """Samples ``start`` to ``stop`` (exclusive) of this block."""
+        return SampleBlock(
+            self.device_time_ns[start:stop],
+            self.seq[start:stop],
+            {k: v[start:stop] for k, v in self.values.items()},
+            None if self.host_time_ns is None else self.host_time_ns[start:stop],
+        )

@@ -1,0 +1,5 @@
+"""``python -m ambdaq`` runs the command line."""
+
+from .cli.main import main
+
+main()
