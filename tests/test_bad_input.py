@@ -1,0 +1,145 @@
+"""Bad input: one clear line, exit 2, no traceback, nothing written over."""
+
+import hashlib
+import subprocess
+import sys
+
+import pytest
+from mcap.writer import Writer
+
+from ambdaq.daq import load
+from ambdaq.errors import BadInputError
+
+
+def one_line_error(result, *needles):
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in result.output, result.output
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def truncated(spindle_file, tmp_path):
+    data = spindle_file.read_bytes()
+    p = tmp_path / "truncated.mcap"
+    p.write_bytes(data[: len(data) // 2])
+    return p
+
+
+def test_truncated_file(truncated, run_cli):
+    for cmd in (["info"], ["export", "--format", "npz", "-o", str(truncated.with_suffix(".npz"))],
+                ["plot", "--field", "front_x", "-o", str(truncated.with_suffix(".png"))]):
+        r = run_cli(cmd[0], truncated, *cmd[1:])
+        one_line_error(r, "truncated or unfinished", "ambdaq recover")
+    assert not truncated.with_suffix(".npz").exists() and not truncated.with_suffix(".png").exists()
+
+
+def test_corrupted_chunk(spindle_file, tmp_path, run_cli):
+    data = bytearray(spindle_file.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 64] = bytes(64)  # zero a run of bytes inside a compressed chunk
+    p = tmp_path / "corrupt.mcap"
+    p.write_bytes(bytes(data))
+    r = run_cli("export", p, "--format", "npz", "-o", tmp_path / "c.npz")
+    one_line_error(r, "corrupt")
+    # recover keeps the good chunks and drops the damaged one
+    r = run_cli("recover", p, "-o", tmp_path / "fixed.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    gap = load(tmp_path / "fixed.mcap")["/amb/gap"]
+    assert 0 < len(gap) < 20000
+
+
+def test_foreign_files(tmp_path, run_cli):
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    one_line_error(run_cli("info", text), "not an MCAP file")
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    one_line_error(run_cli("info", empty), "empty file")
+    one_line_error(run_cli("info", tmp_path / "missing.mcap"), "no such file")
+    # a valid MCAP from another tool: info describes it, load says it has no ambdaq topics
+    other = tmp_path / "other.mcap"
+    with open(other, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("Pose", "jsonschema", b"{}")
+        cid = w.register_channel("/pose", "json", sid)
+        w.add_message(cid, log_time=1, publish_time=1, data=b"{}")
+        w.finish()
+    r = run_cli("info", other)
+    assert r.exit_code == 0 and "/pose" in r.output
+    one_line_error(run_cli("export", other, "--format", "npz", "-o", tmp_path / "o.npz"), "no ambdaq topics", "/pose")
+    with pytest.raises(BadInputError):
+        load(other)
+
+
+@pytest.mark.parametrize(
+    "url, needle",
+    [
+        ("foo://bar", "unknown device URL 'foo://bar': expected sim://PROFILE"),
+        ("spindle", "unknown device URL"),
+        ("sim://nope", "unknown simulated rig 'nope': profiles are spindle"),
+        ("sim://spindle?bogus=1", "unknown option 'bogus'"),
+        ("sim://spindle?seed=x", "expected an integer"),
+        ("sim://spindle?ff=maybe", "expected one of off, table, lms"),
+        ("sim://spindle?truth=2", "expected 0 or 1"),
+    ],
+)
+def test_bad_device_urls(url, needle, tmp_path, run_cli):
+    r = run_cli("record", "--device", url, "--duration", "0.1", "-o", tmp_path / "x.mcap")
+    one_line_error(r, needle)
+    assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--rpm", "fast"], "bad speed 'fast'"),
+    (["--rpm", "90000"], "rpm must be within 0..60000"),
+    (["--rpm", "0:1000:-1"], "ramp time must be > 0 s"),
+    (["--duration", "-1"], "Invalid value for '--duration'"),
+    (["--split-size", "lots"], "is not a size"),
+])
+def test_bad_options(args, needle, tmp_path, run_cli):
+    r = run_cli("record", "--device", "sim://spindle", "--duration", "0.1", "-o", tmp_path / "x.mcap", *args)
+    assert r.exit_code == 2 and needle in r.output and "Traceback" not in r.output
+
+
+def test_no_device(tmp_path, run_cli):
+    one_line_error(run_cli("record", "-o", tmp_path / "x.mcap"), "give --device URL or --rig FILE")
+
+
+def test_bad_rig_files(tmp_path, run_cli):
+    cases = {
+        "broken.toml": ("[[device]\nurl=", "not a valid TOML rig file"),
+        "nodev.toml": ('name = "x"\n', "no [[device]] tables"),
+        "badkey.toml": ('[[device]]\nurl = "sim://spindle"\nport = 3\n', "unknown key 'port'"),
+        "badurl.toml": ('[[device]]\nurl = "tcp://x"\n', "unknown device URL"),
+    }
+    for name, (text, needle) in cases.items():
+        (tmp_path / name).write_text(text)
+        one_line_error(run_cli("record", "--rig", tmp_path / name, "-o", tmp_path / "x.mcap"), needle)
+
+
+def test_nothing_is_written_over(spindle_file, tmp_path, run_cli):
+    before = digest(spindle_file)
+    r = run_cli("record", "--device", "sim://spindle", "--duration", "0.1", "-o", spindle_file)
+    one_line_error(r, "exists", "--overwrite")
+    r = run_cli("sim", "generate", "--duration", "0.1", "-o", spindle_file)
+    one_line_error(r, "exists")
+    r = run_cli("recover", spindle_file, "-o", spindle_file)
+    one_line_error(r, "exists")
+    assert digest(spindle_file) == before
+
+
+def test_subprocess_exit_codes_and_no_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "info", str(tmp_path / "nope.mcap")], capture_output=True,
+                       text=True)
+    assert r.returncode == 2 and r.stderr.strip().startswith("ambdaq: error:") and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "--debug", "info", str(tmp_path / "nope.mcap")],
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "Traceback" in r.stderr  # --debug shows it
