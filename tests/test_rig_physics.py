@@ -155,3 +155,24 @@ def test_lms_feedforward_cancels_runout_in_the_command_error():
     runout_1x = harmonic(last.values["/truth/runout"][:, 0], th1, 1)
     assert harmonic(last.values["/amb/gap"][:, 0], th1, 1) == pytest.approx(runout_1x, rel=0.1)
     assert harmonic(last.values["/truth/position"][:, 0], th1, 1) < 0.2 * runout_1x
+
+
+def test_fixed_feedforward_table_of_the_true_runout_removes_it_from_the_error():
+    """ff=table with the runout's own sin/cos coefficients: r_c = r, so e = x + noise.
+
+    What is left in e at 1X is the rotor's real unbalance response, not runout."""
+    rig = SpindleRig(speed=SpeedProfile(30000, 30000), truth=True)
+    a_sin, b_cos = SPINDLE.runout_sin_cos()
+    rig.set_feedforward("table", np.stack([a_sin, b_cos], axis=-1))
+    rig.run(5000)
+    b = rig.run(10000)
+    th = b.values["/amb/rotor"][:, 0]
+    residual = b.values["/amb/error"] - b.values["/truth/position"]
+    for axis in range(5):
+        for k in (1, 2):
+            left = 2 * abs(np.mean(residual[:, axis] * np.exp(-1j * k * th)))
+            assert left < 0.02e-6, (axis, k, left)
+    assert residual.std() < 0.3e-6  # sensor noise (0.2 um) and A/D steps (30 nm)
+    # the feedforward output is the runout itself, and the table does not adapt
+    np.testing.assert_allclose(b.values["/amb/ff"], b.values["/truth/runout"], atol=1e-12)
+    np.testing.assert_array_equal(rig.feedforward_weights[:, :, 0], a_sin)

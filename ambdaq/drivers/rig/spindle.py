@@ -253,6 +253,18 @@ def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndar
     return table
 
 
+@njit(cache=True, inline="always")
+def _converter(v, full_scale, lsb, inv_lsb):
+    """A/D or D/A: clip to +-full_scale (V) and round to the converter's step ``lsb`` (0: ideal)."""
+    if v > full_scale:
+        v = full_scale
+    elif v < -full_scale:
+        v = -full_scale
+    if lsb > 0.0:
+        v = np.floor(v * inv_lsb + 0.5) * lsb
+    return v
+
+
 @njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
     theta, omega, gap_noise, cur_noise, acc_noise, noise_sd,  # per-step inputs, unit normals
@@ -306,14 +318,7 @@ def _simulate(
             for j in range(nh):
                 r += run_s[a, j] * sk[j] + run_c[a, j] * ck[j]
             # sensor voltage through the 16-bit A/D
-            v = ks * (pos + r + noise_sd[0] * gap_noise[k, a])
-            if v > adc_rng:
-                v = adc_rng
-            elif v < -adc_rng:
-                v = -adc_rng
-            if adc_lsb > 0.0:
-                v = np.floor(v * inv_adc + 0.5) * adc_lsb
-            s_meas = v * inv_ks
+            s_meas = _converter(ks * (pos + r + noise_sd[0] * gap_noise[k, a]), adc_rng, adc_lsb, inv_adc) * inv_ks
             # feedforward r_c with the weights of the previous step (eq. 10)
             rc = 0.0
             if ff_mode > 0:
@@ -336,13 +341,7 @@ def _simulate(
             ctl[a, 0] = integ
             ctl[a, 1] = deriv
             ctl[a, 2] = ev
-            u = -(pid_p[a] * ev + integ + deriv)
-            if u > dac_rng:
-                u = dac_rng
-            elif u < -dac_rng:
-                u = -dac_rng
-            if dac_lsb > 0.0:
-                u = np.floor(u * inv_dac + 0.5) * dac_lsb
+            u = _converter(-(pid_p[a] * ev + integ + deriv), dac_rng, dac_lsb, inv_dac)
             # amplifier step and the differential coil-current law with 0..imax per coil
             i0 = amp[a, 0]
             i1 = Pa[a, 0, 0] * i0 + Pa[a, 0, 1] * amp[a, 1] + Ga[a, 0] * u
