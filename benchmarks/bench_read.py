@@ -38,7 +38,6 @@ def main() -> None:
         for truth, label, topics in ((False, "6 topics", 6), (True, "8 topics incl. /truth", 8)):
             path = Path(tmp) / f"read_{topics}.mcap"
             src = open_device("sim://spindle", speed="30000", truth=truth, paced=False)
-            src.block = int(src.sample_rate)
             Recorder([src], path, RecordOptions(duration_s=args.seconds)).run()
             instants = int(args.seconds * 10_000)
             load(path)

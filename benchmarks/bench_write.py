@@ -24,12 +24,11 @@ from _common import best_of, row
 def record(out: Path, seconds: float, truth: bool) -> None:
     out.unlink(missing_ok=True)
     src = open_device("sim://spindle", speed="30000", truth=truth, paced=False)
-    src.block = int(src.sample_rate)
     Recorder([src], out, RecordOptions(duration_s=seconds)).run()
 
 
-def official_writer(src: Path, out: Path, limit: int) -> int:
-    """Copy the first ``limit`` messages of ``src`` through Writer.add_message; returns the count."""
+def official_writer(src: Path, out: Path, limit: int) -> tuple[int, float]:
+    """Copy the first ``limit`` messages of ``src`` through Writer.add_message: (count, best time in s)."""
     f = McapFile(src)
     msgs = []
     for ci in sorted(f.summary.chunk_indexes, key=lambda c: c.message_start_time):

@@ -36,6 +36,5 @@ def generate(profile, seed, speed, duration, truth, ff, noise, output, split_siz
     """
     url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
     source = open_device(url, speed=speed or "0", truth=truth, paced=False)
-    source.block = int(source.sample_rate)  # one-second blocks: the writer encodes whole blocks
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)

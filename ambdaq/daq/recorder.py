@@ -27,6 +27,9 @@ from ..errors import BadInputError, DeviceError
 from .writer import RecordingWriter, TopicStats
 
 
+QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
+
+
 class Source(Protocol):
     """What the recorder needs of a device (see :class:`ambdaq.drivers.sim.SimSource`)."""
 
@@ -119,6 +122,8 @@ class _Reader(threading.Thread):
                 block = self.source.read()
                 if block is None:
                     break
+                # bounded queue: a source faster than the writer (unpaced simulation) waits;
+                # after a stop the recorder drains the queue until every reader has ended
                 self.q.put((self.source, block))
         except Exception as err:  # report, the main thread decides
             self.q.put((self.source, err))
@@ -197,7 +202,7 @@ class Recorder:
     def run(self, on_progress: Callable[[Progress], None] | None = None, progress_interval_s: float = 0.5) -> RecordResult:
         """Record until the duration is reached, every device ends, or the user stops."""
         opts = self.options
-        q: queue.Queue = queue.Queue()
+        q: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
         stop = threading.Event()
         self._start_ns = time.time_ns()
         for s in self.sources:
@@ -242,10 +247,12 @@ class Recorder:
             stop.set()
             for s in self.sources:
                 s.close()
-            for r in readers:
-                r.join(timeout=2.0)
             for sig, old in handlers.items():
                 signal.signal(sig, old)
+            deadline = time.monotonic() + 5.0
+            while any(r.is_alive() for r in readers) and time.monotonic() < deadline:
+                self._drain(q)
+                time.sleep(0.005)
             self._drain(q)
             self._merge(self._totals, self._writer)
             self._writer.close()

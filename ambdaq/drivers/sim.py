@@ -42,8 +42,9 @@ class SimSource:
         Overrides the URL's ``truth`` option.
     paced : bool
         Release blocks in real time.
-    block_s : float
-        Block length, in s.
+    block_s : float, optional
+        Block length, in s; default 10 ms paced (a device's streaming granularity), 1 s
+        unpaced (the writer encodes whole blocks).
     calibration : dict, optional
         Calibration notes from the rig file, stored with the device's calibration.
     """
@@ -56,7 +57,7 @@ class SimSource:
         speed: str | None = None,
         truth: bool | None = None,
         paced: bool = True,
-        block_s: float = 0.01,
+        block_s: float | None = None,
         calibration: dict[str, str] | None = None,
     ) -> None:
         if url.target not in PROFILES:
@@ -81,6 +82,8 @@ class SimSource:
         )
         self.sample_rate = self.rig.params.sample_rate
         self.paced = paced
+        if block_s is None:
+            block_s = 0.01 if paced else 1.0
         self.block = max(1, int(round(block_s * self.sample_rate)))
         self._rig_calibration = dict(calibration or {})
         self._remaining: int | None = None
