@@ -66,7 +66,7 @@ def command(devices, rig_path, duration, speed, truth, output, split_size, split
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
     sources = []
     for i, url in enumerate(devices):
-        sources.append(open_device(url, name="rig" if len(devices) == 1 else f"dev{i}", speed=speed,
+        sources.append(open_device(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed,
                                    truth=truth or None))
     rig = load_rig(rig_path) if rig_path else None
     if rig is not None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import signal
+import threading
+
 import click
 
 from ..drivers.devices import open_device
@@ -38,3 +41,38 @@ def generate(profile, seed, speed, duration, truth, ff, noise, output, split_siz
     source = open_device(url, speed=speed or "0", truth=truth, paced=False)
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)
+
+
+@command.command("serve")
+@click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
+@click.option("--serial", "serial_kind", type=click.Choice(["pty"]), default="pty", show_default=True,
+              help="Put the serial devices (the AMB controller) behind pseudo-terminals.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@speed_option
+@click.option("--truth", is_flag=True, help="The controller also streams /truth/runout and /truth/position.")
+@click.option("--drift-ppm", type=float, default=50.0, show_default=True, help="Controller clock rate error.")
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+              help="Stop after this long; default: until Ctrl-C.")
+def serve(profile, serial_kind, seed, speed, truth, drift_ppm, duration):
+    """Run a simulated rig in this process with its devices on real transports.
+
+    Prints one line per device, NAME PATH, then serves until Ctrl-C:
+
+    \b
+      ambdaq sim serve --rpm 30000 &
+      ambdaq record --device serial:///dev/pts/N --duration 10 -o run.mcap
+    """
+    from ..drivers.simdev.rig_server import DeviceClock
+    from ..drivers.simdev.serve import serve_serial
+
+    served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth,
+                          clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm))
+    for name, pty in served.ptys.items():
+        click.echo(f"{name} {pty.path}")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda s, f: stop.set())
+    try:
+        stop.wait(duration)
+    finally:
+        served.stop()

@@ -214,6 +214,13 @@ class BlockWriter:
         if chunk.size >= self._chunk_size:
             self.close_chunk()
 
+    def add_message(self, channel_id: int, sequence: int, log_time: int, payload: bytes) -> None:
+        """Append one Message record (the path for rare messages such as events)."""
+        record = struct.pack("<BQHIQQ", MESSAGE_OPCODE, 22 + len(payload), channel_id, sequence & 0xFFFFFFFF,
+                             log_time, log_time) + payload
+        row = np.frombuffer(record, dtype=np.uint8).reshape(1, -1)
+        self.add_messages(row, [(channel_id, 0, len(record))], np.array([log_time], dtype=np.uint64))
+
     def close_chunk(self) -> None:
         """Compress and write the open chunk and its message indexes, then flush to the OS."""
         chunk = self._chunk

@@ -24,10 +24,12 @@ import numpy as np
 from .. import __version__
 from ..drivers.signals import SampleBlock, SignalGroup
 from ..errors import BadInputError, DeviceError
+from .clock import ClockMap
 from .writer import RecordingWriter, TopicStats
 
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
+EVENTS_TOPIC = "/amb/events"
 
 
 class Source(Protocol):
@@ -42,6 +44,11 @@ class Source(Protocol):
     def start(self, n_samples: int | None) -> None: ...
     def read(self) -> SampleBlock | None: ...
     def close(self) -> None: ...
+
+    # optional, used when present: ``events() -> list[Event]`` (faults, bus events),
+    # ``link_statistics() -> dict[str, str]`` (frames, CRC errors ...) and
+    # ``clock_pairs() -> list[(device_ns, host_ns)]`` (sync messages stamped as they left the
+    # device: better clock pairs than block arrival times)
 
 
 @dataclass(frozen=True)
@@ -90,6 +97,17 @@ class RecordResult:
     drops: int
     stopped_by_user: bool
     topics: dict[str, dict] = field(default_factory=dict)
+    clocks: dict[str, dict] = field(default_factory=dict)
+    events: int = 0
+
+    @property
+    def alignment_us(self) -> float | None:
+        """Estimated worst alignment error between two clock-mapped devices, in us."""
+        r = sorted((c["uncertainty_us"] for c in self.clocks.values() if c["uncertainty_us"] == c["uncertainty_us"]),
+                   reverse=True)
+        if len(r) < 2:
+            return None
+        return float((r[0] ** 2 + r[1] ** 2) ** 0.5)
 
     def as_dict(self) -> dict:
         return {
@@ -97,8 +115,11 @@ class RecordResult:
             "duration_s": round(self.duration_s, 6),
             "samples": self.samples,
             "drops": self.drops,
+            "events": self.events,
             "stopped_by_user": self.stopped_by_user,
             "topics": self.topics,
+            "clocks": self.clocks,
+            "alignment_us": self.alignment_us,
         }
 
 
@@ -210,6 +231,9 @@ class Recorder:
         readers = [_Reader(s, q, stop) for s in self.sources]
         self._totals: dict[str, TopicStats] = {}
         self._files: list[Path] = []
+        self._clocks: dict[str, ClockMap] = {}
+        self._priming: dict[str, list[SampleBlock]] = {}
+        self._events = 0
         self._open_part(self._start_ns)
         t0 = time.monotonic()
         last_flush = last_progress = t0
@@ -235,7 +259,8 @@ class Recorder:
                 if item is None and source is not None:
                     live -= 1
                 elif item is not None:
-                    self._write(source.name, self._on_host_clock(item))
+                    self._ingest(source, item)
+                    self._write_events(source)
                 now = time.monotonic()
                 if now - last_flush >= opts.flush_interval_s:
                     self._writer.flush()
@@ -254,10 +279,15 @@ class Recorder:
                 self._drain(q)
                 time.sleep(0.005)
             self._drain(q)
-            self._merge(self._totals, self._writer)
-            self._writer.close()
+            for name in list(self._priming):
+                self._flush_priming(name)
+            for s in self.sources:
+                self._write_events(s)
+            self._close_part()
         if failure is not None:
-            raise DeviceError(f"device failed after {time.monotonic() - t0:.1f} s: {failure}") from failure
+            where = ", ".join(str(f) for f in self._files)
+            raise DeviceError(f"{failure} (after {time.monotonic() - t0:.1f} s; recording finished cleanly: {where})") \
+                from failure
         samples, drops = self._counts(self._totals)
         rate = max(s.sample_rate for s in self.sources)
         return RecordResult(
@@ -267,13 +297,46 @@ class Recorder:
             drops=drops,
             stopped_by_user=user_stop.is_set(),
             topics={t: {"samples": st.samples, "drops": st.drops} for t, st in self._totals.items()},
+            clocks=self._clock_report(),
+            events=self._events,
         )
+
+    def _clock_report(self) -> dict[str, dict]:
+        out = {}
+        for name, cm in self._clocks.items():
+            fit = cm.fit()
+            out[name] = {"drift_ppm": round(float(fit.drift_ppm), 3), "offset_ns": round(float(fit.offset_ns)),
+                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points}
+        return out
+
+    def _close_part(self) -> None:
+        """Clock fits and link statistics go into the part's metadata, then it is finished."""
+        for name, rep in self._clock_report().items():
+            self._writer.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
+        for s in self.sources:
+            stats = getattr(s, "link_statistics", None)
+            if stats is not None:
+                self._writer.add_metadata(f"ambdaq.link.{s.name}", stats())
+        self._merge(self._totals, self._writer)
+        self._writer.close()
+
+    def _write_events(self, source) -> None:
+        events = getattr(source, "events", None)
+        if events is None:
+            return
+        for ev in events():
+            cm = self._clocks.get(source.name)
+            if ev.device_time_ns and cm is not None and cm.ready:
+                t = int(cm.to_host(np.array([ev.device_time_ns]))[0])
+            else:
+                t = time.time_ns()
+            self._writer.write_event(EVENTS_TOPIC, source.name, t, ev)
+            self._events += 1
 
     def _open_part(self, start_ns: int) -> None:
         """Close the present part (if any) and start the next one at ``start_ns``."""
         if self._files:
-            self._merge(self._totals, self._writer)
-            self._writer.close()
+            self._close_part()
         self._writer = self._new_writer(len(self._files), start_ns)
         self._files.append(self._writer.path)
         self._part_start_ns = start_ns
@@ -307,12 +370,34 @@ class Recorder:
             except queue.Empty:
                 return
             if isinstance(item, SampleBlock) and len(item):
-                self._write(source.name, self._on_host_clock(item))
+                self._ingest(source, item)
 
-    def _on_host_clock(self, block: SampleBlock) -> SampleBlock:
-        """Map device time to host time.  In-process devices start their clock at 0 when the
-        recording starts, so the mapping is the start offset."""
-        return SampleBlock(block.device_time_ns, block.seq, block.values, block.device_time_ns + self._start_ns)
+    def _ingest(self, source, block: SampleBlock) -> None:
+        """Map a block to the host clock and write it.
+
+        Blocks that say when they arrived feed the device's online clock map (offset and drift).
+        A device's first blocks wait until its drift is estimated (1.5 s of pairs), so the whole file is
+        mapped through a fitted line; in-process sources without arrival times start their clock
+        at 0 when the recording starts, so their mapping is the start offset.
+        """
+        device = source.name
+        if block.received_ns is None:
+            host = block.device_time_ns + self._start_ns
+            self._write(device, SampleBlock(block.device_time_ns, block.seq, block.values, host))
+            return
+        cm = self._clocks.setdefault(device, ClockMap())
+        pairs = getattr(source, "clock_pairs", None)
+        for d, h in pairs() if pairs is not None else [(int(block.device_time_ns[-1]), block.received_ns)]:
+            cm.update(d, h)
+        self._priming.setdefault(device, []).append(block)
+        if cm.settled:
+            self._flush_priming(device)
+
+    def _flush_priming(self, device: str) -> None:
+        cm = self._clocks[device]
+        for b in self._priming.pop(device, []):
+            self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, cm.to_host(b.device_time_ns),
+                                            b.received_ns))
 
     @staticmethod
     def _counts(stats: dict[str, TopicStats]) -> tuple[int, int]:

@@ -109,3 +109,32 @@ def parse_schema(name: str, text: str) -> SignalGroup | None:
         fields=tuple(n for _, n, _ in values),
         units=tuple(c for _, _, c in values),
     )
+
+
+EVENT_SCHEMA_NAME = f"{SCHEMA_PACKAGE}/Event"
+EVENT_SCHEMA_TEXT = """# events: device faults, CAN error frames and bus-state changes, reconnects
+int64 device_time  # device clock, ns (0 if the device gave none)
+string device  # device name in the rig
+string kind  # fault, error-frame, bus-state, reconnect ...
+uint32 code  # device or protocol code
+string text  # what happened
+"""
+
+
+def _cdr_string(out: bytearray, text: str) -> None:
+    while len(out) % 4:  # align the length to 4, counted from the end of the encapsulation header
+        out.append(0)
+    data = text.encode() + b"\x00"
+    out += len(data).to_bytes(4, "little") + data
+
+
+def encode_event(device_time_ns: int, device: str, kind: str, code: int, text: str) -> bytes:
+    """CDR payload (with its encapsulation header) of one Event message."""
+    out = bytearray(int(device_time_ns).to_bytes(8, "little", signed=True))
+    _cdr_string(out, device)
+    _cdr_string(out, kind)
+    while len(out) % 4:
+        out.append(0)
+    out += int(code).to_bytes(4, "little")
+    _cdr_string(out, text)
+    return CDR_LE_HEADER.to_bytes(4, "little") + bytes(out)

@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..drivers.signals import SampleBlock, SignalGroup
+from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from .mcapfile import BlockWriter
-from .schema import CDR_LE_HEADER, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout
+from .schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
+                     TopicLayout, encode_event)
 
 PROFILE = "ambdaq"
 
@@ -88,6 +89,9 @@ class RecordingWriter:
         self._topics: dict[str, str] = {}
         self.first_time: int | None = None
         self.last_time: int | None = None
+        self._event_channels: dict[str, int] = {}
+        self._event_schema: int | None = None
+        self.event_counts: dict[str, int] = {}
 
     def add_device(self, name: str, groups: list[SignalGroup], identity: dict[str, str], calibration: dict[str, str]) -> None:
         """Register a device's signal groups as channels and store its identity and calibration."""
@@ -153,6 +157,17 @@ class RecordingWriter:
         if self.first_time is None:
             self.first_time = int(log_time[0])
         self.last_time = int(log_time[-1])
+
+    def write_event(self, topic: str, device: str, log_time: int, event: Event) -> None:
+        """Append one event (fault, error frame, bus-state change, reconnect) on ``topic``."""
+        if topic not in self._event_channels:
+            if self._event_schema is None:
+                self._event_schema = self._w.add_schema(EVENT_SCHEMA_NAME, "ros2msg", EVENT_SCHEMA_TEXT.encode())
+            self._event_channels[topic] = self._w.add_channel(topic, self._event_schema, "cdr", {})
+        n = self.event_counts.get(topic, 0)
+        self.event_counts[topic] = n + 1
+        payload = encode_event(event.device_time_ns, device, event.kind, event.code, event.text)
+        self._w.add_message(self._event_channels[topic], n, log_time, payload)
 
     def flush(self) -> None:
         """Close the open chunk so everything written so far is on disk."""

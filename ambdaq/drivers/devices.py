@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
-from ..errors import BadInputError
+from ..errors import BadInputError, DeviceError
+from .controller import ControllerDriver
+from .serial_link import SerialLink
 from .sim import SimSource
-from .url import parse_device_url
+from .url import DeviceURL, parse_device_url
+
+SERIAL_DRIVERS = {"controller": ControllerDriver}
 
 
-def open_device(url: str, *, name: str = "rig", speed: str | None = None, truth: bool | None = None, paced: bool = True,
+def open_device(url: str, *, name: str | None = None, speed: str | None = None, truth: bool | None = None, paced: bool = True,
                 calibration: dict[str, str] | None = None):
     """Open the device at ``url`` as a sample source for the recorder.
 
@@ -15,8 +19,9 @@ def open_device(url: str, *, name: str = "rig", speed: str | None = None, truth:
     ----------
     url : str
         Device URL (``sim://spindle?seed=3`` ...).
-    name : str
-        Device name in the recording.
+    name : str, optional
+        Device name in the recording; default ``rig`` for a simulated rig, else the device's
+        kind (``controller`` ...).
     speed : str, optional
         Rotor speed spec (rpm) to command before recording.
     truth : bool, optional
@@ -28,5 +33,30 @@ def open_device(url: str, *, name: str = "rig", speed: str | None = None, truth:
     """
     parsed = parse_device_url(url)
     if parsed.scheme == "sim":
-        return SimSource(parsed, name=name, speed=speed, truth=truth, paced=paced, calibration=calibration)
+        return SimSource(parsed, name=name or "rig", speed=speed, truth=truth, paced=paced, calibration=calibration)
+    if parsed.scheme == "serial":
+        return _open_serial(parsed, name, speed)
     raise BadInputError(f"no driver for {parsed.scheme}:// devices")
+
+
+def _open_serial(url: DeviceURL, name: str | None, speed: str | None):
+    """Open the line, ask the device who it is, and hand it to the driver for its type."""
+    try:
+        baud = int(url.options.get("baud", "3000000"))
+    except ValueError:
+        raise BadInputError(f"option baud={url.options['baud']!r} in {url.text!r}: expected an integer") from None
+    link = SerialLink(url.target, baudrate=baud)
+    try:
+        kind = link.identify().get("device_type")
+        driver = SERIAL_DRIVERS.get(kind)
+        if driver is None:
+            raise DeviceError(f"{url.text}: no driver for a device of type {kind!r}")
+        dev = driver(link, name=name or kind, url=url.text)
+        if speed is not None:
+            from .rig.speed import SpeedProfile
+
+            dev.write_param("speed.rpm", [SpeedProfile.parse(speed).rpm_end])
+        return dev
+    except BaseException:
+        link.close()
+        raise

@@ -52,13 +52,17 @@ class SampleBlock:
     values : dict of str to ndarray of float64, shape (n, n_fields)
         One array per topic, columns in the order of the group's ``fields``, SI units.
     host_time_ns : ndarray of int64, shape (n,)
-        Sample instants mapped to the host clock, in ns (MCAP ``log_time``).
+        Sample instants mapped to the host clock, in ns (MCAP ``log_time``); set by the recorder.
+    received_ns : int, optional
+        Host time at which the block's last sample arrived, in ns: what the recorder's clock map
+        learns the device clock from.  ``None`` for in-process sources that share the host clock.
     """
 
     device_time_ns: np.ndarray
     seq: np.ndarray
     values: dict[str, np.ndarray] = field(default_factory=dict)
     host_time_ns: np.ndarray | None = None
+    received_ns: int | None = None
 
     def __len__(self) -> int:
         return int(self.device_time_ns.shape[0])
@@ -70,4 +74,27 @@ class SampleBlock:
             self.seq[start:stop],
             {k: v[start:stop] for k, v in self.values.items()},
             None if self.host_time_ns is None else self.host_time_ns[start:stop],
+            self.received_ns,
         )
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something a device or bus reported: a fault, an error frame, a bus-state change, a gap.
+
+    Parameters
+    ----------
+    device_time_ns : int
+        When, on the device clock (ns); 0 if the device gave no time.
+    kind : str
+        ``fault``, ``error-frame``, ``bus-state``, ``reconnect`` ...
+    code : int
+        Device or protocol code (EMCY code, NAK code ...), 0 if none.
+    text : str
+        What happened, in words.
+    """
+
+    device_time_ns: int
+    kind: str
+    code: int
+    text: str

@@ -27,6 +27,11 @@ SCHEMES: dict[str, Scheme] = {
         "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1]",
         ("seed", "rpm", "truth", "ff", "noise"),
     ),
+    "serial": Scheme(
+        "serial",
+        "serial:///dev/ttyUSB0[?baud=3000000] or serial:socket://HOST:PORT (any pyserial URL)",
+        ("baud",),
+    ),
 }
 
 
@@ -56,8 +61,26 @@ def expected_forms() -> str:
     return "; ".join(s.form for s in SCHEMES.values())
 
 
+def _parse_serial(text: str, scheme: Scheme) -> DeviceURL:
+    """``serial:`` + a port path or a pyserial URL, then options: the target keeps its slashes."""
+    rest, _, query = text[len("serial:") :].partition("?")
+    port = rest[2:] if rest.startswith("///") else rest
+    if not port or port == "//":
+        raise BadInputError(f"device URL {text!r} names no port: expected {scheme.form}")
+    try:
+        options = dict(parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query)))
+    except ValueError:
+        raise BadInputError(f"malformed options in {text!r}: expected {scheme.form}") from None
+    unknown = sorted(set(options) - set(scheme.options))
+    if unknown:
+        raise BadInputError(f"unknown option {unknown[0]!r} in {text!r}: expected {scheme.form}")
+    return DeviceURL("serial", port, options, text)
+
+
 def parse_device_url(text: str) -> DeviceURL:
     """Parse ``text`` into a :class:`DeviceURL`, checking scheme and option names."""
+    if text.startswith("serial:"):
+        return _parse_serial(text, SCHEMES["serial"])
     parts = urlsplit(text)
     scheme = SCHEMES.get(parts.scheme)
     if scheme is None or "://" not in text:

@@ -436,10 +436,13 @@ class SpindleRig:
         self.period_ns = int(round(1e9 / params.sample_rate))
         self.h = self.period_ns * 1e-9
         self._rng = np.random.default_rng(seed)
+        self.mu_schedule = tuple(tuple(r) for r in mu_schedule) if mu_schedule is not None else ()
         self._mu = mu_table(mu_schedule)
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
         self.step_index = 0
+        self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
+        self._theta0 = 0.0  # ... and this angle (rad)
         self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._init_constants()
         self._init_state()
@@ -508,6 +511,40 @@ class SpindleRig:
             self._w[:, : t.shape[1], :] = t
         self._ff_mode = FF_MODES[mode]
 
+    def command_speed(self, speed: SpeedProfile) -> None:
+        """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous."""
+        t = self.step_index * self.h
+        theta, _ = self.speed.angle_speed(np.array([t - self._speed_t0]), self._theta0)
+        self._speed_t0, self._theta0 = t, float(theta[0])
+        self.speed = speed
+
+    def set_pid(self, p: np.ndarray, i: np.ndarray, d: np.ndarray) -> None:
+        """Replace the PID gains of the five axes (V/V, 1/s, s); the derivative filter follows."""
+        p, i, d = (np.asarray(v, dtype=float).reshape(5) for v in (p, i, d))
+        tf = d / p / self.params.derivative_filter
+        self._pid_p, self._pid_i = p.copy(), i.copy()
+        self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
+
+    def set_mu_schedule(self, schedule) -> None:
+        """Replace the LMS step-size schedule (rows of rpm_from, rpm_to, mu)."""
+        self.mu_schedule = tuple(tuple(float(x) for x in r) for r in schedule)
+        self._mu = mu_table(self.mu_schedule)
+
+    def run_speed_rpm(self) -> float:
+        """The rotor speed at the present step, in rpm."""
+        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h - self._speed_t0]), self._theta0)
+        return float(omega[0]) / RPM_TO_RAD_S
+
+    @property
+    def pid_gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Present (P, I, D) per axis, in V/V, 1/s, s."""
+        d = self._bd * (self._ad * self.h / (1 - self._ad) + self.h)
+        return self._pid_p.copy(), self._pid_i.copy(), d
+
+    @property
+    def feedforward_mode(self) -> str:
+        return {v: k for k, v in FF_MODES.items()}[self._ff_mode]
+
     @property
     def feedforward_weights(self) -> np.ndarray:
         """Present feedforward weights, shape (5, 8, 2): [sin, cos] per axis and harmonic, in m."""
@@ -530,7 +567,7 @@ class SpindleRig:
         """Advance the closed loop by ``n`` control periods and return their samples."""
         steps = self.step_index + np.arange(n, dtype=np.int64)
         t = steps * self.h
-        theta, omega = self.speed.angle_speed(t)
+        theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
         # unit normals in float32 (half the cost of float64), scaled to SI inside the kernel; one
         # row of 15 per step, so the stream does not depend on how the run is cut into blocks
         noise = self._rng.standard_normal((n, 15), dtype=np.float32)

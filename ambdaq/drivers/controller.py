@@ -1,0 +1,139 @@
+"""Driver for the AMB controller on a serial line (docs/protocol.md).
+
+As a recorder source it streams the groups the controller announces in its IDENTITY (gap,
+current, error, feedforward, rotor); as a parameter interface it reads and writes PID gains,
+feedforward mode and table, LMS schedule and speed set-point.
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+
+import numpy as np
+
+from ..errors import DeviceError
+from . import protocol as proto
+from .protocol import MsgType
+from .serial_link import Fault, SerialLink
+from .signals import Event, SampleBlock, SignalGroup
+
+
+class ControllerDriver:
+    """The AMB controller behind ``link``.
+
+    Parameters
+    ----------
+    link : SerialLink
+        The open line.
+    name : str
+        Device name in recordings.
+    url : str
+        The device URL, for identity and error messages.
+    """
+
+    def __init__(self, link: SerialLink, *, name: str = "controller", url: str = "") -> None:
+        self.link = link
+        self.name = name
+        self.url = url or link.port_name
+        self.info = link.identify()
+        if self.info.get("device_type") != "controller":
+            raise DeviceError(f"{self.url}: expected an AMB controller, found {self.info.get('device_type')!r}")
+        self.sample_rate = float(self.info["sample_rate_hz"])
+        self._groups = [SignalGroup(g["topic"], g["type"], tuple(g["fields"]), tuple(g["units"]))
+                        for g in self.info["groups"]]
+        self._n_samples: int | None = None
+        self._end_index: int | None = None  # stop at this sample index (device time, not count)
+
+    # --- recorder source ---------------------------------------------------------------------------
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return list(self._groups)
+
+    def identity(self) -> dict[str, str]:
+        return {"url": self.url, "kind": self.info["device_type"], "model": self.info["model"],
+                "serial": self.info["serial"], "firmware": self.info["firmware"],
+                "sample_rate_hz": f"{self.sample_rate:g}"}
+
+    def calibration(self) -> dict[str, str]:
+        return {"units": "SI: m, A, rad, rad/s (device sends float32)"}
+
+    def start(self, n_samples: int | None) -> None:
+        """Stream ``n_samples`` sample periods of device time (lost samples included), or forever."""
+        self._n_samples = n_samples
+        self._end_index = None
+        self.link.request(MsgType.STREAM, b"\x01", what="stream on")
+
+    def read(self) -> SampleBlock | None:
+        """The next block of samples; ``None`` when the requested count is done."""
+        while True:
+            if self.link.failure is not None:
+                raise DeviceError(f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: {self.link.failure}")
+            try:
+                s, arrived = self.link.samples.get(timeout=0.2)
+                break
+            except queue.Empty:
+                continue
+        if self._n_samples is not None and self._end_index is None:
+            self._end_index = s.first_index + self._n_samples
+        n = s.values.shape[0]
+        if self._end_index is not None:
+            n = max(0, min(n, self._end_index - s.first_index))
+            if n == 0:
+                return None
+        idx = np.arange(n, dtype=np.int64)
+        values, col = {}, 0
+        for g in self._groups:
+            k = len(g.fields)
+            values[g.topic] = s.values[:n, col : col + k]
+            col += k
+        return SampleBlock(
+            device_time_ns=s.device_time_ns + idx * s.period_ns,
+            seq=((s.first_index + idx) & 0xFFFFFFFF).astype(np.uint32),
+            values=values,
+            received_ns=arrived,
+        )
+
+    def events(self) -> list[Event]:
+        """Faults reported since the last call."""
+        out = []
+        while True:
+            try:
+                f: Fault = self.link.faults.get_nowait()
+            except queue.Empty:
+                return out
+            out.append(Event(f.device_time_ns, "fault", f.code, f"severity {f.severity}: {f.message}"))
+
+    def clock_pairs(self) -> list[tuple[int, int]]:
+        """(device time, host arrival time) of the heartbeats since the last call, in ns."""
+        out = []
+        while True:
+            try:
+                out.append(self.link.sync_pairs.get_nowait())
+            except queue.Empty:
+                return out
+
+    def link_statistics(self) -> dict[str, str]:
+        st = self.link.decoder.stats
+        return {"frames": str(st.frames), "crc_errors": str(st.crc_errors), "cobs_errors": str(st.cobs_errors),
+                "lost_frames": str(self.link.lost_frames)}
+
+    def close(self) -> None:
+        try:
+            if self.link.failure is None:
+                self.link.request(MsgType.STREAM, b"\x00", what="stream off", timeout=0.5)
+        except DeviceError:
+            pass
+        self.link.close()
+
+    # --- parameters --------------------------------------------------------------------------------
+
+    def read_param(self, name: str) -> np.ndarray:
+        """Read a controller parameter (see docs/protocol.md for names and units)."""
+        reply = self.link.request(MsgType.PARAM_READ, proto.param_read(name), what=f"read {name}")
+        _req, got, values = proto.parse_param_value(reply.body)
+        return values
+
+    def write_param(self, name: str, values) -> None:
+        """Write a controller parameter; the controller acknowledges or refuses (DeviceError)."""
+        self.link.request(MsgType.PARAM_WRITE, proto.param_write(name, np.atleast_1d(values)), what=f"write {name}")

@@ -1,0 +1,188 @@
+"""The ambdaq serial protocol: message types carried in COBS/CRC-32 frames (docs/protocol.md).
+
+Every frame body starts with ``type u8, flags u8, seq u16`` (little-endian); ``seq`` counts the
+sender's frames modulo 2^16, so the receiver counts lost frames from its gaps.
+
+=====  ==================  =====  ==========================================================
+type   name                dir    body after the 4-byte header
+=====  ==================  =====  ==========================================================
+0x01   IDENTIFY            h->d   (empty)
+0x02   IDENTITY            d->h   UTF-8 JSON: model, serial, firmware, sample rate, groups
+0x10   PARAM_READ          h->d   name (u8 length, UTF-8)
+0x11   PARAM_WRITE         h->d   name, count u16, count x f64
+0x12   PARAM_VALUE         d->h   request seq u16, name, count u16, count x f64
+0x13   ACK                 d->h   request seq u16
+0x14   NAK                 d->h   request seq u16, code u16, message (u8 length, UTF-8)
+0x20   STREAM              h->d   enable u8
+0x30   SAMPLES             d->h   first sample index u32, device time of the first sample i64
+                                  (ns), period u32 (ns), n u16, channels u16, n x channels f32
+0x40   FAULT               d->h   code u16, severity u8, device time i64, message
+0x41   HEARTBEAT           d->h   device time i64 (ns), state u8
+=====  ==================  =====  ==========================================================
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+HEADER = struct.Struct("<BBH")
+SAMPLES_HEAD = struct.Struct("<IqIHH")
+
+
+class MsgType(IntEnum):
+    IDENTIFY = 0x01
+    IDENTITY = 0x02
+    PARAM_READ = 0x10
+    PARAM_WRITE = 0x11
+    PARAM_VALUE = 0x12
+    ACK = 0x13
+    NAK = 0x14
+    STREAM = 0x20
+    SAMPLES = 0x30
+    FAULT = 0x40
+    HEARTBEAT = 0x41
+
+
+class NakCode(IntEnum):
+    """Why a device refused a request."""
+
+    UNKNOWN_PARAMETER = 1
+    BAD_VALUE = 2
+    READ_ONLY = 3
+    BAD_REQUEST = 4
+    LOCKED = 5
+    BUSY = 6
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A decoded frame: its type, sender sequence number and body (after the header)."""
+
+    type: int
+    seq: int
+    body: bytes
+
+
+def pack(msg_type: MsgType, seq: int, body: bytes = b"") -> bytes:
+    """A frame body: header + ``body``; ``seq`` is taken modulo 2^16."""
+    return HEADER.pack(msg_type, 0, seq & 0xFFFF) + body
+
+
+def unpack(raw: bytes) -> Frame:
+    """Split a frame body into header fields and payload; ``ValueError`` if too short."""
+    if len(raw) < HEADER.size:
+        raise ValueError("frame shorter than its header")
+    t, _flags, seq = HEADER.unpack_from(raw)
+    return Frame(t, seq, raw[HEADER.size :])
+
+
+def _name(name: str) -> bytes:
+    b = name.encode()
+    if len(b) > 255:
+        raise ValueError(f"parameter name too long: {name!r}")
+    return bytes([len(b)]) + b
+
+
+def _read_name(body: bytes, pos: int) -> tuple[str, int]:
+    n = body[pos]
+    return body[pos + 1 : pos + 1 + n].decode(), pos + 1 + n
+
+
+def encode_values(values: np.ndarray) -> bytes:
+    v = np.asarray(values, dtype="<f8").ravel()
+    return struct.pack("<H", v.shape[0]) + v.tobytes()
+
+
+def decode_values(body: bytes, pos: int) -> np.ndarray:
+    (count,) = struct.unpack_from("<H", body, pos)
+    end = pos + 2 + 8 * count
+    if end > len(body):
+        raise ValueError("value array runs past the frame")
+    return np.frombuffer(body, dtype="<f8", count=count, offset=pos + 2).copy()
+
+
+def param_read(name: str) -> bytes:
+    return _name(name)
+
+
+def param_write(name: str, values) -> bytes:
+    return _name(name) + encode_values(np.asarray(values, dtype=float))
+
+
+def parse_param_request(body: bytes) -> tuple[str, np.ndarray | None]:
+    """(name, values) of a PARAM_READ (values None) or PARAM_WRITE body."""
+    name, pos = _read_name(body, 0)
+    return name, (decode_values(body, pos) if pos < len(body) else None)
+
+
+def param_value(request_seq: int, name: str, values) -> bytes:
+    return struct.pack("<H", request_seq) + _name(name) + encode_values(np.asarray(values, dtype=float))
+
+
+def parse_param_value(body: bytes) -> tuple[int, str, np.ndarray]:
+    (req,) = struct.unpack_from("<H", body, 0)
+    name, pos = _read_name(body, 2)
+    return req, name, decode_values(body, pos)
+
+
+def ack(request_seq: int) -> bytes:
+    return struct.pack("<H", request_seq)
+
+
+def nak(request_seq: int, code: NakCode, message: str) -> bytes:
+    return struct.pack("<HH", request_seq, code) + _name(message[:255])
+
+
+def parse_nak(body: bytes) -> tuple[int, int, str]:
+    req, code = struct.unpack_from("<HH", body, 0)
+    msg, _ = _read_name(body, 4)
+    return req, code, msg
+
+
+def identity(info: dict) -> bytes:
+    return json.dumps(info, separators=(",", ":")).encode()
+
+
+def samples(first_index: int, device_time_ns: int, period_ns: int, values: np.ndarray) -> bytes:
+    """A SAMPLES body for ``values`` of shape (n, channels), sent as float32."""
+    n, c = values.shape
+    return SAMPLES_HEAD.pack(first_index & 0xFFFFFFFF, device_time_ns, period_ns, n, c) + np.ascontiguousarray(
+        values, dtype="<f4"
+    ).tobytes()
+
+
+@dataclass(frozen=True)
+class Samples:
+    """A decoded SAMPLES body."""
+
+    first_index: int
+    device_time_ns: int
+    period_ns: int
+    values: np.ndarray  # (n, channels) float64
+
+
+def parse_samples(body: bytes) -> Samples:
+    first, t0, period, n, c = SAMPLES_HEAD.unpack_from(body, 0)
+    if len(body) != SAMPLES_HEAD.size + 4 * n * c:
+        raise ValueError(f"SAMPLES body is {len(body)} bytes, expected {SAMPLES_HEAD.size + 4 * n * c}")
+    vals = np.frombuffer(body, dtype="<f4", count=n * c, offset=SAMPLES_HEAD.size).reshape(n, c)
+    return Samples(first, t0, period, vals.astype(np.float64))
+
+
+def fault(code: int, severity: int, device_time_ns: int, message: str) -> bytes:
+    return struct.pack("<HBq", code, severity, device_time_ns) + _name(message[:255])
+
+
+def parse_fault(body: bytes) -> tuple[int, int, int, str]:
+    code, severity, t = struct.unpack_from("<HBq", body, 0)
+    msg, _ = _read_name(body, 11)
+    return code, severity, t, msg
+
+
+def heartbeat(device_time_ns: int, state: int) -> bytes:
+    return struct.pack("<qB", device_time_ns, state)

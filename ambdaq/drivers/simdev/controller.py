@@ -1,0 +1,281 @@
+"""Simulated AMB controller on a serial byte stream (the device side of docs/protocol.md).
+
+It streams gap, coil current, command error, feedforward and rotor angle/speed at the rig's
+10 kHz in SAMPLES frames of one rig block each, answers IDENTIFY, PARAM_READ and PARAM_WRITE
+(PID gains, feedforward mode and table, LMS schedule, speed set-point), sends a HEARTBEAT every
+20 ms, stamped with its own clock as it leaves (the host's clock-sync pairs), and FAULT events.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import random
+import select
+import threading
+import time
+
+import numpy as np
+
+from .. import protocol as proto
+from ..framing import FrameDecoder, encode_frame
+from ..protocol import MsgType, NakCode
+from ..rig.speed import SpeedProfile
+from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS
+from ..signals import SampleBlock
+from .rig_server import DeviceClock, RigServer
+
+CONTROLLER_TOPICS = ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor")
+TRUTH_TOPICS = ("/truth/runout", "/truth/position")
+HEARTBEAT_S = 0.02  # heartbeats are the clock-sync pairs: stamped as they leave, 50 per second
+
+
+class FdPort:
+    """The device end of a byte stream on a file descriptor (a PTY master, a socket)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def read(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.fd], [], [], timeout)
+        if not r:
+            return b""
+        try:
+            return os.read(self.fd, 65536)
+        except OSError:  # the other end went away
+            return b""
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+
+    def close(self) -> None:
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+
+
+class SimController:
+    """The simulated controller, serving ``port`` with data from ``server``'s rig.
+
+    Parameters
+    ----------
+    port : FdPort
+        The device's end of the serial line.
+    server : RigServer
+        The running rig.
+    clock : DeviceClock
+        The controller's own clock.
+    serial : str
+        Serial number reported in IDENTITY.
+    truth : bool
+        Also stream the simulator's ground truth topics.
+    tx_queue : int
+        Frames buffered for transmission; when the host stops reading, later frames are dropped
+        (as a UART FIFO overflows) and the host sees the gap in the sequence numbers.
+    """
+
+    def __init__(self, port, server: RigServer, *, clock: DeviceClock = DeviceClock(), serial: str = "SIM-CTRL-0001",
+                 truth: bool = False, tx_queue: int = 64) -> None:
+        self.port = port
+        self.server = server
+        self.rig = server.rig
+        self.clock = clock
+        self.serial = serial
+        topics = CONTROLLER_TOPICS + (TRUTH_TOPICS if truth else ())
+        groups = {g.topic: g for g in self.rig.signal_groups()}
+        if truth and TRUTH_TOPICS[0] not in groups:
+            raise ValueError("truth topics need a rig built with truth=True")
+        self.groups = [groups[t] for t in topics]
+        self._streaming = threading.Event()
+        self._tx: queue.Queue[bytes] = queue.Queue(maxsize=tx_queue)
+        self._seq = 0
+        self._seq_lock = threading.Lock()
+        self._stop = threading.Event()
+        self.dropped_frames = 0
+        self.decoder = FrameDecoder()
+        self._threads = [
+            threading.Thread(target=self._rx_loop, name="simctl-rx", daemon=True),
+            threading.Thread(target=self._tx_loop, name="simctl-tx", daemon=True),
+        ]
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        self.server.subscribe(self._on_block)
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.server.unsubscribe(self._on_block)
+        for t in self._threads:
+            t.join(timeout=1.0)
+
+    # --- transmit ---------------------------------------------------------------------------------
+
+    def now_ns(self) -> int:
+        """The device clock now."""
+        return self.clock.at(time.time_ns() - self.server.start_wall_ns)
+
+    def _next_seq(self) -> int:
+        with self._seq_lock:
+            seq = self._seq
+            self._seq = (self._seq + 1) & 0xFFFF
+        return seq
+
+    def _send(self, msg_type: MsgType, body: bytes = b"") -> None:
+        frame = encode_frame(proto.pack(msg_type, self._next_seq(), body))
+        try:
+            self._tx.put_nowait(frame)
+        except queue.Full:
+            self.dropped_frames += 1
+
+    def _tx_loop(self) -> None:
+        """Write queued frames; every HEARTBEAT_S stamp a heartbeat with the device clock at the
+        moment it goes out, so the host can map the clock without the queueing latency."""
+        # each device has its own phase and a jittered period, as independent oscillators do
+        rng = random.Random(self.serial)
+        next_beat = time.monotonic() + rng.uniform(0, HEARTBEAT_S)
+        while not self._stop.is_set():
+            timeout = max(0.0, next_beat - time.monotonic())
+            try:
+                frame = self._tx.get(timeout=timeout)
+            except queue.Empty:
+                frame = None
+            try:
+                if frame is not None:
+                    self.port.write(frame)
+                if time.monotonic() >= next_beat:
+                    next_beat += HEARTBEAT_S * rng.uniform(0.7, 1.3)
+                    body = proto.heartbeat(self.now_ns(), int(self._streaming.is_set()))
+                    self.port.write(encode_frame(proto.pack(MsgType.HEARTBEAT, self._next_seq(), body)))
+            except OSError:
+                return  # the line is gone
+
+    def _on_block(self, block: SampleBlock) -> None:
+        if not self._streaming.is_set():
+            return
+        values = np.concatenate([block.values[g.topic] for g in self.groups], axis=1)
+        t0 = self.clock.at(int(block.device_time_ns[0]))
+        period = round(self.rig.period_ns * (1 + self.clock.drift_ppm * 1e-6))
+        self._send(MsgType.SAMPLES, proto.samples(int(block.seq[0]), t0, period, values))
+
+    def fault(self, code: int, severity: int, message: str) -> None:
+        """Report a fault event to the host."""
+        self._send(MsgType.FAULT, proto.fault(code, severity, self.now_ns(), message))
+
+    # --- receive ----------------------------------------------------------------------------------
+
+    def _rx_loop(self) -> None:
+        while not self._stop.is_set():
+            data = self.port.read(0.1)
+            for raw in self.decoder.feed(data) if data else ():
+                try:
+                    frame = proto.unpack(raw)
+                    self._handle(frame)
+                except (ValueError, IndexError) as err:
+                    self._send(MsgType.NAK, proto.nak(0, NakCode.BAD_REQUEST, str(err)))
+
+    def identity(self) -> dict:
+        return {
+            "device_type": "controller",
+            "model": "AMB controller (simulated, seed 000 spindle)",
+            "serial": self.serial,
+            "firmware": "ambdaq-sim 0.1",
+            "sample_rate_hz": self.rig.params.sample_rate,
+            "groups": [
+                {"topic": g.topic, "type": g.type_name, "fields": list(g.fields), "units": list(g.units)}
+                for g in self.groups
+            ],
+            "parameters": sorted(PARAMETERS),
+        }
+
+    def _handle(self, frame: proto.Frame) -> None:
+        t = frame.type
+        if t == MsgType.IDENTIFY:
+            self._send(MsgType.IDENTITY, proto.identity(self.identity()))
+        elif t == MsgType.STREAM:
+            (self._streaming.set if frame.body[:1] == b"\x01" else self._streaming.clear)()
+            self._send(MsgType.ACK, proto.ack(frame.seq))
+        elif t in (MsgType.PARAM_READ, MsgType.PARAM_WRITE):
+            name, values = proto.parse_param_request(frame.body)
+            spec = PARAMETERS.get(name)
+            if spec is None:
+                self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.UNKNOWN_PARAMETER, f"no parameter {name!r}"))
+                return
+            if values is None:
+                self._send(MsgType.PARAM_VALUE, proto.param_value(frame.seq, name, spec.read(self.rig)))
+                return
+            if spec.write is None:
+                self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.READ_ONLY, f"{name} is read-only"))
+                return
+            problem = spec.check(values)
+            if problem:
+                self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.BAD_VALUE, f"{name}: {problem}"))
+                return
+            spec.write(self.rig, values)
+            self._send(MsgType.ACK, proto.ack(frame.seq))
+        else:
+            self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.BAD_REQUEST, f"unexpected message type 0x{t:02x}"))
+
+
+class _Param:
+    """A controller parameter: length, range, how to read and write it on the rig."""
+
+    def __init__(self, size: int, read, write=None, lo: float = -np.inf, hi: float = np.inf, doc: str = "",
+                 row: int = 0) -> None:
+        self.size, self.read, self.write, self.lo, self.hi, self.doc, self.row = size, read, write, lo, hi, doc, row
+
+    def check(self, values: np.ndarray) -> str:
+        if self.size and values.shape[0] != self.size:
+            return f"expected {self.size} values, got {values.shape[0]}"
+        if self.row and (values.shape[0] == 0 or values.shape[0] % self.row):
+            return f"expected rows of {self.row} values, got {values.shape[0]} values"
+        if not np.all(np.isfinite(values)):
+            return "values must be finite"
+        if np.any(values < self.lo) or np.any(values > self.hi):
+            return f"values must be within {self.lo:g} .. {self.hi:g}"
+        return ""
+
+
+def _set_pid(which: int):
+    def write(rig, v):
+        gains = list(rig.pid_gains)
+        gains[which] = v
+        rig.set_pid(*gains)
+
+    return write
+
+
+SPEED_RAMP_RPM_S = 5000.0
+
+
+def _command_speed(rig, rpm: float) -> None:
+    now = rig.run_speed_rpm()
+    rig.command_speed(SpeedProfile(now, rpm, max(abs(rpm - now) / SPEED_RAMP_RPM_S, 1e-3)))
+
+
+def _mu_rows(v: np.ndarray) -> tuple:
+    return tuple(tuple(r) for r in v.reshape(-1, 3))
+
+
+PARAMETERS: dict[str, _Param] = {
+    "pid.p": _Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), 0.0, 100.0, "proportional gain per axis, V/V"),
+    "pid.i": _Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), 0.0, 1e4, "integral gain per axis, 1/s"),
+    "pid.d": _Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), 1e-6, 1.0, "derivative gain per axis, s"),
+    "ff.mode": _Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]),
+                      lambda r, v: r.set_feedforward({m: k for k, m in FF_MODES.items()}[int(v[0])]), 0, 2,
+                      "feedforward: 0 off, 1 table, 2 LMS"),
+    "ff.table": _Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
+                       lambda r, v: r.set_feedforward(r.feedforward_mode, v.reshape(N_AXES, N_HARMONICS, 2)),
+                       -1e-3, 1e-3, "feedforward weights [axis][harmonic][sin, cos], m"),
+    "lms.schedule": _Param(0, lambda r: np.array(r.mu_schedule, dtype=float).ravel(),
+                           lambda r, v: r.set_mu_schedule(_mu_rows(v)), -1.0, 60000.0,
+                           "LMS step-size rows (rpm_from, rpm_to, mu)", row=3),
+    "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
+                        0.0, 60000.0, "speed: reads the present speed, writes a set-point (ramp at 5,000 rpm/s), rpm"),
+}

@@ -1,0 +1,75 @@
+"""Serve a simulated rig's devices on real transports (``ambdaq sim serve``)."""
+
+from __future__ import annotations
+
+import os
+import tty
+from dataclasses import dataclass, field
+
+from ..rig.profiles import build_rig
+from ..rig.speed import SpeedProfile
+from .controller import FdPort, SimController
+from .rig_server import DeviceClock, RigServer
+
+
+@dataclass
+class Pty:
+    """A pseudo-terminal pair: the device holds the master, drivers open ``path``."""
+
+    master: int
+    slave: int
+    path: str
+
+    @classmethod
+    def open(cls) -> "Pty":
+        master, slave = os.openpty()
+        tty.setraw(slave)  # bytes pass unchanged: no echo, no line discipline
+        return cls(master, slave, os.ttyname(slave))
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+@dataclass
+class ServedRig:
+    """A running simulated rig and the transports its devices sit behind."""
+
+    server: RigServer
+    controller: SimController
+    ptys: dict[str, Pty] = field(default_factory=dict)
+
+    def stop(self) -> None:
+        self.controller.stop()
+        self.server.stop()
+        for p in self.ptys.values():
+            p.close()
+
+
+def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", truth: bool = False,
+                 clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)) -> ServedRig:
+    """Start the rig and its AMB controller on a new pseudo-terminal; returns what is running.
+
+    Parameters
+    ----------
+    profile : str
+        Rig profile.
+    seed : int
+        Noise seed.
+    speed : str
+        Speed spec (rpm).
+    truth : bool
+        Stream the ground truth topics too.
+    clock : DeviceClock
+        The controller's clock (default: 5 s ahead of the host, running 50 ppm fast).
+    """
+    rig = build_rig(profile, seed=seed, speed=SpeedProfile.parse(speed), truth=truth)
+    server = RigServer(rig)
+    pty = Pty.open()
+    controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth)
+    controller.start()
+    server.start()
+    return ServedRig(server, controller, {"controller": pty})

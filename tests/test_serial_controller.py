@@ -1,0 +1,197 @@
+"""The AMB controller driver against the simulated controller over real pseudo-terminals."""
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
+from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.drivers.devices import open_device
+from ambdaq.drivers.rig.speed import SpeedProfile
+from ambdaq.drivers.rig.spindle import SpindleRig
+from ambdaq.drivers.simdev.controller import FdPort, SimController
+from ambdaq.drivers.simdev.faults import FaultyPort
+from ambdaq.drivers.simdev.rig_server import DeviceClock, RigServer
+from ambdaq.drivers.simdev.serve import Pty
+from ambdaq.errors import DeviceError
+
+
+class Bench:
+    """A rig served in this process: controllers on PTYs, every rig block kept as ground truth."""
+
+    def __init__(self, truth=False):
+        self.rig = SpindleRig(speed=SpeedProfile(30000, 30000), truth=truth)
+        self.server = RigServer(self.rig)
+        self.blocks = {}
+        self.server.subscribe(lambda b: self.blocks.setdefault(int(b.seq[0]), b))
+        self.ptys, self.devices = [], []
+
+    def controller(self, port_cls=FdPort, clock=DeviceClock(5_000_000_000, 50.0), **kw):
+        pty = Pty.open()
+        port = port_cls(pty.master, **kw) if port_cls is not FdPort else FdPort(pty.master)
+        dev = SimController(port, self.server, clock=clock, truth=self.rig.truth)
+        dev.start()
+        self.ptys.append(pty)
+        self.devices.append(dev)
+        return dev, pty, port
+
+    def start(self):
+        self.server.start()
+
+    def truth(self, topic):
+        seqs = np.concatenate([b.seq for b in self.blocks.values()])
+        vals = np.concatenate([b.values[topic] for b in self.blocks.values()])
+        return dict(zip(seqs.tolist(), vals))
+
+    def close(self):
+        for d in self.devices:
+            d.stop()
+        self.server.stop()
+        for p in self.ptys:
+            p.close()
+
+
+@pytest.fixture
+def bench():
+    b = Bench()
+    yield b
+    b.close()
+
+
+def test_identity_parameters_and_refusals(bench):
+    _, pty, _ = bench.controller()
+    bench.start()
+    drv = open_device(f"serial://{pty.path}")
+    try:
+        assert drv.name == "controller"
+        ident = drv.identity()
+        assert ident["kind"] == "controller" and ident["serial"] == "SIM-CTRL-0001"
+        assert [g.topic for g in drv.signal_groups()] == ["/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"]
+        np.testing.assert_allclose(drv.read_param("pid.p"), 1.6)
+        np.testing.assert_allclose(drv.read_param("pid.d"), [0.0015, 0.0015, 0.002, 0.002, 0.002])
+        drv.write_param("pid.d", [0.0016, 0.0016, 0.0021, 0.0021, 0.002])
+        np.testing.assert_allclose(drv.read_param("pid.d"), [0.0016, 0.0016, 0.0021, 0.0021, 0.002])
+        np.testing.assert_allclose(bench.rig.pid_gains[2], [0.0016, 0.0016, 0.0021, 0.0021, 0.002])  # applied
+        with pytest.raises(DeviceError, match="no parameter 'pid.q'"):
+            drv.read_param("pid.q")
+        with pytest.raises(DeviceError, match="values must be finite"):
+            drv.write_param("pid.p", [1.6, np.nan, 1.6, 1.6, 1.6])
+        with pytest.raises(DeviceError, match="expected 5 values"):
+            drv.write_param("pid.p", [1.6])
+        np.testing.assert_allclose(drv.read_param("pid.p"), 1.6)  # refused writes change nothing
+        drv.write_param("speed.rpm", [20000])
+        time.sleep(0.3)
+        assert 20000 < bench.rig.run_speed_rpm() < 30000  # ramping down at 5,000 rpm/s
+    finally:
+        drv.close()
+
+
+def test_record_two_controllers_with_drifting_clocks_aligns_them(bench, tmp_path):
+    """Controller A (+50 ppm, 5 s ahead) streams /amb/*, B (-50 ppm, 3 s behind) the truth topics of
+    the same rig; the same seq is the same instant, so log_time must agree within 100 us."""
+    bench.rig = None
+    bench.__init__(truth=True)
+    bench.controller(clock=DeviceClock(5_000_000_000, 50.0))
+    b_dev, _, _ = bench.controller(clock=DeviceClock(-3_000_000_000, -50.0))
+    b_dev.groups = [g for g in b_dev.groups if g.topic.startswith("/truth")]
+    bench.devices[0].groups = [g for g in bench.devices[0].groups if not g.topic.startswith("/truth")]
+    bench.start()
+    a = open_device(f"serial://{bench.ptys[0].path}", name="ctlA")
+    b = open_device(f"serial://{bench.ptys[1].path}", name="ctlB")
+    res = Recorder([a, b], tmp_path / "two.mcap", RecordOptions(duration_s=8)).run()
+    assert res.samples == 80000 and res.drops == 0
+    assert abs(res.clocks["ctlA"]["drift_ppm"] + 50) < 15 and abs(res.clocks["ctlB"]["drift_ppm"] - 50) < 15
+    rec = load(tmp_path / "two.mcap")
+    gap, pos = rec["/amb/gap"], rec["/truth/position"]
+    _, ia, ib = np.intersect1d(gap.seq, pos.seq, return_indices=True)
+    misalign = np.abs(gap.log_time[ia] - pos.log_time[ib]) * 1e-3
+    assert misalign.max() < 100.0, misalign.max()  # one sample period at 10 kHz
+    # against the true instants: a constant transport latency, and little spread about it
+    true = bench.server.start_wall_ns + gap.seq.astype(np.int64) * 100_000
+    err = (gap.log_time - true) * 1e-3
+    assert np.percentile(err, 99) - np.percentile(err, 1) < 100.0
+    assert res.alignment_us is not None
+    meta = McapFile(tmp_path / "two.mcap").metadata()
+    assert float(meta["ambdaq.clock.ctlB"]["drift_ppm"]) > 45
+
+
+def test_damaged_frames_are_rejected_counted_and_never_recorded(bench, tmp_path):
+    _, pty, port = bench.controller(FaultyPort, flip=0.03, truncate=0.02, garbage=0.02, seed=4)
+    bench.start()
+    drv = open_device(f"serial://{pty.path}")
+    res = Recorder([drv], tmp_path / "noisy.mcap", RecordOptions(duration_s=4)).run()
+    stats = McapFile(tmp_path / "noisy.mcap").metadata()["ambdaq.link.controller"]
+    rejected = int(stats["crc_errors"]) + int(stats["cobs_errors"])
+    assert port.damaged > 0 and rejected > 0
+    assert res.drops > 0  # lost blocks are counted from the sample index ...
+    gap = load(tmp_path / "noisy.mcap")["/amb/gap"]
+    assert len(gap) + res.drops == 40000  # ... and nothing is made up for them
+    truth = bench.truth("/amb/gap")
+    got = np.array([truth[s] for s in gap.seq.tolist()]).astype(np.float32)
+    np.testing.assert_array_equal(np.column_stack([gap[f] for f in gap.fields]).astype(np.float32), got)
+
+
+def test_stalled_device_finishes_the_file_and_names_the_device(bench, tmp_path, run_cli):
+    _, pty, port = bench.controller(FaultyPort)
+    bench.start()
+    out = tmp_path / "stall.mcap"
+
+    def stall():
+        time.sleep(2.5)
+        port.stalled.set()
+
+    import threading
+
+    threading.Thread(target=stall, daemon=True).start()
+    r = run_cli("record", "--device", f"serial://{pty.path}", "--duration", "20", "-o", out)
+    assert r.exit_code == 1
+    line = r.output.strip().splitlines()[-1]
+    assert line.startswith("ambdaq: error: controller (serial://") and "lost at" in line and "finished cleanly" in line
+    gap = load(out)["/amb/gap"]  # finished and indexed
+    assert 5000 < len(gap) < 40000
+    np.testing.assert_array_equal(np.diff(gap.seq.astype(np.int64)), 1)
+
+
+def test_fault_events_are_recorded_on_their_own_topic(bench, tmp_path):
+    dev, pty, _ = bench.controller()
+    bench.start()
+    drv = open_device(f"serial://{pty.path}")
+    import threading
+
+    threading.Timer(1.0, lambda: dev.fault(0x2310, 2, "amplifier 3 over-current")).start()
+    Recorder([drv], tmp_path / "f.mcap", RecordOptions(duration_s=3)).run()
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(tmp_path / "f.mcap", "rb") as fh:
+        events = [d for _s, c, _m, d in make_reader(fh, decoder_factories=[DecoderFactory()])
+                  .iter_decoded_messages(topics=["/amb/events"])]
+    assert len(events) == 1
+    assert events[0].code == 0x2310 and events[0].kind == "fault" and "over-current" in events[0].text
+    assert events[0].device == "controller"
+
+
+def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--duration", "30"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline().split()
+        assert line[0] == "controller" and line[1].startswith("/dev/")
+        out = tmp_path / "remote.mcap"
+        r = run_cli("record", "--device", f"serial://{line[1]}", "--duration", "3", "--json", "-o", out)
+        assert r.exit_code == 0, r.output
+        summary = json.loads(r.stdout)
+        assert summary["samples"] == 30000 and summary["drops"] == 0
+        assert abs(summary["clocks"]["controller"]["drift_ppm"] + 50) < 20  # 3 s of pairs: a rough estimate
+        rotor = load(out)["/amb/rotor"]
+        np.testing.assert_allclose(rotor["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
+        info = run_cli("info", out).output
+        assert "[ambdaq.link.controller]" in info and "crc_errors = 0" in info
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
