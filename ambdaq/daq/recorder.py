@@ -29,7 +29,6 @@ from .writer import RecordingWriter, TopicStats
 
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
-EVENTS_TOPIC = "/amb/events"
 
 
 class Source(Protocol):
@@ -330,7 +329,7 @@ class Recorder:
                 t = int(cm.to_host(np.array([ev.device_time_ns]))[0])
             else:
                 t = time.time_ns()
-            self._writer.write_event(EVENTS_TOPIC, source.name, t, ev)
+            self._writer.write_event(ev.topic, source.name, t, ev)
             self._events += 1
 
     def _open_part(self, start_ns: int) -> None:
@@ -381,9 +380,12 @@ class Recorder:
         at 0 when the recording starts, so their mapping is the start offset.
         """
         device = source.name
+        if block.host_time_ns is not None:  # the device's times are host times (CAN bus stamps)
+            self._write(device, block)
+            return
         if block.received_ns is None:
             host = block.device_time_ns + self._start_ns
-            self._write(device, SampleBlock(block.device_time_ns, block.seq, block.values, host))
+            self._write(device, SampleBlock(block.device_time_ns, block.seq, block.values, host, status=block.status))
             return
         cm = self._clocks.setdefault(device, ClockMap())
         pairs = getattr(source, "clock_pairs", None)
@@ -397,7 +399,7 @@ class Recorder:
         cm = self._clocks[device]
         for b in self._priming.pop(device, []):
             self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, cm.to_host(b.device_time_ns),
-                                            b.received_ns))
+                                            b.received_ns, b.status))
 
     @staticmethod
     def _counts(stats: dict[str, TopicStats]) -> tuple[int, int]:

@@ -140,7 +140,7 @@ class RecordingWriter:
             rows[p + "cdr_header"] = CDR_LE_HEADER
             rows[p + "device_time"] = block.device_time_ns
             rows[p + "seq"] = block.seq
-            rows[p + "status"] = 0
+            rows[p + "status"] = 0 if block.status is None else block.status
             rows[p + "values"] = block.values[layout.group.topic]
             st.samples += n
             st.drops += drops

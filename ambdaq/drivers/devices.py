@@ -6,7 +6,10 @@ from ..errors import BadInputError, DeviceError
 from .controller import ControllerDriver
 from .serial_link import SerialLink
 from .sim import SimSource
-from .url import DeviceURL, parse_device_url
+from .can_bus import CanHub
+from .canopen_driver import CanopenDevice
+from .canopen_profiles import PROFILES
+from .url import SCHEMES, DeviceURL, parse_device_url
 
 SERIAL_DRIVERS = {"controller": ControllerDriver}
 
@@ -36,7 +39,36 @@ def open_device(url: str, *, name: str | None = None, speed: str | None = None, 
         return SimSource(parsed, name=name or "rig", speed=speed, truth=truth, paced=paced, calibration=calibration)
     if parsed.scheme == "serial":
         return _open_serial(parsed, name, speed)
+    if parsed.scheme == "can":
+        return _open_can(parsed, name)
     raise BadInputError(f"no driver for {parsed.scheme}:// devices")
+
+
+def _number(url: DeviceURL, key: str, default: str, kind=int):
+    try:
+        return kind(url.options.get(key, default), 0) if kind is int else kind(url.options.get(key, default))
+    except ValueError:
+        raise BadInputError(f"option {key}={url.options[key]!r} in {url.text!r}: expected a number") from None
+
+
+def _open_can(url: DeviceURL, name: str | None):
+    """A CANopen device on a shared bus: ``can://INTERFACE/CHANNEL?node=N``."""
+    interface, _, channel = url.target.partition("/")
+    if not channel:
+        raise BadInputError(f"device URL {url.text!r} names no channel: expected {SCHEMES['can'].form}")
+    kind = url.options.get("kind")
+    if kind is not None and kind not in PROFILES:
+        raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
+    if "node" not in url.options and kind is None:
+        raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {SCHEMES['can'].form}")
+    node = _number(url, "node", str(PROFILES[kind].default_node) if kind else "0")
+    hub = CanHub.acquire(interface, channel, _number(url, "bitrate", "1000000"))
+    try:
+        return CanopenDevice(hub, node, kind=kind, sync_hz=_number(url, "sync", "800", float), name=name,
+                             namespace=url.options.get("namespace", ""), url=url.text)
+    except BaseException:
+        hub.release()
+        raise
 
 
 def _open_serial(url: DeviceURL, name: str | None, speed: str | None):

@@ -56,6 +56,8 @@ class SampleBlock:
     received_ns : int, optional
         Host time at which the block's last sample arrived, in ns: what the recorder's clock map
         learns the device clock from.  ``None`` for in-process sources that share the host clock.
+    status : ndarray of uint32, shape (n,), optional
+        Device status word of each sample (the messages' ``status`` field), 0 if not given.
     """
 
     device_time_ns: np.ndarray
@@ -63,6 +65,7 @@ class SampleBlock:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     host_time_ns: np.ndarray | None = None
     received_ns: int | None = None
+    status: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.device_time_ns.shape[0])
@@ -75,6 +78,7 @@ class SampleBlock:
             {k: v[start:stop] for k, v in self.values.items()},
             None if self.host_time_ns is None else self.host_time_ns[start:stop],
             self.received_ns,
+            None if self.status is None else self.status[start:stop],
         )
 
 
@@ -92,9 +96,12 @@ class Event:
         Device or protocol code (EMCY code, NAK code ...), 0 if none.
     text : str
         What happened, in words.
+    topic : str
+        Where it is recorded: ``/amb/events`` for device events, ``/can/bus`` for the bus's.
     """
 
     device_time_ns: int
     kind: str
     code: int
     text: str
+    topic: str = "/amb/events"

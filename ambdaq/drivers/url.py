@@ -27,6 +27,12 @@ SCHEMES: dict[str, Scheme] = {
         "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1]",
         ("seed", "rpm", "truth", "ff", "noise"),
     ),
+    "can": Scheme(
+        "can",
+        "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor&sync=HZ"
+        "&bitrate=1000000&namespace=NAME] (any python-can interface, e.g. can://virtual/amb0?node=16)",
+        ("node", "kind", "sync", "bitrate", "namespace"),
+    ),
     "serial": Scheme(
         "serial",
         "serial:///dev/ttyUSB0[?baud=3000000] or serial:socket://HOST:PORT (any pyserial URL)",

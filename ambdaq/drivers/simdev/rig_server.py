@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -37,9 +38,11 @@ class DeviceClock:
 class RigServer:
     """Steps ``rig`` in blocks of ``block_s`` seconds, paced to the wall clock, in its own thread.
 
-    Subscribers get every block (``callback(block)``) on the server's thread; they must be quick
-    (encode and queue for their transport).  Rig time 0 is the moment :meth:`start` is called,
-    so ``wall_time_ns(rig_time)`` is when a sample instant happened on the host clock.
+    Subscribers get every block (``callback(block)``) on the server's thread when the wall clock
+    reaches its end; they must be quick (encode and queue for their transport).  Blocks are
+    computed a block ahead of the wall clock, so devices sampling on an external trigger (a CAN
+    SYNC) can read the rig's sample at any instant up to now with :meth:`sample_at`.  Rig time 0 is the moment
+    :meth:`start` is called: sample k happened at ``start_wall_ns + k * period``.
     """
 
     def __init__(self, rig, *, block_s: float = 0.01) -> None:
@@ -49,6 +52,8 @@ class RigServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._recent: deque[SampleBlock] = deque(maxlen=256)  # 2.56 s of history
+        self._pending: deque[SampleBlock] = deque()  # computed, not yet published
         self.start_wall_ns = 0
         self.start_mono = 0.0
 
@@ -62,6 +67,10 @@ class RigServer:
                 self._subs.remove(callback)
 
     def start(self) -> None:
+        """Start the rig's clock; the first block is computed first, so compiling the physics
+        kernel never makes the rig late."""
+        for _ in range(2):  # blocks 0 and 1: the computed horizon leads the wall clock by a block
+            self._compute()
         self.start_wall_ns = time.time_ns()
         self.start_mono = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="rig-server", daemon=True)
@@ -70,8 +79,8 @@ class RigServer:
     def _run(self) -> None:
         rate = self.rig.params.sample_rate
         while not self._stop.is_set():
-            block = self.rig.run(self.block)
-            due = self.start_mono + self.rig.step_index / rate
+            block = self._pending.popleft()
+            due = self.start_mono + (int(block.seq[-1]) + 1) / rate  # the end of this block
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
@@ -79,6 +88,29 @@ class RigServer:
                 subs = list(self._subs)
             for cb in subs:
                 cb(block)
+            self._compute()
+
+    def _compute(self) -> None:
+        block = self.rig.run(self.block)
+        with self._lock:
+            self._recent.append(block)
+        self._pending.append(block)
+
+    def sample_at(self, wall_ns: int) -> tuple[int, dict[str, np.ndarray]]:
+        """The rig's sample at host time ``wall_ns`` (ns): its step index and one row per group."""
+        step = (wall_ns - self.start_wall_ns) // self.rig.period_ns
+        with self._lock:
+            if not self._recent:
+                raise LookupError("the rig has produced nothing yet")
+            newest = self._recent[-1]
+            if step > int(newest.seq[-1]):
+                raise LookupError(f"rig step {step} is not computed yet (the rig is late)")
+            for b in reversed(self._recent):
+                first = int(b.seq[0])
+                if first <= step:
+                    i = int(step - first)
+                    return first + i, {t: v[i] for t, v in b.values.items()}
+        raise LookupError(f"rig step {step} is older than the history kept")
 
     def stop(self) -> None:
         self._stop.set()

@@ -1,0 +1,204 @@
+"""CANopen drivers against simulated devices and against canopen's own LocalNode, on the virtual bus."""
+
+import itertools
+import struct
+import time
+
+import can
+import canopen
+import numpy as np
+import pytest
+
+from ambdaq.daq import load
+from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.drivers.can_bus import CanHub, bus_load, frame_bits
+from ambdaq.drivers.canopen_profiles import PROFILES, build_od
+from ambdaq.drivers.devices import open_device
+from ambdaq.drivers.rig.speed import SpeedProfile
+from ambdaq.drivers.rig.spindle import SpindleRig
+from ambdaq.drivers.simdev.canopen_devices import serve_can
+from ambdaq.drivers.simdev.rig_server import RigServer
+from ambdaq.errors import BadInputError, DeviceError
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def can_rig():
+    """A rig at 30,000 rpm with one simulated device of each type on a fresh virtual channel."""
+    channel = f"test{next(_channels)}"
+    rig = SpindleRig(speed=SpeedProfile(30000, 30000), truth=True)
+    server = RigServer(rig)
+    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
+    net.connect()
+    sims = serve_can(net, server)
+    server.start()
+    yield channel, server, sims, net
+    server.stop()
+    net.disconnect()
+
+
+def test_shipped_eds_files_match_the_profiles():
+    for p in PROFILES.values():
+        shipped = canopen.import_od(str(p.eds_path))
+        built = build_od(p)
+        assert sorted(shipped.indices) == sorted(built.indices)
+        for idx in built.indices:
+            b, s = built[idx], shipped[idx]
+            members = [b] if isinstance(b, canopen.objectdictionary.ODVariable) else list(b.values())
+            for m in members:
+                sm = s if isinstance(s, canopen.objectdictionary.ODVariable) else s[m.subindex]
+                assert (sm.name, sm.data_type, sm.access_type, sm.default) == (m.name, m.data_type, m.access_type, m.default)
+
+
+def test_frame_bits_and_bus_load():
+    assert frame_bits(8) == 135 and frame_bits(0) == 55  # worst-case stuffing, 11-bit id
+    assert 1_000_000 // frame_bits(8) == 7407  # "roughly 7,000-8,000 frames/s" at 1 Mbit/s
+    assert bus_load([0, 8, 8], 1000, 1_000_000) == pytest.approx((55 + 270) / 1000)
+
+
+@pytest.mark.parametrize("kind", sorted(PROFILES))
+def test_each_driver_streams_its_simulated_device(can_rig, kind):
+    channel, server, _sims, _net = can_rig
+    p = PROFILES[kind]
+    dev = open_device(f"can://virtual/{channel}?node={p.default_node}&sync=500")
+    try:
+        assert dev.profile.kind == kind and dev.name == kind
+        assert dev.identity()["serial"] == str(1000 + p.default_node)
+        dev.start(250)
+        blocks = []
+        while (b := dev.read()) is not None:
+            blocks.append(b)
+        t = np.concatenate([b.device_time_ns for b in blocks])
+        vals = np.concatenate([b.values[dev.group.topic] for b in blocks])
+        seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
+        assert len(t) == 250 and np.all(np.diff(seq) == 1)
+        assert np.median(np.diff(t)) == pytest.approx(2e6, rel=0.05)  # 500 Hz SYNC
+        # every value is the rig's value at the SYNC instant, to the resolution of the wire format
+        for ti, row in zip(t[::25], vals[::25]):
+            _step, rows = server.sample_at(int(ti))
+            expect = rows[p.rig_topic][[c.rig_column for c in p.channels]]
+            if kind == "keyphasor":
+                expect[0] %= 2 * np.pi
+            tol = np.array([c.scale for c in p.channels]) * 0.51 + np.abs(expect) * 1e-6
+            np.testing.assert_array_less(np.abs(row - expect), tol)
+    finally:
+        dev.close()
+
+
+def test_sdo_parameters_and_refusals(can_rig):
+    channel, *_ = can_rig
+    amp = open_device(f"can://virtual/{channel}?kind=amplifier")
+    try:
+        assert amp.read_param("bias_current") == pytest.approx(2.1)
+        amp.write_param("current_limit", 4.5)
+        assert amp.read_param("current_limit") == pytest.approx(4.5)
+        with pytest.raises(DeviceError, match="writing temperature failed"):
+            amp.write_param("temperature", 20.0)  # read-only: the SDO server aborts
+        with pytest.raises(BadInputError, match="no parameter 'gain'"):
+            amp.read_param("gain")
+    finally:
+        amp.close()
+
+
+def test_driver_against_canopens_own_local_node():
+    """An independent peer: canopen's LocalNode and its own PDO encoding, no ambdaq device code."""
+    channel = f"peer{next(_channels)}"
+    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
+    net.connect()
+    p = PROFILES["gap_sensor"]
+    node = canopen.LocalNode(0x21, str(p.eds_path))
+    net.add_node(node)
+    node.set_data(0x1018, 4, struct.pack("<I", 4242), check_writable=False)
+    counts = {"n": 0}
+
+    def on_sync(can_id, data, timestamp):  # canopen's TPDO machinery, values in raw counts
+        if node.nmt.state != "OPERATIONAL":
+            return
+        counts["n"] += 1
+        node.tpdo.read(from_od=False)
+        for i, pdo in enumerate(node.tpdo.values()):
+            if not pdo.enabled:
+                continue
+            pdo.cob_id = 0x180 + 0x100 * i + 0x21
+            for k, var in enumerate(pdo):
+                if var.index == 0x5000:
+                    var.raw = data[0]  # echo the SYNC counter
+                else:
+                    var.raw = 1000 * (i * 4 + k + 1) + counts["n"] % 7
+            pdo.transmit()
+
+    net.subscribe(0x80, on_sync)
+    dev = open_device(f"can://virtual/{channel}?node=0x21&sync=200")
+    try:
+        assert dev.profile.kind == "gap_sensor" and dev.serial == 4242
+        dev.start(40)
+        rows = np.concatenate([b.values["/amb/gap"] for b in iter(dev.read, None)])
+        assert rows.shape == (40, 5)
+        counts_raw = np.round(rows / 1e-8).astype(int)
+        np.testing.assert_array_equal(counts_raw[:, :4] // 1000, [1, 2, 3, 4] * np.ones((40, 1), int))
+        np.testing.assert_array_equal(counts_raw[:, 4] // 1000, 5)
+    finally:
+        dev.close()
+        net.disconnect()
+
+
+def test_bus_load_above_80_percent_is_refused_with_what_fits(can_rig):
+    channel, *_ = can_rig
+    # per SYNC: the SYNC (1 byte) and 6 TPDOs, 785 bits worst case: 79% at 1 kHz, 86% at 1.1 kHz
+    devs = [open_device(f"can://virtual/{channel}?kind={k}&sync=1100") for k in sorted(PROFILES)]
+    try:
+        devs[0].start(10)
+        with pytest.raises(BadInputError, match=r"CAN stream needs 86% of 1,000,000 bit/s \(7 frames per SYNC at 1100 Hz, 7,700 frames/s\); the limit is 80%: use sync=1019 or lower"):
+            for d in devs[1:]:
+                d.start(10)
+    finally:
+        for d in devs:
+            d.close()
+
+
+def test_emcy_error_frames_and_heartbeat_loss(can_rig, tmp_path):
+    channel, _server, sims, net = can_rig
+    amp = open_device(f"can://virtual/{channel}?kind=amplifier&sync=500", name="amp")
+    amp.write_param("current_limit", 0.05)  # far below the running currents: over-current EMCY
+
+    def trouble():
+        time.sleep(1.0)
+        net.bus.send(can.Message(is_error_frame=True, arbitration_id=0x20000004, data=b"\x00\x08\x00\x00\x00\x00\x00\x00"))
+        time.sleep(0.8)
+        sims[0].node.nmt.stop_heartbeat()  # the amplifier goes silent
+
+    import threading
+
+    threading.Thread(target=trouble, daemon=True).start()
+    with pytest.raises(DeviceError, match=r"amp \(can://virtual/.*\) lost at .*no heartbeat from node 16"):
+        Recorder([amp], tmp_path / "can.mcap", RecordOptions(duration_s=10)).run()
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(tmp_path / "can.mcap", "rb") as fh:
+        msgs = [(c.topic, d) for _s, c, _m, d in make_reader(fh, decoder_factories=[DecoderFactory()])
+                .iter_decoded_messages(topics=["/amb/events", "/can/bus"])]
+    assert any(t == "/amb/events" and d.code == 0x2310 and "Current" in d.text for t, d in msgs), [(t, d.kind, d.code, d.text) for t, d in msgs]
+    assert any(t == "/can/bus" and d.kind == "error-frame" for t, d in msgs)
+    cur = load(tmp_path / "can.mcap")["/amb/current"]
+    assert len(cur) > 500 and np.all(cur.status & 0x1)  # over-current bit in every status word
+
+
+def test_bus_off_is_reported(can_rig, tmp_path):
+    channel, *_ = can_rig
+    dev = open_device(f"can://virtual/{channel}?kind=accelerometer&sync=200")
+
+    class BusOff(type(dev.hub.network.bus)):
+        state = property(lambda self: can.BusState.ERROR)
+
+    def go_bus_off():
+        time.sleep(0.8)
+        dev.hub.network.bus.__class__ = BusOff
+
+    import threading
+
+    threading.Thread(target=go_bus_off, daemon=True).start()
+    with pytest.raises(DeviceError, match="went bus-off"):
+        Recorder([dev], tmp_path / "off.mcap", RecordOptions(duration_s=10)).run()
+    assert len(load(tmp_path / "off.mcap")["/amb/accel"]) > 50  # what came before is kept
