@@ -45,7 +45,7 @@ def test_interrupt_finishes_the_file_cleanly(tmp_path, sig):
     rec = load(out)  # finished and indexed: the fast reader opens it
     gap = rec["/amb/gap"]
     assert len(gap) == summary["samples"] > 10000
-    np.testing.assert_array_equal(gap.seq, np.arange(len(gap)))
+    np.testing.assert_array_equal(np.diff(gap.seq.astype(np.int64)), 1)  # nothing lost at the end
 
 
 def test_kill_9_loses_at_most_the_last_second(tmp_path, run_cli):
@@ -65,7 +65,7 @@ def test_kill_9_loses_at_most_the_last_second(tmp_path, run_cli):
     report = json.loads(r.stdout)
     assert report["chunks_kept"] >= 4
     gap = load(fixed)["/amb/gap"]
-    np.testing.assert_array_equal(gap.seq, np.arange(len(gap)))  # contiguous from the first sample
+    np.testing.assert_array_equal(np.diff(gap.seq.astype(np.int64)), 1)  # contiguous from the first sample
     lost_s = (killed_ns - int(gap.log_time[-1])) * 1e-9
     assert 0 <= lost_s <= 1.0, lost_s
     assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0}

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
-from ..drivers.devices import open_device
+from ..drivers.devices import open_devices
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
 from .options import output_options, report_options, speed_option
@@ -64,15 +64,19 @@ def command(devices, rig_path, duration, speed, truth, output, split_size, split
     """
     if not devices and not rig_path:
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
-    sources = []
-    for i, url in enumerate(devices):
-        sources.append(open_device(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed,
-                                   truth=truth or None))
     rig = load_rig(rig_path) if rig_path else None
-    if rig is not None:
-        for d in rig.devices:
-            sources.append(open_device(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
-                                       calibration=d.calibration))
+    sources = []
+    try:
+        for i, url in enumerate(devices):
+            sources += open_devices(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed,
+                                    truth=truth or None)
+        for d in rig.devices if rig is not None else ():
+            sources += open_devices(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
+                                    calibration=d.calibration)
+    except BaseException:
+        for s in sources:
+            s.close()
+        raise
     run_recording(sources, output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json,
                   rig_file=rig.path if rig else None)

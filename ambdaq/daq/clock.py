@@ -8,8 +8,10 @@ one-way delay (IEEE INFOCOM 1999): the line below every pair of the last ``SPAN_
 closest to them in total, which is the edge of their lower convex hull straddling their mean
 device time.  Jitter only ever lifts points off the hull, so it cannot pull the line up.
 
-The pairs' height above the line is the latency beyond the fastest; its 10th percentile is
-reported as the map's uncertainty.
+The line itself is the fastest arrival, one one-way latency after the true instant; where the
+driver measures that latency (half the least round trip of a time exchange, as NTP does) it is
+subtracted (:attr:`ClockMap.latency_ns`).  The pairs' height above the line is the latency beyond
+the fastest; its 10th percentile is reported as the map's uncertainty.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 SPAN_S = 10.0  # fit over the last 10 s of pairs
-SETTLE_S = 1.5  # pairs spanning this long before drift is estimated
+SETTLE_S = 2.0  # pairs spanning this long before drift is estimated
 REFIT_S = 0.25  # refit every quarter second of device time
 
 
@@ -32,6 +34,7 @@ class ClockFit:
     offset_ns: float
     uncertainty_ns: float
     points: int
+    latency_ns: int = 0
 
 
 def lower_hull_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -75,6 +78,7 @@ class ClockMap:
         self._a = 0.0  # y = a + b x
         self._b = 0.0
         self._settled = False
+        self.latency_ns = 0  # one-way latency of the fastest pairs, subtracted when known
 
     @property
     def ready(self) -> bool:
@@ -113,11 +117,12 @@ class ClockMap:
         if self._d0 is None:
             raise RuntimeError("no clock pair yet")
         dd = np.asarray(device_ns, dtype=np.int64) - self._d0
-        return self._h0 + dd + np.round(self._a + self._b * (dd * 1e-9)).astype(np.int64)
+        return self._h0 + dd + np.round(self._a + self._b * (dd * 1e-9) - self.latency_ns).astype(np.int64)
 
     def fit(self) -> ClockFit:
         """The present estimate; uncertainty: 10th percentile of the pairs' height above the line."""
         x, y = np.asarray(self._x), np.asarray(self._y)
         above = y - (self._a + self._b * x) if x.size else np.array([np.nan])
         # host = device (1 + b): b is in ns per s of device time, i.e. ppm * 1e3
-        return ClockFit(self._b * 1e-3, self._a, float(np.percentile(above, 10)), int(x.size))
+        return ClockFit(self._b * 1e-3, self._a - self.latency_ns, float(np.percentile(above, 10)), int(x.size),
+                        self.latency_ns)

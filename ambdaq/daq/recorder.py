@@ -99,14 +99,7 @@ class RecordResult:
     clocks: dict[str, dict] = field(default_factory=dict)
     events: int = 0
 
-    @property
-    def alignment_us(self) -> float | None:
-        """Estimated worst alignment error between two clock-mapped devices, in us."""
-        r = sorted((c["uncertainty_us"] for c in self.clocks.values() if c["uncertainty_us"] == c["uncertainty_us"]),
-                   reverse=True)
-        if len(r) < 2:
-            return None
-        return float((r[0] ** 2 + r[1] ** 2) ** 0.5)
+    alignment_us: float | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -232,6 +225,7 @@ class Recorder:
         self._files: list[Path] = []
         self._clocks: dict[str, ClockMap] = {}
         self._priming: dict[str, list[SampleBlock]] = {}
+        self._host_clocked: set[str] = set()
         self._events = 0
         self._open_part(self._start_ns)
         t0 = time.monotonic()
@@ -298,20 +292,36 @@ class Recorder:
             topics={t: {"samples": st.samples, "drops": st.drops} for t, st in self._totals.items()},
             clocks=self._clock_report(),
             events=self._events,
+            alignment_us=self._alignment_us(),
         )
+
+    def _alignment_us(self) -> float | None:
+        """Estimated worst alignment between two devices: root sum square of the two largest map
+        uncertainties (devices stamped on the host clock count as exact), in us."""
+        u = sorted((c["uncertainty_us"] for c in self._clock_report().values() if c["uncertainty_us"] == c["uncertainty_us"]),
+                   reverse=True)
+        if len(u) < 2:
+            return None
+        return float((u[0] ** 2 + u[1] ** 2) ** 0.5)
 
     def _clock_report(self) -> dict[str, dict]:
         out = {}
         for name, cm in self._clocks.items():
             fit = cm.fit()
             out[name] = {"drift_ppm": round(float(fit.drift_ppm), 3), "offset_ns": round(float(fit.offset_ns)),
-                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points}
+                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points,
+                         "latency_us": round(fit.latency_ns * 1e-3, 3)}
+        for name in self._host_clocked:
+            out[name] = {"host_clock": True, "uncertainty_us": 0.0}
         return out
 
     def _close_part(self) -> None:
         """Clock fits and link statistics go into the part's metadata, then it is finished."""
         for name, rep in self._clock_report().items():
             self._writer.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
+        alignment = self._alignment_us()
+        if alignment is not None:
+            self._writer.add_metadata("ambdaq.alignment", {"estimated_worst_us": f"{alignment:.1f}"})
         for s in self.sources:
             stats = getattr(s, "link_statistics", None)
             if stats is not None:
@@ -375,12 +385,13 @@ class Recorder:
         """Map a block to the host clock and write it.
 
         Blocks that say when they arrived feed the device's online clock map (offset and drift).
-        A device's first blocks wait until its drift is estimated (1.5 s of pairs), so the whole file is
+        A device's first blocks wait until its drift is estimated (2 s of pairs), so the whole file is
         mapped through a fitted line; in-process sources without arrival times start their clock
         at 0 when the recording starts, so their mapping is the start offset.
         """
         device = source.name
         if block.host_time_ns is not None:  # the device's times are host times (CAN bus stamps)
+            self._host_clocked.add(device)
             self._write(device, block)
             return
         if block.received_ns is None:
@@ -391,6 +402,9 @@ class Recorder:
         pairs = getattr(source, "clock_pairs", None)
         for d, h in pairs() if pairs is not None else [(int(block.device_time_ns[-1]), block.received_ns)]:
             cm.update(d, h)
+        latency = getattr(source, "clock_latency_ns", None)
+        if latency is not None and latency() is not None:
+            cm.latency_ns = latency()
         self._priming.setdefault(device, []).append(block)
         if cm.settled:
             self._flush_priming(device)

@@ -108,8 +108,10 @@ class CanopenDevice:
                 "serial": str(self.serial), "node_id": str(self.node_id), "sample_rate_hz": f"{self.sample_rate:g}",
                 "eds": self.profile.eds_path.name}
 
+    extra_calibration: dict[str, str] = {}
+
     def calibration(self) -> dict[str, str]:
-        return {c.field: f"{c.scale:g} {c.unit} per count" for c in self.profile.channels}
+        return {**{c.field: f"{c.scale:g} {c.unit} per count" for c in self.profile.channels}, **self.extra_calibration}
 
     def configure(self) -> None:
         """SDO: heartbeat and TPDO communication (every SYNC); EMCY and heartbeat consumers."""

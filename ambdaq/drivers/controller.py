@@ -55,14 +55,17 @@ class ControllerDriver:
                 "serial": self.info["serial"], "firmware": self.info["firmware"],
                 "sample_rate_hz": f"{self.sample_rate:g}"}
 
+    extra_calibration: dict[str, str] = {}
+
     def calibration(self) -> dict[str, str]:
-        return {"units": "SI: m, A, rad, rad/s (device sends float32)"}
+        return {"units": "SI: m, A, rad, rad/s (device sends float32)", **self.extra_calibration}
 
     def start(self, n_samples: int | None) -> None:
         """Stream ``n_samples`` sample periods of device time (lost samples included), or forever."""
         self._n_samples = n_samples
         self._end_index = None
         self.link.request(MsgType.STREAM, b"\x01", what="stream on")
+        self.link.start_time_sync()
 
     def read(self) -> SampleBlock | None:
         """The next block of samples; ``None`` when the requested count is done."""
@@ -112,6 +115,10 @@ class ControllerDriver:
                 out.append(self.link.sync_pairs.get_nowait())
             except queue.Empty:
                 return out
+
+    def clock_latency_ns(self) -> int | None:
+        """One-way latency of the line (half the least round trip), subtracted from the clock map."""
+        return self.link.one_way_latency_ns
 
     def link_statistics(self) -> dict[str, str]:
         st = self.link.decoder.stats

@@ -14,6 +14,24 @@ from .url import SCHEMES, DeviceURL, parse_device_url
 SERIAL_DRIVERS = {"controller": ControllerDriver}
 
 
+def open_devices(url: str, *, name: str | None = None, speed: str | None = None, truth: bool | None = None,
+                 calibration: dict[str, str] | None = None) -> list:
+    """Open what ``url`` names: one device, or for ``sim://`` a whole simulated rig whose devices
+    sit behind real transports (see :mod:`ambdaq.drivers.simdev.inproc`)."""
+    parsed = parse_device_url(url)
+    if parsed.scheme != "sim":
+        dev = open_device(url, name=name, speed=speed)
+        if calibration:
+            dev.extra_calibration = dict(calibration)
+        return [dev]
+    from .simdev.inproc import open_simulated_rig
+
+    probe = SimSource(parsed, speed=speed, truth=truth)  # checks the URL's options
+    return open_simulated_rig(parsed.target, name=name or "rig", seed=probe.rig.seed, speed=probe.speed,
+                              truth=probe.rig.truth, ff_mode=probe.rig.feedforward_mode, noise=probe.rig.noise,
+                              calibration=calibration)
+
+
 def open_device(url: str, *, name: str | None = None, speed: str | None = None, truth: bool | None = None, paced: bool = True,
                 calibration: dict[str, str] | None = None):
     """Open the device at ``url`` as a sample source for the recorder.
@@ -40,7 +58,7 @@ def open_device(url: str, *, name: str | None = None, speed: str | None = None, 
     if parsed.scheme == "serial":
         return _open_serial(parsed, name, speed)
     if parsed.scheme == "can":
-        return _open_can(parsed, name)
+        return open_can_device(url, name=name)
     raise BadInputError(f"no driver for {parsed.scheme}:// devices")
 
 
@@ -51,12 +69,13 @@ def _number(url: DeviceURL, key: str, default: str, kind=int):
         raise BadInputError(f"option {key}={url.options[key]!r} in {url.text!r}: expected a number") from None
 
 
-def _open_can(url: DeviceURL, name: str | None):
+def open_can_device(text: str, *, name: str | None = None, namespace: str | None = None, kind: str | None = None):
     """A CANopen device on a shared bus: ``can://INTERFACE/CHANNEL?node=N``."""
+    url = parse_device_url(text)
     interface, _, channel = url.target.partition("/")
     if not channel:
         raise BadInputError(f"device URL {url.text!r} names no channel: expected {SCHEMES['can'].form}")
-    kind = url.options.get("kind")
+    kind = kind or url.options.get("kind")
     if kind is not None and kind not in PROFILES:
         raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
     if "node" not in url.options and kind is None:
@@ -65,7 +84,7 @@ def _open_can(url: DeviceURL, name: str | None):
     hub = CanHub.acquire(interface, channel, _number(url, "bitrate", "1000000"))
     try:
         return CanopenDevice(hub, node, kind=kind, sync_hz=_number(url, "sync", "800", float), name=name,
-                             namespace=url.options.get("namespace", ""), url=url.text)
+                             namespace=url.options.get("namespace", "") if namespace is None else namespace, url=url.text)
     except BaseException:
         hub.release()
         raise

@@ -17,8 +17,14 @@ type   name                dir    body after the 4-byte header
 0x30   SAMPLES             d->h   first sample index u32, device time of the first sample i64
                                   (ns), period u32 (ns), n u16, channels u16, n x channels f32
 0x40   FAULT               d->h   code u16, severity u8, device time i64, message
-0x41   HEARTBEAT           d->h   device time i64 (ns), state u8
+0x41   HEARTBEAT           d->h   device time i64 (ns) stamped as it is written, state u8
+0x42   TIME_REQUEST        h->d   host time t1 i64 (ns) stamped as it is written
+0x43   TIME_REPLY          d->h   t1 i64, device receive time t2 i64, device send time t3 i64
 =====  ==================  =====  ==========================================================
+
+HEARTBEATs give the host (device time, arrival) pairs for the clock's drift; TIME_REQUEST /
+TIME_REPLY give the round trip (t4 - t1) - (t3 - t2), half of whose minimum is the one-way
+latency the host subtracts from the mapping (NTP's symmetric-path assumption).
 """
 
 from __future__ import annotations
@@ -46,6 +52,8 @@ class MsgType(IntEnum):
     SAMPLES = 0x30
     FAULT = 0x40
     HEARTBEAT = 0x41
+    TIME_REQUEST = 0x42
+    TIME_REPLY = 0x43
 
 
 class NakCode(IntEnum):
@@ -186,3 +194,15 @@ def parse_fault(body: bytes) -> tuple[int, int, int, str]:
 
 def heartbeat(device_time_ns: int, state: int) -> bytes:
     return struct.pack("<qB", device_time_ns, state)
+
+
+def time_request(t1_ns: int) -> bytes:
+    return struct.pack("<q", t1_ns)
+
+
+def time_reply(t1_ns: int, t2_ns: int, t3_ns: int) -> bytes:
+    return struct.pack("<qqq", t1_ns, t2_ns, t3_ns)
+
+
+def parse_time_reply(body: bytes) -> tuple[int, int, int]:
+    return struct.unpack_from("<qqq", body, 0)

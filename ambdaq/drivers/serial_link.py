@@ -21,6 +21,9 @@ from . import protocol as proto
 from .framing import FrameDecoder, encode_frame
 from .protocol import MsgType
 
+PING_S = 0.1  # a time exchange every 100 ms ...
+PING_KEEP = 100  # ... the least round trip of the last 10 s counts
+
 
 @dataclass(frozen=True)
 class Fault:
@@ -68,8 +71,31 @@ class SerialLink:
         self._identity: list = []
         self._identity_event = threading.Event()
         self._stop = threading.Event()
+        self._round_trips: list[int] = []  # ns, the last PING_KEEP
         self._reader = threading.Thread(target=self._read_loop, name=f"serial-{port}", daemon=True)
         self._reader.start()
+        self._pinger = threading.Thread(target=self._ping_loop, name=f"serial-ping-{port}", daemon=True)
+
+    def start_time_sync(self) -> None:
+        """Measure the round trip every PING_S (TIME_REQUEST / TIME_REPLY) from now on."""
+        if not self._pinger.is_alive():
+            self._pinger.start()
+
+    def _ping_loop(self) -> None:
+        while not self._stop.wait(PING_S):
+            with self._tx_lock:
+                seq = self._tx_seq
+                self._tx_seq = (self._tx_seq + 1) & 0xFFFF
+                try:  # stamped t1 as it is written
+                    self._port.write(encode_frame(proto.pack(MsgType.TIME_REQUEST, seq, proto.time_request(time.time_ns()))))
+                except (serial.SerialException, OSError):
+                    return
+
+    @property
+    def one_way_latency_ns(self) -> int | None:
+        """Half the least round trip of the recent time exchanges (NTP), or None before one."""
+        with self._tx_lock:
+            return min(self._round_trips) // 2 if self._round_trips else None
 
     # --- receive -----------------------------------------------------------------------------------
 
@@ -112,6 +138,11 @@ class SerialLink:
         elif t == MsgType.FAULT:
             code, severity, dev_t, msg = proto.parse_fault(frame.body)
             self.faults.put(Fault(dev_t, code, severity, msg))
+        elif t == MsgType.TIME_REPLY:
+            t1, t2, t3 = proto.parse_time_reply(frame.body)
+            with self._tx_lock:
+                self._round_trips.append((arrived - t1) - (t3 - t2))
+                del self._round_trips[:-PING_KEEP]
         elif t == MsgType.HEARTBEAT:  # stamped as it left the device: a clock-sync pair
             (dev_t,) = struct.unpack_from("<q", frame.body, 0)
             self.sync_pairs.put((dev_t, arrived))

@@ -3,7 +3,7 @@
 It streams gap, coil current, command error, feedforward and rotor angle/speed at the rig's
 10 kHz in SAMPLES frames of one rig block each, answers IDENTIFY, PARAM_READ and PARAM_WRITE
 (PID gains, feedforward mode and table, LMS schedule, speed set-point), sends a HEARTBEAT every
-20 ms, stamped with its own clock as it leaves (the host's clock-sync pairs), and FAULT events.
+5 ms, stamped with its own clock as it leaves (the host's clock-sync pairs), and FAULT events.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import os
 import queue
 import random
 import select
+import struct
 import threading
 import time
 
@@ -27,7 +28,7 @@ from .rig_server import DeviceClock, RigServer
 
 CONTROLLER_TOPICS = ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor")
 TRUTH_TOPICS = ("/truth/runout", "/truth/position")
-HEARTBEAT_S = 0.02  # heartbeats are the clock-sync pairs: stamped as they leave, 50 per second
+HEARTBEAT_S = 0.005  # heartbeats are the clock-sync pairs: stamped as they leave, 200 per second
 
 
 class FdPort:
@@ -94,6 +95,7 @@ class SimController:
         self._tx: queue.Queue[bytes] = queue.Queue(maxsize=tx_queue)
         self._seq = 0
         self._seq_lock = threading.Lock()
+        self._time_requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()  # (t1, t2)
         self._stop = threading.Event()
         self.dropped_frames = 0
         self.decoder = FrameDecoder()
@@ -143,13 +145,20 @@ class SimController:
         while not self._stop.is_set():
             timeout = max(0.0, next_beat - time.monotonic())
             try:
-                frame = self._tx.get(timeout=timeout)
+                frame = self._tx.get(timeout=min(timeout, 0.001))
             except queue.Empty:
                 frame = None
             try:
                 if frame is not None:
                     self.port.write(frame)
-                if time.monotonic() >= next_beat:
+                while True:  # time replies are stamped t3 as they are written
+                    try:
+                        t1, t2 = self._time_requests.get_nowait()
+                    except queue.Empty:
+                        break
+                    body = proto.time_reply(t1, t2, self.now_ns())
+                    self.port.write(encode_frame(proto.pack(MsgType.TIME_REPLY, self._next_seq(), body)))
+                if time.monotonic() >= next_beat and self.server.start_wall_ns:  # the clock runs once the rig does
                     next_beat += HEARTBEAT_S * rng.uniform(0.7, 1.3)
                     body = proto.heartbeat(self.now_ns(), int(self._streaming.is_set()))
                     self.port.write(encode_frame(proto.pack(MsgType.HEARTBEAT, self._next_seq(), body)))
@@ -173,10 +182,11 @@ class SimController:
     def _rx_loop(self) -> None:
         while not self._stop.is_set():
             data = self.port.read(0.1)
+            received = self.now_ns()
             for raw in self.decoder.feed(data) if data else ():
                 try:
                     frame = proto.unpack(raw)
-                    self._handle(frame)
+                    self._handle(frame, received)
                 except (ValueError, IndexError) as err:
                     self._send(MsgType.NAK, proto.nak(0, NakCode.BAD_REQUEST, str(err)))
 
@@ -194,9 +204,12 @@ class SimController:
             "parameters": sorted(PARAMETERS),
         }
 
-    def _handle(self, frame: proto.Frame) -> None:
+    def _handle(self, frame: proto.Frame, received_ns: int) -> None:
         t = frame.type
-        if t == MsgType.IDENTIFY:
+        if t == MsgType.TIME_REQUEST:
+            (t1,) = struct.unpack_from("<q", frame.body, 0)
+            self._time_requests.put((t1, received_ns))
+        elif t == MsgType.IDENTIFY:
             self._send(MsgType.IDENTITY, proto.identity(self.identity()))
         elif t == MsgType.STREAM:
             (self._streaming.set if frame.body[:1] == b"\x01" else self._streaming.clear)()

@@ -12,6 +12,8 @@ import numpy as np
 
 from ..signals import SampleBlock
 
+LEAD_BLOCKS = 2  # blocks computed ahead of the wall clock (a late rig thread has 20 ms of slack)
+
 
 @dataclass(frozen=True)
 class DeviceClock:
@@ -69,7 +71,7 @@ class RigServer:
     def start(self) -> None:
         """Start the rig's clock; the first block is computed first, so compiling the physics
         kernel never makes the rig late."""
-        for _ in range(2):  # blocks 0 and 1: the computed horizon leads the wall clock by a block
+        for _ in range(LEAD_BLOCKS + 1):  # the computed horizon leads the wall clock
             self._compute()
         self.start_wall_ns = time.time_ns()
         self.start_mono = time.monotonic()

@@ -70,6 +70,6 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
     server = RigServer(rig)
     pty = Pty.open()
     controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth)
-    controller.start()
     server.start()
+    controller.start()
     return ServedRig(server, controller, {"controller": pty})
