@@ -202,3 +202,42 @@ def test_bus_off_is_reported(can_rig, tmp_path):
     with pytest.raises(DeviceError, match="went bus-off"):
         Recorder([dev], tmp_path / "off.mcap", RecordOptions(duration_s=10)).run()
     assert len(load(tmp_path / "off.mcap")["/amb/accel"]) > 50  # what came before is kept
+
+
+def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
+    """The controller (own clock, +50 ppm, mapped online) against the gap sensor (SYNC stamps on the
+    host clock) on one rig: for every instant the CAN device sampled, the controller's log_time of
+    that rig step is within one sample period (100 us at 10 kHz) of the step's true time."""
+    from ambdaq.drivers.simdev.controller import FdPort, SimController
+    from ambdaq.drivers.simdev.rig_server import DeviceClock
+    from ambdaq.drivers.simdev.serve import Pty
+
+    channel = f"align{next(_channels)}"
+    rig = SpindleRig(speed=SpeedProfile(30000, 30000))
+    server = RigServer(rig)
+    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
+    net.connect()
+    serve_can(net, server, {"gap_sensor": 0x20})
+    pty = Pty.open()
+    server.start()
+    ctl_sim = SimController(FdPort(pty.master), server, clock=DeviceClock(7_000_000_000, 50.0))
+    ctl_sim.start()
+    try:
+        ctl = open_device(f"serial://{pty.path}")
+        gap = open_device(f"can://virtual/{channel}?kind=gap_sensor&sync=500&namespace=can")
+        res = Recorder([ctl, gap], tmp_path / "mixed.mcap", RecordOptions(duration_s=8)).run()
+    finally:
+        ctl_sim.stop()
+        server.stop()
+        net.disconnect()
+        pty.close()
+    rec = load(tmp_path / "mixed.mcap")
+    c, g = rec["/amb/gap"], rec["/can/amb/gap"]
+    steps = (g.log_time - server.start_wall_ns) // rig.period_ns  # the rig step each SYNC sampled
+    idx = np.searchsorted(c.seq.astype(np.int64), steps)
+    ok = (idx < len(c)) & (c.seq[np.minimum(idx, len(c) - 1)].astype(np.int64) == steps)
+    assert ok.sum() > 3000
+    err = (c.log_time[idx[ok]] - (server.start_wall_ns + steps[ok] * rig.period_ns)) * 1e-3
+    assert np.abs(err).max() < 100.0, (np.abs(err).max(), np.percentile(err, [1, 50, 99]))
+    assert res.clocks["gap_sensor"] == {"host_clock": True, "uncertainty_us": 0.0}
+    assert res.alignment_us is not None and res.alignment_us < 100.0

@@ -119,3 +119,12 @@ def test_info_and_plot(spindle_file, tmp_path, run_cli):
         r = run_cli("plot", spindle_file, "--field", field, "--end", "0.2", "-o", png)
         assert r.exit_code == 0, r.output
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+def test_devices_lists_can_channels_and_serial_ports(run_cli):
+    r = run_cli("devices", "--json")
+    assert r.exit_code == 0
+    found = json.loads(r.stdout)
+    assert set(found) == {"can", "serial"}
+    assert any(c["interface"] == "virtual" for c in found["can"])  # always available in python-can
+    assert not any("multicast" in c["interface"] for c in found["can"])  # never probed

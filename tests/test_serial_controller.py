@@ -196,3 +196,34 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_reconnect_marks_the_gap_and_goes_on(bench, tmp_path, run_cli):
+    _, pty, port = bench.controller(FaultyPort)
+    bench.start()
+    out = tmp_path / "again.mcap"
+    import threading
+
+    def outage():
+        time.sleep(2.5)
+        port.stalled.set()
+        time.sleep(2.5)
+        port.stalled.clear()
+
+    threading.Thread(target=outage, daemon=True).start()
+    r = run_cli("record", "--device", f"serial://{pty.path}", "--duration", "9", "--reconnect", "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    gap = load(out)["/amb/gap"]
+    jumps = np.flatnonzero(np.diff(gap.seq.astype(np.int64)) != 1)
+    assert len(jumps) == 1  # one gap, where the device was away ...
+    missing = int(gap.seq[jumps[0] + 1]) - int(gap.seq[jumps[0]]) - 1
+    assert 15000 < missing < 60000 and summary["drops"] == missing  # ... counted, not filled in
+    assert len(gap) + missing == 90000
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(out, "rb") as fh:
+        kinds = [d.kind for _s, _c, _m, d in make_reader(fh, decoder_factories=[DecoderFactory()])
+                 .iter_decoded_messages(topics=["/amb/events"])]
+    assert kinds == ["disconnect", "reconnect"]

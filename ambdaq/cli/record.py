@@ -16,10 +16,10 @@ from .options import output_options, report_options, speed_option
 
 
 def run_recording(sources, output: str, *, duration, split_size, split_duration, compression, overwrite, quiet,
-                  as_json, rig_file: Path | None = None) -> None:
+                  as_json, rig_file: Path | None = None, reconnect: bool = False) -> None:
     """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim)."""
     options = RecordOptions(duration_s=duration, split_size=split_size, split_duration_s=split_duration,
-                            compression=compression)
+                            compression=compression, reconnect=reconnect)
     recorder = Recorder(sources, Path(output), options, command=" ".join(sys.argv), rig_file=rig_file,
                         overwrite=overwrite)
     tty = sys.stderr.isatty()
@@ -51,10 +51,12 @@ def run_recording(sources, output: str, *, duration, split_size, split_duration,
               help="Recording length; default: until Ctrl-C.")
 @speed_option
 @click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")
+@click.option("--reconnect", is_flag=True,
+              help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, output, split_size, split_duration, compression, overwrite,
-            quiet, as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, output, split_size, split_duration, compression,
+            overwrite, quiet, as_json):
     """Record devices in real time into an MCAP file.
 
     \b
@@ -79,4 +81,4 @@ def command(devices, rig_path, duration, speed, truth, output, split_size, split
         raise
     run_recording(sources, output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json,
-                  rig_file=rig.path if rig else None)
+                  rig_file=rig.path if rig else None, reconnect=reconnect)

@@ -22,8 +22,8 @@ from typing import Callable, Protocol
 import numpy as np
 
 from .. import __version__
-from ..drivers.signals import SampleBlock, SignalGroup
-from ..errors import BadInputError, DeviceError
+from ..drivers.signals import Event, SampleBlock, SignalGroup
+from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
 from .writer import RecordingWriter, TopicStats
 
@@ -66,6 +66,10 @@ class RecordOptions:
         Chunk compression: "zstd", "lz4" or "none".
     flush_interval_s : float
         Longest wall time between chunk flushes, in s (bounds the loss after a crash).
+    chunk_size : int
+        Uncompressed chunk size limit, in bytes.
+    reconnect : bool
+        Reopen a device that is lost instead of ending the recording.
     """
 
     duration_s: float | None = None
@@ -74,6 +78,7 @@ class RecordOptions:
     compression: str = "zstd"
     flush_interval_s: float = 0.5
     chunk_size: int = 4 << 20
+    reconnect: bool = False
 
 
 @dataclass
@@ -123,16 +128,38 @@ def split_names(output: Path, split: bool) -> Callable[[int], Path]:
 
 
 class _Reader(threading.Thread):
-    """Reads one device into the shared queue until it ends, fails or is stopped."""
+    """Reads one device into the shared queue until it ends, fails or is stopped.
 
-    def __init__(self, source: Source, q: queue.Queue, stop: threading.Event) -> None:
+    With ``reconnect``, a device that is lost is marked by a ``disconnect`` event, reopened every
+    second (its ``reconnect()``) and marked again by a ``reconnect`` event; the samples missed in
+    between are counted as drops from the sequence numbers, never filled in.
+    """
+
+    def __init__(self, source: Source, q: queue.Queue, stop: threading.Event, reconnect: bool = False) -> None:
         super().__init__(name=f"read-{source.name}", daemon=True)
-        self.source, self.q, self.stop = source, q, stop
+        self.source, self.q, self.stop, self.reconnect = source, q, stop, reconnect
+
+    def _reopen(self, err: DeviceError) -> bool:
+        lost = time.monotonic()
+        self.q.put((self.source, Event(0, "disconnect", 0, str(err))))
+        while not self.stop.wait(1.0):
+            try:
+                self.source.reconnect()
+            except AmbdaqError:
+                continue
+            self.q.put((self.source, Event(0, "reconnect", 0, f"reconnected after {time.monotonic() - lost:.1f} s")))
+            return True
+        return False
 
     def run(self) -> None:
         try:
             while not self.stop.is_set():
-                block = self.source.read()
+                try:
+                    block = self.source.read()
+                except DeviceError as err:
+                    if self.reconnect and hasattr(self.source, "reconnect") and self._reopen(err):
+                        continue
+                    raise
                 if block is None:
                     break
                 # bounded queue: a source faster than the writer (unpaced simulation) waits;
@@ -220,7 +247,7 @@ class Recorder:
         self._start_ns = time.time_ns()
         for s in self.sources:
             s.start(None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate)))
-        readers = [_Reader(s, q, stop) for s in self.sources]
+        readers = [_Reader(s, q, stop, opts.reconnect) for s in self.sources]
         self._totals: dict[str, TopicStats] = {}
         self._files: list[Path] = []
         self._clocks: dict[str, ClockMap] = {}
@@ -249,7 +276,10 @@ class Recorder:
                 if isinstance(item, Exception):
                     failure = item
                     break
-                if item is None and source is not None:
+                if isinstance(item, Event):
+                    self._writer.write_event(item.topic, source.name, time.time_ns(), item)
+                    self._events += 1
+                elif item is None and source is not None:
                     live -= 1
                 elif item is not None:
                     self._ingest(source, item)

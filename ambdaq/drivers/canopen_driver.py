@@ -97,6 +97,7 @@ class CanopenDevice:
         self._remaining: int | None = None
         self._first_cycle: int | None = None
         self._closed = threading.Event()
+        self._subscribed = False
 
     # --- recorder source ----------------------------------------------------------------------------
 
@@ -123,10 +124,12 @@ class CanopenDevice:
                 n.sdo[0x1800 + i][2].raw = 1  # synchronous, every SYNC
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             raise _sdo_error(self.node_id, "configuring heartbeat and TPDOs", err) from None
-        for i in range(len(self.profile.tpdos)):
-            self.hub.network.subscribe(0x180 + 0x100 * i + self.node_id, self._tpdo_callback(i))
-        n.emcy.add_callback(self._on_emcy)
-        self.hub.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
+        if not self._subscribed:  # once: a reconnect configures the device again, not our callbacks
+            self._subscribed = True
+            for i in range(len(self.profile.tpdos)):
+                self.hub.network.subscribe(0x180 + 0x100 * i + self.node_id, self._tpdo_callback(i))
+            n.emcy.add_callback(self._on_emcy)
+            self.hub.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
 
     def start(self, n_samples: int | None) -> None:
         self._remaining = n_samples
@@ -212,6 +215,18 @@ class CanopenDevice:
         if silent > 3 * HEARTBEAT_MS / 1000:
             return f"no heartbeat from node {self.node_id} for {silent:.1f} s"
         return None
+
+    def reconnect(self) -> None:
+        """Configure the node again and start it (after a reset or power cycle)."""
+        if self.hub.failure is not None:
+            raise DeviceError(self.hub.failure)
+        try:
+            struct.unpack("<I", self.node.sdo.upload(0x1018, 4))
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
+            raise _sdo_error(self.node_id, "reading its identity (0x1018)", err) from None
+        self.configure()
+        self.node.nmt.send_command(0x01)
+        self._last_heartbeat = time.monotonic()
 
     def events(self) -> list[Event]:
         out = []

@@ -133,6 +133,21 @@ class ControllerDriver:
             pass
         self.link.close()
 
+    def reconnect(self) -> None:
+        """Reopen the line, check the device is the same one, and resume streaming."""
+        port, baud = self.link.port_name, self.link.baudrate
+        self.link.close()
+        self.link = SerialLink(port, baudrate=baud)
+        try:
+            info = self.link.identify()
+            if info.get("serial") != self.info.get("serial"):
+                raise DeviceError(f"{self.url}: a different device answered (serial {info.get('serial')})")
+            self.link.request(MsgType.STREAM, b"\x01", what="stream on")
+            self.link.start_time_sync()
+        except DeviceError:
+            self.link.close()
+            raise
+
     # --- parameters --------------------------------------------------------------------------------
 
     def read_param(self, name: str) -> np.ndarray:

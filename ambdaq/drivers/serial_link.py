@@ -50,6 +50,7 @@ class SerialLink:
 
     def __init__(self, port: str, *, baudrate: int = 3_000_000, alive_s: float = 1.0) -> None:
         self.port_name = port
+        self.baudrate = baudrate
         try:
             self._port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=1.0)
         except ValueError as err:

@@ -1,0 +1,26 @@
+"""``ambdaq devices``: CAN interfaces/channels and serial ports on this host."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from ..drivers.discovery import can_channels, serial_ports
+
+
+@click.command("devices")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def command(as_json):
+    """List CAN channels (python-can's detection) and serial ports (pyserial's list_ports)."""
+    found = {"can": can_channels(), "serial": serial_ports()}
+    if as_json:
+        click.echo(json.dumps(found, indent=2))
+        return
+    click.echo("CAN (python-can):" if found["can"] else "CAN (python-can): none detected")
+    for c in found["can"]:
+        click.echo(f"  {c['interface']:<12} {c['channel']:<16} {c['url']}")
+    click.echo("serial (pyserial):" if found["serial"] else "serial (pyserial): none")
+    for p in found["serial"]:
+        click.echo(f"  {p['port']:<20} {p['description']:<30} {p['url']}")
+    click.echo("simulated rigs: sim://spindle (in process); ambdaq sim serve (on a pseudo-terminal)")

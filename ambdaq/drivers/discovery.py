@@ -1,0 +1,44 @@
+"""What this host can talk to: CAN interfaces and channels, serial ports."""
+
+from __future__ import annotations
+
+import logging
+
+import can
+from serial.tools import list_ports
+
+
+def _local_interfaces() -> list[str]:
+    """Every python-can interface except those that talk over an IP network (multicast)."""
+    return sorted(i for i in can.interfaces.VALID_INTERFACES if "multicast" not in i)
+
+
+def can_channels() -> list[dict[str, str]]:
+    """CAN configurations python-can detects (interface, channel), as device URL stems.
+
+    Backends that are not installed say so on import through python-can's loggers; their
+    chatter is silenced here, an interface that is missing is simply not listed.
+    """
+    found = []
+    quiet = [logging.getLogger(n) for n in ("can", "can.interfaces") + tuple(logging.root.manager.loggerDict)
+             if n.startswith("can")]
+    levels = [lg.level for lg in quiet]
+    for lg in quiet:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        configs = can.detect_available_configs(interfaces=_local_interfaces())
+    finally:
+        for lg, lvl in zip(quiet, levels):
+            lg.setLevel(lvl)
+    for cfg in configs:
+        iface, channel = str(cfg.get("interface", "")), str(cfg.get("channel", ""))
+        found.append({"interface": iface, "channel": channel, "url": f"can://{iface}/{channel}?node=N"})
+    return found
+
+
+def serial_ports() -> list[dict[str, str]]:
+    """Serial ports pyserial lists, with what the system knows of them."""
+    return [
+        {"port": p.device, "description": p.description or "", "hwid": p.hwid or "", "url": f"serial://{p.device}"}
+        for p in list_ports.comports()
+    ]
