@@ -4,6 +4,10 @@ Devices on the same interface and channel share a :class:`CanHub` (reference-cou
 produces SYNC (CiA 301, COB-ID 0x80) at the stream's rate, timestamps every SYNC cycle from the
 bus (the host's own SYNC, received back), checks the bus load of the requested stream, and
 watches error frames and the bus state (error-active, error-passive, bus-off).
+
+One receive thread reads the bus: process data (TPDOs, SYNC) goes straight to the handler
+registered for its COB-ID, everything else (SDO, EMCY, NMT, heartbeat) to the canopen network's
+subscribers.  At full bus load that keeps the per-frame cost below python-can's own logger.
 """
 
 from __future__ import annotations
@@ -11,8 +15,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import can
 import canopen
@@ -24,6 +27,7 @@ from .signals import Event
 SYNC_COB_ID = 0x80
 MAX_LOAD = 0.80
 BUS_TOPIC = "/can/bus"
+RX_POLL_S = 0.001  # sleep when the bus is drained
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -41,8 +45,7 @@ def bus_load(frames_per_cycle: list[int], rate_hz: float, bitrate: int) -> float
     return sum(frame_bits(n) for n in frames_per_cycle) * rate_hz / bitrate
 
 
-@dataclass(frozen=True)
-class SyncCycle:
+class SyncCycle(NamedTuple):
     """A SYNC: its count since the stream started, its counter byte (1..240), its bus time (ns)."""
 
     count: int = -1
@@ -62,10 +65,8 @@ class CanHub:
             bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, receive_own_messages=True)
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
             raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
-        self.network = canopen.Network(bus)
-        self.network.NOTIFIER_CYCLE = 0.1
-        self.network.listeners.append(_ErrorListener(self))  # before connect: the notifier copies the list
-        self.network.connect()
+        self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
+        self._fast: dict[int, Callable[[bytearray, float], None]] = {}
         self.error_frames = 0
         self.events: "queue.SimpleQueue[Event]" = queue.SimpleQueue()  # drained by whichever device asks
         self._refs = 0
@@ -74,11 +75,14 @@ class CanHub:
         self._sync_listeners: list[Callable[[SyncCycle], None]] = []
         self._streams: dict[str, list[int]] = {}
         self.sync_hz: float | None = None
+        self.load_limit = MAX_LOAD
         self._sync_thread: threading.Thread | None = None
         self._sync_stop = threading.Event()
         self.failure: str | None = None
         self._state = getattr(bus, "state", can.BusState.ACTIVE)
-        self.network.subscribe(SYNC_COB_ID, self._on_sync)
+        self._fast[SYNC_COB_ID] = self._on_sync
+        self._rx = threading.Thread(target=self._receive, name=f"can-rx-{channel}", daemon=True)
+        self._rx.start()
         self._watch = threading.Thread(target=self._watch_state, name=f"can-state-{channel}", daemon=True)
         self._watch.start()
 
@@ -101,6 +105,7 @@ class CanHub:
             self._hubs.pop((self.interface, self.channel), None)
         self.stop_sync()
         self._sync_stop.set()
+        self._rx.join(timeout=1.0)
         try:
             self.network.disconnect()
         except (can.CanError, OSError, ValueError):
@@ -115,8 +120,10 @@ class CanHub:
         self.sync_hz = sync_hz
         self._streams[name] = list(tpdo_bytes)
 
-    def check_load(self, limit: float = MAX_LOAD) -> float:
-        """The bus load of every registered stream plus SYNC; refuses (BadInputError) above ``limit``."""
+    def check_load(self) -> float:
+        """The bus load of every registered stream plus SYNC; refuses (BadInputError) above
+        ``load_limit`` (80 %: room for SDO, EMCY and heartbeats)."""
+        limit = self.load_limit
         frames = [1] + [n for sizes in self._streams.values() for n in sizes]  # SYNC: its counter byte
         load = bus_load(frames, self.sync_hz or 0.0, self.bitrate)
         if load > limit:
@@ -128,6 +135,41 @@ class CanHub:
                 f"{limit:.0%}: use sync={int(fits)} or lower, or fewer devices/channels"
             )
         return load
+
+    @property
+    def receive_thread_id(self) -> int | None:
+        """Native id of the bus receive thread (for CPU accounting)."""
+        return self._rx.native_id
+
+    def on_frame(self, cob_id: int, handler: Callable[[bytearray, float], None]) -> None:
+        """Route frames of ``cob_id`` (process data) straight to ``handler(data, timestamp)``."""
+        self._fast[cob_id] = handler
+
+    def _receive(self) -> None:
+        """Drain the bus, then sleep RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
+        than one per frame.  Sample times come from the frames' bus timestamps, not from when we
+        read them, so the short wait costs nothing in timing."""
+        bus, fast, notify = self.network.bus, self._fast, self.network.notify
+        while not self._sync_stop.is_set():
+            try:
+                msg = bus.recv(0)
+            except (can.CanError, OSError, ValueError) as err:
+                if not self._sync_stop.is_set():
+                    self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
+                return
+            if msg is None:
+                time.sleep(RX_POLL_S)
+                continue
+            if msg.is_error_frame:
+                self.error_frames += 1
+                self.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
+                                      f"CAN {self.channel} error frame, data {bytes(msg.data).hex()}", BUS_TOPIC))
+                continue
+            handler = fast.get(msg.arbitration_id)
+            if handler is not None:
+                handler(msg.data, msg.timestamp)
+            elif not msg.is_remote_frame:
+                notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     def add_sync_listener(self, cb: Callable[[SyncCycle], None]) -> None:
         self._sync_listeners.append(cb)
@@ -170,7 +212,7 @@ class CanHub:
             self._sync_thread.join(timeout=1.0)
             self._sync_thread = None
 
-    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+    def _on_sync(self, data: bytearray, timestamp: float) -> None:
         counter = data[0] if data else 0
         self.cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))
         self.by_counter[counter] = self.cycle
@@ -196,16 +238,3 @@ class CanHub:
                                          BUS_TOPIC))
                 if state == can.BusState.ERROR:
                     self.failure = f"CAN {self.interface}/{self.channel} went bus-off"
-
-
-class _ErrorListener(can.Listener):
-    """Counts error frames and keeps them as events."""
-
-    def __init__(self, hub: CanHub) -> None:
-        self.hub = hub
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_error_frame:
-            self.hub.error_frames += 1
-            self.hub.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
-                                         f"CAN {self.hub.channel} error frame, data {bytes(msg.data).hex()}", BUS_TOPIC))

@@ -13,6 +13,7 @@ import queue
 import struct
 import threading
 import time
+from collections import deque
 
 import canopen
 import numpy as np
@@ -25,7 +26,7 @@ from .signals import Event, SampleBlock, SignalGroup
 
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
 HEARTBEAT_MS = 100
-BLOCK_S = 0.02  # hand rows to the recorder every 20 ms
+BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
 
 
 def _sdo_error(node: int, what: str, err: Exception) -> DeviceError:
@@ -89,11 +90,10 @@ class CanopenDevice:
         self._tpdo_fmt = [struct.Struct("<" + "".join(_FMT[t] for _i, t in found.tpdo_layout(i)))
                           for i in range(len(found.tpdos))]
         self._scale = np.array([c.scale for c in found.channels])
-        self._rows: queue.SimpleQueue = queue.SimpleQueue()
+        self._rows: deque = deque()  # (cycle, time ns, row), appended by the bus thread
         self._emcy: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._parts: list = [None] * len(found.tpdos)
         self._last_heartbeat = time.monotonic()
-        self._lock = threading.Lock()
         self._remaining: int | None = None
         self._first_cycle: int | None = None
         self._closed = threading.Event()
@@ -127,9 +127,9 @@ class CanopenDevice:
         if not self._subscribed:  # once: a reconnect configures the device again, not our callbacks
             self._subscribed = True
             for i in range(len(self.profile.tpdos)):
-                self.hub.network.subscribe(0x180 + 0x100 * i + self.node_id, self._tpdo_callback(i))
+                self.hub.on_frame(0x180 + 0x100 * i + self.node_id, self._tpdo_callback(i))
             n.emcy.add_callback(self._on_emcy)
-            self.hub.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
+            self.hub.on_frame(0x700 + self.node_id, self._on_heartbeat)
 
     def start(self, n_samples: int | None) -> None:
         self._remaining = n_samples
@@ -145,51 +145,43 @@ class CanopenDevice:
 
         last = len(self._parts) - 1
 
-        def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
+        def on_tpdo(data: bytearray, timestamp: float) -> None:  # on the bus thread only
             try:
-                values = fmt.unpack(bytes(data))
+                values = fmt.unpack(data)
             except struct.error:
                 return  # wrong length: never recorded
-            with self._lock:
-                if i < last:  # a device sends its TPDOs of one cycle in order: keep until the last
-                    self._parts[i] = values
-                    return
-                parts, self._parts = self._parts, [None] * len(self._parts)
-            if any(p is None for p in parts[:last]):
+            if i < last:  # a device sends its TPDOs of one cycle in order: keep until the last
+                self._parts[i] = values
+                return
+            parts = self._parts
+            self._parts = [None] * len(parts)
+            if None in parts[:last]:
                 return  # part of this cycle was lost: a drop, never a made-up row
             cycle = self.hub.by_counter.get(values[-1])  # the SYNC this cycle answers
-            if cycle is None:
-                return
-            row = [v for p in parts[:last] for v in p] + list(values[:-1])
-            self._rows.put((cycle.count, cycle.time_ns, row))
+            if cycle is not None:  # flattened by the reader, off the bus thread
+                self._rows.append((cycle.count, cycle.time_ns, *parts[:last], values))
 
         return on_tpdo
 
     def _on_emcy(self, err) -> None:
         self._emcy.put(Event(0, "fault", err.code, f"EMCY 0x{err.code:04X} {err.get_desc()} (register 0x{err.register:02X})"))
 
-    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+    def _on_heartbeat(self, data: bytearray, timestamp: float) -> None:
         self._last_heartbeat = time.monotonic()
 
     def read(self) -> SampleBlock | None:
         """Rows of the SYNC cycles since the last call (at least one), as a block."""
-        rows = []
-        deadline = time.monotonic() + BLOCK_S
         while True:
-            if self._closed.is_set():
+            if self._closed.wait(BLOCK_S):
                 return None
             failure = self.hub.failure or self._liveness()
             if failure is not None:
                 raise DeviceError(f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: {failure}")
-            try:
-                rows.append(self._rows.get(timeout=max(0.0, deadline - time.monotonic())))
-            except queue.Empty:
-                if rows:
-                    break
-                deadline = time.monotonic() + BLOCK_S
-                continue
-            if time.monotonic() >= deadline:
+            n = len(self._rows)
+            if n:
+                rows = [self._rows.popleft() for _ in range(n)]
                 break
+        rows = [(r[0], r[1], [v for part in r[2:-1] for v in part] + list(r[-1][:-1])) for r in rows]
         cycles = np.array([r[0] for r in rows], dtype=np.int64)
         if self._first_cycle is None:
             self._first_cycle = int(cycles[0])
