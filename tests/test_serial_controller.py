@@ -192,7 +192,7 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
         rotor = load(out)["/amb/rotor"]
         np.testing.assert_allclose(rotor["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
         info = run_cli("info", out).output
-        assert "[ambdaq.link.controller]" in info and "crc_errors = 0" in info
+        assert "[ambdaq.link.controller]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
     finally:
         proc.terminate()
         proc.wait(timeout=10)
@@ -215,11 +215,11 @@ def test_reconnect_marks_the_gap_and_goes_on(bench, tmp_path, run_cli):
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
     gap = load(out)["/amb/gap"]
-    jumps = np.flatnonzero(np.diff(gap.seq.astype(np.int64)) != 1)
-    assert len(jumps) == 1  # one gap, where the device was away ...
-    missing = int(gap.seq[jumps[0] + 1]) - int(gap.seq[jumps[0]]) - 1
-    assert 15000 < missing < 60000 and summary["drops"] == missing  # ... counted, not filled in
-    assert len(gap) + missing == 90000
+    steps = np.diff(gap.seq.astype(np.int64)) - 1
+    outage = int(steps.max())  # one long gap, where the device was away ...
+    assert 15000 < outage < 60000
+    assert summary["drops"] - outage < 500  # (a block cut off as the line stalled or came back)
+    assert len(gap) + summary["drops"] == 90000  # ... counted, not filled in
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 

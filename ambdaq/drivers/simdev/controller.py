@@ -92,9 +92,8 @@ class SimController:
             raise ValueError("truth topics need a rig built with truth=True")
         self.groups = [groups[t] for t in topics]
         self._streaming = threading.Event()
-        self._tx: queue.Queue[bytes] = queue.Queue(maxsize=tx_queue)
+        self._tx: queue.Queue[tuple[MsgType, bytes]] = queue.Queue(maxsize=tx_queue)
         self._seq = 0
-        self._seq_lock = threading.Lock()
         self._time_requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()  # (t1, t2)
         self._stop = threading.Event()
         self.dropped_frames = 0
@@ -124,17 +123,21 @@ class SimController:
         return self.clock.at(time.time_ns() - self.server.start_wall_ns)
 
     def _next_seq(self) -> int:
-        with self._seq_lock:
-            seq = self._seq
-            self._seq = (self._seq + 1) & 0xFFFF
+        seq = self._seq  # the tx thread numbers every frame as it writes it
+        self._seq = (self._seq + 1) & 0xFFFF
         return seq
 
     def _send(self, msg_type: MsgType, body: bytes = b"") -> None:
-        frame = encode_frame(proto.pack(msg_type, self._next_seq(), body))
+        """Queue a message; it is numbered and framed as it is written, so sequence numbers on the
+        wire always count up (a frame dropped here leaves no gap: the host counts lost samples
+        from the sample index)."""
         try:
-            self._tx.put_nowait(frame)
+            self._tx.put_nowait((msg_type, body))
         except queue.Full:
             self.dropped_frames += 1
+
+    def _write(self, msg_type: MsgType, body: bytes) -> None:
+        self.port.write(encode_frame(proto.pack(msg_type, self._next_seq(), body)))
 
     def _tx_loop(self) -> None:
         """Write queued frames; every HEARTBEAT_S stamp a heartbeat with the device clock at the
@@ -145,23 +148,21 @@ class SimController:
         while not self._stop.is_set():
             timeout = max(0.0, next_beat - time.monotonic())
             try:
-                frame = self._tx.get(timeout=min(timeout, 0.001))
+                queued = self._tx.get(timeout=min(timeout, 0.001))
             except queue.Empty:
-                frame = None
+                queued = None
             try:
-                if frame is not None:
-                    self.port.write(frame)
+                if queued is not None:
+                    self._write(*queued)
                 while True:  # time replies are stamped t3 as they are written
                     try:
                         t1, t2 = self._time_requests.get_nowait()
                     except queue.Empty:
                         break
-                    body = proto.time_reply(t1, t2, self.now_ns())
-                    self.port.write(encode_frame(proto.pack(MsgType.TIME_REPLY, self._next_seq(), body)))
+                    self._write(MsgType.TIME_REPLY, proto.time_reply(t1, t2, self.now_ns()))
                 if time.monotonic() >= next_beat and self.server.start_wall_ns:  # the clock runs once the rig does
                     next_beat += HEARTBEAT_S * rng.uniform(0.7, 1.3)
-                    body = proto.heartbeat(self.now_ns(), int(self._streaming.is_set()))
-                    self.port.write(encode_frame(proto.pack(MsgType.HEARTBEAT, self._next_seq(), body)))
+                    self._write(MsgType.HEARTBEAT, proto.heartbeat(self.now_ns(), int(self._streaming.is_set())))
             except OSError:
                 return  # the line is gone
 
