@@ -101,43 +101,40 @@ def test_sdo_parameters_and_refusals(can_rig):
         amp.close()
 
 
-def test_driver_against_canopens_own_local_node():
-    """An independent peer: canopen's LocalNode and its own PDO encoding, no ambdaq device code."""
+@pytest.mark.parametrize("kind", sorted(PROFILES))
+def test_driver_against_canopens_own_local_node(kind):
+    """An independent peer: canopen's LocalNode with its own PDO encoding, no ambdaq device code."""
     channel = f"peer{next(_channels)}"
     net = canopen.Network(can.Bus(interface="virtual", channel=channel))
     net.connect()
-    p = PROFILES["gap_sensor"]
-    node = canopen.LocalNode(0x21, str(p.eds_path))
+    p = PROFILES[kind]
+    node_id = p.default_node + 1
+    node = canopen.LocalNode(node_id, str(p.eds_path))
     net.add_node(node)
     node.set_data(0x1018, 4, struct.pack("<I", 4242), check_writable=False)
-    counts = {"n": 0}
+    raw = {c.index: 10 * (k + 1) + 7 for k, c in enumerate(p.channels)}  # distinct raw counts, fit a u8
 
-    def on_sync(can_id, data, timestamp):  # canopen's TPDO machinery, values in raw counts
+    def on_sync(can_id, data, timestamp):  # canopen's own TPDO machinery
         if node.nmt.state != "OPERATIONAL":
             return
-        counts["n"] += 1
         node.tpdo.read(from_od=False)
         for i, pdo in enumerate(node.tpdo.values()):
             if not pdo.enabled:
                 continue
-            pdo.cob_id = 0x180 + 0x100 * i + 0x21
-            for k, var in enumerate(pdo):
-                if var.index == 0x5000:
-                    var.raw = data[0]  # echo the SYNC counter
-                else:
-                    var.raw = 1000 * (i * 4 + k + 1) + counts["n"] % 7
+            pdo.cob_id = 0x180 + 0x100 * i + node_id
+            for var in pdo:
+                var.raw = data[0] if var.index == 0x5000 else raw.get(var.index, 0)
             pdo.transmit()
 
     net.subscribe(0x80, on_sync)
-    dev = open_device(f"can://virtual/{channel}?node=0x21&sync=200")
+    dev = open_device(f"can://virtual/{channel}?node={node_id}&sync=200")
     try:
-        assert dev.profile.kind == "gap_sensor" and dev.serial == 4242
+        assert dev.profile.kind == kind and dev.serial == 4242
         dev.start(40)
-        rows = np.concatenate([b.values["/amb/gap"] for b in iter(dev.read, None)])
-        assert rows.shape == (40, 5)
-        counts_raw = np.round(rows / 1e-8).astype(int)
-        np.testing.assert_array_equal(counts_raw[:, :4] // 1000, [1, 2, 3, 4] * np.ones((40, 1), int))
-        np.testing.assert_array_equal(counts_raw[:, 4] // 1000, 5)
+        rows = np.concatenate([b.values[p.topic] for b in iter(dev.read, None)])
+        assert rows.shape == (40, len(p.channels))
+        expect = np.array([raw[c.index] * c.scale for c in p.channels])
+        np.testing.assert_allclose(rows, np.tile(expect, (40, 1)), rtol=1e-6)
     finally:
         dev.close()
         net.disconnect()

@@ -93,7 +93,7 @@ class CanopenDevice:
         self._rows: deque = deque()  # (cycle, time ns, row), appended by the bus thread
         self._emcy: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._parts: list = [None] * len(found.tpdos)
-        self._last_heartbeat = time.monotonic()
+        self._last_heartbeat = self._last_data = time.monotonic()
         self._remaining: int | None = None
         self._first_cycle: int | None = None
         self._closed = threading.Event()
@@ -137,7 +137,7 @@ class CanopenDevice:
         self.hub.check_load()
         self.configure()
         self.node.nmt.send_command(0x01)  # start remote node: OPERATIONAL
-        self._last_heartbeat = time.monotonic()
+        self._last_heartbeat = self._last_data = time.monotonic()
         self.hub.start_sync()
 
     def _tpdo_callback(self, i: int):
@@ -180,7 +180,12 @@ class CanopenDevice:
             n = len(self._rows)
             if n:
                 rows = [self._rows.popleft() for _ in range(n)]
+                self._last_data = time.monotonic()
                 break
+            silent = time.monotonic() - self._last_data
+            if silent > max(1.0, 20 / self.sample_rate):  # alive (heartbeat) but no process data
+                raise DeviceError(f"{self.name} ({self.url}): no process data from node {self.node_id} for "
+                                  f"{silent:.1f} s (is it OPERATIONAL, are its TPDOs mapped?)")
         rows = [(r[0], r[1], [v for part in r[2:-1] for v in part] + list(r[-1][:-1])) for r in rows]
         cycles = np.array([r[0] for r in rows], dtype=np.int64)
         if self._first_cycle is None:
@@ -218,7 +223,7 @@ class CanopenDevice:
             raise _sdo_error(self.node_id, "reading its identity (0x1018)", err) from None
         self.configure()
         self.node.nmt.send_command(0x01)
-        self._last_heartbeat = time.monotonic()
+        self._last_heartbeat = self._last_data = time.monotonic()
 
     def events(self) -> list[Event]:
         out = []
