@@ -238,3 +238,26 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     assert np.abs(err).max() < 100.0, (np.abs(err).max(), np.percentile(err, [1, 50, 99]))
     assert res.clocks["gap_sensor"] == {"host_clock": True, "uncertainty_us": 0.0}
     assert res.alignment_us is not None and res.alignment_us < 100.0
+
+
+def test_amplifier_enable_and_gap_sensor_calibration_by_sdo(can_rig):
+    channel, server, *_ = can_rig
+    amp = open_device(f"can://virtual/{channel}?kind=amplifier&sync=200")
+    gap = open_device(f"can://virtual/{channel}?kind=gap_sensor&sync=200")
+    try:
+        amp.write_param("enabled", 0)
+        gap.write_param("offset", 50e-6)  # 50 um zero shift
+        amp.start(60)
+        gap.start(60)
+        a = [b for b in iter(amp.read, None)]
+        g = [b for b in iter(gap.read, None)]
+        cur = np.concatenate([b.values["/amb/current"] for b in a])
+        status = np.concatenate([b.status for b in a])
+        assert np.all(cur == 0.0) and np.all(status & 0x8000 == 0)  # output stage off
+        t = np.concatenate([b.device_time_ns for b in g])
+        vals = np.concatenate([b.values["/amb/gap"] for b in g])
+        _step, rows = server.sample_at(int(t[-1]))
+        np.testing.assert_allclose(vals[-1], rows["/amb/gap"] + 50e-6, atol=1.1e-8)
+    finally:
+        amp.close()
+        gap.close()

@@ -5,7 +5,10 @@ set, goes OPERATIONAL on the NMT start command, and on every SYNC samples the ri
 bus timestamp and sends its TPDOs (transmission type 1; a COB-ID with bit 31 set disables one),
 the last one ending with the SYNC's counter.
 The amplifier raises EMCY 0x2310 (over-current) when a coil current exceeds its limit and
-0x4210 (over-temperature) from a first-order thermal model of I^2 heating.
+0x4210 (over-temperature) from a first-order thermal model of I^2 heating; 0x2001 = 0 switches
+its output stage off (zero current, status bit 15 clear; the rig's physics is not coupled back).
+The gap conditioner applies its calibration (0x2100 sensitivity against 10,000 V/m, 0x2101
+offset) to what it sends.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ _LIMITS = {od.INTEGER16: (-32768, 32767), od.UNSIGNED16: (0, 65535), od.UNSIGNED
 THERMAL_TAU_S = 5.0  # amplifier heat-sink time constant
 THERMAL_K = 8.0  # degC per A^2 (rms, per axis) at steady state
 STATUS_OVERCURRENT, STATUS_OVERTEMP, STATUS_ENABLED = 0x1, 0x2, 0x8000
+NOMINAL_SENSITIVITY = 1.0e4  # V/m: the rig's sensor gain; the conditioner's 0x2100 scales against it
 
 
 class SimCanDevice:
@@ -71,10 +75,13 @@ class SimCanDevice:
             _step, rows = self.server.sample_at(t_ns)
         except LookupError:
             return
-        row = rows[self.profile.rig_topic][self._cols]
+        row = rows[self.profile.rig_topic][self._cols].copy()
         if self.profile.kind == "keyphasor":
-            row = row.copy()
             row[0] = row[0] % (2 * np.pi)
+        elif self.profile.kind == "gap_sensor":  # the conditioner's calibration applies to what it sends
+            sens = struct.unpack("<f", self.node.get_data(0x2100, 0))[0]
+            offset = struct.unpack("<f", self.node.get_data(0x2101, 0))[0]
+            row = row * (sens / NOMINAL_SENSITIVITY) + offset
         tail = [self._amplifier_status(row, t_ns)] if self.profile.status_index is not None else []
         tail.append(data[0] if data else 0)  # echo the SYNC counter
         values = self._raw(row)
@@ -97,6 +104,9 @@ class SimCanDevice:
         target = 35.0 + THERMAL_K * float(np.mean(currents**2))
         self._temperature += (target - self._temperature) * min(1.0, dt / THERMAL_TAU_S)
         self.node.set_data(0x2003, 0, struct.pack("<f", self._temperature), check_writable=False)
+        enabled = self.node.get_data(0x2001, 0)[0] != 0
+        if not enabled:  # output stage off: no coil current (the rig's physics is not coupled back)
+            currents[:] = 0.0
         fault = 0
         if np.any(np.abs(currents) > limit):
             fault |= STATUS_OVERCURRENT
@@ -108,7 +118,7 @@ class SimCanDevice:
         if new & STATUS_OVERTEMP:
             self.node.emcy.send(0x4210, 0x09, b"")
         self._fault = fault
-        return STATUS_ENABLED | fault
+        return (STATUS_ENABLED if enabled else 0) | fault
 
 
 def serve_can(network: canopen.Network, server: RigServer, nodes: dict[str, int] | None = None) -> list[SimCanDevice]:
