@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..errors import BadInputError, DeviceError
 from .controller import ControllerDriver
 from .serial_link import SerialLink
-from .sim import SimSource
+from .sim import SimSource, sim_options
 from .can_bus import CanHub
 from .canopen_driver import CanopenDevice
 from .canopen_profiles import PROFILES
@@ -26,10 +26,8 @@ def open_devices(url: str, *, name: str | None = None, speed: str | None = None,
         return [dev]
     from .simdev.inproc import open_simulated_rig
 
-    probe = SimSource(parsed, speed=speed, truth=truth)  # checks the URL's options
-    return open_simulated_rig(parsed.target, name=name or "rig", seed=probe.rig.seed, speed=probe.speed,
-                              truth=probe.rig.truth, ff_mode=probe.rig.feedforward_mode, noise=probe.rig.noise,
-                              calibration=calibration)
+    return open_simulated_rig(parsed.target, name=name or "rig", calibration=calibration,
+                              **sim_options(parsed, speed=speed, truth=truth))
 
 
 def open_device(url: str, *, name: str | None = None, speed: str | None = None, truth: bool | None = None, paced: bool = True,

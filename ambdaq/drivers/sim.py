@@ -18,6 +18,27 @@ from .url import DeviceURL
 FF_CHOICES = ("off", "table", "lms")
 
 
+def sim_options(url: DeviceURL, *, speed: str | None = None, truth: bool | None = None) -> dict:
+    """Check a ``sim://`` URL's profile and options; returns the rig's keyword options
+    (seed, speed, truth, ff_mode, noise), ``speed`` and ``truth`` overriding the URL's."""
+    if url.target not in PROFILES:
+        raise BadInputError(f"unknown simulated rig {url.target!r}: profiles are {', '.join(sorted(PROFILES))}")
+    try:
+        seed = int(url.options.get("seed", "0"))
+    except ValueError:
+        raise BadInputError(f"option seed={url.options['seed']!r} in {url.text!r}: expected an integer") from None
+    ff = url.options.get("ff", "off")
+    if ff not in FF_CHOICES:
+        raise BadInputError(f"option ff={ff!r} in {url.text!r}: expected one of {', '.join(FF_CHOICES)}")
+    return {
+        "seed": seed,
+        "speed": SpeedProfile.parse(speed if speed is not None else url.options.get("rpm", "0")),
+        "truth": _flag(url, "truth", False) if truth is None else truth,
+        "ff_mode": ff,
+        "noise": _flag(url, "noise", True),
+    }
+
+
 def _flag(url: DeviceURL, name: str, default: bool) -> bool:
     value = url.options.get(name)
     if value is None:
@@ -60,26 +81,11 @@ class SimSource:
         block_s: float | None = None,
         calibration: dict[str, str] | None = None,
     ) -> None:
-        if url.target not in PROFILES:
-            raise BadInputError(f"unknown simulated rig {url.target!r}: profiles are {', '.join(sorted(PROFILES))}")
-        try:
-            seed = int(url.options.get("seed", "0"))
-        except ValueError:
-            raise BadInputError(f"option seed={url.options['seed']!r} in {url.text!r}: expected an integer") from None
-        ff = url.options.get("ff", "off")
-        if ff not in FF_CHOICES:
-            raise BadInputError(f"option ff={ff!r} in {url.text!r}: expected one of {', '.join(FF_CHOICES)}")
+        options = sim_options(url, speed=speed, truth=truth)
         self.url = url
         self.name = name
-        self.speed = SpeedProfile.parse(speed if speed is not None else url.options.get("rpm", "0"))
-        self.rig = build_rig(
-            url.target,
-            seed=seed,
-            speed=self.speed,
-            truth=_flag(url, "truth", False) if truth is None else truth,
-            ff_mode=ff,
-            noise=_flag(url, "noise", True),
-        )
+        self.speed = options["speed"]
+        self.rig = build_rig(url.target, **options)
         self.sample_rate = self.rig.params.sample_rate
         self.paced = paced
         if block_s is None:
