@@ -36,7 +36,8 @@ def describe(path: str | Path) -> dict:
                 "topic": ch.topic,
                 "schema": schema.name if schema else "",
                 "messages": count,
-                "rate_hz": round((count - 1) / duration, 3) if duration > 0 and count > 1 else 0.0,
+                # a topic's rate over its own span (devices start and stop apart); else the file's
+                "rate_hz": ts.get("rate_hz", round((count - 1) / duration, 3) if duration > 0 and count > 1 else 0.0),
                 "drops": ts.get("drops"),
                 "device": ts.get("device", (ch.metadata or {}).get("device", "")),
                 "fields": list(ours[ch.topic][1].fields) if ch.topic in ours else [],
