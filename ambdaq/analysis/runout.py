@@ -1,0 +1,252 @@
+"""Runout identification from signals sampled with the rotor angle (seed 000).
+
+Phasor convention: a harmonic ``R sin(k theta + phi)`` is the complex number ``R exp(j phi)``,
+i.e. ``a sin k theta + b cos k theta`` with ``a + j b``; the feedforward weights of eq. 9-10
+(``w_k0 sin + w_k1 cos``) are the same numbers.
+
+Three estimates of the sensor signal's harmonics, all in the angle domain:
+
+* :func:`synchronous_average`: angle-domain averaging over revolutions (slow-roll vector);
+* :func:`harmonic_fit`: batch least squares on sin/cos of k theta;
+* :func:`lms_offline`: seed 000's LMS (eq. 9-10) run over the recording, converged weights.
+
+In an AMB the runout is fed back: the rotor itself moves, so the sensor shows runout plus rotor
+motion.  :func:`runout_from_sensor` removes the rotor motion reconstructed from the coil
+currents through the rotor model (:mod:`ambdaq.analysis.rotor`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .rotor import RigidRotor
+
+
+def _basis(theta: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
+    kt = np.outer(theta, harmonics)
+    return np.concatenate([np.sin(kt), np.cos(kt), np.ones((theta.shape[0], 1))], axis=1)
+
+
+def harmonic_fit(x: np.ndarray, theta: np.ndarray, harmonics=(1, 2, 3, 4, 5, 6)) -> np.ndarray:
+    """Least-squares phasors of the harmonics of ``x`` in the rotor angle.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,) or (n, m)
+        Signal(s), any unit.
+    theta : ndarray, shape (n,)
+        Rotor angle at each sample, in rad (wrapped or not).
+    harmonics : sequence of int
+        Orders k (1 = 1X).
+
+    Returns
+    -------
+    ndarray of complex, shape (len(harmonics),) or (len(harmonics), m)
+        ``a + j b`` per harmonic for ``a sin k theta + b cos k theta``, in the unit of ``x``.
+        The mean is fitted and dropped.
+
+    Examples
+    --------
+    >>> th = np.linspace(0, 40 * np.pi, 4000)
+    >>> p = harmonic_fit(3e-6 * np.sin(th + 0.5), th, (1,))
+    >>> round(abs(p[0]) * 1e6, 6), round(float(np.angle(p[0])), 6)
+    (3.0, 0.5)
+    """
+    k = np.asarray(harmonics)
+    x2 = np.asarray(x, dtype=float)
+    one = x2.ndim == 1
+    A = _basis(np.asarray(theta, dtype=float), k)
+    coef, *_ = np.linalg.lstsq(A, x2.reshape(x2.shape[0], -1), rcond=None)
+    n = k.shape[0]
+    out = coef[:n] + 1j * coef[n : 2 * n]
+    return out[:, 0] if one else out
+
+
+def synchronous_average(x: np.ndarray, theta: np.ndarray, *, bins: int = 512, harmonics=(1, 2, 3, 4, 5, 6)) -> np.ndarray:
+    """Harmonic phasors of ``x`` by angle-domain synchronous averaging (slow-roll vector).
+
+    Samples are averaged in ``bins`` equal angle bins over all revolutions (removing everything
+    not locked to the rotor angle), and the harmonics read from the averaged revolution.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Signal.
+    theta : ndarray, shape (n,)
+        Rotor angle, in rad.
+    bins : int
+        Angle bins per revolution.
+    harmonics : sequence of int
+        Orders k.
+
+    Returns
+    -------
+    ndarray of complex, shape (len(harmonics),)
+        Phasors as in :func:`harmonic_fit`.
+    """
+    ang = np.mod(np.asarray(theta, dtype=float), 2 * np.pi)
+    idx = np.minimum((ang / (2 * np.pi) * bins).astype(np.int64), bins - 1)
+    sums = np.bincount(idx, weights=np.asarray(x, dtype=float), minlength=bins)
+    counts = np.bincount(idx, minlength=bins)
+    if np.any(counts == 0):
+        raise ValueError(f"not every one of the {bins} angle bins has a sample: record more revolutions or use fewer bins")
+    avg = sums / counts
+    centres = (np.arange(bins) + 0.5) * 2 * np.pi / bins
+    # discrete Fourier coefficients of the averaged revolution at the bin centres
+    k = np.asarray(harmonics)
+    a = 2 / bins * (np.sin(np.outer(k, centres)) @ avg)
+    b = 2 / bins * (np.cos(np.outer(k, centres)) @ avg)
+    # the bins average over their width: undo the sinc attenuation of each order
+    gain = np.sinc(k / bins)
+    return (a + 1j * b) / gain
+
+
+@njit(cache=True)
+def _lms(e: np.ndarray, theta: np.ndarray, k: np.ndarray, mu: float, w: np.ndarray, out: np.ndarray) -> None:
+    nh = k.shape[0]
+    for t in range(e.shape[0]):
+        rc = 0.0
+        for j in range(nh):
+            s = np.sin(k[j] * theta[t])
+            c = np.cos(k[j] * theta[t])
+            rc += w[j, 0] * s + w[j, 1] * c
+        err = e[t] - rc  # the signal less what the weights already explain
+        out[t] = err
+        for j in range(nh):
+            w[j, 0] += mu * err * np.sin(k[j] * theta[t])  # eq. 9
+            w[j, 1] += mu * err * np.cos(k[j] * theta[t])
+
+
+@dataclass(frozen=True)
+class LmsResult:
+    """Offline LMS: converged weights (phasors) and the error signal it leaves."""
+
+    phasors: np.ndarray
+    error: np.ndarray
+
+
+def lms_offline(x: np.ndarray, theta: np.ndarray, *, mu: float = 0.002, harmonics=(1, 2, 3, 4, 5, 6)) -> LmsResult:
+    """Seed 000's LMS (eq. 9-10) run over a recorded signal; its weights converge to the phasors.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Signal the feedforward would cancel, any unit.
+    theta : ndarray, shape (n,)
+        Rotor angle, in rad.
+    mu : float
+        Step size (dimensionless); the weights settle in about 2/mu samples.
+    harmonics : sequence of int
+        Orders k.
+
+    Returns
+    -------
+    LmsResult
+        ``phasors`` (w_k0 + j w_k1, in the unit of ``x``) and the error x - r_c of eq. 10.
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    w = np.zeros((len(harmonics), 2))
+    out = np.empty_like(x)
+    _lms(x - x.mean(), np.ascontiguousarray(theta, dtype=float), np.asarray(harmonics, dtype=np.float64), float(mu), w, out)
+    return LmsResult(w[:, 0] + 1j * w[:, 1], out)
+
+
+def notch_filter(mu: float, k_omega_h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The LMS feedforward seen as a filter from signal to error (seed 000 eq. 16).
+
+    ``E/R = (1 - 2 cos(kΩh) z^-1 + z^-2) / (1 - (2 - mu) cos(kΩh) z^-1 + (1 - mu) z^-2)``: an IIR
+    notch at the harmonic, narrower for smaller ``mu``.
+
+    Parameters
+    ----------
+    mu : float
+        LMS step size.
+    k_omega_h : float
+        Harmonic frequency times the sample period, k Omega h, in rad.
+
+    Returns
+    -------
+    b, a : ndarray
+        Numerator and denominator in powers of z^-1 (for :func:`scipy.signal.lfilter`).
+    """
+    c = np.cos(k_omega_h)
+    return np.array([1.0, -2 * c, 1.0]), np.array([1.0, -(2 - mu) * c, 1 - mu])
+
+
+def runout_from_sensor(gap: np.ndarray, current: np.ndarray, w: float, spin: float, rotor: RigidRotor) -> np.ndarray:
+    """Runout phasors at one frequency: sensor phasors less the rotor motion the currents explain.
+
+    Parameters
+    ----------
+    gap : ndarray of complex, shape (5,)
+        Sensor phasors per axis at ``w``, in m.
+    current : ndarray of complex, shape (5,)
+        Coil current phasors per axis at ``w``, in A.
+    w : float
+        Harmonic angular frequency k Omega, in rad/s.
+    spin : float
+        Rotor speed Omega, in rad/s.
+    rotor : RigidRotor
+        The rotor model.
+    """
+    return np.asarray(gap) - rotor.motion_from_currents(current, w, spin)
+
+
+@dataclass(frozen=True)
+class Separation:
+    """Electrical runout and mass unbalance separated over several speeds (1X).
+
+    Attributes
+    ----------
+    runout : ndarray of complex, shape (5,)
+        1X runout phasor per axis, in m (the same at every speed).
+    unbalance : ndarray of complex, shape (2,)
+        Unbalance per bearing plane (front, rear), in kg m, as U exp(j phi) for a force
+        U Omega^2 cos(theta + phi) on x and U Omega^2 sin(theta + phi) on y.
+    residual : float
+        Rms misfit over the speeds, in m.
+    """
+
+    runout: np.ndarray
+    unbalance: np.ndarray
+    residual: float
+
+
+def separate_unbalance(estimates: np.ndarray, spins: np.ndarray, rotor: RigidRotor) -> Separation:
+    """Split 1X runout estimates made at several speeds into runout and unbalance response.
+
+    At speed the 1X estimate of :func:`runout_from_sensor` also holds the rotor's response to
+    mass unbalance, a force the currents do not explain: r_est(Omega) = r + H(Omega) B u Omega^2,
+    with u the unbalance per plane.  Electrical runout is fixed to the angle, the unbalance
+    response grows with speed, so two or more speeds separate them by least squares.
+
+    Parameters
+    ----------
+    estimates : ndarray of complex, shape (n_speeds, 5)
+        1X runout estimates per speed and axis, in m.
+    spins : ndarray, shape (n_speeds,)
+        Rotor speeds, in rad/s.
+    rotor : RigidRotor
+        Rotor model.
+    """
+    est = np.asarray(estimates, dtype=complex)
+    spins = np.asarray(spins, dtype=float)
+    if est.shape[0] < 2 or np.ptp(spins) <= 0:
+        raise ValueError("separating runout from unbalance needs recordings at two or more different speeds")
+    # unbalance u (front, rear) -> bearing forces: x gets j u W^2, y gets u W^2 (see Separation)
+    B = np.array([[1j, 0], [1, 0], [0, 1j], [0, 1], [0, 0]], dtype=complex)
+    rows, rhs = [], []
+    for r_est, w in zip(est, spins):
+        M, G = rotor.mass_gyro(w)
+        D = -(w**2) * M + 1j * w * G - np.diag(rotor.kx)
+        H = np.linalg.solve(D, B) * w**2
+        rows.append(np.concatenate([np.eye(5), H], axis=1))
+        rhs.append(r_est)
+    A = np.concatenate(rows)
+    y = np.concatenate(rhs)
+    sol, *_ = np.linalg.lstsq(A, y, rcond=None)
+    resid = float(np.sqrt(np.mean(np.abs(A @ sol - y) ** 2)))
+    return Separation(sol[:5], sol[5:], resid)
