@@ -61,14 +61,6 @@ class RigidRotor:
         except (KeyError, ValueError) as err:
             raise ValueError(f"rotor model incomplete or malformed ({err})") from None
 
-    def to_metadata(self) -> dict[str, str]:
-        """The ``rotor.*`` entries :meth:`from_metadata` reads."""
-        return {
-            "rotor.mass_kg": f"{self.mass!r}", "rotor.jt_kgm2": f"{self.jt!r}", "rotor.jp_kgm2": f"{self.jp!r}",
-            "rotor.a_m": f"{self.a!r}", "rotor.b_m": f"{self.b!r}",
-            "rotor.kx_n_per_m": ",".join(repr(v) for v in self.kx), "rotor.ki_n_per_a": ",".join(repr(v) for v in self.ki),
-        }
-
     def mass_gyro(self, spin: float) -> tuple[np.ndarray, np.ndarray]:
         """Mass matrix (kg) and gyroscopic matrix (N s/m) in bearing coordinates at ``spin`` (rad/s)."""
         a, b = self.a, self.b

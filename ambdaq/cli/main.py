@@ -47,9 +47,9 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import devices, export, info, plot, record, recover, sim
+    from . import devices, export, info, plot, record, recover, runout, sim
 
-    for module in (record, sim, devices, info, export, plot, recover):
+    for module in (record, sim, devices, info, export, plot, recover, runout):
         cli.add_command(module.command)
 
 

@@ -58,7 +58,8 @@ class ControllerDriver:
     extra_calibration: dict[str, str] = {}
 
     def calibration(self) -> dict[str, str]:
-        return {"units": "SI: m, A, rad, rad/s (device sends float32)", **self.extra_calibration}
+        return {"units": "SI: m, A, rad, rad/s (device sends float32)", **self.info.get("calibration", {}),
+                **self.extra_calibration}
 
     def start(self, n_samples: int | None) -> None:
         """Stream ``n_samples`` sample periods of device time (lost samples included), or forever."""

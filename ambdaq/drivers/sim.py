@@ -115,6 +115,7 @@ class SimSource:
             "adc_bits": str(p.adc_bits),
             "dac_bits": str(p.dac_bits),
             "units": "SI: m, A, m/s^2, rad, rad/s",
+            **p.rotor_metadata(),
             **self._rig_calibration,
         }
 

@@ -163,6 +163,16 @@ class SpindleParams:
         """Runout as sin and cos coefficients: R sin(k theta + phi) = A sin k theta + B cos k theta."""
         return self.runout_amp * np.cos(self.runout_phase), self.runout_amp * np.sin(self.runout_phase)
 
+    def rotor_metadata(self) -> dict[str, str]:
+        """The rotor model as ``rotor.*`` calibration entries (docs/coefficients.md): what runout
+        identification needs to tell rotor motion from runout."""
+        return {
+            "rotor.mass_kg": repr(self.mass), "rotor.jt_kgm2": repr(self.jt), "rotor.jp_kgm2": repr(self.jp),
+            "rotor.a_m": repr(self.a), "rotor.b_m": repr(self.b),
+            "rotor.kx_n_per_m": ",".join(repr(ax.kx) for ax in self.axes),
+            "rotor.ki_n_per_a": ",".join(repr(ax.ki) for ax in self.axes),
+        }
+
     def bearing_gravity(self) -> np.ndarray:
         """Static gravity load per axis in bearing coordinates, in N (negative: downwards)."""
         span = self.a + self.b

@@ -203,6 +203,7 @@ class SimController:
                 for g in self.groups
             ],
             "parameters": sorted(PARAMETERS),
+            "calibration": self.rig.params.rotor_metadata(),
         }
 
     def _handle(self, frame: proto.Frame, received_ns: int) -> None:

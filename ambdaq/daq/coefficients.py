@@ -1,0 +1,111 @@
+"""The coefficient file: what identification produces and ``ambdaq push`` downloads.
+
+A JSON document (docs/coefficients.md), versioned and checksummed::
+
+    {"format": "ambdaq-coefficients", "version": 1,
+     "target": {"rig": ..., "device": ..., "serial": ..., "axes": [...]},
+     "source": {"recordings": [{"path", "sha256", "speed_rpm"}], "method": ..., "created": ...},
+     "runout": {"units": "m", "harmonics": [1, 2, ...],
+                "weights": {"front_x": [[w_k0, w_k1], ...], ...}},
+     "lms_schedule": [[rpm_from, rpm_to, mu], ...],
+     "fir": {},
+     "checksum": "crc32:xxxxxxxx"}
+
+The weights are the feedforward r_c = sum w_k0 sin k theta + w_k1 cos k theta of seed 000 eq. 10;
+to cancel the runout they equal its phasors.  The checksum is the CRC-32 of the canonical JSON
+(sorted keys, no spaces) of everything but the checksum.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import zlib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ..errors import BadInputError
+
+FORMAT = "ambdaq-coefficients"
+VERSION = 1
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _canonical(doc: dict) -> bytes:
+    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
+
+
+@dataclass
+class Coefficients:
+    """A coefficient document (see the module docstring)."""
+
+    target: dict
+    source: dict
+    harmonics: list[int]
+    weights: dict[str, list[list[float]]]
+    lms_schedule: list[list[float]] = field(default_factory=list)
+    fir: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        doc = {
+            "format": FORMAT,
+            "version": VERSION,
+            "target": self.target,
+            "source": self.source,
+            "runout": {"units": "m", "harmonics": self.harmonics, "weights": self.weights},
+            "lms_schedule": self.lms_schedule,
+            "fir": self.fir,
+        }
+        doc["checksum"] = f"crc32:{zlib.crc32(_canonical(doc)):08x}"
+        return doc
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Coefficients":
+        """Read and check a coefficient file: format, version, checksum, finite weights."""
+        path = Path(path)
+        try:
+            doc = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise BadInputError(f"{path}: no such coefficient file") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise BadInputError(f"{path}: not a JSON coefficient file ({err})") from None
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+            raise BadInputError(f"{path}: not an ambdaq coefficient file (format must be {FORMAT!r})")
+        if doc.get("version") != VERSION:
+            raise BadInputError(f"{path}: coefficient file version {doc.get('version')!r}; this ambdaq reads {VERSION}")
+        checksum = doc.pop("checksum", None)
+        if checksum != f"crc32:{zlib.crc32(_canonical(doc)):08x}":
+            raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
+        try:
+            runout = doc["runout"]
+            weights = {axis: [[float(a), float(b)] for a, b in rows] for axis, rows in runout["weights"].items()}
+            harmonics = [int(k) for k in runout["harmonics"]]
+        except (KeyError, TypeError, ValueError) as err:
+            raise BadInputError(f"{path}: malformed runout section ({err})") from None
+        for axis, rows in weights.items():
+            if len(rows) != len(harmonics):
+                raise BadInputError(f"{path}: {axis} has {len(rows)} weight pairs for {len(harmonics)} harmonics")
+            if not all(math.isfinite(v) for r in rows for v in r):
+                raise BadInputError(f"{path}: {axis} has a weight that is not a finite number")
+        return cls(doc.get("target", {}), doc.get("source", {}), harmonics, weights,
+                   doc.get("lms_schedule", []), doc.get("fir", {}))
+
+
+def now_iso() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
