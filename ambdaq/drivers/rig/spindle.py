@@ -247,6 +247,15 @@ def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarra
     return Phi, Gam[:, 0]
 
 
+def _schedule_rows(schedule):
+    """Rows (rpm_from, rpm_to, mu) for every harmonic, or a mapping harmonic -> rows, as tuples."""
+    if schedule is None:
+        return ()
+    if isinstance(schedule, dict):
+        return {int(k): tuple(tuple(float(x) for x in r) for r in rows) for k, rows in schedule.items()}
+    return tuple(tuple(float(x) for x in r) for r in schedule)
+
+
 def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndarray:
     """LMS step size per harmonic and 100-rpm speed bin from ``(rpm_from, rpm_to, mu)`` rows.
 
@@ -446,8 +455,8 @@ class SpindleRig:
         self.period_ns = int(round(1e9 / params.sample_rate))
         self.h = self.period_ns * 1e-9
         self._rng = np.random.default_rng(seed)
-        self.mu_schedule = tuple(tuple(r) for r in mu_schedule) if mu_schedule is not None else ()
-        self._mu = mu_table(mu_schedule)
+        self.mu_schedule = _schedule_rows(mu_schedule)
+        self._mu = mu_table(self.mu_schedule)
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
         self.step_index = 0
@@ -536,8 +545,9 @@ class SpindleRig:
         self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
 
     def set_mu_schedule(self, schedule) -> None:
-        """Replace the LMS step-size schedule (rows of rpm_from, rpm_to, mu)."""
-        self.mu_schedule = tuple(tuple(float(x) for x in r) for r in schedule)
+        """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
+    mapping harmonic -> rows (harmonics not named are held)."""
+        self.mu_schedule = _schedule_rows(schedule)
         self._mu = mu_table(self.mu_schedule)
 
     def run_speed_rpm(self) -> float:

@@ -288,7 +288,8 @@ PARAMETERS: dict[str, _Param] = {
     "ff.table": _Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
                        lambda r, v: r.set_feedforward(r.feedforward_mode, v.reshape(N_AXES, N_HARMONICS, 2)),
                        -1e-3, 1e-3, "feedforward weights [axis][harmonic][sin, cos], m"),
-    "lms.schedule": _Param(0, lambda r: np.array(r.mu_schedule, dtype=float).ravel(),
+    "lms.schedule": _Param(0, lambda r: np.array(r.mu_schedule.get(1, ()) if isinstance(r.mu_schedule, dict)
+                                                  else r.mu_schedule, dtype=float).ravel(),
                            lambda r, v: r.set_mu_schedule(_mu_rows(v)), -1.0, 60000.0,
                            "LMS step-size rows (rpm_from, rpm_to, mu)", row=3),
     "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
