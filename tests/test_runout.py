@@ -105,3 +105,16 @@ def test_synchronous_average_refuses_too_few_angles():
     theta = np.arange(1000) * (2 * np.pi / 20)  # 20 samples per revolution, always the same angles
     with pytest.raises(ValueError, match="angle bins"):
         synchronous_average(np.sin(theta), theta)
+
+
+@pytest.mark.parametrize("n, harmonics", [(37, (1, 2, 3)), (5000, (1, 2, 3, 4, 5, 6)), (800, (2, 5, 7))])
+def test_one_pass_fit_equals_least_squares_on_an_explicit_basis(n, harmonics):
+    """A^T A built from sums of sin/cos m theta (sum and difference identities) is the exact LS."""
+    rng = np.random.default_rng(n)
+    theta = np.cumsum(rng.uniform(0.01, 0.9, n))  # irregular angles, not whole revolutions
+    x = rng.standard_normal((n, 3))
+    k = np.asarray(harmonics)
+    A = np.concatenate([np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k)), np.ones((n, 1))], axis=1)
+    coef, *_ = np.linalg.lstsq(A, x, rcond=None)
+    np.testing.assert_allclose(harmonic_fit(x, theta, harmonics), coef[: len(k)] + 1j * coef[len(k) : 2 * len(k)],
+                               rtol=1e-7, atol=1e-9)

@@ -25,9 +25,49 @@ from numba import njit
 from .rotor import RigidRotor
 
 
-def _basis(theta: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
-    kt = np.outer(theta, harmonics)
-    return np.concatenate([np.sin(kt), np.cos(kt), np.ones((theta.shape[0], 1))], axis=1)
+@njit(cache=True, nogil=True, fastmath=True)
+def _harmonic_sums(s1: np.ndarray, c1: np.ndarray, x: np.ndarray, kmax: int, k: np.ndarray):
+    """One pass: sums of sin m theta and cos m theta for m = 0..2 kmax (they make A^T A) and
+    A^T x for the basis [sin k theta, cos k theta, 1]; sin/cos of m theta by angle addition."""
+    mmax = 2 * kmax
+    ssum = np.zeros(mmax + 1)
+    csum = np.zeros(mmax + 1)
+    nh = k.shape[0]
+    atx = np.zeros((2 * nh + 1, x.shape[1]))
+    sk = np.empty(mmax + 1)
+    ck = np.empty(mmax + 1)
+    for t in range(s1.shape[0]):
+        sk[0], ck[0] = 0.0, 1.0
+        for j in range(1, mmax + 1):
+            sk[j] = sk[j - 1] * c1[t] + ck[j - 1] * s1[t]
+            ck[j] = ck[j - 1] * c1[t] - sk[j - 1] * s1[t]
+        for j in range(mmax + 1):
+            ssum[j] += sk[j]
+            csum[j] += ck[j]
+        for c in range(x.shape[1]):
+            xv = x[t, c]
+            for j in range(nh):
+                atx[j, c] += sk[k[j]] * xv
+                atx[nh + j, c] += ck[k[j]] * xv
+            atx[2 * nh, c] += xv
+    return ssum, csum, atx
+
+
+def _normal_matrix(ssum: np.ndarray, csum: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """A^T A from the sums of sin/cos m theta: products of harmonics are sums and differences."""
+    nh = k.shape[0]
+    kd = np.abs(k[:, None] - k[None, :])
+    ks = k[:, None] + k[None, :]
+    sgn = np.sign(k[:, None] - k[None, :])
+    ata = np.empty((2 * nh + 1, 2 * nh + 1))
+    ata[:nh, :nh] = (csum[kd] - csum[ks]) / 2  # sin a sin b
+    ata[nh : 2 * nh, nh : 2 * nh] = (csum[kd] + csum[ks]) / 2  # cos a cos b
+    ata[:nh, nh : 2 * nh] = (ssum[ks] + sgn * ssum[kd]) / 2  # sin a cos b
+    ata[nh : 2 * nh, :nh] = ata[:nh, nh : 2 * nh].T
+    ata[:nh, 2 * nh] = ata[2 * nh, :nh] = ssum[k]
+    ata[nh : 2 * nh, 2 * nh] = ata[2 * nh, nh : 2 * nh] = csum[k]
+    ata[2 * nh, 2 * nh] = csum[0]
+    return ata
 
 
 def harmonic_fit(x: np.ndarray, theta: np.ndarray, harmonics=(1, 2, 3, 4, 5, 6)) -> np.ndarray:
@@ -55,11 +95,13 @@ def harmonic_fit(x: np.ndarray, theta: np.ndarray, harmonics=(1, 2, 3, 4, 5, 6))
     >>> round(abs(p[0]) * 1e6, 6), round(float(np.angle(p[0])), 6)
     (3.0, 0.5)
     """
-    k = np.asarray(harmonics)
+    k = np.asarray(harmonics, dtype=np.int64)
     x2 = np.asarray(x, dtype=float)
     one = x2.ndim == 1
-    A = _basis(np.asarray(theta, dtype=float), k)
-    coef, *_ = np.linalg.lstsq(A, x2.reshape(x2.shape[0], -1), rcond=None)
+    th = np.asarray(theta, dtype=float)
+    ssum, csum, atx = _harmonic_sums(np.sin(th), np.cos(th), np.ascontiguousarray(x2.reshape(x2.shape[0], -1)),
+                                     int(k.max()), k)
+    coef = np.linalg.solve(_normal_matrix(ssum, csum, k), atx)
     n = k.shape[0]
     out = coef[:n] + 1j * coef[n : 2 * n]
     return out[:, 0] if one else out
@@ -104,20 +146,29 @@ def synchronous_average(x: np.ndarray, theta: np.ndarray, *, bins: int = 512, ha
     return (a + 1j * b) / gain
 
 
-@njit(cache=True)
-def _lms(e: np.ndarray, theta: np.ndarray, k: np.ndarray, mu: float, w: np.ndarray, out: np.ndarray) -> None:
+@njit(cache=True, nogil=True, fastmath=True)
+def _lms(e: np.ndarray, s1v: np.ndarray, c1v: np.ndarray, k: np.ndarray, mu: float, w: np.ndarray, out: np.ndarray) -> None:
     nh = k.shape[0]
+    kmax = 0
+    for kk in k:
+        kmax = max(kmax, kk)
+    sk = np.empty(kmax + 1)
+    ck = np.empty(kmax + 1)
     for t in range(e.shape[0]):
+        s1 = s1v[t]
+        c1 = c1v[t]
+        sk[0], ck[0] = 0.0, 1.0
+        for j in range(1, kmax + 1):  # sin/cos of j theta by angle addition
+            sk[j] = sk[j - 1] * c1 + ck[j - 1] * s1
+            ck[j] = ck[j - 1] * c1 - sk[j - 1] * s1
         rc = 0.0
-        for j in range(nh):
-            s = np.sin(k[j] * theta[t])
-            c = np.cos(k[j] * theta[t])
-            rc += w[j, 0] * s + w[j, 1] * c
-        err = e[t] - rc  # the signal less what the weights already explain
+        for j in range(nh):  # r_c with the previous weights, eq. 10
+            rc += w[j, 0] * sk[k[j]] + w[j, 1] * ck[k[j]]
+        err = e[t] - rc
         out[t] = err
-        for j in range(nh):
-            w[j, 0] += mu * err * np.sin(k[j] * theta[t])  # eq. 9
-            w[j, 1] += mu * err * np.cos(k[j] * theta[t])
+        for j in range(nh):  # eq. 9
+            w[j, 0] += mu * err * sk[k[j]]
+            w[j, 1] += mu * err * ck[k[j]]
 
 
 @dataclass(frozen=True)
@@ -150,7 +201,8 @@ def lms_offline(x: np.ndarray, theta: np.ndarray, *, mu: float = 0.002, harmonic
     x = np.ascontiguousarray(x, dtype=float)
     w = np.zeros((len(harmonics), 2))
     out = np.empty_like(x)
-    _lms(x - x.mean(), np.ascontiguousarray(theta, dtype=float), np.asarray(harmonics, dtype=np.float64), float(mu), w, out)
+    th = np.asarray(theta, dtype=float)
+    _lms(x - x.mean(), np.sin(th), np.cos(th), np.asarray(harmonics, dtype=np.int64), float(mu), w, out)
     return LmsResult(w[:, 0] + 1j * w[:, 1], out)
 
 
