@@ -114,10 +114,11 @@ def test_record_two_controllers_with_drifting_clocks_aligns_them(bench, tmp_path
     # clock map in several runs has overshot (110 us seen once), hence the percentile and the bound
     assert np.percentile(misalign, 99.9) < 100.0, np.percentile(misalign, [50, 99, 99.9, 100])
     assert misalign.max() < 200.0, misalign.max()
-    # against the true instants: a constant transport latency, and little spread about it
+    # against the true instants (not required, but telling): a small constant latency and a spread
+    # that includes the first seconds, mapped with the drift estimated from 2 s of pairs
     true = bench.server.start_wall_ns + gap.seq.astype(np.int64) * 100_000
     err = (gap.log_time - true) * 1e-3
-    assert np.percentile(err, 99) - np.percentile(err, 1) < 100.0
+    assert np.percentile(err, 99) - np.percentile(err, 1) < 150.0, np.percentile(err, [1, 50, 99])
     assert res.alignment_us is not None
     meta = McapFile(tmp_path / "two.mcap").metadata()
     assert float(meta["ambdaq.clock.ctlB"]["drift_ppm"]) > 45
