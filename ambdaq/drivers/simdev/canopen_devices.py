@@ -58,9 +58,12 @@ class SimCanDevice:
         return cob, ttype
 
     def _raw(self, row: np.ndarray) -> list:
+        """Raw counts: integers saturate at their type's limits, except an angle, which wraps."""
         out = []
-        for v, dt in zip(row / self._scale, self._kinds):
-            if dt in _LIMITS:
+        for i, (v, dt) in enumerate(zip(row / self._scale, self._kinds)):
+            if self.profile.channels[i].unit == "rad" and dt == od.UNSIGNED16:
+                out.append(int(round(float(v))) % 65536)
+            elif dt in _LIMITS:
                 lo, hi = _LIMITS[dt]
                 out.append(int(min(max(round(float(v)), lo), hi)))
             else:
