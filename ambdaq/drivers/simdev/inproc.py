@@ -19,6 +19,7 @@ import threading
 import can
 import canopen
 
+from .. import framing
 from ..canopen_profiles import PROFILES
 from ..controller import ControllerDriver
 from ..devices import open_can_device
@@ -40,6 +41,7 @@ class SimulatedRig:
     """The running simulation behind a ``sim://`` URL; stops when its last driver closes."""
 
     def __init__(self, profile: str, *, seed: int, speed: SpeedProfile, truth: bool, ff_mode: str, noise: bool) -> None:
+        framing.warm_up()  # before the rig's clock starts: compiling must not make it late
         self.rig = build_rig(profile, seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
         self.server = RigServer(self.rig)
         self.pty = Pty.open()
