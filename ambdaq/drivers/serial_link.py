@@ -161,18 +161,28 @@ class SerialLink:
                 raise DeviceError(f"serial port {self.port_name}: write failed: {err}") from None
         return seq
 
-    def request(self, msg_type: MsgType, body: bytes = b"", *, timeout: float = 1.0, what: str = "") -> proto.Frame:
-        """Send a request and wait for its ACK, NAK or PARAM_VALUE; NAK raises DeviceError."""
-        slot: list = [threading.Event()]
-        with self._tx_lock:
-            seq = self._tx_seq
-            self._pending[seq] = slot
-        try:
-            self.send(msg_type, body)
-            if not slot[0].wait(timeout):
-                raise DeviceError(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s")
-        finally:
-            self._pending.pop(seq, None)
+    def request(self, msg_type: MsgType, body: bytes = b"", *, timeout: float = 1.0, what: str = "",
+                attempts: int = 3) -> proto.Frame:
+        """Send a request and wait for its ACK, NAK or PARAM_VALUE; NAK raises DeviceError.
+
+        A request or its reply lost on a noisy line (CRC rejection) is sent again, up to
+        ``attempts`` times: every request of this protocol is idempotent (stream on/off, a
+        parameter read, writing the same value again).
+        """
+        for _attempt in range(attempts):
+            slot: list = [threading.Event()]
+            with self._tx_lock:
+                seq = self._tx_seq
+                self._pending[seq] = slot
+            try:
+                self.send(msg_type, body)
+                if slot[0].wait(timeout):
+                    break
+            finally:
+                self._pending.pop(seq, None)
+        else:
+            raise DeviceError(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s "
+                              f"({attempts} attempts)")
         reply = slot[1]
         if reply.type == MsgType.NAK:
             _req, code, msg = proto.parse_nak(reply.body)
