@@ -25,7 +25,7 @@ import can
 import canopen
 
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.can_bus import CanHub, bus_load
+from ambdaq.drivers.can_bus import bus_load
 from ambdaq.drivers.devices import open_can_device
 from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import SpindleRig

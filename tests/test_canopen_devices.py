@@ -11,7 +11,7 @@ import pytest
 
 from ambdaq.daq import load
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.can_bus import CanHub, bus_load, frame_bits
+from ambdaq.drivers.can_bus import bus_load, frame_bits
 from ambdaq.drivers.canopen_profiles import PROFILES, build_od
 from ambdaq.drivers.devices import open_device
 from ambdaq.drivers.rig.speed import SpeedProfile

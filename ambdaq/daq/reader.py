@@ -20,7 +20,7 @@ import numpy as np
 from ..drivers.signals import SignalGroup
 from ..errors import BadInputError
 from .mcapfile import McapFile, gather_payloads
-from .schema import HEADER_FIELDS, TopicLayout, parse_schema
+from .schema import TopicLayout, parse_schema
 
 
 @dataclass
@@ -221,4 +221,4 @@ def load(
     return Recording(Path(path), result, f.metadata())
 
 
-__all__ = ["HEADER_FIELDS", "Recording", "TopicData", "load"]
+__all__ = ["Recording", "TopicData", "load"]
