@@ -12,7 +12,7 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.daq.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can_bus import bus_load, frame_bits
-from ambdaq.drivers.canopen_profiles import PROFILES, build_od
+from ambdaq.drivers.canopen_profiles import ALL_PROFILES, PROFILES, build_od
 from ambdaq.drivers.devices import open_device
 from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import SpindleRig
@@ -39,7 +39,7 @@ def can_rig():
 
 
 def test_shipped_eds_files_match_the_profiles():
-    for p in PROFILES.values():
+    for p in ALL_PROFILES.values():
         shipped = canopen.import_od(str(p.eds_path))
         built = build_od(p)
         assert sorted(shipped.indices) == sorted(built.indices)

@@ -71,6 +71,13 @@ class OneAxis:
         return np.polymul(pd, cd), den
 
 
+BEARINGS = {
+    "front": OneAxis(),
+    "rear": OneAxis(ki=182.0, kx=1.18e6, amp_wn_hz=2500.0, d=0.002),
+}
+"""Seed 000's one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
+
+
 def convergence_radius(loop: OneAxis, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1) -> np.ndarray:
     """Spectral radius of the loop with the LMS on ``harmonic``, over speed x step size.
 
@@ -139,3 +146,32 @@ def sign_schedule(loop: OneAxis, *, mu: float = 0.001, dead_band: float = 500.0,
             rows.append([float(rpm[start]), float(rpm[i] if i < len(rpm) else rpm_max), float(value[start])])
             start = i
     return rows
+
+
+def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: int,
+                     loops: dict[str, OneAxis] = BEARINGS, rpm_step: float = 100.0) -> str:
+    """Why a step-size schedule is not stable on the convergence map ("" if it is).
+
+    Parameters
+    ----------
+    rows : list of (harmonic, rpm_from, rpm_to, mu)
+        The schedule; harmonic 0 applies the row to every harmonic 1 .. ``harmonics``.
+    harmonics : int
+        Number of harmonics the feedforward runs.
+    loops : dict of str to OneAxis
+        The loops to check (default: both bearings of seed 000).
+    rpm_step : float
+        Speed grid, in rpm.
+    """
+    for k, lo, hi, mu in rows:
+        if mu == 0:
+            continue
+        rpm = np.arange(max(lo, rpm_step / 2), hi, rpm_step)
+        for kk in range(1, harmonics + 1) if k == 0 else (int(k),):
+            for name, loop in loops.items():
+                r = convergence_radius(loop, rpm, np.array([mu]), kk)[:, 0]
+                bad = np.flatnonzero(r >= 1.0)
+                if bad.size:
+                    return (f"step size {mu:g} on {kk}X diverges on the {name} bearing at {rpm[bad[0]]:.0f} rpm "
+                            f"(radius {r[bad[0]]:.4f} on the convergence map)")
+    return ""

@@ -47,10 +47,12 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import devices, export, info, plot, record, recover, runout, sim
+    from . import devices, export, info, plot, push, record, recover, runout, sim
 
     for module in (record, sim, devices, info, export, plot, recover, runout):
         cli.add_command(module.command)
+    cli.add_command(push.push_command)
+    cli.add_command(push.controller_group)
 
 
 _register()

@@ -9,6 +9,7 @@ import click
 
 from ..drivers.devices import open_device
 from ..drivers.rig.profiles import PROFILES
+from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
 from .options import output_options, report_options, speed_option
 from .record import run_recording
 
@@ -51,9 +52,11 @@ def generate(profile, seed, speed, duration, truth, ff, noise, output, split_siz
 @speed_option
 @click.option("--truth", is_flag=True, help="The controller also streams /truth/runout and /truth/position.")
 @click.option("--drift-ppm", type=float, default=50.0, show_default=True, help="Controller clock rate error.")
+@click.option("--unlock-key", default=DEFAULT_UNLOCK_KEY, show_default=True,
+              help="The key the controller wants before its coefficient banks can be written (ambdaq push).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, serial_kind, seed, speed, truth, drift_ppm, duration):
+def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per device, NAME PATH, then serves until Ctrl-C:
@@ -65,7 +68,7 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, duration):
     from ..drivers.simdev.rig_server import DeviceClock
     from ..drivers.simdev.serve import serve_serial
 
-    served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth,
+    served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth, unlock_key=unlock_key,
                           clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm))
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")

@@ -127,7 +127,7 @@ class DeviceProfile:
     def tpdo_bytes(self) -> list[int]:
         """Data length of each TPDO, in bytes."""
         sizes = [sum(_SIZE[t] for _i, t in self.tpdo_layout(i)) for i in range(len(self.tpdos))]
-        assert max(sizes) <= 8, f"{self.kind}: a TPDO carries at most 8 bytes"
+        assert max(sizes, default=0) <= 8, f"{self.kind}: a TPDO carries at most 8 bytes"
         return sizes
 
 
@@ -183,6 +183,25 @@ PROFILES: dict[str, DeviceProfile] = {
         ),
     )
 }
+
+
+# The AMB controller's configuration port on CAN: no process data (that streams on its serial
+# line), only SDO objects for the coefficient banks (docs/protocol.md, "Coefficient banks").
+BANK_UNLOCK, BANK_IMAGE, BANK_CRC, BANK_COMMIT, BANK_RECORD, BANK_STATUS, BANK_ACTIVE, BANK_EFFECTIVE = range(0x2F00, 0x2F08)
+CONTROLLER = DeviceProfile(
+    "controller", "ambdaq AMB controller (configuration port)", 0x0105, 0x00000000, 0x50, "", "", (), None,
+    (Parameter("unlock key", BANK_UNLOCK, od.VISIBLE_STRING, None, "wo"),
+     Parameter("inactive bank image", BANK_IMAGE, od.DOMAIN, None, "rw"),
+     Parameter("inactive bank CRC-32", BANK_CRC, od.UNSIGNED32, 0, "ro"),
+     Parameter("commit with CRC-32", BANK_COMMIT, od.UNSIGNED32, 0, "wo"),
+     Parameter("push record", BANK_RECORD, od.VISIBLE_STRING, None, "wo"),
+     Parameter("bank status", BANK_STATUS, od.DOMAIN, None, "ro"),
+     Parameter("active bank image", BANK_ACTIVE, od.DOMAIN, None, "ro"),
+     Parameter("first sample of the last commit", BANK_EFFECTIVE, od.UNSIGNED32, 0, "ro")),
+    "",
+)
+ALL_PROFILES = {**PROFILES, CONTROLLER.kind: CONTROLLER}
+"""Every CANopen device type with a shipped EDS: the streaming devices and the controller port."""
 
 
 def _var(name: str, index: int, sub: int, dtype: int, default, access: str = "rw", pdo: bool = False):
@@ -241,7 +260,8 @@ def build_od(p: DeviceProfile) -> od.ObjectDictionary:
             d.add_object(_var(c.field, c.index, 0, c.data_type, 0, "ro", pdo=True))
     if p.status_index is not None:
         d.add_object(_var("status", p.status_index, 0, od.UNSIGNED16, 0, "ro", pdo=True))
-    d.add_object(_var("sync counter", SYNC_ECHO_INDEX, 0, od.UNSIGNED8, 0, "ro", pdo=True))
+    if p.tpdos:
+        d.add_object(_var("sync counter", SYNC_ECHO_INDEX, 0, od.UNSIGNED8, 0, "ro", pdo=True))
     for prm in p.parameters:
         d.add_object(_var(prm.name, prm.index, 0, prm.data_type, prm.default, prm.access))
     assert set(channels) <= set(d.indices)
@@ -252,7 +272,7 @@ def write_eds() -> list[Path]:
     """Regenerate every shipped EDS file from :data:`PROFILES`."""
     EDS_DIR.mkdir(exist_ok=True)
     out = []
-    for p in PROFILES.values():
+    for p in ALL_PROFILES.values():
         canopen.export_od(build_od(p), str(p.eds_path), "eds")
         out.append(p.eds_path)
     return out

@@ -2,12 +2,15 @@
 
 As a recorder source it streams the groups the controller announces in its IDENTITY (gap,
 current, error, feedforward, rotor); as a parameter interface it reads and writes PID gains,
-feedforward mode and table, LMS schedule and speed set-point.
+feedforward mode and table, LMS schedule and speed set-point; as a coefficient-bank port
+(``ambdaq push``) it unlocks, writes the inactive bank, reads the device's CRC and commits.
 """
 
 from __future__ import annotations
 
+import json
 import queue
+import struct
 import time
 
 import numpy as np
@@ -160,3 +163,41 @@ class ControllerDriver:
     def write_param(self, name: str, values) -> None:
         """Write a controller parameter; the controller acknowledges or refuses (DeviceError)."""
         self.link.request(MsgType.PARAM_WRITE, proto.param_write(name, np.atleast_1d(values)), what=f"write {name}")
+
+    # --- coefficient banks (docs/protocol.md) --------------------------------------------------------
+
+    def unlock(self, key: str) -> None:
+        """Unlock the coefficient banks with the controller's key (refused: DeviceError)."""
+        self.link.request(MsgType.UNLOCK, proto.unlock(key), what="unlock")
+
+    def write_bank(self, image: bytes) -> None:
+        """Write ``image`` into the inactive bank, in BANK_CHUNK pieces (each one acknowledged)."""
+        for off in range(0, len(image), proto.BANK_CHUNK):
+            self.link.request(MsgType.BANK_WRITE, proto.bank_write(off, len(image), image[off : off + proto.BANK_CHUNK]),
+                              what=f"bank write at byte {off}")
+
+    def bank_status(self) -> dict:
+        """Active bank, device-computed CRC-32s, the push log."""
+        reply = self.link.request(MsgType.BANK_STATUS, what="bank status")
+        return json.loads(reply.body[2:].decode())
+
+    def commit_bank(self, crc: int, record: dict) -> int:
+        """Switch to the inactive bank if the device finds ``crc`` in it; returns the first sample
+        index run with it.  Sent once: a commit is not idempotent (the caller checks the status
+        when no answer comes)."""
+        reply = self.link.request(MsgType.BANK_COMMIT, proto.bank_commit(crc, record), what="commit", attempts=1,
+                                  timeout=2.0)
+        return struct.unpack_from("<I", reply.body, 2)[0]
+
+    def read_bank(self, which: str, length: int) -> bytes:
+        """``length`` bytes of the ``active`` or ``inactive`` bank."""
+        out = bytearray()
+        while len(out) < length:
+            reply = self.link.request(MsgType.BANK_READ, proto.bank_read(0 if which == "active" else 1, len(out),
+                                                                         min(proto.BANK_CHUNK, length - len(out))),
+                                      what=f"bank read at byte {len(out)}")
+            chunk = reply.body[6:]
+            if not chunk:
+                break
+            out += chunk
+        return bytes(out)

@@ -7,8 +7,9 @@ from .controller import ControllerDriver
 from .serial_link import SerialLink
 from .sim import SimSource, sim_options
 from .can_bus import CanHub
+from .canopen_controller import CanopenController
 from .canopen_driver import CanopenDevice
-from .canopen_profiles import PROFILES
+from .canopen_profiles import CONTROLLER, PROFILES
 from .url import SCHEMES, DeviceURL, parse_device_url
 
 SERIAL_DRIVERS = {"controller": ControllerDriver}
@@ -108,4 +109,31 @@ def _open_serial(url: DeviceURL, name: str | None, speed: str | None):
         return dev
     except BaseException:
         link.close()
+        raise
+
+
+def open_controller(url: str):
+    """The AMB controller at ``url`` as a coefficient-bank port (``ambdaq push``, ``controller
+    status``): ``serial:PORT`` or ``can://INTERFACE/CHANNEL?node=N`` (its configuration port)."""
+    parsed = parse_device_url(url)
+    if parsed.scheme == "sim":
+        raise BadInputError(f"{url}: a push needs a controller that keeps running: start `ambdaq sim serve "
+                            "--serial pty` and push to the serial:// port it prints")
+    if parsed.scheme == "serial":
+        dev = _open_serial(parsed, None, None)
+        if not isinstance(dev, ControllerDriver):
+            dev.close()
+            raise DeviceError(f"{url}: not an AMB controller")
+        return dev
+    interface, _, channel = parsed.target.partition("/")
+    if not channel:
+        raise BadInputError(f"device URL {url!r} names no channel: expected {SCHEMES['can'].form}")
+    if parsed.options.get("kind", "controller") != "controller":
+        raise BadInputError(f"{url}: a push goes to the controller (kind=controller), not a {parsed.options['kind']}")
+    node = _number(parsed, "node", str(CONTROLLER.default_node))
+    hub = CanHub.acquire(interface, channel, _number(parsed, "bitrate", "1000000"))
+    try:
+        return CanopenController(hub, node, url=url)
+    except BaseException:
+        hub.release()
         raise

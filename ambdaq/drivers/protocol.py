@@ -20,6 +20,14 @@ type   name                dir    body after the 4-byte header
 0x41   HEARTBEAT           d->h   device time i64 (ns) stamped as it is written, state u8
 0x42   TIME_REQUEST        h->d   host time t1 i64 (ns) stamped as it is written
 0x43   TIME_REPLY          d->h   t1 i64, device receive time t2 i64, device send time t3 i64
+0x50   UNLOCK              h->d   key (u8 length, UTF-8); ACK or NAK LOCKED
+0x51   BANK_WRITE          h->d   offset u32, image length u32, bytes (to the inactive bank)
+0x52   BANK_COMMIT         h->d   expected CRC-32 u32, UTF-8 JSON push record; ACK carries the
+                                  first sample index run with the new bank (u32 after the seq)
+0x53   BANK_STATUS         h->d   (empty); answered by BANK_INFO
+0x54   BANK_INFO           d->h   request seq u16, UTF-8 JSON: active bank, CRC-32s, log
+0x55   BANK_READ           h->d   which u8 (0 active, 1 inactive), offset u32, length u16
+0x56   BANK_DATA           d->h   request seq u16, offset u32, bytes
 =====  ==================  =====  ==========================================================
 
 HEARTBEATs give the host (device time, arrival) pairs for the clock's drift; TIME_REQUEST /
@@ -54,6 +62,13 @@ class MsgType(IntEnum):
     HEARTBEAT = 0x41
     TIME_REQUEST = 0x42
     TIME_REPLY = 0x43
+    UNLOCK = 0x50
+    BANK_WRITE = 0x51
+    BANK_COMMIT = 0x52
+    BANK_STATUS = 0x53
+    BANK_INFO = 0x54
+    BANK_READ = 0x55
+    BANK_DATA = 0x56
 
 
 class NakCode(IntEnum):
@@ -65,6 +80,14 @@ class NakCode(IntEnum):
     BAD_REQUEST = 4
     LOCKED = 5
     BUSY = 6
+    CRC_MISMATCH = 7
+
+
+REPLIES = (MsgType.ACK, MsgType.NAK, MsgType.PARAM_VALUE, MsgType.BANK_INFO, MsgType.BANK_DATA)
+"""Messages that answer a request: their body starts with the request's sequence number."""
+BANK_CHUNK = 192  # image bytes per BANK_WRITE
+BANK_WRITE_HEAD = struct.Struct("<II")
+BANK_READ_HEAD = struct.Struct("<BIH")
 
 
 @dataclass(frozen=True)
@@ -206,3 +229,50 @@ def time_reply(t1_ns: int, t2_ns: int, t3_ns: int) -> bytes:
 
 def parse_time_reply(body: bytes) -> tuple[int, int, int]:
     return struct.unpack_from("<qqq", body, 0)
+
+
+def unlock(key: str) -> bytes:
+    return _name(key)
+
+
+def parse_unlock(body: bytes) -> str:
+    return _read_name(body, 0)[0]
+
+
+def bank_write(offset: int, total: int, data: bytes) -> bytes:
+    return BANK_WRITE_HEAD.pack(offset, total) + data
+
+
+def parse_bank_write(body: bytes) -> tuple[int, int, bytes]:
+    offset, total = BANK_WRITE_HEAD.unpack_from(body, 0)
+    return offset, total, body[BANK_WRITE_HEAD.size :]
+
+
+def bank_commit(crc: int, record: dict) -> bytes:
+    return struct.pack("<I", crc) + json.dumps(record, separators=(",", ":")).encode()
+
+
+def parse_bank_commit(body: bytes) -> tuple[int, dict]:
+    (crc,) = struct.unpack_from("<I", body, 0)
+    return crc, json.loads(body[4:].decode() or "{}")
+
+
+def ack_value(request_seq: int, value: int) -> bytes:
+    """An ACK that carries a u32 result (BANK_COMMIT: the first sample run with the new bank)."""
+    return struct.pack("<HI", request_seq, value & 0xFFFFFFFF)
+
+
+def bank_info(request_seq: int, info: dict) -> bytes:
+    return struct.pack("<H", request_seq) + json.dumps(info, separators=(",", ":")).encode()
+
+
+def bank_read(which: int, offset: int, length: int) -> bytes:
+    return BANK_READ_HEAD.pack(which, offset, length)
+
+
+def parse_bank_read(body: bytes) -> tuple[int, int, int]:
+    return BANK_READ_HEAD.unpack_from(body, 0)
+
+
+def bank_data(request_seq: int, offset: int, data: bytes) -> bytes:
+    return struct.pack("<HI", request_seq, offset) + data

@@ -8,6 +8,7 @@
     name = "rig"
     url = "sim://spindle?seed=3"
     rpm = "30000"                 # optional speed command
+    unlock_key = "..."            # optional: the controller's key for `ambdaq push`
 
     [device.calibration]          # optional, stored in the recording's metadata
     note = "sensor gains from 2026-11-01 slow roll"
@@ -30,6 +31,7 @@ class DeviceEntry:
     name: str
     url: str
     rpm: str | None = None
+    unlock_key: str | None = None
     calibration: dict[str, str] = field(default_factory=dict)
 
 
@@ -62,9 +64,9 @@ def load_rig(path: str | Path) -> RigFile:
         where = f"{path}: device {i + 1}"
         if not isinstance(e, dict) or "url" not in e:
             raise BadInputError(f"{where}: needs url = \"scheme://...\"")
-        bad = sorted(set(e) - {"name", "url", "rpm", "calibration"})
+        bad = sorted(set(e) - {"name", "url", "rpm", "unlock_key", "calibration"})
         if bad:
-            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: name, url, rpm, calibration)")
+            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: name, url, rpm, unlock_key, calibration)")
         parse_device_url(str(e["url"]))
         cal = e.get("calibration", {})
         if not isinstance(cal, dict):
@@ -74,6 +76,7 @@ def load_rig(path: str | Path) -> RigFile:
                 name=str(e.get("name", f"dev{i}")),
                 url=str(e["url"]),
                 rpm=None if "rpm" not in e else str(e["rpm"]),
+                unlock_key=None if "unlock_key" not in e else str(e["unlock_key"]),
                 calibration={str(k): str(v) for k, v in cal.items()},
             )
         )

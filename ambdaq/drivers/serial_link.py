@@ -127,7 +127,7 @@ class SerialLink:
         t = frame.type
         if t == MsgType.SAMPLES:
             self.samples.put((proto.parse_samples(frame.body), arrived))
-        elif t in (MsgType.ACK, MsgType.NAK, MsgType.PARAM_VALUE):
+        elif t in proto.REPLIES:
             req = int.from_bytes(frame.body[:2], "little")
             slot = self._pending.get(req)
             if slot is not None:

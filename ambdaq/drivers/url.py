@@ -29,7 +29,7 @@ SCHEMES: dict[str, Scheme] = {
     ),
     "can": Scheme(
         "can",
-        "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor&sync=HZ"
+        "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller&sync=HZ"
         "&bitrate=1000000&namespace=NAME] (any python-can interface, e.g. can://virtual/amb0?node=16)",
         ("node", "kind", "sync", "bitrate", "namespace"),
     ),

@@ -9,17 +9,22 @@ The amplifier raises EMCY 0x2310 (over-current) when a coil current exceeds its 
 its output stage off (zero current, status bit 15 clear; the rig's physics is not coupled back).
 The gap conditioner applies its calibration (0x2100 sensitivity against 10,000 V/m, 0x2101
 offset) to what it sends.
+The controller's configuration port (:class:`SimCanController`) answers SDO for the coefficient
+banks it shares with the controller's serial port.
 """
 
 from __future__ import annotations
 
+import json
 import struct
 
 import canopen
 import numpy as np
 from canopen import objectdictionary as od
 
+from .. import canopen_profiles as cp
 from ..canopen_profiles import PROFILES, DeviceProfile
+from .banks import BankRefused, CoefficientBanks
 from .rig_server import RigServer
 
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
@@ -128,3 +133,53 @@ def serve_can(network: canopen.Network, server: RigServer, nodes: dict[str, int]
     """Put one simulated device of each type on ``network``; ``nodes`` maps kind -> node id."""
     nodes = nodes or {k: p.default_node for k, p in PROFILES.items()}
     return [SimCanDevice(network, kind, node, server, serial=1000 + node) for kind, node in nodes.items()]
+
+
+ABORT = {"locked": 0x08000022, "crc": 0x08000020, "busy": 0x08000021, "bad_value": 0x06090030}
+"""SDO abort codes for refused bank operations (CiA 301: device state, cannot store, local
+control, value range)."""
+
+
+class SimCanController:
+    """The controller's CANopen configuration port at ``node_id``: SDO objects 0x2F00.. over
+    ``banks`` (docs/protocol.md).  A failed check aborts the SDO transfer and writes nothing."""
+
+    def __init__(self, network: canopen.Network, banks: CoefficientBanks, node_id: int = cp.CONTROLLER.default_node,
+                 *, serial: int = 1) -> None:
+        self.banks = banks
+        self.node = canopen.LocalNode(node_id, str(cp.CONTROLLER.eds_path))
+        network.add_node(self.node)
+        self.node.set_data(0x1018, 4, struct.pack("<I", serial), check_writable=False)
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        self._record: dict = {}
+        self._effective = 0
+        self.node.add_read_callback(self._read)
+        self.node.add_write_callback(self._write)
+
+    def _read(self, index: int, subindex: int, od):
+        if index == cp.BANK_CRC:
+            return self.banks.inactive_crc()
+        if index == cp.BANK_STATUS:
+            return json.dumps(self.banks.status(), separators=(",", ":")).encode()
+        if index in (cp.BANK_IMAGE, cp.BANK_ACTIVE):
+            which = "active" if index == cp.BANK_ACTIVE else "inactive"
+            return self.banks.read(which, 0, 1 << 16)
+        if index == cp.BANK_EFFECTIVE:
+            return self._effective
+        return None
+
+    def _write(self, index: int, subindex: int, od, data: bytes) -> None:
+        try:
+            if index == cp.BANK_UNLOCK:
+                self.banks.unlock(bytes(data).decode(errors="replace"))
+            elif index == cp.BANK_IMAGE:
+                self.banks.write(0, len(data), bytes(data))
+            elif index == cp.BANK_RECORD:
+                self._record = json.loads(bytes(data).decode() or "{}")
+            elif index == cp.BANK_COMMIT:
+                self._effective = self.banks.commit(struct.unpack("<I", data)[0], self._record)
+                self._record = {}
+        except BankRefused as err:
+            raise canopen.SdoAbortedError(ABORT[err.reason]) from None
+        except (ValueError, UnicodeDecodeError):
+            raise canopen.SdoAbortedError(ABORT["bad_value"]) from None

@@ -2,8 +2,10 @@
 
 It streams gap, coil current, command error, feedforward and rotor angle/speed at the rig's
 10 kHz in SAMPLES frames of one rig block each, answers IDENTIFY, PARAM_READ and PARAM_WRITE
-(PID gains, feedforward mode and table, LMS schedule, speed set-point), sends a HEARTBEAT every
-5 ms, stamped with its own clock as it leaves (the host's clock-sync pairs), and FAULT events.
+(PID gains, speed set-point; feedforward mode, table and LMS schedule read-only), holds its
+feedforward coefficients in two banks written only through UNLOCK / BANK_WRITE / BANK_COMMIT
+(:mod:`.banks`), sends a HEARTBEAT every 5 ms, stamped with its own clock as it leaves (the
+host's clock-sync pairs), and FAULT events.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from ..protocol import MsgType, NakCode
 from ..rig.speed import SpeedProfile
 from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS
 from ..signals import SampleBlock
+from .banks import DEFAULT_UNLOCK_KEY, BankRefused, CoefficientBanks
 from .rig_server import DeviceClock, RigServer
 
 CONTROLLER_TOPICS = ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor")
@@ -77,10 +80,12 @@ class SimController:
     tx_queue : int
         Frames buffered for transmission; when the host stops reading, later frames are dropped
         (as a UART FIFO overflows) and the host sees the gap in the sequence numbers.
+    unlock_key : str
+        The key its coefficient banks want.
     """
 
     def __init__(self, port, server: RigServer, *, clock: DeviceClock = DeviceClock(), serial: str = "SIM-CTRL-0001",
-                 truth: bool = False, tx_queue: int = 64) -> None:
+                 truth: bool = False, tx_queue: int = 64, unlock_key: str = DEFAULT_UNLOCK_KEY) -> None:
         self.port = port
         self.server = server
         self.rig = server.rig
@@ -98,6 +103,7 @@ class SimController:
         self._stop = threading.Event()
         self.dropped_frames = 0
         self.decoder = FrameDecoder()
+        self.banks = CoefficientBanks(server, unlock_key, clock=self.now_ns)  # shared with a CAN port, if any
         self._threads = [
             threading.Thread(target=self._rx_loop, name="simctl-rx", daemon=True),
             threading.Thread(target=self._tx_loop, name="simctl-tx", daemon=True),
@@ -234,22 +240,50 @@ class SimController:
                 return
             spec.write(self.rig, values)
             self._send(MsgType.ACK, proto.ack(frame.seq))
+        elif MsgType.UNLOCK <= t <= MsgType.BANK_DATA:
+            self._handle_bank(frame)
         else:
             self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.BAD_REQUEST, f"unexpected message type 0x{t:02x}"))
+
+    def _handle_bank(self, frame: proto.Frame) -> None:
+        t, seq = frame.type, frame.seq
+        try:
+            if t == MsgType.UNLOCK:
+                self.banks.unlock(proto.parse_unlock(frame.body))
+            elif t == MsgType.BANK_WRITE:
+                self.banks.write(*proto.parse_bank_write(frame.body))
+            elif t == MsgType.BANK_COMMIT:
+                crc, record = proto.parse_bank_commit(frame.body)
+                step = self.banks.commit(crc, record)
+                self._send(MsgType.ACK, proto.ack_value(seq, step))
+                return
+            elif t == MsgType.BANK_STATUS:
+                self._send(MsgType.BANK_INFO, proto.bank_info(seq, self.banks.status()))
+                return
+            elif t == MsgType.BANK_READ:
+                which, offset, length = proto.parse_bank_read(frame.body)
+                data = self.banks.read("active" if which == 0 else "inactive", offset, length)
+                self._send(MsgType.BANK_DATA, proto.bank_data(seq, offset, data))
+                return
+            else:
+                raise BankRefused("bad_value", f"message type 0x{t:02x} is sent by the device, not to it")
+        except BankRefused as err:
+            code = {"locked": NakCode.LOCKED, "crc": NakCode.CRC_MISMATCH, "busy": NakCode.BUSY}.get(
+                err.reason, NakCode.BAD_VALUE)
+            self._send(MsgType.NAK, proto.nak(seq, code, str(err)))
+            return
+        self._send(MsgType.ACK, proto.ack(seq))
 
 
 class _Param:
     """A controller parameter: length, range, how to read and write it on the rig."""
 
-    def __init__(self, size: int, read, write=None, lo: float = -np.inf, hi: float = np.inf, doc: str = "",
-                 row: int = 0) -> None:
-        self.size, self.read, self.write, self.lo, self.hi, self.doc, self.row = size, read, write, lo, hi, doc, row
+    def __init__(self, size: int, read, write=None, lo: float = -np.inf, hi: float = np.inf, doc: str = "") -> None:
+        self.size, self.read, self.write, self.lo, self.hi, self.doc = size, read, write, lo, hi, doc
 
     def check(self, values: np.ndarray) -> str:
         if self.size and values.shape[0] != self.size:
             return f"expected {self.size} values, got {values.shape[0]}"
-        if self.row and (values.shape[0] == 0 or values.shape[0] % self.row):
-            return f"expected rows of {self.row} values, got {values.shape[0]} values"
         if not np.all(np.isfinite(values)):
             return "values must be finite"
         if np.any(values < self.lo) or np.any(values > self.hi):
@@ -274,24 +308,21 @@ def _command_speed(rig, rpm: float) -> None:
     rig.command_speed(SpeedProfile(now, rpm, max(abs(rpm - now) / SPEED_RAMP_RPM_S, 1e-3)))
 
 
-def _mu_rows(v: np.ndarray) -> tuple:
-    return tuple(tuple(r) for r in v.reshape(-1, 3))
+def _per_harmonic(schedule) -> dict:
+    return schedule if isinstance(schedule, dict) else {k: schedule for k in range(1, N_HARMONICS + 1)}
 
 
 PARAMETERS: dict[str, _Param] = {
     "pid.p": _Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), 0.0, 100.0, "proportional gain per axis, V/V"),
     "pid.i": _Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), 0.0, 1e4, "integral gain per axis, 1/s"),
     "pid.d": _Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), 1e-6, 1.0, "derivative gain per axis, s"),
-    "ff.mode": _Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]),
-                      lambda r, v: r.set_feedforward({m: k for k, m in FF_MODES.items()}[int(v[0])]), 0, 2,
-                      "feedforward: 0 off, 1 table, 2 LMS"),
+    # the feedforward is read here and changed only through the coefficient banks (BANK_*)
+    "ff.mode": _Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]), doc="feedforward: 0 off, 1 table, 2 LMS"),
     "ff.table": _Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
-                       lambda r, v: r.set_feedforward(r.feedforward_mode, v.reshape(N_AXES, N_HARMONICS, 2)),
-                       -1e-3, 1e-3, "feedforward weights [axis][harmonic][sin, cos], m"),
-    "lms.schedule": _Param(0, lambda r: np.array(r.mu_schedule.get(1, ()) if isinstance(r.mu_schedule, dict)
-                                                  else r.mu_schedule, dtype=float).ravel(),
-                           lambda r, v: r.set_mu_schedule(_mu_rows(v)), -1.0, 60000.0,
-                           "LMS step-size rows (rpm_from, rpm_to, mu)", row=3),
+                       doc="present feedforward weights [axis][harmonic][sin, cos] (LMS: as adapted), m"),
+    "lms.schedule": _Param(0, lambda r: np.array([(k, *row) for k, rows in _per_harmonic(r.mu_schedule).items()
+                                                  for row in rows], dtype=float).ravel(),
+                           doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
     "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
                         0.0, 60000.0, "speed: reads the present speed, writes a set-point (ramp at 5,000 rpm/s), rpm"),
 }

@@ -56,6 +56,7 @@ class RigServer:
         self._thread: threading.Thread | None = None
         self._recent: deque[SampleBlock] = deque(maxlen=256)  # 2.56 s of history
         self._pending: deque[SampleBlock] = deque()  # computed, not yet published
+        self._boundary: deque[tuple[Callable, threading.Event, list]] = deque()  # run between blocks
         self.start_wall_ns = 0
         self.start_mono = 0.0
 
@@ -92,7 +93,38 @@ class RigServer:
                 cb(block)
             self._compute()
 
+    def at_boundary(self, change: Callable, timeout: float = 1.0) -> int:
+        """Apply ``change(rig)`` between two control periods, on the server's thread, so no period
+        runs half old, half new; returns the index of the first sample computed after it.
+
+        Parameters
+        ----------
+        change : callable
+            Takes the rig; must be quick.
+        timeout : float
+            How long to wait for the server's thread, in s; ``TimeoutError`` after it.
+        """
+        done, box = threading.Event(), []
+        with self._lock:
+            self._boundary.append((change, done, box))
+        if self._thread is None:  # not running: this is a boundary too
+            self._apply_boundary()
+        if not done.wait(timeout):
+            raise TimeoutError("the rig did not reach a control-period boundary")
+        return box[0]
+
+    def _apply_boundary(self) -> None:
+        while True:
+            with self._lock:
+                if not self._boundary:
+                    return
+                change, done, box = self._boundary.popleft()
+            change(self.rig)
+            box.append(self.rig.step_index)
+            done.set()
+
     def _compute(self) -> None:
+        self._apply_boundary()
         block = self.rig.run(self.block)
         with self._lock:
             self._recent.append(block)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from .. import framing
 from ..rig.profiles import build_rig
 from ..rig.speed import SpeedProfile
+from .banks import DEFAULT_UNLOCK_KEY
 from .controller import FdPort, SimController
 from .rig_server import DeviceClock, RigServer
 
@@ -51,7 +52,7 @@ class ServedRig:
 
 
 def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", truth: bool = False,
-                 clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)) -> ServedRig:
+                 unlock_key: str = DEFAULT_UNLOCK_KEY, clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)) -> ServedRig:
     """Start the rig and its AMB controller on a new pseudo-terminal; returns what is running.
 
     Parameters
@@ -64,6 +65,8 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
         Speed spec (rpm).
     truth : bool
         Stream the ground truth topics too.
+    unlock_key : str
+        The key the controller's coefficient banks want (``ambdaq push``).
     clock : DeviceClock
         The controller's clock (default: 5 s ahead of the host, running 50 ppm fast).
     """
@@ -71,7 +74,7 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
     rig = build_rig(profile, seed=seed, speed=SpeedProfile.parse(speed), truth=truth)
     server = RigServer(rig)
     pty = Pty.open()
-    controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth)
+    controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth, unlock_key=unlock_key)
     server.start()
     controller.start()
     return ServedRig(server, controller, {"controller": pty})

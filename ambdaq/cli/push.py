@@ -1,0 +1,104 @@
+"""``ambdaq push`` and ``ambdaq controller status``: verified coefficient downloads."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ..control.push import describe_difference, image_from, push, resolve_key
+from ..daq.coefficients import Coefficients, file_sha256
+from ..drivers.coefbank import BankImage
+from ..drivers.devices import open_controller
+from ..drivers.rigfile import load_rig
+from ..errors import BadInputError
+
+
+def _target(device: str | None, rig: str | None) -> tuple[str, str | None]:
+    """The device URL and the rig file's unlock key for it: ``--device`` is a URL or, with
+    ``--rig``, a device name in the rig file."""
+    if rig is None:
+        if device is None:
+            raise BadInputError("name the controller: --device URL (or --rig FILE with its unlock_key)")
+        return device, None
+    entries = load_rig(rig).devices
+    chosen = [e for e in entries if device in (e.name, e.url)] if device else [e for e in entries if e.unlock_key]
+    if len(chosen) != 1:
+        raise BadInputError(f"{rig}: {'no' if not chosen else 'more than one'} device "
+                            f"{'named ' + repr(device) if device else 'with an unlock_key'}; pass --device NAME")
+    return chosen[0].url, chosen[0].unlock_key
+
+
+@click.command("push")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--device", metavar="URL", help="The controller: serial:PORT or can://IF/CH?node=N (or a name in --rig).")
+@click.option("--rig", type=click.Path(dir_okay=False), help="Rig file: the controller's URL and unlock_key.")
+@click.option("--key", help="Unlock key (else $AMBDAQ_UNLOCK_KEY, else the rig file's unlock_key).")
+@click.option("--dry-run", is_flag=True, help="Validate and print the difference from the active bank; write nothing.")
+@click.option("--yes", is_flag=True, help="Do not ask before committing.")
+def push_command(file, device, rig, key, dry_run, yes):
+    """Download coefficient FILE into the controller: validate, write the inactive bank, check the
+    device's CRC-32, commit at a control-period boundary, log.
+
+    \b
+    Examples:
+      ambdaq push coef.json --device serial:///dev/pts/5 --dry-run
+      ambdaq push coef.json --device serial:///dev/pts/5 --yes
+      ambdaq push coef.json --device "can://socketcan/can0?node=0x50" --key "$KEY" --yes
+    """
+    url, rig_key = _target(device, rig)
+    Coefficients.load(file)  # a broken file fails before any device is opened
+    unlock_key = None if dry_run else resolve_key(key, rig_key)
+    port = open_controller(url)
+    try:
+        status = port.bank_status()
+        if dry_run or not yes:
+            new = image_from(Coefficients.load(file), status, source_sha256=file_sha256(file), where=file)
+            old = BankImage.decode(port.read_bank("active", status["active_length"]))
+            click.echo(f"{url}: active bank {status['active_bank']} (CRC-32 {status['active_crc32']}, "
+                       f"{status['active_mode']}) -> {Path(file).name}")
+            for line in describe_difference(old, new, list(status["axes"])):
+                click.echo(f"  {line}")
+            if dry_run:
+                click.echo("dry run: nothing written")
+                return
+            click.confirm("commit these coefficients?", abort=True)
+        result = push(port, file, unlock_key, target=url)
+    finally:
+        port.close()
+    if result.already_active:
+        click.echo(f"{url}: bank {result.bank} already holds {file} (CRC-32 {result.crc32}): nothing to do")
+    else:
+        click.echo(f"{url}: committed {file} to bank {result.bank} (CRC-32 {result.crc32}, device-verified), "
+                   f"running from sample {result.effective_sample}; logged to {result.log}")
+
+
+@click.group("controller")
+def controller_group() -> None:
+    """The AMB controller: what it runs."""
+
+
+@controller_group.command("status")
+@click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT or can://IF/CH?node=N.")
+@click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+def status_command(device, as_json):
+    """Active coefficient bank, its CRC-32 and source file hash, and the controller's push log."""
+    port = open_controller(device)
+    try:
+        st = port.bank_status()
+    finally:
+        port.close()
+    if as_json:
+        click.echo(json.dumps(st, indent=2))
+        return
+    click.echo(f"active bank   {st['active_bank']}  mode {st['active_mode']}  CRC-32 {st['active_crc32']}  "
+               f"({st['active_length']} bytes)")
+    click.echo(f"source sha256 {st['active_source_sha256'] or '-'}")
+    click.echo(f"inactive bank CRC-32 {st['inactive_crc32']} ({st['inactive_length']} bytes); "
+               f"{'locked' if st['locked'] else 'unlocked'}")
+    click.echo(f"push log ({len(st['log'])} entries):")
+    for e in st["log"]:
+        click.echo(f"  {e.get('host_time', '?')}  bank {e['bank']}  crc {e['crc32']}  {e.get('file', '?')} "
+                   f"sha256 {e.get('file_sha256', '')[:12]}  from sample {e['effective_sample']}  "
+                   f"by {e.get('host', '?')} -> {e.get('target', '?')}")

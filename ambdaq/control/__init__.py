@@ -1,0 +1,1 @@
+"""Changing what a controller runs: verified coefficient downloads (``ambdaq push``)."""

@@ -1,0 +1,188 @@
+"""``ambdaq push``: download a coefficient file into a controller, verified (docs/push.md).
+
+The sequence, over either port (serial or CANopen SDO):
+
+1. read the controller's bank status (axes, harmonics, active bank and its device-computed CRC);
+2. build the bank image from the coefficient file and validate it against that target: finite
+   values, ranges, axes and harmonics that exist, an LMS schedule stable on the convergence map;
+3. ``--dry-run`` stops here and prints the difference from the active bank;
+4. unlock with the key, write the inactive bank, read back the CRC-32 the device computed over it
+   and compare it with ours;
+5. commit with that CRC: the controller switches at a control-period boundary;
+6. read back the status and the active bank byte for byte, and log the push locally.
+
+Any failure before the commit leaves the active bank untouched (writes only reach the inactive
+one); a commit whose answer is lost is resolved by reading the status.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.lms import schedule_problem
+from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..drivers.coefbank import BankImage, crc32
+from ..errors import BadInputError, DeviceError
+
+KEY_ENV = "AMBDAQ_UNLOCK_KEY"
+STATE_ENV = "AMBDAQ_STATE_DIR"
+
+
+def local_log_path() -> Path:
+    """Where pushes are logged on this machine: ``$AMBDAQ_STATE_DIR/push.log`` or
+    ``~/.local/state/ambdaq/push.log`` (JSON lines)."""
+    base = os.environ.get(STATE_ENV) or Path.home() / ".local" / "state" / "ambdaq"
+    return Path(base) / "push.log"
+
+
+def append_local_log(entry: dict) -> Path:
+    path = local_log_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as fh:
+        fh.write(json.dumps(entry, sort_keys=True) + "\n")
+    return path
+
+
+def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: str) -> BankImage:
+    """The bank image for ``coef`` on the controller described by ``status``; BadInputError says
+    what does not fit.
+
+    Parameters
+    ----------
+    coef : Coefficients
+        The loaded (checksum-verified) coefficient file.
+    status : dict
+        The controller's bank status (``axes``: names, ``harmonics``: how many it runs).
+    source_sha256 : str
+        Hex SHA-256 of the coefficient file, stored in the image.
+    where : str
+        The file's name, for messages.
+    """
+    axes, n_harm = list(status["axes"]), int(status["harmonics"])
+    missing = [a for a in coef.weights if a not in axes]
+    if missing:
+        raise BadInputError(f"{where}: axis {missing[0]!r} does not exist on the controller (it has {', '.join(axes)})")
+    too_high = [k for k in coef.harmonics if not 1 <= k <= n_harm]
+    if too_high:
+        raise BadInputError(f"{where}: harmonic {too_high[0]}X is not run by the controller (1X..{n_harm}X)")
+    w = np.zeros((len(axes), n_harm, 2))
+    for axis, rows in coef.weights.items():
+        for k, pair in zip(coef.harmonics, rows):
+            w[axes.index(axis), k - 1] = pair
+    rows = []
+    for r in coef.lms_schedule:
+        if len(r) == 3:
+            rows.append((0.0, *map(float, r)))
+        elif len(r) == 4:
+            rows.append(tuple(map(float, r)))
+        else:
+            raise BadInputError(f"{where}: an lms_schedule row is [rpm_from, rpm_to, mu] or [harmonic, rpm_from, rpm_to, mu]")
+    image = BankImage(w, "lms" if rows else "table", rows, source_sha256)
+    problem = image.problem(len(axes), n_harm)
+    if problem:
+        raise BadInputError(f"{where}: {problem}")
+    problem = schedule_problem(rows, n_harm)
+    if problem:
+        raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
+    return image
+
+
+def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: float = 1e-9) -> list[str]:
+    """Lines saying how ``new`` differs from ``old``: mode, each changed weight (um, degrees), schedule."""
+    out = []
+    if old.mode != new.mode:
+        out.append(f"mode: {old.mode} -> {new.mode}")
+    n = max(old.weights.shape[1], new.weights.shape[1])
+    ow = np.zeros((len(axes), n, 2))
+    nw = np.zeros((len(axes), n, 2))
+    ow[:, : old.weights.shape[1]] = old.weights
+    nw[:, : new.weights.shape[1]] = new.weights
+    for a, axis in enumerate(axes):
+        for k in range(n):
+            if np.max(np.abs(ow[a, k] - nw[a, k])) > tol_m:
+                def fmt(p):
+                    return f"{np.hypot(*p) * 1e6:7.3f} um {np.degrees(np.arctan2(p[1], p[0])):7.1f} deg"
+                out.append(f"{axis:<8} {k + 1}X: {fmt(ow[a, k])} -> {fmt(nw[a, k])}")
+    if list(map(tuple, old.schedule)) != list(map(tuple, new.schedule)):
+        out.append(f"lms schedule: {len(old.schedule)} rows -> {len(new.schedule)} rows")
+        out += [f"  {'all' if k == 0 else f'{k:g}X':>4} {lo:7.0f} .. {hi:7.0f} rpm  mu {mu:+g}" for k, lo, hi, mu in new.schedule]
+    if old.source_sha256 != new.source_sha256:
+        out.append(f"source: {old.source_sha256[:12] or '-'} -> {new.source_sha256[:12]}")
+    return out or ["no difference: the controller already holds these coefficients"]
+
+
+@dataclass
+class PushResult:
+    """What a push did: the image's CRC, the bank now active, the first sample run with it."""
+
+    crc32: str
+    bank: int
+    effective_sample: int
+    log: Path | None
+    already_active: bool = False
+
+
+def push(port, path: str | Path, key: str, *, target: str) -> PushResult:
+    """Download the coefficient file at ``path`` through ``port`` (a controller driver) and commit.
+
+    Parameters
+    ----------
+    port : ControllerDriver or CanopenController
+        The open controller.
+    path : str or Path
+        Coefficient file.
+    key : str
+        The controller's unlock key.
+    target : str
+        The device URL, for the logs.
+    """
+    path = Path(path)
+    coef = Coefficients.load(path)
+    sha = file_sha256(path)
+    status = port.bank_status()
+    image = image_from(coef, status, source_sha256=sha, where=str(path))
+    data = image.encode()
+    crc = f"{crc32(data):08x}"
+    record = {"host_time": now_iso(), "file": path.name, "file_sha256": sha, "target": target,
+              "host": socket.gethostname()}
+    if status["active_crc32"] == crc:
+        return PushResult(crc, status["active_bank"], -1, None, already_active=True)
+    try:
+        port.unlock(key)
+        port.write_bank(data)
+        held = port.bank_status()
+        if held["inactive_crc32"] != crc or held["inactive_length"] != len(data):
+            raise DeviceError(f"{target}: read-back CRC-32 of the inactive bank is {held['inactive_crc32']} "
+                              f"({held['inactive_length']} bytes), expected {crc} ({len(data)} bytes): not committed")
+        try:
+            effective = port.commit_bank(int(crc, 16), record)
+        except DeviceError as err:
+            if "no answer" not in str(err):
+                raise
+            effective = -1  # the answer was lost: the status says whether the switch happened
+        final = port.bank_status()
+        if final["active_crc32"] != crc:
+            raise DeviceError(f"{target}: after the commit the active bank holds CRC-32 {final['active_crc32']}, not {crc}")
+        if port.read_bank("active", len(data)) != data:
+            raise DeviceError(f"{target}: the active bank does not read back byte for byte")
+    except DeviceError as err:
+        append_local_log({**record, "crc32": crc, "outcome": f"failed: {err}"})
+        raise
+    log = append_local_log({**record, "crc32": crc, "outcome": "committed", "bank": final["active_bank"],
+                            "effective_sample": effective})
+    return PushResult(crc, final["active_bank"], effective, log)
+
+
+def resolve_key(key: str | None, rig_key: str | None) -> str:
+    """The unlock key: ``--key``, else ``$AMBDAQ_UNLOCK_KEY``, else the rig file's ``unlock_key``."""
+    found = key or os.environ.get(KEY_ENV) or rig_key
+    if not found:
+        raise BadInputError(f"no unlock key: pass --key, set {KEY_ENV}, or give unlock_key in the rig file "
+                            "(the simulated controller's default is in docs/push.md)")
+    return found

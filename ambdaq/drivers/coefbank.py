@@ -1,0 +1,116 @@
+"""The coefficient bank image: what ``ambdaq push`` downloads into a controller's inactive bank.
+
+Host and device share this layout (docs/protocol.md, "Coefficient banks"); the controller keeps
+two banks, runs from the active one, and switches only after the host has read back the CRC-32
+the device computed over the inactive one.  All numbers little-endian::
+
+    magic "AMBC" | version u16 | axes u8 | harmonics u8 | mode u8 | reserved u8 | rows u16
+    | sha256 of the coefficient file (32 bytes)
+    | weights: axes x harmonics x [sin, cos] f64, m   (axis order of the controller, 1X first)
+    | LMS schedule: rows x [harmonic, rpm_from, rpm_to, mu] f64  (harmonic 0: every harmonic)
+
+``mode`` is the feedforward the bank runs: 0 off, 1 fixed table (r_c of seed 000 eq. 10 with
+these weights), 2 LMS (eq. 9) starting from these weights with the schedule's step sizes.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MAGIC = b"AMBC"
+VERSION = 1
+HEAD = struct.Struct("<4sHBBBBH32s")
+MODES = {"off": 0, "table": 1, "lms": 2}
+WEIGHT_LIMIT_M = 1e-3  # no runout term above 1 mm: larger is a units mistake
+MU_LIMIT = 1.0  # |mu| above this diverges at any speed
+
+
+def crc32(data: bytes) -> int:
+    """CRC-32 (IEEE 802.3, as ``zlib.crc32``) the controller computes over a bank."""
+    return zlib.crc32(data) & 0xFFFFFFFF
+
+
+@dataclass
+class BankImage:
+    """The contents of one coefficient bank.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (axes, harmonics, 2)
+        Feedforward weights [sin, cos] per axis and harmonic (1X first), in m.
+    mode : {"off", "table", "lms"}
+        Feedforward mode the bank runs.
+    schedule : list of (harmonic, rpm_from, rpm_to, mu)
+        LMS step sizes over speed (rpm); harmonic 0 applies to every harmonic.
+    source_sha256 : str
+        Hex SHA-256 of the coefficient file the bank came from ("" for none).
+    """
+
+    weights: np.ndarray
+    mode: str = "table"
+    schedule: list[tuple[float, float, float, float]] = field(default_factory=list)
+    source_sha256: str = ""
+
+    def encode(self) -> bytes:
+        w = np.asarray(self.weights, dtype="<f8")
+        sha = bytes.fromhex(self.source_sha256) if self.source_sha256 else bytes(32)
+        rows = np.asarray(self.schedule, dtype="<f8").reshape(-1, 4)
+        head = HEAD.pack(MAGIC, VERSION, w.shape[0], w.shape[1], MODES[self.mode], 0, rows.shape[0], sha)
+        return head + w.tobytes() + rows.tobytes()
+
+    @classmethod
+    def decode(cls, data: bytes) -> "BankImage":
+        """Parse and check an image; ``ValueError`` says what is wrong."""
+        if len(data) < HEAD.size:
+            raise ValueError(f"image of {len(data)} bytes is shorter than its header")
+        magic, version, axes, harmonics, mode, _r, n_rows, sha = HEAD.unpack_from(data)
+        if magic != MAGIC or version != VERSION:
+            raise ValueError("not a version-1 coefficient image")
+        want = HEAD.size + 8 * (axes * harmonics * 2 + 4 * n_rows)
+        if len(data) != want:
+            raise ValueError(f"image is {len(data)} bytes, its header says {want}")
+        modes = {v: k for k, v in MODES.items()}
+        if mode not in modes:
+            raise ValueError(f"unknown feedforward mode {mode}")
+        w = np.frombuffer(data, "<f8", axes * harmonics * 2, HEAD.size).reshape(axes, harmonics, 2).copy()
+        rows = np.frombuffer(data, "<f8", 4 * n_rows, HEAD.size + w.nbytes).reshape(n_rows, 4)
+        image = cls(w, modes[mode], [tuple(float(x) for x in r) for r in rows], "" if not any(sha) else sha.hex())
+        problem = image.problem()
+        if problem:
+            raise ValueError(problem)
+        return image
+
+    def problem(self, axes: int | None = None, harmonics: int | None = None) -> str:
+        """Why this image cannot run on a controller with ``axes`` axes and ``harmonics`` harmonics
+        ("" if it can): finite values, weights within 1 mm, step sizes within +-1, sane rows."""
+        w = np.asarray(self.weights)
+        if axes is not None and w.shape[0] != axes:
+            return f"image has {w.shape[0]} axes, the controller {axes}"
+        if harmonics is not None and w.shape[1] > harmonics:
+            return f"image has {w.shape[1]} harmonics, the controller runs at most {harmonics}"
+        if not np.all(np.isfinite(w)):
+            return "a weight is not a finite number"
+        if np.any(np.abs(w) > WEIGHT_LIMIT_M):
+            return f"a weight exceeds {WEIGHT_LIMIT_M * 1e3:g} mm"
+        for k, lo, hi, mu in self.schedule:
+            if not all(np.isfinite((k, lo, hi, mu))):
+                return "a schedule row is not finite"
+            if k != int(k) or not 0 <= k <= w.shape[1]:
+                return f"schedule row names harmonic {k:g}; the image has 1..{w.shape[1]}"
+            if not 0 <= lo < hi:
+                return f"schedule row {lo:g}..{hi:g} rpm is not an increasing speed range"
+            if abs(mu) > MU_LIMIT:
+                return f"step size {mu:g} exceeds +-{MU_LIMIT:g}"
+        return ""
+
+    def per_harmonic_schedule(self) -> dict[int, tuple[tuple[float, float, float], ...]]:
+        """The schedule as harmonic (1-based) -> rows (rpm_from, rpm_to, mu)."""
+        out: dict[int, list] = {}
+        for k, lo, hi, mu in self.schedule:
+            for kk in range(1, self.weights.shape[1] + 1) if k == 0 else (int(k),):
+                out.setdefault(kk, []).append((lo, hi, mu))
+        return {k: tuple(v) for k, v in out.items()}
