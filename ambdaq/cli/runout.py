@@ -68,8 +68,9 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
         elif len(set(np.round(spins))) >= 2:
             est[i1] = separate_unbalance(np.array([r[i1] for _, r in per_file]), spins, rotor).runout
         else:
-            warnings.append(f"1X at {spins[0] * RPM_PER_RAD_S:.0f} rpm also holds the rotor's unbalance response; "
-                            "add a slow roll (--rpm slowroll) or recordings at other speeds to separate it")
+            warnings.append(f"1X at {spins[0] * RPM_PER_RAD_S:.0f} rpm also holds the rotor's unbalance response "
+                            "(right for feedforward at this speed); add a slow roll (--rpm slowroll) or recordings "
+                            "at other speeds to separate the runout")
     weights = {axis: [[float(est[i, a].real), float(est[i, a].imag)] for i in range(len(harmonics))]
                for a, axis in enumerate(AXES)}
     coef = Coefficients(
