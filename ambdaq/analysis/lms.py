@@ -17,7 +17,8 @@ or negative depends on the phase of S at k Omega: that is the sign flip of seed 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -71,6 +72,83 @@ class OneAxis:
         return np.polymul(pd, cd), den
 
 
+@dataclass(frozen=True)
+class PlantLoop(OneAxis):
+    """Any plant G(s) (V in -> sensor V out) as a transfer function, in the loop of seed 000's
+    digital PID (gains and h as :class:`OneAxis`).
+
+    Parameters
+    ----------
+    num, den : tuple of float
+        Coefficients of G(s) in descending powers of s.
+    """
+
+    num: tuple[float, ...] = (1.0,)
+    den: tuple[float, ...] = (1.0,)
+
+    def plant_z(self) -> tuple[np.ndarray, np.ndarray]:
+        nz, dz, _ = cont2discrete((np.array(self.num, float), np.array(self.den, float)), self.h, method="zoh")
+        return np.trim_zeros(np.atleast_1d(np.squeeze(nz)), "f"), dz
+
+
+@dataclass(frozen=True)
+class StateSpaceLoop:
+    """A multi-axis loop in state space, x[n+1] = M x + B r_c, e = C x - r_c, linearised per speed
+    (e.g. the simulated rig's own kernel: ``SpindleRig.loop_matrices``).
+
+    Parameters
+    ----------
+    matrices : callable
+        rpm -> (M, B, C).
+    h : float
+        Sample period, in s.
+    axes : tuple of int
+        Axes whose feedforward adapts (default: all).
+    """
+
+    matrices: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    h: float = 1e-4
+    axes: tuple[int, ...] | None = None
+    _cache: dict = field(default_factory=dict, compare=False, hash=False)
+
+    def at(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = round(float(rpm), 3)
+        if key not in self._cache:
+            self._cache[key] = self.matrices(float(rpm))
+        return self._cache[key]
+
+
+def _ff_numerator(phi: float, g: complex) -> np.ndarray:
+    """Numerator of G_ff / mu for a harmonic at phi = k Omega h rad per sample, with the update
+    turned by g: r_c[n] = mu sum_{d>=1} e[n-d] Re(g exp(j d phi)), so
+    G_ff = mu ((g_r cos phi - g_i sin phi) z - g_r) / (z^2 - 2 cos phi z + 1)."""
+    return np.array([g.real * np.cos(phi) - g.imag * np.sin(phi), -g.real])
+
+
+def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmonic: int,
+                        g: np.ndarray) -> np.ndarray:
+    """Spectral radius of ``loop`` with the LMS filter G_ff on every adapting axis (the
+    feedforward uses the weights of the previous step, so it is strictly proper and the loop has
+    no algebraic part); ``g`` turns each axis's update (ones: seed 000's plain LMS)."""
+    M, B, C = loop.at(rpm)
+    axes = list(range(B.shape[1])) if loop.axes is None else list(loop.axes)
+    B, C = B[:, axes], C[axes]
+    phi = harmonic * rpm * 2 * np.pi / 60 * loop.h
+    c = np.cos(phi)
+    n, p = M.shape[0], len(axes)
+    Af = np.kron(np.eye(p), np.array([[2 * c, -1.0], [1.0, 0.0]]))
+    Bf = np.kron(np.eye(p), np.array([[1.0], [0.0]]))
+    Cf1 = np.zeros((p, 2 * p))  # G_ff's numerator for mu = 1
+    for i, a in enumerate(axes):
+        Cf1[i, 2 * i : 2 * i + 2] = _ff_numerator(phi, complex(g[a]))
+    out = np.empty(len(mu))
+    for j, m in enumerate(mu):
+        Cf = m * Cf1
+        A = np.block([[M, B @ Cf], [Bf @ C, Af - Bf @ Cf]])
+        out[j] = np.abs(np.linalg.eigvals(A)).max()
+    return out
+
+
 BEARINGS = {
     "front": OneAxis(),
     "rear": OneAxis(ki=182.0, kx=1.18e6, amp_wn_hz=2500.0, d=0.002),
@@ -78,35 +156,107 @@ BEARINGS = {
 """Seed 000's one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
 
 
-def convergence_radius(loop: OneAxis, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1) -> np.ndarray:
+def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
+                       phase: "PhaseTable | None" = None) -> np.ndarray:
     """Spectral radius of the loop with the LMS on ``harmonic``, over speed x step size.
 
     Parameters
     ----------
-    loop : OneAxis
-        The axis model.
+    loop : OneAxis, PlantLoop or StateSpaceLoop
+        The loop: a one-axis transfer-function model, or a multi-axis state-space one.
     rpm : ndarray, shape (n,)
         Rotor speeds, in rpm.
     mu : ndarray, shape (m,)
         LMS step sizes (dimensionless, either sign).
     harmonic : int
         Order k.
+    phase : PhaseTable, optional
+        Phase compensation of the update (:func:`phase_compensation`); default none (eq. 9).
 
     Returns
     -------
     ndarray, shape (n, m)
         Largest root magnitude; the LMS converges where it is < 1 (and the nearer 1, the slower).
     """
+    rpm = np.asarray(rpm, dtype=float)
+
+    def g_at(n: float, axes: int) -> np.ndarray:
+        if phase is None:
+            return np.ones(axes, dtype=complex)
+        return np.exp(1j * phase.at(harmonic * n / 60.0))
+
+    if isinstance(loop, StateSpaceLoop):
+        n_axes = loop.at(float(rpm[0]))[1].shape[1]
+        return np.array([_radius_state_space(loop, float(n), np.asarray(mu, dtype=float), harmonic, g_at(n, n_axes))
+                         for n in rpm])
     sn, sd = loop.sensitivity_z()
     out = np.empty((len(rpm), len(mu)))
-    for i, n in enumerate(np.asarray(rpm, dtype=float)):
-        c = np.cos(harmonic * n * 2 * np.pi / 60 * loop.h)
+    for i, n in enumerate(rpm):
+        phi = harmonic * n * 2 * np.pi / 60 * loop.h
+        c = np.cos(phi)
         ff_den = np.array([1.0, -2 * c, 1.0])
         base = np.polymul(sd, ff_den)
-        ff = np.polymul(sn, np.array([c, -1.0]))
+        ff = np.polymul(sn, _ff_numerator(phi, complex(g_at(n, 1)[0])))
         for j, m in enumerate(np.asarray(mu, dtype=float)):
             out[i, j] = np.abs(np.roots(np.polyadd(base, m * ff))).max()
     return out
+
+
+@dataclass(frozen=True)
+class PhaseTable:
+    """Phase compensation of the LMS update per axis over loop frequency.
+
+    Parameters
+    ----------
+    phase_rad : ndarray, shape (axes, bins)
+        Phase at 0, bin_hz, 2 bin_hz ... in rad.
+    bin_hz : float
+        Frequency step, in Hz.
+    """
+
+    phase_rad: np.ndarray
+    bin_hz: float = 10.0
+
+    def at(self, f_hz: float) -> np.ndarray:
+        """Phase per axis at ``f_hz`` (nearest bin, as the controller looks it up), in rad."""
+        b = min(int(f_hz / self.bin_hz + 0.5), self.phase_rad.shape[1] - 1)
+        return self.phase_rad[:, b]
+
+
+def error_response(loop, f_hz: np.ndarray) -> np.ndarray:
+    """T_aa: the command error per feedforward on the same axis, e = T r_c, at loop frequencies
+    ``f_hz`` (Hz); shape (axes, n).  One-axis loops: T = -S (the sensitivity).  A state-space
+    loop is linearised at the speed whose 1X is ``f_hz`` (its gyroscopic terms are small)."""
+    f_hz = np.asarray(f_hz, dtype=float)
+    if isinstance(loop, StateSpaceLoop):
+        out = []
+        for f in f_hz:
+            M, B, C = loop.at(60.0 * f)
+            z = np.exp(2j * np.pi * f * loop.h)
+            T = C @ np.linalg.solve(z * np.eye(M.shape[0]) - M, B)
+            out.append(np.diag(T) - 1.0)
+        return np.array(out).T
+    sn, sd = loop.sensitivity_z()
+    z = np.exp(2j * np.pi * f_hz * loop.h)
+    return (-np.polyval(sn, z) / np.polyval(sd, z))[None, :]
+
+
+def phase_compensation(loop, bins: int = 501, bin_hz: float = 10.0) -> PhaseTable:
+    """The phase-compensated update (beyond seed 000): each axis's step turned by
+    g = -conj(T_aa)/|T_aa|, the inverse phase of the loop at the harmonic's frequency, so that a
+    positive mu converges at every speed (no sign flip, no dead band).
+
+    Parameters
+    ----------
+    loop : OneAxis, PlantLoop or StateSpaceLoop
+        The loop model; a measured frequency response can stand in through :class:`PhaseTable`.
+    bins, bin_hz : int, float
+        The table: ``bins`` frequencies ``bin_hz`` apart (Hz), from 0.
+    """
+    f = np.arange(bins) * bin_hz
+    f[0] = bin_hz / 4  # DC itself is a pole of the LMS filter; its phase is the limit
+    T = error_response(loop, f)
+    return PhaseTable(np.angle(-np.conj(T)), bin_hz)
 
 
 def mu_sign(loop: OneAxis, rpm: np.ndarray, harmonic: int = 1, mu: float = 1e-4) -> np.ndarray:
@@ -149,7 +299,7 @@ def sign_schedule(loop: OneAxis, *, mu: float = 0.001, dead_band: float = 500.0,
 
 
 def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: int,
-                     loops: dict[str, OneAxis] = BEARINGS, rpm_step: float = 100.0) -> str:
+                     loops: dict | None = None, phase: PhaseTable | None = None, rpm_step: float = 100.0) -> str:
     """Why a step-size schedule is not stable on the convergence map ("" if it is).
 
     Parameters
@@ -158,20 +308,25 @@ def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: i
         The schedule; harmonic 0 applies the row to every harmonic 1 .. ``harmonics``.
     harmonics : int
         Number of harmonics the feedforward runs.
-    loops : dict of str to OneAxis
-        The loops to check (default: both bearings of seed 000).
+    loops : dict of str to (loop, axes)
+        The loops to check, each with the controller axes it stands for (their rows of
+        ``phase``); default: both bearings of seed 000 (front: axis 0, rear: axis 2).
+    phase : PhaseTable, optional
+        The phase compensation the controller will run.
     rpm_step : float
         Speed grid, in rpm.
     """
+    loops = loops or {"front": (BEARINGS["front"], (0,)), "rear": (BEARINGS["rear"], (2,))}
     for k, lo, hi, mu in rows:
         if mu == 0:
             continue
         rpm = np.arange(max(lo, rpm_step / 2), hi, rpm_step)
         for kk in range(1, harmonics + 1) if k == 0 else (int(k),):
-            for name, loop in loops.items():
-                r = convergence_radius(loop, rpm, np.array([mu]), kk)[:, 0]
+            for name, (loop, axes) in loops.items():
+                ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
+                r = convergence_radius(loop, rpm, np.array([mu]), kk, phase=ph)[:, 0]
                 bad = np.flatnonzero(r >= 1.0)
                 if bad.size:
-                    return (f"step size {mu:g} on {kk}X diverges on the {name} bearing at {rpm[bad[0]]:.0f} rpm "
+                    return (f"step size {mu:g} on {kk}X diverges on the {name} loop at {rpm[bad[0]]:.0f} rpm "
                             f"(radius {r[bad[0]]:.4f} on the convergence map)")
     return ""

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.lms import schedule_problem
+from ..analysis.lms import PhaseTable, schedule_problem
+from .plants import resolve_plant
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..drivers.coefbank import BankImage, crc32
 from ..errors import BadInputError, DeviceError
@@ -83,11 +84,26 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
             rows.append(tuple(map(float, r)))
         else:
             raise BadInputError(f"{where}: an lms_schedule row is [rpm_from, rpm_to, mu] or [harmonic, rpm_from, rpm_to, mu]")
-    image = BankImage(w, "lms" if rows else "table", rows, source_sha256)
+    phase, bin_hz = None, 10.0
+    if coef.lms_phase:
+        bin_hz = float(coef.lms_phase["bin_hz"])
+        table = coef.lms_phase["phase_rad"]
+        missing = [a for a in table if a not in axes]
+        if missing:
+            raise BadInputError(f"{where}: lms_phase axis {missing[0]!r} does not exist on the controller")
+        bins = {len(v) for v in table.values()}
+        if len(bins) != 1:
+            raise BadInputError(f"{where}: lms_phase rows differ in length")
+        phase = np.zeros((len(axes), bins.pop()))
+        for axis, vals in table.items():
+            phase[axes.index(axis)] = vals
+    image = BankImage(w, "lms" if rows else "table", rows, source_sha256, phase, bin_hz)
     problem = image.problem(len(axes), n_harm)
     if problem:
         raise BadInputError(f"{where}: {problem}")
-    problem = schedule_problem(rows, n_harm)
+    problem = schedule_problem(rows, n_harm, resolve_plant(coef.lms_plant or "bearings"),
+                               None if phase is None else PhaseTable(phase, bin_hz),
+                               rpm_step=250.0 if coef.lms_plant == "rig" else 100.0)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
     return image
@@ -109,6 +125,10 @@ def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: 
                 def fmt(p):
                     return f"{np.hypot(*p) * 1e6:7.3f} um {np.degrees(np.arctan2(p[1], p[0])):7.1f} deg"
                 out.append(f"{axis:<8} {k + 1}X: {fmt(ow[a, k])} -> {fmt(nw[a, k])}")
+    if (old.phase_rad is None) != (new.phase_rad is None) or (
+            new.phase_rad is not None and not np.allclose(old.phase_rad, new.phase_rad, atol=1e-6)):
+        out.append(f"lms phase compensation: {'none' if old.phase_rad is None else 'table'} -> "
+                   f"{'none' if new.phase_rad is None else f'table of {new.phase_rad.shape[1]} bins'}")
     if list(map(tuple, old.schedule)) != list(map(tuple, new.schedule)):
         out.append(f"lms schedule: {len(old.schedule)} rows -> {len(new.schedule)} rows")
         out += [f"  {'all' if k == 0 else f'{k:g}X':>4} {lo:7.0f} .. {hi:7.0f} rpm  mu {mu:+g}" for k, lo, hi, mu in new.schedule]

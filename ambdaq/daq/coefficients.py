@@ -8,6 +8,8 @@ A JSON document (docs/coefficients.md), versioned and checksummed::
      "runout": {"units": "m", "harmonics": [1, 2, ...],
                 "weights": {"front_x": [[w_k0, w_k1], ...], ...}},
      "lms_schedule": [[rpm_from, rpm_to, mu], ...],
+     "lms_phase": {"bin_hz": 10.0, "phase_rad": {"front_x": [...], ...}},
+     "lms_plant": "rig",
      "fir": {},
      "checksum": "crc32:xxxxxxxx"}
 
@@ -53,7 +55,9 @@ class Coefficients:
     harmonics: list[int]
     weights: dict[str, list[list[float]]]
     lms_schedule: list[list[float]] = field(default_factory=list)
+    lms_phase: dict = field(default_factory=dict)
     fir: dict = field(default_factory=dict)
+    lms_plant: str = ""
 
     def to_dict(self) -> dict:
         doc = {
@@ -65,6 +69,10 @@ class Coefficients:
             "lms_schedule": self.lms_schedule,
             "fir": self.fir,
         }
+        if self.lms_phase:
+            doc["lms_phase"] = self.lms_phase
+        if self.lms_plant:
+            doc["lms_plant"] = self.lms_plant
         doc["checksum"] = f"crc32:{zlib.crc32(_canonical(doc)):08x}"
         return doc
 
@@ -103,8 +111,17 @@ class Coefficients:
                 raise BadInputError(f"{path}: {axis} has {len(rows)} weight pairs for {len(harmonics)} harmonics")
             if not all(math.isfinite(v) for r in rows for v in r):
                 raise BadInputError(f"{path}: {axis} has a weight that is not a finite number")
+        phase = doc.get("lms_phase", {})
+        if phase:
+            try:
+                bin_hz = float(phase["bin_hz"])
+                rows = {axis: [float(v) for v in vals] for axis, vals in phase["phase_rad"].items()}
+            except (KeyError, TypeError, ValueError, AttributeError) as err:
+                raise BadInputError(f"{path}: malformed lms_phase section ({err})") from None
+            if not (bin_hz > 0 and all(math.isfinite(v) for r in rows.values() for v in r)):
+                raise BadInputError(f"{path}: lms_phase needs a positive bin_hz and finite phases")
         return cls(doc.get("target", {}), doc.get("source", {}), harmonics, weights,
-                   doc.get("lms_schedule", []), doc.get("fir", {}))
+                   doc.get("lms_schedule", []), phase, doc.get("fir", {}), str(doc.get("lms_plant", "")))
 
 
 def now_iso() -> str:

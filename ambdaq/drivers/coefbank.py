@@ -4,10 +4,12 @@ Host and device share this layout (docs/protocol.md, "Coefficient banks"); the c
 two banks, runs from the active one, and switches only after the host has read back the CRC-32
 the device computed over the inactive one.  All numbers little-endian::
 
-    magic "AMBC" | version u16 | axes u8 | harmonics u8 | mode u8 | reserved u8 | rows u16
+    magic "AMBC" | version u16 | axes u8 | harmonics u8 | mode u8 | phase u8 | rows u16
     | sha256 of the coefficient file (32 bytes)
     | weights: axes x harmonics x [sin, cos] f64, m   (axis order of the controller, 1X first)
     | LMS schedule: rows x [harmonic, rpm_from, rpm_to, mu] f64  (harmonic 0: every harmonic)
+    | if phase = 1: bins u16 | bin width f64 (Hz) | axes x bins f32: the LMS phase compensation
+      per axis at 0, bin, 2 bin ... Hz of loop frequency (rad)
 
 ``mode`` is the feedforward the bank runs: 0 off, 1 fixed table (r_c of seed 000 eq. 10 with
 these weights), 2 LMS (eq. 9) starting from these weights with the schedule's step sizes.
@@ -24,6 +26,7 @@ import numpy as np
 MAGIC = b"AMBC"
 VERSION = 1
 HEAD = struct.Struct("<4sHBBBBH32s")
+PHASE_HEAD = struct.Struct("<Hd")
 MODES = {"off": 0, "table": 1, "lms": 2}
 WEIGHT_LIMIT_M = 1e-3  # no runout term above 1 mm: larger is a units mistake
 MU_LIMIT = 1.0  # |mu| above this diverges at any speed
@@ -48,29 +51,49 @@ class BankImage:
         LMS step sizes over speed (rpm); harmonic 0 applies to every harmonic.
     source_sha256 : str
         Hex SHA-256 of the coefficient file the bank came from ("" for none).
+    phase_rad : ndarray, shape (axes, bins), optional
+        LMS phase compensation per axis over loop frequency, in rad (None: seed 000's update).
+    phase_bin_hz : float
+        Frequency step of ``phase_rad``, in Hz.
     """
 
     weights: np.ndarray
     mode: str = "table"
     schedule: list[tuple[float, float, float, float]] = field(default_factory=list)
     source_sha256: str = ""
+    phase_rad: np.ndarray | None = None
+    phase_bin_hz: float = 10.0
 
     def encode(self) -> bytes:
         w = np.asarray(self.weights, dtype="<f8")
         sha = bytes.fromhex(self.source_sha256) if self.source_sha256 else bytes(32)
         rows = np.asarray(self.schedule, dtype="<f8").reshape(-1, 4)
-        head = HEAD.pack(MAGIC, VERSION, w.shape[0], w.shape[1], MODES[self.mode], 0, rows.shape[0], sha)
-        return head + w.tobytes() + rows.tobytes()
+        has_phase = self.phase_rad is not None
+        head = HEAD.pack(MAGIC, VERSION, w.shape[0], w.shape[1], MODES[self.mode], int(has_phase), rows.shape[0], sha)
+        out = head + w.tobytes() + rows.tobytes()
+        if has_phase:
+            ph = np.asarray(self.phase_rad, dtype="<f4")
+            out += PHASE_HEAD.pack(ph.shape[1], self.phase_bin_hz) + ph.tobytes()
+        return out
 
     @classmethod
     def decode(cls, data: bytes) -> "BankImage":
         """Parse and check an image; ``ValueError`` says what is wrong."""
         if len(data) < HEAD.size:
             raise ValueError(f"image of {len(data)} bytes is shorter than its header")
-        magic, version, axes, harmonics, mode, _r, n_rows, sha = HEAD.unpack_from(data)
+        magic, version, axes, harmonics, mode, has_phase, n_rows, sha = HEAD.unpack_from(data)
         if magic != MAGIC or version != VERSION:
             raise ValueError("not a version-1 coefficient image")
         want = HEAD.size + 8 * (axes * harmonics * 2 + 4 * n_rows)
+        phase, bin_hz = None, 10.0
+        if has_phase and len(data) >= want + PHASE_HEAD.size:
+            bins, bin_hz = PHASE_HEAD.unpack_from(data, want)
+            start = want + PHASE_HEAD.size
+            want = start + 4 * axes * bins
+            if len(data) == want:
+                phase = np.frombuffer(data, "<f4", axes * bins, start).reshape(axes, bins).astype(float)
+        elif has_phase:
+            want += PHASE_HEAD.size
         if len(data) != want:
             raise ValueError(f"image is {len(data)} bytes, its header says {want}")
         modes = {v: k for k, v in MODES.items()}
@@ -78,7 +101,8 @@ class BankImage:
             raise ValueError(f"unknown feedforward mode {mode}")
         w = np.frombuffer(data, "<f8", axes * harmonics * 2, HEAD.size).reshape(axes, harmonics, 2).copy()
         rows = np.frombuffer(data, "<f8", 4 * n_rows, HEAD.size + w.nbytes).reshape(n_rows, 4)
-        image = cls(w, modes[mode], [tuple(float(x) for x in r) for r in rows], "" if not any(sha) else sha.hex())
+        image = cls(w, modes[mode], [tuple(float(x) for x in r) for r in rows], "" if not any(sha) else sha.hex(),
+                    phase, bin_hz)
         problem = image.problem()
         if problem:
             raise ValueError(problem)
@@ -105,6 +129,10 @@ class BankImage:
                 return f"schedule row {lo:g}..{hi:g} rpm is not an increasing speed range"
             if abs(mu) > MU_LIMIT:
                 return f"step size {mu:g} exceeds +-{MU_LIMIT:g}"
+        if self.phase_rad is not None:
+            ph = np.asarray(self.phase_rad)
+            if ph.shape[0] != w.shape[0] or not np.all(np.isfinite(ph)) or not self.phase_bin_hz > 0:
+                return "the LMS phase table must be finite, one row per axis, with a positive bin width"
         return ""
 
     def per_harmonic_schedule(self) -> dict[int, tuple[tuple[float, float, float], ...]]:

@@ -48,6 +48,8 @@ N_AXES = 5
 N_HARMONICS = 8  # harmonics 1X..8X carried by the runout model and the feedforward
 MU_BIN_RPM = 100.0  # resolution of the LMS step-size schedule over speed
 MU_BINS = 601  # 0 .. 60,000 rpm
+PHASE_BIN_HZ = 10.0  # resolution of the LMS phase compensation over loop frequency
+PHASE_BINS = 501  # 0 .. 5,000 Hz (the Nyquist frequency at 10 kHz)
 SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
 GRAVITY = 9.81
 
@@ -290,10 +292,10 @@ def _simulate(
     z, amp, ctl, w, st,  # state (modified in place)
     Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
     ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
-    mu_tab, ff_mode, c,  # c: scalar constants
+    mu_tab, ph_cos, ph_sin, ff_mode, c,  # c: scalar constants
     out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
 ):
-    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax]
+    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax, phase_bin_hz]
     h = c[0]
     ks = c[1]
     adc_lsb = c[2]
@@ -301,6 +303,7 @@ def _simulate(
     dac_lsb = c[4]
     dac_rng = c[5]
     imax = c[6]
+    phase_bin = c[7]
     inv_ks = 1.0 / ks
     inv_adc = 1.0 / adc_lsb if adc_lsb > 0.0 else 0.0
     inv_dac = 1.0 / dac_lsb if dac_lsb > 0.0 else 0.0
@@ -344,11 +347,18 @@ def _simulate(
                 for j in range(nh):
                     rc += w[a, j, 0] * sk[j] + w[a, j, 1] * ck[j]
             e = s_meas - rc
-            if ff_mode == 2:  # LMS update, eq. 9
+            if ff_mode == 2:  # LMS update, eq. 9, its step turned by the phase compensation g
                 for j in range(nh):
                     mu = mu_tab[j, mbin]
-                    w[a, j, 0] += mu * e * sk[j]
-                    w[a, j, 1] += mu * e * ck[j]
+                    if mu != 0.0:
+                        fb = int((j + 1) * om / two_pi / phase_bin + 0.5)
+                        if fb >= ph_cos.shape[1]:
+                            fb = ph_cos.shape[1] - 1
+                        gr = ph_cos[a, fb]
+                        gi = ph_sin[a, fb]
+                        # phasor W = w0 + j w1 moves by mu e (sin + j cos) g
+                        w[a, j, 0] += mu * e * (sk[j] * gr - ck[j] * gi)
+                        w[a, j, 1] += mu * e * (ck[j] * gr + sk[j] * gi)
             # PID on the error voltage: Tustin integral, backward-Euler filtered derivative
             ev = ks * e
             integ = ctl[a, 0] + pid_i[a] * h * 0.5 * (ev + ctl[a, 2])
@@ -457,6 +467,8 @@ class SpindleRig:
         self._rng = np.random.default_rng(seed)
         self.mu_schedule = _schedule_rows(mu_schedule)
         self._mu = mu_table(self.mu_schedule)
+        self._ph_cos = np.ones((N_AXES, PHASE_BINS))
+        self._ph_sin = np.zeros((N_AXES, PHASE_BINS))
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
         self.step_index = 0
@@ -494,7 +506,8 @@ class SpindleRig:
         self._run_s, self._run_c = p.runout_sin_cos()
         adc_lsb = 2 * p.adc_range / 2**p.adc_bits if self.noise else 0.0
         dac_lsb = 2 * p.dac_range / 2**p.dac_bits if self.noise else 0.0
-        self._c = np.array([h, p.sensor_gain, adc_lsb, p.adc_range, dac_lsb, p.dac_range, p.coil_max_current])
+        self._c = np.array([h, p.sensor_gain, adc_lsb, p.adc_range, dac_lsb, p.dac_range, p.coil_max_current,
+                            PHASE_BIN_HZ])
         self._noise_sd = np.array([p.gap_noise, p.current_noise, p.accel_noise]) * (1.0 if self.noise else 0.0)
 
     def _init_state(self) -> None:
@@ -549,6 +562,26 @@ class SpindleRig:
     mapping harmonic -> rows (harmonics not named are held)."""
         self.mu_schedule = _schedule_rows(schedule)
         self._mu = mu_table(self.mu_schedule)
+
+    def set_lms_phase(self, phase_rad: np.ndarray | None) -> None:
+        """Turn each axis's LMS step by a phase over loop frequency (the phase-compensated update:
+        w_k moves by mu e [sin, cos](k theta) rotated by g = exp(j phase(k Omega))).
+
+        Parameters
+        ----------
+        phase_rad : ndarray, shape (5, PHASE_BINS), or None
+            Phase per axis at 0, 10, 20 ... 5,000 Hz, in rad; None: no compensation (seed 000's
+            plain update).
+        """
+        ph = np.zeros((N_AXES, PHASE_BINS)) if phase_rad is None else np.asarray(phase_rad, dtype=float)
+        if ph.shape != (N_AXES, PHASE_BINS) or not np.all(np.isfinite(ph)):
+            raise ValueError(f"LMS phase table must be finite, shape ({N_AXES}, {PHASE_BINS}), not {ph.shape}")
+        self._ph_cos, self._ph_sin = np.cos(ph), np.sin(ph)
+
+    @property
+    def lms_phase(self) -> np.ndarray:
+        """The LMS phase compensation per axis and 10 Hz bin, in rad (zeros: none)."""
+        return np.arctan2(self._ph_sin, self._ph_cos)
 
     def run_speed_rpm(self) -> float:
         """The rotor speed at the present step, in rpm."""
@@ -610,7 +643,7 @@ class SpindleRig:
                 Phi, Gam, self._Pa, self._Ga,
                 self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
                 self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
-                self._mu, self._ff_mode, self._c,
+                self._mu, self._ph_cos, self._ph_sin, self._ff_mode, self._c,
                 outs[0][sl], outs[1][sl], outs[2][sl], outs[3][sl], outs[4][sl], outs[5][sl],
                 out_run[sl], out_pos[sl],
             )
@@ -632,6 +665,23 @@ class SpindleRig:
         with noise, runout, unbalance, gravity and quantisation off, so it is the Jacobian of the
         code that runs, not of a separate model.  The loop is stable iff its spectral radius < 1.
         """
+        return self.loop_matrices(rpm)[0]
+
+    def loop_matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The simulated loop linearised at ``rpm`` (rpm) with the feedforward as its input:
+        x[n+1] = M x[n] + B r_c[n],  e[n] = C x[n] - r_c[n].
+
+        ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
+        feedforward per axis (m, subtracted from the sensor signal, seed 000 eq. 10) and ``e`` the
+        command error per axis (m).  Found by stepping the simulation kernel itself from unit
+        perturbations, with noise, runout, unbalance, gravity and quantisation off.
+
+        Returns
+        -------
+        M : ndarray, shape (35, 35)
+        B : ndarray, shape (35, 5)
+        C : ndarray, shape (5, 35)
+        """
         quiet = replace(
             self.params, unbalance=(0.0, 0.0), runout_amp=np.zeros_like(self.params.runout_amp)
         )
@@ -639,15 +689,30 @@ class SpindleRig:
         probe._fgrav = np.zeros(5)
         probe._fstat = np.zeros(5)
         n_state = 10 + 10 + 15
-        M = np.empty((n_state, n_state))
         scale = 1e-9  # small enough that nothing saturates
-        for col in range(n_state):
-            x = np.zeros(n_state)
-            x[col] = scale
+
+        def step(x: np.ndarray, rc_axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
             probe._z[:] = x[:10]
             probe._amp[:] = x[10:20].reshape(5, 2)
             probe._ctl[:] = x[20:35].reshape(5, 3)
             probe.step_index = 0
-            probe.run(1)
-            M[:, col] = np.concatenate([probe._z, probe._amp.ravel(), probe._ctl.ravel()]) / scale
-        return M
+            table = np.zeros((N_AXES, 1, 2))
+            if rc_axis >= 0:  # at step 0 the angle is 0: r_c = the cos weight of 1X
+                table[rc_axis, 0, 1] = scale
+            probe.set_feedforward("table" if rc_axis >= 0 else "off", table)
+            block = probe.run(1)
+            nxt = np.concatenate([probe._z, probe._amp.ravel(), probe._ctl.ravel()])
+            return nxt, block.values["/amb/error"][0]
+
+        M = np.empty((n_state, n_state))
+        C = np.empty((N_AXES, n_state))
+        for col in range(n_state):
+            x = np.zeros(n_state)
+            x[col] = scale
+            nxt, err = step(x)
+            M[:, col], C[:, col] = nxt / scale, err / scale
+        B = np.empty((n_state, N_AXES))
+        for a in range(N_AXES):
+            nxt, err = step(np.zeros(n_state), a)
+            B[:, a] = nxt / scale
+        return M, B, C

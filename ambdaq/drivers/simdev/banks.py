@@ -13,8 +13,10 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
+
 from ..coefbank import BankImage, crc32
-from ..rig.spindle import N_AXES, N_HARMONICS
+from ..rig.spindle import N_AXES, N_HARMONICS, PHASE_BIN_HZ, PHASE_BINS
 from .rig_server import RigServer
 
 DEFAULT_UNLOCK_KEY = "ambdaq-sim"  # documented in docs/push.md; `ambdaq sim serve --unlock-key` sets another
@@ -36,12 +38,24 @@ def _present_image(rig) -> BankImage:
     sched = rig.mu_schedule
     rows = ([(float(k), *r) for k, rs in sched.items() for r in rs] if isinstance(sched, dict)
             else [(0.0, *r) for r in sched])
-    return BankImage(rig.feedforward_weights, rig.feedforward_mode, rows)
+    phase = rig.lms_phase
+    return BankImage(rig.feedforward_weights, rig.feedforward_mode, rows, "",
+                     phase if np.any(phase) else None, PHASE_BIN_HZ)
+
+
+def _phase_for_rig(image: BankImage) -> np.ndarray | None:
+    """The image's phase table resampled onto the controller's own 10 Hz bins (nearest)."""
+    if image.phase_rad is None:
+        return None
+    f = np.arange(PHASE_BINS) * PHASE_BIN_HZ
+    idx = np.minimum(np.round(f / image.phase_bin_hz).astype(int), image.phase_rad.shape[1] - 1)
+    return image.phase_rad[:, idx]
 
 
 def apply_image(rig, image: BankImage) -> None:
-    """Make ``rig`` run ``image``: schedule first, then weights and mode (one boundary)."""
+    """Make ``rig`` run ``image``: schedule and phase first, then weights and mode (one boundary)."""
     rig.set_mu_schedule(image.per_harmonic_schedule())
+    rig.set_lms_phase(_phase_for_rig(image))
     rig.set_feedforward(image.mode, image.weights)
 
 
@@ -133,7 +147,8 @@ class CoefficientBanks:
             self.active = 1 - self.active
             self._unlocked_until = 0.0  # every push unlocks anew
             entry = {"device_time_ns": int(self.clock()), "bank": self.active, "crc32": f"{got:08x}",
-                     "effective_sample": int(step), "source_sha256": image.source_sha256, "mode": image.mode}
+                     "effective_sample": int(step), "source_sha256": image.source_sha256, "mode": image.mode,
+                     "phase_compensated": image.phase_rad is not None}
             entry.update({k: str(v) for k, v in record.items() if k in ("host_time", "file", "file_sha256",
                                                                           "target", "host")})
             self.log.append(entry)
