@@ -277,18 +277,24 @@ def sign_flip_rpm(loop: OneAxis, harmonic: int = 1, rpm_min: float = RPM_MIN, rp
     return [float((rpm[i] + rpm[i + 1]) / 2) for i in np.flatnonzero(np.diff(s) != 0)]
 
 
-def sign_schedule(loop: OneAxis, *, mu: float = 0.001, dead_band: float = 500.0, rpm_max: float = 60000.0,
+def sign_schedule(loops, *, mu: float = 0.001, dead_band: float = 500.0, rpm_max: float = 60000.0,
                   harmonic: int = 1, step: float = 10.0) -> list[list[float]]:
-    """A step-size schedule like seed 000's: +-mu where that sign converges, 0 (weights held) within
-    ``dead_band`` rpm of a sign change, wherever neither sign converges, and below 100 rpm.
+    """A step-size schedule like seed 000's: +-mu where that sign converges on every loop in
+    ``loops`` (one loop or a list), 0 (weights held) within ``dead_band`` rpm of a sign change,
+    wherever no sign converges on all of them, and below 100 rpm.
 
     Returns rows [rpm_from, rpm_to, mu] covering 0 .. ``rpm_max``.
     """
+    loops = loops if isinstance(loops, (list, tuple)) else [loops]
     rpm = np.arange(0.0, rpm_max + step, step)
-    value = mu * mu_sign(loop, np.maximum(rpm, step), harmonic).astype(float)
+    signs = np.array([mu_sign(loop, np.maximum(rpm, step), harmonic, mu) for loop in loops])
+    agreed = np.where(np.all(signs == signs[0], axis=0), signs[0], 0)
+    value = mu * agreed.astype(float)
     value[rpm < RPM_MIN] = 0.0  # near standstill (the integrator's corner) the weights are held
-    for f in sign_flip_rpm(loop, harmonic, rpm_max=rpm_max, step=step):
-        value[np.abs(rpm - f) <= dead_band] = 0.0
+    change = np.flatnonzero(np.diff(np.sign(value)) != 0)
+    for i in change:  # hold the weights around every change of sign (and into every hold)
+        f = (rpm[i] + rpm[i + 1]) / 2
+        value[(np.abs(rpm - f) <= dead_band) & (rpm >= RPM_MIN + dead_band)] = 0.0
     rows = []
     start = 0
     for i in range(1, len(rpm) + 1):

@@ -1,0 +1,174 @@
+"""``ambdaq lms``: seed 000's LMS feedforward inside the loop: convergence map, sign flips, schedules."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..analysis.lms import (PhaseTable, StateSpaceLoop, convergence_radius, mu_sign, phase_compensation,
+                            sign_schedule)
+from ..control.plants import PLANT_NAMES, resolve_plant
+from ..daq.coefficients import Coefficients, now_iso
+from ..drivers.rig.spindle import N_AXES, PHASE_BIN_HZ, PHASE_BINS
+
+AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
+plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
+                            help=f"Loop to design on: {', '.join(PLANT_NAMES)} (docs/lms.md).")
+
+
+def _grid_step(loops: dict, fine: float) -> float:
+    """A state-space loop is linearised per speed: a coarser grid keeps it to seconds."""
+    return 100.0 if any(isinstance(lp, StateSpaceLoop) for lp, _ in loops.values()) else fine
+
+
+def _phase_table(loops: dict) -> PhaseTable:
+    """Per-axis phase compensation from the design loops: each loop fills the axes it stands for
+    (a one-axis loop given alone fills every axis)."""
+    table = np.zeros((N_AXES, PHASE_BINS))
+    for loop, axes in loops.values():
+        ph = phase_compensation(loop, PHASE_BINS, PHASE_BIN_HZ).phase_rad
+        for i, a in enumerate(axes):
+            table[a] = ph[min(i, ph.shape[0] - 1)]
+    if len(loops) == 1 and ph.shape[0] == 1:
+        table[:] = ph[0]
+    return PhaseTable(table, PHASE_BIN_HZ)
+
+
+def _flips(signs: np.ndarray, rpm: np.ndarray) -> list[float]:
+    return [float((rpm[i] + rpm[i + 1]) / 2) for i in np.flatnonzero(np.diff(signs) != 0)]
+
+
+@click.group("lms")
+def command() -> None:
+    """LMS runout feedforward design (seed 000): convergence map, sign flips, step-size schedules."""
+
+
+@command.command("map")
+@plant_option
+@click.option("--harmonic", type=click.IntRange(1, 8), default=1, show_default=True)
+@click.option("--rpm-max", type=click.FloatRange(min=1000), default=60000.0, show_default=True)
+@click.option("--mu-max", type=click.FloatRange(min=0, min_open=True), default=0.01, show_default=True,
+              help="The map spans -MU_MAX .. +MU_MAX.")
+@click.option("--compensated", is_flag=True, help="Map the phase-compensated update instead of seed 000's.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the map as an image (Fig. 5).")
+@click.option("--json", "as_json", is_flag=True)
+def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_json):
+    """Where the LMS converges over speed and step size, and where the sign of mu must flip.
+
+    \b
+    Examples:
+      ambdaq lms map --plant front --plot fig5.png
+      ambdaq lms map --plant rig --harmonic 2 --json
+    """
+    loops = resolve_plant(plant)
+    phase = _phase_table(loops) if compensated else None
+    step = _grid_step(loops, 50.0)
+    rpm = np.arange(step, rpm_max + step / 2, step)
+    mu = np.linspace(-mu_max, mu_max, 41)
+    report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
+    maps = {}
+    for name, (loop, axes) in loops.items():
+        ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
+        r = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
+        maps[name] = r
+        small = convergence_radius(loop, rpm, np.array([mu_max / 10, -mu_max / 10]), harmonic, phase=ph)
+        signs = np.where(small[:, 0] < 1, 1, np.where(small[:, 1] < 1, -1, 0))
+        none = rpm[signs == 0]
+        report["loops"][name] = {
+            "sign_flips_rpm": _flips(signs, rpm),
+            "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
+            "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[:: max(1, len(rpm) // 12)], signs[:: max(1, len(rpm) // 12)])},
+        }
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+    else:
+        for name, rep in report["loops"].items():
+            flips = ", ".join(f"{f:,.0f}" for f in rep["sign_flips_rpm"]) or "none"
+            click.echo(f"{name}: {harmonic}X, {'phase-compensated' if compensated else 'seed 000 update'}: "
+                       f"sign of mu flips at {flips} rpm")
+            if rep["no_sign_converges_rpm"]:
+                lo, hi = rep["no_sign_converges_rpm"]
+                click.echo(f"  no sign of |mu| = {mu_max / 10:g} converges between {lo:,.0f} and {hi:,.0f} rpm")
+    if plot_path:
+        _plot_map(maps, rpm, mu, harmonic, plant, compensated, plot_path)
+        click.echo(f"-> {plot_path}", err=True)
+
+
+def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant: str, compensated: bool,
+              path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from matplotlib.colors import ListedColormap
+
+    fig, axes = plt.subplots(1, len(maps), figsize=(6 * len(maps), 4.5), squeeze=False)
+    for ax, (name, r) in zip(axes[0], maps.items()):
+        ax.pcolormesh(rpm, mu, (r.T < 1.0).astype(float), shading="auto", vmin=0, vmax=1,
+                      cmap=ListedColormap(["#f4c7c3", "#b7e1cd"]))
+        ax.contour(rpm, mu, r.T, levels=[1.0], colors="k", linewidths=1.0)
+        ax.axhline(0, color="grey", lw=0.5)
+        ax.set(xlabel="speed (rpm)", ylabel="step size mu",
+               title=f"{name}: {harmonic}X, {'compensated' if compensated else 'seed 000'} update "
+                     "(green converges, red diverges)")
+    fig.suptitle(f"LMS convergence map, plant {plant} (seed 000 Fig. 5)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+@command.command("schedule")
+@plant_option
+@click.option("--mu", type=click.FloatRange(min=0, min_open=True), default=0.001, show_default=True,
+              help="Step size magnitude.")
+@click.option("--dead-band", type=click.FloatRange(min=0), default=500.0, show_default=True,
+              help="Hold the weights this many rpm either side of a sign flip (seed 000 update).")
+@click.option("--harmonics", type=click.IntRange(1, 8), default=6, show_default=True, help="Schedule 1X .. NX.")
+@click.option("--compensated", is_flag=True,
+              help="Phase-compensated update: one positive mu at every speed, with the loop's inverse phase.")
+@click.option("--weights", "weights_file", type=click.Path(dir_okay=False),
+              help="Start the LMS from this coefficient file's weights (e.g. from runout identify).")
+@click.option("--rpm-max", type=click.FloatRange(min=1000), default=60000.0, show_default=True)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Coefficient file to write.")
+@click.option("--overwrite", is_flag=True)
+def schedule_command(plant, mu, dead_band, harmonics, compensated, weights_file, rpm_max, output, overwrite):
+    """Write a coefficient file whose LMS step-size schedule converges on the plant's map.
+
+    \b
+    Examples:
+      ambdaq lms schedule --plant rig --weights coef.json -o coef_lms.json
+      ambdaq lms schedule --plant rig --compensated --mu 0.002 -o coef_lms.json
+    """
+    loops = resolve_plant(plant)
+    step = _grid_step(loops, 10.0)
+    if compensated:
+        phase = _phase_table(loops)
+        rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
+        phase_doc = {"bin_hz": phase.bin_hz,
+                     "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
+    else:
+        phase_doc = {}
+        rows = [[k, *r] for k in range(1, harmonics + 1)
+                for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
+                                       rpm_max=rpm_max, harmonic=k, step=step)]
+        rows = [r for r in rows if r[3] != 0.0]  # a harmonic not named in a speed range is held
+    if weights_file:
+        base = Coefficients.load(weights_file)
+        target, source, harm, weights = base.target, dict(base.source), base.harmonics, base.weights
+    else:
+        target, source, harm = {"axes": list(AXES)}, {}, list(range(1, harmonics + 1))
+        weights = {a: [[0.0, 0.0] for _ in harm] for a in AXES}
+    source.update({"lms_design": {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated},
+                   "created": now_iso()})
+    coef = Coefficients(target, source, harm, weights, rows, phase_doc, lms_plant=plant)
+    coef.save(output, overwrite=overwrite)
+    click.echo(f"{len(rows)} schedule rows for 1X..{harmonics}X on plant {plant}"
+               f"{' (phase-compensated)' if compensated else ''} -> {Path(output)}")
+    for k in range(1, min(harmonics, 2) + 1):
+        for r in rows:
+            if r[0] == k:
+                click.echo(f"  {k}X {r[1]:>7,.0f} .. {r[2]:>7,.0f} rpm  mu {r[3]:+g}")
