@@ -172,3 +172,46 @@ def schedule_command(plant, mu, dead_band, harmonics, compensated, weights_file,
         for r in rows:
             if r[0] == k:
                 click.echo(f"  {k}X {r[1]:>7,.0f} .. {r[2]:>7,.0f} rpm  mu {r[3]:+g}")
+
+
+@command.command("runup")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--seconds", type=click.FloatRange(min=1), default=10.0, show_default=True, help="Ramp 0 -> 50,000 rpm.")
+@click.option("--speeds", default="3000,10000,12000,20000,30000,50000", show_default=True,
+              help="Constant speeds (rpm) for the time to converge.")
+@click.option("--json", "as_json", is_flag=True)
+def runup_command(files, seconds, speeds, as_json):
+    """Compare coefficient files (e.g. a sign-switched and a phase-compensated schedule) on the
+    simulated spindle: command error over a 0 -> 50,000 rpm run-up, and time to converge.
+
+    \b
+    Example:
+      ambdaq lms schedule --plant rig -o sign.json
+      ambdaq lms schedule --plant rig --compensated -o comp.json
+      ambdaq lms runup sign.json comp.json
+    """
+    from ..control.runup import run_up, time_to_converge
+
+    rpms = [float(s) for s in speeds.split(",")]
+    bands = [(0, 5000), (5000, 10000), (10000, 15000), (15000, 20000), (20000, 30000), (30000, 40000),
+             (40000, 50001)]
+    runs = [run_up(None, seconds=seconds, name="feedforward off")]
+    runs += [run_up(Coefficients.load(f), seconds=seconds, name=Path(f).name) for f in files]
+    conv = {Path(f).name: {str(int(r)): time_to_converge(Coefficients.load(f), r) for r in rpms} for f in files}
+    report = {"bands_rpm": bands, "runs": {r.name: [[round(v * 1e6, 3) for v in r.band(*b)] for b in bands]
+                                           for r in runs},
+              "time_to_converge_s": conv}
+    if as_json:  # never converging is null
+        report["time_to_converge_s"] = {n: {r: (None if np.isinf(t) else t) for r, t in c.items()}
+                                        for n, c in conv.items()}
+        click.echo(json.dumps(report, indent=2))
+        return
+    click.echo(f"run-up 0 -> 50,000 rpm in {seconds:g} s: worst radial |1X| / |2X| / RMS of the command error, um")
+    click.echo(f"{'band (rpm)':<16}" + "".join(f"{r.name[:24]:>26}" for r in runs))
+    for i, (lo, hi) in enumerate(bands):
+        cells = "".join(f"{'%.2f / %.2f / %.2f' % tuple(report['runs'][r.name][i]):>26}" for r in runs)
+        click.echo(f"{f'{lo}-{min(hi, 50000)}':<16}{cells}")
+    click.echo("time until 1X is 20 dB down from zero weights, s (inf: never)")
+    click.echo(f"{'rpm':<16}" + "".join(f"{n[:24]:>26}" for n in conv))
+    for r in rpms:
+        click.echo(f"{r:<16,.0f}" + "".join(f"{conv[n][str(int(r))]:>26.1f}" for n in conv))
