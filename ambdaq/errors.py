@@ -22,3 +22,7 @@ class DeviceError(AmbdaqError):
     """A device or I/O failure at run time (device vanished, write failed)."""
 
     exit_code = 1
+
+
+class DeviceTimeout(DeviceError):
+    """A device did not answer a request in time (it may or may not have acted on it)."""

@@ -135,7 +135,7 @@ def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmon
     B, C = B[:, axes], C[axes]
     phi = harmonic * rpm * 2 * np.pi / 60 * loop.h
     c = np.cos(phi)
-    n, p = M.shape[0], len(axes)
+    p = len(axes)
     Af = np.kron(np.eye(p), np.array([[2 * c, -1.0], [1.0, 0.0]]))
     Bf = np.kron(np.eye(p), np.array([[1.0], [0.0]]))
     Cf1 = np.zeros((p, 2 * p))  # G_ff's numerator for mu = 1
@@ -259,10 +259,16 @@ def phase_compensation(loop, bins: int = 501, bin_hz: float = 10.0) -> PhaseTabl
     return PhaseTable(np.angle(-np.conj(T)), bin_hz)
 
 
-def mu_sign(loop: OneAxis, rpm: np.ndarray, harmonic: int = 1, mu: float = 1e-4) -> np.ndarray:
+def mu_sign(loop, rpm: np.ndarray, harmonic: int = 1, mu: float = 1e-4,
+            phase: PhaseTable | None = None) -> np.ndarray:
     """Which sign of a small step size converges at each speed: +1, -1, or 0 (neither)."""
-    r = convergence_radius(loop, rpm, np.array([mu, -mu]), harmonic)
+    r = convergence_radius(loop, rpm, np.array([mu, -mu]), harmonic, phase=phase)
     return np.where(r[:, 0] < 1, 1, np.where(r[:, 1] < 1, -1, 0))
+
+
+def sign_changes(signs: np.ndarray, rpm: np.ndarray) -> list[float]:
+    """Speeds (rpm) midway between grid points where ``signs`` (from :func:`mu_sign`) changes."""
+    return [float((rpm[i] + rpm[i + 1]) / 2) for i in np.flatnonzero(np.diff(signs) != 0)]
 
 
 RPM_MIN = 100.0  # below this the integrator's corner, not the rotor, sets the phase of S
@@ -273,8 +279,7 @@ def sign_flip_rpm(loop: OneAxis, harmonic: int = 1, rpm_min: float = RPM_MIN, rp
     """Speeds (rpm) where the converging sign of mu changes (seed 000 reports about 6,000 rpm for
     the front bearing's 1X).  Below ``rpm_min`` the integrator's corner makes its own flips."""
     rpm = np.arange(rpm_min, rpm_max, step)
-    s = mu_sign(loop, rpm, harmonic)
-    return [float((rpm[i] + rpm[i + 1]) / 2) for i in np.flatnonzero(np.diff(s) != 0)]
+    return sign_changes(mu_sign(loop, rpm, harmonic), rpm)
 
 
 def sign_schedule(loops, *, mu: float = 0.001, dead_band: float = 500.0, rpm_max: float = 60000.0,

@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from ..analysis.lms import (PhaseTable, StateSpaceLoop, convergence_radius, mu_sign, phase_compensation,
-                            sign_schedule)
+                            sign_changes, sign_schedule)
 from ..control.plants import PLANT_NAMES, resolve_plant
 from ..daq.coefficients import Coefficients, now_iso
 from ..drivers.rig.spindle import N_AXES, PHASE_BIN_HZ, PHASE_BINS
@@ -26,19 +26,13 @@ def _grid_step(loops: dict, fine: float) -> float:
 
 def _phase_table(loops: dict) -> PhaseTable:
     """Per-axis phase compensation from the design loops: each loop fills the axes it stands for
-    (a one-axis loop given alone fills every axis)."""
+    (a plant of one loop fills every axis; a one-axis loop's row is shared by its axes)."""
     table = np.zeros((N_AXES, PHASE_BINS))
     for loop, axes in loops.values():
         ph = phase_compensation(loop, PHASE_BINS, PHASE_BIN_HZ).phase_rad
-        for i, a in enumerate(axes):
-            table[a] = ph[min(i, ph.shape[0] - 1)]
-    if len(loops) == 1 and ph.shape[0] == 1:
-        table[:] = ph[0]
+        rows = list(range(N_AXES)) if len(loops) == 1 else list(axes)
+        table[rows] = ph if ph.shape[0] == len(rows) else ph[0]
     return PhaseTable(table, PHASE_BIN_HZ)
-
-
-def _flips(signs: np.ndarray, rpm: np.ndarray) -> list[float]:
-    return [float((rpm[i] + rpm[i + 1]) / 2) for i in np.flatnonzero(np.diff(signs) != 0)]
 
 
 @click.group("lms")
@@ -74,11 +68,10 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
         ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
         r = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
         maps[name] = r
-        small = convergence_radius(loop, rpm, np.array([mu_max / 10, -mu_max / 10]), harmonic, phase=ph)
-        signs = np.where(small[:, 0] < 1, 1, np.where(small[:, 1] < 1, -1, 0))
+        signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
         none = rpm[signs == 0]
         report["loops"][name] = {
-            "sign_flips_rpm": _flips(signs, rpm),
+            "sign_flips_rpm": sign_changes(signs, rpm),
             "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
             "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[:: max(1, len(rpm) // 12)], signs[:: max(1, len(rpm) // 12)])},
         }
@@ -190,14 +183,15 @@ def runup_command(files, seconds, speeds, as_json):
       ambdaq lms schedule --plant rig --compensated -o comp.json
       ambdaq lms runup sign.json comp.json
     """
-    from ..control.runup import run_up, time_to_converge
+    from ..control.runup import controller_image, run_up, time_to_converge
 
     rpms = [float(s) for s in speeds.split(",")]
+    images = {Path(f).name: controller_image(Coefficients.load(f), f) for f in files}
     bands = [(0, 5000), (5000, 10000), (10000, 15000), (15000, 20000), (20000, 30000), (30000, 40000),
              (40000, 50001)]
     runs = [run_up(None, seconds=seconds, name="feedforward off")]
-    runs += [run_up(Coefficients.load(f), seconds=seconds, name=Path(f).name) for f in files]
-    conv = {Path(f).name: {str(int(r)): time_to_converge(Coefficients.load(f), r) for r in rpms} for f in files}
+    runs += [run_up(image, seconds=seconds, name=name) for name, image in images.items()]
+    conv = {name: {str(int(r)): time_to_converge(image, r) for r in rpms} for name, image in images.items()}
     report = {"bands_rpm": bands, "runs": {r.name: [[round(v * 1e6, 3) for v in r.band(*b)] for b in bands]
                                            for r in runs},
               "time_to_converge_s": conv}

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ..control.push import describe_difference, image_from, push, resolve_key
-from ..daq.coefficients import Coefficients, file_sha256
+from ..control.push import describe_difference, plan_push, push, resolve_key
+from ..daq.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..drivers.devices import open_controller
 from ..drivers.rigfile import load_rig
@@ -48,13 +48,14 @@ def push_command(file, device, rig, key, dry_run, yes):
       ambdaq push coef.json --device "can://socketcan/can0?node=0x50" --key "$KEY" --yes
     """
     url, rig_key = _target(device, rig)
-    Coefficients.load(file)  # a broken file fails before any device is opened
+    coef = Coefficients.load(file)  # a broken file fails before any device is opened
     unlock_key = None if dry_run else resolve_key(key, rig_key)
     port = open_controller(url)
     try:
-        status = port.bank_status()
+        plan = plan_push(port, file, coef)
+        status = plan.status
         if dry_run or not yes:
-            new = image_from(Coefficients.load(file), status, source_sha256=file_sha256(file), where=file)
+            new = plan.image
             old = BankImage.decode(port.read_bank("active", status["active_length"]))
             click.echo(f"{url}: active bank {status['active_bank']} (CRC-32 {status['active_crc32']}, "
                        f"{status['active_mode']}) -> {Path(file).name}")
@@ -64,7 +65,7 @@ def push_command(file, device, rig, key, dry_run, yes):
                 click.echo("dry run: nothing written")
                 return
             click.confirm("commit these coefficients?", abort=True)
-        result = push(port, file, unlock_key, target=url)
+        result = push(port, plan, unlock_key, target=url)
     finally:
         port.close()
     if result.already_active:

@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.lms import PhaseTable, schedule_problem
-from .plants import resolve_plant
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..drivers.coefbank import BankImage, crc32
-from ..errors import BadInputError, DeviceError
+from ..errors import BadInputError, DeviceError, DeviceTimeout
+from .plants import resolve_plant
 
 KEY_ENV = "AMBDAQ_UNLOCK_KEY"
 STATE_ENV = "AMBDAQ_STATE_DIR"
@@ -109,6 +109,11 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
     return image
 
 
+def _phasor(w: np.ndarray) -> str:
+    """[sin, cos] weights as amplitude (um) and phase (degrees)."""
+    return f"{np.hypot(*w) * 1e6:7.3f} um {np.degrees(np.arctan2(w[1], w[0])):7.1f} deg"
+
+
 def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: float = 1e-9) -> list[str]:
     """Lines saying how ``new`` differs from ``old``: mode, each changed weight (um, degrees), schedule."""
     out = []
@@ -122,9 +127,7 @@ def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: 
     for a, axis in enumerate(axes):
         for k in range(n):
             if np.max(np.abs(ow[a, k] - nw[a, k])) > tol_m:
-                def fmt(p):
-                    return f"{np.hypot(*p) * 1e6:7.3f} um {np.degrees(np.arctan2(p[1], p[0])):7.1f} deg"
-                out.append(f"{axis:<8} {k + 1}X: {fmt(ow[a, k])} -> {fmt(nw[a, k])}")
+                out.append(f"{axis:<8} {k + 1}X: {_phasor(ow[a, k])} -> {_phasor(nw[a, k])}")
     if (old.phase_rad is None) != (new.phase_rad is None) or (
             new.phase_rad is not None and not np.allclose(old.phase_rad, new.phase_rad, atol=1e-6)):
         out.append(f"lms phase compensation: {'none' if old.phase_rad is None else 'table'} -> "
@@ -148,26 +151,41 @@ class PushResult:
     already_active: bool = False
 
 
-def push(port, path: str | Path, key: str, *, target: str) -> PushResult:
-    """Download the coefficient file at ``path`` through ``port`` (a controller driver) and commit.
+@dataclass
+class PushPlan:
+    """A coefficient file checked against a controller: what would be written and where."""
+
+    path: Path
+    sha256: str
+    status: dict
+    image: BankImage
+
+
+def plan_push(port, path: str | Path, coef: Coefficients) -> PushPlan:
+    """Validate the coefficient file at ``path`` (loaded as ``coef``) against the controller behind
+    ``port`` (its bank status); nothing is written."""
+    path = Path(path)
+    sha = file_sha256(path)
+    status = port.bank_status()
+    return PushPlan(path, sha, status, image_from(coef, status, source_sha256=sha, where=str(path)))
+
+
+def push(port, plan: PushPlan, key: str, *, target: str) -> PushResult:
+    """Download a planned image through ``port`` (a controller driver) and commit.
 
     Parameters
     ----------
     port : ControllerDriver or CanopenController
-        The open controller.
-    path : str or Path
-        Coefficient file.
+        The open controller the plan was made on.
+    plan : PushPlan
+        From :func:`plan_push`.
     key : str
         The controller's unlock key.
     target : str
         The device URL, for the logs.
     """
-    path = Path(path)
-    coef = Coefficients.load(path)
-    sha = file_sha256(path)
-    status = port.bank_status()
-    image = image_from(coef, status, source_sha256=sha, where=str(path))
-    data = image.encode()
+    path, sha, status = plan.path, plan.sha256, plan.status
+    data = plan.image.encode()
     crc = f"{crc32(data):08x}"
     record = {"host_time": now_iso(), "file": path.name, "file_sha256": sha, "target": target,
               "host": socket.gethostname()}
@@ -182,9 +200,7 @@ def push(port, path: str | Path, key: str, *, target: str) -> PushResult:
                               f"({held['inactive_length']} bytes), expected {crc} ({len(data)} bytes): not committed")
         try:
             effective = port.commit_bank(int(crc, 16), record)
-        except DeviceError as err:
-            if "no answer" not in str(err):
-                raise
+        except DeviceTimeout:
             effective = -1  # the answer was lost: the status says whether the switch happened
         final = port.bank_status()
         if final["active_crc32"] != crc:

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..daq.coefficients import Coefficients
+from ..drivers.coefbank import BankImage
 from ..drivers.rig.speed import SpeedProfile
-from ..drivers.rig.spindle import N_HARMONICS, SpindleRig
+from ..drivers.rig.spindle import N_HARMONICS, SPINDLE, SpindleRig
 from ..drivers.simdev.banks import apply_image
 from .push import image_from
 
@@ -23,11 +24,15 @@ AXES = ["front_x", "front_y", "rear_x", "rear_y", "axial"]
 WINDOW_S = 0.2  # demodulation window, s
 
 
-def _rig(coef: Coefficients | None, speed: SpeedProfile, seed: int) -> SpindleRig:
+def controller_image(coef: Coefficients, where: str) -> BankImage:
+    """What the simulated controller would run from ``coef`` (validated as ``ambdaq push`` does)."""
+    return image_from(coef, {"axes": AXES, "harmonics": N_HARMONICS}, source_sha256="", where=where)
+
+
+def _rig(image: BankImage | None, speed: SpeedProfile, seed: int) -> SpindleRig:
     rig = SpindleRig(speed=speed, seed=seed)
-    if coef is not None:
-        status = {"axes": AXES, "harmonics": N_HARMONICS}
-        apply_image(rig, image_from(coef, status, source_sha256="", where="coefficients"))
+    if image is not None:
+        apply_image(rig, image)
     return rig
 
 
@@ -57,15 +62,15 @@ class RunUp:
         return self.windows[sel, 1:].max(axis=0)
 
 
-def run_up(coef: Coefficients | None, *, seconds: float = 10.0, rpm_max: float = 50000.0, hold_s: float = 2.0,
+def run_up(image: BankImage | None, *, seconds: float = 10.0, rpm_max: float = 50000.0, hold_s: float = 2.0,
            seed: int = 0, name: str = "") -> RunUp:
     """Run the simulated spindle from 0 to ``rpm_max`` in ``seconds`` (then hold) with the
     coefficient file's feedforward (None: feedforward off).
 
     Parameters
     ----------
-    coef : Coefficients or None
-        What the controller runs.
+    image : BankImage or None
+        What the controller runs (:func:`controller_image`).
     seconds : float
         Ramp time, s.
     rpm_max : float
@@ -77,19 +82,19 @@ def run_up(coef: Coefficients | None, *, seconds: float = 10.0, rpm_max: float =
     name : str
         Label.
     """
-    rig = _rig(coef, SpeedProfile(0.0, rpm_max, seconds), seed)
+    rig = _rig(image, SpeedProfile(0.0, rpm_max, seconds), seed)
     block = rig.run(int((seconds + hold_s) * rig.params.sample_rate))
     return RunUp(name, _components(block, int(WINDOW_S * rig.params.sample_rate)))
 
 
-def time_to_converge(coef: Coefficients, rpm: float, *, limit_s: float = 10.0, seed: int = 0) -> float:
+def time_to_converge(image: BankImage, rpm: float, *, limit_s: float = 10.0, seed: int = 0) -> float:
     """Seconds until the worst radial 1X command error stays 20 dB below its value with the
     feedforward off, at constant ``rpm`` from zero weights (``inf`` if not within ``limit_s``)."""
     speed = SpeedProfile(rpm, rpm)
-    fs = SpindleRig().params.sample_rate
+    fs = SPINDLE.sample_rate
     window = int(WINDOW_S * fs)
     off = _components(_rig(None, speed, seed).run(window * 5), window)[1:, 1].mean()
-    comp = _components(_rig(coef, speed, seed).run(int(limit_s * fs)), window)
+    comp = _components(_rig(image, speed, seed).run(int(limit_s * fs)), window)
     ok = comp[:, 1] < 0.1 * off
     bad = np.flatnonzero(~ok)
     if bad.size == 0:

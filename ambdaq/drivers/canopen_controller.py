@@ -13,7 +13,7 @@ import struct
 
 import canopen
 
-from ..errors import DeviceError
+from ..errors import DeviceError, DeviceTimeout
 from . import canopen_profiles as cp
 from .can_bus import CanHub
 
@@ -45,17 +45,20 @@ class CanopenController:
         self.node = canopen.RemoteNode(node_id, str(cp.CONTROLLER.eds_path))
         hub.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = 1.0
-        code = struct.unpack("<I", self._upload(0x1018, 2, "read its identity"))[0]
-        if code != cp.CONTROLLER.product_code:
-            self.close()
-            raise DeviceError(f"CANopen node {node_id}: product code 0x{code:04x} is not an AMB controller")
-        self.serial = struct.unpack("<I", self._upload(0x1018, 4, "read its serial number"))[0]
+        try:
+            code = struct.unpack("<I", self._upload(0x1018, 2, "read its identity"))[0]
+            if code != cp.CONTROLLER.product_code:
+                raise DeviceError(f"CANopen node {node_id}: product code 0x{code:04x} is not an AMB controller")
+            self.serial = struct.unpack("<I", self._upload(0x1018, 4, "read its serial number"))[0]
+        except DeviceError:
+            hub.network.nodes.pop(node_id, None)  # the caller releases the hub
+            raise
 
     def _fail(self, what: str, err: Exception) -> DeviceError:
         if isinstance(err, canopen.SdoAbortedError):
             why = ABORT_MEANING.get(err.code, str(err))
             return DeviceError(f"{self.url}: controller refused to {what}: {why}")
-        return DeviceError(f"{self.url}: no answer to {what}: {err}")
+        return DeviceTimeout(f"{self.url}: no answer to {what}: {err}")
 
     def _upload(self, index: int, sub: int, what: str) -> bytes:
         try:

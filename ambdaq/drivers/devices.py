@@ -68,25 +68,31 @@ def _number(url: DeviceURL, key: str, default: str, kind=int):
         raise BadInputError(f"option {key}={url.options[key]!r} in {url.text!r}: expected a number") from None
 
 
-def open_can_device(text: str, *, name: str | None = None, namespace: str | None = None, kind: str | None = None):
-    """A CANopen device on a shared bus: ``can://INTERFACE/CHANNEL?node=N``."""
-    url = parse_device_url(text)
+def _on_can_hub(url: DeviceURL, node: int, make):
+    """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
     interface, _, channel = url.target.partition("/")
     if not channel:
         raise BadInputError(f"device URL {url.text!r} names no channel: expected {SCHEMES['can'].form}")
+    hub = CanHub.acquire(interface, channel, _number(url, "bitrate", "1000000"))
+    try:
+        return make(hub, node)
+    except BaseException:
+        hub.release()
+        raise
+
+
+def open_can_device(text: str, *, name: str | None = None, namespace: str | None = None, kind: str | None = None):
+    """A CANopen device on a shared bus: ``can://INTERFACE/CHANNEL?node=N``."""
+    url = parse_device_url(text)
     kind = kind or url.options.get("kind")
     if kind is not None and kind not in PROFILES:
         raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
     if "node" not in url.options and kind is None:
         raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {SCHEMES['can'].form}")
     node = _number(url, "node", str(PROFILES[kind].default_node) if kind else "0")
-    hub = CanHub.acquire(interface, channel, _number(url, "bitrate", "1000000"))
-    try:
-        return CanopenDevice(hub, node, kind=kind, sync_hz=_number(url, "sync", "800", float), name=name,
-                             namespace=url.options.get("namespace", "") if namespace is None else namespace, url=url.text)
-    except BaseException:
-        hub.release()
-        raise
+    return _on_can_hub(url, node, lambda hub, n: CanopenDevice(
+        hub, n, kind=kind, sync_hz=_number(url, "sync", "800", float), name=name,
+        namespace=url.options.get("namespace", "") if namespace is None else namespace, url=url.text))
 
 
 def _open_serial(url: DeviceURL, name: str | None, speed: str | None):
@@ -125,15 +131,7 @@ def open_controller(url: str):
             dev.close()
             raise DeviceError(f"{url}: not an AMB controller")
         return dev
-    interface, _, channel = parsed.target.partition("/")
-    if not channel:
-        raise BadInputError(f"device URL {url!r} names no channel: expected {SCHEMES['can'].form}")
     if parsed.options.get("kind", "controller") != "controller":
         raise BadInputError(f"{url}: a push goes to the controller (kind=controller), not a {parsed.options['kind']}")
     node = _number(parsed, "node", str(CONTROLLER.default_node))
-    hub = CanHub.acquire(interface, channel, _number(parsed, "bitrate", "1000000"))
-    try:
-        return CanopenController(hub, node, url=url)
-    except BaseException:
-        hub.release()
-        raise
+    return _on_can_hub(parsed, node, lambda hub, n: CanopenController(hub, n, url=url))

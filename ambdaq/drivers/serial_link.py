@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import serial
 
-from ..errors import BadInputError, DeviceError
+from ..errors import BadInputError, DeviceError, DeviceTimeout
 from . import protocol as proto
 from .framing import FrameDecoder, encode_frame
 from .protocol import MsgType
@@ -181,7 +181,7 @@ class SerialLink:
             finally:
                 self._pending.pop(seq, None)
         else:
-            raise DeviceError(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s "
+            raise DeviceTimeout(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s "
                               f"({attempts} attempts)")
         reply = slot[1]
         if reply.type == MsgType.NAK:
