@@ -229,6 +229,11 @@ def test_rig_not_running_makes_the_device_refuse_the_commit(ctl, tmp_path):
             DEFAULT_UNLOCK_KEY, "--yes")
     assert r.exit_code == 1 and "busy" in r.output
     assert ctl.sim.banks.status()["active_crc32"] == before[2]
+    # the refused switch was withdrawn: the loop's next boundary (run here by hand) applies nothing
+    ctl.server._apply_boundary()
+    after = ctl.active()
+    assert after[0] == before[0] and after[2] == before[2]
+    np.testing.assert_array_equal(after[1], before[1])
 
 
 def test_validation_refuses_before_anything_is_written(ctl, tmp_path):

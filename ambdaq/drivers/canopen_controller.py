@@ -17,6 +17,7 @@ from ..errors import DeviceError, DeviceTimeout
 from . import canopen_profiles as cp
 from .can_bus import CanHub
 
+COMMIT_TIMEOUT_S = 2.0  # the controller switches within a control period or answers busy within 0.5 s
 ABORT_MEANING = {
     0x08000022: "locked (unlock with the controller's key first)",
     0x08000020: "the inactive bank does not hold the expected CRC-32",
@@ -88,7 +89,15 @@ class CanopenController:
         """Switch to the inactive bank if the device finds ``crc`` in it; returns the first sample
         index run with it."""
         self._download(cp.BANK_RECORD, json.dumps(record, separators=(",", ":")).encode(), "take the push record")
-        self._download(cp.BANK_COMMIT, struct.pack("<I", crc), "commit")
+        sdo = self.node.sdo
+        saved = sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES
+        # sent once (a commit is not idempotent: the caller checks the status when no answer comes),
+        # waiting longer than the controller takes to switch or to answer busy
+        sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES = COMMIT_TIMEOUT_S, 0
+        try:
+            self._download(cp.BANK_COMMIT, struct.pack("<I", crc), "commit")
+        finally:
+            sdo.RESPONSE_TIMEOUT, sdo.MAX_RETRIES = saved
         return struct.unpack("<I", self._upload(cp.BANK_EFFECTIVE, 0, "report the commit"))[0]
 
     def read_bank(self, which: str, length: int) -> bytes:

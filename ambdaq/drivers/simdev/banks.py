@@ -22,6 +22,7 @@ from .rig_server import RigServer
 DEFAULT_UNLOCK_KEY = "ambdaq-sim"  # documented in docs/push.md; `ambdaq sim serve --unlock-key` sets another
 UNLOCK_S = 30.0  # an unlock lasts this long after the last bank operation
 LOG_KEEP = 32
+BOUNDARY_WAIT_S = 0.5  # a commit that finds no control-period boundary this soon is refused as busy
 
 
 class BankRefused(Exception):
@@ -141,7 +142,7 @@ class CoefficientBanks:
             if problem:
                 raise BankRefused("bad_value", problem)
             try:
-                step = self.server.at_boundary(lambda rig: apply_image(rig, image))
+                step = self.server.at_boundary(lambda rig: apply_image(rig, image), timeout=BOUNDARY_WAIT_S)
             except TimeoutError as err:
                 raise BankRefused("busy", str(err)) from None
             self.active = 1 - self.active

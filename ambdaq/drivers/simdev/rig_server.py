@@ -102,15 +102,21 @@ class RigServer:
         change : callable
             Takes the rig; must be quick.
         timeout : float
-            How long to wait for the server's thread, in s; ``TimeoutError`` after it.
+            How long to wait for the server's thread, in s; ``TimeoutError`` after it, and then
+            the change is withdrawn: it is never applied later.
         """
         done, box = threading.Event(), []
+        item = (change, done, box)
         with self._lock:
-            self._boundary.append((change, done, box))
+            self._boundary.append(item)
         if self._thread is None:  # not running: this is a boundary too
             self._apply_boundary()
         if not done.wait(timeout):
-            raise TimeoutError("the rig did not reach a control-period boundary")
+            with self._lock:
+                if item in self._boundary:
+                    self._boundary.remove(item)
+                    raise TimeoutError("the rig did not reach a control-period boundary")
+            done.wait()  # taken by the loop just now: it is being applied
         return box[0]
 
     def _apply_boundary(self) -> None:
