@@ -85,3 +85,79 @@ def test_coefficient_file_is_checked(tmp_path, run_cli):
     with pytest.raises(BadInputError, match="not an ambdaq coefficient file"):
         (tmp_path / "x.json").write_text('{"format": "other"}')
         Coefficients.load(tmp_path / "x.json")
+
+
+def test_report_orbit_after_is_the_true_rotor_motion(tmp_path, run_cli):
+    """The report's "after" orbit (sensor minus the identified runout, synthesised at the recorded
+    angle) is the rotor's true motion at the sensor, and the report is written."""
+    from matplotlib.image import imread
+
+    from ambdaq.cli.runout_plots import synthesise
+    from ambdaq.daq import load
+
+    fast, slow = tmp_path / "fast.mcap", tmp_path / "slow.mcap"
+    assert run_cli("sim", "generate", "--rpm", "24000", "--duration", "3", "--truth", "-q", "-o", fast).exit_code == 0
+    assert run_cli("sim", "generate", "--rpm", "slowroll", "--duration", "6", "-q", "-o", slow).exit_code == 0
+    report = tmp_path / "report.png"
+    r = run_cli("runout", "identify", fast, slow, "-o", tmp_path / "coef.json", "--plot", report)
+    assert r.exit_code == 0, r.output
+    assert imread(report).shape[:2] == (1250, 1560)
+    est = phasors(tmp_path / "coef.json")  # (axis, harmonic)
+    rec = load(fast, topics=["/amb/gap", "/amb/rotor", "/truth/position", "/truth/runout"])
+    th = rec["/amb/rotor"]["angle"]
+    for i, a in enumerate(AXES[:4]):
+        gap, truth_runout = rec["/amb/gap"][a], rec["/truth/runout"][a]
+        removed = gap - synthesise(est[i], list(range(1, 7)), th)
+        rms = lambda x: np.sqrt(np.mean(x**2))  # noqa: E731
+        # what is left of the runout after taking away the identified one: under 2% of it
+        assert rms(removed - (gap - truth_runout)) < 0.02 * rms(truth_runout)
+
+
+@pytest.fixture(scope="module")
+def before_after(tmp_path_factory):
+    """30,000 rpm without feedforward, and with seed 000's LMS adapting from zero (4 s each)."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    d = tmp_path_factory.mktemp("check")
+    for name, ff in (("before", "off"), ("after", "lms")):
+        r = CliRunner().invoke(cli, ["sim", "generate", "--rpm", "30000", "--duration", "4", "--ff", ff, "-q",
+                                     "-o", str(d / f"{name}.mcap")])
+        assert r.exit_code == 0, r.output
+    return d / "before.mcap", d / "after.mcap"
+
+
+def test_check_reports_the_fall_of_the_command_error(before_after, tmp_path, run_cli):
+    from ambdaq.daq import load
+
+    before, after = before_after
+    r = run_cli("runout", "check", before, after, "--json", "--min-db", "20", "--max-rms", "5",
+                "--plot", tmp_path / "check.png")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert doc["failures"] == [] and (tmp_path / "check.png").stat().st_size > 50_000
+    # the same figures computed here by projection on exp(-j k theta)
+    for path, when in ((before, "before"), (after, "after")):
+        rec = load(path, topics=["/amb/error", "/amb/gap", "/amb/rotor"])
+        th = rec["/amb/rotor"]["angle"]
+        for a in AXES[:4]:
+            e = rec["/amb/error"][a]
+            row = doc["axes"][a]
+            for k in (1, 2):
+                amp = 2 * abs(np.mean(e * np.exp(-1j * k * th))) * 1e6
+                assert row["harmonics"][k - 1][f"{when}_um"] == pytest.approx(amp, rel=0.02, abs=0.01)
+            assert row[f"rms_{when}_um"] == pytest.approx(np.sqrt(np.mean(e**2)) * 1e6, rel=1e-3)
+            if when == "after":  # the sensor still carries the runout (plus the rotor's 1X response)
+                g1 = 2 * abs(np.mean(rec["/amb/gap"][a] * np.exp(-1j * th))) * 1e6
+                assert row["sensor_1x_after_um"] == pytest.approx(g1, rel=0.02) and g1 > 5
+    assert all(h["change_db"] < -20 for row in doc["axes"].values() for h in row["harmonics"])
+
+
+def test_check_fails_with_exit_1_when_the_error_did_not_fall_enough(before_after, run_cli):
+    before, after = before_after
+    r = run_cli("runout", "check", before, after, "--min-db", "60")
+    assert r.exit_code == 1
+    assert "check failed: front_x 1X fell" in r.stderr and "(< 60 dB)" in r.stderr
+    r = run_cli("runout", "check", after, before, "--max-rms", "5")  # swapped: the error grew
+    assert r.exit_code == 1 and "RMS 12.8" in r.stderr

@@ -111,4 +111,9 @@ def test_identify_push_and_the_command_error_is_gone(served, tmp_path):
         assert h1[a]["g1"] > 5.0 and h1[a]["g2"] > 3.0, report
     status = json.loads(ambdaq("controller", "status", "--device", served, "--json").stdout)
     assert status["active_mode"] == "table" and status["log"][-1]["file"] == "coef.json"
+    # the user's proof, `ambdaq runout check`, says the same
+    check = json.loads(ambdaq("runout", "check", before, after, "--min-db", 20, "--max-rms", 5, "--json").stdout)
+    for a in RADIAL:
+        assert check["axes"][a]["harmonics"][0]["change_db"] == pytest.approx(-report[a][0], abs=0.5)
+        assert check["axes"][a]["rms_after_um"] == pytest.approx(report[a][3], abs=0.01)
     print(json.dumps(report))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -13,7 +14,8 @@ from ..analysis.rotor import AXES, RigidRotor
 from ..analysis.runout import harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.reader import load
-from ..errors import BadInputError
+from ..errors import AmbdaqError, BadInputError
+from .runout_plots import check_report, identify_report
 
 RPM_PER_RAD_S = 60.0 / (2 * np.pi)
 SLOW_ROLL_RPM = 2000.0  # below this the unbalance response at 1X is negligible
@@ -32,12 +34,23 @@ def _rotor(rec, path: Path) -> tuple[RigidRotor, str, dict]:
     raise BadInputError(f"{path}: no rotor model (rotor.* calibration) in the recording; the rig file must give one")
 
 
-def identify_recordings(paths: list[Path], harmonics: list[int], method: str) -> tuple[Coefficients, list[str]]:
+@dataclass(frozen=True)
+class Identification:
+    """What ``runout identify`` found: the coefficients, and each recording's own estimate."""
+
+    coef: Coefficients
+    warnings: list[str]
+    paths: list[Path]
+    spins: np.ndarray  # rad/s, per recording
+    per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
+
+
+def identify_recordings(paths: list[Path], harmonics: list[int], method: str) -> Identification:
     """Runout per axis and harmonic from recordings at constant speed (one speed per file).
 
-    Returns the coefficients and warnings.  Harmonics above 1X come from every file (averaged);
-    1X comes from a slow roll if there is one, else from separating runout and unbalance over
-    the speeds, else (one fast recording) with a warning that it holds the unbalance response.
+    Harmonics above 1X come from every file (averaged); 1X comes from a slow roll if there is
+    one, else from separating runout and unbalance over the speeds, else (one fast recording)
+    with a warning that it holds the unbalance response.
     """
     per_file, warnings, sources = [], [], []
     rotor = device = identity = None
@@ -80,7 +93,7 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
         harmonics=list(harmonics),
         weights=weights,
     )
-    return coef, warnings
+    return Identification(coef, warnings, list(paths), spins, np.array([r for _, r in per_file]))
 
 
 @click.group("runout")
@@ -97,17 +110,23 @@ def command() -> None:
                    "lms: seed 000's LMS run offline.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the identified runout as JSON.")
-def identify(files, output, harmonics, method, overwrite, as_json):
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
+              help="Report image (.png, .pdf, .svg): spectrum, polar plot per harmonic, orbits before and after.")
+def identify(files, output, harmonics, method, overwrite, as_json, plot_path):
     """Identify runout per axis and harmonic from FILES (each at one constant speed).
 
     \b
     Examples:
       ambdaq runout identify slowroll.mcap -o coef.json
-      ambdaq runout identify run_12k.mcap run_24k.mcap run_36k.mcap -o coef.json
+      ambdaq runout identify run_12k.mcap run_24k.mcap run_36k.mcap -o coef.json --plot report.png
     """
-    coef, warnings = identify_recordings([Path(f) for f in files], list(range(1, harmonics + 1)), method)
+    ident = identify_recordings([Path(f) for f in files], list(range(1, harmonics + 1)), method)
+    coef = ident.coef
     coef.save(output, overwrite=overwrite)
-    for w in warnings:
+    if plot_path:
+        identify_report(ident, plot_path)
+        click.echo(f"-> {plot_path}", err=True)
+    for w in ident.warnings:
         click.echo(f"ambdaq: warning: {w}", err=True)
     table = {axis: [{"harmonic": k, "amplitude_um": round(float(np.hypot(*wk)) * 1e6, 4),
                      "phase_deg": round(float(np.degrees(np.arctan2(wk[1], wk[0]))), 2)}
@@ -120,3 +139,91 @@ def identify(files, output, harmonics, method, overwrite, as_json):
             click.echo(f"{axis:<9}" + "".join(f"{r['amplitude_um']:>9.3f} {r['phase_deg']:>7.1f} " for r in rows))
         click.echo(f"-> {output}", err=True)
     sys.stdout.flush()
+
+
+class CheckFailed(AmbdaqError):
+    """``runout check``: the after-recording did not meet the asked reduction (exit 1)."""
+
+
+def _synchronous(path: Path, harmonics: list[int]) -> dict:
+    """Per radial axis: harmonic phasors of the command error and the gap sensor (m), the error's RMS (m)."""
+    rec = load(path, topics=["/amb/error", "/amb/gap", "/amb/rotor"])
+    if "/amb/error" not in rec.topics:
+        raise BadInputError(f"{path}: no /amb/error topic; record the controller (its command error) to check")
+    err, gap, rot = rec["/amb/error"], rec["/amb/gap"], rec["/amb/rotor"]
+    n = min(len(err), len(gap), len(rot))
+    if n < 2:
+        raise BadInputError(f"{path}: too short to check ({n} samples)")
+    theta = rot["angle"][:n]
+    out = {"rpm": float(np.median(rot["speed"][:n])) * RPM_PER_RAD_S, "axes": {}}
+    for a in AXES:
+        if a.endswith(("_x", "_y")) and a in err.fields:
+            out["axes"][a] = {"error": harmonic_fit(err[a][:n], theta, harmonics),
+                              "gap": harmonic_fit(gap[a][:n], theta, harmonics),
+                              "rms": float(np.sqrt(np.mean(err[a][:n] ** 2)))}
+    return out
+
+
+def _db(after: float, before: float) -> float:
+    return float(20 * np.log10(after / before))
+
+
+@command.command("check")
+@click.argument("before", type=click.Path(dir_okay=False))
+@click.argument("after", type=click.Path(dir_okay=False))
+@click.option("--harmonics", type=click.IntRange(1, 8), default=2, show_default=True, help="Compare 1X .. NX.")
+@click.option("--min-db", type=click.FloatRange(min=0), help="Fail (exit 1) unless every harmonic falls this much.")
+@click.option("--max-rms", type=click.FloatRange(min=0, min_open=True),
+              help="Fail (exit 1) unless the command error's RMS after is below this, in um.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
+              help="Image (.png, .pdf, .svg): command-error orbits and spectra before and after.")
+@click.option("--json", "as_json", is_flag=True)
+def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
+    """Prove on a new recording that the command error went down: 1X .. NX and RMS, per axis.
+
+    The command error is what the controller acts on (gap minus feedforward); the gap sensor
+    still carries the runout, and its 1X after is shown beside it.
+
+    \b
+    Examples:
+      ambdaq runout check run.mcap after.mcap
+      ambdaq runout check run.mcap after.mcap --min-db 20 --max-rms 5 --plot check.png
+    """
+    orders = list(range(1, harmonics + 1))
+    b, a = _synchronous(Path(before), orders), _synchronous(Path(after), orders)
+    rows, failures = {}, []
+    for axis, rb in b["axes"].items():
+        ra = a["axes"][axis]
+        eb, ea = np.abs(rb["error"]) * 1e6, np.abs(ra["error"]) * 1e6
+        rows[axis] = {
+            "harmonics": [{"harmonic": k, "before_um": round(float(eb[i]), 4), "after_um": round(float(ea[i]), 4),
+                           "change_db": round(_db(ea[i], eb[i]), 2)} for i, k in enumerate(orders)],
+            "rms_before_um": round(rb["rms"] * 1e6, 4), "rms_after_um": round(ra["rms"] * 1e6, 4),
+            "sensor_1x_after_um": round(float(abs(ra["gap"][0])) * 1e6, 4),
+        }
+        for h in rows[axis]["harmonics"]:
+            if min_db is not None and not h["change_db"] <= -min_db:
+                failures.append(f"{axis} {h['harmonic']}X fell {-h['change_db']:.1f} dB (< {min_db:g} dB)")
+        if max_rms is not None and not rows[axis]["rms_after_um"] < max_rms:
+            failures.append(f"{axis} RMS {rows[axis]['rms_after_um']:.2f} um after (>= {max_rms:g} um)")
+    if plot_path:
+        check_report(Path(before), Path(after), orders, plot_path)
+        click.echo(f"-> {plot_path}", err=True)
+    if as_json:
+        click.echo(json.dumps({"before": {"path": before, "rpm": round(b["rpm"], 1)},
+                               "after": {"path": after, "rpm": round(a["rpm"], 1)},
+                               "axes": rows, "failures": failures}, indent=2))
+    else:
+        click.echo(f"command error, before {before} at {b['rpm']:,.0f} rpm, after {after} at {a['rpm']:,.0f} rpm")
+        click.echo(f"{'axis':<9}" + "".join(f"{f'{k}X um (dB)':>26}" for k in orders)
+                   + f"{'RMS um':>18}{'sensor 1X after':>17}")
+        for axis, r in rows.items():
+            cells = "".join(f"{h['before_um']:>9.3f} ->{h['after_um']:>7.3f} ({h['change_db']:+6.1f})"
+                            for h in r["harmonics"])
+            click.echo(f"{axis:<9}{cells}{r['rms_before_um']:>8.2f} ->{r['rms_after_um']:>6.2f}"
+                       f"{r['sensor_1x_after_um']:>14.2f} um")
+    if abs(a["rpm"] - b["rpm"]) > 0.01 * max(b["rpm"], 1.0):
+        click.echo(f"ambdaq: warning: the recordings run at different speeds ({b['rpm']:,.0f} and "
+                   f"{a['rpm']:,.0f} rpm); the harmonics compare different frequencies", err=True)
+    if failures:
+        raise CheckFailed("check failed: " + "; ".join(failures))
