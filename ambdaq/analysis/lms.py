@@ -259,6 +259,41 @@ def phase_compensation(loop, bins: int = 501, bin_hz: float = 10.0) -> PhaseTabl
     return PhaseTable(np.angle(-np.conj(T)), bin_hz)
 
 
+def measured_phase_compensation(freq_hz: np.ndarray, responses: np.ndarray, coherence: np.ndarray, *,
+                                bins: int = 501, bin_hz: float = 10.0, min_coherence: float = 0.8) -> PhaseTable:
+    """The phase-compensated update from a measured loop: g = -conj(T_aa)/|T_aa| as in
+    :func:`phase_compensation`, with T_aa measured (``ambdaq frf estimate``) instead of modelled.
+
+    Parameters
+    ----------
+    freq_hz : ndarray, shape (n,)
+        Measured frequencies, in Hz (increasing).
+    responses : ndarray of complex, shape (axes, n)
+        T_aa per axis: command error per feedforward input on the same axis, in m/m.
+    coherence : ndarray, shape (axes, n)
+        Coherence of each point; points below ``min_coherence`` are not used.
+    bins, bin_hz : int, float
+        The table: ``bins`` frequencies ``bin_hz`` apart (Hz), from 0.
+    min_coherence : float
+        Least coherence of a point used, 0 .. 1.
+
+    Returns
+    -------
+    PhaseTable
+        Between good points the unit phasor is interpolated linearly; outside them it is held.
+    """
+    f = np.arange(bins) * bin_hz
+    table = np.empty((responses.shape[0], bins))
+    for a in range(responses.shape[0]):
+        good = coherence[a] >= min_coherence
+        if good.sum() < 2:
+            raise ValueError(f"axis {a}: fewer than two points with coherence >= {min_coherence:g}")
+        g = -np.conj(responses[a, good]) / np.abs(responses[a, good])
+        fg = freq_hz[good]
+        table[a] = np.angle(np.interp(f, fg, g.real) + 1j * np.interp(f, fg, g.imag))
+    return PhaseTable(table, bin_hz)
+
+
 def mu_sign(loop, rpm: np.ndarray, harmonic: int = 1, mu: float = 1e-4,
             phase: PhaseTable | None = None) -> np.ndarray:
     """Which sign of a small step size converges at each speed: +1, -1, or 0 (neither)."""

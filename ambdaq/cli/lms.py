@@ -8,11 +8,13 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import (PhaseTable, StateSpaceLoop, convergence_radius, mu_sign, phase_compensation,
-                            sign_changes, sign_schedule)
+from ..analysis.lms import (PhaseTable, StateSpaceLoop, convergence_radius, measured_phase_compensation, mu_sign,
+                            phase_compensation, sign_changes, sign_schedule)
 from ..control.plants import PLANT_NAMES, resolve_plant
-from ..daq.coefficients import Coefficients, now_iso
+from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..daq.frequency_response import FrequencyResponse
 from ..drivers.rig.spindle import N_AXES, PHASE_BIN_HZ, PHASE_BINS
+from ..errors import BadInputError
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
@@ -33,6 +35,17 @@ def _phase_table(loops: dict) -> PhaseTable:
         rows = list(range(N_AXES)) if len(loops) == 1 else list(axes)
         table[rows] = ph if ph.shape[0] == len(rows) else ph[0]
     return PhaseTable(table, PHASE_BIN_HZ)
+
+
+def _measured_phase_table(path: str) -> PhaseTable:
+    """Per-axis phase compensation from a measured T_aa (every axis must have been excited)."""
+    frf = FrequencyResponse.load(path)
+    pairs = [frf.response(a, a) for a in AXES]
+    try:
+        return measured_phase_compensation(frf.freq_hz, np.array([h for h, _ in pairs]),
+                                           np.array([c for _, c in pairs]), bins=PHASE_BINS, bin_hz=PHASE_BIN_HZ)
+    except ValueError as err:
+        raise BadInputError(f"{path}: {err}") from None
 
 
 @click.group("lms")
@@ -123,23 +136,29 @@ def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant:
 @click.option("--harmonics", type=click.IntRange(1, 8), default=6, show_default=True, help="Schedule 1X .. NX.")
 @click.option("--compensated", is_flag=True,
               help="Phase-compensated update: one positive mu at every speed, with the loop's inverse phase.")
+@click.option("--frf", "frf_file", type=click.Path(dir_okay=False),
+              help="Take the loop's phase from this measured frequency response (ambdaq frf estimate; "
+                   "every axis excited) instead of the plant model; implies --compensated.")
 @click.option("--weights", "weights_file", type=click.Path(dir_okay=False),
               help="Start the LMS from this coefficient file's weights (e.g. from runout identify).")
 @click.option("--rpm-max", type=click.FloatRange(min=1000), default=60000.0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Coefficient file to write.")
 @click.option("--overwrite", is_flag=True)
-def schedule_command(plant, mu, dead_band, harmonics, compensated, weights_file, rpm_max, output, overwrite):
+def schedule_command(plant, mu, dead_band, harmonics, compensated, frf_file, weights_file, rpm_max, output,
+                     overwrite):
     """Write a coefficient file whose LMS step-size schedule converges on the plant's map.
 
     \b
     Examples:
       ambdaq lms schedule --plant rig --weights coef.json -o coef_lms.json
       ambdaq lms schedule --plant rig --compensated --mu 0.002 -o coef_lms.json
+      ambdaq lms schedule --plant rig --frf loop.frf.json --mu 0.002 -o coef_lms.json   # measured phase
     """
     loops = resolve_plant(plant)
     step = _grid_step(loops, 10.0)
+    compensated = compensated or frf_file is not None
     if compensated:
-        phase = _phase_table(loops)
+        phase = _measured_phase_table(frf_file) if frf_file else _phase_table(loops)
         rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
         phase_doc = {"bin_hz": phase.bin_hz,
                      "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
@@ -155,7 +174,10 @@ def schedule_command(plant, mu, dead_band, harmonics, compensated, weights_file,
     else:
         target, source, harm = {"axes": list(AXES)}, {}, list(range(1, harmonics + 1))
         weights = {a: [[0.0, 0.0] for _ in harm] for a in AXES}
-    source.update({"lms_design": {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated},
+    design = {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated}
+    if frf_file:
+        design["phase_from"] = {"path": str(frf_file), "sha256": file_sha256(frf_file)}
+    source.update({"lms_design": design,
                    "created": now_iso()})
     coef = Coefficients(target, source, harm, weights, rows, phase_doc, lms_plant=plant)
     coef.save(output, overwrite=overwrite)

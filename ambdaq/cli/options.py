@@ -56,3 +56,36 @@ def window_options(f):
     f = click.option("--end", type=float, metavar="SECONDS", help="End of the time window (s from the start).")(f)
     f = click.option("--start", type=float, metavar="SECONDS", help="Start of the time window (s from the start).")(f)
     return f
+
+
+class ExcitationSpec(click.ParamType):
+    """``AXIS:AMPLITUDE_UM[:FREQ_HZ]``: white noise of that RMS, or a sine of that peak and frequency."""
+
+    name = "AXIS:UM[:HZ]"
+
+    def convert(self, value, param, ctx):
+        from ..drivers.rig.excitation import Excitation
+        from ..drivers.rig.spindle import AXES, SPINDLE
+
+        if isinstance(value, Excitation):
+            return value
+        parts = str(value).split(":")
+        try:
+            if len(parts) not in (2, 3) or parts[0] not in AXES:
+                raise ValueError
+            exc = Excitation(AXES.index(parts[0]), float(parts[1]) * 1e-6, float(parts[2]) if len(parts) == 3 else 0.0)
+        except ValueError:
+            self.fail(f"{value!r}: expected AXIS:AMPLITUDE_UM[:FREQ_HZ] with AXIS one of {', '.join(AXES)}, "
+                      "e.g. front_x:2 (2 um RMS white noise) or front_x:5:120 (5 um sine at 120 Hz)", param, ctx)
+        problem = exc.problem(len(AXES), SPINDLE.sample_rate)
+        if problem:
+            self.fail(f"{value!r}: {problem}", param, ctx)
+        return exc
+
+
+def excitation_option(f):
+    return click.option(
+        "--excite", "excitation", type=ExcitationSpec(),
+        help="Test signal added to one axis's feedforward input (frequency-response measurement): "
+             "AXIS:UM for white noise of that RMS, AXIS:UM:HZ for a sine of that peak.",
+    )(f)

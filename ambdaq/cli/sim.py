@@ -10,7 +10,7 @@ import click
 from ..drivers.devices import open_device
 from ..drivers.rig.profiles import PROFILES
 from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
-from .options import output_options, report_options, speed_option
+from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
 
 
@@ -28,18 +28,21 @@ def command() -> None:
 @click.option("--ff", type=click.Choice(["off", "lms"]), default="off", show_default=True,
               help="Feedforward of the simulated controller (lms: seed 000's adaptive runout cancellation).")
 @click.option("--noise/--no-noise", default=True, show_default=True, help="Sensor noise and A/D, D/A quantisation.")
+@excitation_option
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, output, split_size, split_duration, compression,
-             overwrite, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, output, split_size, split_duration,
+             compression, overwrite, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
     Example:
       ambdaq sim generate --duration 60 --rpm 0:50000 --truth -o runup.mcap
+      ambdaq sim generate --duration 20 --excite front_x:2 -o frf_front_x.mcap
     """
     url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
     source = open_device(url, speed=speed or "0", truth=truth, paced=False)
+    source.rig.set_excitation(excitation)
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)
 

@@ -42,7 +42,8 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def _canonical(doc: dict) -> bytes:
+def canonical_json(doc: dict) -> bytes:
+    """The bytes a file checksum covers: sorted keys, no spaces (coefficient and frequency-response files)."""
     return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
 
 
@@ -73,7 +74,7 @@ class Coefficients:
             doc["lms_phase"] = self.lms_phase
         if self.lms_plant:
             doc["lms_plant"] = self.lms_plant
-        doc["checksum"] = f"crc32:{zlib.crc32(_canonical(doc)):08x}"
+        doc["checksum"] = f"crc32:{zlib.crc32(canonical_json(doc)):08x}"
         return doc
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
@@ -98,7 +99,7 @@ class Coefficients:
         if doc.get("version") != VERSION:
             raise BadInputError(f"{path}: coefficient file version {doc.get('version')!r}; this ambdaq reads {VERSION}")
         checksum = doc.pop("checksum", None)
-        if checksum != f"crc32:{zlib.crc32(_canonical(doc)):08x}":
+        if checksum != f"crc32:{zlib.crc32(canonical_json(doc)):08x}":
             raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
         try:
             runout = doc["runout"]

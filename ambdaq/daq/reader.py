@@ -10,6 +10,8 @@ per field; nothing is decoded message by message.
 
 from __future__ import annotations
 
+import json
+
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -87,6 +89,15 @@ class Recording:
 
     def __contains__(self, topic: str) -> bool:
         return topic in self.topics
+
+    def nominal_rate(self, topic: str) -> float:
+        """The sample rate the device that streams ``topic`` declares (its control rate), in Hz;
+        the measured ``TopicData.sample_rate`` when the recording does not say."""
+        try:
+            device = json.loads(self.metadata["ambdaq.statistics"][topic])["device"]
+            return float(self.metadata[f"ambdaq.device.{device}"]["sample_rate_hz"])
+        except (KeyError, ValueError, TypeError):
+            return self[topic].sample_rate
 
 
 def _prefetch(fn, items: list, depth: int = 2):

@@ -41,6 +41,7 @@ from numba import njit
 from scipy.linalg import expm
 
 from ..signals import SampleBlock, SignalGroup
+from .excitation import Excitation
 from .speed import RPM_TO_RAD_S, SpeedProfile
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
@@ -292,7 +293,7 @@ def _simulate(
     z, amp, ctl, w, st,  # state (modified in place)
     Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
     ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
-    mu_tab, ph_cos, ph_sin, ff_mode, c,  # c: scalar constants
+    mu_tab, ph_cos, ph_sin, ff_mode, exc, c,  # exc: excitation added to r_c per step and axis; c: constants
     out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
 ):
     # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax, phase_bin_hz]
@@ -346,6 +347,7 @@ def _simulate(
             if ff_mode > 0:
                 for j in range(nh):
                     rc += w[a, j, 0] * sk[j] + w[a, j, 1] * ck[j]
+            rc += exc[k, a]  # the excitation input enters where r_c does (drivers/rig/excitation.py)
             e = s_meas - rc
             if ff_mode == 2:  # LMS update, eq. 9, its step turned by the phase compensation g
                 for j in range(nh):
@@ -471,6 +473,8 @@ class SpindleRig:
         self._ph_sin = np.zeros((N_AXES, PHASE_BINS))
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
+        self._excitation: Excitation | None = None
+        self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
         self.step_index = 0
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
         self._theta0 = 0.0  # ... and this angle (rad)
@@ -557,6 +561,25 @@ class SpindleRig:
         self._pid_p, self._pid_i = p.copy(), i.copy()
         self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
 
+    def set_excitation(self, excitation: Excitation | None) -> None:
+        """Add a test signal to one axis's feedforward input from the next block on, or stop it (None).
+
+        Raises
+        ------
+        ValueError
+            When the excitation is out of range (see :meth:`Excitation.problem`).
+        """
+        if excitation is not None:
+            problem = excitation.problem(N_AXES, self.params.sample_rate)
+            if problem:
+                raise ValueError(problem)
+        self._excitation = excitation
+
+    @property
+    def excitation(self) -> Excitation | None:
+        """The test signal now running, or None."""
+        return self._excitation
+
     def set_mu_schedule(self, schedule) -> None:
         """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
     mapping harmonic -> rows (harmonics not named are held)."""
@@ -626,6 +649,10 @@ class SpindleRig:
         noise = self._rng.standard_normal((n, 15), dtype=np.float32)
         if not self.noise:
             noise[:] = 0.0
+        exc = np.zeros((n, N_AXES))
+        excitation = self._excitation  # read once: a controller thread may replace it between blocks
+        if excitation is not None:
+            exc[:, excitation.axis] = excitation.samples(steps, self.h, self._exc_rng)
         outs = [np.empty((n, 5)) for _ in range(4)] + [np.empty((n, 5)), np.empty((n, 3))]
         out_run = np.empty((n, 5))
         out_pos = np.empty((n, 5))
@@ -643,7 +670,7 @@ class SpindleRig:
                 Phi, Gam, self._Pa, self._Ga,
                 self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
                 self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
-                self._mu, self._ph_cos, self._ph_sin, self._ff_mode, self._c,
+                self._mu, self._ph_cos, self._ph_sin, self._ff_mode, exc[sl], self._c,
                 outs[0][sl], outs[1][sl], outs[2][sl], outs[3][sl], outs[4][sl], outs[5][sl],
                 out_run[sl], out_pos[sl],
             )

@@ -23,8 +23,9 @@ import numpy as np
 from .. import protocol as proto
 from ..framing import FrameDecoder, encode_frame
 from ..protocol import MsgType, NakCode
+from ..rig.excitation import Excitation
 from ..rig.speed import SpeedProfile
-from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS
+from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS, SPINDLE
 from ..signals import SampleBlock
 from .banks import DEFAULT_UNLOCK_KEY, BankRefused, CoefficientBanks
 from .rig_server import DeviceClock, RigServer
@@ -278,8 +279,10 @@ class SimController:
 class _Param:
     """A controller parameter: length, range, how to read and write it on the rig."""
 
-    def __init__(self, size: int, read, write=None, lo: float = -np.inf, hi: float = np.inf, doc: str = "") -> None:
+    def __init__(self, size: int, read, write=None, lo: float = -np.inf, hi: float = np.inf, doc: str = "",
+                 problem=None) -> None:
         self.size, self.read, self.write, self.lo, self.hi, self.doc = size, read, write, lo, hi, doc
+        self.problem = problem  # optional: values -> why they cannot be taken, or ''
 
     def check(self, values: np.ndarray) -> str:
         if self.size and values.shape[0] != self.size:
@@ -288,7 +291,7 @@ class _Param:
             return "values must be finite"
         if np.any(values < self.lo) or np.any(values > self.hi):
             return f"values must be within {self.lo:g} .. {self.hi:g}"
-        return ""
+        return self.problem(values) if self.problem else ""
 
 
 def _set_pid(which: int):
@@ -308,6 +311,24 @@ def _command_speed(rig, rpm: float) -> None:
     rig.command_speed(SpeedProfile(now, rpm, max(abs(rpm - now) / SPEED_RAMP_RPM_S, 1e-3)))
 
 
+def _excitation(values: np.ndarray) -> Excitation | None:
+    """``exc.signal`` values [axis, amplitude m, frequency Hz] -> the excitation (axis -1: off)."""
+    axis = int(values[0])
+    return None if axis < 0 else Excitation(axis, float(values[1]), float(values[2]))
+
+
+def _excitation_problem(values: np.ndarray) -> str:
+    if values[0] != int(values[0]):
+        return "the axis must be an integer"
+    exc = _excitation(values)
+    return exc.problem(N_AXES, SPINDLE.sample_rate) if exc is not None else ""
+
+
+def _read_excitation(rig) -> np.ndarray:
+    exc = rig.excitation
+    return np.array([-1.0, 0.0, 0.0]) if exc is None else np.array([exc.axis, exc.amplitude, exc.freq_hz])
+
+
 def _per_harmonic(schedule) -> dict:
     return schedule if isinstance(schedule, dict) else {k: schedule for k in range(1, N_HARMONICS + 1)}
 
@@ -325,4 +346,7 @@ PARAMETERS: dict[str, _Param] = {
                            doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
     "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
                         0.0, 60000.0, "speed: reads the present speed, writes a set-point (ramp at 5,000 rpm/s), rpm"),
+    "exc.signal": _Param(3, _read_excitation, lambda r, v: r.set_excitation(_excitation(v)), -1.0, 5000.0,
+                         "test signal added to one axis's feedforward input: [axis 0..4 (-1 off), amplitude m "
+                         "(sine peak, noise RMS), frequency Hz (0: white noise)]", _excitation_problem),
 }

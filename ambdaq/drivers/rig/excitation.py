@@ -1,0 +1,50 @@
+"""The controller's excitation input: a test signal added to the feedforward r_c of one axis.
+
+AMB controllers have such an injection point for measuring the loop's frequency response (the
+sensitivity measurement of ISO 14839-3): the command error is ``e = s - (r_c + x)``, so the
+recorded ``/amb/ff`` carries the input ``r_c + x`` and ``/amb/error`` the output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MAX_AMPLITUDE_M = 20e-6  # a tenth of the air gap's safe range; more saturates the loop
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """A test signal on one axis.
+
+    Parameters
+    ----------
+    axis : int
+        Axis index, 0 .. 4 (front_x, front_y, rear_x, rear_y, axial).
+    amplitude : float
+        Peak of a sine, or RMS of the broadband noise, in m.
+    freq_hz : float
+        Sine frequency, in Hz; 0 for broadband white noise up to the Nyquist frequency.
+    """
+
+    axis: int
+    amplitude: float
+    freq_hz: float = 0.0
+
+    def problem(self, n_axes: int, sample_rate: float) -> str:
+        """Why this excitation cannot run, or ''."""
+        if not 0 <= self.axis < n_axes:
+            return f"axis must be 0 .. {n_axes - 1}, not {self.axis}"
+        if not 0 < self.amplitude <= MAX_AMPLITUDE_M:
+            return f"amplitude must be > 0 and <= {MAX_AMPLITUDE_M * 1e6:g} um, not {self.amplitude * 1e6:g} um"
+        if not 0 <= self.freq_hz < sample_rate / 2:
+            return f"frequency must be 0 (noise) or below {sample_rate / 2:g} Hz, not {self.freq_hz:g} Hz"
+        return ""
+
+    def samples(self, steps: np.ndarray, h: float, rng: np.random.Generator) -> np.ndarray:
+        """The signal at control steps ``steps`` (period ``h`` in s), in m; noise draws from ``rng``
+        in step order, so the signal does not depend on how a run is cut into blocks."""
+        if self.freq_hz > 0:
+            return self.amplitude * np.sin(2 * np.pi * self.freq_hz * (steps * h))
+        return self.amplitude * rng.standard_normal(steps.shape[0])
