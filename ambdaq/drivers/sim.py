@@ -109,15 +109,7 @@ class SimSource:
         }
 
     def calibration(self) -> dict[str, str]:
-        p = self.rig.params
-        return {
-            "gap_sensor_gain_v_per_m": f"{p.sensor_gain:g}",
-            "adc_bits": str(p.adc_bits),
-            "dac_bits": str(p.dac_bits),
-            "units": "SI: m, A, m/s^2, rad, rad/s",
-            **p.rotor_metadata(),
-            **self._rig_calibration,
-        }
+        return {**self.rig.calibration(), **self._rig_calibration}
 
     def start(self, n_samples: int | None) -> None:
         """Begin streaming; stop after ``n_samples`` samples (``None``: until closed)."""

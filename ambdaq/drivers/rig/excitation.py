@@ -32,12 +32,15 @@ class Excitation:
     amplitude: float
     freq_hz: float = 0.0
 
-    def problem(self, n_axes: int, sample_rate: float) -> str:
-        """Why this excitation cannot run, or ''."""
+    def problem(self, n_axes: int, sample_rate: float, max_amplitude: float = MAX_AMPLITUDE_M) -> str:
+        """Why this excitation cannot run, or ''; ``max_amplitude`` in m (a rig whose feedforward
+        is a voltage gives its limit in V)."""
         if not 0 <= self.axis < n_axes:
             return f"axis must be 0 .. {n_axes - 1}, not {self.axis}"
-        if not 0 < self.amplitude <= MAX_AMPLITUDE_M:
-            return f"amplitude must be > 0 and <= {MAX_AMPLITUDE_M * 1e6:g} um, not {self.amplitude * 1e6:g} um"
+        if not 0 < self.amplitude <= max_amplitude:
+            if max_amplitude == MAX_AMPLITUDE_M:
+                return f"amplitude must be > 0 and <= {max_amplitude * 1e6:g} um, not {self.amplitude * 1e6:g} um"
+            return f"amplitude must be > 0 and <= {max_amplitude:g}, not {self.amplitude:g}"
         if not 0 <= self.freq_hz < sample_rate / 2:
             return f"frequency must be 0 (noise) or below {sample_rate / 2:g} Hz, not {self.freq_hz:g} Hz"
         return ""

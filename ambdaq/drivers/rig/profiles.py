@@ -3,18 +3,19 @@
 Each profile is one module in this package with a rig class exposing ``params``, ``profile``,
 ``seed``, ``speed``, ``step_index``, ``signal_groups()`` and ``run(n) -> SampleBlock``.
 Later profiles plug in here, one module and one line each: ``cone`` (seed 001's conical
-bearing), ``base-motion`` (seed 002's shaft on a moving base) and ``lorentz`` (seed 003's
-integrated motor-bearing).
+bearing) and ``lorentz`` (seed 003's integrated motor-bearing).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from .base_motion import BaseMotionRig
 from .spindle import SpindleRig
 
 PROFILES: dict[str, type] = {
     "spindle": SpindleRig,
+    "base-motion": BaseMotionRig,
 }
 
 

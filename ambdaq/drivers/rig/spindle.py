@@ -630,6 +630,17 @@ class SpindleRig:
         """The signal groups this rig produces, in the order of the block's values."""
         return _groups(self.truth)
 
+    def calibration(self) -> dict[str, str]:
+        """What a recording stores as the rig's calibration: sensor, converters, rotor model."""
+        p = self.params
+        return {
+            "gap_sensor_gain_v_per_m": f"{p.sensor_gain:g}",
+            "adc_bits": str(p.adc_bits),
+            "dac_bits": str(p.dac_bits),
+            "units": "SI: m, A, m/s^2, rad, rad/s",
+            **p.rotor_metadata(),
+        }
+
     # --- stepping --------------------------------------------------------------------------
 
     def _discrete_rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray]:
