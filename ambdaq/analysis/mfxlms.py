@@ -221,12 +221,25 @@ def fit_fir(f_hz: np.ndarray, points: np.ndarray, order: int, fs: float,
     return taps, float(np.sum(lam * np.abs(resid) ** 2))
 
 
-def knee(orders: np.ndarray, costs: np.ndarray) -> int:
-    """The order at the knee of the cost-versus-order curve: the point farthest from the chord
-    between its ends, on log cost (where adding taps stops paying)."""
-    x = (orders - orders[0]) / max(orders[-1] - orders[0], 1)
-    lc = np.log10(np.maximum(costs, 1e-300))
-    y = (lc - lc[-1]) / max(lc[0] - lc[-1], 1e-12)
-    # chord from (0, 1) to (1, 0): distance of each point below it
-    dist = (1.0 - x) - y
-    return int(orders[int(np.argmax(dist))])
+def knee(orders: np.ndarray, costs: np.ndarray, n_points: int, *, gain: float = 2.0, floor: float = 1e-3) -> int:
+    """The order at the knee of the cost-versus-order curve (seed 002 step 2): the first order
+    where one more tap no longer cuts the cost by ``gain`` or more, or whose relative RMS fit error
+    sqrt(J / n) is already under ``floor`` (points are not known better than that).
+
+    Parameters
+    ----------
+    orders : ndarray of int
+        Orders scanned, increasing by one.
+    costs : ndarray
+        J per order (:func:`fit_fir` with relative weights).
+    n_points : int
+        Number of frequency points J sums over.
+    gain, floor : float
+        Least worthwhile cost reduction per tap; relative RMS error counted as exact.
+    """
+    for i, o in enumerate(orders):
+        if np.sqrt(costs[i] / n_points) < floor:
+            return int(o)
+        if i + 1 < len(orders) and costs[i + 1] > costs[i] / gain:
+            return int(o)
+    return int(orders[-1])

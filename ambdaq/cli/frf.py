@@ -13,7 +13,7 @@ from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.reader import load
 from ..drivers.devices import open_devices
-from ..drivers.rig.spindle import AXES
+from ..drivers.rig.spindle import AXES, SPINDLE
 from ..errors import BadInputError, DeviceError
 from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
@@ -50,7 +50,11 @@ def measure(device, excitation, duration, speed, output, split_size, split_durat
         i = next((i for i, s in enumerate(sources) if hasattr(s, "write_param")), None)
         if i is None:
             raise BadInputError(f"{device}: no AMB controller there to excite (frf measure needs its {EXCITATION_PARAM})")
-        sources[i].write_param(EXCITATION_PARAM, [excitation.axis, excitation.amplitude, excitation.freq_hz])
+        try:
+            exc = excitation.resolve(AXES, True, SPINDLE.sample_rate)
+        except ValueError as err:
+            raise BadInputError(str(err)) from None
+        sources[i].write_param(EXCITATION_PARAM, [exc.axis, exc.amplitude, exc.freq_hz])
         sources[i] = _Excited(sources[i])
     except BaseException:
         for s in sources:
@@ -97,13 +101,14 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
     """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
     freq, columns = None, {}
     for path in paths:
-        rec = load(path, topics=[input_topic, output_topic, "/amb/rotor"])
+        rec = load(path, topics=[input_topic, output_topic])
         x_data, y_data = rec[input_topic], rec[output_topic]
         n = min(len(x_data), len(y_data))
         axis = _excited_axis(x_data, path, input_axis)
+        x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
         if axis in columns:
             raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")
-        outputs = [a for a in y_data.fields if a in AXES]
+        outputs = list(y_data.fields)
         try:
             est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
                               fs=rec.nominal_rate(input_topic), resolution_hz=resolution_hz)
@@ -114,13 +119,16 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         if freq is not None and not np.array_equal(freq, est.freq_hz):
             raise BadInputError(f"{path}: sample rate differs from the other recordings'")
         freq = est.freq_hz
-        rpm = float(np.median(rec["/amb/rotor"]["speed"])) * RPM_PER_RAD_S if "/amb/rotor" in rec else 0.0
+        try:
+            rpm = float(np.median(load(path, topics=["/amb/rotor"])["/amb/rotor"]["speed"])) * RPM_PER_RAD_S
+        except BadInputError:  # a rig without a spinning rotor (base-motion)
+            rpm = 0.0
         columns[axis] = {
             "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
                        "segments": est.segments},
             "outputs": {a: (est.response[:, i], est.coherence[:, i]) for i, a in enumerate(outputs)},
         }
-    return FrequencyResponse(freq, columns, input_topic, output_topic, "m/m")
+    return FrequencyResponse(freq, columns, input_topic, output_topic, f"{y_unit}/{x_unit}")
 
 
 @command.command("estimate")
@@ -128,11 +136,14 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Frequency-response file (JSON).")
 @click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Frequency step, Hz (10 matches the LMS phase table).")
-@click.option("--input", "input_axis", type=click.Choice(AXES), help="The excited axis; default: found from /amb/ff.")
+@click.option("--input", "input_axis", help="The excited axis; default: the one axis whose input is not zero.")
+@click.option("--input-topic", default="/amb/ff", show_default=True, help="Where the test signal is recorded.")
+@click.option("--output-topic", default="/amb/error", show_default=True,
+              help="The response: /amb/error (the LMS loop), /amb/gap (base-motion secondary path).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Bode plot and coherence (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print a summary as JSON.")
-def estimate(files, output, resolution, input_axis, overwrite, plot_path, as_json):
+def estimate(files, output, resolution, input_axis, input_topic, output_topic, overwrite, plot_path, as_json):
     """H1 frequency response with coherence, from each recording's excited axis to every axis.
 
     The input is the feedforward input /amb/ff (where the controller adds its test signal), the
@@ -143,13 +154,13 @@ def estimate(files, output, resolution, input_axis, overwrite, plot_path, as_jso
     Example:
       ambdaq frf estimate frf_fx.mcap frf_fy.mcap frf_rx.mcap frf_ry.mcap frf_ax.mcap -o loop.frf.json
     """
-    frf = estimate_responses([Path(f) for f in files], resolution, input_axis)
+    frf = estimate_responses([Path(f) for f in files], resolution, input_axis, input_topic, output_topic)
     frf.save(output, overwrite=overwrite)
     summary = {}
     for axis, col in frf.columns.items():
         h, c = col["outputs"][axis]
         summary[axis] = {"points": int(h.shape[0]), "median_coherence": round(float(np.median(c)), 4),
-                         "peak_gain": round(float(np.abs(h).max()), 3),
+                         "peak_gain": float(f"{np.abs(h).max():.4g}"),
                          "peak_hz": float(frf.freq_hz[np.argmax(np.abs(h))]), "source": col["source"]["path"]}
     if plot_path:
         _bode(frf, plot_path)
@@ -159,7 +170,7 @@ def estimate(files, output, resolution, input_axis, overwrite, plot_path, as_jso
     else:
         for axis, s in summary.items():
             click.echo(f"{axis}: {s['points']} points, median coherence {s['median_coherence']:.3f}, "
-                       f"peak |T| {s['peak_gain']:.2f} at {s['peak_hz']:g} Hz  ({s['source']})")
+                       f"peak |H| {s['peak_gain']:.3g} {frf.unit} at {s['peak_hz']:g} Hz  ({s['source']})")
         click.echo(f"-> {output}", err=True)
 
 

@@ -59,33 +59,29 @@ def window_options(f):
 
 
 class ExcitationSpec(click.ParamType):
-    """``AXIS:AMPLITUDE_UM[:FREQ_HZ]``: white noise of that RMS, or a sine of that peak and frequency."""
+    """``AXIS:AMPLITUDE[:FREQ_HZ]``: white noise of that RMS, or a sine of that peak and frequency.
+    The amplitude is in the unit of the rig's feedforward: um (spindle), V (base-motion)."""
 
-    name = "AXIS:UM[:HZ]"
+    name = "AXIS:AMP[:HZ]"
 
     def convert(self, value, param, ctx):
-        from ..drivers.rig.excitation import Excitation
-        from ..drivers.rig.spindle import AXES, SPINDLE
+        from ..drivers.rig.excitation import ExcitationRequest
 
-        if isinstance(value, Excitation):
+        if isinstance(value, ExcitationRequest):
             return value
         parts = str(value).split(":")
         try:
-            if len(parts) not in (2, 3) or parts[0] not in AXES:
+            if len(parts) not in (2, 3):
                 raise ValueError
-            exc = Excitation(AXES.index(parts[0]), float(parts[1]) * 1e-6, float(parts[2]) if len(parts) == 3 else 0.0)
+            return ExcitationRequest(parts[0], float(parts[1]), float(parts[2]) if len(parts) == 3 else 0.0)
         except ValueError:
-            self.fail(f"{value!r}: expected AXIS:AMPLITUDE_UM[:FREQ_HZ] with AXIS one of {', '.join(AXES)}, "
-                      "e.g. front_x:2 (2 um RMS white noise) or front_x:5:120 (5 um sine at 120 Hz)", param, ctx)
-        problem = exc.problem(len(AXES), SPINDLE.sample_rate)
-        if problem:
-            self.fail(f"{value!r}: {problem}", param, ctx)
-        return exc
+            self.fail(f"{value!r}: expected AXIS:AMPLITUDE[:FREQ_HZ], e.g. front_x:2 (2 um RMS white noise), "
+                      "front_x:5:120 (5 um sine at 120 Hz), amb1_y:0.05 (base-motion: 0.05 V RMS)", param, ctx)
 
 
 def excitation_option(f):
     return click.option(
         "--excite", "excitation", type=ExcitationSpec(),
-        help="Test signal added to one axis's feedforward input (frequency-response measurement): "
-             "AXIS:UM for white noise of that RMS, AXIS:UM:HZ for a sine of that peak.",
+        help="Test signal added to one axis's feedforward (frequency-response measurement): AXIS:AMP for "
+             "white noise of that RMS, AXIS:AMP:HZ for a sine of that peak; AMP in um (spindle) or V (base-motion).",
     )(f)

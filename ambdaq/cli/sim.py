@@ -8,6 +8,9 @@ import threading
 import click
 
 from ..drivers.devices import open_device
+from ..daq.coefficients import Coefficients
+from ..drivers.rig.base_motion import BaseExcitation, fir_taps
+from ..errors import BadInputError
 from ..drivers.rig.profiles import PROFILES
 from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
 from .options import excitation_option, output_options, report_options, speed_option
@@ -29,20 +32,37 @@ def command() -> None:
               help="Feedforward of the simulated controller (lms: seed 000's adaptive runout cancellation).")
 @click.option("--noise/--no-noise", default=True, show_default=True, help="Sensor noise and A/D, D/A quantisation.")
 @excitation_option
+@click.option("--base", metavar="SPEC", help="Base motion (base-motion rig): sine:HZ:AMP[:ALPHA_MAG[:ALPHA_DEG]] "
+              "or noise:LO-HI:RMS, in m/s^2; ALPHA = d1/d2, the ratio of the two bearings' base accelerations.")
+@click.option("--fir", "fir_file", type=click.Path(dir_okay=False),
+              help="Base-motion rig: run its feedforward u = W d with the FIR of this coefficient file (ambdaq fx fit).")
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, output, split_size, split_duration,
-             compression, overwrite, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, output, split_size,
+             split_duration, compression, overwrite, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
     Example:
       ambdaq sim generate --duration 60 --rpm 0:50000 --truth -o runup.mcap
       ambdaq sim generate --duration 20 --excite front_x:2 -o frf_front_x.mcap
+      ambdaq sim generate --profile base-motion --duration 10 --base noise:5-100:1 -o base.mcap
     """
     url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
     source = open_device(url, speed=speed or "0", truth=truth, paced=False)
-    source.rig.set_excitation(excitation)
+    try:
+        if excitation is not None:
+            source.rig.set_excitation(source.rig.excitation_for(excitation))
+        if base is not None:
+            if not hasattr(source.rig, "set_base_motion"):
+                raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
+            source.rig.set_base_motion(BaseExcitation.parse(base))
+        if fir_file is not None:
+            if not hasattr(source.rig, "set_feedforward_fir"):
+                raise BadInputError(f"--fir: the {profile} rig has no FIR feedforward (use --profile base-motion)")
+            source.rig.set_feedforward_fir(fir_taps(Coefficients.load(fir_file), fir_file))
+    except ValueError as err:
+        raise BadInputError(str(err)) from None
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
                   compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)
 

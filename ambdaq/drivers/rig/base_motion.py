@@ -40,6 +40,7 @@ AXES = ("amb1_y", "amb2_y", "amb1_z", "amb2_z")  # plane-major: (plane, bearing)
 BASE_AXES = ("base1_y", "base2_y", "base1_z", "base2_z")
 PLANES = ("vertical", "horizontal")
 MAX_FIR_TAPS = 64
+MAX_TEST_SIGNAL_V = 1.0  # the secondary-path test signal; a tenth of the D/A range
 N_STATE = 6  # y, theta, y', theta', i1, i2
 
 
@@ -154,6 +155,25 @@ class BaseExcitation:
         if self.kind == "noise" and not 0 < self.band_hz[0] < self.band_hz[1] < sample_rate / 2:
             return f"band must be 0 < LO < HI < {sample_rate / 2:g} Hz"
         return ""
+
+
+def fir_taps(coef, where: str = "coefficient file") -> np.ndarray:
+    """The FIR of a coefficient file's ``fir`` section as taps (2 planes, 2, 2, n), V per m/s^2;
+    ValueError (one line) if it is missing or does not fit this rig."""
+    fir = coef.fir or {}
+    try:
+        if float(fir["sample_rate_hz"]) != BASE_MOTION.sample_rate:
+            raise ValueError(f"its FIR runs at {fir['sample_rate_hz']} Hz, the rig at {BASE_MOTION.sample_rate:g} Hz")
+        taps = np.array([fir["planes"][p] for p in PLANES], dtype=float)
+    except KeyError as err:
+        raise ValueError(f"{where}: no FIR for the base-motion rig (missing {err})") from None
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{where}: {err}") from None
+    if taps.ndim != 4 or taps.shape[:3] != (2, 2, 2) or not 1 <= taps.shape[3] <= MAX_FIR_TAPS:
+        raise ValueError(f"{where}: FIR taps must be (2 planes, 2, 2, 1..{MAX_FIR_TAPS}), not {taps.shape}")
+    if not np.all(np.isfinite(taps)):
+        raise ValueError(f"{where}: a FIR tap is not a finite number")
+    return taps
 
 
 @njit(cache=True, fastmath=True, nogil=True)
@@ -340,10 +360,14 @@ class BaseMotionRig:
         """The loaded taps, shape (2, 2, 2, n)."""
         return self._W[..., : self._ntaps].copy()
 
+    def excitation_for(self, request) -> Excitation:
+        """An :class:`ExcitationRequest` (amplitude in V) on this rig's axes; ValueError if it does not fit."""
+        return request.resolve(AXES, False, self.params.sample_rate, MAX_TEST_SIGNAL_V)
+
     def set_excitation(self, excitation: Excitation | None) -> None:
         """Add a test signal (amplitude in V) to one axis's feedforward output; None stops it."""
         if excitation is not None:
-            problem = excitation.problem(len(AXES), self.params.sample_rate, max_amplitude=1.0)
+            problem = excitation.problem(len(AXES), self.params.sample_rate, MAX_TEST_SIGNAL_V)
             if problem:
                 raise ValueError(problem)
         self._excitation = excitation

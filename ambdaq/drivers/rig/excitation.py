@@ -51,3 +51,25 @@ class Excitation:
         if self.freq_hz > 0:
             return self.amplitude * np.sin(2 * np.pi * self.freq_hz * (steps * h))
         return self.amplitude * rng.standard_normal(steps.shape[0])
+
+
+@dataclass(frozen=True)
+class ExcitationRequest:
+    """An excitation as a user names it: axis name, amplitude in the rig's feedforward unit
+    (um for a gap feedforward, V for a voltage one), frequency in Hz (0: white noise)."""
+
+    axis: str
+    amplitude: float
+    freq_hz: float = 0.0
+
+    def resolve(self, axes: tuple[str, ...], unit_m: bool, sample_rate: float,
+                max_amplitude: float = MAX_AMPLITUDE_M) -> Excitation:
+        """The :class:`Excitation` on a rig with ``axes``; ``unit_m``: the amplitude was given in um.
+        ValueError (one line) if the axis or the values do not fit."""
+        if self.axis not in axes:
+            raise ValueError(f"--excite {self.axis}: this rig's axes are {', '.join(axes)}")
+        exc = Excitation(axes.index(self.axis), self.amplitude * (1e-6 if unit_m else 1.0), self.freq_hz)
+        problem = exc.problem(len(axes), sample_rate, max_amplitude)
+        if problem:
+            raise ValueError(f"--excite {self.axis}: {problem}")
+        return exc

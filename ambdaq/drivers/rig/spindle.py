@@ -561,6 +561,10 @@ class SpindleRig:
         self._pid_p, self._pid_i = p.copy(), i.copy()
         self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
 
+    def excitation_for(self, request) -> Excitation:
+        """An :class:`ExcitationRequest` (amplitude in um) on this rig's axes; ValueError if it does not fit."""
+        return request.resolve(AXES, True, self.params.sample_rate)
+
     def set_excitation(self, excitation: Excitation | None) -> None:
         """Add a test signal to one axis's feedforward input from the next block on, or stop it (None).
 
