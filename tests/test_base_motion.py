@@ -1,0 +1,149 @@
+"""Seed 002 on the base-motion rig: physics against its exact linear model, MFXLMS against W*,
+and the whole chain through the CLI (secondary path, campaign, estimate, fit, compensated run)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ambdaq.analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
+from ambdaq.analysis.runout import harmonic_fit
+from ambdaq.daq import load
+from ambdaq.drivers.rig.base_motion import GRAVITY, BaseExcitation, BaseMotionRig
+
+FS = 10_000.0
+
+
+def harmonic(values: np.ndarray, f_hz: float, skip: int = 5000) -> np.ndarray:
+    """|amplitude| at f_hz of each column of ``values`` after ``skip`` samples."""
+    n = values.shape[0]
+    th = 2 * np.pi * f_hz * np.arange(n) / FS
+    return np.abs(harmonic_fit(values[skip:], th[skip:], (1,))[0])
+
+
+def test_closed_loop_is_stable_and_carries_gravity():
+    rig = BaseMotionRig()
+    Acl, *_ = rig.closed_loop()
+    assert np.abs(np.linalg.eigvals(Acl)).max() < 1.0
+    block = rig.run(20_000)
+    gap, cur = block.values["/amb/gap"], block.values["/amb/current"]
+    assert np.abs(gap.mean(axis=0)).max() < 0.02e-6  # centred, gravity or not
+    # vertical coils carry the shaft's weight (sum of bearing forces = m g), horizontal ones nothing
+    p = rig.params
+    assert p.ki[0] * cur[:, 0].mean() + p.ki[1] * cur[:, 1].mean() == pytest.approx(p.mass * GRAVITY, rel=1e-3)
+    assert np.abs(cur[:, 2:].mean(axis=0)).max() < 1e-4
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 40.0, 100.0])
+def test_base_motion_response_equals_the_exact_model(f_hz):
+    """The kernel's gap response to harmonic base motion is C(e^{jwT}) d within 1%."""
+    alpha = 0.5 - 0.8j
+    rig = BaseMotionRig(noise=False)
+    rig.set_base_motion(BaseExcitation("sine", 1.0, f_hz, alpha))
+    gap = rig.run(40_000).values["/amb/gap"]
+    _, C, _ = rig.responses([f_hz])
+    expected = np.abs(C[0] @ np.array([alpha, 1.0]))
+    measured = harmonic(gap, f_hz, skip=20_000)
+    np.testing.assert_allclose(measured[:2], expected, rtol=0.01)
+    np.testing.assert_allclose(measured[2:], expected, rtol=0.01)  # the horizontal plane alike, no gravity
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 40.0, 100.0])
+def test_mfxlms_with_two_alphas_recovers_the_perfect_compensator(f_hz):
+    """Eq. A-4 to A-17 on recorded responses with the exact secondary path: W within 2.5% of
+    W* = -B^-1 C (noise on the gap sensors and accelerometers included)."""
+    rig0 = BaseMotionRig()
+    B, _, Wstar = rig0.responses([f_hz])
+    betas = []
+    for alpha in (1.0, -1.0 + 0.5j):
+        rig = BaseMotionRig(seed=7)
+        rig.set_base_motion(BaseExcitation("sine", 1.0, f_hz, alpha))
+        rig.run(5000)
+        v = rig.run(30_000).values
+        res = mfxlms(v["/amb/gap"][:, :2], v["/base/accel"][:, :2], B[0], f_hz, FS)
+        # the compensated error ends at the sensor noise
+        assert np.sqrt(np.mean(res.error[-5000:] ** 2)) < 1.5 * rig.params.gap_noise
+        betas.append((run_beta(res, alpha), alpha))
+    W = separate(betas[0][0], betas[0][1], betas[1][0], betas[1][1])
+    assert np.abs(W / Wstar[0] - 1).max() < 0.025
+    with pytest.raises(ValueError, match="different disturbance ratios"):
+        separate(betas[0][0], 1.0, betas[1][0], 1.0)
+
+
+def test_fir_fit_and_knee():
+    """A FIR fitted to exact W* points: the knee is where a tap stops paying, and the error there
+    is under 1% from 5 to 100 Hz."""
+    f = np.arange(5.0, 101.0, 5.0)
+    _, _, Wstar = BaseMotionRig().responses(f)
+    orders = np.arange(0, 16)
+    for j in range(2):
+        for m in range(2):
+            costs = np.array([fit_fir(f, Wstar[:, j, m], o, FS)[1] for o in orders])
+            assert np.all(np.diff(costs) <= 1e-15)  # more taps never fit worse
+            k = knee(orders, costs, len(f))
+            taps, _ = fit_fir(f, Wstar[:, j, m], k, FS)
+            E = np.exp(-2j * np.pi * np.outer(f / FS, np.arange(k + 1)))
+            assert np.abs(E @ taps / Wstar[:, j, m] - 1).max() < 0.01, (j, m, k)
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    """The engineer's chain, every step a CLI command: secondary path (broadband test signal per
+    axis), stepped-sine campaign, MFXLMS estimate, FIR fit."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    d = tmp_path_factory.mktemp("fx")
+    runner = CliRunner()
+
+    def run(*args):
+        r = runner.invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+        return r
+
+    for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z"):
+        run("sim", "generate", "--profile", "base-motion", "--duration", "20", "--excite", f"{a}:0.3", "-q",
+            "-o", d / f"sp_{a}.mcap")
+    run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
+        "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json")
+    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "2", "-o", d / "camp")
+    run("fx", "estimate", d / "camp", "--path", d / "path.json", "-o", d / "points.json")
+    report = json.loads(run("fx", "fit", d / "points.json", "-o", d / "fir.json", "--exact", "--json",
+                            "--plot", d / "fir.png").stdout)
+    return d, report, run
+
+
+def test_fitted_compensator_against_the_exact_one(chain):
+    d, report, _ = chain
+    assert 1 <= report["taps"] <= 25
+    assert max(report["error_vs_exact_pct"]) < 5.0  # per frequency, worst of both planes and four W
+    assert (d / "fir.png").stat().st_size > 30_000
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 40.0, 100.0])
+def test_campaign_frequencies_fall_by_20_db(chain, f_hz):
+    d, _, run = chain
+    amp = {}
+    for name, extra in (("fb", ()), ("ff", ("--fir", d / "fir.json"))):
+        out = d / f"sine_{f_hz:g}_{name}.mcap"
+        run("sim", "generate", "--profile", "base-motion", "--duration", "3", "--base", f"sine:{f_hz:g}:1:0.7:40",
+            *extra, "-q", "-o", out)
+        g = load(out, topics=["/amb/gap"])["/amb/gap"]
+        amp[name] = harmonic(np.stack([g[a] for a in g.fields], axis=1), f_hz)
+    drop = 20 * np.log10(amp["fb"] / amp["ff"])
+    assert drop.min() >= 20.0, drop
+
+
+def test_broadband_base_motion_falls_by_10_db_rms(chain):
+    d, _, run = chain
+    rms = {}
+    for name, extra in (("fb", ()), ("ff", ("--fir", d / "fir.json"))):
+        out = d / f"broadband_{name}.mcap"
+        run("sim", "generate", "--profile", "base-motion", "--duration", "10", "--base", "noise:5-100:1",
+            "--seed", "4", *extra, "-q", "-o", out)
+        g = load(out, topics=["/amb/gap"])["/amb/gap"]
+        v = np.stack([g[a] for a in g.fields], axis=1)[10_000:]
+        rms[name] = np.sqrt(np.mean(v**2, axis=0))
+    drop = 20 * np.log10(rms["fb"] / rms["ff"])
+    assert drop.min() >= 10.0, drop
