@@ -147,3 +147,27 @@ def test_broadband_base_motion_falls_by_10_db_rms(chain):
         rms[name] = np.sqrt(np.mean(v**2, axis=0))
     drop = 20 * np.log10(rms["fb"] / rms["ff"])
     assert drop.min() >= 10.0, drop
+
+
+def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
+    cases = [
+        (("sim", "generate", "--profile", "base-motion", "--duration", "1", "--base", "sine:0:1", "-o", tmp_path / "a.mcap"),
+         "base motion 'sine:0:1': frequency must be > 0"),
+        (("sim", "generate", "--duration", "1", "--base", "noise:5-100:1", "-o", tmp_path / "b.mcap"),
+         "the spindle rig has no moving base"),
+        (("sim", "generate", "--profile", "base-motion", "--duration", "1", "--excite", "front_x:0.1",
+          "-o", tmp_path / "c.mcap"), "this rig's axes are amb1_y"),
+        (("fx", "estimate", tmp_path, "--path", tmp_path / "p.json", "-o", tmp_path / "w.json"),
+         "no readable campaign.json"),
+        (("record", "--device", "sim://base-motion", "--duration", "1", "-o", tmp_path / "d.mcap"),
+         "the base-motion rig runs unpaced only for now"),
+        (("fx", "campaign", "--alphas", "1,1", "-o", tmp_path / "camp"), "give two different ratios"),
+    ]
+    for args, needle in cases:
+        r = run_cli(*args)
+        assert r.exit_code == 2, (args, r.output)
+        assert needle in r.output and r.output.count("\n") == 1, r.output
+    coef = tmp_path / "coef.json"
+    assert run_cli("runout", "identify", spindle_file, "-o", coef).exit_code == 0
+    r = run_cli("sim", "generate", "--profile", "base-motion", "--duration", "1", "--fir", coef, "-o", tmp_path / "e.mcap")
+    assert r.exit_code == 2 and "no FIR for the base-motion rig" in r.output

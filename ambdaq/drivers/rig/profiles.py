@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from ...errors import BadInputError
+
 from .base_motion import BaseMotionRig
 from .spindle import SpindleRig
 
@@ -17,6 +19,16 @@ PROFILES: dict[str, type] = {
     "spindle": SpindleRig,
     "base-motion": BaseMotionRig,
 }
+
+
+SERVED = ("spindle",)  # profiles whose devices are served on real transports (sim://, sim serve)
+
+
+def require_served(profile: str) -> None:
+    """BadInputError unless ``profile``'s devices can be served on real transports."""
+    if profile not in SERVED:
+        raise BadInputError(f"the {profile} rig runs unpaced only for now (ambdaq sim generate, ambdaq fx "
+                            f"campaign); its controller is not served on a transport yet (served: {', '.join(SERVED)})")
 
 
 def build_rig(profile: str, **options: Any):

@@ -23,7 +23,7 @@ from .. import framing
 from ..canopen_profiles import PROFILES
 from ..controller import ControllerDriver
 from ..devices import open_can_device
-from ..rig.profiles import build_rig
+from ..rig.profiles import build_rig, require_served
 from ..rig.speed import SpeedProfile
 from ..serial_link import SerialLink
 from .canopen_devices import serve_can
@@ -81,6 +81,7 @@ class SimulatedRig:
 def open_simulated_rig(profile: str, *, name: str, seed: int, speed: SpeedProfile, truth: bool, ff_mode: str,
                        noise: bool, calibration: dict[str, str] | None = None) -> list:
     """Start the simulated rig and open the real drivers on it; returns them as recorder sources."""
+    require_served(profile)
     sim = SimulatedRig(profile, seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
     drivers = []
     try:

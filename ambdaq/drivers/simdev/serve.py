@@ -7,7 +7,7 @@ import tty
 from dataclasses import dataclass, field
 
 from .. import framing
-from ..rig.profiles import build_rig
+from ..rig.profiles import build_rig, require_served
 from ..rig.speed import SpeedProfile
 from .banks import DEFAULT_UNLOCK_KEY
 from .controller import FdPort, SimController
@@ -70,6 +70,7 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
     clock : DeviceClock
         The controller's clock (default: 5 s ahead of the host, running 50 ppm fast).
     """
+    require_served(profile)
     framing.warm_up()  # before the rig's clock starts: compiling must not make it late
     rig = build_rig(profile, seed=seed, speed=SpeedProfile.parse(speed), truth=truth)
     server = RigServer(rig)
