@@ -170,4 +170,4 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
     coef = tmp_path / "coef.json"
     assert run_cli("runout", "identify", spindle_file, "-o", coef).exit_code == 0
     r = run_cli("sim", "generate", "--profile", "base-motion", "--duration", "1", "--fir", coef, "-o", tmp_path / "e.mcap")
-    assert r.exit_code == 2 and "no FIR for the base-motion rig" in r.output
+    assert r.exit_code == 2 and "no base-motion FIR for plane" in r.output

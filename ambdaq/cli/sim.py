@@ -8,8 +8,8 @@ import threading
 import click
 
 from ..drivers.devices import open_device
-from ..daq.coefficients import Coefficients
-from ..drivers.rig.base_motion import BaseExcitation, fir_taps
+from ..daq.coefficients import Coefficients, fir_array
+from ..drivers.rig.base_motion import PLANES, BaseExcitation
 from ..errors import BadInputError
 from ..drivers.rig.profiles import PROFILES
 from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
@@ -60,7 +60,10 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
         if fir_file is not None:
             if not hasattr(source.rig, "set_feedforward_fir"):
                 raise BadInputError(f"--fir: the {profile} rig has no FIR feedforward (use --profile base-motion)")
-            source.rig.set_feedforward_fir(fir_taps(Coefficients.load(fir_file), fir_file))
+            taps, rate = fir_array(Coefficients.load(fir_file), list(PLANES), fir_file)
+            if rate != source.rig.params.sample_rate:
+                raise BadInputError(f"{fir_file}: its FIR runs at {rate:g} Hz, the rig at {source.rig.params.sample_rate:g} Hz")
+            source.rig.set_feedforward_fir(taps)
     except ValueError as err:
         raise BadInputError(str(err)) from None
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import BadInputError
 
 FORMAT = "ambdaq-coefficients"
@@ -123,6 +125,24 @@ class Coefficients:
                 raise BadInputError(f"{path}: lms_phase needs a positive bin_hz and finite phases")
         return cls(doc.get("target", {}), doc.get("source", {}), harmonics, weights,
                    doc.get("lms_schedule", []), phase, doc.get("fir", {}), str(doc.get("lms_plant", "")))
+
+
+def fir_array(coef: Coefficients, planes: list[str], where: str) -> tuple[np.ndarray, float]:
+    """The coefficient file's base-motion FIR as taps (planes, outputs, inputs, taps) in the order of
+    ``planes``, and its sample rate (Hz); BadInputError (one line) if missing or malformed."""
+    fir = coef.fir or {}
+    try:
+        rate = float(fir["sample_rate_hz"])
+        taps = np.array([fir["planes"][p] for p in planes], dtype=float)
+    except KeyError as err:
+        raise BadInputError(f"{where}: no base-motion FIR for plane {err} (ambdaq fx fit writes one)") from None
+    except (TypeError, ValueError) as err:
+        raise BadInputError(f"{where}: malformed FIR ({err})") from None
+    if taps.ndim != 4 or taps.shape[3] < 1:
+        raise BadInputError(f"{where}: the FIR must be planes x outputs x inputs x taps, not {taps.shape}")
+    if not (np.all(np.isfinite(taps)) and math.isfinite(rate) and rate > 0):
+        raise BadInputError(f"{where}: a FIR tap or its sample rate is not a finite number")
+    return taps, rate
 
 
 def now_iso() -> str:

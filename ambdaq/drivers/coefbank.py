@@ -4,12 +4,15 @@ Host and device share this layout (docs/protocol.md, "Coefficient banks"); the c
 two banks, runs from the active one, and switches only after the host has read back the CRC-32
 the device computed over the inactive one.  All numbers little-endian::
 
-    magic "AMBC" | version u16 | axes u8 | harmonics u8 | mode u8 | phase u8 | rows u16
+    magic "AMBC" | version u16 | axes u8 | harmonics u8 | mode u8 | sections u8 | rows u16
     | sha256 of the coefficient file (32 bytes)
     | weights: axes x harmonics x [sin, cos] f64, m   (axis order of the controller, 1X first)
     | LMS schedule: rows x [harmonic, rpm_from, rpm_to, mu] f64  (harmonic 0: every harmonic)
-    | if phase = 1: bins u16 | bin width f64 (Hz) | axes x bins f32: the LMS phase compensation
-      per axis at 0, bin, 2 bin ... Hz of loop frequency (rad)
+    | if sections bit 0: bins u16 | bin width f64 (Hz) | axes x bins f32: the LMS phase
+      compensation per axis at 0, bin, 2 bin ... Hz of loop frequency (rad)
+    | if sections bit 1: planes u8 | outputs u8 | inputs u8 | taps u16 | sample rate f64 (Hz)
+      | planes x outputs x inputs x taps f64: the base-motion feedforward u = W d (seed 002 eq. 15),
+      tap t on d(k - t), V per m/s^2
 
 ``mode`` is the feedforward the bank runs: 0 off, 1 fixed table (r_c of seed 000 eq. 10 with
 these weights), 2 LMS (eq. 9) starting from these weights with the schedule's step sizes.
@@ -27,6 +30,9 @@ MAGIC = b"AMBC"
 VERSION = 1
 HEAD = struct.Struct("<4sHBBBBH32s")
 PHASE_HEAD = struct.Struct("<Hd")
+FIR_HEAD = struct.Struct("<BBBHd")
+SECTION_PHASE, SECTION_FIR = 1, 2
+FIR_TAP_LIMIT = 100.0  # V per m/s^2: the compensators are ~0.1; far larger is a units mistake
 MODES = {"off": 0, "table": 1, "lms": 2}
 WEIGHT_LIMIT_M = 1e-3  # no runout term above 1 mm: larger is a units mistake
 MU_LIMIT = 1.0  # |mu| above this diverges at any speed
@@ -55,6 +61,10 @@ class BankImage:
         LMS phase compensation per axis over loop frequency, in rad (None: seed 000's update).
     phase_bin_hz : float
         Frequency step of ``phase_rad``, in Hz.
+    fir_taps : ndarray, shape (planes, outputs, inputs, taps), optional
+        Base-motion feedforward taps, in V per m/s^2 (None: none).
+    fir_rate_hz : float
+        Sample rate the taps run at, in Hz.
     """
 
     weights: np.ndarray
@@ -63,17 +73,22 @@ class BankImage:
     source_sha256: str = ""
     phase_rad: np.ndarray | None = None
     phase_bin_hz: float = 10.0
+    fir_taps: np.ndarray | None = None
+    fir_rate_hz: float = 0.0
 
     def encode(self) -> bytes:
         w = np.asarray(self.weights, dtype="<f8")
         sha = bytes.fromhex(self.source_sha256) if self.source_sha256 else bytes(32)
         rows = np.asarray(self.schedule, dtype="<f8").reshape(-1, 4)
-        has_phase = self.phase_rad is not None
-        head = HEAD.pack(MAGIC, VERSION, w.shape[0], w.shape[1], MODES[self.mode], int(has_phase), rows.shape[0], sha)
+        sections = (SECTION_PHASE if self.phase_rad is not None else 0) | (SECTION_FIR if self.fir_taps is not None else 0)
+        head = HEAD.pack(MAGIC, VERSION, w.shape[0], w.shape[1], MODES[self.mode], sections, rows.shape[0], sha)
         out = head + w.tobytes() + rows.tobytes()
-        if has_phase:
+        if self.phase_rad is not None:
             ph = np.asarray(self.phase_rad, dtype="<f4")
             out += PHASE_HEAD.pack(ph.shape[1], self.phase_bin_hz) + ph.tobytes()
+        if self.fir_taps is not None:
+            t = np.asarray(self.fir_taps, dtype="<f8")
+            out += FIR_HEAD.pack(*t.shape, self.fir_rate_hz) + t.tobytes()
         return out
 
     @classmethod
@@ -81,19 +96,29 @@ class BankImage:
         """Parse and check an image; ``ValueError`` says what is wrong."""
         if len(data) < HEAD.size:
             raise ValueError(f"image of {len(data)} bytes is shorter than its header")
-        magic, version, axes, harmonics, mode, has_phase, n_rows, sha = HEAD.unpack_from(data)
+        magic, version, axes, harmonics, mode, sections, n_rows, sha = HEAD.unpack_from(data)
         if magic != MAGIC or version != VERSION:
             raise ValueError("not a version-1 coefficient image")
         want = HEAD.size + 8 * (axes * harmonics * 2 + 4 * n_rows)
-        phase, bin_hz = None, 10.0
-        if has_phase and len(data) >= want + PHASE_HEAD.size:
+        phase, bin_hz, fir, fir_rate = None, 10.0, None, 0.0
+        if sections & SECTION_PHASE:
+            if len(data) < want + PHASE_HEAD.size:
+                raise ValueError(f"image of {len(data)} bytes ends in its phase table's header")
             bins, bin_hz = PHASE_HEAD.unpack_from(data, want)
             start = want + PHASE_HEAD.size
             want = start + 4 * axes * bins
-            if len(data) == want:
+            if len(data) >= want:
                 phase = np.frombuffer(data, "<f4", axes * bins, start).reshape(axes, bins).astype(float)
-        elif has_phase:
-            want += PHASE_HEAD.size
+        if sections & SECTION_FIR:
+            if len(data) < want + FIR_HEAD.size:
+                raise ValueError(f"image of {len(data)} bytes ends in its FIR's header")
+            *shape, fir_rate = FIR_HEAD.unpack_from(data, want)
+            start = want + FIR_HEAD.size
+            want = start + 8 * int(np.prod(shape))
+            if len(data) >= want:
+                fir = np.frombuffer(data, "<f8", int(np.prod(shape)), start).reshape(shape).copy()
+        if sections & ~(SECTION_PHASE | SECTION_FIR):
+            raise ValueError(f"unknown image sections 0x{sections:02x}")
         if len(data) != want:
             raise ValueError(f"image is {len(data)} bytes, its header says {want}")
         modes = {v: k for k, v in MODES.items()}
@@ -102,7 +127,7 @@ class BankImage:
         w = np.frombuffer(data, "<f8", axes * harmonics * 2, HEAD.size).reshape(axes, harmonics, 2).copy()
         rows = np.frombuffer(data, "<f8", 4 * n_rows, HEAD.size + w.nbytes).reshape(n_rows, 4)
         image = cls(w, modes[mode], [tuple(float(x) for x in r) for r in rows], "" if not any(sha) else sha.hex(),
-                    phase, bin_hz)
+                    phase, bin_hz, fir, fir_rate)
         problem = image.problem()
         if problem:
             raise ValueError(problem)
@@ -133,6 +158,14 @@ class BankImage:
             ph = np.asarray(self.phase_rad)
             if ph.shape[0] != w.shape[0] or not np.all(np.isfinite(ph)) or not self.phase_bin_hz > 0:
                 return "the LMS phase table must be finite, one row per axis, with a positive bin width"
+        if self.fir_taps is not None:
+            t = np.asarray(self.fir_taps)
+            if t.ndim != 4 or t.shape[3] < 1 or not self.fir_rate_hz > 0:
+                return "the FIR must be planes x outputs x inputs x taps with a positive sample rate"
+            if not np.all(np.isfinite(t)):
+                return "a FIR tap is not a finite number"
+            if np.any(np.abs(t) > FIR_TAP_LIMIT):
+                return f"a FIR tap exceeds {FIR_TAP_LIMIT:g} V per m/s^2"
         return ""
 
     def per_harmonic_schedule(self) -> dict[int, tuple[tuple[float, float, float], ...]]:

@@ -157,25 +157,6 @@ class BaseExcitation:
         return ""
 
 
-def fir_taps(coef, where: str = "coefficient file") -> np.ndarray:
-    """The FIR of a coefficient file's ``fir`` section as taps (2 planes, 2, 2, n), V per m/s^2;
-    ValueError (one line) if it is missing or does not fit this rig."""
-    fir = coef.fir or {}
-    try:
-        if float(fir["sample_rate_hz"]) != BASE_MOTION.sample_rate:
-            raise ValueError(f"its FIR runs at {fir['sample_rate_hz']} Hz, the rig at {BASE_MOTION.sample_rate:g} Hz")
-        taps = np.array([fir["planes"][p] for p in PLANES], dtype=float)
-    except KeyError as err:
-        raise ValueError(f"{where}: no FIR for the base-motion rig (missing {err})") from None
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{where}: {err}") from None
-    if taps.ndim != 4 or taps.shape[:3] != (2, 2, 2) or not 1 <= taps.shape[3] <= MAX_FIR_TAPS:
-        raise ValueError(f"{where}: FIR taps must be (2 planes, 2, 2, 1..{MAX_FIR_TAPS}), not {taps.shape}")
-    if not np.all(np.isfinite(taps)):
-        raise ValueError(f"{where}: a FIR tap is not a finite number")
-    return taps
-
-
 @njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
     d_true, gap_noise, acc_noise, exc,  # per-step inputs: base acceleration (n, 4), unit normals, test signal
