@@ -160,7 +160,7 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
         (("fx", "estimate", tmp_path, "--path", tmp_path / "p.json", "-o", tmp_path / "w.json"),
          "no readable campaign.json"),
         (("record", "--device", "sim://base-motion", "--duration", "1", "-o", tmp_path / "d.mcap"),
-         "the base-motion rig runs unpaced only for now"),
+         "the base-motion rig's devices are served over serial, not can"),
         (("fx", "campaign", "--alphas", "1,1", "-o", tmp_path / "camp"), "give two different ratios"),
     ]
     for args, needle in cases:
@@ -171,3 +171,45 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
     assert run_cli("runout", "identify", spindle_file, "-o", coef).exit_code == 0
     r = run_cli("sim", "generate", "--profile", "base-motion", "--duration", "1", "--fir", coef, "-o", tmp_path / "e.mcap")
     assert r.exit_code == 2 and "no base-motion FIR for plane" in r.output
+
+
+def test_push_the_fir_to_the_served_controller(chain, tmp_path):
+    """``ambdaq sim serve --profile base-motion --base sine:40:1`` in its own process; from another,
+    record, push the fitted FIR (verified, logged), record again: the controller applies u = W d
+    and the 40 Hz response falls by 20 dB or more. A wrong key writes nothing."""
+    import os
+    import subprocess
+    import sys
+
+    d, _, _ = chain
+    env = {**os.environ, "AMBDAQ_STATE_DIR": str(tmp_path / "state")}
+    cmd = [sys.executable, "-m", "ambdaq"]
+
+    def ambdaq(*args, key=None):
+        e = dict(env, AMBDAQ_UNLOCK_KEY=key) if key else env
+        return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True, env=e, timeout=60)
+
+    proc = subprocess.Popen(cmd + ["sim", "serve", "--profile", "base-motion", "--base", "sine:40:1", "--duration", "60"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        _, pty = proc.stdout.readline().split()
+        url = f"serial://{pty}"
+        amps = []
+        for name in ("before", "after"):
+            if name == "after":
+                r = ambdaq("push", d / "fir.json", "--device", url, "--yes", key="wrong")
+                assert r.returncode == 1 and "wrong unlock key" in r.stderr
+                assert json.loads(ambdaq("controller", "status", "--device", url, "--json").stdout)["inactive_length"] == 0
+                r = ambdaq("push", d / "fir.json", "--device", url, "--yes", key="ambdaq-sim")
+                assert r.returncode == 0 and "device-verified" in r.stdout, r.stderr
+            out = tmp_path / f"{name}.mcap"
+            assert ambdaq("record", "--device", url, "--duration", "2", "-o", out, "-q").returncode == 0
+            g = load(out, topics=["/amb/gap"])["/amb/gap"]
+            amps.append(harmonic(np.stack([g[a] for a in g.fields], axis=1), 40.0, skip=2000))
+        drop = 20 * np.log10(amps[0] / amps[1])
+        assert drop.min() >= 20.0, drop
+        status = json.loads(ambdaq("controller", "status", "--device", url, "--json").stdout)
+        assert status["active_fir_taps"] >= 1 and status["log"][-1]["file"] == "fir.json"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

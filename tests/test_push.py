@@ -307,3 +307,15 @@ def test_the_switch_happens_at_a_control_period_boundary(ctl, tmp_path):
     k = np.arange(1, 7)
     want = (np.sin(np.outer(theta[new], k)) @ s[:, :6].T + np.cos(np.outer(theta[new], k)) @ c[:, :6].T)
     np.testing.assert_allclose(ff[new], want, atol=2e-9)  # float32 on the wire
+
+
+def test_a_base_motion_fir_is_refused_by_a_controller_that_runs_none(ctl, tmp_path):
+    taps = np.full((2, 2, 2, 3), 0.01)
+    fir = {"sample_rate_hz": 10000.0, "unit": "V/(m/s^2)", "planes": {"vertical": taps[0].tolist(),
+                                                                     "horizontal": taps[1].tolist()}}
+    path = tmp_path / "fir.json"
+    Coefficients({"rig": "base-motion"}, {"method": "test"}, [], {}, fir=fir).save(path)
+    before = ctl.active()
+    r = run("push", path, "--device", ctl.serial_url, "--key", DEFAULT_UNLOCK_KEY, "--yes")
+    assert r.exit_code == 2 and "this controller runs no FIR feedforward" in r.output
+    assert ctl.active()[2] == before[2]

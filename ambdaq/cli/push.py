@@ -93,7 +93,8 @@ def status_command(device, as_json):
     if as_json:
         click.echo(json.dumps(st, indent=2))
         return
-    click.echo(f"active bank   {st['active_bank']}  mode {st['active_mode']}  CRC-32 {st['active_crc32']}  "
+    fir = f"  FIR {st['active_fir_taps']} taps" if st.get("active_fir_taps") else ""
+    click.echo(f"active bank   {st['active_bank']}  mode {st['active_mode']}{fir}  CRC-32 {st['active_crc32']}  "
                f"({st['active_length']} bytes)")
     click.echo(f"source sha256 {st['active_source_sha256'] or '-'}")
     click.echo(f"inactive bank CRC-32 {st['inactive_crc32']} ({st['inactive_length']} bytes); "

@@ -80,9 +80,10 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--drift-ppm", type=float, default=50.0, show_default=True, help="Controller clock rate error.")
 @click.option("--unlock-key", default=DEFAULT_UNLOCK_KEY, show_default=True,
               help="The key the controller wants before its coefficient banks can be written (ambdaq push).")
+@click.option("--base", metavar="SPEC", help="Base motion of the base-motion rig's simulated shaker (as for generate).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, duration):
+def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per device, NAME PATH, then serves until Ctrl-C:
@@ -94,8 +95,14 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, durat
     from ..drivers.simdev.rig_server import DeviceClock
     from ..drivers.simdev.serve import serve_serial
 
+    if base is not None and profile != "base-motion":
+        raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
+    try:
+        motion = BaseExcitation.parse(base) if base is not None else None
+    except ValueError as err:
+        raise BadInputError(str(err)) from None
     served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth, unlock_key=unlock_key,
-                          clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm))
+                          clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm), base_motion=motion)
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")
     stop = threading.Event()

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.lms import PhaseTable, schedule_problem
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..daq.coefficients import Coefficients, file_sha256, fir_array, now_iso
 from ..drivers.coefbank import BankImage, crc32
 from ..errors import BadInputError, DeviceError, DeviceTimeout
 from .plants import resolve_plant
@@ -97,16 +97,36 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
         phase = np.zeros((len(axes), bins.pop()))
         for axis, vals in table.items():
             phase[axes.index(axis)] = vals
-    image = BankImage(w, "lms" if rows else "table", rows, source_sha256, phase, bin_hz)
+    fir, fir_rate = _fir_for(coef, status, where)
+    mode = "lms" if rows else ("table" if coef.weights else "off")
+    image = BankImage(w, mode, rows, source_sha256, phase, bin_hz, fir, fir_rate)
     problem = image.problem(len(axes), n_harm)
     if problem:
         raise BadInputError(f"{where}: {problem}")
+    if not rows:
+        return image
     problem = schedule_problem(rows, n_harm, resolve_plant(coef.lms_plant or "bearings"),
                                None if phase is None else PhaseTable(phase, bin_hz),
                                rpm_step=250.0 if coef.lms_plant == "rig" else 100.0)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
     return image
+
+
+def _fir_for(coef: Coefficients, status: dict, where: str) -> tuple[np.ndarray | None, float]:
+    """The file's base-motion FIR in the controller's plane order, checked against what it runs."""
+    if not coef.fir:
+        return None, 0.0
+    spec = status.get("fir")
+    if spec is None:
+        raise BadInputError(f"{where}: holds a base-motion FIR; this controller runs no FIR feedforward")
+    taps, rate = fir_array(coef, list(spec["planes"]), where)
+    if taps.shape[1:3] != (spec["outputs"], spec["inputs"]) or taps.shape[3] > spec["max_taps"]:
+        raise BadInputError(f"{where}: the FIR is {taps.shape}; the controller runs {len(spec['planes'])} planes x "
+                            f"{spec['outputs']} x {spec['inputs']} x at most {spec['max_taps']} taps")
+    if rate != float(spec["sample_rate_hz"]):
+        raise BadInputError(f"{where}: the FIR runs at {rate:g} Hz, the controller at {spec['sample_rate_hz']:g} Hz")
+    return taps, rate
 
 
 def _phasor(w: np.ndarray) -> str:
@@ -132,6 +152,16 @@ def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: 
             new.phase_rad is not None and not np.allclose(old.phase_rad, new.phase_rad, atol=1e-6)):
         out.append(f"lms phase compensation: {'none' if old.phase_rad is None else 'table'} -> "
                    f"{'none' if new.phase_rad is None else f'table of {new.phase_rad.shape[1]} bins'}")
+    if (old.fir_taps is None) != (new.fir_taps is None) or (
+            new.fir_taps is not None and (old.fir_taps.shape != new.fir_taps.shape
+                                          or not np.allclose(old.fir_taps, new.fir_taps, rtol=0, atol=1e-12))):
+        before = "none" if old.fir_taps is None else f"{old.fir_taps.shape[3]} taps"
+        after = "none" if new.fir_taps is None else f"{new.fir_taps.shape[3]} taps"
+        out.append(f"base-motion FIR: {before} -> {after}")
+        if new.fir_taps is not None:
+            out += [f"  plane {p} u{j + 1} <- d{m + 1}: " + " ".join(f"{t:+.5f}" for t in new.fir_taps[p, j, m])
+                    for p in range(new.fir_taps.shape[0]) for j in range(new.fir_taps.shape[1])
+                    for m in range(new.fir_taps.shape[2])]
     if list(map(tuple, old.schedule)) != list(map(tuple, new.schedule)):
         out.append(f"lms schedule: {len(old.schedule)} rows -> {len(new.schedule)} rows")
         out += [f"  {'all' if k == 0 else f'{k:g}X':>4} {lo:7.0f} .. {hi:7.0f} rpm  mu {mu:+g}" for k, lo, hi, mu in new.schedule]

@@ -21,14 +21,16 @@ PROFILES: dict[str, type] = {
 }
 
 
-SERVED = ("spindle",)  # profiles whose devices are served on real transports (sim://, sim serve)
+SERVED = {"spindle": ("serial", "can"), "base-motion": ("serial",)}  # transports each profile's devices use
 
 
-def require_served(profile: str) -> None:
-    """BadInputError unless ``profile``'s devices can be served on real transports."""
-    if profile not in SERVED:
-        raise BadInputError(f"the {profile} rig runs unpaced only for now (ambdaq sim generate, ambdaq fx "
-                            f"campaign); its controller is not served on a transport yet (served: {', '.join(SERVED)})")
+def require_served(profile: str, transport: str) -> None:
+    """BadInputError unless ``profile``'s devices can be served on ``transport`` ("serial", "can")."""
+    if transport not in SERVED.get(profile, ()):
+        how = " and ".join(SERVED.get(profile, ())) or "no transport (ambdaq sim generate only)"
+        raise BadInputError(f"the {profile} rig's devices are served over {how}, not {transport}"
+                            + (f": run `ambdaq sim serve --profile {profile}` and record serial://PTY"
+                               if "serial" in SERVED.get(profile, ()) else ""))
 
 
 def build_rig(profile: str, **options: Any):

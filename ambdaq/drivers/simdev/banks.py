@@ -16,7 +16,8 @@ import time
 import numpy as np
 
 from ..coefbank import BankImage, crc32
-from ..rig.spindle import N_AXES, N_HARMONICS, PHASE_BIN_HZ, PHASE_BINS
+from ..rig.base_motion import MAX_FIR_TAPS
+from ..rig.spindle import N_HARMONICS, PHASE_BIN_HZ, PHASE_BINS
 from .rig_server import RigServer
 
 DEFAULT_UNLOCK_KEY = "ambdaq-sim"  # documented in docs/push.md; `ambdaq sim serve --unlock-key` sets another
@@ -34,8 +35,49 @@ class BankRefused(Exception):
         self.reason = reason
 
 
+def _runs_fir(rig) -> bool:
+    """A controller whose feedforward is the base-motion FIR (seed 002), not the runout table."""
+    return hasattr(rig, "set_feedforward_fir")
+
+
+def _axes(rig) -> list[str]:
+    return list(next(g.fields for g in rig.signal_groups() if g.topic == "/amb/gap"))
+
+
+def layout(rig) -> dict:
+    """What the controller's banks hold: axes, runout harmonics, and the FIR's shape if any."""
+    out = {"axes": _axes(rig), "harmonics": 0 if _runs_fir(rig) else N_HARMONICS}
+    if _runs_fir(rig):
+        out["fir"] = {"planes": ["vertical", "horizontal"], "outputs": 2, "inputs": 2, "max_taps": MAX_FIR_TAPS,
+                      "sample_rate_hz": rig.params.sample_rate}
+    return out
+
+
+def _layout_problem(rig, image: BankImage) -> str:
+    """Why ``image`` does not fit this controller, or ''."""
+    lay = layout(rig)
+    problem = image.problem(len(lay["axes"]), lay["harmonics"])
+    if problem:
+        return problem
+    fir = lay.get("fir")
+    if image.fir_taps is None:
+        return ""
+    if fir is None:
+        return "this controller runs no FIR feedforward"
+    shape = (len(fir["planes"]), fir["outputs"], fir["inputs"])
+    if image.fir_taps.shape[:3] != shape or image.fir_taps.shape[3] > fir["max_taps"]:
+        return f"the FIR is {image.fir_taps.shape}; this controller runs {shape} x at most {fir['max_taps']} taps"
+    if image.fir_rate_hz != fir["sample_rate_hz"]:
+        return f"the FIR runs at {image.fir_rate_hz:g} Hz, this controller at {fir['sample_rate_hz']:g} Hz"
+    return ""
+
+
 def _present_image(rig) -> BankImage:
     """What the rig runs at start-up, as a bank image (bank 0)."""
+    if _runs_fir(rig):
+        taps = rig.feedforward_fir
+        return BankImage(np.zeros((len(_axes(rig)), 0, 2)), "off", [], "", None, PHASE_BIN_HZ,
+                         taps if np.any(taps) else None, rig.params.sample_rate)
     sched = rig.mu_schedule
     rows = ([(float(k), *r) for k, rs in sched.items() for r in rs] if isinstance(sched, dict)
             else [(0.0, *r) for r in sched])
@@ -54,7 +96,11 @@ def _phase_for_rig(image: BankImage) -> np.ndarray | None:
 
 
 def apply_image(rig, image: BankImage) -> None:
-    """Make ``rig`` run ``image``: schedule and phase first, then weights and mode (one boundary)."""
+    """Make ``rig`` run ``image``: schedule and phase first, then weights and mode (one boundary);
+    a base-motion controller loads the FIR (none: no feedforward)."""
+    if _runs_fir(rig):
+        rig.set_feedforward_fir(image.fir_taps)
+        return
     rig.set_mu_schedule(image.per_harmonic_schedule())
     rig.set_lms_phase(_phase_for_rig(image))
     rig.set_feedforward(image.mode, image.weights)
@@ -138,7 +184,7 @@ class CoefficientBanks:
                 image = BankImage.decode(data)
             except ValueError as err:
                 raise BankRefused("bad_value", f"inactive bank: {err}") from None
-            problem = image.problem(N_AXES, N_HARMONICS)
+            problem = _layout_problem(self.server.rig, image)
             if problem:
                 raise BankRefused("bad_value", problem)
             try:
@@ -162,9 +208,9 @@ class CoefficientBanks:
             active = bytes(self.banks[self.active])
             try:
                 image = BankImage.decode(active)
-                mode, sha = image.mode, image.source_sha256
+                mode, sha, fir = image.mode, image.source_sha256, image.fir_taps
             except ValueError:
-                mode, sha = "?", ""
+                mode, sha, fir = "?", "", None
             return {
                 "active_bank": self.active,
                 "active_crc32": f"{crc32(active):08x}",
@@ -174,8 +220,8 @@ class CoefficientBanks:
                 "inactive_crc32": f"{crc32(bytes(self.banks[1 - self.active])):08x}",
                 "inactive_length": len(self.banks[1 - self.active]),
                 "locked": time.monotonic() > self._unlocked_until,
-                "axes": [g.fields for g in self.server.rig.signal_groups() if g.topic == "/amb/gap"][0],
-                "harmonics": N_HARMONICS,
+                **layout(self.server.rig),
+                "active_fir_taps": 0 if fir is None else int(fir.shape[3]),
                 "log": list(self.log),
             }
 

@@ -17,21 +17,22 @@ import select
 import struct
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import protocol as proto
 from ..framing import FrameDecoder, encode_frame
 from ..protocol import MsgType, NakCode
-from ..rig.excitation import Excitation
+from ..rig.base_motion import MAX_TEST_SIGNAL_V
+from ..rig.excitation import MAX_AMPLITUDE_M, Excitation
 from ..rig.speed import SpeedProfile
 from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS, SPINDLE
 from ..signals import SampleBlock
 from .banks import DEFAULT_UNLOCK_KEY, BankRefused, CoefficientBanks
 from .rig_server import DeviceClock, RigServer
 
-CONTROLLER_TOPICS = ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor")
-TRUTH_TOPICS = ("/truth/runout", "/truth/position")
+SPINDLE_TOPICS = ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor")  # accel: a CAN device
 HEARTBEAT_S = 0.005  # heartbeats are the clock-sync pairs: stamped as they leave, 200 per second
 
 
@@ -92,11 +93,12 @@ class SimController:
         self.rig = server.rig
         self.clock = clock
         self.serial = serial
-        topics = CONTROLLER_TOPICS + (TRUTH_TOPICS if truth else ())
+        self.firmware = FIRMWARE[self.rig.profile]
         groups = {g.topic: g for g in self.rig.signal_groups()}
-        if truth and TRUTH_TOPICS[0] not in groups:
+        truth_topics = [t for t in groups if t.startswith("/truth/")]
+        if truth and not truth_topics:
             raise ValueError("truth topics need a rig built with truth=True")
-        self.groups = [groups[t] for t in topics]
+        self.groups = [groups[t] for t in self.firmware.topics + (tuple(truth_topics) if truth else ())]
         self._streaming = threading.Event()
         self._tx: queue.Queue[tuple[MsgType, bytes]] = queue.Queue(maxsize=tx_queue)
         self._seq = 0
@@ -201,7 +203,7 @@ class SimController:
     def identity(self) -> dict:
         return {
             "device_type": "controller",
-            "model": "AMB controller (simulated, seed 000 spindle)",
+            "model": self.firmware.model,
             "serial": self.serial,
             "firmware": "ambdaq-sim 0.1",
             "sample_rate_hz": self.rig.params.sample_rate,
@@ -209,8 +211,8 @@ class SimController:
                 {"topic": g.topic, "type": g.type_name, "fields": list(g.fields), "units": list(g.units)}
                 for g in self.groups
             ],
-            "parameters": sorted(PARAMETERS),
-            "calibration": self.rig.params.rotor_metadata(),
+            "parameters": sorted(self.firmware.parameters),
+            "calibration": self.rig.calibration(),
         }
 
     def _handle(self, frame: proto.Frame, received_ns: int) -> None:
@@ -225,7 +227,7 @@ class SimController:
             self._send(MsgType.ACK, proto.ack(frame.seq))
         elif t in (MsgType.PARAM_READ, MsgType.PARAM_WRITE):
             name, values = proto.parse_param_request(frame.body)
-            spec = PARAMETERS.get(name)
+            spec = self.firmware.parameters.get(name)
             if spec is None:
                 self._send(MsgType.NAK, proto.nak(frame.seq, NakCode.UNKNOWN_PARAMETER, f"no parameter {name!r}"))
                 return
@@ -317,11 +319,22 @@ def _excitation(values: np.ndarray) -> Excitation | None:
     return None if axis < 0 else Excitation(axis, float(values[1]), float(values[2]))
 
 
-def _excitation_problem(values: np.ndarray) -> str:
-    if values[0] != int(values[0]):
-        return "the axis must be an integer"
-    exc = _excitation(values)
-    return exc.problem(N_AXES, SPINDLE.sample_rate) if exc is not None else ""
+def _excitation_problem(n_axes: int, max_amplitude: float):
+    """A check of ``exc.signal`` values for a controller of ``n_axes`` whose test signal goes up to
+    ``max_amplitude`` (m for a gap feedforward, V for a voltage one)."""
+    def problem(values: np.ndarray) -> str:
+        if values[0] != int(values[0]):
+            return "the axis must be an integer"
+        exc = _excitation(values)
+        return exc.problem(n_axes, SPINDLE.sample_rate, max_amplitude) if exc is not None else ""
+
+    return problem
+
+
+def _excitation_param(n_axes: int, max_amplitude: float, unit: str) -> _Param:
+    return _Param(3, _read_excitation, lambda r, v: r.set_excitation(_excitation(v)), -1.0, 5000.0,
+                  f"test signal added to one axis's feedforward: [axis 0..{n_axes - 1} (-1 off), amplitude {unit} "
+                  "(sine peak, noise RMS), frequency Hz (0: white noise)]", _excitation_problem(n_axes, max_amplitude))
 
 
 def _read_excitation(rig) -> np.ndarray:
@@ -346,7 +359,29 @@ PARAMETERS: dict[str, _Param] = {
                            doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
     "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
                         0.0, 60000.0, "speed: reads the present speed, writes a set-point (ramp at 5,000 rpm/s), rpm"),
-    "exc.signal": _Param(3, _read_excitation, lambda r, v: r.set_excitation(_excitation(v)), -1.0, 5000.0,
-                         "test signal added to one axis's feedforward input: [axis 0..4 (-1 off), amplitude m "
-                         "(sine peak, noise RMS), frequency Hz (0: white noise)]", _excitation_problem),
+    "exc.signal": _excitation_param(N_AXES, MAX_AMPLITUDE_M, "m"),
+}
+
+BASE_MOTION_PARAMETERS: dict[str, _Param] = {
+    # the FIR is read here and changed only through the coefficient banks (BANK_*)
+    "ff.fir": _Param(0, lambda r: r.feedforward_fir.ravel(),
+                     doc="present feedforward taps [plane][output][input][tap], V per m/s^2"),
+    "exc.signal": _excitation_param(4, MAX_TEST_SIGNAL_V, "V"),
+}
+
+
+@dataclass(frozen=True)
+class Firmware:
+    """What the simulated controller of one rig profile streams and answers to."""
+
+    model: str
+    topics: tuple[str, ...]
+    parameters: dict[str, _Param]
+
+
+FIRMWARE = {
+    "spindle": Firmware("AMB controller (simulated, seed 000 spindle)", SPINDLE_TOPICS, PARAMETERS),
+    "base-motion": Firmware("AMB controller (simulated, seed 002 shaft on a moving base)",
+                            ("/amb/gap", "/amb/current", "/amb/ff", "/amb/control", "/base/accel"),
+                            BASE_MOTION_PARAMETERS),
 }

@@ -81,7 +81,7 @@ class SimulatedRig:
 def open_simulated_rig(profile: str, *, name: str, seed: int, speed: SpeedProfile, truth: bool, ff_mode: str,
                        noise: bool, calibration: dict[str, str] | None = None) -> list:
     """Start the simulated rig and open the real drivers on it; returns them as recorder sources."""
-    require_served(profile)
+    require_served(profile, "can")
     sim = SimulatedRig(profile, seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
     drivers = []
     try:

@@ -52,7 +52,8 @@ class ServedRig:
 
 
 def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", truth: bool = False,
-                 unlock_key: str = DEFAULT_UNLOCK_KEY, clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)) -> ServedRig:
+                 unlock_key: str = DEFAULT_UNLOCK_KEY, clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0),
+                 base_motion=None) -> ServedRig:
     """Start the rig and its AMB controller on a new pseudo-terminal; returns what is running.
 
     Parameters
@@ -69,10 +70,14 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
         The key the controller's coefficient banks want (``ambdaq push``).
     clock : DeviceClock
         The controller's clock (default: 5 s ahead of the host, running 50 ppm fast).
+    base_motion : BaseExcitation, optional
+        The simulated shaker's motion from the start (base-motion rig).
     """
-    require_served(profile)
+    require_served(profile, "serial")
     framing.warm_up()  # before the rig's clock starts: compiling must not make it late
     rig = build_rig(profile, seed=seed, speed=SpeedProfile.parse(speed), truth=truth)
+    if base_motion is not None:
+        rig.set_base_motion(base_motion)
     server = RigServer(rig)
     pty = Pty.open()
     controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth, unlock_key=unlock_key)
