@@ -121,7 +121,7 @@ def test_fitted_compensator_against_the_exact_one(chain):
     assert (d / "fir.png").stat().st_size > 30_000
 
 
-@pytest.mark.parametrize("f_hz", [5.0, 40.0, 100.0])
+@pytest.mark.parametrize("f_hz", [5.0, 20.0, 40.0, 70.0, 100.0])
 def test_campaign_frequencies_fall_by_20_db(chain, f_hz):
     d, _, run = chain
     amp = {}

@@ -251,11 +251,12 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
-    click.echo("relative cost J (both planes) per FIR order:")
+    click.echo("fit error per FIR order: RMS relative error over the points of both planes, % (eq. 19's J)")
     click.echo(f"{'order':>5}" + "".join(f"{f'W{j + 1}{m + 1}':>11}" for j, m in PAIRS))
     for i, o in enumerate(orders):
         mark = "  <- knee" if o == chosen else ""
-        click.echo(f"{o:>5}" + "".join(f"{costs[j, m, i]:>11.2e}" for j, m in PAIRS) + mark)
+        click.echo(f"{o:>5}" + "".join(f"{100 * np.sqrt(costs[j, m, i] / (2 * len(freqs))):>11.3f}"
+                                        for j, m in PAIRS) + mark)
     click.echo(f"FIR order {chosen} ({chosen + 1} taps) -> {output}")
     click.echo(f"{'Hz':>7}{'fit err %':>11}" + (f"{'vs W* %':>10}{'points vs W* %':>16}" if exact else ""))
     for i, f in enumerate(freqs):
