@@ -97,3 +97,34 @@ def test_routh_array_against_roots():
         p = np.concatenate([[1.0], rng.normal(size=rng.integers(2, 6))])
         assert routh_stable(p) == bool(np.all(np.real(np.roots(p)) < 0))
     assert MU0 == pytest.approx(1.25663706e-6)
+
+
+def test_model_command(run_cli, tmp_path):
+    import json
+
+    r = run_cli("model", "--example")
+    axis = tmp_path / "axis.toml"
+    axis.write_text(r.output)
+    r = run_cli("model", axis, "--json", "--plot", tmp_path / "region.png")
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert rep["stable"] and all(re < 0 for re, _ in rep["poles_rad_s"])
+    reg = rep["region"]
+    assert reg["kp_min"] == pytest.approx(rep["axis"]["ky_n_per_m"] / rep["axis"]["loop_gain_n_per_m"])
+    assert reg["kp_min"] < 3.0 < reg["kp_max_at_kd"]
+    assert (tmp_path / "region.png").stat().st_size > 10_000
+    # the paper's example through the command: Ky / G = 1.9 and its Kd < 0.166 s
+    g = 1.68 / (0.166 * TAU * TAU_C / (TAU + TAU_C))
+    text = axis.read_text().replace("# ky_n_per_m = 5.6e5", f"ky_n_per_m = {1.9 * g}").replace(
+        "# ki_n_per_a = 2.95e5", f"ki_n_per_a = {g}").replace("sensor_v_per_m = 10000", "sensor_v_per_m = 1")
+    axis.write_text(text)
+    rep = json.loads(run_cli("model", axis, "--json").stdout)
+    assert rep["region"]["kp_min"] == pytest.approx(1.9)
+    assert rep["region"]["kp_max_at_kd"] == pytest.approx(72.0, abs=0.05)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[magnet]\narea_mm2 = 155\n")
+    r = run_cli("model", bad)
+    assert r.exit_code == 2 and "missing turns" in r.output and r.output.count("\n") == 1
+    bad.write_text("not = [toml")
+    r = run_cli("model", bad)
+    assert r.exit_code == 2 and "not TOML" in r.output
