@@ -12,7 +12,8 @@ import numpy as np
 
 from ..signals import SampleBlock
 
-LEAD_BLOCKS = 2  # blocks computed ahead of the wall clock (a late rig thread has 20 ms of slack)
+LEAD_BLOCKS = 5  # blocks computed ahead of the wall clock: a rig thread starved for up to 50 ms still has
+# the sample a SYNC asks for (a SYNC it has not computed goes unanswered, a drop)
 
 
 @dataclass(frozen=True)
