@@ -11,7 +11,8 @@ import numpy as np
 from ..analysis.frf import h1_estimate
 from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
-from ..daq.reader import load
+from ..daq.mcapfile import McapFile
+from ..daq.reader import ambdaq_channels, load
 from ..drivers.devices import open_devices
 from ..drivers.rig.spindle import AXES, SPINDLE
 from ..errors import BadInputError, DeviceError
@@ -101,7 +102,8 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
     """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
     freq, columns = None, {}
     for path in paths:
-        rec = load(path, topics=[input_topic, output_topic])
+        spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))  # base-motion rigs have no rotor topic
+        rec = load(path, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
         x_data, y_data = rec[input_topic], rec[output_topic]
         n = min(len(x_data), len(y_data))
         axis = _excited_axis(x_data, path, input_axis)
@@ -119,10 +121,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         if freq is not None and not np.array_equal(freq, est.freq_hz):
             raise BadInputError(f"{path}: sample rate differs from the other recordings'")
         freq = est.freq_hz
-        try:
-            rpm = float(np.median(load(path, topics=["/amb/rotor"])["/amb/rotor"]["speed"])) * RPM_PER_RAD_S
-        except BadInputError:  # a rig without a spinning rotor (base-motion)
-            rpm = 0.0
+        rpm = float(np.median(rec["/amb/rotor"]["speed"])) * RPM_PER_RAD_S if spinning else 0.0
         columns[axis] = {
             "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
                        "segments": est.segments},

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import zlib
 from pathlib import Path
 
 import click
@@ -11,16 +10,17 @@ import numpy as np
 
 from ..analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
 from ..analysis.runout import harmonic_fit
-from ..daq.coefficients import Coefficients, canonical_json, file_sha256, now_iso
+from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.reader import load
+from ..daq.sealed import read_sealed, write_sealed
 from ..drivers.devices import open_device
-from ..drivers.rig.base_motion import AXES, BASE_AXES, PLANES, BaseExcitation, BaseMotionRig
+from ..drivers.rig.base_motion import AXES, BASE_AXES, BASE_MOTION, PLANES, BaseExcitation, BaseMotionRig
 from ..errors import BadInputError
 from .record import run_recording
 
 CAMPAIGN = "campaign.json"
-POINTS_FORMAT = "ambdaq-fx-points"
+POINTS_FORMAT, POINTS_VERSION = "ambdaq-fx-points", 1
 PAIRS = [(j, m) for j in range(2) for m in range(2)]  # (actuator, accelerometer)
 
 
@@ -132,8 +132,11 @@ def estimate(folder, path_file, mu, output, overwrite):
         raise BadInputError(f"{folder}: no readable {CAMPAIGN} ({err})") from None
     frf = FrequencyResponse.load(path_file)
     by_freq: dict[float, list] = {}
-    for step in plan["steps"]:
-        by_freq.setdefault(float(step["freq_hz"]), []).append(step)
+    try:
+        for step in plan["steps"]:
+            by_freq.setdefault(float(step["freq_hz"]), []).append(step)
+    except (KeyError, TypeError, ValueError) as err:
+        raise BadInputError(f"{folder / CAMPAIGN}: malformed campaign ({err})") from None
     freqs, W, residual = [], [], []
     for f, steps in sorted(by_freq.items()):
         if len(steps) != 2:
@@ -161,32 +164,20 @@ def estimate(folder, path_file, mu, output, overwrite):
         click.echo(f"{f:>7g} Hz  " + "  ".join(f"{PLANES[p]}: residual {20 * np.log10(residual[-1][p]):6.1f} dB"
                                               for p in range(2)), err=True)
     W = np.array(W)  # (freq, plane, j, m)
-    doc = {"format": POINTS_FORMAT, "version": 1, "unit": "V/(m/s^2)", "freq_hz": freqs,
+    doc = {"format": POINTS_FORMAT, "version": POINTS_VERSION, "unit": "V/(m/s^2)", "freq_hz": freqs,
            "planes": {PLANES[p]: {f"W{j + 1}{m + 1}": {"re": W[:, p, j, m].real.tolist(),
                                                        "im": W[:, p, j, m].imag.tolist()} for j, m in PAIRS}
                       for p in range(2)},
            "residual": [[float(r) for r in row] for row in residual],
            "source": {"campaign": str(folder), "path": str(path_file), "path_sha256": file_sha256(path_file),
                       "mu": mu, "created": now_iso()}}
-    doc["checksum"] = f"crc32:{zlib.crc32(canonical_json(doc)):08x}"
-    out = Path(output)
-    if out.exists() and not overwrite:
-        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
-    out.write_text(json.dumps(doc, indent=1) + "\n")
+    out = write_sealed(output, doc, overwrite=overwrite, indent=1)
     click.echo(f"{len(freqs)} frequencies x 2 planes -> {out}")
 
 
 def load_points(path: str) -> tuple[np.ndarray, np.ndarray]:
     """A points file -> (freq_hz (n,), W (n, plane, j, m) complex); checked like every ambdaq file."""
-    try:
-        doc = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise BadInputError(f"{path}: not a readable points file ({err})") from None
-    if not isinstance(doc, dict) or doc.get("format") != POINTS_FORMAT:
-        raise BadInputError(f"{path}: not an ambdaq compensator points file (format {POINTS_FORMAT!r})")
-    checksum = doc.pop("checksum", None)
-    if checksum != f"crc32:{zlib.crc32(canonical_json(doc)):08x}":
-        raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
+    doc = read_sealed(path, POINTS_FORMAT, POINTS_VERSION, "compensator points file")
     try:
         f = np.array(doc["freq_hz"], dtype=float)
         W = np.empty((f.shape[0], 2, 2, 2), dtype=complex)
@@ -219,7 +210,7 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
       ambdaq fx fit points.json -o fir.json --plot fir.png --exact
     """
     freqs, W = load_points(points)
-    fs = BaseMotionRig().params.sample_rate
+    fs = BASE_MOTION.sample_rate
     orders = np.arange(0, max_order + 1)
     costs = np.array([[[sum(fit_fir(freqs, W[:, p, j, m], o, fs)[1] for p in range(2)) for o in orders]
                        for m in range(2)] for j in range(2)])  # (j, m, order), both planes together

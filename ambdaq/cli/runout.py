@@ -13,7 +13,7 @@ import numpy as np
 from ..analysis.rotor import AXES, RigidRotor
 from ..analysis.runout import harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.reader import load
+from ..daq.reader import Recording, load
 from ..errors import AmbdaqError, BadInputError
 from .runout_plots import check_report, identify_report
 
@@ -41,6 +41,7 @@ class Identification:
     coef: Coefficients
     warnings: list[str]
     paths: list[Path]
+    first: Recording  # the first recording's gap, current and rotor, for the report
     spins: np.ndarray  # rad/s, per recording
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
 
@@ -52,10 +53,11 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
     one, else from separating runout and unbalance over the speeds, else (one fast recording)
     with a warning that it holds the unbalance response.
     """
-    per_file, warnings, sources = [], [], []
+    per_file, warnings, sources, recs = [], [], [], []
     rotor = device = identity = None
     for path in paths:
         rec = load(path, topics=["/amb/gap", "/amb/current", "/amb/rotor"])
+        recs.append(rec)
         rotor, device, identity = _rotor(rec, path)
         gap, cur, rot = rec["/amb/gap"], rec["/amb/current"], rec["/amb/rotor"]
         n = min(len(gap), len(cur), len(rot))
@@ -93,7 +95,7 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
         harmonics=list(harmonics),
         weights=weights,
     )
-    return Identification(coef, warnings, list(paths), spins, np.array([r for _, r in per_file]))
+    return Identification(coef, warnings, list(paths), recs[0], spins, np.array([r for _, r in per_file]))
 
 
 @click.group("runout")
@@ -145,15 +147,12 @@ class CheckFailed(AmbdaqError):
     """``runout check``: the after-recording did not meet the asked reduction (exit 1)."""
 
 
-def _synchronous(path: Path, harmonics: list[int]) -> dict:
+def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
     """Per radial axis: harmonic phasors of the command error and the gap sensor (m), the error's RMS (m)."""
-    rec = load(path, topics=["/amb/error", "/amb/gap", "/amb/rotor"])
-    if "/amb/error" not in rec.topics:
-        raise BadInputError(f"{path}: no /amb/error topic; record the controller (its command error) to check")
     err, gap, rot = rec["/amb/error"], rec["/amb/gap"], rec["/amb/rotor"]
     n = min(len(err), len(gap), len(rot))
     if n < 2:
-        raise BadInputError(f"{path}: too short to check ({n} samples)")
+        raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
     theta = rot["angle"][:n]
     out = {"rpm": float(np.median(rot["speed"][:n])) * RPM_PER_RAD_S, "axes": {}}
     for a in AXES:
@@ -190,7 +189,8 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
       ambdaq runout check run.mcap after.mcap --min-db 20 --max-rms 5 --plot check.png
     """
     orders = list(range(1, harmonics + 1))
-    b, a = _synchronous(Path(before), orders), _synchronous(Path(after), orders)
+    recs = [load(f, topics=["/amb/error", "/amb/gap", "/amb/rotor"]) for f in (before, after)]
+    b, a = (_synchronous(rec, orders) for rec in recs)
     rows, failures = {}, []
     for axis, rb in b["axes"].items():
         ra = a["axes"][axis]
@@ -207,7 +207,7 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
         if max_rms is not None and not rows[axis]["rms_after_um"] < max_rms:
             failures.append(f"{axis} RMS {rows[axis]['rms_after_um']:.2f} um after (>= {max_rms:g} um)")
     if plot_path:
-        check_report(Path(before), Path(after), orders, plot_path)
+        check_report(*recs, orders, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps({"before": {"path": before, "rpm": round(b["rpm"], 1)},

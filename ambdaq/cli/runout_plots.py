@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 
 from ..analysis.rotor import AXES
 from ..analysis.spectrum import amplitude_spectrum
-from ..daq.reader import load
+from ..daq.reader import Recording
 
 BEARINGS = ("front", "rear")
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
@@ -85,8 +84,7 @@ def identify_report(ident, path: str) -> None:
     coef = ident.coef
     harmonics = coef.harmonics
     runout = np.array([[complex(*coef.weights[a][i]) for a in AXES] for i in range(len(harmonics))])
-    rec = load(ident.paths[0], topics=["/amb/gap", "/amb/rotor"])
-    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    gap, rot = ident.first["/amb/gap"], ident.first["/amb/rotor"]
     n = min(len(gap), len(rot))
     theta, spin = rot["angle"][:n], float(ident.spins[0])
     rpm = spin * 60 / (2 * np.pi)
@@ -140,13 +138,13 @@ def identify_report(ident, path: str) -> None:
     plt.close(fig)
 
 
-def check_report(before: Path, after: Path, harmonics: list[int], path: str) -> None:
+def check_report(before: Recording, after: Recording, harmonics: list[int], path: str) -> None:
     """Write the before/after figure: command-error orbit and spectrum per bearing, both recordings.
 
     Parameters
     ----------
-    before, after : Path
-        Recordings with ``/amb/error`` and ``/amb/rotor``, before and after the push.
+    before, after : Recording
+        Loaded with ``/amb/error`` and ``/amb/rotor``, before and after the push.
     harmonics : list of int
         Orders marked on the spectra.
     path : str
@@ -154,11 +152,10 @@ def check_report(before: Path, after: Path, harmonics: list[int], path: str) -> 
     """
     plt = _pyplot()
     runs = {}
-    for label, file in (("before", before), ("after", after)):
-        rec = load(file, topics=["/amb/error", "/amb/rotor"])
+    for label, rec in (("before", before), ("after", after)):
         err, rot = rec["/amb/error"], rec["/amb/rotor"]
         n = min(len(err), len(rot))
-        runs[label] = (file, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
+        runs[label] = (rec.path, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
     styles = {"before": {"color": "0.55"}, "after": {"color": "C3"}}
     fig, axes = plt.subplots(2, 2, figsize=(12, 10), constrained_layout=True)
     for col, bearing in enumerate(BEARINGS):
@@ -179,6 +176,6 @@ def check_report(before: Path, after: Path, harmonics: list[int], path: str) -> 
             ax.axvline(k, color="k", lw=0.4, ls=":")
         ax.set_title(f"{x}: command error spectrum")
         ax.legend(fontsize=7)
-    fig.suptitle(f"command error before ({before.name}) and after ({after.name})")
+    fig.suptitle(f"command error before ({before.path.name}) and after ({after.path.name})")
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -21,9 +21,7 @@ to cancel the runout they equal its phasors.  The checksum is the CRC-32 of the 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import zlib
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError
+from .sealed import read_sealed, seal, write_sealed
 
 FORMAT = "ambdaq-coefficients"
 VERSION = 1
@@ -42,11 +41,6 @@ def file_sha256(path: str | Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def canonical_json(doc: dict) -> bytes:
-    """The bytes a file checksum covers: sorted keys, no spaces (coefficient and frequency-response files)."""
-    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
 
 
 @dataclass
@@ -76,33 +70,16 @@ class Coefficients:
             doc["lms_phase"] = self.lms_phase
         if self.lms_plant:
             doc["lms_plant"] = self.lms_plant
-        doc["checksum"] = f"crc32:{zlib.crc32(canonical_json(doc)):08x}"
-        return doc
+        return seal(doc)
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        return path
+        return write_sealed(path, self.to_dict(), overwrite=overwrite, indent=2)
 
     @classmethod
     def load(cls, path: str | Path) -> "Coefficients":
         """Read and check a coefficient file: format, version, checksum, finite weights."""
         path = Path(path)
-        try:
-            doc = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise BadInputError(f"{path}: no such coefficient file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise BadInputError(f"{path}: not a JSON coefficient file ({err})") from None
-        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-            raise BadInputError(f"{path}: not an ambdaq coefficient file (format must be {FORMAT!r})")
-        if doc.get("version") != VERSION:
-            raise BadInputError(f"{path}: coefficient file version {doc.get('version')!r}; this ambdaq reads {VERSION}")
-        checksum = doc.pop("checksum", None)
-        if checksum != f"crc32:{zlib.crc32(canonical_json(doc)):08x}":
-            raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
+        doc = read_sealed(path, FORMAT, VERSION, "coefficient file")
         try:
             runout = doc["runout"]
             weights = {axis: [[float(a), float(b)] for a, b in rows] for axis, rows in runout["weights"].items()}

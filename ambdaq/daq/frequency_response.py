@@ -15,15 +15,13 @@ One column per excited input axis; each holds the response of every output axis 
 
 from __future__ import annotations
 
-import json
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import BadInputError
-from .coefficients import canonical_json
+from .sealed import read_sealed, seal, write_sealed
 
 FORMAT = "ambdaq-frf"
 VERSION = 1
@@ -66,34 +64,16 @@ class FrequencyResponse:
         doc = {"format": FORMAT, "version": VERSION, "input_topic": self.input_topic,
                "output_topic": self.output_topic, "unit": self.unit, "freq_hz": self.freq_hz.tolist(),
                "columns": cols}
-        doc["checksum"] = f"crc32:{zlib.crc32(canonical_json(doc)):08x}"
-        return doc
+        return seal(doc)
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
-        path.write_text(json.dumps(self.to_dict()) + "\n")
-        return path
+        return write_sealed(path, self.to_dict(), overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "FrequencyResponse":
         """Read and check a frequency-response file: format, version, checksum, shapes, finite values."""
         path = Path(path)
-        try:
-            doc = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise BadInputError(f"{path}: no such frequency-response file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise BadInputError(f"{path}: not a JSON frequency-response file ({err})") from None
-        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-            raise BadInputError(f"{path}: not an ambdaq frequency-response file (format must be {FORMAT!r})")
-        if doc.get("version") != VERSION:
-            raise BadInputError(f"{path}: frequency-response file version {doc.get('version')!r}; "
-                                f"this ambdaq reads {VERSION}")
-        checksum = doc.pop("checksum", None)
-        if checksum != f"crc32:{zlib.crc32(canonical_json(doc)):08x}":
-            raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
+        doc = read_sealed(path, FORMAT, VERSION, "frequency-response file")
         try:
             freq = np.array(doc["freq_hz"], dtype=float)
             columns = {}

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 from scipy.linalg import solve_discrete_are
-from scipy.signal import butter, sosfilt, sosfilt_zi
+from scipy.signal import butter, sosfilt, sosfreqz
 
 from ..signals import SampleBlock, SignalGroup
-from .excitation import Excitation
+from .excitation import ExcitationInput
 from .speed import SpeedProfile
 from .spindle import GRAVITY, zoh
 
@@ -171,6 +171,8 @@ def _simulate(
     nring = hist.shape[1]
     ym = np.empty(2)
     u = np.empty(2)
+    xn = np.empty(6)
+    xhn = np.empty(6)
     for k in range(d_true.shape[0]):
         p0 = pos[0]
         for ch in range(4):  # the accelerometers, into the FIR's history
@@ -206,8 +208,6 @@ def _simulate(
             # observer (predictor form), integrators of [y, theta] (eq. 11), plant step
             inn0 = ym[0] - (Cm[0, 0] * xh[pl, 0] + Cm[0, 1] * xh[pl, 1])
             inn1 = ym[1] - (Cm[1, 0] * xh[pl, 0] + Cm[1, 1] * xh[pl, 1])
-            xn = np.empty(6)
-            xhn = np.empty(6)
             for i in range(6):
                 a = Gg[i] * grav[pl] + Gu[i, 0] * u[0] + Gu[i, 1] * u[1]
                 b = a + Gd[i, 0] * d_true[k, o] + Gd[i, 1] * d_true[k, o + 1]
@@ -225,7 +225,7 @@ def _simulate(
         pos[0] = (p0 + 1) % nring
 
 
-class BaseMotionRig:
+class BaseMotionRig(ExcitationInput):
     """Seed 002's shaft on a moving base, closed loop, sample by sample (see the module docstring).
 
     Parameters
@@ -246,6 +246,9 @@ class BaseMotionRig:
     """
 
     profile = "base-motion"
+    excitation_axes = AXES  # test signal in V, up to MAX_TEST_SIGNAL_V
+    excitation_in_m = False
+    excitation_max = MAX_TEST_SIGNAL_V
 
     def __init__(self, params: BaseMotionParams = BASE_MOTION, *, seed: int = 0,
                  speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False, ff_mode: str = "off",
@@ -263,7 +266,6 @@ class BaseMotionRig:
         self._rng = np.random.default_rng(seed)
         self._exc_rng = np.random.default_rng([seed, 1])
         self._base_rng = np.random.default_rng([seed, 2])
-        self._excitation: Excitation | None = None
         self._base: BaseExcitation | None = None
         self._base_sos = None
         self._base_zi = None
@@ -341,22 +343,6 @@ class BaseMotionRig:
         """The loaded taps, shape (2, 2, 2, n)."""
         return self._W[..., : self._ntaps].copy()
 
-    def excitation_for(self, request) -> Excitation:
-        """An :class:`ExcitationRequest` (amplitude in V) on this rig's axes; ValueError if it does not fit."""
-        return request.resolve(AXES, False, self.params.sample_rate, MAX_TEST_SIGNAL_V)
-
-    def set_excitation(self, excitation: Excitation | None) -> None:
-        """Add a test signal (amplitude in V) to one axis's feedforward output; None stops it."""
-        if excitation is not None:
-            problem = excitation.problem(len(AXES), self.params.sample_rate, MAX_TEST_SIGNAL_V)
-            if problem:
-                raise ValueError(problem)
-        self._excitation = excitation
-
-    @property
-    def excitation(self) -> Excitation | None:
-        return self._excitation
-
     def set_base_motion(self, motion: BaseExcitation | None) -> None:
         """Shake the base from the next block on (both planes); None holds it still."""
         if motion is not None:
@@ -366,12 +352,9 @@ class BaseMotionRig:
             if motion.kind == "noise":
                 self._base_sos = butter(4, motion.band_hz, btype="bandpass", fs=self.params.sample_rate,
                                         output="sos")
-                zi = sosfilt_zi(self._base_sos)
-                self._base_zi = np.repeat(zi[:, :, None] * 0.0, 4, axis=2)
+                self._base_zi = np.zeros((self._base_sos.shape[0], 2, 4))  # at rest
                 # unit RMS after the filter: its noise bandwidth relative to the Nyquist band
                 f = np.linspace(0, self.params.sample_rate / 2, 20001)
-                from scipy.signal import sosfreqz
-
                 _, resp = sosfreqz(self._base_sos, worN=f, fs=self.params.sample_rate)
                 self._base_gain = 1.0 / np.sqrt(np.mean(np.abs(resp) ** 2))
         self._base = motion
@@ -423,10 +406,7 @@ class BaseMotionRig:
         noise = self._rng.standard_normal((n, 8), dtype=np.float32)
         if not self.noise:
             noise[:] = 0.0
-        exc = np.zeros((n, 4))
-        excitation = self._excitation
-        if excitation is not None:
-            exc[:, excitation.axis] = excitation.samples(steps, self.h, self._exc_rng)
+        exc = self.excitation_block(steps)
         outs = [np.empty((n, 4)) for _ in range(6)]
         c = np.array([self.h, self.params.gap_noise, self.params.accel_noise, self.params.dac_range])
         c[1:3] *= 1.0 if self.noise else 0.0

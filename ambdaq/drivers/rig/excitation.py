@@ -73,3 +73,49 @@ class ExcitationRequest:
         if problem:
             raise ValueError(f"--excite {self.axis}: {problem}")
         return exc
+
+
+class ExcitationInput:
+    """The test-signal input of a simulated controller, mixed into a rig class.
+
+    The rig sets ``excitation_axes`` (its axis names), ``excitation_in_m`` (amplitudes in m, given
+    in um; else V) and ``excitation_max`` (largest amplitude, m or V) as class attributes, and
+    ``self._exc_rng`` (its own noise stream) in ``__init__``.
+    """
+
+    excitation_axes: tuple[str, ...] = ()
+    excitation_in_m: bool = True
+    excitation_max: float = MAX_AMPLITUDE_M
+    _excitation: Excitation | None = None
+
+    def excitation_for(self, request: ExcitationRequest) -> Excitation:
+        """A request (amplitude in um or V) on this rig's axes; ValueError if it does not fit."""
+        return request.resolve(self.excitation_axes, self.excitation_in_m, self.params.sample_rate,
+                               self.excitation_max)
+
+    def set_excitation(self, excitation: Excitation | None) -> None:
+        """Add a test signal to one axis's feedforward from the next block on, or stop it (None).
+
+        Raises
+        ------
+        ValueError
+            When the excitation is out of range (see :meth:`Excitation.problem`).
+        """
+        if excitation is not None:
+            problem = excitation.problem(len(self.excitation_axes), self.params.sample_rate, self.excitation_max)
+            if problem:
+                raise ValueError(problem)
+        self._excitation = excitation
+
+    @property
+    def excitation(self) -> Excitation | None:
+        """The test signal now running, or None."""
+        return self._excitation
+
+    def excitation_block(self, steps: np.ndarray) -> np.ndarray:
+        """The test signal at control steps ``steps``, shape (n, axes); zeros when none runs."""
+        exc = np.zeros((steps.shape[0], len(self.excitation_axes)))
+        excitation = self._excitation  # read once: a controller thread may replace it between blocks
+        if excitation is not None:
+            exc[:, excitation.axis] = excitation.samples(steps, self.h, self._exc_rng)
+        return exc

@@ -41,7 +41,7 @@ from numba import njit
 from scipy.linalg import expm
 
 from ..signals import SampleBlock, SignalGroup
-from .excitation import Excitation
+from .excitation import ExcitationInput
 from .speed import RPM_TO_RAD_S, SpeedProfile
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
@@ -425,7 +425,7 @@ def _groups(truth: bool) -> list[SignalGroup]:
     return groups
 
 
-class SpindleRig:
+class SpindleRig(ExcitationInput):
     """Closed-loop simulation of the seed 000 spindle, stepped in blocks of control periods.
 
     Parameters
@@ -447,6 +447,7 @@ class SpindleRig:
     """
 
     profile = "spindle"
+    excitation_axes = AXES  # test signal in m (given in um), up to MAX_AMPLITUDE_M
 
     def __init__(
         self,
@@ -473,7 +474,6 @@ class SpindleRig:
         self._ph_sin = np.zeros((N_AXES, PHASE_BINS))
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
-        self._excitation: Excitation | None = None
         self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
         self.step_index = 0
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
@@ -561,29 +561,6 @@ class SpindleRig:
         self._pid_p, self._pid_i = p.copy(), i.copy()
         self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
 
-    def excitation_for(self, request) -> Excitation:
-        """An :class:`ExcitationRequest` (amplitude in um) on this rig's axes; ValueError if it does not fit."""
-        return request.resolve(AXES, True, self.params.sample_rate)
-
-    def set_excitation(self, excitation: Excitation | None) -> None:
-        """Add a test signal to one axis's feedforward input from the next block on, or stop it (None).
-
-        Raises
-        ------
-        ValueError
-            When the excitation is out of range (see :meth:`Excitation.problem`).
-        """
-        if excitation is not None:
-            problem = excitation.problem(N_AXES, self.params.sample_rate)
-            if problem:
-                raise ValueError(problem)
-        self._excitation = excitation
-
-    @property
-    def excitation(self) -> Excitation | None:
-        """The test signal now running, or None."""
-        return self._excitation
-
     def set_mu_schedule(self, schedule) -> None:
         """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
     mapping harmonic -> rows (harmonics not named are held)."""
@@ -664,10 +641,7 @@ class SpindleRig:
         noise = self._rng.standard_normal((n, 15), dtype=np.float32)
         if not self.noise:
             noise[:] = 0.0
-        exc = np.zeros((n, N_AXES))
-        excitation = self._excitation  # read once: a controller thread may replace it between blocks
-        if excitation is not None:
-            exc[:, excitation.axis] = excitation.samples(steps, self.h, self._exc_rng)
+        exc = self.excitation_block(steps)
         outs = [np.empty((n, 5)) for _ in range(4)] + [np.empty((n, 5)), np.empty((n, 3))]
         out_run = np.empty((n, 5))
         out_pos = np.empty((n, 5))

@@ -24,10 +24,10 @@ import numpy as np
 from .. import protocol as proto
 from ..framing import FrameDecoder, encode_frame
 from ..protocol import MsgType, NakCode
-from ..rig.base_motion import MAX_TEST_SIGNAL_V
-from ..rig.excitation import MAX_AMPLITUDE_M, Excitation
+from ..rig.base_motion import BASE_MOTION, BaseMotionRig
+from ..rig.excitation import Excitation
 from ..rig.speed import SpeedProfile
-from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS, SPINDLE
+from ..rig.spindle import FF_MODES, N_AXES, N_HARMONICS, SPINDLE, SpindleRig
 from ..signals import SampleBlock
 from .banks import DEFAULT_UNLOCK_KEY, BankRefused, CoefficientBanks
 from .rig_server import DeviceClock, RigServer
@@ -319,22 +319,21 @@ def _excitation(values: np.ndarray) -> Excitation | None:
     return None if axis < 0 else Excitation(axis, float(values[1]), float(values[2]))
 
 
-def _excitation_problem(n_axes: int, max_amplitude: float):
-    """A check of ``exc.signal`` values for a controller of ``n_axes`` whose test signal goes up to
-    ``max_amplitude`` (m for a gap feedforward, V for a voltage one)."""
+def _excitation_param(rig_class, sample_rate: float) -> _Param:
+    """``exc.signal`` of a controller whose rig is ``rig_class`` (an ExcitationInput): its axes,
+    unit and limit are the rig's own."""
+    n_axes, top = len(rig_class.excitation_axes), rig_class.excitation_max
+    unit = "m" if rig_class.excitation_in_m else "V"
+
     def problem(values: np.ndarray) -> str:
         if values[0] != int(values[0]):
             return "the axis must be an integer"
         exc = _excitation(values)
-        return exc.problem(n_axes, SPINDLE.sample_rate, max_amplitude) if exc is not None else ""
+        return exc.problem(n_axes, sample_rate, top) if exc is not None else ""
 
-    return problem
-
-
-def _excitation_param(n_axes: int, max_amplitude: float, unit: str) -> _Param:
     return _Param(3, _read_excitation, lambda r, v: r.set_excitation(_excitation(v)), -1.0, 5000.0,
                   f"test signal added to one axis's feedforward: [axis 0..{n_axes - 1} (-1 off), amplitude {unit} "
-                  "(sine peak, noise RMS), frequency Hz (0: white noise)]", _excitation_problem(n_axes, max_amplitude))
+                  "(sine peak, noise RMS), frequency Hz (0: white noise)]", problem)
 
 
 def _read_excitation(rig) -> np.ndarray:
@@ -359,14 +358,14 @@ PARAMETERS: dict[str, _Param] = {
                            doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
     "speed.rpm": _Param(1, lambda r: np.array([r.run_speed_rpm()]), lambda r, v: _command_speed(r, float(v[0])),
                         0.0, 60000.0, "speed: reads the present speed, writes a set-point (ramp at 5,000 rpm/s), rpm"),
-    "exc.signal": _excitation_param(N_AXES, MAX_AMPLITUDE_M, "m"),
+    "exc.signal": _excitation_param(SpindleRig, SPINDLE.sample_rate),
 }
 
 BASE_MOTION_PARAMETERS: dict[str, _Param] = {
     # the FIR is read here and changed only through the coefficient banks (BANK_*)
     "ff.fir": _Param(0, lambda r: r.feedforward_fir.ravel(),
                      doc="present feedforward taps [plane][output][input][tap], V per m/s^2"),
-    "exc.signal": _excitation_param(4, MAX_TEST_SIGNAL_V, "V"),
+    "exc.signal": _excitation_param(BaseMotionRig, BASE_MOTION.sample_rate),
 }
 
 

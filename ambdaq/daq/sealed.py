@@ -1,0 +1,58 @@
+"""Sealed JSON documents: versioned and checksummed, as the coefficient file, the frequency-response
+file and the compensator points file are.
+
+A document carries ``"format"`` and ``"version"``, and ``"checksum": "crc32:xxxxxxxx"``, the CRC-32
+of its canonical JSON (sorted keys, no spaces) without the checksum. A file edited by hand, of
+another format or version, or not JSON, is refused in one line (BadInputError, exit 2).
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from pathlib import Path
+
+from ..errors import BadInputError
+
+
+def canonical_json(doc: dict) -> bytes:
+    """The bytes a document's checksum covers: sorted keys, no spaces."""
+    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
+
+
+def _checksum(doc: dict) -> str:
+    return f"crc32:{zlib.crc32(canonical_json(doc)):08x}"
+
+
+def seal(doc: dict) -> dict:
+    """``doc`` with its checksum (last), computed over everything else; sealing twice changes nothing."""
+    body = {k: v for k, v in doc.items() if k != "checksum"}
+    return {**body, "checksum": _checksum(body)}
+
+
+def write_sealed(path: str | Path, doc: dict, *, overwrite: bool = False, indent: int | None = None) -> Path:
+    """Write ``seal(doc)`` to ``path``; refuses to replace a file unless ``overwrite``."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+    path.write_text(json.dumps(seal(doc), indent=indent) + "\n")
+    return path
+
+
+def read_sealed(path: str | Path, fmt: str, version: int, what: str) -> dict:
+    """Read a sealed document and check its format, version and checksum; returns it without the
+    checksum. ``what`` names the file in messages (``"coefficient file"`` ...)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInputError(f"{path}: no such {what}") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise BadInputError(f"{path}: not a JSON {what} ({err})") from None
+    if not isinstance(doc, dict) or doc.get("format") != fmt:
+        raise BadInputError(f"{path}: not an ambdaq {what} (format must be {fmt!r})")
+    if doc.get("version") != version:
+        raise BadInputError(f"{path}: {what} version {doc.get('version')!r}; this ambdaq reads {version}")
+    if doc.pop("checksum", None) != _checksum(doc):
+        raise BadInputError(f"{path}: checksum mismatch: the file was changed after it was written")
+    return doc
