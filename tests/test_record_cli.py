@@ -23,7 +23,7 @@ def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
     rec = load(out)
     assert len(rec["/amb/gap"]) == 15000
     # host log_time follows the wall clock of the recording.  The controller's clock runs 50 ppm
-    # fast; a recording shorter than the 2 s the drift estimate needs is mapped by offset alone,
+    # fast; a recording shorter than the 3 s the drift estimate needs is mapped by offset alone,
     # so its span may be off by up to 50 ppm (75 us here), less than one sample period
     span = (rec["/amb/gap"].log_time[-1] - rec["/amb/gap"].log_time[0]) * 1e-9
     assert abs(span - 1.4999) < 100e-6

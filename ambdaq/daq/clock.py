@@ -3,15 +3,21 @@
 Every clock pair is (device time, host time it arrived): a sync message stamped by the device as
 it left, or failing that the last sample of a block.  Arrival = departure + latency, and latency
 is never negative, so the fastest pairs lie on a line ``host = device + offset + drift * device``
-and every other pair lies above it.  We estimate that line as Moon, Skelly and Towsley do for
-one-way delay (IEEE INFOCOM 1999): the line below every pair of the last ``SPAN_S`` seconds that is
-closest to them in total, which is the edge of their lower convex hull straddling their mean
-device time.  Jitter only ever lifts points off the hull, so it cannot pull the line up.
+and every other pair lies above it.
 
-The line itself is the fastest arrival, one one-way latency after the true instant; where the
-driver measures that latency (half the least round trip of a time exchange, as NTP does) it is
-subtracted (:attr:`ClockMap.latency_ns`).  The pairs' height above the line is the latency beyond
-the fastest; its 10th percentile is reported as the map's uncertainty.
+We estimate that floor from the last ``SPAN_S`` seconds of pairs in two robust steps: the fastest
+pair of each ``BIN_S`` bin of device time (jitter only lifts pairs, so a bin's minimum is the
+floor plus a little), then the Theil-Sen line through those minima (slope: the median of the
+slopes between every two bins, Theil 1950 and Sen 1968; intercept: the median of what is left).
+A bin whose every pair was delayed (a scheduler stall, a burst after a full buffer) is an outlier
+the medians ignore.  On recorded heartbeat pairs of two simulated controllers this halves the
+worst misalignment of the lower-hull edge at the pairs' mean (Moon, Skelly and Towsley, INFOCOM
+1999), which rests on the two fastest pairs alone; see docs/protocol.md.
+
+The line itself is one fastest one-way latency after the true instant; where the driver measures
+that latency (half the least round trip of a time exchange, as NTP does) it is subtracted
+(:attr:`ClockMap.latency_ns`).  The 95th percentile of the bin minima's distance from the line is
+reported as the map's uncertainty.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 SPAN_S = 10.0  # fit over the last 10 s of pairs
-SETTLE_S = 2.0  # pairs spanning this long before drift is estimated
+SETTLE_S = 3.0  # pairs spanning this long before drift is estimated
+BIN_S = 0.25  # the fastest pair of each bin of device time
 REFIT_S = 0.25  # refit every quarter second of device time
 
 
@@ -37,33 +44,37 @@ class ClockFit:
     latency_ns: int = 0
 
 
-def lower_hull_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Intercept and slope of the line below all (x, y) closest to them in total.
-
-    That line supports the lower convex hull on the edge whose x-range contains mean(x).
+def floor_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Theil-Sen line through the per-bin minima of (x, y): intercept, slope and spread.
 
     Parameters
     ----------
     x : ndarray
-        Sorted abscissae (s).
+        Device times (s), ascending.
     y : ndarray
-        Ordinates (ns).
+        Host minus device time of the same pairs (ns).
+
+    Returns
+    -------
+    intercept : float
+        Line value at x = 0 (ns).
+    slope : float
+        ns per s of device time (ppm * 1e3).
+    spread : float
+        95th percentile of the bin minima's distance from the line (ns).
     """
-    hull: list[int] = []
-    for i in range(x.shape[0]):  # Andrew's monotone chain, lower part
-        while len(hull) >= 2:
-            o, a = hull[-2], hull[-1]
-            if (x[a] - x[o]) * (y[i] - y[o]) - (y[a] - y[o]) * (x[i] - x[o]) <= 0:
-                hull.pop()
-            else:
-                break
-        hull.append(i)
-    xm = float(np.mean(x))
-    for a, b in zip(hull[:-1], hull[1:]):
-        if x[a] <= xm <= x[b] and x[b] > x[a]:
-            slope = (y[b] - y[a]) / (x[b] - x[a])
-            return float(y[a] - slope * x[a]), float(slope)
-    return float(np.min(y)), 0.0
+    k = np.floor(x / BIN_S).astype(np.int64)
+    edges = np.flatnonzero(np.diff(k)) + 1
+    starts = np.concatenate(([0], edges))
+    ends = np.concatenate((edges, [x.shape[0]]))
+    at = np.array([s + int(np.argmin(y[s:e])) for s, e in zip(starts, ends)])
+    bx, by = x[at], y[at]
+    if bx.shape[0] < 2:
+        return float(by.min()), 0.0, 0.0
+    i, j = np.triu_indices(bx.shape[0], 1)
+    slope = float(np.median((by[j] - by[i]) / (bx[j] - bx[i])))
+    intercept = float(np.median(by - slope * bx))
+    return intercept, slope, float(np.percentile(np.abs(by - intercept - slope * bx), 95))
 
 
 class ClockMap:
@@ -77,6 +88,7 @@ class ClockMap:
         self._next_fit = 0.0
         self._a = 0.0  # y = a + b x
         self._b = 0.0
+        self._spread = float("nan")  # of the bin minima about the line, once settled
         self._settled = False
         self.latency_ns = 0  # one-way latency of the fastest pairs, subtracted when known
 
@@ -110,7 +122,7 @@ class ClockMap:
                 return
         if x >= self._next_fit:
             self._next_fit = x + REFIT_S
-            self._a, self._b = lower_hull_line(np.asarray(self._x), np.asarray(self._y))
+            self._a, self._b, self._spread = floor_line(np.asarray(self._x), np.asarray(self._y))
 
     def to_host(self, device_ns: np.ndarray) -> np.ndarray:
         """Host times (int64 ns) of device times ``device_ns`` (int64 ns)."""
@@ -120,9 +132,6 @@ class ClockMap:
         return self._h0 + dd + np.round(self._a + self._b * (dd * 1e-9) - self.latency_ns).astype(np.int64)
 
     def fit(self) -> ClockFit:
-        """The present estimate; uncertainty: 10th percentile of the pairs' height above the line."""
-        x, y = np.asarray(self._x), np.asarray(self._y)
-        above = y - (self._a + self._b * x) if x.size else np.array([np.nan])
+        """The present estimate; uncertainty: the bin minima's spread about the line (NaN until settled)."""
         # host = device (1 + b): b is in ns per s of device time, i.e. ppm * 1e3
-        return ClockFit(self._b * 1e-3, self._a - self.latency_ns, float(np.percentile(above, 10)), int(x.size),
-                        self.latency_ns)
+        return ClockFit(self._b * 1e-3, self._a - self.latency_ns, self._spread, len(self._x), self.latency_ns)

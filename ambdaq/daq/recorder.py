@@ -415,7 +415,7 @@ class Recorder:
         """Map a block to the host clock and write it.
 
         Blocks that say when they arrived feed the device's online clock map (offset and drift).
-        A device's first blocks wait until its drift is estimated (2 s of pairs), so the whole file is
+        A device's first blocks wait until its drift is estimated (3 s of pairs), so the whole file is
         mapped through a fitted line; in-process sources without arrival times start their clock
         at 0 when the recording starts, so their mapping is the start offset.
         """
