@@ -10,6 +10,7 @@ import click
 from ..drivers.devices import open_device
 from ..daq.coefficients import Coefficients, fir_array
 from ..drivers.rig.base_motion import PLANES, BaseExcitation
+from ..drivers.rig.cone import Impact
 from ..errors import BadInputError
 from ..drivers.rig.profiles import PROFILES
 from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
@@ -36,10 +37,15 @@ def command() -> None:
               "or noise:LO-HI:RMS, in m/s^2; ALPHA = d1/d2, the ratio of the two bearings' base accelerations.")
 @click.option("--fir", "fir_file", type=click.Path(dir_okay=False),
               help="Base-motion rig: run its feedforward u = W d with the FIR of this coefficient file (ambdaq fx fit).")
+@click.option("--impact", metavar="AXIS:PEAK_N[:EVERY_S]",
+              help="Cone rig: instrumented-hammer strikes on a bearing coordinate (x, y1, y2, z1, z2), a 0.5 ms "
+                   "half-sine of PEAK_N newtons from 0.2 s, every EVERY_S s (default 0.5).")
+@click.option("--start", type=click.Choice(["levitated", "touchdown"]), default="levitated", show_default=True,
+              help="Cone rig: start levitated, or at rest on the touchdown bearings with the amplifiers just enabled.")
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, output, split_size,
-             split_duration, compression, overwrite, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, output,
+             split_size, split_duration, compression, overwrite, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -47,6 +53,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --duration 60 --rpm 0:50000 --truth -o runup.mcap
       ambdaq sim generate --duration 20 --excite front_x:2 -o frf_front_x.mcap
       ambdaq sim generate --profile base-motion --duration 10 --base noise:5-100:1 -o base.mcap
+      ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
     """
     url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
     source = open_device(url, speed=speed or "0", truth=truth, paced=False)
@@ -64,6 +71,11 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             if rate != source.rig.params.sample_rate:
                 raise BadInputError(f"{fir_file}: its FIR runs at {rate:g} Hz, the rig at {source.rig.params.sample_rate:g} Hz")
             source.rig.set_feedforward_fir(taps)
+        if impact is not None or start != "levitated":
+            if not hasattr(source.rig, "set_impact"):
+                raise BadInputError(f"--impact/--start: the {profile} rig has no hammer or touchdown bearings (use --profile cone)")
+            source.rig.set_impact(None if impact is None else Impact.parse(impact))
+            source.rig.restart(start)
     except ValueError as err:
         raise BadInputError(str(err)) from None
     run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,

@@ -2,8 +2,6 @@
 
 Each profile is one module in this package with a rig class exposing ``params``, ``profile``,
 ``seed``, ``speed``, ``step_index``, ``signal_groups()`` and ``run(n) -> SampleBlock``.
-Later profiles plug in here, one module and one line each: ``cone`` (seed 001's conical
-bearing) and ``lorentz`` (seed 003's integrated motor-bearing).
 """
 
 from __future__ import annotations
@@ -13,15 +11,17 @@ from typing import Any
 from ...errors import BadInputError
 
 from .base_motion import BaseMotionRig
+from .cone import ConeRig
 from .spindle import SpindleRig
 
 PROFILES: dict[str, type] = {
     "spindle": SpindleRig,
     "base-motion": BaseMotionRig,
+    "cone": ConeRig,
 }
 
 
-SERVED = {"spindle": ("serial", "can"), "base-motion": ("serial",)}  # transports each profile's devices use
+SERVED = {"spindle": ("serial", "can"), "base-motion": ("serial",), "cone": ()}  # transports each profile's devices use
 
 
 def require_served(profile: str, transport: str) -> None:
