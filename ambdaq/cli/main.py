@@ -47,9 +47,9 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import devices, export, frf, fx, identify, info, lms, model, plot, push, record, recover, runout, sim
+    from . import devices, export, frf, fx, identify, info, lms, model, plot, push, record, recover, runout, selfsense, sim
 
-    for module in (record, sim, devices, info, export, plot, recover, runout, lms, frf, fx, model, identify):
+    for module in (record, sim, devices, info, export, plot, recover, runout, lms, frf, fx, model, identify, selfsense):
         cli.add_command(module.command)
     cli.add_command(push.push_command)
     cli.add_command(push.controller_group)

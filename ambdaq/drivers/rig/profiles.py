@@ -12,16 +12,18 @@ from ...errors import BadInputError
 
 from .base_motion import BaseMotionRig
 from .cone import ConeRig
+from .lorentz import LorentzRig
 from .spindle import SpindleRig
 
 PROFILES: dict[str, type] = {
     "spindle": SpindleRig,
     "base-motion": BaseMotionRig,
     "cone": ConeRig,
+    "lorentz": LorentzRig,
 }
 
 
-SERVED = {"spindle": ("serial", "can"), "base-motion": ("serial",), "cone": ()}  # transports each profile's devices use
+SERVED = {"spindle": ("serial", "can"), "base-motion": ("serial",), "cone": (), "lorentz": ()}  # transports each profile's devices use
 
 
 def require_served(profile: str, transport: str) -> None:

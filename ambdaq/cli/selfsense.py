@@ -1,0 +1,166 @@
+"""``ambdaq selfsense``: seed 003's flux-linkage angle estimator run offline over recordings."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+import numpy as np
+
+from ..analysis.selfsense import angle_error, estimate_angle, lyapunov_bound
+from ..daq import load
+from ..errors import BadInputError
+
+VOLTAGE, CURRENT, ENCODER = "/coil/voltage", "/coil/current", "/motor/encoder"
+CONVERGED_DEG = 1.0
+SWEEP_DEG = np.arange(-85, 150, 5)
+
+
+def _model(meta: dict, path: str, overrides: dict) -> dict:
+    """R, L and the back-EMF constant: the options, else the recording's calibration."""
+    cal = next((v for k, v in meta.items() if k.startswith("ambdaq.calibration.") and "emf_constant_v_s" in v), {})
+    out = {}
+    for key, name in (("resistance", "resistance_ohm"), ("inductance", "inductance_h"), ("emf_constant", "emf_constant_v_s")):
+        value = overrides[key] if overrides[key] is not None else cal.get(name)
+        if value is None:
+            raise BadInputError(f"{path}: no {name} in the recording's calibration; give --{key.replace('_', '-')}")
+        value = float(value)
+        if not (math.isfinite(value) and (value > 0 or key == "inductance" and value == 0)):
+            raise BadInputError(f"{path}: {key} must be a positive number, not {value!r}")
+        out[key] = value
+    return out
+
+
+def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: dict, sweep: bool) -> dict:
+    rec = load(path, topics=[VOLTAGE, CURRENT, ENCODER])  # one line and exit 2 if a topic is missing
+    v, i, enc = rec[VOLTAGE], rec[CURRENT], rec[ENCODER]
+    if len(v) != len(i) or len(v) != len(enc) or len(v) < 100:
+        raise BadInputError(f"{path}: voltages, currents and encoder must be the same sample instants (at least 100)")
+    model = _model(rec.metadata, path, overrides)
+    rate = rec.nominal_rate(VOLTAGE)
+    V = np.column_stack([v[f] for f in v.fields])
+    I = np.column_stack([i[f] for f in i.fields])
+    true = enc["angle"]
+    t = (v.log_time - v.log_time[0]) * 1e-9
+    est = estimate_angle(V, I, rate, theta0=true[0] + np.deg2rad(initial_error_deg), **model)
+    err = np.rad2deg(angle_error(est, true))
+    above = np.flatnonzero(np.abs(err) >= CONVERGED_DEG)
+    converged_s = float(t[above[-1] + 1]) if above.size and above[-1] + 1 < t.size else (0.0 if not above.size else None)
+    steady = t >= max(settle_s, converged_s if converged_s is not None else settle_s)
+    speed = np.gradient(np.unwrap(true), t) * 60 / (2 * np.pi)
+    out = {"file": str(path), "samples": int(t.size), "initial_error_deg": initial_error_deg,
+           "converged_s": converged_s, "model": model,
+           "speed_rpm": {"start": round(float(np.mean(speed[: max(1, int(0.05 * rate))])), 1),
+                         "end": round(float(np.mean(speed[-max(1, int(0.05 * rate)):])), 1)}}
+    if steady.sum() > 0:
+        e = err[steady]
+        out["steady"] = {"from_s": round(float(t[steady][0]), 4), "speed_rpm": round(float(np.mean(speed[steady])), 1),
+                         "mean_deg": round(float(np.mean(e)), 4), "mean_abs_deg": round(float(np.mean(np.abs(e))), 4),
+                         "std_deg": round(float(np.std(e)), 4), "max_abs_deg": round(float(np.max(np.abs(e))), 4)}
+    if sweep:
+        finals = []
+        for e0 in SWEEP_DEG:
+            run = estimate_angle(V, I, rate, theta0=true[0] + np.deg2rad(e0), **model)
+            finals.append(float(np.rad2deg(run[-1] - true[-1])))
+        bound = lyapunov_bound(rate)
+        converges = [bool(abs(f) < CONVERGED_DEG) for f in finals]
+        inside = [bool(bound.eps_low_deg < e0 < bound.eps_high_deg) for e0 in SWEEP_DEG]
+        # on a bound the error sits on the unstable equilibrium: either way is right
+        edge = [min(abs(e0 - bound.eps_low_deg), abs(e0 - bound.eps_high_deg)) < 0.5 for e0 in SWEEP_DEG]
+        out["sweep"] = {"initial_deg": SWEEP_DEG.tolist(), "final_deg": [round(f, 2) for f in finals],
+                        "converges": converges, "lyapunov_deg": [round(bound.eps_low_deg, 2), round(bound.eps_high_deg, 2)],
+                        "lyapunov_max_rpm": round(bound.max_rpm),
+                        "agrees": all(c == n for c, n, x in zip(converges, inside, edge) if not x)}
+    out["_series"] = (t, true, est, err, speed)
+    return out
+
+
+@click.command("selfsense")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--initial-error", "initial_error_deg", type=float, default=8.0, show_default=True, metavar="DEG",
+              help="The estimator starts this far from the encoder's angle (mechanical degrees).")
+@click.option("--settle", "settle_s", type=click.FloatRange(min=0), default=1.0, show_default=True, metavar="SECONDS",
+              help="Steady-state statistics start after this, and after the error has stayed below 1 deg if it does.")
+@click.option("--resistance", type=float, metavar="OHM", help="Coil resistance the estimator assumes (default: calibration).")
+@click.option("--inductance", type=float, metavar="H", help="Coil inductance the estimator assumes (default: calibration).")
+@click.option("--emf-constant", type=float, metavar="V_S", help="k_e B sin(2 pi/5) (default: calibration).")
+@click.option("--sweep", is_flag=True, help="Also run from initial errors -85..145 deg and compare with the Lyapunov bound (eq. 18).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Figure like seed 003 Fig. 5-7.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def command(files, initial_error_deg, settle_s, resistance, inductance, emf_constant, sweep, plot_path, as_json):
+    """Run the flux-linkage angle estimator (seed 003 eq. 10-13) over recordings and compare it
+    with the encoder.
+
+    Each FILE holds six coil voltages (/coil/voltage), currents (/coil/current) and an encoder
+    (/motor/encoder), e.g. from `ambdaq sim generate --profile lorentz`.  Reports when the error
+    stays below 1 deg, and its steady-state mean, mean absolute value and spread.  With several
+    files at different speeds the figure shows the error's mean and spread against speed (Fig. 7).
+
+    \b
+    Example:
+      ambdaq sim generate --profile lorentz --rpm 0:100:2 --duration 6 -o start.mcap
+      ambdaq selfsense start.mcap --sweep --plot start.png
+    """
+    overrides = {"resistance": resistance, "inductance": inductance, "emf_constant": emf_constant}
+    results = [_analyse(f, initial_error_deg, settle_s, overrides, sweep) for f in files]
+    if plot_path:
+        _plot(results, plot_path)
+    for r in results:
+        r.pop("_series")
+    if as_json:
+        click.echo(json.dumps(results if len(results) > 1 else results[0], indent=2))
+        return
+    for r in results:
+        conv = "never" if r["converged_s"] is None else f"{r['converged_s']:.3f} s"
+        click.echo(f"{r['file']}: {r['speed_rpm']['start']:g} -> {r['speed_rpm']['end']:g} rpm, "
+                   f"from {r['initial_error_deg']:g} deg the error stays below {CONVERGED_DEG:g} deg after {conv}")
+        if "steady" in r:
+            s = r["steady"]
+            click.echo(f"  steady from {s['from_s']:g} s at {s['speed_rpm']:g} rpm: mean {s['mean_deg']:+.3f} deg, "
+                       f"mean |error| {s['mean_abs_deg']:.3f} deg, std {s['std_deg']:.3f} deg, max {s['max_abs_deg']:.3f} deg")
+        if "sweep" in r:
+            sw = r["sweep"]
+            conv = [e for e, c in zip(sw["initial_deg"], sw["converges"]) if c]
+            click.echo(f"  sweep: converges from {min(conv):g} to {max(conv):g} deg (steps of 5); Lyapunov bound (eq. 18) "
+                       f"({sw['lyapunov_deg'][0]:g}, {sw['lyapunov_deg'][1]:g}) deg up to {sw['lyapunov_max_rpm']:,} rpm: "
+                       + ("agrees" if sw["agrees"] else "DISAGREES"))
+
+
+def _plot(results: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    several = len(results) > 1
+    fig, axes = plt.subplots(3 if several else 2, 1, figsize=(9, 9 if several else 6.5))
+    for r in results:
+        t, true, est, err, _ = r["_series"]
+        label = f"{r['file']}"
+        axes[0].plot(t, np.rad2deg(true) % 360, lw=0.8, label=f"encoder ({label})")
+        axes[0].plot(t, np.rad2deg(est) % 360, lw=0.8, ls="--", label="estimate")
+        axes[1].plot(t, err, lw=0.6, label=label)
+    axes[0].set_ylabel("angle (deg)")
+    axes[0].set_title("(a) measured and estimated rotor angle (Fig. 5a, 6a)")
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[1].set_ylabel("error (deg)")
+    axes[1].set_xlabel("time (s)")
+    axes[1].axhline(CONVERGED_DEG, color="k", lw=0.5, ls=":")
+    axes[1].axhline(-CONVERGED_DEG, color="k", lw=0.5, ls=":")
+    axes[1].set_title("(b) angle error (Fig. 5b, 6b)")
+    if several:
+        rows = sorted((r["steady"]["speed_rpm"], r["steady"]["mean_deg"], r["steady"]["std_deg"]) for r in results if "steady" in r)
+        if rows:
+            sp, mean, std = map(np.array, zip(*rows))
+            axes[2].plot(sp, mean, "o-", label="mean")
+            axes[2].plot(sp, std, "s-", label="standard deviation")
+            axes[2].set_xlabel("speed (rpm)")
+            axes[2].set_ylabel("error (deg)")
+            axes[2].set_title("steady-state angle error against speed (Fig. 7)")
+            axes[2].legend()
+    for ax in axes:
+        ax.grid(True, lw=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
