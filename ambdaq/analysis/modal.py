@@ -1,12 +1,13 @@
 """Natural frequencies and damping ratios from impact tests.
 
 Each hammer strike is found on the force channel; the response that follows, once the strike is
-over, is a free decay: a sum of damped modes y[k] = sum_i c_i z_i^k.  The eigensystem realisation
-algorithm (ERA; Juang and Pappa, J. Guidance 1985) finds the z_i from the Hankel matrices of
-those decays: H0 = U S V^T truncated to the model order, A = S^-1/2 U^T H1 V S^-1/2, z = eig(A),
-s = ln(z) fs.  The decays of every strike sit side by side in the Hankel matrices, so strikes of
-different strength need no scaling.  Each mode's share of the response comes from a least-squares
-fit of the c_i; the mode with the largest share is the dominant one.
+over, is a free decay: a sum of damped modes y[k] = sum_i c_i z_i^k, y one or several sensors.
+The eigensystem realisation algorithm (ERA; Juang and Pappa, J. Guidance 1985) finds the z_i from
+the block Hankel matrices of those decays: H0 = U S V^T truncated to the model order,
+A = S^-1/2 U^T H1 V S^-1/2, z = eig(A), s = ln(z) fs.  The decays of every strike sit side by side
+in the Hankel matrices, so strikes of different strength need no scaling; several sensors (block
+rows) separate modes that one sensor sees mixed.  Each mode's share of the response comes from a
+least-squares fit of the c_i per sensor; the mode with the largest share is the dominant one.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ def free_decays(response: np.ndarray, force: np.ndarray, rate: float, *, window_
 
     Parameters
     ----------
-    response : ndarray
-        Response signal (any unit).
+    response : ndarray, shape (n,) or (n, p)
+        Response of one or ``p`` sensors (any unit).
     force : ndarray
         Hammer force at the same instants, in N.
     rate : float
@@ -78,6 +79,7 @@ def free_decays(response: np.ndarray, force: np.ndarray, rate: float, *, window_
         out in it.
     """
     y = np.asarray(response, dtype=float)
+    y = y[:, None] if y.ndim == 1 else y
     n, skip, pre = int(round(window_s * rate)), int(round(skip_s * rate)), int(round(0.01 * rate))
     out = []
     hits = strikes(force, rate)
@@ -86,7 +88,7 @@ def free_decays(response: np.ndarray, force: np.ndarray, rate: float, *, window_
         stop = min(start + n, hits[k + 1][0] if k + 1 < len(hits) else y.shape[0])
         if a - pre < 0 or stop - start < n // 2:
             continue
-        out.append(y[start:stop] - np.mean(y[a - pre:a]))
+        out.append(y[start:stop] - np.mean(y[a - pre:a], axis=0))
     return out
 
 
@@ -95,8 +97,8 @@ def era(decays: list[np.ndarray], order: int, rate: float) -> np.ndarray:
 
     Parameters
     ----------
-    decays : list of ndarray
-        Free decays, sampled at ``rate``.
+    decays : list of ndarray, shape (n_k, p)
+        Free decays of ``p`` sensors, sampled at ``rate``.
     order : int
         Model order (number of poles).
     rate : float
@@ -105,10 +107,10 @@ def era(decays: list[np.ndarray], order: int, rate: float) -> np.ndarray:
     rows = max(order * 4, min(len(d) for d in decays) // 3)
     H0, H1 = [], []
     for d in decays:
-        cols = d.shape[0] - rows - 1
+        cols, p = d.shape[0] - rows - 1, d.shape[1]
         idx = np.arange(rows)[:, None] + np.arange(cols)[None, :]
-        H0.append(d[idx])
-        H1.append(d[idx + 1])
+        H0.append(d[idx].transpose(0, 2, 1).reshape(rows * p, cols))  # block row i: the p sensors at lag i
+        H1.append(d[idx + 1].transpose(0, 2, 1).reshape(rows * p, cols))
     U, S, Vt = np.linalg.svd(np.hstack(H0), full_matrices=False)
     U, S, Vt = U[:, :order], S[:order], Vt[:order]
     Sr = 1.0 / np.sqrt(S)
@@ -135,8 +137,8 @@ def modes(decays: list[np.ndarray], rate: float, *, order: int = 6) -> list[Mode
     basis = np.exp(np.outer(k / rate, poles))
     share = np.zeros(poles.shape[0])
     for d in decays:
-        c, *_ = np.linalg.lstsq(basis[: d.shape[0]], d.astype(complex), rcond=None)
-        share += np.abs(c) ** 2 * np.mean(np.abs(basis[: d.shape[0]]) ** 2, axis=0)
+        c, *_ = np.linalg.lstsq(basis[: d.shape[0]], d.astype(complex), rcond=None)  # (poles, p)
+        share += np.sum(np.abs(c) ** 2, axis=1) * np.mean(np.abs(basis[: d.shape[0]]) ** 2, axis=0)
     share = np.sqrt(share / len(decays))
     out = [Mode(float(abs(p) / (2 * np.pi)), float(-p.real / abs(p)), float(2 * a), complex(p))
            for p, a in zip(poles, share) if p.imag > 0 and p.real < 0]
