@@ -2,6 +2,7 @@
 
 import itertools
 import struct
+import threading
 import time
 
 import can
@@ -55,6 +56,28 @@ def test_frame_bits_and_bus_load():
     assert frame_bits(8) == 135 and frame_bits(0) == 55  # worst-case stuffing, 11-bit id
     assert 1_000_000 // frame_bits(8) == 7407  # "roughly 7,000-8,000 frames/s" at 1 Mbit/s
     assert bus_load([0, 8, 8], 1000, 1_000_000) == pytest.approx((55 + 270) / 1000)
+
+
+def test_a_stalled_rig_thread_loses_no_sync_cycle(can_rig):
+    """The rig's own thread stops for 120 ms, longer than it computes ahead (50 ms): the device
+    waits for its sample instead of leaving those SYNCs unanswered, and every cycle keeps its time."""
+    channel, server, _sims, _net = can_rig
+    p = PROFILES["gap_sensor"]
+    dev = open_device(f"can://virtual/{channel}?node={p.default_node}&sync=500")
+    try:
+        dev.start(250)
+        stall = threading.Timer(0.1, lambda: server.at_boundary(lambda rig: time.sleep(0.12)))
+        stall.start()
+        blocks = []
+        while (b := dev.read()) is not None:
+            blocks.append(b)
+        stall.join()
+        t = np.concatenate([b.device_time_ns for b in blocks])
+        seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
+        assert len(t) == 250 and np.all(np.diff(seq) == 1)
+        assert np.diff(t).max() < 3e6  # 500 Hz SYNC: no gap where the rig stalled
+    finally:
+        dev.close()
 
 
 @pytest.mark.parametrize("kind", sorted(PROFILES))

@@ -13,7 +13,10 @@ import numpy as np
 from ..signals import SampleBlock
 
 LEAD_BLOCKS = 5  # blocks computed ahead of the wall clock: a rig thread starved for up to 50 ms still has
-# the sample a SYNC asks for (a SYNC it has not computed goes unanswered, a drop)
+# the sample a SYNC asks for
+LATE_WAIT_S = 0.15  # beyond that a SYNC's sample is waited for, as long as a reply can still be matched
+# to its SYNC by the counter it echoes (240 SYNCs: 300 ms at 800 Hz); a real device always has its
+# sample, so a simulator that fell behind must not show up as a dropped cycle
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,7 @@ class RigServer:
         self.block = max(1, int(round(block_s * rig.params.sample_rate)))
         self._subs: list[Callable[[SampleBlock], None]] = []
         self._lock = threading.Lock()
+        self._computed = threading.Condition(self._lock)  # notified when a block joins the history
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._recent: deque[SampleBlock] = deque(maxlen=256)  # 2.56 s of history
@@ -133,18 +137,21 @@ class RigServer:
     def _compute(self) -> None:
         self._apply_boundary()
         block = self.rig.run(self.block)
-        with self._lock:
+        with self._computed:
             self._recent.append(block)
+            self._computed.notify_all()
         self._pending.append(block)
 
     def sample_at(self, wall_ns: int) -> tuple[int, dict[str, np.ndarray]]:
-        """The rig's sample at host time ``wall_ns`` (ns): its step index and one row per group."""
+        """The rig's sample at host time ``wall_ns`` (ns): its step index and one row per group.
+        A step not computed yet is waited for, up to LATE_WAIT_S."""
         step = (wall_ns - self.start_wall_ns) // self.rig.period_ns
-        with self._lock:
+        with self._computed:
             if not self._recent:
                 raise LookupError("the rig has produced nothing yet")
-            newest = self._recent[-1]
-            if step > int(newest.seq[-1]):
+            self._computed.wait_for(lambda: step <= int(self._recent[-1].seq[-1]) or self._stop.is_set(),
+                                    timeout=LATE_WAIT_S)
+            if step > int(self._recent[-1].seq[-1]):
                 raise LookupError(f"rig step {step} is not computed yet (the rig is late)")
             for b in reversed(self._recent):
                 first = int(b.seq[0])
@@ -155,5 +162,7 @@ class RigServer:
 
     def stop(self) -> None:
         self._stop.set()
+        with self._computed:
+            self._computed.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
