@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from ambdaq.analysis.cone_rotor import (DISTRIBUTION, ConeControl, ConeRotor, controlled_eigenvalues,
+from ambdaq.analysis.cone_rotor import (DISTRIBUTION, ConeRotor, controlled_eigenvalues,
                                         uncontrolled_eigenvalues)
 from ambdaq.cli.main import cli
 from ambdaq.daq import load

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cone import MU0, PdLoop
+from .amb import GRAVITY
+from .cone import MU0
 
-GRAVITY = 9.81
 AXES = ("x", "y1", "y2", "z1", "z2")  # bearing coordinates
 COILS = tuple(f"m{j}" for j in range(1, 9))
 
@@ -197,12 +197,6 @@ class ConeControl:
     tau: float = 8e-5
     tau_c: float = 6e-5
     tau_e: float = 4e-4
-
-    def axis_loop(self, axis: int, rotor: ConeRotor) -> PdLoop:
-        """One decoupled axis as the one-axis analysis sees it (diagonal terms of eq. 10)."""
-        M, _, K, Kib = rotor.bearing_model()
-        return PdLoop(m=M[axis, axis], ky=-K[axis, axis], ki=Kib[axis, axis], ks=self.ks, kc=self.kc,
-                      kp=self.kp[axis], kd=self.kd[axis], tau=self.tau, tau_c=self.tau_c, tau_e=self.tau_e)
 
 
 def controlled_eigenvalues(rotor: ConeRotor, control: ConeControl, speed: float = 0.0) -> np.ndarray:

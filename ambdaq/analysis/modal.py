@@ -151,10 +151,8 @@ def stable_modes(decays: list[np.ndarray], rate: float, *, max_order: int = 12) 
 
     Parameters
     ----------
-    decays : list of ndarray
-        Free decays (:func:`free_decays`).
-    rate : float
-        Sample rate, in Hz.
+    decays, rate
+        As for :func:`modes`.
     max_order : int
         Highest ERA order tried.
 

@@ -129,16 +129,12 @@ def lyapunov_bound(rate: float) -> LyapunovBound:
     it tends to 2 / f'(0) = 1 / (2 sqrt 3) rad per sample; the speed bound is that per sample
     period.  The paper's 12,500 rpm is this bound at a 220 us period.
     """
-    eps = np.deg2rad(np.linspace(-89.9, 89.9, 179_801))
-    ok = error_gain(eps) * eps > 0
-    # the interval around zero where the sign condition holds
-    zero = int(np.argmin(np.abs(eps)))
-    lo = zero
-    while lo > 0 and (ok[lo - 1] or eps[lo - 1] == 0):
-        lo -= 1
-    hi = zero
-    while hi < eps.size - 1 and (ok[hi + 1] or eps[hi + 1] == 0):
-        hi += 1
+    eps = np.deg2rad(np.arange(-89_999, 90_000) * 1e-3)  # 0.001 deg steps, 0 included
+    ok = (error_gain(eps) * eps > 0) | (eps == 0)
+    zero = int(np.flatnonzero(eps == 0)[0])
+    bad = np.flatnonzero(~ok)  # the run of ok around zero lies between the nearest failures
+    lo = bad[bad < zero].max() + 1
+    hi = bad[bad > zero].min() - 1
     inside = eps[lo:hi + 1]
     inside = inside[inside != 0]
     step = float(np.min(2 * inside / error_gain(inside)))  # rad per sample

@@ -46,7 +46,12 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
     est = estimate_angle(V, I, rate, theta0=true[0] + np.deg2rad(initial_error_deg), **model)
     err = np.rad2deg(angle_error(est, true))
     above = np.flatnonzero(np.abs(err) >= CONVERGED_DEG)
-    converged_s = float(t[above[-1] + 1]) if above.size and above[-1] + 1 < t.size else (0.0 if not above.size else None)
+    if not above.size:
+        converged_s: float | None = 0.0  # never off by 1 deg
+    elif above[-1] + 1 < t.size:
+        converged_s = float(t[above[-1] + 1])  # the last sample still off, and after it below
+    else:
+        converged_s = None  # still off at the end
     steady = t >= max(settle_s, converged_s if converged_s is not None else settle_s)
     speed = np.gradient(np.unwrap(true), t) * 60 / (2 * np.pi)
     out = {"file": str(path), "samples": int(t.size), "initial_error_deg": initial_error_deg,

@@ -32,9 +32,11 @@ from scipy.linalg import solve_discrete_are
 from scipy.signal import butter, sosfilt, sosfreqz
 
 from ..signals import SampleBlock, SignalGroup
+from .base import Rig
 from .excitation import ExcitationInput
 from .speed import SpeedProfile
-from .spindle import GRAVITY, zoh
+from ...analysis.amb import GRAVITY
+from .spindle import zoh
 
 AXES = ("amb1_y", "amb2_y", "amb1_z", "amb2_z")  # plane-major: (plane, bearing)
 BASE_AXES = ("base1_y", "base2_y", "base1_z", "base2_z")
@@ -225,7 +227,7 @@ def _simulate(
         pos[0] = (p0 + 1) % nring
 
 
-class BaseMotionRig(ExcitationInput):
+class BaseMotionRig(Rig, ExcitationInput):
     """Seed 002's shaft on a moving base, closed loop, sample by sample (see the module docstring).
 
     Parameters
@@ -255,15 +257,7 @@ class BaseMotionRig(ExcitationInput):
                  noise: bool = True) -> None:
         if ff_mode != "off":
             raise ValueError("the base-motion rig's feedforward is a FIR loaded by push, not a mode; use ff=off")
-        self.params = params
-        self.seed = seed
-        self.speed = speed
-        self.truth = truth
-        self.noise = noise
-        self.h = 1.0 / params.sample_rate
-        self.period_ns = int(round(1e9 / params.sample_rate))
-        self.step_index = 0
-        self._rng = np.random.default_rng(seed)
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self._exc_rng = np.random.default_rng([seed, 1])
         self._base_rng = np.random.default_rng([seed, 2])
         self._base: BaseExcitation | None = None
@@ -401,7 +395,7 @@ class BaseMotionRig(ExcitationInput):
 
     def run(self, n: int) -> SampleBlock:
         """Advance the closed loop by ``n`` control periods and return their samples."""
-        steps = self.step_index + np.arange(n, dtype=np.int64)
+        steps = self._steps(n)
         d = self._base_accel(steps)
         noise = self._rng.standard_normal((n, 8), dtype=np.float32)
         if not self.noise:
@@ -415,8 +409,7 @@ class BaseMotionRig(ExcitationInput):
                   self._W, self._ntaps, c, *outs)
         self.step_index += n
         arrays = outs[:5] + ([d, outs[5]] if self.truth else [])
-        return SampleBlock(device_time_ns=steps * self.period_ns, seq=(steps & 0xFFFFFFFF).astype(np.uint32),
-                           values={g.topic: a for g, a in zip(self.signal_groups(), arrays)})
+        return self._block(steps, arrays)
 
     # --- exact linear analysis --------------------------------------------------------------
 

@@ -29,6 +29,7 @@ from numba import njit
 from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor
 from ...errors import BadInputError
 from ..signals import SampleBlock, SignalGroup
+from .base import Rig
 from .speed import RPM_TO_RAD_S, SpeedProfile
 
 SUBSTEPS = 50  # 2 us steps: the kernel's modes within 0.2% (frequency) and 2.5% (damping) of the continuous model
@@ -108,7 +109,7 @@ class Impact:
 def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl, out_pos):
     """Advance state ``s`` (N_STATE) over len(hammer_t) samples.  ``hammer_t`` (n, SUBSTEPS) is
     the hammer force on bearing coordinate int(c[12]) at each substep; ``noise`` (n, 5) the gap
-    sensors' noise (m); c = [h, ks, kp.. (5), kd.. (5)] ... see ConeRig._constants."""
+    sensors' noise (m); ``c`` the constants in the order ConeRig._constants lists them."""
     hs = c[0] / SUBSTEPS
     ks, tau, kc, ka, kf, res, ind, vs = c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
     kforce, g0, shape = c[9], c[10], c[11]
@@ -203,7 +204,7 @@ def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur
                     out_ctl[k, a] = vc[a]
 
 
-class ConeRig:
+class ConeRig(Rig):
     """Seed 001's cone-AMB rotor, closed loop (see the module docstring).
 
     Parameters
@@ -234,16 +235,8 @@ class ConeRig:
                  impact: Impact | None = None) -> None:
         if ff_mode != "off":
             raise ValueError("the cone rig has no feedforward; use ff=off")
-        self.params = params
-        self.seed = seed
-        self.speed = speed
-        self.truth = truth
-        self.noise = noise
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
-        self.h = 1.0 / params.sample_rate
-        self.period_ns = int(round(1e9 / params.sample_rate))
-        self.step_index = 0
-        self._rng = np.random.default_rng(seed)
         r = params.rotor
         self._Minv = np.linalg.inv(r.mass_matrix())
         n, J = r.frames()
@@ -252,10 +245,10 @@ class ConeRig:
         self._V0 = r.coil_bias() / params.control.kc
         self.restart(start)
 
-    def initial_state(self) -> np.ndarray:
-        """The state the run starts from (see ``start``)."""
+    def initial_state(self, start: str) -> np.ndarray:
+        """The state a run starts from: "levitated" or "touchdown" (see the class)."""
         s = np.zeros(N_STATE)
-        if self.start == "touchdown":
+        if start == "touchdown":
             s[0:5] = np.linalg.solve(self._T, np.array(TOUCHDOWN_START_UM) * 1e-6)
             return s
         i0 = self.params.rotor.operating_currents()
@@ -268,7 +261,7 @@ class ConeRig:
         if start not in ("levitated", "touchdown"):
             raise ValueError(f"start must be levitated or touchdown, not {start!r}")
         self.start = start
-        self.state = self.initial_state()
+        self.state = self.initial_state(start)
 
     def set_impact(self, impact: Impact | None) -> None:
         """Strike with the hammer from now on (None: stop)."""
@@ -303,7 +296,7 @@ class ConeRig:
 
     def run(self, n: int) -> SampleBlock:
         """Advance by ``n`` samples and return them."""
-        steps = self.step_index + np.arange(n, dtype=np.int64)
+        steps = self._steps(n)
         t_sub = (steps[:, None] + np.arange(SUBSTEPS)[None, :] / SUBSTEPS) * self.h
         hammer = self.impact.force(t_sub) if self.impact else np.zeros_like(t_sub)
         noise = self._rng.standard_normal((n, 6))
@@ -316,13 +309,12 @@ class ConeRig:
         self.step_index += n
         force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise
         arrays = [outs[0], outs[1], outs[2], outs[3], force] + ([outs[4]] if self.truth else [])
-        return SampleBlock(device_time_ns=steps * self.period_ns, seq=(steps & 0xFFFFFFFF).astype(np.uint32),
-                           values={g.topic: a for g, a in zip(self.signal_groups(), arrays)})
+        return self._block(steps, arrays)
 
     def step_jacobian(self, speed_rpm: float = 0.0) -> np.ndarray:
         """Jacobian of one sample of the noise-free kernel at the levitated equilibrium, by
         central differences: the simulator's own linearisation (N_STATE x N_STATE)."""
-        s0 = ConeRig(self.params, start="levitated", noise=False).state
+        s0 = self.initial_state("levitated")
         c = self._constants()
         c[12] = 0.0
         omega = speed_rpm * RPM_TO_RAD_S

@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from ..signals import SampleBlock, SignalGroup
+from .base import Rig
 from .speed import SpeedProfile
 
 N_COILS = 6
@@ -172,7 +173,7 @@ def _simulate(st, cmd, noise, c, res, ind, ripple, out_v, out_i, out_gap, out_tr
             st[12 + j] = res[j] * i_mean[j] + ind[j] * (st[6 + j] - i_start[j]) / h + (lam_end - lam_start[j]) / h
 
 
-class LorentzRig:
+class LorentzRig(Rig):
     """Seed 003's integrated motor-bearing, open-loop drive (see the module docstring).
 
     Parameters
@@ -197,15 +198,7 @@ class LorentzRig:
                  truth: bool = False, ff_mode: str = "off", noise: bool = True) -> None:
         if ff_mode != "off":
             raise ValueError("the lorentz rig has no feedforward; use ff=off")
-        self.params = params
-        self.seed = seed
-        self.speed = speed
-        self.truth = truth
-        self.noise = noise
-        self.h = 1.0 / params.sample_rate
-        self.period_ns = int(round(1e9 / params.sample_rate))
-        self.step_index = 0
-        self._rng = np.random.default_rng(seed)
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.res, self.ind, self.ripple = machine(params)
         self.state = np.zeros(18)
         _, w0 = speed.angle_speed(np.zeros(1))
@@ -239,7 +232,7 @@ class LorentzRig:
     def run(self, n: int) -> SampleBlock:
         """Advance by ``n`` samples and return them."""
         p = self.params
-        steps = self.step_index + np.arange(n, dtype=np.int64)
+        steps = self._steps(n)
         t = (steps[:, None] + np.arange(SUBSTEPS)[None, :] / SUBSTEPS) * self.h
         ref, _ = self.speed.angle_speed(t.ravel())
         cmd = (POLE_PAIRS * ref).reshape(t.shape)
@@ -254,5 +247,4 @@ class LorentzRig:
         self.step_index += n
         counts = 2 * np.pi / ENCODER_COUNTS
         arrays = [v, i, gap, np.floor(true[:, :1] / counts) * counts] + ([true] if self.truth else [])
-        return SampleBlock(device_time_ns=steps * self.period_ns, seq=(steps & 0xFFFFFFFF).astype(np.uint32),
-                           values={g.topic: a for g, a in zip(self.signal_groups(), arrays)})
+        return self._block(steps, arrays)

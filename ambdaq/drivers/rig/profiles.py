@@ -1,7 +1,8 @@
 """Registry of simulated rig profiles: name -> builder.
 
-Each profile is one module in this package with a rig class exposing ``params``, ``profile``,
-``seed``, ``speed``, ``step_index``, ``signal_groups()`` and ``run(n) -> SampleBlock``.
+Each profile is one module in this package with a rig class: a :class:`.base.Rig` (``params``,
+``seed``, ``speed``, ``step_index``, the period and the block it returns) that adds ``profile``,
+``signal_groups()``, ``calibration()`` and ``run(n) -> SampleBlock``.
 """
 
 from __future__ import annotations

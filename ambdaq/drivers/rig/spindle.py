@@ -40,7 +40,9 @@ import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
+from ...analysis.amb import GRAVITY
 from ..signals import SampleBlock, SignalGroup
+from .base import Rig
 from .excitation import ExcitationInput
 from .speed import RPM_TO_RAD_S, SpeedProfile
 
@@ -52,7 +54,6 @@ MU_BINS = 601  # 0 .. 60,000 rpm
 PHASE_BIN_HZ = 10.0  # resolution of the LMS phase compensation over loop frequency
 PHASE_BINS = 501  # 0 .. 5,000 Hz (the Nyquist frequency at 10 kHz)
 SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
-GRAVITY = 9.81
 
 FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
 FF_MODES = {"off": FF_OFF, "table": FF_TABLE, "lms": FF_LMS}
@@ -425,7 +426,7 @@ def _groups(truth: bool) -> list[SignalGroup]:
     return groups
 
 
-class SpindleRig(ExcitationInput):
+class SpindleRig(Rig, ExcitationInput):
     """Closed-loop simulation of the seed 000 spindle, stepped in blocks of control periods.
 
     Parameters
@@ -460,14 +461,7 @@ class SpindleRig(ExcitationInput):
         mu_schedule=PAPER_MU_SCHEDULE,
         noise: bool = True,
     ) -> None:
-        self.params = params
-        self.seed = seed
-        self.speed = speed
-        self.truth = truth
-        self.noise = noise
-        self.period_ns = int(round(1e9 / params.sample_rate))
-        self.h = self.period_ns * 1e-9
-        self._rng = np.random.default_rng(seed)
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.mu_schedule = _schedule_rows(mu_schedule)
         self._mu = mu_table(self.mu_schedule)
         self._ph_cos = np.ones((N_AXES, PHASE_BINS))
@@ -475,7 +469,6 @@ class SpindleRig(ExcitationInput):
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
         self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
-        self.step_index = 0
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
         self._theta0 = 0.0  # ... and this angle (rad)
         self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -633,7 +626,7 @@ class SpindleRig(ExcitationInput):
 
     def run(self, n: int) -> SampleBlock:
         """Advance the closed loop by ``n`` control periods and return their samples."""
-        steps = self.step_index + np.arange(n, dtype=np.int64)
+        steps = self._steps(n)
         t = steps * self.h
         theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
         # unit normals in float32 (half the cost of float64), scaled to SI inside the kernel; one
@@ -664,13 +657,7 @@ class SpindleRig(ExcitationInput):
                 out_run[sl], out_pos[sl],
             )
         self.step_index += n
-        groups = self.signal_groups()
-        arrays = outs + ([out_run, out_pos] if self.truth else [])
-        return SampleBlock(
-            device_time_ns=steps * self.period_ns,
-            seq=(steps & 0xFFFFFFFF).astype(np.uint32),
-            values={g.topic: arr for g, arr in zip(groups, arrays)},
-        )
+        return self._block(steps, outs + ([out_run, out_pos] if self.truth else []))
 
     # --- linear analysis of the simulated loop --------------------------------------------------
 
