@@ -107,3 +107,38 @@ def test_phase_compensated_update_converges_at_every_speed_where_the_schedule_ca
         assert compensated[i][0] < 0.1 * off[i][0] and compensated[i][1] < 0.1 * off[i][1]  # 20 dB at 1X, 2X
         assert compensated[i][2] < 5.0  # RMS below 5 um
     assert max(s[0] for s in signed[2:4]) > 5 * max(c[0] for c in compensated[2:4])  # the dead band shows
+
+
+def test_state_space_plants_give_the_maps_of_their_transfer_function_and_of_the_rig(run_cli, tmp_path):
+    """``--plant ss:FILE``: a continuous one-input plant (A, B, C, D) maps as its transfer function;
+    the rig's own loop saved as discrete M, B, C at a few speeds (interpolated between them) maps
+    as ``--plant rig``; a NaN or a wrong shape is one line and exit 2."""
+    from scipy.signal import tf2ss
+
+    A, B, C, D = tf2ss([2184000.0], [1.5, 0.0, -1770000.0])
+    cont = tmp_path / "front.json"
+    cont.write_text(json.dumps({"A": A.tolist(), "B": B.tolist(), "C": C.tolist(), "D": D.tolist()}))
+
+    def flips(plant, *extra):
+        r = run_cli("lms", "map", "--plant", plant, "--json", *extra)
+        assert r.exit_code == 0, r.output
+        return next(iter(json.loads(r.output)["loops"].values()))["sign_flips_rpm"]
+
+    assert flips(f"ss:{cont}") == flips("tf:2184000/1.5,0,-1770000")
+
+    rig = SpindleRig()
+    rpm = np.arange(0.0, 20001.0, 2500.0)
+    loops = [rig.loop_matrices(n) for n in rpm]
+    disc = tmp_path / "rig.npz"
+    np.savez(disc, M=[m for m, _, _ in loops], B=[b for _, b, _ in loops], C=[c for _, _, c in loops], h=1e-4, rpm=rpm)
+    got, want = flips(f"ss:{disc}", "--rpm-max", "20000"), flips("rig", "--rpm-max", "20000")
+    assert len(got) == len(want) == 2 and np.allclose(got, want, atol=150)
+
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"A": [[0.0, 1.0], [1.0, float("nan")]], "B": [[0], [1]], "C": [[1, 0]]}))
+    for path in (bad, tmp_path / "missing.npz"):
+        r = run_cli("lms", "map", "--plant", f"ss:{path}")
+        assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    bad.write_text(json.dumps({"M": np.eye(3).tolist(), "B": [[1.0], [0.0]], "C": [[1.0, 0.0, 0.0]], "h": 1e-4}))
+    r = run_cli("lms", "map", "--plant", f"ss:{bad}")
+    assert r.exit_code == 2 and "M (k, n, n)" in r.output
