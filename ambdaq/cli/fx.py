@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import click
@@ -16,7 +18,12 @@ from ..daq.reader import load
 from ..daq.sealed import read_sealed, write_sealed
 from ..drivers.devices import open_device
 from ..drivers.rig.base_motion import AXES, BASE_AXES, BASE_MOTION, PLANES, BaseExcitation, BaseMotionRig
-from ..errors import BadInputError
+from ..drivers.shaker import Shaker, drive_problem
+from ..drivers.sim import sim_options
+from ..drivers.simdev.serve import serve_serial
+from ..drivers.simdev.shaker import SHAKER_GAIN
+from ..drivers.url import parse_device_url
+from ..errors import BadInputError, DeviceError
 from .record import run_recording
 
 CAMPAIGN = "campaign.json"
@@ -49,7 +56,13 @@ def command() -> None:
 
 @command.command("campaign")
 @click.option("--device", default="sim://base-motion", show_default=True, metavar="URL",
-              help="The rig; its base must be movable by the host (the simulated shaker).")
+              help="The AMB controller (streams /amb/gap and /base/accel): serial://PORT, or sim://base-motion "
+                   "served in this process with its simulated shaker generator.")
+@click.option("--shaker", metavar="URL",
+              help="The two-channel SCPI generator driving the base shakers (serial:///dev/ttyUSB1, "
+                   "serial:socket://HOST:5025); default for sim://base-motion: its simulated one.")
+@click.option("--shaker-gain", type=click.FloatRange(min=0, min_open=True), default=SHAKER_GAIN, show_default=True,
+              help="Base acceleration per generator volt, m/s^2/V (the simulated shakers' by default).")
 @click.option("--freqs", default="5:100:5", show_default=True, help="FROM:TO:STEP or F1,F2,... Hz.")
 @click.option("--amplitude", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Peak base acceleration d2, m/s^2.")
@@ -57,46 +70,76 @@ def command() -> None:
               help="Two disturbance ratios d1/d2 (seed 002 eq. A-10); each frequency is run with both.")
 @click.option("--seconds", type=click.FloatRange(min=0.5), default=3.0, show_default=True, help="Recorded per step.")
 @click.option("--settle", type=click.FloatRange(min=0), default=0.5, show_default=True,
-              help="Run before recording each step, s.")
+              help="Wait after moving the shaker before recording each step, s.")
 @click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Campaign folder.")
-def campaign(device, freqs, amplitude, alphas, seconds, settle, output):
-    """Stepped sine over the base: every (frequency, alpha) step recorded to its own MCAP file,
-    listed in campaign.json.
+def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, settle, output):
+    """Stepped sine over the base: the shakers are set through their generator, then every
+    (frequency, alpha) step is recorded from the controller to its own MCAP file, listed in
+    campaign.json.  The same commands run on hardware and on the simulator.
 
     \b
-    Example:
+    Examples:
       ambdaq fx campaign --freqs 5:100:5 -o campaign/
+      ambdaq fx campaign --device serial:///dev/ttyUSB0 --shaker serial:socket://10.0.0.7:5025 \\
+          --shaker-gain 4.2 --freqs 5:100:5 -o campaign/
     """
     freq_list = _freqs(freqs)
     ratios = [_alpha(a) for a in alphas.split(",")]
     if len(ratios) != 2 or abs(ratios[0] - ratios[1]) < 1e-9:
         raise BadInputError("--alphas: give two different ratios (seed 002 eq. A-17 needs both)")
-    if not device.startswith("sim://base-motion"):
-        raise BadInputError(f"{device}: the campaign moves the base through the simulated shaker; a hardware "
-                            "shaker has no driver here yet (record each step yourself and list it in campaign.json)")
+    for f in freq_list:
+        problem = (BaseExcitation("sine", amplitude, f, max(ratios, key=abs)).problem(BASE_MOTION.sample_rate)
+                   or drive_problem(amplitude, max(ratios, key=abs), shaker_gain))
+        if problem:
+            raise BadInputError(f"step {f:g} Hz: {problem}")
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    source = open_device(device, paced=False)
-    rig = source.rig
-    steps = []
-    try:
+    with ExitStack() as stack:
+        controller, shaker = _campaign_devices(device, shaker, stack)
+        shakers = Shaker(shaker, gain=shaker_gain)
+        stack.callback(shakers.close)
+        stack.callback(_at_rest, shakers)
+        steps = []
         for f in freq_list:
             for a in ratios:
-                motion = BaseExcitation("sine", amplitude, f, a)
-                problem = motion.problem(rig.params.sample_rate)
-                if problem:
-                    raise BadInputError(f"step {f:g} Hz: {problem}")
-                rig.set_base_motion(motion)
-                rig.run(int(settle * rig.params.sample_rate))
+                shakers.sine(f, amplitude, a)
+                time.sleep(settle)
                 name = f"step_{len(steps):03d}_{f:g}Hz.mcap"
-                run_recording([source], str(out / name), duration=seconds, split_size=None, split_duration=None,
-                              compression="zstd", overwrite=True, quiet=True, as_json=False)
+                run_recording([open_device(controller, name="controller")], str(out / name), duration=seconds,
+                              split_size=None, split_duration=None, compression="zstd", overwrite=True, quiet=True,
+                              as_json=False)
                 steps.append({"file": name, "freq_hz": f, "alpha_commanded": [a.real, a.imag]})
                 click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {out / name}", err=True)
-    finally:
-        source.close()
-    (out / CAMPAIGN).write_text(json.dumps({"device": device, "amplitude_m_s2": amplitude, "steps": steps}, indent=2))
+        shakers.stop()
+        (out / CAMPAIGN).write_text(json.dumps({"device": device, "shaker": shakers.identity,
+                                                "shaker_gain_m_s2_per_v": shaker_gain,
+                                                "amplitude_m_s2": amplitude, "steps": steps}, indent=2))
     click.echo(f"{len(steps)} steps -> {out / CAMPAIGN}")
+
+
+def _at_rest(shakers: Shaker) -> None:
+    """Stop the shakers however the campaign ended; a failure here must not hide the one that ended it."""
+    try:
+        shakers.stop()
+    except DeviceError:
+        pass
+
+
+def _campaign_devices(device: str, shaker: str | None, stack: ExitStack) -> tuple[str, str]:
+    """The controller's and the shaker generator's URLs; ``sim://base-motion`` is served in this
+    process (stopped when ``stack`` closes) and reached over its pseudo-terminals, as hardware is."""
+    url = parse_device_url(device)
+    if url.scheme != "sim":
+        if shaker is None:
+            raise BadInputError("--shaker URL: give the generator that drives the base shakers "
+                                "(serial:///dev/ttyUSB1, serial:socket://HOST:5025)")
+        return device, shaker
+    options = sim_options(url)
+    if url.target != "base-motion":
+        raise BadInputError(f"{device}: the {url.target} rig has no moving base (use sim://base-motion)")
+    served = serve_serial("base-motion", seed=options["seed"])
+    stack.callback(served.stop)
+    return f"serial://{served.ptys['controller'].path}", shaker or f"serial://{served.ptys['shaker'].path}"
 
 
 def _path_at(frf: FrequencyResponse, plane: int, f_hz: float) -> np.ndarray:

@@ -12,6 +12,7 @@ from ..rig.speed import SpeedProfile
 from .banks import DEFAULT_UNLOCK_KEY
 from .controller import FdPort, SimController
 from .rig_server import DeviceClock, RigServer
+from .shaker import SimShaker
 
 
 @dataclass
@@ -43,9 +44,12 @@ class ServedRig:
     server: RigServer
     controller: SimController
     ptys: dict[str, Pty] = field(default_factory=dict)
+    shaker: SimShaker | None = None
 
     def stop(self) -> None:
         self.controller.stop()
+        if self.shaker is not None:
+            self.shaker.stop()
         self.server.stop()
         for p in self.ptys.values():
             p.close()
@@ -54,7 +58,8 @@ class ServedRig:
 def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", truth: bool = False,
                  unlock_key: str = DEFAULT_UNLOCK_KEY, clock: DeviceClock = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0),
                  base_motion=None) -> ServedRig:
-    """Start the rig and its AMB controller on a new pseudo-terminal; returns what is running.
+    """Start the rig and its AMB controller on a new pseudo-terminal (and for the base-motion rig
+    its shaker generator on another); returns what is running.
 
     Parameters
     ----------
@@ -81,6 +86,11 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
     server = RigServer(rig)
     pty = Pty.open()
     controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth, unlock_key=unlock_key)
+    served = ServedRig(server, controller, {"controller": pty})
+    if profile == "base-motion":
+        served.ptys["shaker"] = Pty.open()
+        served.shaker = SimShaker(FdPort(served.ptys["shaker"].master), server)
+        served.shaker.start()
     server.start()
     controller.start()
-    return ServedRig(server, controller, {"controller": pty})
+    return served
