@@ -74,7 +74,7 @@ def test_a_generator_that_is_gone_is_one_line(served, tmp_path):
     with pytest.raises(BadInputError, match="serial:... URL"):
         Shaker("can://virtual/x?node=3", gain=SHAKER_GAIN)
     shaker = Shaker(f"serial://{served.ptys['shaker'].path}", gain=SHAKER_GAIN)
-    served.shaker.stop()  # the instrument stops answering
+    served.devices["shaker"].stop()  # the instrument stops answering
     with pytest.raises(DeviceError, match="did not answer"):
         shaker.sine(40.0, 1.0, 1.0)
     shaker.close()

@@ -61,9 +61,8 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
         if excitation is not None:
             source.rig.set_excitation(source.rig.excitation_for(excitation))
         if base is not None:
-            if not hasattr(source.rig, "set_base_motion"):
-                raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
-            source.rig.set_base_motion(BaseExcitation.parse(base))
+            motion = _base_motion(profile, base)  # refused before the rig is asked
+            source.rig.set_base_motion(motion)
         if fir_file is not None:
             if not hasattr(source.rig, "set_feedforward_fir"):
                 raise BadInputError(f"--fir: the {profile} rig has no FIR feedforward (use --profile base-motion)")
@@ -107,12 +106,7 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base,
     from ..drivers.simdev.rig_server import DeviceClock
     from ..drivers.simdev.serve import serve_serial
 
-    if base is not None and profile != "base-motion":
-        raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
-    try:
-        motion = BaseExcitation.parse(base) if base is not None else None
-    except ValueError as err:
-        raise BadInputError(str(err)) from None
+    motion = None if base is None else _base_motion(profile, base)
     served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth, unlock_key=unlock_key,
                           clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm), base_motion=motion)
     for name, pty in served.ptys.items():
@@ -124,3 +118,14 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base,
         stop.wait(duration)
     finally:
         served.stop()
+
+
+def _base_motion(profile: str, spec: str) -> BaseExcitation:
+    """``--base SPEC`` for the ``profile`` rig; one line (BadInputError) if it has no moving base or
+    the spec is wrong."""
+    if profile != "base-motion":
+        raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
+    try:
+        return BaseExcitation.parse(spec)
+    except ValueError as err:
+        raise BadInputError(str(err)) from None

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.lms import PhaseTable, schedule_problem
+from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
 from ..daq.coefficients import Coefficients, file_sha256, fir_array, now_iso
 from ..drivers.coefbank import BankImage, crc32
 from ..errors import BadInputError, DeviceError, DeviceTimeout
@@ -105,9 +105,10 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
         raise BadInputError(f"{where}: {problem}")
     if not rows:
         return image
-    problem = schedule_problem(rows, n_harm, resolve_plant(coef.lms_plant or "bearings"),
-                               None if phase is None else PhaseTable(phase, bin_hz),
-                               rpm_step=250.0 if coef.lms_plant == "rig" else 100.0)
+    loops = resolve_plant(coef.lms_plant or "bearings")
+    state_space = any(isinstance(loop, StateSpaceLoop) for loop, _ in loops.values())  # an eigenproblem per speed
+    problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
+                               rpm_step=250.0 if state_space else 100.0)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
     return image

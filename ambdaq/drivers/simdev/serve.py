@@ -42,14 +42,12 @@ class ServedRig:
     """A running simulated rig and the transports its devices sit behind."""
 
     server: RigServer
-    controller: SimController
+    devices: dict[str, SimController | SimShaker]  # by name, as in ``ptys``
     ptys: dict[str, Pty] = field(default_factory=dict)
-    shaker: SimShaker | None = None
 
     def stop(self) -> None:
-        self.controller.stop()
-        if self.shaker is not None:
-            self.shaker.stop()
+        for device in self.devices.values():
+            device.stop()
         self.server.stop()
         for p in self.ptys.values():
             p.close()
@@ -84,13 +82,13 @@ def serve_serial(profile: str = "spindle", *, seed: int = 0, speed: str = "0", t
     if base_motion is not None:
         rig.set_base_motion(base_motion)
     server = RigServer(rig)
-    pty = Pty.open()
-    controller = SimController(FdPort(pty.master), server, clock=clock, truth=truth, unlock_key=unlock_key)
-    served = ServedRig(server, controller, {"controller": pty})
-    if profile == "base-motion":
-        served.ptys["shaker"] = Pty.open()
-        served.shaker = SimShaker(FdPort(served.ptys["shaker"].master), server)
-        served.shaker.start()
+    ptys = {"controller": Pty.open()}
+    devices = {"controller": SimController(FdPort(ptys["controller"].master), server, clock=clock, truth=truth,
+                                           unlock_key=unlock_key)}
+    if profile == "base-motion":  # the shakers' generator, for fx campaign
+        ptys["shaker"] = Pty.open()
+        devices["shaker"] = SimShaker(FdPort(ptys["shaker"].master), server)
     server.start()
-    controller.start()
-    return served
+    for device in devices.values():
+        device.start()
+    return ServedRig(server, devices, ptys)

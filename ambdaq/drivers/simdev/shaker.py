@@ -16,22 +16,23 @@ from __future__ import annotations
 import math
 import re
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..rig.base_motion import BaseExcitation
+from ..shaker import MAX_VPP
 from .rig_server import RigServer
 
 SHAKER_GAIN = 10.0  # m/s^2 per V: 1 m/s^2 peak is 0.2 Vpp
 IDENTITY = "ambdaq,SIM-SHAKER-2CH,SIM-GEN-0001,1.0"
-MAX_VPP, MAX_HZ = 10.0, 1000.0
+MAX_HZ = 1000.0
 
 # SCPI nodes: long form; the short form is its upper-case part (SOURce -> SOUR)
 _NODES = ("SOURce", "FUNCtion", "FREQuency", "VOLTage", "UNIT", "OFFSet", "PHASe", "SYNChronize",
           "OUTPut", "SYSTem", "ERRor")
 _SHORT = {n.upper(): re.sub("[a-z]", "", n) for n in _NODES}
-_CANON = {**{long: short for long, short in _SHORT.items()}, **{short: short for short in _SHORT.values()}}
+_CANON = {**_SHORT, **{short: short for short in _SHORT.values()}}  # either form -> the short one
 
 ERRORS = {
     -102: "Syntax error",
@@ -96,18 +97,18 @@ class SimShaker:
     def handle(self, line: str) -> list[str]:
         """Run one line of ``;``-joined commands; returns the answers to its queries."""
         answers: list[str] = []
-        before, settings = self.motion(), repr(self.channels)
+        (before, _), settings = self.motion(), {n: replace(c) for n, c in self.channels.items()}
         for command in line.strip().split(";"):
             command = command.strip()
             if command:
                 answer = self._command(command)
                 if answer is not None:
                     answers.append(answer)
-        after = self.motion()
-        if after[1] and repr(self.channels) != settings:  # reported once, when the settings make it
-            self._error(after[1])
-        if after[0] != before[0]:
-            self.server.at_boundary(lambda rig: rig.set_base_motion(after[0]))
+        after, conflict = self.motion()
+        if conflict and self.channels != settings:  # reported once, when the settings make it
+            self._error(conflict)
+        if after != before:
+            self.server.at_boundary(lambda rig: rig.set_base_motion(after))
         return answers
 
     def _error(self, code: int) -> None:
