@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from ambdaq.analysis.lms import OneAxis, convergence_radius, mu_sign, sign_flip_rpm, sign_schedule
+from ambdaq.analysis.lms import HOLD_TOL, OneAxis, converges, convergence_radius, mu_sign, sign_flip_rpm, sign_schedule
 from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import SpindleRig
 
@@ -28,9 +28,28 @@ def test_mu_must_be_negative_at_low_speed_and_positive_at_high_speed():
 
 
 def test_convergence_map_is_symmetric_in_sign_near_zero_and_bounded():
-    r = convergence_radius(FRONT, np.array([3000.0, 30000.0]), np.array([-0.01, -0.001, 0.0, 0.001, 0.01]))
-    assert np.all(r[:, 2] < 1) and np.all(r[:, 2] > 0.99)  # mu = 0: the weights just hold
-    assert r[0, 1] < 1 < r[0, 3] and r[1, 3] < 1 < r[1, 1]  # the right sign converges, the wrong one not
+    rpm = np.array([10.0, 100.0, 3000.0, 30000.0])
+    r = convergence_radius(FRONT, rpm, np.array([-0.01, -0.001, 0.0, 0.001, 0.01]))
+    state = converges(r)
+    # mu = 0: the weights hold, |r| - 1 within the map's stated tolerance at every speed
+    assert np.all(state[:, 2] == 0) and np.all(np.abs(r[:, 2] - 1) <= HOLD_TOL)
+    # the right sign converges, the wrong one diverges
+    assert list(state[2:, 1]) == [1, -1] and list(state[2:, 3]) == [-1, 1]
+
+
+@pytest.mark.parametrize("phi, g", [(1e-4, 1.0), (0.3, 1.0), (2.0, np.exp(0.7j)), (np.pi - 1e-3, -1j)])
+def test_lms_filter_realisation_is_eq_9_summed_over_time(phi, g):
+    """The rotation-form filter's impulse response is r_c[n] = Re(g exp(j n phi)) for n >= 1
+    (eq. 9 summed over time, the update turned by g), to rounding."""
+    from ambdaq.analysis.lms import _lms_filter
+
+    R, b, c = _lms_filter(phi, complex(g))
+    x, got = b.copy(), []
+    for _ in range(200):
+        got.append((c @ x).item())
+        x = R @ x
+    n = np.arange(1, 201)
+    np.testing.assert_allclose(got, (g * np.exp(1j * n * phi)).real, atol=1e-12)
 
 
 def test_schedule_holds_the_weights_around_the_flip():

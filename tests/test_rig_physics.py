@@ -24,6 +24,16 @@ def test_linearised_closed_loop_is_stable(rpm):
     assert radius > 0.999
 
 
+@pytest.mark.parametrize("rpm", [0, 1234, 7000, 30000, 55000])
+def test_fast_linearisation_is_the_kernels_own_at_every_speed(rpm):
+    """loop_matrices reuses the standstill probe and swaps in the rotor's ZOH matrices at the
+    speed; it must equal probing the kernel at that speed (to rounding: 1e-12 of the largest
+    entry, where the two differ only by a least-squares solve of order 1e-15)."""
+    rig = SpindleRig()
+    for fast, probed in zip(rig.loop_matrices(rpm), rig.probe_loop(rpm)):
+        np.testing.assert_allclose(fast, probed, rtol=0, atol=1e-12 * np.abs(probed).max())
+
+
 def test_least_damped_mode_is_reasonably_damped_over_speed():
     for rpm in (0, 25000, 50000):
         s = np.log(np.linalg.eigvals(SpindleRig().closed_loop_matrix(rpm)).astype(complex)) / 1e-4

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import (PhaseTable, StateSpaceLoop, convergence_radius, measured_phase_compensation, mu_sign,
+from ..analysis.lms import (PhaseTable, StateSpaceLoop, converges, convergence_radius, measured_phase_compensation, mu_sign,
                             phase_compensation, sign_changes, sign_schedule)
 from ..control.plants import PLANT_NAMES, resolve_plant
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
@@ -79,8 +79,8 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
     maps = {}
     for name, (loop, axes) in loops.items():
         ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
-        r = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
-        maps[name] = r
+        if plot_path:  # the whole map only for the picture: the report needs the signs alone
+            maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
         signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
         none = rpm[signs == 0]
         report["loops"][name] = {
@@ -114,13 +114,13 @@ def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant:
 
     fig, axes = plt.subplots(1, len(maps), figsize=(6 * len(maps), 4.5), squeeze=False)
     for ax, (name, r) in zip(axes[0], maps.items()):
-        ax.pcolormesh(rpm, mu, (r.T < 1.0).astype(float), shading="auto", vmin=0, vmax=1,
-                      cmap=ListedColormap(["#f4c7c3", "#b7e1cd"]))
+        ax.pcolormesh(rpm, mu, converges(r.T), shading="auto", vmin=-1, vmax=1,
+                      cmap=ListedColormap(["#f4c7c3", "#ffffff", "#b7e1cd"]))
         ax.contour(rpm, mu, r.T, levels=[1.0], colors="k", linewidths=1.0)
         ax.axhline(0, color="grey", lw=0.5)
         ax.set(xlabel="speed (rpm)", ylabel="step size mu",
                title=f"{name}: {harmonic}X, {'compensated' if compensated else 'seed 000'} update "
-                     "(green converges, red diverges)")
+                     "(green converges, red diverges, white holds)")
     fig.suptitle(f"LMS convergence map, plant {plant} (seed 000 Fig. 5)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

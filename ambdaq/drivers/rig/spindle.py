@@ -472,6 +472,7 @@ class SpindleRig(Rig, ExcitationInput):
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
         self._theta0 = 0.0  # ... and this angle (rad)
         self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._linear: tuple | None = None  # loop_matrices' standstill probe
         self._init_constants()
         self._init_state()
 
@@ -677,7 +678,10 @@ class SpindleRig(Rig, ExcitationInput):
         ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
         feedforward per axis (m, subtracted from the sensor signal, seed 000 eq. 10) and ``e`` the
         command error per axis (m).  Found by stepping the simulation kernel itself from unit
-        perturbations, with noise, runout, unbalance, gravity and quantisation off.
+        perturbations, with noise, runout, unbalance, gravity and quantisation off (at standstill,
+        once per rig); only the rotor's ZOH matrices depend on the speed (gyroscopics), so at
+        other speeds the rotor rows are Phi(Omega) [I 0] + Gamma(Omega) dF/dx, with the bearing
+        forces' Jacobian dF/dx taken from the standstill probe.
 
         Returns
         -------
@@ -685,6 +689,24 @@ class SpindleRig(Rig, ExcitationInput):
         B : ndarray, shape (35, 5)
         C : ndarray, shape (5, 35)
         """
+        if self._linear is None:
+            M0, B0, C = self.probe_loop(0.0)
+            Phi0, Gam0 = self._discrete_rotor(0.0)
+            rotor0 = np.hstack([Phi0, np.zeros((10, 25))])
+            # the rotor rows are Phi x_rotor + Gamma F(x, r_c): solve for F's Jacobian
+            dF = np.linalg.lstsq(Gam0, np.hstack([M0[:10] - rotor0, B0[:10]]), rcond=None)[0]
+            self._linear = (M0, B0, C, dF)
+        M0, B0, C, dF = self._linear
+        omega = rpm * RPM_TO_RAD_S
+        Phi, Gam = self._discrete_rotor(float(np.round(omega / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S))
+        M, B = M0.copy(), B0.copy()
+        M[:10] = np.hstack([Phi, np.zeros((10, 25))]) + Gam @ dF[:, :35]
+        B[:10] = Gam @ dF[:, 35:]
+        return M, B, C
+
+    def probe_loop(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`loop_matrices` at ``rpm`` by stepping the kernel from every unit perturbation
+        (35 + 5 one-step runs): the reference the fast path is built on and tested against."""
         quiet = replace(
             self.params, unbalance=(0.0, 0.0), runout_amp=np.zeros_like(self.params.runout_amp)
         )
