@@ -167,6 +167,56 @@ def test_driver_against_canopens_own_local_node(kind):
         net.disconnect()
 
 
+def test_a_reply_ahead_of_its_sync_is_that_syncs_not_one_240_cycles_older():
+    """python-can's virtual bus hands a SYNC to each listener in turn, so a device's node can
+    answer before the host's own copy of the SYNC reaches it.  A peer bus replays exactly that
+    order for one cycle after the counter has wrapped (241 SYNCs): the reply must land on its own
+    SYNC, not on the one 240 cycles older with the same counter (a duplicate with an old time)."""
+    channel = f"early{next(_channels)}"
+    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
+    net.connect()
+    p = PROFILES["gap_sensor"]
+    node = canopen.LocalNode(p.default_node, str(p.eds_path))  # answers the driver's SDO
+    net.add_node(node)
+    node.set_data(0x1018, 4, struct.pack("<I", 7), check_writable=False)
+    fmt = {canopen.objectdictionary.INTEGER16: "h", canopen.objectdictionary.UNSIGNED16: "H",
+           canopen.objectdictionary.UNSIGNED8: "B", canopen.objectdictionary.REAL32: "f",
+           canopen.objectdictionary.INTEGER32: "i"}
+    packers = [struct.Struct("<" + "".join(fmt[t] for _i, t in p.tpdo_layout(i))) for i in range(len(p.tpdos))]
+
+    def reply(counter: int) -> None:
+        for i, packer in enumerate(packers):
+            values = [0] * (len(packer.format) - 2) + ([counter] if i == len(packers) - 1 else [0])
+            net.bus.send(can.Message(arbitration_id=0x180 + 0x100 * i + p.default_node, is_extended_id=False,
+                                     data=packer.pack(*values)))
+
+    def sync(counter: int) -> None:
+        net.bus.send(can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes([counter])))
+
+    dev = open_device(f"can://virtual/{channel}?node={p.default_node}&sync=800")
+    try:
+        dev.configure()  # SDO and the driver's callbacks; the SYNCs come from the peer
+        for k in range(242):
+            counter = k % 240 + 1
+            if k == 241:  # the reply overtakes its SYNC
+                reply(counter)
+                sync(counter)
+            else:
+                sync(counter)
+                reply(counter)
+        net.bus.send(can.Message(arbitration_id=0x700 + p.default_node, is_extended_id=False, data=b"\x05"))
+        blocks = []
+        while sum(len(b) for b in blocks) < 242:
+            blocks.append(dev.read())
+        seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
+        t = np.concatenate([b.device_time_ns for b in blocks])
+        np.testing.assert_array_equal(seq, np.arange(242))  # cycle 241 once, in its place
+        assert np.all(np.diff(t) > 0)  # with its own SYNC's time
+    finally:
+        dev.close()
+        net.disconnect()
+
+
 def test_bus_load_above_80_percent_is_refused_with_what_fits(can_rig):
     channel, *_ = can_rig
     # per SYNC: the SYNC (1 byte) and 6 TPDOs, 785 bits worst case: 79% at 1 kHz, 86% at 1.1 kHz

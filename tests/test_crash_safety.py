@@ -68,4 +68,4 @@ def test_kill_9_loses_at_most_the_last_second(tmp_path, run_cli):
     np.testing.assert_array_equal(np.diff(gap.seq.astype(np.int64)), 1)  # contiguous from the first sample
     lost_s = (killed_ns - int(gap.log_time[-1])) * 1e-9
     assert 0 <= lost_s <= 1.0, lost_s
-    assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0}
+    assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0, "duplicates": 0, "wraps": 0, "restarts": 0}

@@ -36,8 +36,9 @@ def run_recording(sources, output: str, *, duration, split_size, split_duration,
     elif not quiet:
         size = sum(f.stat().st_size for f in result.files) / 1e6
         how = " (stopped)" if result.stopped_by_user else ""
+        dups = f", {result.duplicates} duplicates dropped" if result.duplicates else ""
         click.echo(
-            f"recorded {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops "
+            f"recorded {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops{dups} "
             f"-> {', '.join(str(f) for f in result.files)} ({size:.1f} MB)",
             err=True,
         )

@@ -38,7 +38,7 @@ def describe(path: str | Path) -> dict:
                 "messages": count,
                 # a topic's rate over its own span (devices start and stop apart); else the file's
                 "rate_hz": ts.get("rate_hz", round((count - 1) / duration, 3) if duration > 0 and count > 1 else 0.0),
-                "drops": ts.get("drops"),
+                **{k: ts.get(k) for k in ("drops", "duplicates", "wraps", "restarts")},
                 "device": ts.get("device", (ch.metadata or {}).get("device", "")),
                 "fields": list(ours[ch.topic][1].fields) if ch.topic in ours else [],
             }
@@ -65,11 +65,12 @@ def format_text(d: dict) -> str:
         f"duration:    {d['duration_s']:.3f} s",
         f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'})",
         "",
-        f"{'topic':<18} {'messages':>10} {'rate Hz':>10} {'drops':>7}  fields",
+        f"{'topic':<18} {'messages':>10} {'rate Hz':>10} {'drops':>7} {'dups':>5} {'wraps':>5} {'restarts':>8}  fields",
     ]
     for t in d["topics"]:
-        drops = "-" if t["drops"] is None else str(t["drops"])
-        lines.append(f"{t['topic']:<18} {t['messages']:>10} {t['rate_hz']:>10.1f} {drops:>7}  {', '.join(t['fields'])}")
+        n = {k: "-" if t.get(k) is None else str(t[k]) for k in ("drops", "duplicates", "wraps", "restarts")}
+        lines.append(f"{t['topic']:<18} {t['messages']:>10} {t['rate_hz']:>10.1f} {n['drops']:>7} {n['duplicates']:>5} "
+                     f"{n['wraps']:>5} {n['restarts']:>8}  {', '.join(t['fields'])}")
     for name, meta in d["metadata"].items():
         lines.append("")
         lines.append(f"[{name}]")

@@ -1,9 +1,12 @@
 """The recorder: reads sample blocks from one or more devices and writes them to MCAP.
 
 Each device is read on its own thread into a queue; the calling thread maps device clocks to the
-host clock, encodes and writes.  A chunk is closed and flushed at least every
-``flush_interval`` seconds of wall time, so a killed recorder loses at most that much data.
-Ctrl-C (or SIGTERM) stops the devices and finishes the file cleanly.
+host clock, judges every sample's ``seq`` (:mod:`.sequence`), cuts the stream into parts on the
+host clock, encodes and writes.  Every open file's chunk is closed and handed to the OS at least
+every ``flush_interval`` seconds of wall time, and forced to the disk (fsync) on a thread of its
+own right after, so a killed recorder loses at most that much data and a power cut that much
+plus the time the disk takes to sync (docs/data-format.md).  Ctrl-C (or SIGTERM) stops the
+devices and finishes the files cleanly; a second one stops waiting for the devices.
 """
 
 from __future__ import annotations
@@ -25,10 +28,12 @@ from .. import __version__
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
-from .writer import RecordingWriter, TopicStats
+from .sequence import SampleCounts, SequenceTracker
+from .writer import RecordingWriter
 
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
+STOP_WAIT_S = 0.5  # after a stop, how long the devices' last blocks are waited for
 
 
 class Source(Protocol):
@@ -61,11 +66,11 @@ class RecordOptions:
     split_size : int or None
         Start a new file when the present one reaches this many bytes.
     split_duration_s : float or None
-        Start a new file after this many seconds of data.
+        Start a new file every this many seconds on the host clock, from the recording's start.
     compression : str
         Chunk compression: "zstd", "lz4" or "none".
     flush_interval_s : float
-        Longest wall time between chunk flushes, in s (bounds the loss after a crash).
+        Longest wall time between chunk flushes (and disk syncs), in s.
     chunk_size : int
         Uncompressed chunk size limit, in bytes.
     reconnect : bool
@@ -83,27 +88,33 @@ class RecordOptions:
 
 @dataclass
 class Progress:
-    """Figures shown while recording."""
+    """Figures shown while recording: the device with the most samples, losses summed over devices."""
 
     elapsed_s: float
     samples: int
     drops: int
+    duplicates: int
     rate_hz: float
 
 
 @dataclass
 class RecordResult:
-    """Summary of a finished recording."""
+    """Summary of a finished recording.
+
+    ``duration_s`` is the longest time any device covered: its sample periods (samples plus
+    drops) over its sample rate; ``samples`` is the most any device wrote; ``drops`` and
+    ``duplicates`` are summed over devices (a device's count is the same on each of its topics).
+    """
 
     files: list[Path]
     duration_s: float
     samples: int
     drops: int
+    duplicates: int
     stopped_by_user: bool
     topics: dict[str, dict] = field(default_factory=dict)
     clocks: dict[str, dict] = field(default_factory=dict)
     events: int = 0
-
     alignment_us: float | None = None
 
     def as_dict(self) -> dict:
@@ -112,6 +123,7 @@ class RecordResult:
             "duration_s": round(self.duration_s, 6),
             "samples": self.samples,
             "drops": self.drops,
+            "duplicates": self.duplicates,
             "events": self.events,
             "stopped_by_user": self.stopped_by_user,
             "topics": self.topics,
@@ -125,6 +137,13 @@ def split_names(output: Path, split: bool) -> Callable[[int], Path]:
     if not split:
         return lambda i: output
     return lambda i: output.with_name(f"{output.stem}_{i:03d}{output.suffix or '.mcap'}")
+
+
+@dataclass(frozen=True)
+class _Ended:
+    """A reader's last word: its device finished what it was asked for (``complete``) or stopped."""
+
+    complete: bool
 
 
 class _Reader(threading.Thread):
@@ -152,6 +171,7 @@ class _Reader(threading.Thread):
         return False
 
     def run(self) -> None:
+        complete = False
         try:
             while not self.stop.is_set():
                 try:
@@ -161,13 +181,24 @@ class _Reader(threading.Thread):
                         continue
                     raise
                 if block is None:
+                    complete = not self.stop.is_set()
                     break
                 # bounded queue: a source faster than the writer (unpaced simulation) waits;
                 # after a stop the recorder drains the queue until every reader has ended
                 self.q.put((self.source, block))
         except Exception as err:  # report, the main thread decides
             self.q.put((self.source, err))
-        self.q.put((self.source, None))
+        self.q.put((self.source, _Ended(complete)))
+
+
+@dataclass
+class _Part:
+    """One output file and the stretch of host time it holds: [start_ns, end_ns)."""
+
+    index: int
+    writer: RecordingWriter
+    start_ns: int
+    end_ns: int | None  # None: the newest part, open-ended until a split decides its end
 
 
 class Recorder:
@@ -176,7 +207,7 @@ class Recorder:
     Parameters
     ----------
     sources : list of Source
-        Devices, already opened.
+        Devices, already opened; the recorder closes them.
     output : Path
         Output file (``NAME_000.mcap`` ... when splitting).
     options : RecordOptions
@@ -187,6 +218,14 @@ class Recorder:
         The rig file, attached to every part.
     overwrite : bool
         Replace existing output files.
+
+    Notes
+    -----
+    Parts are cut on the host clock at ``start + k * split_duration`` (or where a part reached
+    ``split_size``); each sample goes to the part its time falls in, so a part holds exactly its
+    stretch of every device.  A part stays open until every device has written a sample past its
+    end (or ended), so a device whose samples arrive late (a serial line whose clock map is still
+    settling) still lands in the right file.
     """
 
     def __init__(
@@ -214,6 +253,8 @@ class Recorder:
         if not overwrite and self._name(0).exists():
             raise BadInputError(f"{self._name(0)} exists: choose another -o or pass --overwrite")
 
+    # --- parts ---------------------------------------------------------------------------------
+
     def _new_writer(self, index: int, start_ns: int) -> RecordingWriter:
         path = self._name(index)
         if path.exists():
@@ -221,54 +262,142 @@ class Recorder:
                 raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
             path.unlink()
         w = RecordingWriter(path, compression=self.options.compression, chunk_size=self.options.chunk_size)
-        w.add_metadata(
-            "ambdaq.session",
-            {
-                "start_time": datetime.fromtimestamp(start_ns / 1e9, timezone.utc).isoformat(),
-                "ambdaq_version": __version__,
-                "command": self.command,
-                "host": platform.node(),
-                "devices": ",".join(s.name for s in self.sources),
-                "part": str(index),
-                "requested_duration_s": "" if self.options.duration_s is None else f"{self.options.duration_s:g}",
-            },
-        )
-        for s in self.sources:
-            w.add_device(s.name, s.signal_groups(), s.identity(), s.calibration())
-        if self.rig_file is not None:
-            w.add_attachment(self.rig_file.name, "application/toml", self.rig_file.read_bytes(), start_ns)
+        try:
+            w.add_metadata(
+                "ambdaq.session",
+                {
+                    "start_time": datetime.fromtimestamp(start_ns / 1e9, timezone.utc).isoformat(),
+                    "ambdaq_version": __version__,
+                    "command": self.command,
+                    "host": platform.node(),
+                    "devices": ",".join(s.name for s in self.sources),
+                    "part": str(index),
+                    "requested_duration_s": "" if self.options.duration_s is None else f"{self.options.duration_s:g}",
+                },
+            )
+            for s in self.sources:
+                w.add_device(s.name, s.signal_groups(), s.identity(), s.calibration())
+            if self.rig_file is not None:
+                w.add_attachment(self.rig_file.name, "application/toml", self.rig_file.read_bytes(), start_ns)
+        except BaseException:
+            w.close()
+            raise
         return w
 
-    def run(self, on_progress: Callable[[Progress], None] | None = None, progress_interval_s: float = 0.5) -> RecordResult:
-        """Record until the duration is reached, every device ends, or the user stops."""
+    def _open_part(self, start_ns: int) -> _Part:
+        index = len(self._files)
+        end = None
+        if self.options.split_duration_s is not None:
+            end = self._start_ns + int(round((index + 1) * self.options.split_duration_s * 1e9))
+        part = _Part(index, self._new_writer(index, start_ns), start_ns, end)
+        self._files.append(part.writer.path)
+        self._parts.append(part)
+        return part
+
+    def _part_for(self, t_ns: int) -> _Part:
+        """The part that holds host time ``t_ns``, opening parts up to it (split by duration);
+        a time before the oldest open part goes to that part."""
+        while True:
+            newest = self._parts[-1]
+            if newest.end_ns is None or t_ns < newest.end_ns:
+                break
+            self._open_part(newest.end_ns)
+        for part in self._parts:
+            if part.end_ns is None or t_ns < part.end_ns:
+                return part
+        return self._parts[-1]
+
+    def _close_finished_parts(self) -> None:
+        """Close every part but the newest once each device has passed its end or ended."""
+        while len(self._parts) > 1:
+            oldest = self._parts[0]
+            if any(name not in self._ended and (self._last_time.get(name) is None
+                                                or self._last_time[name] < oldest.end_ns)
+                   for name in self._names):
+                return
+            self._finish_part(self._parts.pop(0))
+
+    def _finish_part(self, part: _Part) -> None:
+        """Clock fits and link statistics go into the part's metadata, then it is finished."""
+        w = part.writer
+        for name, rep in self._clock_report().items():
+            w.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
+        alignment = self._alignment_us()
+        if alignment is not None:
+            w.add_metadata("ambdaq.alignment", {"estimated_worst_us": f"{alignment:.1f}"})
+        for s in self.sources:
+            stats = getattr(s, "link_statistics", None)
+            if stats is not None:
+                w.add_metadata(f"ambdaq.link.{s.name}", stats())
+        for name, counts in w.counts.items():
+            self._totals[name].add(counts)
+        w.close()
+
+    # --- the run ---------------------------------------------------------------------------------
+
+    def run(self, on_progress: Callable[[Progress], None] | None = None, progress_interval_s: float = 0.5,
+            on_stopping: Callable[[list[Path]], None] | None = None) -> RecordResult:
+        """Record until the duration is reached, every device ends, or the user stops.
+
+        Parameters
+        ----------
+        on_progress : callable, optional
+            Called with a :class:`Progress` every ``progress_interval_s`` seconds.
+        progress_interval_s : float
+            In s.
+        on_stopping : callable, optional
+            Called once, at once, when the user stops (Ctrl-C, SIGTERM), with the files being
+            finished.
+        """
         opts = self.options
         q: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
         stop = threading.Event()
         self._start_ns = time.time_ns()
-        for s in self.sources:
-            s.start(None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate)))
-        readers = [_Reader(s, q, stop, opts.reconnect) for s in self.sources]
-        self._totals: dict[str, TopicStats] = {}
+        self._names = [s.name for s in self.sources]
         self._files: list[Path] = []
+        self._parts: list[_Part] = []
+        self._totals = {name: SampleCounts(name) for name in self._names}
+        self._trackers = {name: SequenceTracker() for name in self._names}
+        self._last_time: dict[str, int | None] = {name: None for name in self._names}
+        self._last_device_ns: dict[str, int] = {}
+        self._ended: set[str] = set()
         self._clocks: dict[str, ClockMap] = {}
         self._priming: dict[str, list[SampleBlock]] = {}
         self._host_clocked: set[str] = set()
         self._events = 0
-        self._open_part(self._start_ns)
-        t0 = time.monotonic()
-        last_flush = last_progress = t0
-        live = len(readers)
+        due = {s.name: None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate))
+               for s in self.sources}
+        readers = [_Reader(s, q, stop, opts.reconnect) for s in self.sources]
         failure: Exception | None = None
-        # Ctrl-C and SIGTERM only raise a flag: the loop stops between blocks, never mid-write
-        user_stop = threading.Event()
+        # Ctrl-C and SIGTERM only raise a flag: the loop stops between blocks, never mid-write; a
+        # second one stops the wait for the devices' last blocks
+        signals = [0]
         handlers = {}
         if threading.current_thread() is threading.main_thread():
+            def on_signal(signum, frame) -> None:
+                signals[0] += 1
+
             for sig in (signal.SIGINT, signal.SIGTERM):
-                handlers[sig] = signal.signal(sig, lambda signum, frame: user_stop.set())
-        for r in readers:
-            r.start()
+                handlers[sig] = signal.signal(sig, on_signal)
+        t0 = time.monotonic()
         try:
-            while live and not user_stop.is_set():
+            self._open_part(self._start_ns)
+            for s in self.sources:
+                s.start(due[s.name])
+        except BaseException:  # nothing recorded: every device is closed, no empty file is left
+            self._close_sources()
+            for part in self._parts:
+                part.writer.close()
+                part.writer.path.unlink(missing_ok=True)
+            for sig, old in handlers.items():
+                signal.signal(sig, old)
+            raise
+        try:
+            for r in readers:
+                r.start()
+            last_flush = last_progress = t0
+            live = len(readers)
+            while live and not signals[0]:
                 try:
                     source, item = q.get(timeout=0.1)
                 except queue.Empty:
@@ -276,29 +405,28 @@ class Recorder:
                 if isinstance(item, Exception):
                     failure = item
                     break
-                if isinstance(item, Event):
-                    self._writer.write_event(item.topic, source.name, time.time_ns(), item)
-                    self._events += 1
-                elif item is None and source is not None:
+                if isinstance(item, _Ended):
                     live -= 1
-                elif item is not None:
-                    self._ingest(source, item)
-                    self._write_events(source)
+                    self._end_device(source.name, due[source.name] if item.complete else None)
+                else:
+                    self._take(source, item)
                 now = time.monotonic()
                 if now - last_flush >= opts.flush_interval_s:
-                    self._writer.flush()
+                    for part in self._parts:
+                        part.writer.flush()
                     last_flush = now
                 if on_progress is not None and now - last_progress >= progress_interval_s:
                     last_progress = now
                     on_progress(self._progress(now - t0))
+            if signals[0] and on_stopping is not None:
+                on_stopping(list(self._files))
         finally:
             stop.set()
-            for s in self.sources:
-                s.close()
-            for sig, old in handlers.items():
-                signal.signal(sig, old)
-            deadline = time.monotonic() + 5.0
-            while any(r.is_alive() for r in readers) and time.monotonic() < deadline:
+            closer = threading.Thread(target=self._close_sources, name="close-devices", daemon=True)
+            closer.start()
+            # what the devices read until they stopped is written, not lost
+            deadline = time.monotonic() + STOP_WAIT_S
+            while any(r.is_alive() for r in readers) and time.monotonic() < deadline and signals[0] < 2:
                 self._drain(q)
                 time.sleep(0.005)
             self._drain(q)
@@ -306,100 +434,61 @@ class Recorder:
                 self._flush_priming(name)
             for s in self.sources:
                 self._write_events(s)
-            self._close_part()
+            for part in self._parts:
+                self._finish_part(part)
+            self._parts.clear()
+            while closer.is_alive() and signals[0] < 2:
+                closer.join(0.1)
+            for sig, old in handlers.items():
+                signal.signal(sig, old)
         if failure is not None:
             where = ", ".join(str(f) for f in self._files)
             raise DeviceError(f"{failure} (after {time.monotonic() - t0:.1f} s; recording finished cleanly: {where})") \
                 from failure
-        samples, drops = self._counts(self._totals)
-        rate = max(s.sample_rate for s in self.sources)
+        rate = {s.name: s.sample_rate for s in self.sources}
+        topics = {}
+        for s in self.sources:
+            for g in s.signal_groups():
+                topics[g.topic] = {k: v for k, v in self._totals[s.name].as_dict().items()
+                                   if k in ("samples", "drops", "duplicates", "wraps", "restarts")}
         return RecordResult(
             files=list(self._files),
-            duration_s=samples / rate,
-            samples=samples,
-            drops=drops,
-            stopped_by_user=user_stop.is_set(),
-            topics={t: {"samples": st.samples, "drops": st.drops} for t, st in self._totals.items()},
+            duration_s=max((t.samples + t.drops) / rate[n] for n, t in self._totals.items()),
+            samples=max(t.samples for t in self._totals.values()),
+            drops=sum(t.drops for t in self._totals.values()),
+            duplicates=sum(t.duplicates for t in self._totals.values()),
+            stopped_by_user=bool(signals[0]),
+            topics=topics,
             clocks=self._clock_report(),
             events=self._events,
             alignment_us=self._alignment_us(),
         )
 
-    def _alignment_us(self) -> float | None:
-        """Estimated worst alignment between two devices: root sum square of the two largest map
-        uncertainties (devices stamped on the host clock count as exact), in us."""
-        u = sorted((c["uncertainty_us"] for c in self._clock_report().values() if c["uncertainty_us"] == c["uncertainty_us"]),
-                   reverse=True)
-        if len(u) < 2:
-            return None
-        return float((u[0] ** 2 + u[1] ** 2) ** 0.5)
-
-    def _clock_report(self) -> dict[str, dict]:
-        out = {}
-        for name, cm in self._clocks.items():
-            fit = cm.fit()
-            out[name] = {"drift_ppm": round(float(fit.drift_ppm), 3), "offset_ns": round(float(fit.offset_ns)),
-                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points,
-                         "latency_us": round(fit.latency_ns * 1e-3, 3)}
-        for name in self._host_clocked:
-            out[name] = {"host_clock": True, "uncertainty_us": 0.0}
-        return out
-
-    def _close_part(self) -> None:
-        """Clock fits and link statistics go into the part's metadata, then it is finished."""
-        for name, rep in self._clock_report().items():
-            self._writer.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
-        alignment = self._alignment_us()
-        if alignment is not None:
-            self._writer.add_metadata("ambdaq.alignment", {"estimated_worst_us": f"{alignment:.1f}"})
+    def _close_sources(self) -> None:
         for s in self.sources:
-            stats = getattr(s, "link_statistics", None)
-            if stats is not None:
-                self._writer.add_metadata(f"ambdaq.link.{s.name}", stats())
-        self._merge(self._totals, self._writer)
-        self._writer.close()
+            try:
+                s.close()
+            except Exception:  # a device that fails to close must not keep the others open
+                pass
 
-    def _write_events(self, source) -> None:
-        events = getattr(source, "events", None)
-        if events is None:
-            return
-        for ev in events():
-            cm = self._clocks.get(source.name)
-            if ev.device_time_ns and cm is not None and cm.ready:
-                t = int(cm.to_host(np.array([ev.device_time_ns]))[0])
-            else:
-                t = time.time_ns()
-            self._writer.write_event(ev.topic, source.name, t, ev)
-            self._events += 1
+    def _end_device(self, name: str, due: int | None) -> None:
+        """``name`` has ended; if it delivered the ``due`` periods it was asked for, the ones it
+        never sent after its last sample are drops of its last part."""
+        self._flush_priming(name)
+        if due is not None:
+            missing = self._trackers[name].missing_after(due)
+            if missing:
+                part = self._part_for(self._last_time[name] or self._start_ns)
+                part.writer.counts[name].drops += missing
+        self._ended.add(name)
+        self._close_finished_parts()
 
-    def _open_part(self, start_ns: int) -> None:
-        """Close the present part (if any) and start the next one at ``start_ns``."""
-        if self._files:
-            self._close_part()
-        self._writer = self._new_writer(len(self._files), start_ns)
-        self._files.append(self._writer.path)
-        self._part_start_ns = start_ns
-
-    def _write(self, device: str, block: SampleBlock) -> None:
-        """Write ``block``, cutting it at the exact sample where a split falls."""
-        if not self._split:
-            self._writer.write(device, block)
-            return
-        o = self.options
-        pos, n = 0, len(block)
-        while pos < n:
-            end = min(n, pos + 1000)  # the size limit is checked at least every 1000 samples
-            if o.split_duration_s is not None:
-                boundary = self._part_start_ns + int(round(o.split_duration_s * 1e9))
-                cut = int(np.searchsorted(block.host_time_ns, boundary, "left"))
-                if cut <= pos:
-                    self._open_part(boundary)
-                    continue
-                end = min(end, cut)
-            if o.split_size is not None and self._writer.bytes_written >= o.split_size:
-                self._open_part(int(block.host_time_ns[pos]))
-            self._writer.write(device, block.slice(pos, end))
-            pos = end
+    def _take(self, source, item) -> None:
+        if isinstance(item, Event):
+            self._write_event(source.name, time.time_ns(), item)
+        elif item is not None:
+            self._ingest(source, item)
+            self._write_events(source)
 
     def _drain(self, q: queue.Queue) -> None:
         """Blocks already read when the recording stopped are written, not lost."""
@@ -410,6 +499,8 @@ class Recorder:
                 return
             if isinstance(item, SampleBlock) and len(item):
                 self._ingest(source, item)
+
+    # --- clocks ----------------------------------------------------------------------------------
 
     def _ingest(self, source, block: SampleBlock) -> None:
         """Map a block to the host clock and write it.
@@ -440,38 +531,103 @@ class Recorder:
             self._flush_priming(device)
 
     def _flush_priming(self, device: str) -> None:
-        cm = self._clocks[device]
+        cm = self._clocks.get(device)
         for b in self._priming.pop(device, []):
-            self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, cm.to_host(b.device_time_ns),
-                                            b.received_ns, b.status))
+            host = cm.to_host(b.device_time_ns)
+            last = self._last_time[device]
+            if last is not None and b.device_time_ns.shape[0]:
+                # a refit never moves a device's time back: it is slewed in, as NTP slews a clock,
+                # so that its samples stay in order (at least half a device period apart)
+                floor = last + max(1, (int(b.device_time_ns[0]) - self._last_device_ns[device]) // 2)
+                if host[0] < floor:
+                    host = host + (floor - host[0])
+            self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, host, b.received_ns, b.status))
 
-    @staticmethod
-    def _counts(stats: dict[str, TopicStats]) -> tuple[int, int]:
-        """Samples (of the longest device) and drops (summed over devices, not topics)."""
-        per_device: dict[str, tuple[int, int]] = {}
-        for st in stats.values():
-            per_device[st.device] = (max(per_device.get(st.device, (0, 0))[0], st.samples),
-                                     max(per_device.get(st.device, (0, 0))[1], st.drops))
-        return max((v[0] for v in per_device.values()), default=0), sum(v[1] for v in per_device.values())
+    # --- writing ---------------------------------------------------------------------------------
 
-    @staticmethod
-    def _merge(totals: dict[str, TopicStats], writer: RecordingWriter) -> None:
-        for topic, st in writer.statistics().items():
-            acc = totals.setdefault(topic, TopicStats(st.device))
-            acc.samples += st.samples
-            acc.drops += st.drops
+    def _write(self, device: str, block: SampleBlock) -> None:
+        """Judge the block's samples and write the kept ones, each into the part its time falls in."""
+        n = len(block)
+        if n == 0:
+            return
+        t = block.host_time_ns
+        verdict = self._trackers[device].admit(block.seq, t)
+        pos = 0
+        while pos < n:
+            part = self._part_for(int(t[pos]))
+            end = n if part.end_ns is None else pos + int(np.searchsorted(t[pos:], part.end_ns, "left"))
+            end = max(end, pos + 1)
+            if self.options.split_size is not None and part.end_ns is None:
+                end = min(end, pos + 1000)  # the size limit is checked at least every 1000 samples
+            sl = slice(pos, end)
+            part.writer.counts[device].add(verdict.counts(device, sl, block.seq, t))
+            keep = verdict.keep[sl]
+            piece = block.slice(pos, end)
+            part.writer.write(device, piece if keep.all() else piece.select(keep))
+            if (self.options.split_size is not None and part.end_ns is None
+                    and part.writer.bytes_written >= self.options.split_size):
+                part.end_ns = int(t[end - 1]) + 1
+            pos = end
+        kept = np.flatnonzero(verdict.keep)
+        if kept.size:
+            self._last_time[device] = int(t[kept[-1]])
+            self._last_device_ns[device] = int(block.device_time_ns[kept[-1]])
+        self._close_finished_parts()
+
+    def _write_events(self, source) -> None:
+        events = getattr(source, "events", None)
+        if events is None:
+            return
+        for ev in events():
+            cm = self._clocks.get(source.name)
+            if ev.device_time_ns and cm is not None and cm.ready:
+                t = int(cm.to_host(np.array([ev.device_time_ns]))[0])
+            else:
+                t = time.time_ns()
+            self._write_event(source.name, t, ev)
+
+    def _write_event(self, device: str, t_ns: int, ev: Event) -> None:
+        self._part_for(t_ns).writer.write_event(ev.topic, device, t_ns, ev)
+        self._events += 1
+
+    # --- reports ---------------------------------------------------------------------------------
+
+    def _alignment_us(self) -> float | None:
+        """Estimated worst alignment between two devices: root sum square of the two largest map
+        uncertainties (devices stamped on the host clock count as exact), in us."""
+        u = sorted((c["uncertainty_us"] for c in self._clock_report().values() if c["uncertainty_us"] == c["uncertainty_us"]),
+                   reverse=True)
+        if len(u) < 2:
+            return None
+        return float((u[0] ** 2 + u[1] ** 2) ** 0.5)
+
+    def _clock_report(self) -> dict[str, dict]:
+        out = {}
+        for name, cm in self._clocks.items():
+            fit = cm.fit()
+            out[name] = {"drift_ppm": round(float(fit.drift_ppm), 3), "offset_ns": round(float(fit.offset_ns)),
+                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points,
+                         "latency_us": round(fit.latency_ns * 1e-3, 3)}
+        for name in self._host_clocked:
+            out[name] = {"host_clock": True, "uncertainty_us": 0.0}
+        return out
 
     def _progress(self, elapsed: float) -> Progress:
-        totals = {t: TopicStats(st.device, st.samples, st.drops) for t, st in self._totals.items()}
-        self._merge(totals, self._writer)
-        samples, drops = self._counts(totals)
-        return Progress(elapsed, samples, drops, samples / elapsed if elapsed > 0 else 0.0)
+        now = {name: SampleCounts(name) for name in self._names}
+        for name, total in self._totals.items():
+            now[name].add(total)
+            for part in self._parts:
+                now[name].add(part.writer.counts[name])
+        samples = max(c.samples for c in now.values())
+        return Progress(elapsed, samples, sum(c.drops for c in now.values()),
+                        sum(c.duplicates for c in now.values()), samples / elapsed if elapsed > 0 else 0.0)
 
 
 def print_progress(p: Progress, stream=None) -> None:
     """One status line, redrawn in place on a terminal."""
     stream = sys.stderr if stream is None else stream
-    text = f"recording {p.elapsed_s:7.1f} s  {p.samples:>10d} samples  {p.drops:>6d} drops  {p.rate_hz:10.0f} samples/s"
+    text = (f"recording {p.elapsed_s:7.1f} s  {p.samples:>10d} samples  {p.drops:>6d} drops  "
+            f"{p.duplicates:>4d} duplicates  {p.rate_hz:10.0f} samples/s")
     end = "\r" if stream.isatty() else "\n"
     stream.write(text + end)
     stream.flush()

@@ -20,7 +20,8 @@ from mcap.records import Attachment, Channel, Metadata, Schema
 from ..errors import BadInputError
 from .mcapfile import MAGIC, BlockWriter, _read, decompress, iter_records
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
-from .writer import PROFILE, TopicStats, count_drops
+from .sequence import SampleCounts, SequenceTracker
+from .writer import PROFILE
 
 
 @dataclass
@@ -76,8 +77,8 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
         raise BadInputError(f"{src}: not an MCAP file (bad magic bytes)")
     schemas: dict[int, Schema] = {}
     layouts: dict[int, TopicLayout] = {}
-    stats: dict[int, TopicStats] = {}
-    last_seq: dict[int, int] = {}
+    stats: dict[int, SampleCounts] = {}
+    trackers: dict[int, SequenceTracker] = {}
     kept = dropped = messages = 0
     consumed = len(MAGIC)
     tmp = dst.with_name(dst.name + ".part")
@@ -99,7 +100,8 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
                     group = parse_schema(s.name, s.data.decode(errors="replace")) if s is not None else None
                     if group is not None:
                         layouts[c.id] = TopicLayout(group)
-                        stats[c.id] = TopicStats((c.metadata or {}).get("device", ""))
+                        stats[c.id] = SampleCounts((c.metadata or {}).get("device", ""))
+                        trackers[c.id] = SequenceTracker()
                 elif op == Opcode.METADATA:
                     m = _read(Metadata, body)
                     if m.name != "ambdaq.statistics":  # recomputed below
@@ -109,7 +111,7 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
                     w.add_attachment(a.name, a.media_type, a.data, a.log_time)
                 elif op == Opcode.CHUNK:
                     records = _chunk_records(body)
-                    messages += _count(records, layouts, stats, last_seq)
+                    messages += _count(records, layouts, stats, trackers)
                     w.add_chunk_records(records)
                     kept += 1
             except Exception:
@@ -122,11 +124,15 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
         w.finish()
     tmp.replace(dst)
     return RecoveryReport(kept, dropped, messages, len(data) - consumed,
-                          {w.channel_topic(cid): {"samples": st.samples, "drops": st.drops} for cid, st in stats.items()})
+                          {w.channel_topic(cid): {k: v for k, v in st.as_dict().items()
+                                                  if k in ("samples", "drops", "duplicates", "wraps", "restarts")}
+                           for cid, st in stats.items()})
 
 
-def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, TopicStats], last_seq: dict[int, int]) -> int:
-    """Count messages of one chunk and update per-topic samples and drops from the CDR seq."""
+def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, SampleCounts],
+           trackers: dict[int, SequenceTracker]) -> int:
+    """Count messages of one chunk and update each topic's counts from the CDR seq (a recording
+    never holds a duplicate: the recorder dropped them, so here they only count)."""
     n = 0
     seqs: dict[int, list[int]] = {}
     times: dict[int, list[int]] = {}
@@ -141,12 +147,6 @@ def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, Top
             seqs.setdefault(cid, []).append(seq)
             times.setdefault(cid, []).append(log_time)
     for cid, sq in seqs.items():
-        arr = np.array(sq, dtype=np.uint32)
-        st = stats[cid]
-        st.drops += count_drops(arr, last_seq.get(cid))
-        last_seq[cid] = int(arr[-1])
-        st.samples += arr.shape[0]
-        if st.first_seq is None:
-            st.first_seq, st.first_time = int(arr[0]), times[cid][0]
-        st.last_seq, st.last_time = int(arr[-1]), times[cid][-1]
+        seq, t = np.array(sq, dtype=np.uint32), np.array(times[cid], dtype=np.int64)
+        stats[cid].add(trackers[cid].admit(seq, t).counts(stats[cid].device, slice(0, seq.shape[0]), seq, t))
     return n

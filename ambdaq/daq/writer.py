@@ -5,13 +5,16 @@ Metadata written (all values are strings; see docs/data-format.md):
 ``ambdaq.session``            start time, ambdaq version, command, host, devices, split part
 ``ambdaq.device.<name>``      device identity (URL, kind, profile, sample rate ...)
 ``ambdaq.calibration.<name>`` calibration the device reported
-``ambdaq.statistics``         per topic: JSON with samples, drops, device, first/last seq, rate
+``ambdaq.statistics``         per topic: JSON with the device's samples, drops, duplicates, wraps,
+                              restarts in this file (:class:`~ambdaq.daq.sequence.SampleCounts`),
+                              first/last seq, rate
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
+import os
+import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,31 +22,11 @@ import numpy as np
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from .mcapfile import BlockWriter
+from .sequence import SampleCounts
 from .schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
                      TopicLayout, encode_event)
 
 PROFILE = "ambdaq"
-
-
-@dataclass
-class TopicStats:
-    """Samples and lost samples of one topic, counted from the device's sequence numbers."""
-
-    device: str
-    samples: int = 0
-    drops: int = 0
-    first_seq: int | None = None
-    last_seq: int | None = None
-    first_time: int | None = None
-    last_time: int | None = None
-
-    def as_json(self) -> str:
-        span = (self.last_time - self.first_time) * 1e-9 if self.samples > 1 else 0.0
-        rate = (self.samples - 1) / span if span > 0 else 0.0
-        return json.dumps(
-            {"device": self.device, "samples": self.samples, "drops": self.drops, "first_seq": self.first_seq,
-             "last_seq": self.last_seq, "rate_hz": round(rate, 3)}
-        )
 
 
 @dataclass
@@ -53,19 +36,6 @@ class _Device:
     layouts: list[TopicLayout]
     channels: list[int]
     row_dtype: np.dtype
-    last_seq: int | None = None
-    stats: list[TopicStats] = field(default_factory=list)
-
-
-def count_drops(seq: np.ndarray, last_seq: int | None) -> int:
-    """Samples lost before and inside ``seq`` (uint32, wrapping), given the previous block's last."""
-    s = seq.astype(np.int64)
-    if last_seq is not None:
-        s = np.concatenate(([last_seq], s))
-    if s.shape[0] < 2:
-        return 0
-    gaps = (np.diff(s) - 1) % (1 << 32)
-    return int(gaps.sum())
 
 
 class RecordingWriter:
@@ -84,6 +54,10 @@ class RecordingWriter:
     def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = 4 << 20) -> None:
         self.path = Path(path)
         self._file = open(self.path, "xb")
+        self._sync_wanted = threading.Event()
+        self._closing = False
+        self._syncer = threading.Thread(target=self._sync_loop, name=f"fsync-{self.path.name}", daemon=True)
+        self._syncer.start()
         self._w = BlockWriter(self._file, compression=compression, chunk_size=chunk_size, profile=PROFILE)
         self._devices: dict[str, _Device] = {}
         self._topics: dict[str, str] = {}
@@ -92,6 +66,7 @@ class RecordingWriter:
         self._event_channels: dict[str, int] = {}
         self._event_schema: int | None = None
         self.event_counts: dict[str, int] = {}
+        self.counts: dict[str, SampleCounts] = {}  # per device, kept by the recorder (daq/sequence.py)
 
     def add_device(self, name: str, groups: list[SignalGroup], identity: dict[str, str], calibration: dict[str, str]) -> None:
         """Register a device's signal groups as channels and store its identity and calibration."""
@@ -107,9 +82,8 @@ class RecordingWriter:
         row = []
         for i, layout in enumerate(layouts):
             row += layout.record_dtype(prefix=f"{i}.")
-        self._devices[name] = _Device(
-            name, list(groups), layouts, channels, np.dtype(row), stats=[TopicStats(name) for _ in groups]
-        )
+        self._devices[name] = _Device(name, list(groups), layouts, channels, np.dtype(row))
+        self.counts[name] = SampleCounts(name)
         self._w.add_metadata(f"ambdaq.device.{name}", identity)
         self._w.add_metadata(f"ambdaq.calibration.{name}", calibration)
 
@@ -120,16 +94,15 @@ class RecordingWriter:
         self._w.add_attachment(name, media_type, data, log_time)
 
     def write(self, device: str, block: SampleBlock) -> None:
-        """Encode and append one block of ``device``; every topic gets one message per instant."""
+        """Encode and append one block of ``device``; every topic gets one message per instant.
+        What the samples mean for the device's counts is the recorder's to say (``counts``)."""
         dev = self._devices[device]
         n = len(block)
         if n == 0:
             return
         log_time = block.host_time_ns.astype(np.uint64)
         rows = np.empty(n, dtype=dev.row_dtype)
-        drops = count_drops(block.seq, dev.last_seq)
-        dev.last_seq = int(block.seq[-1])
-        for i, (layout, cid, st) in enumerate(zip(dev.layouts, dev.channels, dev.stats)):
+        for i, (layout, cid) in enumerate(zip(dev.layouts, dev.channels)):
             p = f"{i}."
             rows[p + "opcode"] = MESSAGE_OPCODE
             rows[p + "length"] = MESSAGE_HEADER_SIZE - 9 + layout.payload_size
@@ -142,11 +115,6 @@ class RecordingWriter:
             rows[p + "seq"] = block.seq
             rows[p + "status"] = 0 if block.status is None else block.status
             rows[p + "values"] = block.values[layout.group.topic]
-            st.samples += n
-            st.drops += drops
-            if st.first_seq is None:
-                st.first_seq, st.first_time = int(block.seq[0]), int(log_time[0])
-            st.last_seq, st.last_time = int(block.seq[-1]), int(log_time[-1])
         sizes = [MESSAGE_HEADER_SIZE + lay.payload_size for lay in dev.layouts]
         offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
         self._w.add_messages(
@@ -170,23 +138,45 @@ class RecordingWriter:
         self._w.add_message(self._event_channels[topic], n, log_time, payload)
 
     def flush(self) -> None:
-        """Close the open chunk so everything written so far is on disk."""
+        """Close the open chunk and hand it to the OS (a killed process loses nothing written so
+        far), then have it forced to the disk on the sync thread (a power cut loses nothing
+        written before that sync ends)."""
         self._w.close_chunk()
+        self._sync_wanted.set()
+
+    def _sync_loop(self) -> None:
+        """fsync whenever a flush asks, off the recording thread: a slow disk delays the sync, never
+        the recording (POSIX: fsync covers every write made before it was called)."""
+        while True:
+            self._sync_wanted.wait()
+            self._sync_wanted.clear()
+            if self._closing:
+                return
+            try:
+                os.fsync(self._file.fileno())
+            except (OSError, ValueError):  # the file is being closed
+                return
 
     @property
     def bytes_written(self) -> int:
         return self._file.tell()
 
-    def statistics(self) -> dict[str, TopicStats]:
-        return {g.topic: st for dev in self._devices.values() for g, st in zip(dev.groups, dev.stats)}
+    def statistics(self) -> dict[str, SampleCounts]:
+        """Per topic: its device's counts in this file."""
+        return {g.topic: self.counts[dev.name] for dev in self._devices.values() for g in dev.groups}
 
     def close(self) -> None:
-        """Write the statistics metadata and the summary, and close the file."""
+        """Write the statistics metadata and the summary, sync the file to the disk and close it."""
         if self._file.closed:
             return
         try:
             self._w.close_chunk()
             self._w.add_metadata("ambdaq.statistics", {t: st.as_json() for t, st in self.statistics().items()})
             self._w.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
         finally:
+            self._closing = True
+            self._sync_wanted.set()
+            self._syncer.join()
             self._file.close()

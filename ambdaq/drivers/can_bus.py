@@ -212,6 +212,20 @@ class CanHub:
             self._sync_thread.join(timeout=1.0)
             self._sync_thread = None
 
+    def cycle_of(self, counter: int) -> SyncCycle | None:
+        """The SYNC that a reply echoing ``counter`` answers: the newest SYNC with that counter, or
+        ``None`` if the reply is ahead of the newest SYNC seen (its counter is the next one).
+
+        That happens on python-can's virtual bus, which hands a SYNC to each listener in turn: the
+        device's node can get it and answer before our own copy reaches this thread.  The caller
+        keeps such a reply until the SYNC arrives (:meth:`add_sync_listener`); without that it
+        would be matched to the SYNC 240 cycles older, a duplicate row with an old time.
+        """
+        latest = self.cycle
+        if latest.count < 0 or (counter - latest.counter) % SYNC_COUNTER_MAX == 1:
+            return None
+        return self.by_counter.get(counter)
+
     def _on_sync(self, data: bytearray, timestamp: float) -> None:
         counter = data[0] if data else 0
         self.cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))

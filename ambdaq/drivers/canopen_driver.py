@@ -93,6 +93,7 @@ class CanopenDevice:
         self._rows: deque = deque()  # (cycle, time ns, row), appended by the bus thread
         self._emcy: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._parts: list = [None] * len(found.tpdos)
+        self._early: list[tuple[int, tuple]] = []  # complete replies ahead of their SYNC's echo
         self._last_heartbeat = self._last_data = time.monotonic()
         self._remaining: int | None = None
         self._first_cycle: int | None = None
@@ -130,6 +131,7 @@ class CanopenDevice:
                 self.hub.on_frame(0x180 + 0x100 * i + self.node_id, self._tpdo_callback(i))
             n.emcy.add_callback(self._on_emcy)
             self.hub.on_frame(0x700 + self.node_id, self._on_heartbeat)
+            self.hub.add_sync_listener(self._on_sync_cycle)
 
     def start(self, n_samples: int | None) -> None:
         self._remaining = n_samples
@@ -157,11 +159,22 @@ class CanopenDevice:
             self._parts = [None] * len(parts)
             if None in parts[:last]:
                 return  # part of this cycle was lost: a drop, never a made-up row
-            cycle = self.hub.by_counter.get(values[-1])  # the SYNC this cycle answers
-            if cycle is not None:  # flattened by the reader, off the bus thread
+            cycle = self.hub.cycle_of(values[-1])  # the SYNC this cycle answers
+            if cycle is None:
+                self._early.append((values[-1], (*parts[:last], values)))
+            else:  # flattened by the reader, off the bus thread
                 self._rows.append((cycle.count, cycle.time_ns, *parts[:last], values))
 
         return on_tpdo
+
+    def _on_sync_cycle(self, cycle) -> None:
+        """A SYNC arrived (bus thread): the replies that came ahead of it are its; any other kept
+        reply never found its SYNC and is dropped (the host sees the gap)."""
+        if self._early:
+            early, self._early = self._early, []
+            for counter, parts in early:
+                if counter == cycle.counter:
+                    self._rows.append((cycle.count, cycle.time_ns, *parts))
 
     def _on_emcy(self, err) -> None:
         self._emcy.put(Event(0, "fault", err.code, f"EMCY 0x{err.code:04X} {err.get_desc()} (register 0x{err.register:02X})"))
@@ -243,6 +256,7 @@ class CanopenDevice:
         if self._closed.is_set():
             return
         self._closed.set()
+        self.hub.remove_sync_listener(self._on_sync_cycle)
         try:
             self.node.nmt.send_command(0x80)  # back to PRE-OPERATIONAL: TPDOs stop
         except Exception:  # the bus may be gone already

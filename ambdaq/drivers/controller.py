@@ -47,6 +47,7 @@ class ControllerDriver:
                         for g in self.info["groups"]]
         self._n_samples: int | None = None
         self._end_index: int | None = None  # stop at this sample index (device time, not count)
+        self._closed = False
 
     # --- recorder source ---------------------------------------------------------------------------
 
@@ -72,15 +73,18 @@ class ControllerDriver:
         self.link.start_time_sync()
 
     def read(self) -> SampleBlock | None:
-        """The next block of samples; ``None`` when the requested count is done."""
+        """The next block of samples; ``None`` when the requested count is done or the driver was
+        closed.  Samples that arrived before the line failed are returned before the failure is."""
         while True:
-            if self.link.failure is not None:
-                raise DeviceError(f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: {self.link.failure}")
+            if self._closed:
+                return None
             try:
-                s, arrived = self.link.samples.get(timeout=0.2)
+                s, arrived = self.link.samples.get(timeout=0.2 if self.link.failure is None else 0.0)
                 break
             except queue.Empty:
-                continue
+                if self.link.failure is not None:
+                    raise DeviceError(f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: "
+                                      f"{self.link.failure}") from None
         if self._n_samples is not None and self._end_index is None:
             self._end_index = s.first_index + self._n_samples
         n = s.values.shape[0]
@@ -127,12 +131,17 @@ class ControllerDriver:
     def link_statistics(self) -> dict[str, str]:
         st = self.link.decoder.stats
         return {"frames": str(st.frames), "crc_errors": str(st.crc_errors), "cobs_errors": str(st.cobs_errors),
-                "lost_frames": str(self.link.lost_frames)}
+                "lost_frames": str(self.link.lost_frames), "backlog_overflow": str(self.link.overflow)}
 
     def close(self) -> None:
+        """Stop the stream (one try: a device that does not answer in 0.3 s is gone anyway) and
+        close the line; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             if self.link.failure is None:
-                self.link.request(MsgType.STREAM, b"\x00", what="stream off", timeout=0.5)
+                self.link.request(MsgType.STREAM, b"\x00", what="stream off", timeout=0.3, attempts=1)
         except DeviceError:
             pass
         self.link.close()

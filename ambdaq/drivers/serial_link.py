@@ -23,6 +23,7 @@ from .protocol import MsgType
 
 PING_S = 0.1  # a time exchange every 100 ms ...
 PING_KEEP = 100  # ... the least round trip of the last 10 s counts
+SAMPLE_BACKLOG = 1000  # SAMPLES frames held for the reader (10 s of 100-sample frames at 10 kHz)
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,10 @@ class SerialLink:
             raise DeviceError(f"cannot open serial port {port}: {err}") from None
         self.alive_s = alive_s
         self.decoder = FrameDecoder()
-        self.samples: queue.Queue = queue.Queue()
+        # bounded: a reader that stops taking them (a stalled recorder) costs the newest frames,
+        # counted (``overflow``) and seen by the recorder as a gap in the sample index
+        self.samples: queue.Queue = queue.Queue(maxsize=SAMPLE_BACKLOG)
+        self.overflow = 0
         self.faults: queue.Queue[Fault] = queue.Queue()
         self.sync_pairs: queue.Queue[tuple[int, int]] = queue.Queue()  # (device ns, host arrival ns)
         self.lost_frames = 0
@@ -126,7 +130,10 @@ class SerialLink:
         self._rx_seq = frame.seq
         t = frame.type
         if t == MsgType.SAMPLES:
-            self.samples.put((proto.parse_samples(frame.body), arrived))
+            try:
+                self.samples.put_nowait((proto.parse_samples(frame.body), arrived))
+            except queue.Full:
+                self.overflow += 1
         elif t in proto.REPLIES:
             req = int.from_bytes(frame.body[:2], "little")
             slot = self._pending.get(req)

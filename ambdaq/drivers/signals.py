@@ -72,13 +72,17 @@ class SampleBlock:
 
     def slice(self, start: int, stop: int) -> "SampleBlock":
         """Samples ``start`` to ``stop`` (exclusive) of this block."""
+        return self.select(slice(start, stop))
+
+    def select(self, which: "slice | np.ndarray") -> "SampleBlock":
+        """The samples ``which`` picks (a slice, a boolean mask or indices), in order."""
         return SampleBlock(
-            self.device_time_ns[start:stop],
-            self.seq[start:stop],
-            {k: v[start:stop] for k, v in self.values.items()},
-            None if self.host_time_ns is None else self.host_time_ns[start:stop],
+            self.device_time_ns[which],
+            self.seq[which],
+            {k: v[which] for k, v in self.values.items()},
+            None if self.host_time_ns is None else self.host_time_ns[which],
             self.received_ns,
-            None if self.status is None else self.status[start:stop],
+            None if self.status is None else self.status[which],
         )
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import struct
+import time
 
 import canopen
 import numpy as np
@@ -33,92 +34,112 @@ THERMAL_TAU_S = 5.0  # amplifier heat-sink time constant
 THERMAL_K = 8.0  # degC per A^2 (rms, per axis) at steady state
 STATUS_OVERCURRENT, STATUS_OVERTEMP, STATUS_ENABLED = 0x1, 0x2, 0x8000
 NOMINAL_SENSITIVITY = 1.0e4  # V/m: the rig's sensor gain; the conditioner's 0x2100 scales against it
+TEMPERATURE_INDEX = 0x2003  # the amplifier's heat-sink temperature, which it writes itself
+
+
+STALE_S = 0.1
+"""A SYNC older than this when the simulation gets to it is not answered: the host matches a reply
+to its SYNC by the 8-bit counter, which tells apart 240 SYNCs (100 ms at 2.4 kHz).  A real device
+answers within microseconds; only a simulator starved of CPU gets this far behind, and then the
+cycle is lost, as the host counts it, never attributed to the wrong SYNC."""
 
 
 class SimCanDevice:
-    """One simulated device of type ``kind`` at ``node_id`` on ``network``, fed by ``server``."""
+    """One simulated device of type ``kind`` at ``node_id`` on ``network``; answers the SYNCs that
+    :func:`serve_can` hands it with the rig's sample."""
 
-    def __init__(self, network: canopen.Network, kind: str, node_id: int, server: RigServer, *,
-                 serial: int = 1) -> None:
+    def __init__(self, network: canopen.Network, kind: str, node_id: int, *, serial: int = 1) -> None:
         self.profile: DeviceProfile = PROFILES[kind]
-        self.server = server
         self.node = canopen.LocalNode(node_id, str(self.profile.eds_path))
         network.add_node(self.node)
         self.network = network
         self.node.set_data(0x1018, 4, struct.pack("<I", serial), check_writable=False)
         self._pack = [struct.Struct("<" + "".join(_FMT[t] for _i, t in self.profile.tpdo_layout(i)))
                       for i in range(len(self.profile.tpdos))]
+        self._sizes = [len(t) for t in self.profile.tpdos]
         self._cols = np.array([c.rig_column for c in self.profile.channels])
         self._scale = np.array([c.scale for c in self.profile.channels])
-        self._kinds = [c.data_type for c in self.profile.channels]
+        self._kinds = [(c.unit == "rad" and c.data_type == od.UNSIGNED16, _LIMITS.get(c.data_type))
+                       for c in self.profile.channels]
         self._fault = 0
         self._temperature = 35.0
         self._last_t: int | None = None
+        self._settings: dict | None = None  # read from the object dictionary after each SDO write
+        self.node.add_write_callback(self._on_write)
         self.node.nmt.state = "PRE-OPERATIONAL"
-        network.subscribe(0x80, self._on_sync)
 
-    def _tpdo(self, i: int) -> tuple[int, int]:
-        cob = struct.unpack("<I", self.node.get_data(0x1800 + i, 1))[0]
-        ttype = self.node.get_data(0x1800 + i, 2)[0]
-        return cob, ttype
+    def _on_write(self, index: int, **_written) -> None:
+        if index != TEMPERATURE_INDEX:  # not its own reading: a setting changed
+            self._settings = None  # stored after the callbacks: read again at the next SYNC
+
+    def _f32(self, index: int) -> float:
+        return struct.unpack("<f", self.node.get_data(index, 0))[0]
+
+    def settings(self) -> dict:
+        """TPDO COB-IDs and transmission types, calibration and limits, as the SDO client left them."""
+        if self._settings is None:
+            n = len(self.profile.tpdos)
+            tpdos = [(struct.unpack("<I", self.node.get_data(0x1800 + i, 1))[0], self.node.get_data(0x1800 + i, 2)[0])
+                     for i in range(n)]
+            out: dict = {"tpdos": tpdos}
+            if self.profile.kind == "gap_sensor":
+                out["gain"], out["offset"] = self._f32(0x2100) / NOMINAL_SENSITIVITY, self._f32(0x2101)
+            if self.profile.status_index is not None:
+                out["limit"], out["temp_limit"] = self._f32(0x2002), self._f32(0x2004)
+                out["enabled"] = self.node.get_data(0x2001, 0)[0] != 0
+            self._settings = out
+        return self._settings
+
+    @property
+    def operational(self) -> bool:
+        return self.node.nmt.state == "OPERATIONAL"
 
     def _raw(self, row: np.ndarray) -> list:
         """Raw counts: integers saturate at their type's limits, except an angle, which wraps."""
         out = []
-        for i, (v, dt) in enumerate(zip(row / self._scale, self._kinds)):
-            if self.profile.channels[i].unit == "rad" and dt == od.UNSIGNED16:
-                out.append(int(round(float(v))) % 65536)
-            elif dt in _LIMITS:
-                lo, hi = _LIMITS[dt]
-                out.append(int(min(max(round(float(v)), lo), hi)))
+        for v, (wraps, limits) in zip((row / self._scale).tolist(), self._kinds):
+            if wraps:
+                out.append(int(round(v)) % 65536)
+            elif limits is not None:
+                out.append(int(min(max(round(v), limits[0]), limits[1])))
             else:
-                out.append(float(v))
+                out.append(v)
         return out
 
-    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if self.node.nmt.state != "OPERATIONAL":
-            return
-        t_ns = int(round(timestamp * 1e9))
-        try:
-            _step, rows = self.server.sample_at(t_ns)
-        except LookupError:
-            return
-        row = rows[self.profile.rig_topic][self._cols].copy()
+    def respond(self, counter: int, rows: dict[str, np.ndarray], t_ns: int) -> None:
+        """Send this device's TPDOs for the SYNC with ``counter`` whose instant is ``t_ns``, from the
+        rig's sample ``rows`` (one row per signal group)."""
+        cfg = self.settings()
+        row = rows[self.profile.rig_topic][self._cols]
         if self.profile.kind == "keyphasor":
             row[0] = row[0] % (2 * np.pi)
         elif self.profile.kind == "gap_sensor":  # the conditioner's calibration applies to what it sends
-            sens = struct.unpack("<f", self.node.get_data(0x2100, 0))[0]
-            offset = struct.unpack("<f", self.node.get_data(0x2101, 0))[0]
-            row = row * (sens / NOMINAL_SENSITIVITY) + offset
-        tail = [self._amplifier_status(row, t_ns)] if self.profile.status_index is not None else []
-        tail.append(data[0] if data else 0)  # echo the SYNC counter
+            row = row * cfg["gain"] + cfg["offset"]
+        tail = [self._amplifier_status(row, t_ns, cfg)] if self.profile.status_index is not None else []
+        tail.append(counter)  # echo the SYNC counter
         values = self._raw(row)
         pos = 0
         last = len(self._pack) - 1
         for i, packer in enumerate(self._pack):
-            n = len(self.profile.tpdos[i])
-            args = values[pos : pos + n] + (tail if i == last else [])
-            pos += n
-            cob, ttype = self._tpdo(i)
+            args = values[pos : pos + self._sizes[i]] + (tail if i == last else [])
+            pos += self._sizes[i]
+            cob, ttype = cfg["tpdos"][i]
             if cob & 0x80000000 or ttype != 1:
                 continue
             self.network.send_message(cob & 0x7FF, packer.pack(*args))
 
-    def _amplifier_status(self, currents: np.ndarray, t_ns: int) -> int:
-        limit = struct.unpack("<f", self.node.get_data(0x2002, 0))[0]
-        temp_limit = struct.unpack("<f", self.node.get_data(0x2004, 0))[0]
+    def _amplifier_status(self, currents: np.ndarray, t_ns: int, cfg: dict) -> int:
         dt = 0.0 if self._last_t is None else (t_ns - self._last_t) * 1e-9
         self._last_t = t_ns
         target = 35.0 + THERMAL_K * float(np.mean(currents**2))
         self._temperature += (target - self._temperature) * min(1.0, dt / THERMAL_TAU_S)
-        self.node.set_data(0x2003, 0, struct.pack("<f", self._temperature), check_writable=False)
-        enabled = self.node.get_data(0x2001, 0)[0] != 0
-        if not enabled:  # output stage off: no coil current (the rig's physics is not coupled back)
+        self.node.set_data(TEMPERATURE_INDEX, 0, struct.pack("<f", self._temperature), check_writable=False)
+        if not cfg["enabled"]:  # output stage off: no coil current (the rig's physics is not coupled back)
             currents[:] = 0.0
         fault = 0
-        if np.any(np.abs(currents) > limit):
+        if np.any(np.abs(currents) > cfg["limit"]):
             fault |= STATUS_OVERCURRENT
-        if self._temperature > temp_limit:
+        if self._temperature > cfg["temp_limit"]:
             fault |= STATUS_OVERTEMP
         new = fault & ~self._fault
         if new & STATUS_OVERCURRENT:
@@ -126,13 +147,31 @@ class SimCanDevice:
         if new & STATUS_OVERTEMP:
             self.node.emcy.send(0x4210, 0x09, b"")
         self._fault = fault
-        return (STATUS_ENABLED if enabled else 0) | fault
+        return (STATUS_ENABLED if cfg["enabled"] else 0) | fault
 
 
 def serve_can(network: canopen.Network, server: RigServer, nodes: dict[str, int] | None = None) -> list[SimCanDevice]:
-    """Put one simulated device of each type on ``network``; ``nodes`` maps kind -> node id."""
+    """Put one simulated device of each type on ``network``, fed by ``server``'s rig; ``nodes`` maps
+    kind -> node id.  On every SYNC the rig is sampled once, at the SYNC's bus time, and each
+    OPERATIONAL device answers with its TPDOs."""
     nodes = nodes or {k: p.default_node for k, p in PROFILES.items()}
-    return [SimCanDevice(network, kind, node, server, serial=1000 + node) for kind, node in nodes.items()]
+    devices = [SimCanDevice(network, kind, node, serial=1000 + node) for kind, node in nodes.items()]
+
+    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+        live = [d for d in devices if d.operational]
+        if not live or time.time() - timestamp > STALE_S:
+            return
+        t_ns = int(round(timestamp * 1e9))
+        try:
+            _step, rows = server.sample_at(t_ns)
+        except LookupError:
+            return
+        counter = data[0] if data else 0
+        for d in live:
+            d.respond(counter, rows, t_ns)
+
+    network.subscribe(0x80, on_sync)
+    return devices
 
 
 ABORT = {"locked": 0x08000022, "crc": 0x08000020, "busy": 0x08000021, "bad_value": 0x06090030}
