@@ -22,14 +22,13 @@ import time
 from pathlib import Path
 
 import can
-import canopen
 
 from ambdaq.daq.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can_bus import bus_load
 from ambdaq.drivers.devices import open_can_device
 from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import SpindleRig
-from ambdaq.drivers.simdev.canopen_devices import serve_can
+from ambdaq.drivers.simdev.canopen_devices import open_network, serve_can
 from ambdaq.drivers.simdev.rig_server import RigServer
 
 from _common import row
@@ -83,8 +82,7 @@ def main() -> None:
     args = ap.parse_args()
     channel = "bench-can"
     server = RigServer(SpindleRig(speed=SpeedProfile(30000, 30000)))
-    dev_net = canopen.Network(can.Bus(interface="virtual", channel=channel))
-    dev_net.connect()
+    dev_net = open_network(channel)
     serve_can(dev_net, server)
     server.start()
     devices = [open_can_device(f"can://virtual/{channel}?kind={k}&sync={SYNC_HZ:g}") for k in KINDS]

@@ -21,10 +21,10 @@ from ambdaq.drivers.devices import open_device
 from _common import best_of, row
 
 
-def record(out: Path, seconds: float, truth: bool) -> None:
+def record(out: Path, seconds: float, truth: bool, fsync: bool = True) -> None:
     out.unlink(missing_ok=True)
     src = open_device("sim://spindle", speed="30000", truth=truth, paced=False)
-    Recorder([src], out, RecordOptions(duration_s=seconds)).run()
+    Recorder([src], out, RecordOptions(duration_s=seconds, fsync=fsync)).run()
 
 
 def official_writer(src: Path, out: Path, limit: int) -> tuple[int, float]:
@@ -74,6 +74,11 @@ def main() -> None:
             print(row(f"ambdaq sim -> MCAP ({label})", ours, "instants/s", f"{ours * topics:,.0f} msgs/s"))
             print(row(f"Writer.add_message, same messages ({label})", theirs, "instants/s", "baseline"))
             print(f"ratio ambdaq / add_message ({label}): {ours / theirs:.1f}x (target >= 5x, >= 200,000 instants/s)")
+        t_sync = best_of(lambda: record(out, args.seconds, False, fsync=True))
+        t_nosync = best_of(lambda: record(out, args.seconds, False, fsync=False))
+        print(row("ambdaq sim -> MCAP, fsync after every flush", args.seconds * 10_000 / t_sync, "instants/s"))
+        print(row("ambdaq sim -> MCAP, --no-fsync", args.seconds * 10_000 / t_nosync, "instants/s", "baseline"))
+        print(f"ratio fsync / no fsync: {t_nosync / t_sync:.2f}x (the cost of syncing every 0.5 s)")
 
 
 if __name__ == "__main__":

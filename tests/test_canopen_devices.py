@@ -17,7 +17,7 @@ from ambdaq.drivers.canopen_profiles import ALL_PROFILES, PROFILES, build_od
 from ambdaq.drivers.devices import open_device
 from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import SpindleRig
-from ambdaq.drivers.simdev.canopen_devices import serve_can
+from ambdaq.drivers.simdev.canopen_devices import open_network, serve_can
 from ambdaq.drivers.simdev.rig_server import RigServer
 from ambdaq.errors import BadInputError, DeviceError
 
@@ -30,8 +30,7 @@ def can_rig():
     channel = f"test{next(_channels)}"
     rig = SpindleRig(speed=SpeedProfile(30000, 30000), truth=True)
     server = RigServer(rig)
-    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
-    net.connect()
+    net = open_network(channel)
     sims = serve_can(net, server)
     server.start()
     yield channel, server, sims, net
@@ -132,8 +131,7 @@ def test_sdo_parameters_and_refusals(can_rig):
 def test_driver_against_canopens_own_local_node(kind):
     """An independent peer: canopen's LocalNode with its own PDO encoding, no ambdaq device code."""
     channel = f"peer{next(_channels)}"
-    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
-    net.connect()
+    net = open_network(channel)
     p = PROFILES[kind]
     node_id = p.default_node + 1
     node = canopen.LocalNode(node_id, str(p.eds_path))
@@ -173,8 +171,7 @@ def test_a_reply_ahead_of_its_sync_is_that_syncs_not_one_240_cycles_older():
     order for one cycle after the counter has wrapped (241 SYNCs): the reply must land on its own
     SYNC, not on the one 240 cycles older with the same counter (a duplicate with an old time)."""
     channel = f"early{next(_channels)}"
-    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
-    net.connect()
+    net = open_network(channel)
     p = PROFILES["gap_sensor"]
     node = canopen.LocalNode(p.default_node, str(p.eds_path))  # answers the driver's SDO
     net.add_node(node)
@@ -289,8 +286,7 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     channel = f"align{next(_channels)}"
     rig = SpindleRig(speed=SpeedProfile(30000, 30000))
     server = RigServer(rig)
-    net = canopen.Network(can.Bus(interface="virtual", channel=channel))
-    net.connect()
+    net = open_network(channel)
     serve_can(net, server, {"gap_sensor": 0x20})
     pty = Pty.open()
     server.start()

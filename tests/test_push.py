@@ -9,8 +9,6 @@ import itertools
 import json
 import threading
 
-import can
-import canopen
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -22,7 +20,7 @@ from ambdaq.drivers.rig.speed import SpeedProfile
 from ambdaq.drivers.rig.spindle import N_HARMONICS, SpindleRig
 from ambdaq.drivers.serial_link import SerialLink
 from ambdaq.drivers.simdev.banks import DEFAULT_UNLOCK_KEY
-from ambdaq.drivers.simdev.canopen_devices import SimCanController
+from ambdaq.drivers.simdev.canopen_devices import SimCanController, open_network
 from ambdaq.drivers.simdev.controller import SimController
 from ambdaq.drivers.simdev.faults import FaultyPort
 from ambdaq.drivers.simdev.rig_server import RigServer
@@ -43,8 +41,7 @@ class Controller:
         self.port = FaultyPort(self.pty.master)
         self.sim = SimController(self.port, self.server)
         self.channel = f"push-test-{next(_channels)}"
-        self.network = canopen.Network(can.Bus(interface="virtual", channel=self.channel))
-        self.network.connect()
+        self.network = open_network(self.channel)
         self.can_port = SimCanController(self.network, self.sim.banks)
         self.server.start()
         self.sim.start()

@@ -35,8 +35,7 @@ def command() -> None:
 @speed_option
 @output_options
 @report_options
-def measure(device, excitation, duration, speed, output, split_size, split_duration, compression, overwrite,
-            quiet, as_json):
+def measure(device, excitation, duration, speed, out, quiet, as_json):
     """Record with the controller's test signal on (one axis), then switch it off.
 
     \b
@@ -61,8 +60,7 @@ def measure(device, excitation, duration, speed, output, split_size, split_durat
         for s in sources:
             s.close()
         raise
-    run_recording(sources, output, duration=duration, split_size=split_size, split_duration=split_duration,
-                  compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)
+    run_recording(sources, out, duration=duration, quiet=quiet, as_json=as_json)
 
 
 class _Excited:

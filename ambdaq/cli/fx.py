@@ -24,6 +24,7 @@ from ..drivers.simdev.serve import serve_serial
 from ..drivers.simdev.shaker import SHAKER_GAIN
 from ..drivers.url import parse_device_url
 from ..errors import BadInputError, DeviceError
+from .options import Output
 from .record import run_recording
 
 CAMPAIGN = "campaign.json"
@@ -105,9 +106,8 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
                 shakers.sine(f, amplitude, a)
                 time.sleep(settle)
                 name = f"step_{len(steps):03d}_{f:g}Hz.mcap"
-                run_recording([open_device(controller, name="controller")], str(out / name), duration=seconds,
-                              split_size=None, split_duration=None, compression="zstd", overwrite=True, quiet=True,
-                              as_json=False)
+                run_recording([open_device(controller, name="controller")], Output(out / name, overwrite=True),
+                              duration=seconds, quiet=True, as_json=False)
                 steps.append({"file": name, "freq_hz": f, "alpha_commanded": [a.real, a.imag]})
                 click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {out / name}", err=True)
         shakers.stop()

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import re
+from dataclasses import dataclass
+from pathlib import Path
 
 import click
 
@@ -26,13 +29,35 @@ class ByteSize(click.ParamType):
         return size
 
 
-def output_options(f):
-    """-o, splitting, compression, overwrite."""
+@dataclass(frozen=True)
+class Output:
+    """Where and how a recording command writes: -o, splitting, compression, overwrite, fsync."""
+
+    path: Path
+    split_size: int | None = None
+    split_duration_s: float | None = None
+    compression: str = "zstd"
+    overwrite: bool = False
+    fsync: bool = True
+
+
+def output_options(command):
+    """-o, splitting, compression, overwrite, fsync: handed to the command as one ``out: Output``."""
+
+    @functools.wraps(command)
+    def bundled(*args, output, split_size, split_duration, compression, overwrite, fsync, **kwargs):
+        return command(*args, out=Output(Path(output), split_size, split_duration, compression, overwrite, fsync),
+                       **kwargs)
+
+    f = click.option("--fsync/--no-fsync", default=True, show_default=True,
+                     help="Force every flushed chunk (twice a second) to the disk; --no-fsync leaves it to the OS "
+                          "(a power cut may then lose what the OS still held).")(bundled)
     f = click.option("--overwrite", is_flag=True, help="Replace existing output files.")(f)
     f = click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
                      help="Chunk compression.")(f)
     f = click.option("--split-duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
-                     help="Start a new file every SECONDS of data (NAME_000.mcap, NAME_001.mcap ...).")(f)
+                     help="Start a new file every SECONDS on the host clock from the start (NAME_000.mcap, "
+                          "NAME_001.mcap ...); each sample goes to the part its time falls in.")(f)
     f = click.option("--split-size", type=ByteSize(), help="Start a new file when one reaches SIZE (e.g. 100M).")(f)
     f = click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Output MCAP file.")(f)
     return f

@@ -12,23 +12,29 @@ from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
 from ..drivers.devices import open_devices
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import output_options, report_options, speed_option
+from .options import Output, output_options, report_options, speed_option
 
 
-def run_recording(sources, output: str, *, duration, split_size, split_duration, compression, overwrite, quiet,
-                  as_json, rig_file: Path | None = None, reconnect: bool = False) -> None:
+def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
+                  reconnect: bool = False) -> None:
     """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim)."""
-    options = RecordOptions(duration_s=duration, split_size=split_size, split_duration_s=split_duration,
-                            compression=compression, reconnect=reconnect)
-    recorder = Recorder(sources, Path(output), options, command=" ".join(sys.argv), rig_file=rig_file,
-                        overwrite=overwrite)
+    options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
+                            compression=out.compression, reconnect=reconnect, fsync=out.fsync)
+    recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig_file,
+                        overwrite=out.overwrite)
     tty = sys.stderr.isatty()
 
     def progress(p: Progress) -> None:
         if p.elapsed_s >= 1.0:  # only for anything longer than a second
             print_progress(p)
 
-    result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=0.5 if tty else 5.0)
+    def stopping(files: list[Path]) -> None:  # at once, so a user who pressed Ctrl-C knows it was heard
+        if tty and not quiet:
+            sys.stderr.write("\n")
+        click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
+
+    result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=0.5 if tty else 5.0,
+                          on_stopping=stopping)
     if not quiet and tty:
         sys.stderr.write("\n")
     if as_json:
@@ -56,8 +62,7 @@ def run_recording(sources, output: str, *, duration, split_size, split_duration,
               help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, output, split_size, split_duration, compression,
-            overwrite, quiet, as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, out, quiet, as_json):
     """Record devices in real time into an MCAP file.
 
     \b
@@ -80,6 +85,5 @@ def command(devices, rig_path, duration, speed, truth, reconnect, output, split_
         for s in sources:
             s.close()
         raise
-    run_recording(sources, output, duration=duration, split_size=split_size, split_duration=split_duration,
-                  compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json,
+    run_recording(sources, out, duration=duration, quiet=quiet, as_json=as_json,
                   rig_file=rig.path if rig else None, reconnect=reconnect)

@@ -44,8 +44,8 @@ def command() -> None:
               help="Cone rig: start levitated, or at rest on the touchdown bearings with the amplifiers just enabled.")
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, output,
-             split_size, split_duration, compression, overwrite, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, out, quiet,
+             as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -77,8 +77,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             source.rig.restart(start)
     except ValueError as err:
         raise BadInputError(str(err)) from None
-    run_recording([source], output, duration=duration, split_size=split_size, split_duration=split_duration,
-                  compression=compression, overwrite=overwrite, quiet=quiet, as_json=as_json)
+    run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json)
 
 
 @command.command("serve")

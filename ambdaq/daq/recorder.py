@@ -75,6 +75,9 @@ class RecordOptions:
         Uncompressed chunk size limit, in bytes.
     reconnect : bool
         Reopen a device that is lost instead of ending the recording.
+    fsync : bool
+        Force each flushed chunk to the disk: a power cut then loses at most ``flush_interval_s``
+        plus the time the disk takes to sync; without it, whatever the OS still held.
     """
 
     duration_s: float | None = None
@@ -84,6 +87,7 @@ class RecordOptions:
     flush_interval_s: float = 0.5
     chunk_size: int = 4 << 20
     reconnect: bool = False
+    fsync: bool = True
 
 
 @dataclass
@@ -261,7 +265,8 @@ class Recorder:
             if not self._overwrite:
                 raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
             path.unlink()
-        w = RecordingWriter(path, compression=self.options.compression, chunk_size=self.options.chunk_size)
+        w = RecordingWriter(path, compression=self.options.compression, chunk_size=self.options.chunk_size,
+                            fsync=self.options.fsync)
         try:
             w.add_metadata(
                 "ambdaq.session",
@@ -318,8 +323,11 @@ class Recorder:
             self._finish_part(self._parts.pop(0))
 
     def _finish_part(self, part: _Part) -> None:
-        """Clock fits and link statistics go into the part's metadata, then it is finished."""
+        """Its host-time span, clock fits and link statistics go into the part's metadata, then it is
+        finished."""
         w = part.writer
+        w.add_metadata("ambdaq.part", {"index": str(part.index), "start_ns": str(part.start_ns),
+                                       "end_ns": "" if part.end_ns is None else str(part.end_ns)})
         for name, rep in self._clock_report().items():
             w.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
         alignment = self._alignment_us()

@@ -3,6 +3,8 @@
 Metadata written (all values are strings; see docs/data-format.md):
 
 ``ambdaq.session``            start time, ambdaq version, command, host, devices, split part
+``ambdaq.part``               the part's index and the host-time span it holds, [start_ns, end_ns) (end
+                              empty for the last part)
 ``ambdaq.device.<name>``      device identity (URL, kind, profile, sample rate ...)
 ``ambdaq.calibration.<name>`` calibration the device reported
 ``ambdaq.statistics``         per topic: JSON with the device's samples, drops, duplicates, wraps,
@@ -49,11 +51,14 @@ class RecordingWriter:
         Chunk compression.
     chunk_size : int
         Uncompressed chunk size limit, in bytes.
+    fsync : bool
+        Force every flushed chunk to the disk (on a thread of its own), and the finished file.
     """
 
-    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = 4 << 20) -> None:
+    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = 4 << 20, fsync: bool = True) -> None:
         self.path = Path(path)
         self._file = open(self.path, "xb")
+        self._fsync = fsync
         self._sync_wanted = threading.Event()
         self._closing = False
         self._syncer = threading.Thread(target=self._sync_loop, name=f"fsync-{self.path.name}", daemon=True)
@@ -142,7 +147,8 @@ class RecordingWriter:
         far), then have it forced to the disk on the sync thread (a power cut loses nothing
         written before that sync ends)."""
         self._w.close_chunk()
-        self._sync_wanted.set()
+        if self._fsync:
+            self._sync_wanted.set()
 
     def _sync_loop(self) -> None:
         """fsync whenever a flush asks, off the recording thread: a slow disk delays the sync, never
@@ -174,7 +180,8 @@ class RecordingWriter:
             self._w.add_metadata("ambdaq.statistics", {t: st.as_json() for t, st in self.statistics().items()})
             self._w.finish()
             self._file.flush()
-            os.fsync(self._file.fileno())
+            if self._fsync:
+                os.fsync(self._file.fileno())
         finally:
             self._closing = True
             self._sync_wanted.set()

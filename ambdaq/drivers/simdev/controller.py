@@ -100,6 +100,7 @@ class SimController:
             raise ValueError("truth topics need a rig built with truth=True")
         self.groups = [groups[t] for t in self.firmware.topics + (tuple(truth_topics) if truth else ())]
         self._streaming = threading.Event()
+        self._stream_from = 0  # the first rig step a stream started now sends
         self._tx: queue.Queue[tuple[MsgType, bytes]] = queue.Queue(maxsize=tx_queue)
         self._seq = 0
         self._time_requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()  # (t1, t2)
@@ -176,8 +177,10 @@ class SimController:
                 return  # the line is gone
 
     def _on_block(self, block: SampleBlock) -> None:
-        if not self._streaming.is_set():
+        if not self._streaming.is_set() or int(block.seq[-1]) < self._stream_from:
             return
+        if int(block.seq[0]) < self._stream_from:  # the stream starts with the sample after STREAM on
+            block = block.slice(self._stream_from - int(block.seq[0]), len(block))
         values = np.concatenate([block.values[g.topic] for g in self.groups], axis=1)
         t0 = self.clock.at(int(block.device_time_ns[0]))
         period = round(self.rig.period_ns * (1 + self.clock.drift_ppm * 1e-6))
@@ -223,7 +226,11 @@ class SimController:
         elif t == MsgType.IDENTIFY:
             self._send(MsgType.IDENTITY, proto.identity(self.identity()))
         elif t == MsgType.STREAM:
-            (self._streaming.set if frame.body[:1] == b"\x01" else self._streaming.clear)()
+            if frame.body[:1] == b"\x01":
+                self._stream_from = (time.time_ns() - self.server.start_wall_ns) // self.rig.period_ns + 1
+                self._streaming.set()
+            else:
+                self._streaming.clear()
             self._send(MsgType.ACK, proto.ack(frame.seq))
         elif t in (MsgType.PARAM_READ, MsgType.PARAM_WRITE):
             name, values = proto.parse_param_request(frame.body)

@@ -16,9 +16,6 @@ from __future__ import annotations
 import itertools
 import threading
 
-import can
-import canopen
-
 from .. import framing
 from ..canopen_profiles import PROFILES
 from ..controller import ControllerDriver
@@ -26,7 +23,7 @@ from ..devices import open_can_device
 from ..rig.profiles import build_rig, require_served
 from ..rig.speed import SpeedProfile
 from ..serial_link import SerialLink
-from .canopen_devices import serve_can
+from .canopen_devices import open_network, serve_can
 from .controller import FdPort, SimController
 from .rig_server import DeviceClock, RigServer
 from .serve import Pty
@@ -47,8 +44,7 @@ class SimulatedRig:
         self.pty = Pty.open()
         self.controller = SimController(FdPort(self.pty.master), self.server, clock=CLOCK, truth=truth)
         self.channel = f"ambdaq-sim-{next(_channels)}"
-        self.network = canopen.Network(can.Bus(interface="virtual", channel=self.channel))
-        self.network.connect()
+        self.network = open_network(self.channel)
         self.can_devices = serve_can(self.network, self.server)
         self._open = 0
         self._lock = threading.Lock()
