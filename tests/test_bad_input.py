@@ -143,3 +143,31 @@ def test_subprocess_exit_codes_and_no_traceback(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ambdaq", "--debug", "info", str(tmp_path / "nope.mcap")],
                        capture_output=True, text=True)
     assert r.returncode != 0 and "Traceback" in r.stderr  # --debug shows it
+
+
+def test_small_input_gaps_are_one_line(spindle_file, tmp_path, run_cli):
+    """Issue 12, item 8: an image suffix matplotlib cannot write, an excitation in metres instead
+    of micrometres (and below what the controller resolves in volts), a usage error: one line,
+    exit 2, nothing written."""
+    one_line_error(run_cli("plot", spindle_file, "--field", "front_x", "-o", tmp_path / "p.jpg2"),
+                   "p.jpg2'", ".png", "ambdaq plot --help")
+    assert not (tmp_path / "p.jpg2").exists()
+    one_line_error(run_cli("runout", "identify", spindle_file, "-o", tmp_path / "c.json", "--plot", tmp_path / "r.bmpx"),
+                   ".bmpx")
+    assert not (tmp_path / "c.json").exists()  # refused before anything ran
+    one_line_error(run_cli("sim", "generate", "--duration", "0.1", "--excite", "front_x:2e-6", "-o", tmp_path / "e.mcap"),
+                   "2e-06 um is below 0.01 um", "in um", "give 2")
+    one_line_error(run_cli("sim", "generate", "--profile", "base-motion", "--duration", "0.1", "--excite",
+                           "amb1_y:1e-5", "-o", tmp_path / "e.mcap"), "below 0.001 V")
+    assert not (tmp_path / "e.mcap").exists()
+    one_line_error(run_cli("record", "--duration", "-1", "--device", "sim://spindle", "-o", tmp_path / "x.mcap"),
+                   "--duration", "ambdaq record --help")
+
+
+def test_a_closed_pipe_is_not_an_error(spindle_file):
+    """``ambdaq info FILE | head``: the reader closes the pipe; nothing is said about it."""
+    p = subprocess.Popen([sys.executable, "-m", "ambdaq", "info", "--json", str(spindle_file)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p.stdout.close()  # before a byte is read: every write meets a closed pipe
+    _, err = p.communicate(timeout=60)
+    assert b"Broken pipe" not in err and b"Exception ignored" not in err and b"Traceback" not in err, err

@@ -122,6 +122,17 @@ def test_push_commits_verified_and_logs_on_both_sides(ctl, tmp_path, port):
     assert r.exit_code == 0 and "already holds" in r.output
 
 
+def test_declining_the_confirmation_writes_nothing(ctl, tmp_path):
+    """Without --yes the difference is shown and a "no" ends the push: said in words, exit 0,
+    neither bank touched."""
+    before, inactive = ctl.active(), ctl.sim.banks.status()["inactive_crc32"]
+    r = CliRunner().invoke(cli, ["push", str(runout_file(tmp_path / "c.json", ctl.rig)), "--device", ctl.serial_url,
+                                 "--key", DEFAULT_UNLOCK_KEY], input="n\n")
+    assert r.exit_code == 0 and r.output.strip().endswith("push cancelled, nothing written"), r.output
+    assert "Aborted" not in r.output
+    assert ctl.active()[2] == before[2] and ctl.sim.banks.status()["inactive_crc32"] == inactive
+
+
 @pytest.mark.parametrize("port", ["serial", "can"])
 def test_wrong_key_is_refused_and_nothing_is_written(ctl, tmp_path, port):
     url = ctl.serial_url if port == "serial" else ctl.can_url

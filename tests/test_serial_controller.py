@@ -87,6 +87,9 @@ def test_identity_parameters_and_refusals(bench):
         drv.write_param("speed.rpm", [20000])
         time.sleep(0.3)
         assert 20000 < bench.rig.run_speed_rpm() < 30000  # ramping down at 5,000 rpm/s
+        # a second program on the same port is refused at once, and told why
+        with pytest.raises(DeviceError, match=r"cannot open serial port .* \(is another program using it\?\)"):
+            open_device(f"serial://{pty.path}")
     finally:
         drv.close()
 

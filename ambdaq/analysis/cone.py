@@ -176,7 +176,7 @@ class StableRegion:
 
     def kp_max(self, loop: PdLoop) -> float:
         """The largest stable Kp at ``loop.kd`` (from the last Routh condition, found by bisection on
-        the Routh array), in V/V; inf if none bounds it."""
+        the Routh array), in V/V; inf if none bounds it, NaN if no Kp is stable at this Kd."""
         def ok(kp: float) -> bool:
             return PdLoop(**{**loop.__dict__, "kp": kp}).stable()
 

@@ -82,3 +82,30 @@ def h1_estimate(x: np.ndarray, y: np.ndarray, *, fs: float, resolution_hz: float
     coh = np.abs(sxy[keep]) ** 2 / (sxx[keep, None] * syy[keep])
     segments = 1 + (x.shape[0] - nperseg) // (nperseg - nperseg // 2)
     return H1Estimate(f[keep], h, coh, segments)
+
+
+COHERENT = 0.9
+"""Coherence above which a point of a frequency response is trusted (its random error in |H| is
+then below about 8% for 10 averages: Bendat and Piersol, Random Data, eq. 9.90)."""
+
+
+def coherent_band(freq_hz: np.ndarray, coherence: np.ndarray, threshold: float = COHERENT) -> tuple[float, float] | None:
+    """The widest run of consecutive frequencies whose coherence is at least ``threshold``: where a
+    measured response can be trusted, as (lowest, highest) in Hz; None if no point reaches it.
+
+    Parameters
+    ----------
+    freq_hz : ndarray, shape (n,)
+        Frequencies, in Hz, increasing.
+    coherence : ndarray, shape (n,)
+        Magnitude-squared coherence at each, 0 .. 1.
+    threshold : float
+        Least coherence, 0 .. 1.
+    """
+    good = np.concatenate(([False], np.asarray(coherence) >= threshold, [False]))
+    edges = np.flatnonzero(np.diff(good.astype(np.int8)))
+    if edges.size == 0:
+        return None
+    starts, stops = edges[0::2], edges[1::2]
+    i = int(np.argmax(stops - starts))
+    return float(freq_hz[starts[i]]), float(freq_hz[stops[i] - 1])

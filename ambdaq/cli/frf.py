@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.frf import h1_estimate
+from ..analysis.frf import COHERENT, coherent_band, h1_estimate
 from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.mcapfile import McapFile
@@ -18,6 +18,7 @@ from ..drivers.rig.spindle import AXES, SPINDLE
 from ..errors import BadInputError, DeviceError
 from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
+from .figures import plot_option, pyplot
 
 RPM_PER_RAD_S = 60.0 / (2 * np.pi)
 EXCITATION_PARAM = "exc.signal"  # [axis (-1 off), amplitude m, frequency Hz]; docs/protocol.md
@@ -138,7 +139,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
 @click.option("--output-topic", default="/amb/error", show_default=True,
               help="The response: /amb/error (the LMS loop), /amb/gap (base-motion secondary path).")
 @click.option("--overwrite", is_flag=True)
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Bode plot and coherence (.png, .pdf, .svg).")
+@plot_option("Bode plot and coherence (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print a summary as JSON.")
 def estimate(files, output, resolution, input_axis, input_topic, output_topic, overwrite, plot_path, as_json):
     """H1 frequency response with coherence, from each recording's excited axis to every axis.
@@ -156,35 +157,51 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
     summary = {}
     for axis, col in frf.columns.items():
         h, c = col["outputs"][axis]
-        summary[axis] = {"points": int(h.shape[0]), "median_coherence": round(float(np.median(c)), 4),
-                         "peak_gain": float(f"{np.abs(h).max():.4g}"),
-                         "peak_hz": float(frf.freq_hz[np.argmax(np.abs(h))]), "source": col["source"]["path"]}
+        band = coherent_band(frf.freq_hz, c)
+        inside = np.zeros(c.shape, dtype=bool) if band is None else (frf.freq_hz >= band[0]) & (frf.freq_hz <= band[1])
+        peak = int(np.argmax(np.where(inside, np.abs(h), -np.inf))) if band is not None else int(np.argmax(np.abs(h)))
+        summary[axis] = {"points": int(h.shape[0]), "coherent_band_hz": list(band) if band else None,
+                         "median_coherence_in_band": round(float(np.median(c[inside])), 4) if band else None,
+                         "median_coherence": round(float(np.median(c)), 4),
+                         "peak_gain": float(f"{np.abs(h[peak]):.4g}"), "peak_hz": float(frf.freq_hz[peak]),
+                         "source": col["source"]["path"]}
     if plot_path:
         _bode(frf, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(summary, indent=2))
     else:
+        span = f"{frf.freq_hz[0]:g}-{frf.freq_hz[-1]:,.0f} Hz"
         for axis, s in summary.items():
-            click.echo(f"{axis}: {s['points']} points, median coherence {s['median_coherence']:.3f}, "
-                       f"peak |H| {s['peak_gain']:.3g} {frf.unit} at {s['peak_hz']:g} Hz  ({s['source']})")
+            if s["coherent_band_hz"] is None:
+                click.echo(f"{axis}: {s['points']} points, coherence never reaches {COHERENT:g} (median "
+                           f"{s['median_coherence']:.3f} over {span}): the input explains too little of the output "
+                           f"({s['source']})")
+                continue
+            lo, hi = s["coherent_band_hz"]
+            click.echo(f"{axis}: {s['points']} points, coherence >= {COHERENT:g} from {lo:g} to {hi:,.0f} Hz (median "
+                       f"{s['median_coherence_in_band']:.3f} there, {s['median_coherence']:.3f} over {span}); peak |H| "
+                       f"there {s['peak_gain']:.3g} {frf.unit} at {s['peak_hz']:g} Hz  ({s['source']})")
         click.echo(f"-> {output}", err=True)
 
 
 def _bode(frf: FrequencyResponse, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (mag, ph, coh) = plt.subplots(3, 1, figsize=(9, 9), sharex=True, constrained_layout=True)
     for axis, col in frf.columns.items():
         h, c = col["outputs"][axis]
-        line = mag.semilogx(frf.freq_hz, 20 * np.log10(np.abs(h)), lw=0.8, label=f"{axis} -> {axis}")[0]
-        ph.semilogx(frf.freq_hz, np.degrees(np.angle(h)), lw=0.8, color=line.get_color())
+        trusted = c >= COHERENT
+        db = 20 * np.log10(np.abs(h))
+        line = mag.semilogx(frf.freq_hz, np.where(trusted, db, np.nan), lw=0.8, label=f"{axis} -> {axis}")[0]
+        mag.semilogx(frf.freq_hz, np.where(trusted, np.nan, db), lw=0.5, alpha=0.3, color=line.get_color())
+        # phase only where the input explains the output, unwrapped there (noise wraps at random)
+        ph.semilogx(frf.freq_hz[trusted], np.degrees(np.unwrap(np.angle(h[trusted]))), ".", ms=1.5,
+                    color=line.get_color())
         coh.semilogx(frf.freq_hz, c, lw=0.8, color=line.get_color())
-    mag.set(ylabel="|T| [dB]", title=f"{frf.output_topic} per {frf.input_topic} (H1)")
-    ph.set(ylabel="phase [deg]", ylim=(-180, 180), yticks=range(-180, 181, 90))
+    coh.axhline(COHERENT, color="grey", lw=0.6, ls="--")
+    mag.set(ylabel="|T| [dB]", title=f"{frf.output_topic} per {frf.input_topic} (H1; faint: coherence < {COHERENT:g})")
+    ph.set(ylabel="phase [deg], unwrapped")
     coh.set(ylabel="coherence", xlabel="frequency [Hz]", ylim=(0, 1.05))
     for ax in (mag, ph, coh):
         ax.grid(alpha=0.3, which="both")

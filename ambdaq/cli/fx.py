@@ -26,6 +26,7 @@ from ..drivers.url import parse_device_url
 from ..errors import BadInputError, DeviceError
 from .options import Output
 from .record import run_recording
+from .figures import plot_option, pyplot
 
 CAMPAIGN = "campaign.json"
 POINTS_FORMAT, POINTS_VERSION = "ambdaq-fx-points", 1
@@ -242,7 +243,7 @@ def load_points(path: str) -> tuple[np.ndarray, np.ndarray]:
 @click.option("--exact", is_flag=True, help="Also report the error against the simulated rig's exact W* = -B^-1 C.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Coefficient file with the FIR.")
 @click.option("--overwrite", is_flag=True)
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Bode plot: points and fits.")
+@plot_option("Bode plot: points and fits.")
 @click.option("--json", "as_json", is_flag=True)
 def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
     """Weighted least-squares FIR fit of each compensator W_jm (seed 002 eq. 19); the order at the
@@ -301,10 +302,7 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
 
 
 def _bode(freqs, W, fitted, fs, taps, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fine = np.linspace(freqs.min(), freqs.max(), 400)
     E = np.exp(-2j * np.pi * np.outer(fine / fs, np.arange(taps.shape[-1])))
@@ -315,10 +313,13 @@ def _bode(freqs, W, fitted, fs, taps, path) -> None:
             c = f"C{k}"
             axes[0, p].plot(freqs, np.abs(W[:, p, j, m]), "o", color=c, ms=4, label=f"W{j + 1}{m + 1} MFXLMS")
             axes[0, p].plot(fine, np.abs(curve), ls, color=c, lw=1, label=f"W{j + 1}{m + 1} FIR")
-            axes[1, p].plot(freqs, np.degrees(np.angle(W[:, p, j, m])), "o", color=c, ms=4)
-            axes[1, p].plot(fine, np.degrees(np.angle(curve)), ls, color=c, lw=1)
+            points = np.degrees(np.unwrap(np.angle(W[:, p, j, m])))
+            line = np.degrees(np.unwrap(np.angle(curve)))
+            line += 360 * np.round((points[0] - np.interp(freqs[0], fine, line)) / 360)  # the points' branch
+            axes[1, p].plot(freqs, points, "o", color=c, ms=4)
+            axes[1, p].plot(fine, line, ls, color=c, lw=1)
         axes[0, p].set(title=f"{PLANES[p]} plane", ylabel="|W| [V/(m/s²)]", yscale="log")
-        axes[1, p].set(xlabel="frequency [Hz]", ylabel="phase [deg]")
+        axes[1, p].set(xlabel="frequency [Hz]", ylabel="phase [deg], unwrapped")
         axes[0, p].legend(fontsize=7, ncol=2)
         for ax in axes[:, p]:
             ax.grid(alpha=0.3, which="both")

@@ -15,6 +15,7 @@ from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
 from ..drivers.rig.spindle import N_AXES, PHASE_BIN_HZ, PHASE_BINS
 from ..errors import BadInputError
+from .figures import plot_option, pyplot
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
@@ -60,7 +61,7 @@ def command() -> None:
 @click.option("--mu-max", type=click.FloatRange(min=0, min_open=True), default=0.01, show_default=True,
               help="The map spans -MU_MAX .. +MU_MAX.")
 @click.option("--compensated", is_flag=True, help="Map the phase-compensated update instead of seed 000's.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the map as an image (Fig. 5).")
+@plot_option("Write the map as an image (Fig. 5).")
 @click.option("--json", "as_json", is_flag=True)
 def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_json):
     """Where the LMS converges over speed and step size, and where the sign of mu must flip.
@@ -105,10 +106,7 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
 
 def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant: str, compensated: bool,
               path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     from matplotlib.colors import ListedColormap
 
@@ -227,7 +225,7 @@ def runup_command(files, seconds, speeds, as_json):
     for i, (lo, hi) in enumerate(bands):
         cells = "".join(f"{'%.2f / %.2f / %.2f' % tuple(report['runs'][r.name][i]):>26}" for r in runs)
         click.echo(f"{f'{lo}-{min(hi, 50000)}':<16}{cells}")
-    click.echo("time until 1X is 20 dB down from zero weights, s (inf: never)")
+    click.echo("time from zero weights until 1X stays 20 dB below feedforward off, s (inf: never)")
     click.echo(f"{'rpm':<16}" + "".join(f"{n[:24]:>26}" for n in conv))
     for r in rpms:
         click.echo(f"{r:<16,.0f}" + "".join(f"{conv[n][str(int(r))]:>26.1f}" for n in conv))

@@ -6,6 +6,9 @@ line on stderr; ``--debug`` (or ``AMBDAQ_DEBUG=1``) shows the traceback instead.
 
 from __future__ import annotations
 
+import os
+import sys
+
 import click
 
 from .. import __version__
@@ -18,8 +21,15 @@ class AmbdaqGroup(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
+        except click.exceptions.UsageError as err:  # one line, like every other error, with where to look
+            where = err.ctx.command_path if err.ctx is not None else "ambdaq"
+            click.echo(f"ambdaq: error: {err.format_message()} (see {where} --help)", err=True)
+            ctx.exit(err.exit_code)
         except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
+        except BrokenPipeError:  # `ambdaq info FILE | head`: the reader has what it wanted
+            _quiet_stdout()
+            ctx.exit(1)
         except AmbdaqError as err:
             if ctx.meta.get("ambdaq.debug"):
                 raise
@@ -37,7 +47,14 @@ class AmbdaqGroup(click.Group):
             ctx.exit(1)
 
 
-@click.group(cls=AmbdaqGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush into the closed pipe says nothing
+    (the recipe of the Python docs, "Note on SIGPIPE")."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+@click.group("ambdaq", cls=AmbdaqGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--debug", is_flag=True, envvar="AMBDAQ_DEBUG", help="Show tracebacks instead of one-line errors.")
 @click.version_option(__version__, prog_name="ambdaq")
 @click.pass_context
@@ -60,4 +77,10 @@ _register()
 
 def main() -> None:
     """Console entry point."""
-    cli(prog_name="ambdaq")
+    try:
+        cli(prog_name="ambdaq")
+    finally:  # the last flush too may find the pipe closed (`ambdaq info FILE | head`)
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _quiet_stdout()

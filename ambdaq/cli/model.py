@@ -11,6 +11,7 @@ import numpy as np
 
 from ..analysis.cone import PdLoop, force_factor, linear_gains, shape_factor, stable_region
 from ..errors import BadInputError
+from .figures import plot_option, pyplot
 
 EXAMPLE = """\
 # one axis of seed 001's cone-shaped AMB (Table 1; gains of the Routh-Hurwitz example)
@@ -23,8 +24,10 @@ pole_angles_deg = [20, 50]     # optional: force and shape factors (eq. 3); defa
 
 [axis]
 mass_kg = 1.68
-# ky_n_per_m = 5.6e5           # optional: default the differential pair's 2 Kq
-# ki_n_per_a = 2.95e5          # optional: default the pair's 2 Ki
+# Ky and Ki of the paper's Routh-Hurwitz example: Ky/G = 1.9 and m/G = 5.69e-6 s^2, G = Ks Kc Ki.
+# Delete these two lines to take the differential pair's 2 Kq and 2 Ki from [magnet] instead.
+ky_n_per_m = 5.609e5
+ki_n_per_a = 29.52
 
 [controller]
 sensor_v_per_m = 10000
@@ -77,7 +80,7 @@ def load_axis(path: str) -> tuple[PdLoop, dict]:
 @click.argument("file", type=click.Path(dir_okay=False), required=False)
 @click.option("--example", is_flag=True, help="Print an example description and exit.")
 @click.option("--json", "as_json", is_flag=True)
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="The stable (Kp, Kd) region (.png, .pdf, .svg).")
+@plot_option("The stable (Kp, Kd) region (.png, .pdf, .svg).")
 def command(file, example, as_json, plot_path):
     """Linearised gains, stable (Kp, Kd) region, eigenvalues and equivalent stiffness/damping of
     one cone-shaped AMB axis with its PD loop (seed 001; docs/cone.md).
@@ -94,6 +97,7 @@ def command(file, example, as_json, plot_path):
         raise BadInputError("give a bearing description FILE (ambdaq model --example shows one)")
     loop, magnet = load_axis(file)
     region = stable_region(loop)
+    kp_max = region.kp_max(loop)
     poles = loop.poles()
     f = np.array([10.0, 50.0, 100.0, 200.0, 500.0])
     k, c = loop.stiffness_damping(f)
@@ -101,14 +105,17 @@ def command(file, example, as_json, plot_path):
         "magnet": {k2: round(v, 6) for k2, v in magnet.items()},
         "axis": {"ky_n_per_m": loop.ky, "ki_n_per_a": loop.ki, "loop_gain_n_per_m": loop.ki * loop.ks * loop.kc},
         "stable": loop.stable(),
-        "region": {"kp_min": region.kp_min, "kd_min_s": region.kd_min, "kd_max_s": region.kd_max,
-                   "kp_max_at_kd": region.kp_max(loop)},
+        "region": {k: (None if not np.isfinite(v) else v) for k, v in  # JSON has no NaN: none stable is null
+                   {"kp_min": region.kp_min, "kd_min_s": region.kd_min, "kd_max_s": region.kd_max,
+                    "kp_max_at_kd": kp_max}.items()},
         "poles_rad_s": [[float(p.real), float(p.imag)] for p in sorted(poles, key=lambda p: (abs(p), p.imag))],
         "stiffness_damping": [{"hz": float(fi), "keq_n_per_m": float(ki), "ceq_n_s_per_m": float(ci)}
                               for fi, ki, ci in zip(f, k, c)],
     }
     if plot_path:
-        _plot_region(loop, region, plot_path)
+        if not np.isfinite(region.kp_min):
+            raise BadInputError(f"{file}: no stable (Kp, Kd) region to plot")
+        _plot_region(loop, region, kp_max, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))
@@ -117,25 +124,33 @@ def command(file, example, as_json, plot_path):
                f"(alpha_g {magnet['alpha_g']:.3f}, c {magnet['c']:.3f})")
     click.echo(f"axis: Ky {loop.ky:.4g} N/m, Ki {loop.ki:.4g} N/A, Kp {loop.kp:g}, Kd {loop.kd:g} s -> "
                f"{'stable' if report['stable'] else 'UNSTABLE'}")
-    click.echo(f"stable region: Kp > {region.kp_min:.3g}; {region.kd_min:.3g} s < Kd < {region.kd_max:.3g} s "
-               f"(at Kp_min); at Kd = {loop.kd:g} s, Kp < {report['region']['kp_max_at_kd']:.4g}")
+    if not np.isfinite(region.kp_min):
+        click.echo(f"stable region: none: tau tau_c = {loop.tau * loop.tau_c:.3g} s^2 is not below m/Ky = "
+                   f"{loop.m / loop.ky:.3g} s^2 (seed 001 eq. 23), no PD gains stabilise this axis")
+    else:
+        at_kd = (f"Kp < {kp_max:.4g}" if np.isfinite(kp_max) else "no upper bound on Kp" if kp_max > 0
+                 else "no Kp is stable (Kd is outside the range)")
+        click.echo(f"stable region: Kp > {region.kp_min:.3g}; {region.kd_min:.3g} s < Kd < {region.kd_max:.3g} s "
+                   f"(at Kp_min); at Kd = {loop.kd:g} s, {at_kd}")
     click.echo("poles (rad/s): " + ", ".join(f"{p.real:.1f}{p.imag:+.1f}j" for p in sorted(poles, key=abs)))
     for row in report["stiffness_damping"]:
         click.echo(f"  {row['hz']:>5g} Hz  Keq {row['keq_n_per_m']:>11.4g} N/m  Ceq {row['ceq_n_s_per_m']:>9.4g} N s/m")
 
 
-def _plot_region(loop: PdLoop, region, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _plot_region(loop: PdLoop, region, kp_max: float, path: str) -> None:
+    """The stable (Kp, Kd) map, wide enough to show Kp_max at the design Kd and the design point."""
+    plt = pyplot()
 
     kd = np.geomspace(max(region.kd_min, 1e-7) * 0.5, region.kd_max * 2, 160)
-    kp = np.geomspace(region.kp_min * 0.5, region.kp_min * 200, 160)
+    top = max(region.kp_min * 20, loop.kp, kp_max if np.isfinite(kp_max) else 0.0) * 3
+    kp = np.geomspace(region.kp_min * 0.5, top, 160)
     ok = np.array([[PdLoop(**{**loop.__dict__, "kp": p, "kd": d}).stable() for d in kd] for p in kp])
     fig, ax = plt.subplots(figsize=(6.5, 5), constrained_layout=True)
     ax.contourf(kd, kp, ok.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
     ax.plot(loop.kd, loop.kp, "k*", ms=10, label="design point")
+    ax.axhline(region.kp_min, color="k", lw=0.6, ls=":", label=f"Kp_min {region.kp_min:.3g}")
+    if np.isfinite(kp_max) and kp_max > 0:
+        ax.plot(loop.kd, kp_max, "kv", ms=7, label=f"Kp_max {kp_max:.3g} at the design Kd")
     ax.set(xscale="log", yscale="log", xlabel="Kd [s]", ylabel="Kp [V/V]",
            title="stable PD gains (green), seed 001 eq. 22-23")
     ax.legend()

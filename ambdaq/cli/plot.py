@@ -9,6 +9,7 @@ from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import load
 from ..errors import BadInputError
 from .options import window_options
+from .figures import ImagePath, pyplot
 
 UNIT_SCALE = {"m": (1e6, "µm"), "m/s^2": (1.0, "m/s²"), "A": (1.0, "A"), "rad": (1.0, "rad"), "rad/s": (1.0, "rad/s")}
 
@@ -26,13 +27,10 @@ def orbit_partner(field: str, fields) -> str | None:
 @click.option("--topic", default="/amb/gap", show_default=True)
 @click.option("--field", "field_name", required=True, help="Field, e.g. front_x.")
 @window_options
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Image file (.png, .pdf, .svg).")
+@click.option("-o", "--output", type=ImagePath(), required=True, help="Image file (.png, .pdf, .svg ...).")
 def command(file, topic, field_name, start, end, output):
     """Plot FIELD of TOPIC: time series, amplitude spectrum, and the bearing's X-Y orbit."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     data = load(file, topics=[topic], start=start, end=end)[topic]
     y = data[field_name]

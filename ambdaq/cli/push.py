@@ -64,7 +64,9 @@ def push_command(file, device, rig, key, dry_run, yes):
             if dry_run:
                 click.echo("dry run: nothing written")
                 return
-            click.confirm("commit these coefficients?", abort=True)
+            if not click.confirm("commit these coefficients?"):
+                click.echo("push cancelled, nothing written")
+                return
         result = push(port, plan, unlock_key, target=url)
     finally:
         port.close()

@@ -16,6 +16,7 @@ from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.reader import Recording, load
 from ..errors import AmbdaqError, BadInputError
 from .runout_plots import check_report, identify_report
+from .figures import plot_option
 
 RPM_PER_RAD_S = 60.0 / (2 * np.pi)
 SLOW_ROLL_RPM = 2000.0  # below this the unbalance response at 1X is negligible
@@ -112,8 +113,7 @@ def command() -> None:
                    "lms: seed 000's LMS run offline.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the identified runout as JSON.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
-              help="Report image (.png, .pdf, .svg): spectrum, polar plot per harmonic, orbits before and after.")
+@plot_option("Report image (.png, .pdf, .svg): spectrum, polar plot per harmonic, orbits before and after.")
 def identify(files, output, harmonics, method, overwrite, as_json, plot_path):
     """Identify runout per axis and harmonic from FILES (each at one constant speed).
 
@@ -174,8 +174,7 @@ def _db(after: float, before: float) -> float:
 @click.option("--min-db", type=click.FloatRange(min=0), help="Fail (exit 1) unless every harmonic falls this much.")
 @click.option("--max-rms", type=click.FloatRange(min=0, min_open=True),
               help="Fail (exit 1) unless the command error's RMS after is below this, in um.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
-              help="Image (.png, .pdf, .svg): command-error orbits and spectra before and after.")
+@plot_option("Image (.png, .pdf, .svg): command-error orbits and spectra before and after.")
 @click.option("--json", "as_json", is_flag=True)
 def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
     """Prove on a new recording that the command error went down: 1X .. NX and RMS, per axis.

@@ -8,19 +8,11 @@ import numpy as np
 from ..analysis.rotor import AXES
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import Recording
+from .figures import pyplot
 
 BEARINGS = ("front", "rear")
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
 COLOURS = {"front_x": "C0", "front_y": "C1", "rear_x": "C2", "rear_y": "C3"}
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def synthesise(phasors: np.ndarray, harmonics: list[int], theta: np.ndarray) -> np.ndarray:
@@ -78,7 +70,7 @@ def identify_report(ident, path: str) -> None:
     the sensor signal with the identified runout (``synthesise`` at the recorded rotor angle)
     taken away: what the controller would see of the rotor with the coefficients pushed.
     """
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     coef = ident.coef
@@ -150,7 +142,7 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
     path : str
         Image file (.png, .pdf, .svg).
     """
-    plt = _pyplot()
+    plt = pyplot()
     runs = {}
     for label, rec in (("before", before), ("after", after)):
         err, rot = rec["/amb/error"], rec["/amb/rotor"]

@@ -11,6 +11,7 @@ import numpy as np
 from ..analysis.selfsense import angle_error, estimate_angle, lyapunov_bound
 from ..daq import load
 from ..errors import BadInputError
+from .figures import plot_option, pyplot
 
 VOLTAGE, CURRENT, ENCODER = "/coil/voltage", "/coil/current", "/motor/encoder"
 CONVERGED_DEG = 1.0
@@ -91,7 +92,7 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
 @click.option("--inductance", type=float, metavar="H", help="Coil inductance the estimator assumes (default: calibration).")
 @click.option("--emf-constant", type=float, metavar="V_S", help="k_e B sin(2 pi/5) (default: calibration).")
 @click.option("--sweep", is_flag=True, help="Also run from initial errors -85..145 deg and compare with the Lyapunov bound (eq. 18).")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Figure like seed 003 Fig. 5-7.")
+@plot_option("Figure like seed 003 Fig. 5-7.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def command(files, initial_error_deg, settle_s, resistance, inductance, emf_constant, sweep, plot_path, as_json):
     """Run the flux-linkage angle estimator (seed 003 eq. 10-13) over recordings and compare it
@@ -117,9 +118,12 @@ def command(files, initial_error_deg, settle_s, resistance, inductance, emf_cons
         click.echo(json.dumps(results if len(results) > 1 else results[0], indent=2))
         return
     for r in results:
-        conv = "never" if r["converged_s"] is None else f"{r['converged_s']:.3f} s"
+        if r["converged_s"] is None:
+            conv = f"the error is still {CONVERGED_DEG:g} deg or more at the end of the recording"
+        else:
+            conv = f"the error stays below {CONVERGED_DEG:g} deg after {r['converged_s']:.3f} s"
         click.echo(f"{r['file']}: {r['speed_rpm']['start']:g} -> {r['speed_rpm']['end']:g} rpm, "
-                   f"from {r['initial_error_deg']:g} deg the error stays below {CONVERGED_DEG:g} deg after {conv}")
+                   f"from {r['initial_error_deg']:g} deg {conv}")
         if "steady" in r:
             s = r["steady"]
             click.echo(f"  steady from {s['from_s']:g} s at {s['speed_rpm']:g} rpm: mean {s['mean_deg']:+.3f} deg, "
@@ -133,10 +137,7 @@ def command(files, initial_error_deg, settle_s, resistance, inductance, emf_cons
 
 
 def _plot(results: list[dict], path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     several = len(results) > 1
     fig, axes = plt.subplots(3 if several else 2, 1, figsize=(9, 9 if several else 6.5))

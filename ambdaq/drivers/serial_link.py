@@ -52,12 +52,14 @@ class SerialLink:
     def __init__(self, port: str, *, baudrate: int = 3_000_000, alive_s: float = 1.0) -> None:
         self.port_name = port
         self.baudrate = baudrate
-        try:
-            self._port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=1.0)
+        try:  # exclusive: a second program on the same port is refused at once, not left to garble it
+            self._port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=1.0,
+                                               exclusive=True)
         except ValueError as err:
             raise BadInputError(f"serial port {port!r}: {err}") from None
         except (serial.SerialException, OSError) as err:
-            raise DeviceError(f"cannot open serial port {port}: {err}") from None
+            busy = " (is another program using it?)" if "lock" in str(err).lower() else ""
+            raise DeviceError(f"cannot open serial port {port}{busy}: {err}") from None
         self.alive_s = alive_s
         self.decoder = FrameDecoder()
         # bounded: a reader that stops taking them (a stalled recorder) costs the newest frames,
@@ -207,7 +209,8 @@ class SerialLink:
             self.send(MsgType.IDENTIFY)
             if self._identity_event.wait(0.3):
                 return json.loads(self._identity[-1].body.decode())
-        raise DeviceError(f"{self.port_name}: no device answered IDENTIFY within {timeout:g} s")
+        raise DeviceError(f"{self.port_name}: no device answered IDENTIFY within {timeout:g} s (is it powered and "
+                          "connected, at this baud rate, and not in use by another program?)")
 
     def close(self) -> None:
         self._stop.set()

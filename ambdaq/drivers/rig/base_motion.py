@@ -43,6 +43,7 @@ BASE_AXES = ("base1_y", "base2_y", "base1_z", "base2_z")
 PLANES = ("vertical", "horizontal")
 MAX_FIR_TAPS = 64
 MAX_TEST_SIGNAL_V = 1.0  # the secondary-path test signal; a tenth of the D/A range
+MIN_TEST_SIGNAL_V = 1e-3  # a fifth of a 12-bit +-10 V D/A's step: less is not a test signal
 N_STATE = 6  # y, theta, y', theta', i1, i2
 
 
@@ -251,6 +252,7 @@ class BaseMotionRig(Rig, ExcitationInput):
     excitation_axes = AXES  # test signal in V, up to MAX_TEST_SIGNAL_V
     excitation_in_m = False
     excitation_max = MAX_TEST_SIGNAL_V
+    excitation_min = MIN_TEST_SIGNAL_V
 
     def __init__(self, params: BaseMotionParams = BASE_MOTION, *, seed: int = 0,
                  speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False, ff_mode: str = "off",

@@ -336,7 +336,7 @@ def _excitation_param(rig_class, sample_rate: float) -> _Param:
         if values[0] != int(values[0]):
             return "the axis must be an integer"
         exc = _excitation(values)
-        return exc.problem(n_axes, sample_rate, top) if exc is not None else ""
+        return exc.problem(n_axes, sample_rate, top, rig_class.excitation_min) if exc is not None else ""
 
     return _Param(3, _read_excitation, lambda r, v: r.set_excitation(_excitation(v)), -1.0, 5000.0,
                   f"test signal added to one axis's feedforward: [axis 0..{n_axes - 1} (-1 off), amplitude {unit} "
