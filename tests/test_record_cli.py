@@ -155,5 +155,6 @@ def test_devices_lists_can_channels_and_serial_ports(run_cli):
     assert r.exit_code == 0
     found = json.loads(r.stdout)
     assert set(found) == {"can", "serial"}
-    assert any(c["interface"] == "virtual" for c in found["can"])  # always available in python-can
-    assert not any("multicast" in c["interface"] for c in found["can"])  # never probed
+    # never probed: IP networks, and the in-process bus (whose detection would invent a channel)
+    assert not {c["interface"] for c in found["can"]} & {"udp_multicast", "socketcand", "virtual"}
+    assert "socketcand" in run_cli("devices").output  # ... and said so

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from ..drivers.discovery import can_channels, serial_ports
+from ..drivers.discovery import NOT_SEARCHED, can_channels, serial_ports
 
 
 @click.command("devices")
@@ -23,4 +23,5 @@ def command(as_json):
     click.echo("serial (pyserial):" if found["serial"] else "serial (pyserial): none")
     for p in found["serial"]:
         click.echo(f"  {p['port']:<20} {p['description']:<30} {p['url']}")
+    click.echo("not searched: " + "; ".join(f"{k} ({why})" for k, why in NOT_SEARCHED.items()))
     click.echo("simulated rigs: sim://spindle (in process); ambdaq sim serve (on a pseudo-terminal)")

@@ -1,4 +1,8 @@
-"""The ``ambdaq`` command group and its error handling.
+"""The ``ambdaq`` command group, its registry of commands and its error handling.
+
+Commands are found through :data:`COMMANDS` and imported only when they run, so ``ambdaq --help``
+and ``ambdaq --version`` load no numerical library: the listing takes each command's summary from
+its docstring by reading the module's source, not by importing it.
 
 Exit codes: 0 success, 1 runtime failure (device, I/O), 2 bad usage or bad input.  Errors are one
 line on stderr; ``--debug`` (or ``AMBDAQ_DEBUG=1``) shows the traceback instead.
@@ -6,8 +10,11 @@ line on stderr; ``--debug`` (or ``AMBDAQ_DEBUG=1``) shows the traceback instead.
 
 from __future__ import annotations
 
+import ast
+import importlib
 import os
 import sys
+from pathlib import Path
 
 import click
 
@@ -15,8 +22,57 @@ from .. import __version__
 from ..errors import AmbdaqError
 
 
+COMMANDS = {
+    # name: "module:attribute" in ambdaq.cli; a new command is one module and one line here
+    "controller": "push:controller_group",
+    "devices": "devices:command",
+    "export": "export:command",
+    "frf": "frf:command",
+    "fx": "fx:command",
+    "identify": "identify:command",
+    "info": "info:command",
+    "lms": "lms:command",
+    "model": "model:command",
+    "plot": "plot:command",
+    "push": "push:push_command",
+    "record": "record:command",
+    "recover": "recover:command",
+    "runout": "runout:command",
+    "selfsense": "selfsense:command",
+    "sim": "sim:command",
+}
+
+
+def _summary(target: str) -> str:
+    """The first paragraph of a command's docstring (what click makes its short help from), read
+    from its module's source without importing it."""
+    module, attr = target.split(":")
+    source = (Path(__file__).parent / f"{module}.py").read_text()
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.FunctionDef) and node.name == attr:
+            return " ".join((ast.get_docstring(node) or "").split("\n\n")[0].split())
+    return ""
+
+
 class AmbdaqGroup(click.Group):
-    """A click group that turns library errors into one line and the documented exit code."""
+    """A click group that loads its commands from :data:`COMMANDS` when they run and turns library
+    errors into one line and the documented exit code."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        module, attr = target.split(":")
+        return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        limit = formatter.width - 6 - max(len(n) for n in COMMANDS)
+        rows = [(name, click.utils.make_default_short_help(_summary(COMMANDS[name]), limit)) for name in sorted(COMMANDS)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context):
         try:
@@ -61,18 +117,6 @@ def _quiet_stdout() -> None:
 def cli(ctx: click.Context, debug: bool) -> None:
     """Data acquisition and tuning for active magnetic bearing machines."""
     ctx.meta["ambdaq.debug"] = debug
-
-
-def _register() -> None:
-    from . import devices, export, frf, fx, identify, info, lms, model, plot, push, record, recover, runout, selfsense, sim
-
-    for module in (record, sim, devices, info, export, plot, recover, runout, lms, frf, fx, model, identify, selfsense):
-        cli.add_command(module.command)
-    cli.add_command(push.push_command)
-    cli.add_command(push.controller_group)
-
-
-_register()
 
 
 def main() -> None:

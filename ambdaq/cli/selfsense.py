@@ -95,8 +95,8 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
 @plot_option("Figure like seed 003 Fig. 5-7.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def command(files, initial_error_deg, settle_s, resistance, inductance, emf_constant, sweep, plot_path, as_json):
-    """Run the flux-linkage angle estimator (seed 003 eq. 10-13) over recordings and compare it
-    with the encoder.
+    """Rotor angle from the coil voltages (seed 003's flux-linkage estimator, its equations 10-13)
+    over recordings, against the encoder.
 
     Each FILE holds six coil voltages (/coil/voltage), currents (/coil/current) and an encoder
     (/motor/encoder), e.g. from `ambdaq sim generate --profile lorentz`.  Reports when the error

@@ -8,9 +8,17 @@ import can
 from serial.tools import list_ports
 
 
+NOT_SEARCHED = {
+    "socketcand": "its servers announce themselves by a UDP beacon every 3 s on the LAN, too slow to wait for",
+    "udp_multicast": "it talks over an IP network",
+    "virtual": "in-process only, what sim:// runs on; detection would invent a channel name",
+}
+"""python-can interfaces ``ambdaq devices`` does not ask, and why."""
+
+
 def _local_interfaces() -> list[str]:
-    """Every python-can interface except those that talk over an IP network (multicast)."""
-    return sorted(i for i in can.interfaces.VALID_INTERFACES if "multicast" not in i)
+    """The python-can interfaces to ask: every one but :data:`NOT_SEARCHED`."""
+    return sorted(i for i in can.interfaces.VALID_INTERFACES if i not in NOT_SEARCHED)
 
 
 def can_channels() -> list[dict[str, str]]:
