@@ -50,3 +50,28 @@ def test_export_csv_npz_parquet_round_trip(spindle_file, tmp_path, run_cli):
     # exporting again does not overwrite without --overwrite
     r = run_cli("export", spindle_file, "--format", "parquet", "--topic", "/amb/gap", "-o", tmp_path / "gap.parquet")
     assert r.exit_code == 2 and "exists" in r.output
+
+
+def test_a_recording_is_a_read_only_mapping_with_short_reprs(spindle_file):
+    """Issue 12, item 9: in a notebook a Recording lists its topics, reads like a mapping and
+    shows a line, not every array."""
+    rec = load(spindle_file)
+    assert list(rec) == list(rec.topics) and len(rec) == 8 and "/amb/gap" in rec
+    assert dict(rec.items())["/amb/gap"] is rec["/amb/gap"]
+    text = repr(rec)
+    assert "\n" not in text and len(text) < 600 and "spindle.mcap: 8 topics, 2.000 s" in text, text
+    gap = rec["/amb/gap"]
+    assert repr(gap) == ("<TopicData /amb/gap: 20000 samples, 2.000 s at 10000 Hz; front_x [m], front_y [m], "
+                         "rear_x [m], rear_y [m], axial [m]>")
+    assert gap.nominal_rate == 10000.0  # the rate the device declares, a value
+    with pytest.raises(TypeError):
+        rec["/amb/new"] = gap  # read-only
+
+
+def test_to_pandas_has_the_time_as_index_and_the_units(spindle_file):
+    gap = load(spindle_file, topics=["/amb/gap"])["/amb/gap"]
+    df = gap.to_pandas()
+    assert df.index.name == "time" and list(df.columns) == list(gap.fields)
+    np.testing.assert_array_equal(df.index.to_numpy(), gap.time)
+    np.testing.assert_array_equal(df["rear_y"].to_numpy(), gap["rear_y"])
+    assert df.attrs["units"]["front_x"] == "m" and df.attrs["time_unit"] == "s" and df.attrs["topic"] == "/amb/gap"

@@ -85,7 +85,7 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
             assert data.log_time.min() >= lo and (hi is None or data.log_time.max() < hi), (p.name, topic)
             device = json.loads(meta["ambdaq.statistics"][topic])["device"]
             if k in (1, 2) and "host_clock" not in meta[f"ambdaq.clock.{device}"]:
-                rate = rec.nominal_rate(topic)
+                rate = rec[topic].nominal_rate
                 assert abs(len(data) - rate) <= 1 + rate * 100e-6, (p.name, topic, len(data))
             seqs.setdefault(topic, []).append(data.seq.astype(np.int64))
     for topic, pieces in seqs.items():

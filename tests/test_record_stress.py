@@ -27,7 +27,7 @@ def test_in_process_rig_under_cpu_load_counts_every_sample_exactly(run_cli, tmp_
             for topic, data in rec.topics.items():
                 seq = data.seq.astype(np.int64)
                 assert np.all(np.diff(seq) > 0) and np.all(np.diff(data.log_time) > 0), topic  # once, in order
-                rate = rec.nominal_rate(topic)
+                rate = rec[topic].nominal_rate
                 drops = info[topic]["drops"]
                 # what was due is exactly what was written plus what is counted lost
                 assert len(data) + drops == round(SECONDS * rate), (topic, len(data), drops)

@@ -104,7 +104,7 @@ def test_campaign_drives_the_served_controller_and_shaker_in_another_process(tmp
         rec = load(out / step["file"], topics=["/base/accel"])
         acc = rec["/base/accel"]
         d = np.stack([acc[a] for a in BASE_AXES], axis=1)
-        theta = 2 * np.pi * step["freq_hz"] * np.arange(len(d)) / rec.nominal_rate("/base/accel")
+        theta = 2 * np.pi * step["freq_hz"] * np.arange(len(d)) / rec["/base/accel"].nominal_rate
         ph = harmonic_fit(d, theta, (1,))[0]  # per accelerometer: base1_y, base2_y, base1_z, base2_z
         alpha = complex(*step["alpha_commanded"])
         for p in range(2):

@@ -112,7 +112,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         outputs = list(y_data.fields)
         try:
             est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
-                              fs=rec.nominal_rate(input_topic), resolution_hz=resolution_hz)
+                              fs=rec[input_topic].nominal_rate, resolution_hz=resolution_hz)
         except ValueError as err:
             raise BadInputError(f"{path}: {err}") from None
         if not np.all(np.isfinite(est.response)):

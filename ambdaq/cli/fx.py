@@ -190,7 +190,7 @@ def estimate(folder, path_file, mu, output, overwrite):
             rec = load(folder / step["file"], topics=["/amb/gap", "/base/accel"])
             gap, acc = rec["/amb/gap"], rec["/base/accel"]
             n = min(len(gap), len(acc))
-            fs = rec.nominal_rate("/amb/gap")
+            fs = rec["/amb/gap"].nominal_rate
             theta = 2 * np.pi * f * np.arange(n) / fs
             per_plane = []
             for p in range(2):

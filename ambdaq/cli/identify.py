@@ -43,7 +43,7 @@ def modal(file, axes, window_s, skip_s, as_json):
     """
     rec = load(file, topics=[HAMMER, GAP])  # one line and exit 2 if a topic is missing
     gap, hammer = rec[GAP], rec[HAMMER]
-    rate = rec.nominal_rate(GAP)
+    rate = rec[GAP].nominal_rate
     force = np.interp(gap.log_time, hammer.log_time, hammer["hammer"]) if len(hammer) != len(gap) else hammer["hammer"]
     hits = strikes(force, rate)
     if not hits:

@@ -39,7 +39,7 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
     if len(v) != len(i) or len(v) != len(enc) or len(v) < 100:
         raise BadInputError(f"{path}: voltages, currents and encoder must be the same sample instants (at least 100)")
     model = _model(rec.metadata, path, overrides)
-    rate = rec.nominal_rate(VOLTAGE)
+    rate = rec[VOLTAGE].nominal_rate
     V = np.column_stack([v[f] for f in v.fields])
     I = np.column_stack([i[f] for f in i.fields])
     true = enc["angle"]

@@ -62,14 +62,17 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
         targets = {t: out / f"{topic_filename(t)}.{fmt}" for t in rec.topics}
     for target in targets.values():
         _check(target, overwrite)
+    if fmt == "parquet":
+        try:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+        except ImportError:
+            raise BadInputError("Parquet export needs pyarrow, the parquet extra: pip install 'ambdaq[parquet]'") from None
     for topic, target in targets.items():
         cols = _columns(rec.topics[topic])
         if fmt == "csv":
             _write_csv(target, cols)
         else:
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-
             pq.write_table(pa.table(cols), target)
     return list(targets.values())
 

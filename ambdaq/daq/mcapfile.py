@@ -477,11 +477,13 @@ class McapFile:
         return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
 
 
-def gather_payloads(records: bytes, offsets: np.ndarray, payload_dtype: np.dtype) -> np.ndarray:
-    """Payloads of the Message records at ``offsets`` in ``records``, as a compact structured array.
+def payload_view(records: bytes, offsets: np.ndarray, payload_dtype: np.dtype) -> np.ndarray:
+    """The payloads of the Message records at ``offsets`` in ``records``, as a structured array
+    whose fields are named as ``payload_dtype``'s.
 
-    Where the records sit at a constant stride (every file ambdaq writes) the payload bytes are
-    copied out in one strided pass; otherwise each record is gathered by index.
+    Where the records sit at a constant stride (every file ambdaq writes: one row of records per
+    sample instant) this is a strided view into ``records``, no copy: a caller copying each field
+    out touches every byte once.  Otherwise each payload is gathered by index (one copy).
     """
     n = offsets.shape[0]
     size = payload_dtype.itemsize
@@ -493,7 +495,6 @@ def gather_payloads(records: bytes, offsets: np.ndarray, payload_dtype: np.dtype
         raise BadInputError("message index points past the end of its chunk")
     stride = int(starts[1] - starts[0]) if n > 1 else size
     if stride >= size and (n == 1 or np.all(np.diff(starts) == stride)):
-        rows = np.ndarray(shape=(n, size), dtype=np.uint8, buffer=buf, offset=int(starts[0]), strides=(stride, 1))
-    else:
-        rows = buf[starts[:, None] + np.arange(size)]
+        return np.ndarray(shape=(n,), dtype=payload_dtype, buffer=buf, offset=int(starts[0]), strides=(stride,))
+    rows = buf[starts[:, None] + np.arange(size)]
     return np.ascontiguousarray(rows).view(payload_dtype).ravel()

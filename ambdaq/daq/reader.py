@@ -1,8 +1,13 @@
 """Fast reading of ambdaq recordings into numpy arrays.
 
 >>> rec = load("run.mcap", topics=["/amb/gap"])            # doctest: +SKIP
->>> gap = rec["/amb/gap"]
->>> gap.time, gap["front_x"]                                 # s, m
+>>> rec                                                      # doctest: +SKIP
+<Recording run.mcap: 1 topic, 10.000 s; /amb/gap 100000 samples at 10000 Hz>
+>>> gap = rec["/amb/gap"]                                    # doctest: +SKIP
+>>> gap.time, gap["front_x"], gap.nominal_rate               # doctest: +SKIP  (s, m, Hz)
+>>> gap.to_pandas()                                          # doctest: +SKIP  (needs the pandas extra)
+
+A :class:`Recording` is a read-only mapping of topic to :class:`TopicData`.
 
 Whole chunks are decompressed and decoded through their message indexes with one strided copy
 per field; nothing is decoded message by message.
@@ -12,7 +17,8 @@ from __future__ import annotations
 
 import json
 
-from collections import deque
+import os
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,8 +27,10 @@ import numpy as np
 
 from ..drivers.signals import SignalGroup
 from ..errors import BadInputError
-from .mcapfile import McapFile, gather_payloads
+from .mcapfile import McapFile, payload_view
 from .schema import TopicLayout, parse_schema
+
+READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
 
 
 @dataclass
@@ -33,6 +41,9 @@ class TopicData:
     ----------
     topic : str
         MCAP topic.
+    nominal_rate : float
+        The sample rate the device that streams the topic declares (its control rate), in Hz;
+        the measured :attr:`sample_rate` when the recording does not say.
     log_time : ndarray of int64
         Host time of each sample, in ns (MCAP log_time).
     time : ndarray of float64
@@ -48,6 +59,7 @@ class TopicData:
     """
 
     topic: str
+    nominal_rate: float
     log_time: np.ndarray
     time: np.ndarray
     device_time: np.ndarray
@@ -72,10 +84,32 @@ class TopicData:
             return 0.0
         return (len(self) - 1) / ((self.log_time[-1] - self.log_time[0]) * 1e-9)
 
+    @property
+    def duration(self) -> float:
+        """From the first sample to the last, in s."""
+        return float(self.time[-1] - self.time[0]) if len(self) else 0.0
 
-@dataclass
-class Recording:
-    """Topics loaded from a recording, plus its metadata."""
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{k} [{u}]" for k, u in self.units.items())
+        return (f"<TopicData {self.topic}: {len(self)} samples, {self.duration:.3f} s at {self.nominal_rate:g} Hz; "
+                f"{fields}>")
+
+    def to_pandas(self):
+        """The fields as a pandas DataFrame indexed by ``time`` (s); ``df.attrs`` holds the topic, the
+        units of each column and the nominal rate.  pandas is the ``pandas`` extra."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise BadInputError("to_pandas needs pandas, the pandas extra: pip install 'ambdaq[pandas]'") from None
+        df = pd.DataFrame(self.fields, index=pd.Index(self.time, name="time"))
+        df.attrs = {"topic": self.topic, "units": dict(self.units), "time_unit": "s", "nominal_rate_hz": self.nominal_rate}
+        return df
+
+
+@dataclass(repr=False)
+class Recording(Mapping):
+    """Topics loaded from a recording, plus its metadata: a read-only mapping of topic to
+    :class:`TopicData`."""
 
     path: Path
     topics: dict[str, TopicData]
@@ -87,30 +121,28 @@ class Recording:
         except KeyError:
             raise BadInputError(f"{self.path}: no topic {topic}; topics: {', '.join(self.topics)}") from None
 
-    def __contains__(self, topic: str) -> bool:
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.topics)
+
+    def __len__(self) -> int:
+        return len(self.topics)
+
+    def __contains__(self, topic: object) -> bool:
         return topic in self.topics
 
-    def nominal_rate(self, topic: str) -> float:
-        """The sample rate the device that streams ``topic`` declares (its control rate), in Hz;
-        the measured ``TopicData.sample_rate`` when the recording does not say."""
-        try:
-            device = json.loads(self.metadata["ambdaq.statistics"][topic])["device"]
-            return float(self.metadata[f"ambdaq.device.{device}"]["sample_rate_hz"])
-        except (KeyError, ValueError, TypeError):
-            return self[topic].sample_rate
+    def __repr__(self) -> str:
+        span = max((t.duration for t in self.topics.values()), default=0.0)
+        parts = "; ".join(f"{t.topic} {len(t)} samples at {t.nominal_rate:g} Hz" for t in self.topics.values())
+        return f"<Recording {self.path.name}: {len(self)} topic{'s' if len(self) != 1 else ''}, {span:.3f} s; {parts}>"
 
 
-def _prefetch(fn, items: list, depth: int = 2):
-    """``fn(item)`` for each item in order, the next ``depth`` computed ahead on a worker thread
-    (decompression releases the GIL, so it overlaps the decoding of the present chunk)."""
-    with ThreadPoolExecutor(max_workers=depth) as pool:
-        pending = deque(pool.submit(fn, it) for it in items[:depth])
-        for it in items[depth:]:
-            done = pending.popleft().result()
-            pending.append(pool.submit(fn, it))
-            yield done
-        while pending:
-            yield pending.popleft().result()
+def _nominal_rate(metadata: dict[str, dict[str, str]], topic: str) -> float | None:
+    """The sample rate (Hz) the device that streams ``topic`` declares, or None if the file does not say."""
+    try:
+        device = json.loads(metadata["ambdaq.statistics"][topic])["device"]
+        return float(metadata[f"ambdaq.device.{device}"]["sample_rate_hz"])
+    except (KeyError, ValueError, TypeError):
+        return None
 
 
 def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
@@ -191,21 +223,28 @@ def load(
         dt = layout.payload_dtype
         out[cid] = {name: np.empty(counts[cid], dtype=dt.fields[name][0]) for name in dt.names if name != "cdr_header"}
         out[cid]["log_time"] = np.empty(counts[cid], dtype=np.int64)
-    pos = {cid: 0 for cid in by_id}
-    for (ci, here), records in zip(plan, _prefetch(f.chunk_records, [ci for ci, _ in plan])):
+    jobs, pos = [], {cid: 0 for cid in by_id}
+    for ci, here in plan:  # where each chunk's messages go in the output, known before any is read
+        jobs.append((ci, {cid: (idx, pos[cid]) for cid, idx in here.items()}))
         for cid, idx in here.items():
-            layout = by_id[cid][1]
-            view = gather_payloads(records, idx["offset"], layout.payload_dtype)
+            pos[cid] += idx.shape[0]
+
+    def read_chunk(job) -> None:
+        """Decompress one chunk and copy its fields into place: both release the GIL, so chunks are
+        read on every core at once."""
+        ci, places = job
+        records = f.chunk_records(ci)
+        for cid, (idx, p) in places.items():
+            view = payload_view(records, idx["offset"], by_id[cid][1].payload_dtype)
             n = view.shape[0]
-            dst = out[cid]
-            p = pos[cid]
-            for name in dst:
-                if name == "log_time":
-                    dst[name][p : p + n] = idx["log_time"]
-                else:
-                    dst[name][p : p + n] = view[name]
-            pos[cid] = p + n
+            for name, column in out[cid].items():
+                column[p : p + n] = idx["log_time"] if name == "log_time" else view[name]
+
+    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
+        for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
+            pass
     result = {}
+    metadata = f.metadata()
     for cid, (topic, layout) in by_id.items():
         cols = out[cid]
         lt = cols["log_time"]
@@ -221,6 +260,7 @@ def load(
         g = layout.group
         result[topic] = TopicData(
             topic=topic,
+            nominal_rate=0.0,
             log_time=lt,
             time=(lt - t0) * 1e-9,
             device_time=cols["device_time"],
@@ -229,7 +269,9 @@ def load(
             fields={name: cols[name] for name in g.fields},
             units=dict(zip(g.fields, g.units)),
         )
-    return Recording(Path(path), result, f.metadata())
+        declared = _nominal_rate(metadata, topic)
+        result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
+    return Recording(Path(path), result, metadata)
 
 
 __all__ = ["Recording", "TopicData", "load"]
