@@ -1,23 +1,36 @@
-"""Reading throughput: MCAP to numpy with ``ambdaq.daq.load``, every topic.
+"""Reading a recording into numpy: ``ambdaq.daq.load`` against what a user would otherwise pick.
 
-Baseline, measured in the same run on the same file: the official reader's
-``iter_decoded_messages`` with the official ROS 2 decoder (``mcap_ros2.decoder.DecoderFactory``).
+One 30 s spindle recording with ground truth (300,000 instants, 8 topics, 38 fields) is written
+unpaced.  Baselines, measured in the same run:
 
-    python benchmarks/bench_read.py [--seconds 3]
+* pyarrow reading **the same values** (every column ``load`` returns: log time, device time,
+  seq, status and the fields of each topic) from a zstd Parquet file, into numpy arrays;
+* the official MCAP reader's ``iter_decoded_messages`` with the official ROS 2 decoder, on the
+  first 3 s of the same recording (it decodes one message per Python call).
+
+Then how the chunk compression and size trade file size, write speed and read speed.
+
+    python benchmarks/bench_read.py [--seconds 30]
 """
 
 from __future__ import annotations
 
 import argparse
 import tempfile
+import time
 from pathlib import Path
 
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
 from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.daq.writer import RecordingWriter
 from ambdaq.drivers.devices import open_device
+from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
 from _common import best_of, row
 
@@ -25,28 +38,87 @@ from _common import best_of, row
 def official(path: Path) -> int:
     n = 0
     with open(path, "rb") as fh:
-        for _s, _c, _m, decoded in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+        for _s, _c, _m, _decoded in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             n += 1
     return n
 
 
+def columns(rec) -> dict[str, np.ndarray]:
+    """Every array ``load`` returns, by name: what the Parquet file holds too."""
+    out = {}
+    for topic, d in rec.items():
+        out.update({f"{topic}/log_time": d.log_time, f"{topic}/device_time": d.device_time,
+                    f"{topic}/seq": d.seq, f"{topic}/status": d.status})
+        out.update({f"{topic}/{k}": v for k, v in d.fields.items()})
+    return out
+
+
+def parquet_read(path: Path) -> dict[str, np.ndarray]:
+    table = pq.read_table(path)
+    return {name: col.to_numpy() for name, col in zip(table.column_names, table.columns)}
+
+
+def rewrite(rec, path: Path, compression: str, chunk_size: int) -> float:
+    """Write ``rec``'s samples again, as one device's, through the recorder's writer; returns the
+    seconds it took (encoding, compression, the file; no simulation)."""
+    path.unlink(missing_ok=True)
+    t = time.perf_counter()
+    w = RecordingWriter(path, compression=compression, chunk_size=chunk_size, fsync=False)
+    d0 = next(iter(rec.values()))
+    w.add_device("rig", [SignalGroup(d.topic, d.topic.strip("/").replace("/", "_"), tuple(d.fields),
+                                     tuple(d.units.values())) for d in rec.values()], {}, {})
+    step = 10_000
+    for a in range(0, len(d0), step):
+        b = min(a + step, len(d0))
+        w.write("rig", SampleBlock(d0.device_time[a:b], d0.seq[a:b],
+                                   {t: np.stack([d.fields[f][a:b] for f in d.fields], axis=1) for t, d in rec.items()},
+                                   d0.log_time[a:b]))
+    w.close()
+    return time.perf_counter() - t
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=3.0, help="simulated seconds in the file (10 kHz)")
+    ap.add_argument("--seconds", type=float, default=30.0, help="simulated seconds in the file (10 kHz)")
     args = ap.parse_args()
+    instants = int(args.seconds * 10_000)
     with tempfile.TemporaryDirectory() as tmp:
-        for truth, label, topics in ((False, "6 topics", 6), (True, "8 topics incl. /truth", 8)):
-            path = Path(tmp) / f"read_{topics}.mcap"
-            src = open_device("sim://spindle", speed="30000", truth=truth, paced=False)
-            Recorder([src], path, RecordOptions(duration_s=args.seconds)).run()
-            instants = int(args.seconds * 10_000)
-            load(path)
-            ours = instants / best_of(lambda: load(path), repeat=5)
-            theirs = instants / best_of(lambda: official(path), repeat=1)
-            print(row(f"ambdaq.daq.load ({label})", ours, "instants/s", f"{ours * topics:,.0f} msgs/s"))
-            print(row(f"iter_decoded_messages ({label})", theirs, "instants/s", "baseline"))
-            print(f"ratio load / official decoder ({label}): {ours / theirs:.0f}x "
-                  "(target >= 20x, >= 1,000,000 instants/s)")
+        tmp = Path(tmp)
+        path = tmp / "run.mcap"
+        src = open_device("sim://spindle", speed="30000", truth=True, paced=False)
+        Recorder([src], path, RecordOptions(duration_s=args.seconds, fsync=False)).run()
+        rec = load(path)
+        cols = columns(rec)
+        values_mb = sum(v.nbytes for v in cols.values()) / 1e6
+        parquet = tmp / "run.parquet"
+        pq.write_table(pa.table(cols), parquet, compression="zstd")
+        t_load = best_of(lambda: load(path), repeat=5)
+        t_pq = best_of(lambda: parquet_read(parquet), repeat=5)
+        print(f"{instants:,} instants, {len(cols)} columns, {values_mb:.1f} MB of values")
+        print(row("ambdaq.daq.load, zstd MCAP (default)", t_load * 1e3, "ms",
+                  f"{path.stat().st_size / 1e6:.1f} MB file, {values_mb / t_load:.0f} MB/s"))
+        print(row("pyarrow read_table + to_numpy, zstd Parquet", t_pq * 1e3, "ms",
+                  f"{parquet.stat().st_size / 1e6:.1f} MB file, baseline"))
+        print(f"ratio load / Parquet read time: {t_load / t_pq:.2f} (target <= 1)")
+
+        short = tmp / "short.mcap"
+        src = open_device("sim://spindle", speed="30000", truth=True, paced=False)
+        Recorder([src], short, RecordOptions(duration_s=3.0, fsync=False)).run()
+        ours = 30_000 / best_of(lambda: load(short), repeat=5)
+        theirs = 30_000 / best_of(lambda: official(short), repeat=1)
+        print(row("ambdaq.daq.load, 3 s", ours, "instants/s"))
+        print(row("iter_decoded_messages, same 3 s", theirs, "instants/s", "baseline"))
+        print(f"ratio load / official decoder: {ours / theirs:.0f}x")
+
+        print("\nchunk compression and size (the same samples rewritten; write: encoding and file, no simulation)")
+        print(f"{'compression':<12}{'chunk':>8}{'file MB':>10}{'write MB/s':>12}{'load ms':>10}{'load / Parquet':>16}")
+        for compression, chunk in (("zstd", 1 << 20), ("zstd", 256 << 10), ("zstd", 4 << 20), ("lz4", 1 << 20),
+                                   ("none", 1 << 20)):
+            out = tmp / f"re_{compression}_{chunk}.mcap"
+            t_write = min(rewrite(rec, out, compression, chunk) for _ in range(2))
+            t = best_of(lambda: load(out), repeat=5)
+            print(f"{compression:<12}{chunk >> 10:>6}Ki{out.stat().st_size / 1e6:>10.1f}{values_mb / t_write:>12.0f}"
+                  f"{t * 1e3:>10.0f}{t / t_pq:>16.2f}")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 
 import os
+import threading
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ import numpy as np
 from ..drivers.signals import SignalGroup
 from ..errors import BadInputError
 from .mcapfile import McapFile, payload_view
-from .schema import TopicLayout, parse_schema
+from .schema import HEADER_FIELDS, TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
 
@@ -218,27 +219,36 @@ def load(
             plan.append((ci, here))
             for cid, idx in here.items():
                 counts[cid] += idx.shape[0]
-    out = {}
-    for cid, (topic, layout) in by_id.items():
-        dt = layout.payload_dtype
-        out[cid] = {name: np.empty(counts[cid], dtype=dt.fields[name][0]) for name in dt.names if name != "cdr_header"}
-        out[cid]["log_time"] = np.empty(counts[cid], dtype=np.int64)
+    # per channel: the header columns and one (fields, samples) array whose rows are the fields
+    out = {cid: {"log_time": np.empty(counts[cid], dtype=np.int64), "device_time": np.empty(counts[cid], dtype=np.int64),
+                 "seq": np.empty(counts[cid], dtype=np.uint32), "status": np.empty(counts[cid], dtype=np.uint32),
+                 "values": np.empty((len(layout.group.fields), counts[cid]))}
+           for cid, (_topic, layout) in by_id.items()}
     jobs, pos = [], {cid: 0 for cid in by_id}
     for ci, here in plan:  # where each chunk's messages go in the output, known before any is read
         jobs.append((ci, {cid: (idx, pos[cid]) for cid, idx in here.items()}))
         for cid, idx in here.items():
             pos[cid] += idx.shape[0]
 
+    largest = max((ci.uncompressed_size for ci, _ in jobs), default=0)
+    local = threading.local()
+
     def read_chunk(job) -> None:
-        """Decompress one chunk and copy its fields into place: both release the GIL, so chunks are
-        read on every core at once."""
+        """Decompress one chunk (into this thread's buffer) and copy its fields into place: both
+        release the GIL, so chunks are read on every core at once."""
         ci, places = job
-        records = f.chunk_records(ci)
+        if not hasattr(local, "buffer"):
+            local.buffer = bytearray(largest)
+        records = f.chunk_records(ci, local.buffer)
         for cid, (idx, p) in places.items():
             view = payload_view(records, idx["offset"], by_id[cid][1].payload_dtype)
             n = view.shape[0]
-            for name, column in out[cid].items():
-                column[p : p + n] = idx["log_time"] if name == "log_time" else view[name]
+            cols = out[cid]
+            cols["log_time"][p : p + n] = idx["log_time"]
+            for name in HEADER_FIELDS:
+                cols[name][p : p + n] = view[name]
+            # one call for every field: numpy walks the records once, writing each field's row
+            np.copyto(cols["values"][:, p : p + n].T, view["values"])
 
     with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
@@ -250,12 +260,12 @@ def load(
         lt = cols["log_time"]
         if lt.shape[0] > 1 and np.any(np.diff(lt) < 0):
             order = np.argsort(lt, kind="stable")
-            cols = {k: v[order] for k, v in cols.items()}
+            cols = {k: v[..., order] for k, v in cols.items()}
             lt = cols["log_time"]
         if lo is not None or hi is not None:
             a = 0 if lo is None else int(np.searchsorted(lt, lo, "left"))
             b = lt.shape[0] if hi is None else int(np.searchsorted(lt, hi, "right"))
-            cols = {k: v[a:b] for k, v in cols.items()}
+            cols = {k: v[..., a:b] for k, v in cols.items()}
             lt = cols["log_time"]
         g = layout.group
         result[topic] = TopicData(
@@ -266,7 +276,7 @@ def load(
             device_time=cols["device_time"],
             seq=cols["seq"],
             status=cols["status"],
-            fields={name: cols[name] for name in g.fields},
+            fields={name: cols["values"][i] for i, name in enumerate(g.fields)},
             units=dict(zip(g.fields, g.units)),
         )
         declared = _nominal_rate(metadata, topic)

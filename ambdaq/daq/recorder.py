@@ -28,6 +28,7 @@ from .. import __version__
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
+from .mcapfile import CHUNK_SIZE
 from .sequence import SampleCounts, SequenceTracker
 from .writer import RecordingWriter
 
@@ -85,7 +86,7 @@ class RecordOptions:
     split_duration_s: float | None = None
     compression: str = "zstd"
     flush_interval_s: float = 0.5
-    chunk_size: int = 4 << 20
+    chunk_size: int = CHUNK_SIZE
     reconnect: bool = False
     fsync: bool = True
 

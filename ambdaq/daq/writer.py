@@ -23,7 +23,7 @@ import numpy as np
 
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
-from .mcapfile import BlockWriter
+from .mcapfile import CHUNK_SIZE, BlockWriter
 from .sequence import SampleCounts
 from .schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
                      TopicLayout, encode_event)
@@ -55,7 +55,7 @@ class RecordingWriter:
         Force every flushed chunk to the disk (on a thread of its own), and the finished file.
     """
 
-    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = 4 << 20, fsync: bool = True) -> None:
+    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, fsync: bool = True) -> None:
         self.path = Path(path)
         self._file = open(self.path, "xb")
         self._fsync = fsync

@@ -38,11 +38,11 @@ NOMINAL_SENSITIVITY = 1.0e4  # V/m: the rig's sensor gain; the conditioner's 0x2
 TEMPERATURE_INDEX = 0x2003  # the amplifier's heat-sink temperature, which it writes itself
 
 
-STALE_S = 0.1
-"""A SYNC older than this when the simulation gets to it is not answered: the host matches a reply
-to its SYNC by the 8-bit counter, which tells apart 240 SYNCs (100 ms at 2.4 kHz).  A real device
-answers within microseconds; only a simulator starved of CPU gets this far behind, and then the
-cycle is lost, as the host counts it, never attributed to the wrong SYNC."""
+STALE_CYCLES = 200
+"""A SYNC more than this many SYNC periods old when the simulation gets to it is not answered: the
+host matches a reply to its SYNC by the counter, which tells apart 240 SYNCs.  A real device
+answers within microseconds; only a simulator starved of CPU gets this far behind (250 ms at
+800 Hz), and then the cycle is lost, as the host counts it, never attributed to the wrong SYNC."""
 
 
 NOTIFIER_CYCLE_S = 0.05  # canopen's default, 1 s, is how long closing a network waits
@@ -169,9 +169,14 @@ def serve_can(network: canopen.Network, server: RigServer, nodes: dict[str, int]
     nodes = nodes or {k: p.default_node for k, p in PROFILES.items()}
     devices = [SimCanDevice(network, kind, node, serial=1000 + node) for kind, node in nodes.items()]
 
+    period = [0.0, 0.0]  # the last SYNC's time and the SYNC period (s), learnt from the bus
+
     def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+        last, period[0] = period[0], timestamp
+        if last and 0 < timestamp - last < 1.0:
+            period[1] = timestamp - last if not period[1] else 0.9 * period[1] + 0.1 * (timestamp - last)
         live = [d for d in devices if d.operational]
-        if not live or time.time() - timestamp > STALE_S:
+        if not live or (period[1] and time.time() - timestamp > STALE_CYCLES * period[1]):
             return
         t_ns = int(round(timestamp * 1e9))
         try:
