@@ -24,12 +24,12 @@ from pathlib import Path
 import can
 
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.can_bus import bus_load
-from ambdaq.drivers.devices import open_can_device
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import SpindleRig
-from ambdaq.drivers.simdev.canopen_devices import open_network, serve_can
-from ambdaq.drivers.simdev.rig_server import RigServer
+from ambdaq.drivers.can.bus import bus_load
+from ambdaq.drivers.registry import open_device
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import SpindleRig
+from ambdaq.sim.devices.canopen import open_network, serve_can
+from ambdaq.sim.devices.rig_server import RigServer
 
 from _common import row
 
@@ -85,7 +85,7 @@ def main() -> None:
     dev_net = open_network(channel)
     serve_can(dev_net, server)
     server.start()
-    devices = [open_can_device(f"can://virtual/{channel}?kind={k}&sync={SYNC_HZ:g}") for k in KINDS]
+    devices = [open_device(f"can://virtual/{channel}?kind={k}&sync={SYNC_HZ:g}") for k in KINDS]
     hub = devices[0].hub
     hub.load_limit = 1.0  # saturate the bus on purpose
     monitor = ThreadCpu()

@@ -29,7 +29,8 @@ from mcap_ros2.decoder import DecoderFactory
 from ambdaq.daq import load
 from ambdaq.daq.recorder import Recorder, RecordOptions
 from ambdaq.daq.writer import RecordingWriter
-from ambdaq.drivers.devices import open_device
+from ambdaq.sim.source import SimSource
+from ambdaq.speed import SpeedProfile
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
 from _common import best_of, row
@@ -85,7 +86,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         path = tmp / "run.mcap"
-        src = open_device("sim://spindle", speed="30000", truth=True, paced=False)
+        src = SimSource("spindle", speed=SpeedProfile(30000.0, 30000.0), truth=True)
         Recorder([src], path, RecordOptions(duration_s=args.seconds, fsync=False)).run()
         rec = load(path)
         cols = columns(rec)
@@ -102,7 +103,7 @@ def main() -> None:
         print(f"ratio load / Parquet read time: {t_load / t_pq:.2f} (target <= 1)")
 
         short = tmp / "short.mcap"
-        src = open_device("sim://spindle", speed="30000", truth=True, paced=False)
+        src = SimSource("spindle", speed=SpeedProfile(30000.0, 30000.0), truth=True)
         Recorder([src], short, RecordOptions(duration_s=3.0, fsync=False)).run()
         ours = 30_000 / best_of(lambda: load(short), repeat=5)
         theirs = 30_000 / best_of(lambda: official(short), repeat=1)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-import ambdaq.drivers.rig.spindle as spindle
-from ambdaq.drivers.rig.speed import SpeedProfile
+import ambdaq.sim.rigs.spindle as spindle
+from ambdaq.speed import SpeedProfile
 
 from _common import best_of, row
 

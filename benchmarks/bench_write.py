@@ -16,14 +16,15 @@ from mcap.writer import CompressionType, Writer
 
 from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.devices import open_device
+from ambdaq.sim.source import SimSource
+from ambdaq.speed import SpeedProfile
 
 from _common import best_of, row
 
 
 def record(out: Path, seconds: float, truth: bool, fsync: bool = True) -> None:
     out.unlink(missing_ok=True)
-    src = open_device("sim://spindle", speed="30000", truth=truth, paced=False)
+    src = SimSource("spindle", speed=SpeedProfile(30000.0, 30000.0), truth=truth)
     Recorder([src], out, RecordOptions(duration_s=seconds, fsync=fsync)).run()
 
 

@@ -9,7 +9,8 @@ import pytest
 from ambdaq.analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load
-from ambdaq.drivers.rig.base_motion import GRAVITY, BaseExcitation, BaseMotionRig
+from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
+from ambdaq.units import GRAVITY
 
 FS = 10_000.0
 
@@ -168,17 +169,20 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
         (("sim", "generate", "--duration", "1", "--base", "noise:5-100:1", "-o", tmp_path / "b.mcap"),
          "the spindle rig has no moving base"),
         (("sim", "generate", "--profile", "base-motion", "--duration", "1", "--excite", "front_x:0.1",
-          "-o", tmp_path / "c.mcap"), "this rig's axes are amb1_y"),
+          "-o", tmp_path / "c.mcap"), "the controller's axes are amb1_y"),
         (("fx", "estimate", tmp_path, "--path", tmp_path / "p.json", "-o", tmp_path / "w.json"),
          "no readable campaign.json"),
-        (("record", "--device", "sim://base-motion", "--duration", "1", "-o", tmp_path / "d.mcap"),
-         "the base-motion rig's devices are served over serial, not can"),
+        (("record", "--device", "sim://cone", "--duration", "1", "-o", tmp_path / "d.mcap"),
+         "the cone rig serves no devices on a transport: use `ambdaq sim generate --profile cone`"),
         (("fx", "campaign", "--alphas", "1,1", "-o", tmp_path / "camp"), "give two different ratios"),
     ]
     for args, needle in cases:
         r = run_cli(*args)
         assert r.exit_code == 2, (args, r.output)
         assert needle in r.output and r.output.count("\n") == 1, r.output
+    # sim:// serves a rig's devices one way for every profile: the base-motion controller records
+    r = run_cli("record", "--device", "sim://base-motion", "--duration", "0.5", "-q", "-o", tmp_path / "bm.mcap")
+    assert r.exit_code == 0, r.output
     coef = tmp_path / "coef.json"
     assert run_cli("runout", "identify", spindle_file, "-o", coef).exit_code == 0
     r = run_cli("sim", "generate", "--profile", "base-motion", "--duration", "1", "--fir", coef, "-o", tmp_path / "e.mcap")

@@ -12,13 +12,13 @@ import pytest
 
 from ambdaq.daq import load
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.can_bus import bus_load, frame_bits
-from ambdaq.drivers.canopen_profiles import ALL_PROFILES, PROFILES, build_od
-from ambdaq.drivers.devices import open_device
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import SpindleRig
-from ambdaq.drivers.simdev.canopen_devices import open_network, serve_can
-from ambdaq.drivers.simdev.rig_server import RigServer
+from ambdaq.drivers.can.bus import bus_load, frame_bits
+from ambdaq.drivers.can.profiles import ALL_PROFILES, PROFILES, build_od
+from ambdaq.drivers.registry import open_device
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import SpindleRig
+from ambdaq.sim.devices.canopen import open_network, serve_can
+from ambdaq.sim.devices.rig_server import RigServer
 from ambdaq.errors import BadInputError, DeviceError
 
 _channels = itertools.count()
@@ -283,9 +283,9 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     """The controller (own clock, +50 ppm, mapped online) against the gap sensor (SYNC stamps on the
     host clock) on one rig: for every instant the CAN device sampled, the controller's log_time of
     that rig step is within one sample period (100 us at 10 kHz) of the step's true time."""
-    from ambdaq.drivers.simdev.controller import FdPort, SimController
-    from ambdaq.drivers.simdev.rig_server import DeviceClock
-    from ambdaq.drivers.simdev.serve import Pty
+    from ambdaq.sim.devices.controller import FdPort, SimController
+    from ambdaq.sim.devices.rig_server import DeviceClock
+    from ambdaq.sim.serve import Pty
 
     channel = f"align{next(_channels)}"
     rig = SpindleRig(speed=SpeedProfile(30000, 30000))

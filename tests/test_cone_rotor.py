@@ -11,7 +11,7 @@ from ambdaq.analysis.cone_rotor import (DISTRIBUTION, ConeRotor, controlled_eige
 from ambdaq.cli.main import cli
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
-from ambdaq.drivers.rig.cone import CONE, ConeRig
+from ambdaq.sim.rigs.cone import CONE, ConeRig
 
 ROTOR = ConeRotor()
 

@@ -6,7 +6,7 @@ import struct
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ambdaq.drivers.framing import FrameDecoder, cobs_decode, cobs_encode, encode_frame
+from ambdaq.drivers.serial.framing import FrameDecoder, cobs_decode, cobs_encode, encode_frame
 
 
 @settings(deadline=None)  # the first call compiles the numba kernels

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.lms import error_response
-from ambdaq.control.plants import rig_loop
+from ambdaq.workflows.plants import rig_loop
 from ambdaq.daq import load
 from ambdaq.daq.frequency_response import FrequencyResponse
-from ambdaq.drivers.controller import ControllerDriver
-from ambdaq.drivers.serial_link import SerialLink
+from ambdaq.drivers.serial.controller import ControllerDriver
+from ambdaq.drivers.serial.link import SerialLink
 from ambdaq.errors import DeviceError
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.lms import HOLD_TOL, OneAxis, converges, convergence_radius, mu_sign, sign_flip_rpm, sign_schedule
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import SpindleRig
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import SpindleRig
 
 FRONT = OneAxis()  # seed 000: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
 

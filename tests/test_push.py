@@ -15,16 +15,16 @@ from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
 from ambdaq.daq.coefficients import Coefficients
-from ambdaq.drivers.controller import ControllerDriver
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import N_HARMONICS, SpindleRig
-from ambdaq.drivers.serial_link import SerialLink
-from ambdaq.drivers.simdev.banks import DEFAULT_UNLOCK_KEY
-from ambdaq.drivers.simdev.canopen_devices import SimCanController, open_network
-from ambdaq.drivers.simdev.controller import SimController
-from ambdaq.drivers.simdev.faults import FaultyPort
-from ambdaq.drivers.simdev.rig_server import RigServer
-from ambdaq.drivers.simdev.serve import Pty
+from ambdaq.drivers.serial.controller import ControllerDriver
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import N_HARMONICS, SpindleRig
+from ambdaq.drivers.serial.link import SerialLink
+from ambdaq.sim.devices.banks import DEFAULT_UNLOCK_KEY
+from ambdaq.sim.devices.canopen import SimCanController, open_network
+from ambdaq.sim.devices.controller import SimController
+from ambdaq.sim.devices.faults import FaultyPort
+from ambdaq.sim.devices.rig_server import RigServer
+from ambdaq.sim.serve import Pty
 
 AXES = ["front_x", "front_y", "rear_x", "rear_y", "axial"]
 _channels = itertools.count()

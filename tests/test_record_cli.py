@@ -8,7 +8,7 @@ import numpy as np
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Progress, Recorder, RecordOptions, print_progress
-from ambdaq.drivers.devices import open_device
+from ambdaq.drivers.registry import open_url
 
 
 def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
@@ -131,9 +131,9 @@ def test_quiet_prints_nothing_and_default_prints_a_summary(tmp_path, run_cli):
 
 def test_progress_reports_elapsed_samples_drops_rate(tmp_path, capsys):
     seen: list[Progress] = []
-    src = open_device("sim://spindle", speed="10000")
-    Recorder([src], tmp_path / "p.mcap", RecordOptions(duration_s=1.6)).run(on_progress=seen.append,
-                                                                            progress_interval_s=0.25)
+    with open_url("sim://spindle", speed="10000") as rig:
+        Recorder(rig.sources, tmp_path / "p.mcap", RecordOptions(duration_s=1.6)).run(on_progress=seen.append,
+                                                                                   progress_interval_s=0.25)
     assert len(seen) >= 4
     assert all(b.samples > a.samples and b.elapsed_s > a.elapsed_s for a, b in zip(seen, seen[1:]))
     assert 5000 < seen[-1].rate_hz < 15000  # paced at 10 kHz

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.amb import equivalent_stiffness_damping
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import AXES, SPINDLE, SpindleRig
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import AXES, SPINDLE, SpindleRig
 
 
 def quiet_params(**kw):

@@ -7,8 +7,8 @@ from scipy.signal import lfilter
 from ambdaq.analysis.rotor import RigidRotor
 from ambdaq.analysis.runout import (harmonic_fit, lms_offline, notch_filter, runout_from_sensor,
                                     separate_unbalance, synchronous_average)
-from ambdaq.drivers.rig.speed import RPM_TO_RAD_S, SpeedProfile
-from ambdaq.drivers.rig.spindle import SPINDLE, SpindleRig
+from ambdaq.speed import RPM_TO_RAD_S, SpeedProfile
+from ambdaq.sim.rigs.spindle import SPINDLE, SpindleRig
 
 P = SPINDLE
 ROTOR = RigidRotor(P.mass, P.jt, P.jp, P.a, P.b, tuple(ax.kx for ax in P.axes), tuple(ax.ki for ax in P.axes))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq.coefficients import Coefficients
-from ambdaq.drivers.rig.spindle import SPINDLE
+from ambdaq.sim.rigs.spindle import SPINDLE
 from ambdaq.errors import BadInputError
 
 TRUE = SPINDLE.runout_amp[:, :6] * np.exp(1j * SPINDLE.runout_phase[:, :6])

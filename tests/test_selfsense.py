@@ -9,8 +9,8 @@ from click.testing import CliRunner
 
 from ambdaq.analysis.selfsense import angle_error, error_gain, estimate_angle, lyapunov_bound
 from ambdaq.cli.main import cli
-from ambdaq.drivers.rig.lorentz import LORENTZ, POLE_PAIRS, LorentzRig, machine
-from ambdaq.drivers.rig.speed import SpeedProfile
+from ambdaq.sim.rigs.lorentz import LORENTZ, POLE_PAIRS, LorentzRig, machine
+from ambdaq.speed import SpeedProfile
 
 
 def generate(path, rpm, duration):

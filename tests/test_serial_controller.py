@@ -11,13 +11,13 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.devices import open_device
-from ambdaq.drivers.rig.speed import SpeedProfile
-from ambdaq.drivers.rig.spindle import SpindleRig
-from ambdaq.drivers.simdev.controller import FdPort, SimController
-from ambdaq.drivers.simdev.faults import FaultyPort
-from ambdaq.drivers.simdev.rig_server import DeviceClock, RigServer
-from ambdaq.drivers.simdev.serve import Pty
+from ambdaq.drivers.registry import open_device
+from ambdaq.speed import SpeedProfile
+from ambdaq.sim.rigs.spindle import SpindleRig
+from ambdaq.sim.devices.controller import FdPort, SimController
+from ambdaq.sim.devices.faults import FaultyPort
+from ambdaq.sim.devices.rig_server import DeviceClock, RigServer
+from ambdaq.sim.serve import Pty
 from ambdaq.errors import DeviceError
 
 

@@ -13,16 +13,16 @@ import pytest
 
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq.reader import load
-from ambdaq.drivers.rig.base_motion import BASE_AXES
+from ambdaq.sim.rigs.base_motion import BASE_AXES
 from ambdaq.drivers.shaker import Shaker
-from ambdaq.drivers.simdev.serve import serve_serial
-from ambdaq.drivers.simdev.shaker import SHAKER_GAIN
+from ambdaq.sim.serve import serve
+from ambdaq.sim.devices.shaker import SHAKER_GAIN
 from ambdaq.errors import BadInputError, DeviceError
 
 
 @pytest.fixture
 def served():
-    s = serve_serial("base-motion")
+    s = serve("base-motion", can=False)
     yield s
     s.stop()
 
@@ -90,10 +90,13 @@ def test_campaign_drives_the_served_controller_and_shaker_in_another_process(tmp
     try:
         ports = dict(proc.stdout.readline().split() for _ in range(2))
         out = tmp_path / "camp"
-        r = subprocess.run(cmd + ["fx", "campaign", "--device", f"serial://{ports['controller']}",
-                                  "--shaker", f"serial://{ports['shaker']}", "--freqs", "10,60", "--amplitude", "2",
-                                  "--alphas", "1,0.5-0.5j", "--seconds", "1", "--settle", "0.3", "-o", str(out)],
-                           capture_output=True, text=True, timeout=60)
+        args = ["fx", "campaign", "--device", f"serial://{ports['controller']}", "--shaker", f"serial://{ports['shaker']}",
+                "--freqs", "10,60", "--amplitude", "2", "--alphas", "1,0.5-0.5j", "--seconds", "1", "--settle", "0.3",
+                "-o", str(out)]
+        # by URL, as on hardware: the shakers' gain is the engineer's to give, no device reports it
+        r = subprocess.run(cmd + args, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "--shaker-gain: give your shakers'" in r.stderr, r.stderr
+        r = subprocess.run(cmd + args + ["--shaker-gain", str(SHAKER_GAIN)], capture_output=True, text=True, timeout=60)
         assert r.returncode == 0, r.stderr
     finally:
         proc.terminate()
@@ -118,7 +121,9 @@ def test_campaign_bad_input_is_one_line(run_cli, tmp_path):
         (("fx", "campaign", "--device", "sim://spindle", "-o", tmp_path / "c"), 2, "has no moving base"),
         (("fx", "campaign", "--amplitude", "30", "--alphas", "1,2", "-o", tmp_path / "c"), 2, "the generator gives"),
         (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"serial://{tmp_path / 'gen'}",
-          "-o", tmp_path / "c"), 1, "cannot open the shaker generator"),
+          "-o", tmp_path / "c"), 2, "--shaker-gain: give your shakers'"),
+        (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"serial://{tmp_path / 'gen'}",
+          "--shaker-gain", "4.2", "-o", tmp_path / "c"), 1, "cannot open the shaker generator"),
     ]
     for args, code, needle in cases:
         r = run_cli(*args)

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GRAVITY = 9.81  # m/s^2, for every rig's rotor weight
 
 
 def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: float) -> np.ndarray:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .amb import GRAVITY
+from ..units import GRAVITY
 from .cone import MU0
 
 AXES = ("x", "y1", "y2", "z1", "z2")  # bearing coordinates

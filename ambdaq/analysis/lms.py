@@ -23,6 +23,8 @@ from typing import Callable
 import numpy as np
 from scipy.signal import cont2discrete, tf2ss
 
+from ..machines.spindle import ONE_AXIS_MASS, SPINDLE, BearingAxis
+
 
 @dataclass(frozen=True)
 class OneAxis:
@@ -30,21 +32,22 @@ class OneAxis:
     digital PID at h (eq. 3, parallel form, Tustin integral, filtered derivative).
 
     Parameters (SI): m kg, ki N/A, kx N/m, ks V/m, amplifier gain A/V, wn Hz, zeta, PID gains
-    V/V, 1/s, s, derivative filter Nd, sample period s.
+    V/V, 1/s, s, derivative filter Nd, sample period s.  Defaults: the spindle's front bearing
+    (:mod:`ambdaq.machines.spindle`); :func:`bearing_loop` builds any of its bearings.
     """
 
-    m: float = 1.5
-    ki: float = 273.0
-    kx: float = 1.77e6
-    ks: float = 1.0e4
-    amp_gain: float = 0.8
-    amp_wn_hz: float = 1800.0
-    amp_zeta: float = 1.7
-    p: float = 1.6
-    i: float = 1.0
-    d: float = 0.0015
-    nd: float = 15.0
-    h: float = 1e-4
+    m: float = ONE_AXIS_MASS
+    ki: float = SPINDLE.front.ki
+    kx: float = SPINDLE.front.kx
+    ks: float = SPINDLE.sensor_gain
+    amp_gain: float = SPINDLE.front.amp_gain
+    amp_wn_hz: float = SPINDLE.front.amp_wn_hz
+    amp_zeta: float = SPINDLE.front.amp_zeta
+    p: float = SPINDLE.front.pid_p
+    i: float = SPINDLE.front.pid_i
+    d: float = SPINDLE.front.pid_d
+    nd: float = SPINDLE.derivative_filter
+    h: float = 1.0 / SPINDLE.sample_rate
 
     def plant_z(self) -> tuple[np.ndarray, np.ndarray]:
         """ZOH-discretised amplifier + rotor + sensor, V in -> V out: (num, den) in powers of z."""
@@ -183,10 +186,13 @@ def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmon
     return _radius(M, -B, C, np.eye(len(axes)), mu, phi, g[axes])
 
 
-BEARINGS = {
-    "front": OneAxis(),
-    "rear": OneAxis(ki=182.0, kx=1.18e6, amp_wn_hz=2500.0, d=0.002),
-}
+def bearing_loop(axis: BearingAxis) -> OneAxis:
+    """Seed 000's one-axis loop of one of the spindle's bearing axes (m = 1.5 kg, eq. 1)."""
+    return OneAxis(ki=axis.ki, kx=axis.kx, amp_gain=axis.amp_gain, amp_wn_hz=axis.amp_wn_hz, amp_zeta=axis.amp_zeta,
+                   p=axis.pid_p, i=axis.pid_i, d=axis.pid_d)
+
+
+BEARINGS = {"front": bearing_loop(SPINDLE.front), "rear": bearing_loop(SPINDLE.rear)}
 """Seed 000's one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
 
 

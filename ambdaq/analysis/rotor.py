@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
 
 @dataclass(frozen=True)

@@ -8,20 +8,13 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.frf import COHERENT, coherent_band, h1_estimate
-from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
-from ..daq.mcapfile import McapFile
-from ..daq.reader import ambdaq_channels, load
-from ..drivers.devices import open_devices
-from ..drivers.rig.spindle import AXES, SPINDLE
-from ..errors import BadInputError, DeviceError
+from ..drivers.registry import Opened, open_url
+from ..errors import BadInputError
+from ..workflows.frf import COHERENT, estimate_responses, excite, summarize
+from .figures import plot_option, pyplot
 from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
-from .figures import plot_option, pyplot
-
-RPM_PER_RAD_S = 60.0 / (2 * np.pi)
-EXCITATION_PARAM = "exc.signal"  # [axis (-1 off), amplitude m, frequency Hz]; docs/protocol.md
 
 
 @click.group("frf")
@@ -45,88 +38,13 @@ def measure(device, excitation, duration, speed, out, quiet, as_json):
       ambdaq frf estimate frf_fx.mcap -o loop.frf.json
     """
     if excitation is None:
-        raise BadInputError("frf measure needs --excite AXIS:UM[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
-    sources = open_devices(device, speed=speed)
-    try:
-        i = next((i for i, s in enumerate(sources) if hasattr(s, "write_param")), None)
-        if i is None:
-            raise BadInputError(f"{device}: no AMB controller there to excite (frf measure needs its {EXCITATION_PARAM})")
-        try:
-            exc = excitation.resolve(AXES, True, SPINDLE.sample_rate)
-        except ValueError as err:
-            raise BadInputError(str(err)) from None
-        sources[i].write_param(EXCITATION_PARAM, [exc.axis, exc.amplitude, exc.freq_hz])
-        sources[i] = _Excited(sources[i])
-    except BaseException:
-        for s in sources:
-            s.close()
-        raise
-    run_recording(sources, out, duration=duration, quiet=quiet, as_json=as_json)
-
-
-class _Excited:
-    """A controller whose test signal is switched off when the recorder closes it, however the
-    recording ends (duration, Ctrl-C, a failure)."""
-
-    def __init__(self, controller) -> None:
-        self._controller = controller
-
-    def __getattr__(self, name):
-        return getattr(self._controller, name)
-
-    def close(self) -> None:
-        try:
-            self._controller.write_param(EXCITATION_PARAM, [-1.0, 0.0, 0.0])
-        except DeviceError as err:  # the recording is kept; say the signal may still be on
-            click.echo(f"ambdaq: warning: could not switch the excitation off: {err}", err=True)
-        finally:
-            self._controller.close()
-
-
-def _excited_axis(ff, path: Path, given: str | None) -> str:
-    """The input axis: ``given``, or the one axis whose feedforward input is not zero."""
-    if given:
-        if given not in ff.fields:
-            raise BadInputError(f"--input {given!r}: {path} has {', '.join(ff.fields)}")
-        return given
-    live = [a for a in ff.fields if np.any(ff[a] != 0.0)]
-    if len(live) != 1:
-        raise BadInputError(f"{path}: {len(live)} axes carry a feedforward input ({', '.join(live) or 'none'}); "
-                            "name the excited one with --input AXIS")
-    return live[0]
-
-
-def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str | None,
-                       input_topic: str = "/amb/ff", output_topic: str = "/amb/error") -> FrequencyResponse:
-    """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
-    freq, columns = None, {}
-    for path in paths:
-        spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))  # base-motion rigs have no rotor topic
-        rec = load(path, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
-        x_data, y_data = rec[input_topic], rec[output_topic]
-        n = min(len(x_data), len(y_data))
-        axis = _excited_axis(x_data, path, input_axis)
-        x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
-        if axis in columns:
-            raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")
-        outputs = list(y_data.fields)
-        try:
-            est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
-                              fs=rec[input_topic].nominal_rate, resolution_hz=resolution_hz)
-        except ValueError as err:
-            raise BadInputError(f"{path}: {err}") from None
-        if not np.all(np.isfinite(est.response)):
-            raise BadInputError(f"{path}: the input {axis} carries nothing at some frequencies (a sine, not noise?)")
-        if freq is not None and not np.array_equal(freq, est.freq_hz):
-            raise BadInputError(f"{path}: sample rate differs from the other recordings'")
-        freq = est.freq_hz
-        rpm = float(np.median(rec["/amb/rotor"]["speed"])) * RPM_PER_RAD_S if spinning else 0.0
-        columns[axis] = {
-            "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
-                       "segments": est.segments},
-            "outputs": {a: (est.response[:, i], est.coherence[:, i]) for i, a in enumerate(outputs)},
-        }
-    return FrequencyResponse(freq, columns, input_topic, output_topic, f"{y_unit}/{x_unit}")
+        raise BadInputError("frf measure needs --excite AXIS:AMPLITUDE[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
+    with Opened() as opened:
+        opened.add(open_url(device, speed=speed))
+        excited = excite(opened.sources, excitation)
+        run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
+    if excited.switch_off_problem:
+        click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
 
 
 @command.command("estimate")
@@ -154,17 +72,7 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
     """
     frf = estimate_responses([Path(f) for f in files], resolution, input_axis, input_topic, output_topic)
     frf.save(output, overwrite=overwrite)
-    summary = {}
-    for axis, col in frf.columns.items():
-        h, c = col["outputs"][axis]
-        band = coherent_band(frf.freq_hz, c)
-        inside = np.zeros(c.shape, dtype=bool) if band is None else (frf.freq_hz >= band[0]) & (frf.freq_hz <= band[1])
-        peak = int(np.argmax(np.where(inside, np.abs(h), -np.inf))) if band is not None else int(np.argmax(np.abs(h)))
-        summary[axis] = {"points": int(h.shape[0]), "coherent_band_hz": list(band) if band else None,
-                         "median_coherence_in_band": round(float(np.median(c[inside])), 4) if band else None,
-                         "median_coherence": round(float(np.median(c)), 4),
-                         "peak_gain": float(f"{np.abs(h[peak]):.4g}"), "peak_hz": float(frf.freq_hz[peak]),
-                         "source": col["source"]["path"]}
+    summary = summarize(frf)
     if plot_path:
         _bode(frf, plot_path)
         click.echo(f"-> {plot_path}", err=True)

@@ -3,34 +3,16 @@
 from __future__ import annotations
 
 import json
-import time
-from contextlib import ExitStack
 from pathlib import Path
 
 import click
 import numpy as np
 
-from ..analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
-from ..analysis.runout import harmonic_fit
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.frequency_response import FrequencyResponse
-from ..daq.reader import load
-from ..daq.sealed import read_sealed, write_sealed
-from ..drivers.devices import open_device
-from ..drivers.rig.base_motion import AXES, BASE_AXES, BASE_MOTION, PLANES, BaseExcitation, BaseMotionRig
-from ..drivers.shaker import Shaker, drive_problem
-from ..drivers.sim import sim_options
-from ..drivers.simdev.serve import serve_serial
-from ..drivers.simdev.shaker import SHAKER_GAIN
-from ..drivers.url import parse_device_url
-from ..errors import BadInputError, DeviceError
-from .options import Output
-from .record import run_recording
+from ..daq.compensator_points import PAIRS
+from ..errors import BadInputError
+from ..machines.base_motion import PLANES
+from ..workflows import fx
 from .figures import plot_option, pyplot
-
-CAMPAIGN = "campaign.json"
-POINTS_FORMAT, POINTS_VERSION = "ambdaq-fx-points", 1
-PAIRS = [(j, m) for j in range(2) for m in range(2)]  # (actuator, accelerometer)
 
 
 def _freqs(spec: str) -> list[float]:
@@ -63,8 +45,9 @@ def command() -> None:
 @click.option("--shaker", metavar="URL",
               help="The two-channel SCPI generator driving the base shakers (serial:///dev/ttyUSB1, "
                    "serial:socket://HOST:5025); default for sim://base-motion: its simulated one.")
-@click.option("--shaker-gain", type=click.FloatRange(min=0, min_open=True), default=SHAKER_GAIN, show_default=True,
-              help="Base acceleration per generator volt, m/s^2/V (the simulated shakers' by default).")
+@click.option("--shaker-gain", type=click.FloatRange(min=0, min_open=True),
+              help="Base acceleration per generator volt, m/s^2/V (required on hardware; a simulated rig reports "
+                   "its shakers').")
 @click.option("--freqs", default="5:100:5", show_default=True, help="FROM:TO:STEP or F1,F2,... Hz.")
 @click.option("--amplitude", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Peak base acceleration d2, m/s^2.")
@@ -85,72 +68,10 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
       ambdaq fx campaign --device serial:///dev/ttyUSB0 --shaker serial:socket://10.0.0.7:5025 \\
           --shaker-gain 4.2 --freqs 5:100:5 -o campaign/
     """
-    freq_list = _freqs(freqs)
-    ratios = [_alpha(a) for a in alphas.split(",")]
-    if len(ratios) != 2 or abs(ratios[0] - ratios[1]) < 1e-9:
-        raise BadInputError("--alphas: give two different ratios (seed 002 eq. A-17 needs both)")
-    for f in freq_list:
-        problem = (BaseExcitation("sine", amplitude, f, max(ratios, key=abs)).problem(BASE_MOTION.sample_rate)
-                   or drive_problem(amplitude, max(ratios, key=abs), shaker_gain))
-        if problem:
-            raise BadInputError(f"step {f:g} Hz: {problem}")
-    out = Path(output)
-    out.mkdir(parents=True, exist_ok=True)
-    with ExitStack() as stack:
-        controller, shaker = _campaign_devices(device, shaker, stack)
-        shakers = Shaker(shaker, gain=shaker_gain)
-        stack.callback(shakers.close)
-        stack.callback(_at_rest, shakers)
-        steps = []
-        for f in freq_list:
-            for a in ratios:
-                shakers.sine(f, amplitude, a)
-                time.sleep(settle)
-                name = f"step_{len(steps):03d}_{f:g}Hz.mcap"
-                run_recording([open_device(controller, name="controller")], Output(out / name, overwrite=True),
-                              duration=seconds, quiet=True, as_json=False)
-                steps.append({"file": name, "freq_hz": f, "alpha_commanded": [a.real, a.imag]})
-                click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {out / name}", err=True)
-        shakers.stop()
-        (out / CAMPAIGN).write_text(json.dumps({"device": device, "shaker": shakers.identity,
-                                                "shaker_gain_m_s2_per_v": shaker_gain,
-                                                "amplitude_m_s2": amplitude, "steps": steps}, indent=2))
-    click.echo(f"{len(steps)} steps -> {out / CAMPAIGN}")
-
-
-def _at_rest(shakers: Shaker) -> None:
-    """Stop the shakers however the campaign ended; a failure here must not hide the one that ended it."""
-    try:
-        shakers.stop()
-    except DeviceError:
-        pass
-
-
-def _campaign_devices(device: str, shaker: str | None, stack: ExitStack) -> tuple[str, str]:
-    """The controller's and the shaker generator's URLs; ``sim://base-motion`` is served in this
-    process (stopped when ``stack`` closes) and reached over its pseudo-terminals, as hardware is."""
-    url = parse_device_url(device)
-    if url.scheme != "sim":
-        if shaker is None:
-            raise BadInputError("--shaker URL: give the generator that drives the base shakers "
-                                "(serial:///dev/ttyUSB1, serial:socket://HOST:5025)")
-        return device, shaker
-    options = sim_options(url)
-    if url.target != "base-motion":
-        raise BadInputError(f"{device}: the {url.target} rig has no moving base (use sim://base-motion)")
-    served = serve_serial("base-motion", seed=options["seed"])
-    stack.callback(served.stop)
-    return f"serial://{served.ptys['controller'].path}", shaker or f"serial://{served.ptys['shaker'].path}"
-
-
-def _path_at(frf: FrequencyResponse, plane: int, f_hz: float) -> np.ndarray:
-    """The secondary path B (2 x 2, m/V) of ``plane`` at ``f_hz``, interpolated on the measured points."""
-    out = np.empty((2, 2), dtype=complex)
-    for i in range(2):
-        for j in range(2):
-            h, _ = frf.response(AXES[2 * plane + i], AXES[2 * plane + j])
-            out[i, j] = np.interp(f_hz, frf.freq_hz, h.real) + 1j * np.interp(f_hz, frf.freq_hz, h.imag)
-    return out
+    out = fx.campaign(device, shaker, shaker_gain, _freqs(freqs), amplitude, [_alpha(a) for a in alphas.split(",")],
+                      seconds, settle, Path(output),
+                      on_step=lambda f, a, path: click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {path}", err=True))
+    click.echo(f"{len(json.loads(out.read_text())['steps'])} steps -> {out}")
 
 
 @command.command("estimate")
@@ -169,71 +90,12 @@ def estimate(folder, path_file, mu, output, overwrite):
     Example:
       ambdaq fx estimate campaign/ --path secondary.frf.json -o points.json
     """
-    folder = Path(folder)
-    try:
-        plan = json.loads((folder / CAMPAIGN).read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise BadInputError(f"{folder}: no readable {CAMPAIGN} ({err})") from None
-    frf = FrequencyResponse.load(path_file)
-    by_freq: dict[float, list] = {}
-    try:
-        for step in plan["steps"]:
-            by_freq.setdefault(float(step["freq_hz"]), []).append(step)
-    except (KeyError, TypeError, ValueError) as err:
-        raise BadInputError(f"{folder / CAMPAIGN}: malformed campaign ({err})") from None
-    freqs, W, residual = [], [], []
-    for f, steps in sorted(by_freq.items()):
-        if len(steps) != 2:
-            raise BadInputError(f"{folder}: {f:g} Hz has {len(steps)} steps; eq. A-17 needs two alphas")
-        runs = []
-        for step in steps:
-            rec = load(folder / step["file"], topics=["/amb/gap", "/base/accel"])
-            gap, acc = rec["/amb/gap"], rec["/base/accel"]
-            n = min(len(gap), len(acc))
-            fs = rec["/amb/gap"].nominal_rate
-            theta = 2 * np.pi * f * np.arange(n) / fs
-            per_plane = []
-            for p in range(2):
-                y = np.stack([gap[AXES[2 * p + i]][:n] for i in range(2)], axis=1)
-                d = np.stack([acc[BASE_AXES[2 * p + m]][:n] for m in range(2)], axis=1)
-                ph = harmonic_fit(d, theta, (1,))[0]  # the ratio the base really had (eq. A-10)
-                alpha = complex(ph[0] / ph[1])
-                res = mfxlms(y, d, _path_at(frf, p, f), f, fs, mu=mu, eta=mu)
-                tail = res.error[-n // 4:]
-                per_plane.append((run_beta(res, alpha), alpha, float(np.sqrt(np.mean(tail**2)) / np.sqrt(np.mean(y**2)))))
-            runs.append(per_plane)
-        freqs.append(f)
-        W.append([separate(runs[0][p][0], runs[0][p][1], runs[1][p][0], runs[1][p][1]) for p in range(2)])
-        residual.append([max(runs[0][p][2], runs[1][p][2]) for p in range(2)])
-        click.echo(f"{f:>7g} Hz  " + "  ".join(f"{PLANES[p]}: residual {20 * np.log10(residual[-1][p]):6.1f} dB"
+    def say(f: float, residual: list[float]) -> None:
+        click.echo(f"{f:>7g} Hz  " + "  ".join(f"{PLANES[p]}: residual {20 * np.log10(residual[p]):6.1f} dB"
                                               for p in range(2)), err=True)
-    W = np.array(W)  # (freq, plane, j, m)
-    doc = {"format": POINTS_FORMAT, "version": POINTS_VERSION, "unit": "V/(m/s^2)", "freq_hz": freqs,
-           "planes": {PLANES[p]: {f"W{j + 1}{m + 1}": {"re": W[:, p, j, m].real.tolist(),
-                                                       "im": W[:, p, j, m].imag.tolist()} for j, m in PAIRS}
-                      for p in range(2)},
-           "residual": [[float(r) for r in row] for row in residual],
-           "source": {"campaign": str(folder), "path": str(path_file), "path_sha256": file_sha256(path_file),
-                      "mu": mu, "created": now_iso()}}
-    out = write_sealed(output, doc, overwrite=overwrite, indent=1)
-    click.echo(f"{len(freqs)} frequencies x 2 planes -> {out}")
 
-
-def load_points(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """A points file -> (freq_hz (n,), W (n, plane, j, m) complex); checked like every ambdaq file."""
-    doc = read_sealed(path, POINTS_FORMAT, POINTS_VERSION, "compensator points file")
-    try:
-        f = np.array(doc["freq_hz"], dtype=float)
-        W = np.empty((f.shape[0], 2, 2, 2), dtype=complex)
-        for p, plane in enumerate(PLANES):
-            for j, m in PAIRS:
-                v = doc["planes"][plane][f"W{j + 1}{m + 1}"]
-                W[:, p, j, m] = np.array(v["re"], dtype=float) + 1j * np.array(v["im"], dtype=float)
-    except (KeyError, TypeError, ValueError) as err:
-        raise BadInputError(f"{path}: malformed points file ({err})") from None
-    if not np.all(np.isfinite(W)):
-        raise BadInputError(f"{path}: a compensator point is not a finite number")
-    return f, W
+    out, n = fx.estimate(Path(folder), path_file, mu, output, overwrite=overwrite, on_frequency=say)
+    click.echo(f"{n} frequencies x 2 planes -> {out}")
 
 
 @command.command("fit")
@@ -253,35 +115,12 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
     Example:
       ambdaq fx fit points.json -o fir.json --plot fir.png --exact
     """
-    freqs, W = load_points(points)
-    fs = BASE_MOTION.sample_rate
+    result = fx.fit(points, max_order, order, exact=exact)
+    result.coefficients.save(output, overwrite=overwrite)
+    report, freqs, costs, chosen = result.report, result.freqs, result.costs, result.report["order"]
     orders = np.arange(0, max_order + 1)
-    costs = np.array([[[sum(fit_fir(freqs, W[:, p, j, m], o, fs)[1] for p in range(2)) for o in orders]
-                       for m in range(2)] for j in range(2)])  # (j, m, order), both planes together
-    chosen = order if order is not None else max(knee(orders, costs[j, m], 2 * len(freqs)) for j, m in PAIRS)
-    taps = np.zeros((2, 2, 2, chosen + 1))
-    for p in range(2):
-        for j, m in PAIRS:
-            taps[p, j, m] = fit_fir(freqs, W[:, p, j, m], chosen, fs)[0]
-    E = np.exp(-2j * np.pi * np.outer(freqs / fs, np.arange(chosen + 1)))
-    fitted = np.einsum("ft,pjmt->fpjm", E, taps)
-    report = {"order": chosen, "taps": chosen + 1,
-              "cost_per_order": {f"W{j + 1}{m + 1}": [float(c) for c in costs[j, m]] for j, m in PAIRS},
-              "fit_error_pct": (100 * np.abs(fitted / W - 1)).max(axis=(1, 2, 3)).round(3).tolist()}
-    if exact:
-        _, _, Wstar = BaseMotionRig().responses(freqs)
-        report["error_vs_exact_pct"] = (100 * np.abs(fitted / Wstar[:, None] - 1)).max(axis=(1, 2, 3)).round(3).tolist()
-        report["points_vs_exact_pct"] = (100 * np.abs(W / Wstar[:, None] - 1)).max(axis=(1, 2, 3)).round(3).tolist()
-    coef = Coefficients(
-        target={"rig": "base-motion", "axes": list(AXES)},
-        source={"points": str(points), "points_sha256": file_sha256(points), "created": now_iso(), "fit": "eq. 19"},
-        harmonics=[], weights={},
-        fir={"sample_rate_hz": fs, "unit": "V/(m/s^2)", "outputs": list(AXES), "inputs": list(BASE_AXES),
-             "planes": {PLANES[p]: taps[p].tolist() for p in range(2)}},
-    )
-    coef.save(output, overwrite=overwrite)
     if plot_path:
-        _bode(freqs, W, fitted, fs, taps, plot_path)
+        _bode(freqs, result.points, result.fitted, result.sample_rate, result.taps, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))

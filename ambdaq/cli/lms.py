@@ -10,14 +10,13 @@ import numpy as np
 
 from ..analysis.lms import (PhaseTable, StateSpaceLoop, converges, convergence_radius, measured_phase_compensation, mu_sign,
                             phase_compensation, sign_changes, sign_schedule)
-from ..control.plants import PLANT_NAMES, resolve_plant
+from ..workflows.plants import PLANT_NAMES, resolve_plant
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
-from ..drivers.rig.spindle import N_AXES, PHASE_BIN_HZ, PHASE_BINS
+from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
 
-AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
                             help=f"Loop to design on: {', '.join(PLANT_NAMES)} (docs/lms.md).")
 
@@ -203,7 +202,7 @@ def runup_command(files, seconds, speeds, as_json):
       ambdaq lms schedule --plant rig --compensated -o comp.json
       ambdaq lms runup sign.json comp.json
     """
-    from ..control.runup import controller_image, run_up, time_to_converge
+    from ..workflows.runup import controller_image, run_up, time_to_converge
 
     rpms = [float(s) for s in speeds.split(",")]
     images = {Path(f).name: controller_image(Coefficients.load(f), f) for f in files}

@@ -83,14 +83,14 @@ def window_options(f):
     return f
 
 
-class ExcitationSpec(click.ParamType):
+class ExcitationArg(click.ParamType):
     """``AXIS:AMPLITUDE[:FREQ_HZ]``: white noise of that RMS, or a sine of that peak and frequency.
     The amplitude is in the unit of the rig's feedforward: um (spindle), V (base-motion)."""
 
     name = "AXIS:AMP[:HZ]"
 
     def convert(self, value, param, ctx):
-        from ..drivers.rig.excitation import ExcitationRequest
+        from ..drivers.excitation import ExcitationRequest
 
         if isinstance(value, ExcitationRequest):
             return value
@@ -106,7 +106,8 @@ class ExcitationSpec(click.ParamType):
 
 def excitation_option(f):
     return click.option(
-        "--excite", "excitation", type=ExcitationSpec(),
+        "--excite", "excitation", type=ExcitationArg(),
         help="Test signal added to one axis's feedforward (frequency-response measurement): AXIS:AMP for "
-             "white noise of that RMS, AXIS:AMP:HZ for a sine of that peak; AMP in um (spindle) or V (base-motion).",
+             "white noise of that RMS, AXIS:AMP:HZ for a sine of that peak; AMP in um where the controller's input "
+             "is a displacement (spindle), else in its unit (V: base-motion).",
     )(f)

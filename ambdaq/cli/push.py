@@ -7,10 +7,10 @@ from pathlib import Path
 
 import click
 
-from ..control.push import describe_difference, plan_push, push, resolve_key
+from ..workflows.push import describe_difference, plan_push, push, resolve_key
 from ..daq.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
-from ..drivers.devices import open_controller
+from ..drivers.registry import open_controller
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
 

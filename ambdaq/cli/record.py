@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
-from ..drivers.devices import open_devices
+from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
 from .options import Output, output_options, report_options, speed_option
@@ -73,17 +73,11 @@ def command(devices, rig_path, duration, speed, truth, reconnect, out, quiet, as
     if not devices and not rig_path:
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
     rig = load_rig(rig_path) if rig_path else None
-    sources = []
-    try:
+    with Opened() as opened:  # however the recording ends, every device and simulated rig is closed
         for i, url in enumerate(devices):
-            sources += open_devices(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed,
-                                    truth=truth or None)
+            opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None))
         for d in rig.devices if rig is not None else ():
-            sources += open_devices(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
-                                    calibration=d.calibration)
-    except BaseException:
-        for s in sources:
-            s.close()
-        raise
-    run_recording(sources, out, duration=duration, quiet=quiet, as_json=as_json,
-                  rig_file=rig.path if rig else None, reconnect=reconnect)
+            opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
+                                calibration=d.calibration))
+        run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json,
+                      rig_file=rig.path if rig else None, reconnect=reconnect)

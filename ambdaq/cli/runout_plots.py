@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..analysis.rotor import AXES
+from ..machines.spindle import AXES
+from ..units import RAD_S_TO_RPM
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import Recording
 from .figures import pyplot
@@ -79,7 +80,7 @@ def identify_report(ident, path: str) -> None:
     gap, rot = ident.first["/amb/gap"], ident.first["/amb/rotor"]
     n = min(len(gap), len(rot))
     theta, spin = rot["angle"][:n], float(ident.spins[0])
-    rpm = spin * 60 / (2 * np.pi)
+    rpm = spin * RAD_S_TO_RPM
     radial = [a for a in AXES if a in COLOURS]
 
     fig = plt.figure(figsize=(max(12.0, 2.6 * len(harmonics)), 12.5), constrained_layout=True)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..analysis.selfsense import angle_error, estimate_angle, lyapunov_bound
 from ..daq import load
+from ..units import RAD_S_TO_RPM
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
 
@@ -54,7 +55,7 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
     else:
         converged_s = None  # still off at the end
     steady = t >= max(settle_s, converged_s if converged_s is not None else settle_s)
-    speed = np.gradient(np.unwrap(true), t) * 60 / (2 * np.pi)
+    speed = np.gradient(np.unwrap(true), t) * RAD_S_TO_RPM
     out = {"file": str(path), "samples": int(t.size), "initial_error_deg": initial_error_deg,
            "converged_s": converged_s, "model": model,
            "speed_rpm": {"start": round(float(np.mean(speed[: max(1, int(0.05 * rate))])), 1),

@@ -7,13 +7,15 @@ import threading
 
 import click
 
-from ..drivers.devices import open_device
 from ..daq.coefficients import Coefficients, fir_array
-from ..drivers.rig.base_motion import PLANES, BaseExcitation
-from ..drivers.rig.cone import Impact
+from ..machines.base_motion import PLANES
+from ..sim.rigs.base_motion import BaseExcitation
+from ..sim.rigs.cone import Impact
 from ..errors import BadInputError
-from ..drivers.rig.profiles import PROFILES
-from ..drivers.simdev.banks import DEFAULT_UNLOCK_KEY
+from ..sim.profiles import PROFILES
+from ..sim.source import SimSource
+from ..speed import SpeedProfile
+from ..sim.devices.banks import DEFAULT_UNLOCK_KEY
 from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
 
@@ -55,11 +57,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --profile base-motion --duration 10 --base noise:5-100:1 -o base.mcap
       ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
     """
-    url = f"sim://{profile}?seed={seed}&ff={ff}&noise={int(noise)}"
-    source = open_device(url, speed=speed or "0", truth=truth, paced=False)
+    source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
     try:
         if excitation is not None:
-            source.rig.set_excitation(source.rig.excitation_for(excitation))
+            if not hasattr(source.rig, "excitation_spec"):
+                raise BadInputError(f"--excite: the {profile} rig has no test-signal input")
+            source.rig.set_excitation(excitation.resolve(source.rig.excitation_spec()))
         if base is not None:
             motion = _base_motion(profile, base)  # refused before the rig is asked
             source.rig.set_base_motion(motion)
@@ -102,12 +105,12 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base,
       ambdaq sim serve --rpm 30000 &
       ambdaq record --device serial:///dev/pts/N --duration 10 -o run.mcap
     """
-    from ..drivers.simdev.rig_server import DeviceClock
-    from ..drivers.simdev.serve import serve_serial
+    from ..sim.devices.rig_server import DeviceClock
+    from ..sim.serve import CONTROLLER_CLOCK, serve
 
     motion = None if base is None else _base_motion(profile, base)
-    served = serve_serial(profile, seed=seed, speed=speed or "0", truth=truth, unlock_key=unlock_key,
-                          clock=DeviceClock(offset_ns=5_000_000_000, drift_ppm=drift_ppm), base_motion=motion)
+    served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
+                   clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion, can=False)
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")
     stop = threading.Event()

@@ -20,12 +20,13 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
 from .. import __version__
-from ..drivers.signals import Event, SampleBlock, SignalGroup
+from ..drivers.interfaces import Source
+from ..drivers.signals import Event, SampleBlock
 from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
 from .mcapfile import CHUNK_SIZE
@@ -35,25 +36,6 @@ from .writer import RecordingWriter
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
 STOP_WAIT_S = 0.5  # after a stop, how long the devices' last blocks are waited for
-
-
-class Source(Protocol):
-    """What the recorder needs of a device (see :class:`ambdaq.drivers.sim.SimSource`)."""
-
-    name: str
-    sample_rate: float
-
-    def signal_groups(self) -> list[SignalGroup]: ...
-    def identity(self) -> dict[str, str]: ...
-    def calibration(self) -> dict[str, str]: ...
-    def start(self, n_samples: int | None) -> None: ...
-    def read(self) -> SampleBlock | None: ...
-    def close(self) -> None: ...
-
-    # optional, used when present: ``events() -> list[Event]`` (faults, bus events),
-    # ``link_statistics() -> dict[str, str]`` (frames, CRC errors ...) and
-    # ``clock_pairs() -> list[(device_ns, host_ns)]`` (sync messages stamped as they left the
-    # device: better clock pairs than block arrival times)
 
 
 @dataclass(frozen=True)
@@ -182,7 +164,7 @@ class _Reader(threading.Thread):
                 try:
                     block = self.source.read()
                 except DeviceError as err:
-                    if self.reconnect and hasattr(self.source, "reconnect") and self._reopen(err):
+                    if self.reconnect and self.source.can_reconnect and self._reopen(err):
                         continue
                     raise
                 if block is None:
@@ -335,9 +317,9 @@ class Recorder:
         if alignment is not None:
             w.add_metadata("ambdaq.alignment", {"estimated_worst_us": f"{alignment:.1f}"})
         for s in self.sources:
-            stats = getattr(s, "link_statistics", None)
-            if stats is not None:
-                w.add_metadata(f"ambdaq.link.{s.name}", stats())
+            stats = s.link_statistics()
+            if stats:
+                w.add_metadata(f"ambdaq.link.{s.name}", stats)
         for name, counts in w.counts.items():
             self._totals[name].add(counts)
         w.close()
@@ -368,7 +350,6 @@ class Recorder:
         self._totals = {name: SampleCounts(name) for name in self._names}
         self._trackers = {name: SequenceTracker() for name in self._names}
         self._last_time: dict[str, int | None] = {name: None for name in self._names}
-        self._last_device_ns: dict[str, int] = {}
         self._ended: set[str] = set()
         self._clocks: dict[str, ClockMap] = {}
         self._priming: dict[str, list[SampleBlock]] = {}
@@ -529,12 +510,12 @@ class Recorder:
             self._write(device, SampleBlock(block.device_time_ns, block.seq, block.values, host, status=block.status))
             return
         cm = self._clocks.setdefault(device, ClockMap())
-        pairs = getattr(source, "clock_pairs", None)
-        for d, h in pairs() if pairs is not None else [(int(block.device_time_ns[-1]), block.received_ns)]:
+        pairs = source.clock_pairs()
+        for d, h in pairs if pairs is not None else [(int(block.device_time_ns[-1]), block.received_ns)]:
             cm.update(d, h)
-        latency = getattr(source, "clock_latency_ns", None)
-        if latency is not None and latency() is not None:
-            cm.latency_ns = latency()
+        latency = source.clock_latency_ns()
+        if latency is not None:
+            cm.latency_ns = latency
         self._priming.setdefault(device, []).append(block)
         if cm.settled:
             self._flush_priming(device)
@@ -544,12 +525,11 @@ class Recorder:
         for b in self._priming.pop(device, []):
             host = cm.to_host(b.device_time_ns)
             last = self._last_time[device]
-            if last is not None and b.device_time_ns.shape[0]:
-                # a refit never moves a device's time back: it is slewed in, as NTP slews a clock,
-                # so that its samples stay in order (at least half a device period apart)
-                floor = last + max(1, (int(b.device_time_ns[0]) - self._last_device_ns[device]) // 2)
-                if host[0] < floor:
-                    host = host + (floor - host[0])
+            if last is not None:
+                # a refit that moves the device's time back would put the block's first samples at
+                # or before the last one written: those (and only those) go just after it, 1 ns
+                # apart, so time never runs back and every other sample keeps its best estimate
+                host = np.maximum(host, last + 1 + np.arange(host.shape[0], dtype=np.int64))
             self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, host, b.received_ns, b.status))
 
     # --- writing ---------------------------------------------------------------------------------
@@ -580,14 +560,10 @@ class Recorder:
         kept = np.flatnonzero(verdict.keep)
         if kept.size:
             self._last_time[device] = int(t[kept[-1]])
-            self._last_device_ns[device] = int(block.device_time_ns[kept[-1]])
         self._close_finished_parts()
 
-    def _write_events(self, source) -> None:
-        events = getattr(source, "events", None)
-        if events is None:
-            return
-        for ev in events():
+    def _write_events(self, source: Source) -> None:
+        for ev in source.events():
             cm = self._clocks.get(source.name)
             if ev.device_time_ns and cm is not None and cm.ready:
                 t = int(cm.to_host(np.array([ev.device_time_ns]))[0])

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import BadInputError
-from .url import parse_device_url
+from .registry import parse_device_url
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import math
 import serial
 
 from ..errors import BadInputError, DeviceError
-from .url import parse_device_url
+from .registry import parse_device_url
 
 MAX_VPP = 10.0  # the generator's output range into its shaker amplifier, V peak to peak
 MAX_ERRORS = 32  # longer than any generator's error queue

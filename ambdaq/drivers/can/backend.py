@@ -1,0 +1,56 @@
+"""``can://`` URLs: a CANopen device or the controller's configuration port on any python-can
+interface and channel."""
+
+from __future__ import annotations
+
+from ...errors import BadInputError
+from ..interfaces import BankPort
+from ..registry import Backend, Opened, OpenRequest
+from ..url import DeviceURL, Scheme
+
+
+class CanBackend(Backend):
+    """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
+
+    scheme = Scheme("can", "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller"
+                           "&sync=HZ&bitrate=1000000&namespace=NAME] (any python-can interface, e.g. "
+                           "can://virtual/amb0?node=16)", ("node", "kind", "sync", "bitrate", "namespace"))
+
+    def _on_hub(self, url: DeviceURL, node: int, make):
+        """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
+        from .bus import CanHub
+
+        interface, _, channel = url.target.partition("/")
+        if not channel:
+            raise BadInputError(f"device URL {url.text!r} names no channel: expected {self.scheme.form}")
+        hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000))
+        try:
+            return make(hub, node)
+        except BaseException:
+            hub.release()
+            raise
+
+    def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        from .device import CanopenDevice
+        from .profiles import PROFILES
+
+        kind = url.options.get("kind")
+        if kind is not None and kind not in PROFILES:
+            raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
+        if "node" not in url.options and kind is None:
+            raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {self.scheme.form}")
+        node = url.integer("node", PROFILES[kind].default_node if kind else 0)
+        dev = self._on_hub(url, node, lambda hub, n: CanopenDevice(
+            hub, n, kind=kind, sync_hz=url.number("sync", 800.0), name=request.name,
+            namespace=url.options.get("namespace", ""), url=url.text))
+        dev.add_calibration(request.calibration)
+        return Opened([dev])
+
+    def controller(self, url: DeviceURL) -> BankPort:
+        from .controller import CanopenController
+        from .profiles import CONTROLLER
+
+        if url.options.get("kind", "controller") != "controller":
+            raise BadInputError(f"{url.text}: a push goes to the controller (kind=controller), not a {url.options['kind']}")
+        return self._on_hub(url, url.integer("node", CONTROLLER.default_node),
+                            lambda hub, n: CanopenController(hub, n, url=url.text))

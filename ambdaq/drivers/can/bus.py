@@ -1,0 +1,254 @@
+"""One CAN bus shared by the drivers of a rig: python-can bus, canopen network, SYNC, bus health.
+
+Devices on the same interface and channel share a :class:`CanHub` (reference-counted).  The hub
+produces SYNC (CiA 301, COB-ID 0x80) at the stream's rate, timestamps every SYNC cycle from the
+bus (the host's own SYNC, received back), checks the bus load of the requested stream, and
+watches error frames and the bus state (error-active, error-passive, bus-off).
+
+One receive thread reads the bus: process data (TPDOs, SYNC) goes straight to the handler
+registered for its COB-ID, everything else (SDO, EMCY, NMT, heartbeat) to the canopen network's
+subscribers.  At full bus load that keeps the per-frame cost below python-can's own logger.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from typing import Callable, NamedTuple
+
+import can
+import canopen
+
+from ...errors import BadInputError, DeviceError
+from .profiles import SYNC_COUNTER_MAX
+from ..signals import Event
+
+SYNC_COB_ID = 0x80
+MAX_LOAD = 0.80
+BUS_TOPIC = "/can/bus"
+RX_POLL_S = 0.001  # sleep when the bus is drained
+
+
+def frame_bits(data_bytes: int) -> int:
+    """Worst-case length of a classic CAN data frame with an 11-bit identifier, in bits.
+
+    47 bits of framing plus the data, plus the most stuff bits the stuffed part can carry
+    (one per four bits after the first: Davis et al., "CAN schedulability analysis", 2007).
+    """
+    return 47 + 8 * data_bytes + (34 + 8 * data_bytes - 1) // 4
+
+
+def bus_load(frames_per_cycle: list[int], rate_hz: float, bitrate: int) -> float:
+    """Fraction of ``bitrate`` (bit/s) used by frames of ``frames_per_cycle`` data bytes each,
+    sent ``rate_hz`` times a second."""
+    return sum(frame_bits(n) for n in frames_per_cycle) * rate_hz / bitrate
+
+
+class SyncCycle(NamedTuple):
+    """A SYNC: its count since the stream started, its counter byte (1..240), its bus time (ns)."""
+
+    count: int = -1
+    counter: int = 0
+    time_ns: int = 0
+
+
+class CanHub:
+    """A shared CAN bus (see the module docstring); get one with :meth:`acquire`."""
+
+    _hubs: dict[tuple[str, str], "CanHub"] = {}
+    _hubs_lock = threading.Lock()
+
+    def __init__(self, interface: str, channel: str, bitrate: int) -> None:
+        self.interface, self.channel, self.bitrate = interface, channel, bitrate
+        try:
+            bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, receive_own_messages=True)
+        except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
+            raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
+        self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
+        self._fast: dict[int, Callable[[bytearray, float], None]] = {}
+        self.error_frames = 0
+        self.events: "queue.SimpleQueue[Event]" = queue.SimpleQueue()  # drained by whichever device asks
+        self._refs = 0
+        self.cycle = SyncCycle()
+        self.by_counter: dict[int, SyncCycle] = {}  # the last SYNC_COUNTER_MAX cycles, by counter
+        self._sync_listeners: list[Callable[[SyncCycle], None]] = []
+        self._streams: dict[str, list[int]] = {}
+        self.sync_hz: float | None = None
+        self.load_limit = MAX_LOAD
+        self._sync_thread: threading.Thread | None = None
+        self._sync_stop = threading.Event()
+        self.failure: str | None = None
+        self._state = getattr(bus, "state", can.BusState.ACTIVE)
+        self._fast[SYNC_COB_ID] = self._on_sync
+        self._rx = threading.Thread(target=self._receive, name=f"can-rx-{channel}", daemon=True)
+        self._rx.start()
+        self._watch = threading.Thread(target=self._watch_state, name=f"can-state-{channel}", daemon=True)
+        self._watch.start()
+
+    @classmethod
+    def acquire(cls, interface: str, channel: str, bitrate: int) -> "CanHub":
+        with cls._hubs_lock:
+            hub = cls._hubs.get((interface, channel))
+            if hub is None:
+                hub = cls._hubs[(interface, channel)] = cls(interface, channel, bitrate)
+            elif hub.bitrate != bitrate:
+                raise BadInputError(f"CAN {interface}/{channel} is open at {hub.bitrate} bit/s, not {bitrate}")
+            hub._refs += 1
+            return hub
+
+    def release(self) -> None:
+        with self._hubs_lock:
+            self._refs -= 1
+            if self._refs > 0:
+                return
+            self._hubs.pop((self.interface, self.channel), None)
+        self.stop_sync()
+        self._sync_stop.set()
+        self._rx.join(timeout=1.0)
+        try:
+            self.network.disconnect()
+        except (can.CanError, OSError, ValueError):
+            pass
+
+    # --- streams and SYNC ---------------------------------------------------------------------------
+
+    def register_stream(self, name: str, tpdo_bytes: list[int], sync_hz: float) -> None:
+        """Declare a device's TPDOs (data bytes each) sent on every SYNC at ``sync_hz`` (Hz)."""
+        if self.sync_hz is not None and abs(self.sync_hz - sync_hz) > 1e-9:
+            raise BadInputError(f"devices on CAN {self.channel} ask for SYNC at {self.sync_hz:g} and {sync_hz:g} Hz")
+        self.sync_hz = sync_hz
+        self._streams[name] = list(tpdo_bytes)
+
+    def check_load(self) -> float:
+        """The bus load of every registered stream plus SYNC; refuses (BadInputError) above
+        ``load_limit`` (80 %: room for SDO, EMCY and heartbeats)."""
+        limit = self.load_limit
+        frames = [1] + [n for sizes in self._streams.values() for n in sizes]  # SYNC: its counter byte
+        load = bus_load(frames, self.sync_hz or 0.0, self.bitrate)
+        if load > limit:
+            per_cycle = sum(frame_bits(n) for n in frames)
+            fits = limit * self.bitrate / per_cycle
+            raise BadInputError(
+                f"CAN stream needs {load:.0%} of {self.bitrate:,} bit/s ({len(frames)} frames per SYNC at "
+                f"{self.sync_hz:g} Hz, {load * self.bitrate / per_cycle * len(frames):,.0f} frames/s); the limit is "
+                f"{limit:.0%}: use sync={int(fits)} or lower, or fewer devices/channels"
+            )
+        return load
+
+    @property
+    def receive_thread_id(self) -> int | None:
+        """Native id of the bus receive thread (for CPU accounting)."""
+        return self._rx.native_id
+
+    def on_frame(self, cob_id: int, handler: Callable[[bytearray, float], None]) -> None:
+        """Route frames of ``cob_id`` (process data) straight to ``handler(data, timestamp)``."""
+        self._fast[cob_id] = handler
+
+    def _receive(self) -> None:
+        """Drain the bus, then sleep RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
+        than one per frame.  Sample times come from the frames' bus timestamps, not from when we
+        read them, so the short wait costs nothing in timing."""
+        bus, fast, notify = self.network.bus, self._fast, self.network.notify
+        while not self._sync_stop.is_set():
+            try:
+                msg = bus.recv(0)
+            except (can.CanError, OSError, ValueError) as err:
+                if not self._sync_stop.is_set():
+                    self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
+                return
+            if msg is None:
+                time.sleep(RX_POLL_S)
+                continue
+            if msg.is_error_frame:
+                self.error_frames += 1
+                self.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
+                                      f"CAN {self.channel} error frame, data {bytes(msg.data).hex()}", BUS_TOPIC))
+                continue
+            handler = fast.get(msg.arbitration_id)
+            if handler is not None:
+                handler(msg.data, msg.timestamp)
+            elif not msg.is_remote_frame:
+                notify(msg.arbitration_id, msg.data, msg.timestamp)
+
+    def add_sync_listener(self, cb: Callable[[SyncCycle], None]) -> None:
+        self._sync_listeners.append(cb)
+
+    def remove_sync_listener(self, cb: Callable[[SyncCycle], None]) -> None:
+        if cb in self._sync_listeners:
+            self._sync_listeners.remove(cb)
+
+    def start_sync(self) -> None:
+        """Start producing SYNC at the registered rate (once per bus)."""
+        if self._sync_thread is not None:
+            return
+        period = 1.0 / self.sync_hz
+        self._sync_stop.clear()
+
+        def run() -> None:
+            nxt = time.monotonic()
+            counter = 0
+            while not self._sync_stop.is_set():
+                nxt += period
+                counter = counter % SYNC_COUNTER_MAX + 1  # CiA 301: 1 .. 0x1019
+                msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False, data=bytes([counter]))
+                try:
+                    self.network.bus.send(msg)
+                except can.CanError as err:
+                    self.failure = f"CAN {self.channel}: SYNC could not be sent: {err}"
+                    return
+                delay = nxt - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                elif delay < -0.1:  # far behind (machine stalled): skip rather than burst
+                    nxt = time.monotonic()
+
+        self._sync_thread = threading.Thread(target=run, name=f"can-sync-{self.channel}", daemon=True)
+        self._sync_thread.start()
+
+    def stop_sync(self) -> None:
+        self._sync_stop.set()
+        if self._sync_thread is not None:
+            self._sync_thread.join(timeout=1.0)
+            self._sync_thread = None
+
+    def cycle_of(self, counter: int) -> SyncCycle | None:
+        """The SYNC that a reply echoing ``counter`` answers: the newest SYNC with that counter, or
+        ``None`` if the reply is ahead of the newest SYNC seen (its counter is the next one).
+
+        That happens on python-can's virtual bus, which hands a SYNC to each listener in turn: the
+        device's node can get it and answer before our own copy reaches this thread.  The caller
+        keeps such a reply until the SYNC arrives (:meth:`add_sync_listener`); without that it
+        would be matched to the SYNC 240 cycles older, a duplicate row with an old time.
+        """
+        latest = self.cycle
+        if latest.count < 0 or (counter - latest.counter) % SYNC_COUNTER_MAX == 1:
+            return None
+        return self.by_counter.get(counter)
+
+    def _on_sync(self, data: bytearray, timestamp: float) -> None:
+        counter = data[0] if data else 0
+        self.cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))
+        self.by_counter[counter] = self.cycle
+        for cb in list(self._sync_listeners):
+            cb(self.cycle)
+
+    # --- health ------------------------------------------------------------------------------------
+
+    def _watch_state(self) -> None:
+        names = {can.BusState.ACTIVE: "error-active", can.BusState.PASSIVE: "error-passive",
+                 can.BusState.ERROR: "bus-off"}
+        while not self._sync_stop.wait(0.05):
+            bus = self.network.bus
+            if bus is None:
+                return
+            try:
+                state = bus.state
+            except (NotImplementedError, AttributeError, can.CanError):
+                return
+            if state != self._state:
+                self._state = state
+                self.events.put(Event(time.time_ns(), "bus-state", 0, f"CAN {self.channel} {names.get(state, state)}",
+                                         BUS_TOPIC))
+                if state == can.BusState.ERROR:
+                    self.failure = f"CAN {self.interface}/{self.channel} went bus-off"

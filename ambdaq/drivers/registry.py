@@ -1,0 +1,208 @@
+"""Device back-ends by URL scheme, as python-can finds its interfaces and pyserial its URL handlers.
+
+A back-end owns a scheme: it declares the URL's form and options (:class:`~.url.Scheme`) and
+opens what a URL names.  :data:`BACKENDS` lists ambdaq's own, loaded only when a URL asks for
+them; another package adds one through the ``ambdaq.backends`` entry-point group::
+
+    [project.entry-points."ambdaq.backends"]
+    mybus = "mypackage.backend:MyBusBackend"     # a subclass of Backend, scheme "mybus"
+
+The simulator is one such back-end (``sim://``): nothing here, nor anywhere under ``drivers``,
+imports it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+
+from ..errors import BadInputError
+from ..speed import SpeedProfile
+from .interfaces import BankPort, Source
+from .url import DeviceURL, Scheme
+
+BACKENDS = {
+    "sim": "ambdaq.sim.backend:SimBackend",
+    "can": "ambdaq.drivers.can.backend:CanBackend",
+    "serial": "ambdaq.drivers.serial.backend:SerialBackend",
+}
+"""Scheme -> ``module:class`` of ambdaq's own back-ends."""
+ENTRY_POINTS = "ambdaq.backends"
+
+
+@dataclass(frozen=True)
+class OpenRequest:
+    """What the caller asks of the devices a URL opens.
+
+    Parameters
+    ----------
+    name : str, optional
+        Device name in the recording (a whole rig names its devices after it).
+    speed : SpeedProfile, optional
+        Speed to command before recording (a device that takes a speed set-point).
+    truth : bool, optional
+        Also record ground truth (simulated rigs).
+    calibration : dict of str to str
+        Notes stored with every device's calibration (a rig file's ``[device.calibration]``).
+    """
+
+    name: str | None = None
+    speed: SpeedProfile | None = None
+    truth: bool | None = None
+    calibration: dict[str, str] = field(default_factory=dict)
+
+
+class Opened:
+    """Devices opened from URLs, with what must live as long as they do (a simulated rig
+    serving them); a context manager: closing closes the devices, then what they needed.
+
+    Parameters
+    ----------
+    sources : list of Source
+        The devices, as recorder sources.
+    keep : list
+        Objects with a ``close()`` (or ``stop()``) to call after the devices are closed.
+    """
+
+    def __init__(self, sources: list[Source] | None = None, keep: list | None = None) -> None:
+        self.sources: list[Source] = list(sources or [])
+        self.keep: list = list(keep or [])
+
+    def add(self, other: "Opened") -> None:
+        """Take over ``other``'s devices and what they need."""
+        self.sources += other.sources
+        self.keep += other.keep
+
+    def close(self) -> None:
+        """Close every device (each is safe to close twice), then what they needed, newest first."""
+        for s in self.sources:
+            try:
+                s.close()
+            except Exception:  # one device failing to close must not keep the others open
+                pass
+        while self.keep:
+            k = self.keep.pop()
+            (k.close if hasattr(k, "close") else k.stop)()
+
+    def __enter__(self) -> "Opened":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class Endpoints:
+    """Where the devices behind a URL are reached: name -> device URL.  For hardware that is the
+    URL itself; a simulated rig serves its devices on transports and names each one's URL, and
+    stops when this is closed.  ``facts``: what the back-end knows of the setup that no device
+    reports (a simulated rig's shaker gain, ``shaker_gain_m_s2_per_v``)."""
+
+    urls: dict[str, str]
+    keep: object | None = None
+    facts: dict = field(default_factory=dict)
+
+    def close(self) -> None:
+        if self.keep is not None:
+            self.keep.stop()
+            self.keep = None
+
+    def __enter__(self) -> "Endpoints":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class Backend(ABC):
+    """What a URL scheme opens.  Subclasses set :attr:`scheme` and implement :meth:`open`."""
+
+    scheme: Scheme
+
+    @abstractmethod
+    def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        """The devices at ``url``, opened, as recorder sources."""
+
+    def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
+        """Where the devices behind ``url`` are reached (hardware: the URL itself)."""
+        return Endpoints({"device": url.text})
+
+    def controller(self, url: DeviceURL) -> BankPort:
+        """The controller's coefficient banks at ``url`` (``ambdaq push``)."""
+        raise BadInputError(f"{url.text}: a {url.scheme}:// device has no coefficient banks to push to")
+
+
+_loaded: dict[str, Backend] = {}
+
+
+def _targets() -> dict[str, str]:
+    """Every known scheme -> ``module:class``: ambdaq's own, then those of installed packages."""
+    out = dict(BACKENDS)
+    for ep in entry_points(group=ENTRY_POINTS):
+        out.setdefault(ep.name, ep.value)
+    return out
+
+
+def backend(scheme: str) -> Backend | None:
+    """The back-end of ``scheme`` (imported on first use), or None."""
+    if scheme not in _loaded:
+        target = BACKENDS.get(scheme) or _targets().get(scheme)
+        if target is None:
+            return None
+        module, _, cls = target.partition(":")
+        _loaded[scheme] = getattr(importlib.import_module(module), cls)()
+    return _loaded[scheme]
+
+
+def expected_forms() -> str:
+    """The form of every known scheme, for messages."""
+    return "; ".join(backend(s).scheme.form for s in _targets())
+
+
+def parse_device_url(text: str | DeviceURL) -> DeviceURL:
+    """Parse ``text`` into a :class:`DeviceURL` by its scheme's back-end (a DeviceURL is returned
+    as it is: a URL is parsed once)."""
+    if isinstance(text, DeviceURL):
+        return text
+    name, sep, _rest = str(text).partition(":")
+    found = backend(name) if sep and name.isidentifier() else None
+    if found is None or (not found.scheme.opaque and "://" not in text):
+        raise BadInputError(f"unknown device URL {text!r}: expected {expected_forms()}")
+    return found.scheme.parse(str(text))
+
+
+def _request(speed: str | SpeedProfile | None, **kw) -> OpenRequest:
+    return OpenRequest(speed=SpeedProfile.parse(speed) if isinstance(speed, str) else speed,
+                       **{k: v for k, v in kw.items() if v is not None})
+
+
+def open_url(url: str | DeviceURL, *, name: str | None = None, speed: str | SpeedProfile | None = None,
+             truth: bool | None = None, calibration: dict[str, str] | None = None) -> Opened:
+    """Open what ``url`` names: one device, or a whole simulated rig (see :class:`OpenRequest`)."""
+    parsed = parse_device_url(url)
+    return backend(parsed.scheme).open(parsed, _request(speed, name=name, truth=truth, calibration=calibration))
+
+
+def open_device(url: str | DeviceURL, *, name: str | None = None, speed: str | SpeedProfile | None = None,
+                calibration: dict[str, str] | None = None) -> Source:
+    """The one device at ``url`` (a URL that opens several, such as a simulated rig, is refused:
+    :func:`open_url` takes those)."""
+    opened = open_url(url, name=name, speed=speed, calibration=calibration)
+    if len(opened.sources) != 1 or opened.keep:
+        opened.close()
+        raise BadInputError(f"{url}: opens {len(opened.sources)} devices; open it with open_url")
+    return opened.sources[0]
+
+
+def endpoints(url: str | DeviceURL, *, speed: str | SpeedProfile | None = None) -> Endpoints:
+    """Where the devices behind ``url`` are reached (see :class:`Endpoints`)."""
+    parsed = parse_device_url(url)
+    return backend(parsed.scheme).endpoints(parsed, _request(speed))
+
+
+def open_controller(url: str | DeviceURL) -> BankPort:
+    """The coefficient banks of the controller at ``url`` (``ambdaq push``, ``controller status``)."""
+    parsed = parse_device_url(url)
+    return backend(parsed.scheme).controller(parsed)

@@ -1,0 +1,52 @@
+"""``serial:`` URLs: ambdaq's own serial protocol on any port pyserial opens."""
+
+from __future__ import annotations
+
+from ...errors import DeviceError
+from ..interfaces import BankPort, Controller
+from ..registry import Backend, Opened, OpenRequest
+from ..url import DeviceURL, Scheme
+
+
+class SerialBackend(Backend):
+    """Opens the line, asks the device who it is, and hands it to the driver for its type."""
+
+    scheme = Scheme("serial", "serial:///dev/ttyUSB0[?baud=3000000] or serial:socket://HOST:PORT (any pyserial URL)",
+                    ("baud",), opaque=True)
+
+    def _driver(self, url: DeviceURL, name: str | None) -> Controller:
+        from .controller import ControllerDriver
+        from .link import SerialLink
+
+        drivers = {"controller": ControllerDriver}  # device type (its IDENTITY) -> driver
+        link = SerialLink(url.target, baudrate=url.integer("baud", 3_000_000))
+        try:
+            kind = link.identify().get("device_type")
+            driver = drivers.get(kind)
+            if driver is None:
+                raise DeviceError(f"{url.text}: no driver for a device of type {kind!r}")
+            return driver(link, name=name or kind, url=url.text)
+        except BaseException:
+            link.close()
+            raise
+
+    def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        dev = self._driver(url, request.name)
+        try:
+            if request.speed is not None:
+                param = dev.capabilities.speed_parameter
+                if param is None:
+                    raise DeviceError(f"{url.text}: the device takes no speed command (--rpm)")
+                dev.write_param(param, [request.speed.rpm_end])
+            dev.add_calibration(request.calibration)
+        except BaseException:
+            dev.close()
+            raise
+        return Opened([dev])
+
+    def controller(self, url: DeviceURL) -> BankPort:
+        dev = self._driver(url, None)
+        if not dev.capabilities.banks:
+            dev.close()
+            raise DeviceError(f"{url.text}: the controller reports no coefficient banks")
+        return dev

@@ -1,0 +1,54 @@
+"""``sim://PROFILE``: a simulated rig served in this process, its devices opened by their real
+drivers over real transports (a pseudo-terminal, a CAN bus), as hardware would be."""
+
+from __future__ import annotations
+
+from ..drivers.registry import Backend, Endpoints, Opened, OpenRequest, open_url
+from ..drivers.url import DeviceURL, Scheme
+from ..errors import BadInputError
+from ..speed import SpeedProfile
+from .source import FF_CHOICES
+
+
+class SimBackend(Backend):
+    """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
+
+    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1]",
+                    ("seed", "rpm", "truth", "ff", "noise"))
+
+    def _serve(self, url: DeviceURL, request: OpenRequest):
+        from .serve import serve
+
+        seed = url.integer("seed", 0)
+        if seed < 0:
+            raise BadInputError(f"option seed={seed} in {url.text!r}: expected an integer >= 0")
+        speed = request.speed if request.speed is not None else SpeedProfile.parse(url.options.get("rpm", "0"))
+        return serve(url.target, seed=seed, speed=speed,
+                     truth=url.flag("truth", False) if request.truth is None else request.truth,
+                     ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True))
+
+    def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
+        served = self._serve(url, request)
+        shaker = served.devices.get("shaker")
+        return Endpoints(dict(served.urls), served, {} if shaker is None else {"shaker_gain_m_s2_per_v": shaker.gain})
+
+    def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        """The rig's streaming devices: the controller (named after the rig) and its CANopen
+        devices (``NAME-KIND``); a shaker generator is not a source and is left out."""
+        served = self._serve(url, request)
+        opened = Opened(keep=[served])
+        base = request.name or "rig"
+        try:
+            for name, device_url in served.urls.items():
+                if name == "shaker":
+                    continue
+                opened.add(open_url(device_url, name=base if name == "controller" else f"{base}-{name}",
+                                    calibration=request.calibration))
+        except BaseException:
+            opened.close()
+            raise
+        return opened
+
+    def controller(self, url: DeviceURL):
+        raise BadInputError(f"{url.text}: a push needs a controller that keeps running: start `ambdaq sim serve` "
+                            "and push to the serial:// port it prints")

@@ -1,0 +1,73 @@
+"""The simulated rig profiles: name -> the module that defines it (loaded when asked for).
+
+Each profile is one module in :mod:`ambdaq.sim.rigs` with a rig class (physics, a
+:class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` saying which of its devices are served on
+transports: its controller's :class:`~ambdaq.sim.devices.firmware.Firmware` (on a serial line),
+its CANopen devices (on a CAN bus), a shaker generator (on a serial line).  A new profile is one
+module and one line here.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import BadInputError
+
+PROFILES = {
+    "spindle": "ambdaq.sim.rigs.spindle",
+    "base-motion": "ambdaq.sim.rigs.base_motion",
+    "cone": "ambdaq.sim.rigs.cone",
+    "lorentz": "ambdaq.sim.rigs.lorentz",
+}
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One simulated rig and the devices it serves.
+
+    Parameters
+    ----------
+    name : str
+        The profile's name (``sim://NAME``, ``--profile NAME``).
+    rig : type
+        Its rig class.
+    firmware : Firmware or None
+        What its AMB controller runs, served on a serial line; None: it serves no devices
+        (``ambdaq sim generate`` only).
+    can : bool
+        Its CANopen devices (amplifier, gap sensor, accelerometer, key-phasor) are served on a CAN bus.
+    shaker : bool
+        A two-channel SCPI generator that moves its base is served on a serial line.
+    """
+
+    name: str
+    rig: type
+    firmware: Any = None
+    can: bool = False
+    shaker: bool = False
+
+    @property
+    def served(self) -> bool:
+        return self.firmware is not None
+
+    def build(self, **options: Any):
+        """The rig, with keyword ``options`` (seed, speed, truth, ff_mode, noise)."""
+        return self.rig(**options)
+
+
+def profile(name: str) -> Profile:
+    """The profile called ``name``; BadInputError listing them if there is none."""
+    module = PROFILES.get(name)
+    if module is None:
+        raise BadInputError(f"unknown simulated rig {name!r}: profiles are {', '.join(sorted(PROFILES))}")
+    return importlib.import_module(module).PROFILE
+
+
+def require_served(name: str) -> Profile:
+    """The profile, if it serves devices on transports; BadInputError saying what it can do instead."""
+    p = profile(name)
+    if not p.served:
+        raise BadInputError(f"the {name} rig serves no devices on a transport: use `ambdaq sim generate --profile {name}`")
+    return p

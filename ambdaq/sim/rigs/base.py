@@ -1,0 +1,54 @@
+"""What every simulated rig shares: its parameters, noise seed, speed profile, control-period
+clock and the way a run of steps becomes a :class:`~ambdaq.drivers.signals.SampleBlock`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...drivers.signals import SampleBlock, SignalGroup
+from ...speed import SpeedProfile
+
+
+class Rig:
+    """Base of the rig classes in this package (see :mod:`.profiles`).
+
+    Parameters
+    ----------
+    params : dataclass with ``sample_rate`` (Hz)
+        The rig's parameters.
+    seed : int
+        Seed of the noise generator ``_rng``; a run is deterministic for a given seed.
+    speed : SpeedProfile
+        Rotor speed over time.
+    truth : bool
+        Also produce the rig's ``/truth/*`` groups.
+    noise : bool
+        Measurement noise on.
+    """
+
+    profile: str
+
+    def __init__(self, params: Any, *, seed: int, speed: SpeedProfile, truth: bool, noise: bool) -> None:
+        self.params = params
+        self.seed = seed
+        self.speed = speed
+        self.truth = truth
+        self.noise = noise
+        self.h = 1.0 / params.sample_rate  # control period, s
+        self.period_ns = int(round(1e9 / params.sample_rate))
+        self.step_index = 0
+        self._rng = np.random.default_rng(seed)
+
+    def signal_groups(self) -> list[SignalGroup]:  # each rig names its topics
+        raise NotImplementedError
+
+    def _steps(self, n: int) -> np.ndarray:
+        """Indices of the next ``n`` control steps."""
+        return self.step_index + np.arange(n, dtype=np.int64)
+
+    def _block(self, steps: np.ndarray, arrays: list[np.ndarray]) -> SampleBlock:
+        """The samples of ``steps``: one array per signal group, in :meth:`signal_groups` order."""
+        return SampleBlock(device_time_ns=steps * self.period_ns, seq=(steps & 0xFFFFFFFF).astype(np.uint32),
+                           values={g.topic: a for g, a in zip(self.signal_groups(), arrays)})

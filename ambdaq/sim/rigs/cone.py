@@ -1,0 +1,349 @@
+"""Seed 001's rig: a rotor on two cone-shaped AMBs (the ``cone`` profile).
+
+The rotor is :class:`~ambdaq.analysis.cone_rotor.ConeRotor`: five rigid-body degrees of freedom
+with gyroscopic coupling, eight magnets with the nonlinear force law F = k i_e^2 / g^2 (eq. 3) on
+gaps that follow the rotor (eq. 2), gravity along the axis, and touchdown bearings with a
+clearance of half the air gap.  The controller is the paper's analogue one, integrated with the
+rotor: per bearing coordinate (x, y1, y2, z1, z2) a PD with filtered derivative on the gap-sensor
+signal (eq. 11), distributed to the coils by eq. 9, each coil driven by a current-feedback
+amplifier with a 25 V supply (eq. 13-15: below the limit a first-order current loop of gain
+Kc and time constant tau_c; at the limit the coil's own L/R), the force lagging the current by the
+eddy-current time constant tau_e (eq. 16).  The rotor's weight is carried by a constant axial
+control current (:meth:`ConeRotor.levitation_offset`).
+
+Everything runs in continuous time with ``SUBSTEPS`` steps per 10 kHz sample: first-order lags
+are advanced exactly over a step, the rotor by semi-implicit Euler.  An instrumented hammer
+(``/amb/hammer``) strikes the rotor at one bearing coordinate: a half-sine pulse.  The run starts
+levitated, or with ``start="touchdown"`` at rest on the touchdown bearings with the amplifiers
+just enabled (seed 001 Fig. 7a and 8).  :meth:`ConeRig.modes` gives the simulator's own
+linearisation, the ground truth for ``ambdaq identify modal``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor
+from ...errors import BadInputError
+from ...drivers.signals import SampleBlock, SignalGroup
+from ..profiles import Profile
+from .base import Rig
+from ...speed import RPM_TO_RAD_S, SpeedProfile
+
+SUBSTEPS = 50  # 2 us steps: the kernel's modes within 0.2% (frequency) and 2.5% (damping) of the continuous model
+N_STATE = 31  # q_g (5), v_g (5), derivative filters (5), coil currents (8), eddy-lagged currents (8)
+IMPACT_S = 0.5e-3  # hammer pulse length
+TOUCHDOWN_START_UM = (-250.0, -200.0, -120.0, 110.0, -80.0)  # q_b at rest (seed 001 Fig. 8's shape, in the clearance)
+
+
+@dataclass(frozen=True)
+class ConeParams:
+    """The cone rig (SI).  Rotor and gains from seed 001 Tables 1 and 3 where given; the
+    amplifier's Ka, Kf, R are chosen for tau_c = 6e-5 s (the paper's example) and Kc from the
+    sensor gain so the axial loop sits near the paper's design (see docs/cone.md)."""
+
+    sample_rate: float = 10_000.0
+    rotor: ConeRotor = ConeRotor()
+    control: ConeControl = ConeControl(ks=2000.0, kc=0.36)
+    resistance: float = 2.0  # coil, ohm
+    supply: float = 25.0  # V (Table 1)
+    clearance: float = 0.25e-3  # touchdown bearings, m
+    contact_stiffness: float = 2e7  # N/m
+    contact_damping: float = 400.0  # N s/m
+    gap_noise: float = 0.1e-6  # m RMS
+    hammer_noise: float = 0.05  # N RMS
+
+    @property
+    def amp_gain(self) -> float:
+        """Ka (V/V) from Kc = Ka / (Ka Kf + R) and tau_c = L / (Ka Kf + R) (eq. 15)."""
+        return self.control.kc * self.rotor.inductance / self.control.tau_c
+
+    @property
+    def current_feedback(self) -> float:
+        """Kf (V/A)."""
+        return (self.rotor.inductance / self.control.tau_c - self.resistance) / self.amp_gain
+
+
+CONE = ConeParams()
+
+
+@dataclass(frozen=True)
+class Impact:
+    """Hammer strikes: a half-sine of ``peak`` N on bearing coordinate ``axis`` (0..4), lasting
+    IMPACT_S, first at ``first_s`` and then every ``every_s`` s."""
+
+    axis: int
+    peak: float
+    every_s: float = 0.5
+    first_s: float = 0.2
+
+    @classmethod
+    def parse(cls, spec: str) -> "Impact":
+        """``AXIS:PEAK_N[:EVERY_S]``, AXIS one of x, y1, y2, z1, z2."""
+        parts = spec.split(":")
+        try:
+            if len(parts) not in (2, 3) or parts[0] not in AXES:
+                raise ValueError
+            peak = float(parts[1])
+            every = float(parts[2]) if len(parts) == 3 else 0.5
+        except ValueError:
+            raise BadInputError(f"bad impact {spec!r}: expected AXIS:PEAK_N[:EVERY_S], AXIS one of "
+                                f"{', '.join(AXES)}") from None
+        if not (np.isfinite(peak) and 0 < peak <= 500):
+            raise BadInputError(f"bad impact {spec!r}: peak must be > 0 and <= 500 N")
+        if not (np.isfinite(every) and every >= 0.05):
+            raise BadInputError(f"bad impact {spec!r}: strikes must be at least 0.05 s apart")
+        return cls(AXES.index(parts[0]), peak, every)
+
+    def force(self, t: np.ndarray) -> np.ndarray:
+        """Hammer force (N) at times ``t`` (s)."""
+        since = t - self.first_s
+        phase = np.where(since >= 0, np.mod(since, self.every_s), -1.0)
+        on = (phase >= 0) & (phase < IMPACT_S)
+        return np.where(on, self.peak * np.sin(np.pi * np.clip(phase, 0, IMPACT_S) / IMPACT_S), 0.0)
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl, out_pos):
+    """Advance state ``s`` (N_STATE) over len(hammer_t) samples.  ``hammer_t`` (n, SUBSTEPS) is
+    the hammer force on bearing coordinate int(c[12]) at each substep; ``noise`` (n, 5) the gap
+    sensors' noise (m); ``c`` the constants in the order ConeRig._constants lists them."""
+    hs = c[0] / SUBSTEPS
+    ks, tau, kc, ka, kf, res, ind, vs = c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
+    kforce, g0, shape = c[9], c[10], c[11]
+    axis_hit = int(c[12])
+    clr, kcon, ccon, ip, vx0 = c[13], c[14], c[15], c[16], c[17]
+    kp = c[18:23]
+    kd = c[23:28]
+    mg = c[28]
+    e_tau = np.exp(-hs / tau)
+    e_c = np.exp(-hs * (ka * kf + res) / ind)
+    e_lr = np.exp(-hs * res / ind)
+    e_e = np.exp(-hs / c[29])
+    qb = np.empty(5)
+    vb = np.empty(5)
+    vc = np.empty(5)
+    Q = np.empty(5)
+    fb = np.empty(5)
+    for k in range(hammer_t.shape[0]):
+        for sub in range(SUBSTEPS):
+            for a in range(5):
+                x = 0.0
+                y = 0.0
+                for b in range(5):
+                    x += Tm[a, b] * s[b]
+                    y += Tm[a, b] * s[5 + b]
+                qb[a] = x
+                vb[a] = y
+            # eq. 11: vc = -Ks (Kp y + Kd s/(tau s + 1) y), the sensor signal held over the sample
+            for a in range(5):
+                y = qb[a] + noise[k, a]
+                vc[a] = -ks * (kp[a] * y + kd[a] * (y - s[10 + a]) / tau)
+                s[10 + a] = y + (s[10 + a] - y) * e_tau
+            vc[0] += vx0
+            # eq. 9 and 13-15: coil references, current-feedback amplifiers with the supply limit
+            for j in range(8):
+                vref = V0[j]
+                for a in range(5):
+                    vref += D[j, a] * vc[a]
+                i = s[15 + j]
+                v = ka * (vref - kf * i)
+                if sub == 0:
+                    out_cur[k, j] = i
+                if v > vs or v < -vs:
+                    v = vs if v > 0 else -vs
+                    iss = v / res
+                    i = iss + (i - iss) * e_lr
+                else:
+                    iss = kc * vref
+                    i = iss + (i - iss) * e_c
+                if i < 0.0:
+                    i = 0.0
+                if sub == 0:
+                    out_volt[k, j] = v
+                s[15 + j] = i
+                s[23 + j] = i + (s[23 + j] - i) * e_e  # eq. 16: the force lags the current
+            # eq. 3 forces on q_g through J^T n (matrix A: (8, 5)), gravity, touchdown, hammer
+            for a in range(5):
+                Q[a] = 0.0
+            Q[0] = -mg
+            for j in range(8):
+                dq = 0.0
+                for a in range(5):
+                    dq += A[j, a] * s[a]
+                g = g0 - shape * dq
+                if g < 1e-5:
+                    g = 1e-5
+                f = kforce * s[23 + j] * s[23 + j] / (g * g)
+                for a in range(5):
+                    Q[a] += f * A[j, a]
+            for a in range(5):
+                over = abs(qb[a]) - clr
+                fb[a] = 0.0
+                if over > 0:
+                    fb[a] = -kcon * over * (1.0 if qb[a] > 0 else -1.0) - ccon * vb[a]
+            fb[axis_hit] += hammer_t[k, sub]
+            for a in range(5):  # bearing-coordinate forces act on q_g through T^T
+                for b in range(5):
+                    Q[b] += Tm[a, b] * fb[a]
+            Q[3] -= ip * speed * s[9]  # eq. 5: I_d th_y'' + Omega I_p th_z' = ...
+            Q[4] += ip * speed * s[8]
+            for a in range(5):
+                acc = 0.0
+                for b in range(5):
+                    acc += Minv[a, b] * Q[b]
+                s[5 + a] += hs * acc
+            for a in range(5):
+                s[a] += hs * s[5 + a]
+            if sub == 0:  # the sample instant: the state before this period's first step
+                for a in range(5):
+                    out_pos[k, a] = qb[a]
+                    out_gap[k, a] = qb[a] + noise[k, a]
+                    out_ctl[k, a] = vc[a]
+
+
+class ConeRig(Rig):
+    """Seed 001's cone-AMB rotor, closed loop (see the module docstring).
+
+    Parameters
+    ----------
+    params : ConeParams
+        Rig parameters.
+    seed : int
+        Noise seed; the run is deterministic for a given seed.
+    speed : SpeedProfile
+        Spin (the gyroscopic term); a robot joint turns slowly.
+    truth : bool
+        Also produce ``/truth/position`` (the true bearing coordinates).
+    ff_mode : {"off"}
+        The cone rig has no feedforward.
+    noise : bool
+        Gap-sensor and hammer load-cell noise.
+    start : {"levitated", "touchdown"}
+        Initial state: at the levitated equilibrium, or at rest on the touchdown bearings with
+        the coil currents zero.
+    impact : Impact, optional
+        Hammer strikes.
+    """
+
+    profile = "cone"
+
+    def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
+                 truth: bool = False, ff_mode: str = "off", noise: bool = True, start: str = "levitated",
+                 impact: Impact | None = None) -> None:
+        if ff_mode != "off":
+            raise ValueError("the cone rig has no feedforward; use ff=off")
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
+        self.impact = impact
+        r = params.rotor
+        self._Minv = np.linalg.inv(r.mass_matrix())
+        n, J = r.frames()
+        self._A = np.einsum("ji,jik->jk", n, J)
+        self._T = r.transform()
+        self._V0 = r.coil_bias() / params.control.kc
+        self.restart(start)
+
+    def initial_state(self, start: str) -> np.ndarray:
+        """The state a run starts from: "levitated" or "touchdown" (see the class)."""
+        s = np.zeros(N_STATE)
+        if start == "touchdown":
+            s[0:5] = np.linalg.solve(self._T, np.array(TOUCHDOWN_START_UM) * 1e-6)
+            return s
+        i0 = self.params.rotor.operating_currents()
+        s[15:23] = i0
+        s[23:31] = i0
+        return s
+
+    def restart(self, start: str) -> None:
+        """Start again from ``start`` ("levitated" or "touchdown") at the present time."""
+        if start not in ("levitated", "touchdown"):
+            raise ValueError(f"start must be levitated or touchdown, not {start!r}")
+        self.start = start
+        self.state = self.initial_state(start)
+
+    def set_impact(self, impact: Impact | None) -> None:
+        """Strike with the hammer from now on (None: stop)."""
+        self.impact = impact
+
+    def _constants(self) -> np.ndarray:
+        p, r, c = self.params, self.params.rotor, self.params.control
+        return np.array([self.h, c.ks, c.tau, c.kc, p.amp_gain, p.current_feedback, p.resistance, r.inductance,
+                         p.supply, r.force_constant, r.gap, r.shape_factor,
+                         float(self.impact.axis if self.impact else 0), p.clearance, p.contact_stiffness,
+                         p.contact_damping, r.inertia_p, r.levitation_offset() / c.kc,
+                         *c.kp, *c.kd, r.mass * r.gravity, c.tau_e])
+
+    def signal_groups(self) -> list[SignalGroup]:
+        groups = [
+            SignalGroup("/amb/gap", "Gap", AXES, ("m",) * 5),
+            SignalGroup("/amb/current", "Current", COILS, ("A",) * 8),
+            SignalGroup("/amb/voltage", "Voltage", COILS, ("V",) * 8),
+            SignalGroup("/amb/control", "Control", AXES, ("V",) * 5),
+            SignalGroup("/amb/hammer", "Force", ("hammer",), ("N",)),
+        ]
+        if self.truth:
+            groups.append(SignalGroup("/truth/position", "Position", AXES, ("m",) * 5))
+        return groups
+
+    def calibration(self) -> dict[str, str]:
+        p, r = self.params, self.params.rotor
+        modes = "; ".join(f"{AXES[a]}: {f:.3f} Hz zeta {z:.4f}" for f, z, a in self.modes())
+        return {"mass_kg": f"{r.mass:g}", "l1_m": f"{r.l1:g}", "l2_m": f"{r.l2:g}",
+                "sensor_gain_v_per_m": f"{p.control.ks:g}", "supply_v": f"{p.supply:g}",
+                "start": self.start, "modes": modes, "units": "SI: m, A, V, N"}
+
+    def run(self, n: int) -> SampleBlock:
+        """Advance by ``n`` samples and return them."""
+        steps = self._steps(n)
+        t_sub = (steps[:, None] + np.arange(SUBSTEPS)[None, :] / SUBSTEPS) * self.h
+        hammer = self.impact.force(t_sub) if self.impact else np.zeros_like(t_sub)
+        noise = self._rng.standard_normal((n, 6))
+        if not self.noise:
+            noise[:] = 0.0
+        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h]))
+        outs = [np.empty((n, 5)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 5)), np.empty((n, 5))]
+        _simulate(self.state, hammer, noise[:, :5] * self.params.gap_noise, float(omega[0]), self._constants(),
+                  self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+        self.step_index += n
+        force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise
+        arrays = [outs[0], outs[1], outs[2], outs[3], force] + ([outs[4]] if self.truth else [])
+        return self._block(steps, arrays)
+
+    def step_jacobian(self, speed_rpm: float = 0.0) -> np.ndarray:
+        """Jacobian of one sample of the noise-free kernel at the levitated equilibrium, by
+        central differences: the simulator's own linearisation (N_STATE x N_STATE)."""
+        s0 = self.initial_state("levitated")
+        c = self._constants()
+        c[12] = 0.0
+        omega = speed_rpm * RPM_TO_RAD_S
+        z = np.zeros((1, SUBSTEPS))
+        nz = np.zeros((1, 5))
+        outs = [np.empty((1, 5)), np.empty((1, 8)), np.empty((1, 8)), np.empty((1, 5)), np.empty((1, 5))]
+        scale = np.r_[np.full(5, 1e-8), np.full(5, 1e-6), np.full(5, 1e-8), np.full(16, 1e-5)]
+        Jac = np.empty((N_STATE, N_STATE))
+        for i in range(N_STATE):
+            cols = []
+            for sign in (1.0, -1.0):
+                s = s0.copy()
+                s[i] += sign * scale[i]
+                _simulate(s, z, nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+                cols.append(s)
+            Jac[:, i] = (cols[0] - cols[1]) / (2 * scale[i])
+        return Jac
+
+    def modes(self, speed_rpm: float = 0.0) -> list[tuple[float, float, int]]:
+        """The simulator's lightly-to-heavily damped modes below 1 kHz: (natural frequency in Hz,
+        damping ratio, the bearing coordinate it moves most), from :meth:`step_jacobian`."""
+        w, v = np.linalg.eig(self.step_jacobian(speed_rpm))
+        s = np.log(w.astype(complex)) / self.h
+        out = []
+        for k in np.flatnonzero((s.imag > 1e-6) & (np.abs(s) < 2 * np.pi * 1000)):
+            shape = np.abs(self._T @ v[:5, k])
+            out.append((float(np.abs(s[k]) / (2 * np.pi)), float(-s[k].real / np.abs(s[k])), int(np.argmax(shape))))
+        return sorted(out)
+
+
+PROFILE = Profile("cone", ConeRig)  # served on no transport: ambdaq sim generate only

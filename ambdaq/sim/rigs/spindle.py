@@ -1,0 +1,681 @@
+"""The simulated grinding spindle of seed 000: a rigid rotor on five AMB axes under digital PID.
+
+Physics (all SI):
+
+* Rigid rotor, mass 4.38 kg, Jp 0.0014 kg m^2, Jt 0.0362 kg m^2 (seed 000, section 2.2), radial
+  bearings at ``a`` and ``b`` from the centre of mass; the gyroscopic moment Jp*Omega couples the
+  two tilt planes.  The state is kept in bearing coordinates (front_x, front_y, rear_x, rear_y,
+  axial), so the gap sensors, which we take as co-located with the bearings, read states directly.
+  Seed 000 gives no bearing positions; we take a = b = 0.11 m, where the tilt mode's effective
+  mass per bearing Jt/(2a^2) is 1.50 kg, the one-axis model's m of seed 000 eq. 1.  (With a wider
+  span, e.g. 0.15 m, the tilt mode's mass drops to 0.8 kg and the mode lands near 480 Hz with
+  zeta 0.08, where the amplifier and D/A lags have eaten the derivative's phase lead.)
+* Linearised magnet force F = Kx x + Ki i (Table 1: front Ki 273 N/A, Kx 1.77e6 N/m; rear 182,
+  1.18e6).  The coil pair is driven differentially about the bias I0 with each coil current
+  limited to 0..8 A; the force uses the differential law ((I0+i)^2 - (I0-i)^2)/(4 I0), which is
+  exactly i while both coils conduct and saturates as the amplifier does.
+* Amplifier G_A(s) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (seed 000 eq. 2), Kamp 0.8 A/V,
+  zeta 1.7, wn 1800 Hz front / 2500 Hz rear.
+* Controller at h = 100 us: 16-bit A/D on the sensor voltage (Ks = 10,000 V/m, +-10 V),
+  PID with P 1.6, I 1, D 0.0015 s front / 0.002 s rear (seed 000 eq. 3).  The printed eq. 3 is
+  garbled, so we use the standard parallel PID with a Tustin integrator (the readable term
+  I h(z+1)/(2(z-1)) of eq. 3) and a backward-Euler filtered derivative D s/(1 + s Tf) with
+  Tf = (D/P)/Nd, Nd = 15.  Output on a 12-bit D/A (+-10 V), held for one period (ZOH).
+* Sensor signal s = x + r(theta) + noise, with electrical runout r(theta) = sum R_k sin(k theta +
+  phi_k) fixed to the rotor angle (eq. 5); the y sensor sits 90 deg from the x sensor on the same
+  target track, so r_y(theta) = r_x(theta - pi/2).
+* Command error e = (s - r_c) - x_ref with feedforward r_c = sum w_k0 sin k theta + w_k1 cos k theta
+  (eq. 10); the LMS mode adapts w_k <- w_k + mu e [sin k theta, cos k theta] (eq. 9).
+* Mass unbalance per bearing plane, force U Omega^2 at angle theta + phase; gravity on y.
+* Housing accelerometers read the bearing reaction force on an effective housing mass (the housing
+  on soft mounts, above their resonance): a = -(F_mag - F_static)/M_h.
+
+The axial bearing is not described in seed 000; its values here are assumptions, marked below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+import numpy as np
+from numba import njit
+from scipy.linalg import expm
+
+from ...drivers.signals import SampleBlock, SignalGroup
+from ...drivers.coefbank import BankImage
+from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
+from ..profiles import Profile
+from .base import Rig
+from .excitation import ExcitationInput
+from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE, PHASE_BIN_HZ,
+                                  PHASE_BINS, SPINDLE, BearingAxis, SpindleParams)
+from ...speed import SpeedProfile
+from ...units import RPM_TO_RAD_S
+
+SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
+FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
+FF_MODES = {"off": FF_OFF, "table": FF_TABLE, "lms": FF_LMS}
+
+
+def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time rotor model in bearing coordinates.
+
+    Parameters
+    ----------
+    p : SpindleParams
+        Rig parameters.
+    omega : float
+        Rotor speed, in rad/s (sets the gyroscopic coupling Jp*Omega).
+
+    Returns
+    -------
+    A : ndarray, shape (10, 10)
+        State matrix for [positions (5), velocities (5)] in AXES order, with the negative
+        magnet stiffness Kx included.
+    B : ndarray, shape (10, 5)
+        Input matrix for the bearing forces, in N.
+    """
+    a, b = p.a, p.b
+    # q_b = T q_c with q_c = [x, theta_y, y, theta_x] and q_b = [x1, y1, x2, y2]
+    T = np.array([[1, a, 0, 0], [0, 0, 1, a], [1, -b, 0, 0], [0, 0, 1, -b]], dtype=float)
+    Mc_inv = np.diag([1 / p.mass, 1 / p.jt, 1 / p.mass, 1 / p.jt])
+    Gc = np.zeros((4, 4))
+    Gc[1, 3] = p.jp * omega  # Jt theta_y'' + Jp Omega theta_x' = M_y
+    Gc[3, 1] = -p.jp * omega  # Jt theta_x'' - Jp Omega theta_y' = M_x
+    T_inv = np.linalg.inv(T)
+    Minv_b = T @ Mc_inv @ T.T  # bearing forces -> bearing accelerations
+    G_b = T @ Mc_inv @ Gc @ T_inv  # velocity coupling in bearing coordinates
+    Minv = np.zeros((N_AXES, N_AXES))
+    Minv[:4, :4] = Minv_b
+    Minv[4, 4] = 1 / p.mass
+    G = np.zeros((N_AXES, N_AXES))
+    G[:4, :4] = G_b
+    kx = np.array([ax.kx for ax in p.axes])
+    A = np.zeros((10, 10))
+    A[:5, 5:] = np.eye(5)
+    A[5:, :5] = Minv * kx[None, :]
+    A[5:, 5:] = -G
+    B = np.zeros((10, 5))
+    B[5:, :] = Minv
+    return A, B
+
+
+def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    E = expm(M * h)
+    return E[:n, :n].copy(), E[:n, n:].copy()
+
+
+def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH-discretised amplifier G_A (seed 000 eq. 2): state [i, di/dt], input in V, step h (s)."""
+    wn = 2 * np.pi * ax.amp_wn_hz
+    A = np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]])
+    B = np.array([[0.0], [wn**2 * ax.amp_gain]])
+    Phi, Gam = zoh(A, B, h)
+    return Phi, Gam[:, 0]
+
+
+def _schedule_rows(schedule):
+    """Rows (rpm_from, rpm_to, mu) for every harmonic, or a mapping harmonic -> rows, as tuples."""
+    if schedule is None:
+        return ()
+    if isinstance(schedule, dict):
+        return {int(k): tuple(tuple(float(x) for x in r) for r in rows) for k, rows in schedule.items()}
+    return tuple(tuple(float(x) for x in r) for r in schedule)
+
+
+def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndarray:
+    """LMS step size per harmonic and 100-rpm speed bin from ``(rpm_from, rpm_to, mu)`` rows.
+
+    ``schedule`` may also be a mapping harmonic (1-based) -> rows, to schedule harmonics apart.
+    """
+    table = np.zeros((N_HARMONICS, MU_BINS))
+    if schedule is None:
+        return table
+    per_harm = schedule if isinstance(schedule, dict) else {k: schedule for k in range(1, N_HARMONICS + 1)}
+    centres = (np.arange(MU_BINS) + 0.5) * MU_BIN_RPM
+    for k, rows in per_harm.items():
+        for lo, hi, mu in rows:
+            table[k - 1, (centres >= lo) & (centres < hi)] = mu
+    return table
+
+
+@njit(cache=True, inline="always")
+def _converter(v, full_scale, lsb, inv_lsb):
+    """A/D or D/A: clip to +-full_scale (V) and round to the converter's step ``lsb`` (0: ideal)."""
+    if v > full_scale:
+        v = full_scale
+    elif v < -full_scale:
+        v = -full_scale
+    if lsb > 0.0:
+        v = np.floor(v * inv_lsb + 0.5) * lsb
+    return v
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _simulate(
+    theta, omega, gap_noise, cur_noise, acc_noise, noise_sd,  # per-step inputs, unit normals
+    z, amp, ctl, w, st,  # state (modified in place)
+    Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
+    ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
+    mu_tab, ph_cos, ph_sin, ff_mode, exc, c,  # exc: excitation added to r_c per step and axis; c: constants
+    out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
+):
+    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax, phase_bin_hz]
+    h = c[0]
+    ks = c[1]
+    adc_lsb = c[2]
+    adc_rng = c[3]
+    dac_lsb = c[4]
+    dac_rng = c[5]
+    imax = c[6]
+    phase_bin = c[7]
+    inv_ks = 1.0 / ks
+    inv_adc = 1.0 / adc_lsb if adc_lsb > 0.0 else 0.0
+    inv_dac = 1.0 / dac_lsb if dac_lsb > 0.0 else 0.0
+    inv_4b = 1.0 / (4.0 * bias)
+    inv_mh = 1.0 / mh
+    nh = run_s.shape[1]
+    sk = np.empty(nh)
+    ck = np.empty(nh)
+    F = np.empty(5)
+    znew = np.empty(10)
+    two_pi = 2.0 * np.pi
+    for k in range(theta.shape[0]):
+        th = theta[k]
+        om = omega[k]
+        s1 = np.sin(th)
+        c1 = np.cos(th)
+        sk[0] = s1
+        ck[0] = c1
+        for j in range(1, nh):  # sin/cos of k*theta by the angle-addition recurrence
+            sk[j] = sk[j - 1] * c1 + ck[j - 1] * s1
+            ck[j] = ck[j - 1] * c1 - sk[j - 1] * s1
+        rev = np.floor(th / two_pi)
+        out_rot[k, 0] = th - rev * two_pi
+        out_rot[k, 1] = om
+        out_rot[k, 2] = 1.0 if rev > st[0] else 0.0
+        st[0] = rev
+        mbin = int(om * 60.0 / two_pi / 100.0)
+        if mbin >= mu_tab.shape[1]:
+            mbin = mu_tab.shape[1] - 1
+        th_mid = th + 0.5 * h * om
+        for a in range(5):
+            pos = z[a]
+            r = 0.0
+            for j in range(nh):
+                r += run_s[a, j] * sk[j] + run_c[a, j] * ck[j]
+            # sensor voltage through the 16-bit A/D
+            s_meas = _converter(ks * (pos + r + noise_sd[0] * gap_noise[k, a]), adc_rng, adc_lsb, inv_adc) * inv_ks
+            # feedforward r_c with the weights of the previous step (eq. 10)
+            rc = 0.0
+            if ff_mode > 0:
+                for j in range(nh):
+                    rc += w[a, j, 0] * sk[j] + w[a, j, 1] * ck[j]
+            rc += exc[k, a]  # the excitation input enters where r_c does (sim/rigs/excitation.py)
+            e = s_meas - rc
+            if ff_mode == 2:  # LMS update, eq. 9, its step turned by the phase compensation g
+                for j in range(nh):
+                    mu = mu_tab[j, mbin]
+                    if mu != 0.0:
+                        fb = int((j + 1) * om / two_pi / phase_bin + 0.5)
+                        if fb >= ph_cos.shape[1]:
+                            fb = ph_cos.shape[1] - 1
+                        gr = ph_cos[a, fb]
+                        gi = ph_sin[a, fb]
+                        # phasor W = w0 + j w1 moves by mu e (sin + j cos) g
+                        w[a, j, 0] += mu * e * (sk[j] * gr - ck[j] * gi)
+                        w[a, j, 1] += mu * e * (ck[j] * gr + sk[j] * gi)
+            # PID on the error voltage: Tustin integral, backward-Euler filtered derivative
+            ev = ks * e
+            integ = ctl[a, 0] + pid_i[a] * h * 0.5 * (ev + ctl[a, 2])
+            if integ > dac_rng:
+                integ = dac_rng
+            elif integ < -dac_rng:
+                integ = -dac_rng
+            deriv = ad[a] * ctl[a, 1] + bd[a] * (ev - ctl[a, 2])
+            ctl[a, 0] = integ
+            ctl[a, 1] = deriv
+            ctl[a, 2] = ev
+            u = _converter(-(pid_p[a] * ev + integ + deriv), dac_rng, dac_lsb, inv_dac)
+            # amplifier step and the differential coil-current law with 0..imax per coil
+            i0 = amp[a, 0]
+            i1 = Pa[a, 0, 0] * i0 + Pa[a, 0, 1] * amp[a, 1] + Ga[a, 0] * u
+            amp[a, 1] = Pa[a, 1, 0] * i0 + Pa[a, 1, 1] * amp[a, 1] + Ga[a, 1] * u
+            amp[a, 0] = i1
+            b0 = bias[a]
+            hi0 = min(max(b0 + i0, 0.0), imax)
+            lo0 = min(max(b0 - i0, 0.0), imax)
+            hi1 = min(max(b0 + i1, 0.0), imax)
+            lo1 = min(max(b0 - i1, 0.0), imax)
+            ieff0 = (hi0 * hi0 - lo0 * lo0) * inv_4b[a]
+            ieff1 = (hi1 * hi1 - lo1 * lo1) * inv_4b[a]
+            fmag = kx[a] * pos + ki[a] * ieff0
+            # unbalance: x axes cos, y axes sin of (theta + phase), evaluated mid-step
+            fu = unb[a] * om * om * np.cos(th_mid + unb_ph[a])
+            F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
+            out_gap[k, a] = s_meas
+            out_cur[k, a] = i0 + noise_sd[1] * cur_noise[k, a]
+            out_err[k, a] = e
+            out_ff[k, a] = rc
+            out_acc[k, a] = -(fmag - fstat[a]) * inv_mh[a] + noise_sd[2] * acc_noise[k, a]
+            out_run[k, a] = r
+            out_pos[k, a] = pos
+        for i in range(10):
+            acc = 0.0
+            for j in range(10):
+                acc += Phi[i, j] * z[j]
+            for j in range(5):
+                acc += Gam[i, j] * F[j]
+            znew[i] = acc
+        for i in range(10):
+            z[i] = znew[i]
+
+
+def _groups(truth: bool) -> list[SignalGroup]:
+    m5 = ("m",) * 5
+    groups = [
+        SignalGroup("/amb/gap", "Gap", AXES, m5),
+        SignalGroup("/amb/current", "Current", AXES, ("A",) * 5),
+        SignalGroup("/amb/error", "Error", AXES, m5),
+        SignalGroup("/amb/ff", "Feedforward", AXES, m5),
+        SignalGroup("/amb/accel", "Accel", AXES, ("m/s^2",) * 5),
+        SignalGroup("/amb/rotor", "Rotor", ("angle", "speed", "keyphasor"), ("rad", "rad/s", "1")),
+    ]
+    if truth:
+        groups += [
+            SignalGroup("/truth/runout", "Runout", AXES, m5),
+            SignalGroup("/truth/position", "Position", AXES, m5),
+        ]
+    return groups
+
+
+class SpindleRig(Rig, ExcitationInput):
+    """Closed-loop simulation of the seed 000 spindle, stepped in blocks of control periods.
+
+    Parameters
+    ----------
+    params : SpindleParams
+        Rig parameters (defaults: seed 000).
+    seed : int
+        Seed of the noise generator; the run is deterministic for a given seed.
+    speed : SpeedProfile
+        Rotor speed profile.
+    truth : bool
+        Also produce the ``/truth/runout`` and ``/truth/position`` groups.
+    ff_mode : {"off", "table", "lms"}
+        Feedforward of the simulated controller.
+    mu_schedule : rows of (rpm_from, rpm_to, mu), optional
+        LMS step-size schedule; default: seed 000's sign-switched schedule.
+    noise : bool
+        Add sensor, current and accelerometer noise and quantise on the A/D and D/A.
+    """
+
+    profile = "spindle"
+    excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
+    excitation_unit = "m"
+    excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal
+    excitation_max = 20e-6  # a tenth of the air gap's safe range; more saturates the loop
+
+    def __init__(
+        self,
+        params: SpindleParams = SPINDLE,
+        *,
+        seed: int = 0,
+        speed: SpeedProfile = SpeedProfile(0.0, 0.0),
+        truth: bool = False,
+        ff_mode: str = "off",
+        mu_schedule=PAPER_MU_SCHEDULE,
+        noise: bool = True,
+    ) -> None:
+        super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
+        self.mu_schedule = _schedule_rows(mu_schedule)
+        self._mu = mu_table(self.mu_schedule)
+        self._ph_cos = np.ones((N_AXES, PHASE_BINS))
+        self._ph_sin = np.zeros((N_AXES, PHASE_BINS))
+        self._ff_mode = FF_MODES["off"]
+        self.set_feedforward(ff_mode)
+        self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
+        self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
+        self._theta0 = 0.0  # ... and this angle (rad)
+        self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._linear: tuple | None = None  # loop_matrices' standstill probe
+        self._init_constants()
+        self._init_state()
+
+    # --- configuration -------------------------------------------------------------------
+
+    def _init_constants(self) -> None:
+        p = self.params
+        axes = p.axes
+        h = self.h
+        self._ki = np.array([ax.ki for ax in axes])
+        self._kx = np.array([ax.kx for ax in axes])
+        self._bias = np.array([ax.bias for ax in axes])
+        self._pid_p = np.array([ax.pid_p for ax in axes])
+        self._pid_i = np.array([ax.pid_i for ax in axes])
+        kd = np.array([ax.pid_d for ax in axes])
+        tf = kd / self._pid_p / p.derivative_filter  # Tf = Td / Nd, Td = D / P
+        self._ad = tf / (tf + h)
+        self._bd = kd / (tf + h)
+        self._mh = np.array([ax.housing_mass for ax in axes])
+        self._fgrav = p.bearing_gravity()
+        self._fstat = -self._fgrav
+        self._Pa = np.empty((5, 2, 2))
+        self._Ga = np.empty((5, 2))
+        for i, ax in enumerate(axes):
+            self._Pa[i], self._Ga[i] = amplifier_matrices(ax, h)
+        self._unb = np.array([p.unbalance[0], p.unbalance[0], p.unbalance[1], p.unbalance[1], 0.0])
+        ph = np.array(p.unbalance_phase)
+        self._unb_ph = np.array([ph[0], ph[0] - np.pi / 2, ph[1], ph[1] - np.pi / 2, 0.0])
+        self._run_s, self._run_c = p.runout_sin_cos()
+        adc_lsb = 2 * p.adc_range / 2**p.adc_bits if self.noise else 0.0
+        dac_lsb = 2 * p.dac_range / 2**p.dac_bits if self.noise else 0.0
+        self._c = np.array([h, p.sensor_gain, adc_lsb, p.adc_range, dac_lsb, p.dac_range, p.coil_max_current,
+                            PHASE_BIN_HZ])
+        self._noise_sd = np.array([p.gap_noise, p.current_noise, p.accel_noise]) * (1.0 if self.noise else 0.0)
+
+    def _init_state(self) -> None:
+        """Start at the static equilibrium: rotor centred, gravity carried by the integrators."""
+        self._z = np.zeros(10)
+        self._amp = np.zeros((5, 2))
+        self._ctl = np.zeros((5, 3))  # integral, derivative, previous error voltage
+        i_static = self._fstat / self._ki
+        self._amp[:, 0] = i_static
+        amp_gain = np.array([ax.amp_gain for ax in self.params.axes])
+        self._ctl[:, 0] = -i_static / amp_gain  # u = -integral at zero error
+        self._w = np.zeros((5, N_HARMONICS, 2))
+        theta0, _ = self.speed.angle_speed(np.zeros(1))
+        self._st = np.array([np.floor(theta0[0] / (2 * np.pi))])
+
+    def set_feedforward(self, mode: str, table: np.ndarray | None = None) -> None:
+        """Switch the controller's feedforward.
+
+        Parameters
+        ----------
+        mode : {"off", "table", "lms"}
+            ``table`` applies fixed weights, ``lms`` adapts them from the present ones (eq. 9).
+        table : ndarray, shape (5, n_harmonics, 2), optional
+            Weights [sin, cos] per axis and harmonic (1X first), in m; loaded before switching.
+        """
+        if mode not in FF_MODES:
+            raise ValueError(f"feedforward mode must be one of {sorted(FF_MODES)}, not {mode!r}")
+        if table is not None:
+            t = np.asarray(table, dtype=float)
+            if t.ndim != 3 or t.shape[0] != N_AXES or t.shape[2] != 2 or t.shape[1] > N_HARMONICS:
+                raise ValueError(f"feedforward table must be (5, <= {N_HARMONICS}, 2), not {t.shape}")
+            self._w[:] = 0.0
+            self._w[:, : t.shape[1], :] = t
+        self._ff_mode = FF_MODES[mode]
+
+    def command_speed(self, speed: SpeedProfile) -> None:
+        """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous."""
+        t = self.step_index * self.h
+        theta, _ = self.speed.angle_speed(np.array([t - self._speed_t0]), self._theta0)
+        self._speed_t0, self._theta0 = t, float(theta[0])
+        self.speed = speed
+
+    def set_pid(self, p: np.ndarray, i: np.ndarray, d: np.ndarray) -> None:
+        """Replace the PID gains of the five axes (V/V, 1/s, s); the derivative filter follows."""
+        p, i, d = (np.asarray(v, dtype=float).reshape(5) for v in (p, i, d))
+        tf = d / p / self.params.derivative_filter
+        self._pid_p, self._pid_i = p.copy(), i.copy()
+        self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
+
+    def set_mu_schedule(self, schedule) -> None:
+        """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
+    mapping harmonic -> rows (harmonics not named are held)."""
+        self.mu_schedule = _schedule_rows(schedule)
+        self._mu = mu_table(self.mu_schedule)
+
+    def set_lms_phase(self, phase_rad: np.ndarray | None) -> None:
+        """Turn each axis's LMS step by a phase over loop frequency (the phase-compensated update:
+        w_k moves by mu e [sin, cos](k theta) rotated by g = exp(j phase(k Omega))).
+
+        Parameters
+        ----------
+        phase_rad : ndarray, shape (5, PHASE_BINS), or None
+            Phase per axis at 0, 10, 20 ... 5,000 Hz, in rad; None: no compensation (seed 000's
+            plain update).
+        """
+        ph = np.zeros((N_AXES, PHASE_BINS)) if phase_rad is None else np.asarray(phase_rad, dtype=float)
+        if ph.shape != (N_AXES, PHASE_BINS) or not np.all(np.isfinite(ph)):
+            raise ValueError(f"LMS phase table must be finite, shape ({N_AXES}, {PHASE_BINS}), not {ph.shape}")
+        self._ph_cos, self._ph_sin = np.cos(ph), np.sin(ph)
+
+    @property
+    def lms_phase(self) -> np.ndarray:
+        """The LMS phase compensation per axis and 10 Hz bin, in rad (zeros: none)."""
+        return np.arctan2(self._ph_sin, self._ph_cos)
+
+    def run_speed_rpm(self) -> float:
+        """The rotor speed at the present step, in rpm."""
+        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h - self._speed_t0]), self._theta0)
+        return float(omega[0]) / RPM_TO_RAD_S
+
+    @property
+    def pid_gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Present (P, I, D) per axis, in V/V, 1/s, s."""
+        d = self._bd * (self._ad * self.h / (1 - self._ad) + self.h)
+        return self._pid_p.copy(), self._pid_i.copy(), d
+
+    @property
+    def feedforward_mode(self) -> str:
+        return {v: k for k, v in FF_MODES.items()}[self._ff_mode]
+
+    @property
+    def feedforward_weights(self) -> np.ndarray:
+        """Present feedforward weights, shape (5, 8, 2): [sin, cos] per axis and harmonic, in m."""
+        return self._w.copy()
+
+    def signal_groups(self) -> list[SignalGroup]:
+        """The signal groups this rig produces, in the order of the block's values."""
+        return _groups(self.truth)
+
+    def calibration(self) -> dict[str, str]:
+        """What a recording stores as the rig's calibration: sensor, converters, rotor model."""
+        p = self.params
+        return {
+            "gap_sensor_gain_v_per_m": f"{p.sensor_gain:g}",
+            "adc_bits": str(p.adc_bits),
+            "dac_bits": str(p.dac_bits),
+            "units": "SI: m, A, m/s^2, rad, rad/s",
+            **p.rotor_metadata(),
+        }
+
+    # --- stepping --------------------------------------------------------------------------
+
+    def _discrete_rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray]:
+        """ZOH rotor matrices at the bucketed speed ``omega_q`` (rad/s), cached per rig."""
+        key = round(omega_q / SPEED_BUCKET_RAD_S)
+        if key not in self._rotor_cache:
+            self._rotor_cache[key] = zoh(*rotor_matrices(self.params, omega_q), self.h)
+        return self._rotor_cache[key]
+
+    def run(self, n: int) -> SampleBlock:
+        """Advance the closed loop by ``n`` control periods and return their samples."""
+        steps = self._steps(n)
+        t = steps * self.h
+        theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
+        # unit normals in float32 (half the cost of float64), scaled to SI inside the kernel; one
+        # row of 15 per step, so the stream does not depend on how the run is cut into blocks
+        noise = self._rng.standard_normal((n, 15), dtype=np.float32)
+        if not self.noise:
+            noise[:] = 0.0
+        exc = self.excitation_block(steps)
+        outs = [np.empty((n, 5)) for _ in range(4)] + [np.empty((n, 5)), np.empty((n, 3))]
+        out_run = np.empty((n, 5))
+        out_pos = np.empty((n, 5))
+        # split the block where the speed crosses into another gyroscopic bucket
+        bucket = np.round(omega / SPEED_BUCKET_RAD_S)
+        edges = np.concatenate(([0], np.flatnonzero(np.diff(bucket)) + 1, [n]))
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            if hi <= lo:
+                continue
+            Phi, Gam = self._discrete_rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
+            sl = slice(lo, hi)
+            _simulate(
+                theta[sl], omega[sl], noise[sl, 0:5], noise[sl, 5:10], noise[sl, 10:15], self._noise_sd,
+                self._z, self._amp, self._ctl, self._w, self._st,
+                Phi, Gam, self._Pa, self._Ga,
+                self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
+                self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
+                self._mu, self._ph_cos, self._ph_sin, self._ff_mode, exc[sl], self._c,
+                outs[0][sl], outs[1][sl], outs[2][sl], outs[3][sl], outs[4][sl], outs[5][sl],
+                out_run[sl], out_pos[sl],
+            )
+        self.step_index += n
+        return self._block(steps, outs + ([out_run, out_pos] if self.truth else []))
+
+    # --- linear analysis of the simulated loop --------------------------------------------------
+
+    def closed_loop_matrix(self, rpm: float) -> np.ndarray:
+        """One-step transition matrix of the simulated closed loop, linearised at ``rpm`` (rpm).
+
+        Obtained by stepping the simulation kernel itself from unit perturbations of its state
+        with noise, runout, unbalance, gravity and quantisation off, so it is the Jacobian of the
+        code that runs, not of a separate model.  The loop is stable iff its spectral radius < 1.
+        """
+        return self.loop_matrices(rpm)[0]
+
+    def loop_matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The simulated loop linearised at ``rpm`` (rpm) with the feedforward as its input:
+        x[n+1] = M x[n] + B r_c[n],  e[n] = C x[n] - r_c[n].
+
+        ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
+        feedforward per axis (m, subtracted from the sensor signal, seed 000 eq. 10) and ``e`` the
+        command error per axis (m).  Found by stepping the simulation kernel itself from unit
+        perturbations, with noise, runout, unbalance, gravity and quantisation off (at standstill,
+        once per rig); only the rotor's ZOH matrices depend on the speed (gyroscopics), so at
+        other speeds the rotor rows are Phi(Omega) [I 0] + Gamma(Omega) dF/dx, with the bearing
+        forces' Jacobian dF/dx taken from the standstill probe.
+
+        Returns
+        -------
+        M : ndarray, shape (35, 35)
+        B : ndarray, shape (35, 5)
+        C : ndarray, shape (5, 35)
+        """
+        if self._linear is None:
+            M0, B0, C = self.probe_loop(0.0)
+            Phi0, Gam0 = self._discrete_rotor(0.0)
+            rotor0 = np.hstack([Phi0, np.zeros((10, 25))])
+            # the rotor rows are Phi x_rotor + Gamma F(x, r_c): solve for F's Jacobian
+            dF = np.linalg.lstsq(Gam0, np.hstack([M0[:10] - rotor0, B0[:10]]), rcond=None)[0]
+            self._linear = (M0, B0, C, dF)
+        M0, B0, C, dF = self._linear
+        omega = rpm * RPM_TO_RAD_S
+        Phi, Gam = self._discrete_rotor(float(np.round(omega / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S))
+        M, B = M0.copy(), B0.copy()
+        M[:10] = np.hstack([Phi, np.zeros((10, 25))]) + Gam @ dF[:, :35]
+        B[:10] = Gam @ dF[:, 35:]
+        return M, B, C
+
+    def probe_loop(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`loop_matrices` at ``rpm`` by stepping the kernel from every unit perturbation
+        (35 + 5 one-step runs): the reference the fast path is built on and tested against."""
+        quiet = replace(
+            self.params, unbalance=(0.0, 0.0), runout_amp=np.zeros_like(self.params.runout_amp)
+        )
+        probe = SpindleRig(quiet, speed=SpeedProfile(rpm, rpm), noise=False)
+        probe._fgrav = np.zeros(5)
+        probe._fstat = np.zeros(5)
+        n_state = 10 + 10 + 15
+        scale = 1e-9  # small enough that nothing saturates
+
+        def step(x: np.ndarray, rc_axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+            probe._z[:] = x[:10]
+            probe._amp[:] = x[10:20].reshape(5, 2)
+            probe._ctl[:] = x[20:35].reshape(5, 3)
+            probe.step_index = 0
+            table = np.zeros((N_AXES, 1, 2))
+            if rc_axis >= 0:  # at step 0 the angle is 0: r_c = the cos weight of 1X
+                table[rc_axis, 0, 1] = scale
+            probe.set_feedforward("table" if rc_axis >= 0 else "off", table)
+            block = probe.run(1)
+            nxt = np.concatenate([probe._z, probe._amp.ravel(), probe._ctl.ravel()])
+            return nxt, block.values["/amb/error"][0]
+
+        M = np.empty((n_state, n_state))
+        C = np.empty((N_AXES, n_state))
+        for col in range(n_state):
+            x = np.zeros(n_state)
+            x[col] = scale
+            nxt, err = step(x)
+            M[:, col], C[:, col] = nxt / scale, err / scale
+        B = np.empty((n_state, N_AXES))
+        for a in range(N_AXES):
+            nxt, err = step(np.zeros(n_state), a)
+            B[:, a] = nxt / scale
+        return M, B, C
+
+
+# --- what its simulated controller runs (sim://spindle, ambdaq sim serve) ---------------------------
+
+
+class RunoutFeedforward(Feedforward):
+    """Seed 000's runout feedforward as the coefficient banks hold it: weights per axis and
+    harmonic (a fixed table, or where the LMS starts), the step-size schedule over speed and the
+    phase compensation (docs/push.md)."""
+
+    def layout(self, rig) -> dict:
+        return {"axes": list(AXES), "harmonics": N_HARMONICS}
+
+    def present(self, rig) -> BankImage:
+        sched = rig.mu_schedule
+        rows = ([(float(k), *r) for k, rs in sched.items() for r in rs] if isinstance(sched, dict)
+                else [(0.0, *r) for r in sched])
+        phase = rig.lms_phase
+        return BankImage(rig.feedforward_weights, rig.feedforward_mode, rows, "", phase if np.any(phase) else None,
+                         PHASE_BIN_HZ)
+
+    def apply(self, rig, image: BankImage) -> None:
+        """Schedule and phase first, then weights and mode: one boundary."""
+        rig.set_mu_schedule(image.per_harmonic_schedule())
+        phase = None
+        if image.phase_rad is not None:  # the image's table resampled onto the controller's own bins (nearest)
+            f = np.arange(PHASE_BINS) * PHASE_BIN_HZ
+            phase = image.phase_rad[:, np.minimum(np.round(f / image.phase_bin_hz).astype(int),
+                                                  image.phase_rad.shape[1] - 1)]
+        rig.set_lms_phase(phase)
+        rig.set_feedforward(image.mode, image.weights)
+
+
+def _set_pid(which: int):
+    def write(rig, values):
+        gains = list(rig.pid_gains)
+        gains[which] = values
+        rig.set_pid(*gains)
+
+    return write
+
+
+def _read_schedule(rig) -> np.ndarray:
+    """``lms.schedule``: the rows (harmonic, rpm_from, rpm_to, mu), flattened."""
+    sched = rig.mu_schedule
+    per = sched if isinstance(sched, dict) else {k: sched for k in range(1, N_HARMONICS + 1)}
+    return np.array([(k, *row) for k, rows in per.items() for row in rows], dtype=float).ravel()
+
+
+FIRMWARE = Firmware(
+    "AMB controller (simulated, seed 000 spindle)",
+    ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"),  # /amb/accel: a CANopen device
+    {
+        "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), 0.0, 100.0, "proportional gain per axis, V/V"),
+        "pid.i": Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), 0.0, 1e4, "integral gain per axis, 1/s"),
+        "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), 1e-6, 1.0, "derivative gain per axis, s"),
+        # the feedforward is read here and changed only through the coefficient banks (BANK_*)
+        "ff.mode": Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]), doc="feedforward: 0 off, 1 table, 2 LMS"),
+        "ff.table": Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
+                          doc="present feedforward weights [axis][harmonic][sin, cos] (LMS: as adapted), m"),
+        "lms.schedule": Param(0, _read_schedule, doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
+        "speed.rpm": SPEED,
+        "exc.signal": EXCITATION,
+    },
+    RunoutFeedforward(),
+)
+
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True)

@@ -1,0 +1,145 @@
+"""A simulated rig's devices on real transports: its AMB controller (and a base-motion rig's
+shaker generator) on pseudo-terminals, its CANopen devices on a python-can ``virtual`` bus.
+
+The one way a simulated rig is served: ``ambdaq sim serve`` (another process: pseudo-terminals
+only, python-can's virtual bus does not cross processes) and ``sim://`` (this process: CAN too,
+:mod:`.backend`).  Each served device is named by a device URL that the real drivers open.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import tty
+from dataclasses import dataclass, field
+
+from ..drivers.can.profiles import PROFILES as CAN_PROFILES
+from ..drivers.serial import framing
+from ..speed import SpeedProfile
+from .devices.banks import DEFAULT_UNLOCK_KEY
+from .devices.canopen import open_network, serve_can
+from .devices.controller import FdPort, SimController
+from .devices.rig_server import DeviceClock, RigServer
+from .devices.shaker import SimShaker
+from .profiles import require_served
+
+CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
+"""The simulated controller's own clock: 5 s ahead of the host's, running 50 ppm fast."""
+CAN_SYNC_HZ = 800.0  # 7 frames per SYNC: 63% of 1 Mbit/s
+CAN_NAMESPACED = ("gap_sensor", "amplifier", "keyphasor")  # their topics are the controller's too: /can/amb/...
+_channels = itertools.count()
+
+
+@dataclass
+class Pty:
+    """A pseudo-terminal pair: the device holds the master, drivers open ``path``."""
+
+    master: int
+    slave: int
+    path: str
+
+    @classmethod
+    def open(cls) -> "Pty":
+        master, slave = os.openpty()
+        tty.setraw(slave)  # bytes pass unchanged: no echo, no line discipline
+        return cls(master, slave, os.ttyname(slave))
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+@dataclass
+class ServedRig:
+    """A running simulated rig and its devices on transports.
+
+    Attributes
+    ----------
+    server : RigServer
+        The rig in real time.
+    devices : dict
+        The simulated devices by name (``controller``, ``shaker``, the CANopen kinds).
+    urls : dict of str to str
+        The device URL of each, as a driver opens it.
+    ptys : dict of str to Pty
+        The pseudo-terminals, by device name.
+    """
+
+    server: RigServer
+    devices: dict = field(default_factory=dict)
+    urls: dict[str, str] = field(default_factory=dict)
+    ptys: dict[str, Pty] = field(default_factory=dict)
+    network: object = None
+
+    def stop(self) -> None:
+        """Stop every device and the rig; safe to call twice."""
+        for device in self.devices.values():
+            stop = getattr(device, "stop", None)  # the CANopen devices go with their network
+            if stop is not None:
+                stop()
+        self.devices.clear()
+        self.server.stop()
+        if self.network is not None:
+            self.network.disconnect()
+            self.network = None
+        for p in self.ptys.values():
+            p.close()
+        self.ptys.clear()
+
+
+def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
+          ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
+          clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: bool = True) -> ServedRig:
+    """Start rig profile ``name`` in real time with its devices on transports.
+
+    Parameters
+    ----------
+    name : str
+        Rig profile; it must serve devices (its ``PROFILE.firmware``).
+    seed, speed, truth, ff_mode, noise
+        The rig's options (:class:`~ambdaq.sim.source.SimSource` has them too).
+    unlock_key : str
+        The key the controller's coefficient banks want (``ambdaq push``).
+    clock : DeviceClock
+        The controller's own clock.
+    base_motion : BaseExcitation, optional
+        The base's motion from the start (a rig with a moving base).
+    can : bool
+        Serve the CANopen devices on a virtual bus (this process only).
+    """
+    profile = require_served(name)
+    framing.warm_up()  # before the rig's clock starts: compiling must not make it late
+    rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
+    if base_motion is not None:
+        rig.set_base_motion(base_motion)
+    served = ServedRig(RigServer(rig))
+    try:
+        served.ptys["controller"] = Pty.open()
+        served.devices["controller"] = SimController(FdPort(served.ptys["controller"].master), served.server,
+                                                     profile.firmware, clock=clock, truth=truth, unlock_key=unlock_key)
+        served.urls["controller"] = f"serial://{served.ptys['controller'].path}"
+        if profile.can and can:
+            channel = f"ambdaq-sim-{next(_channels)}"
+            served.network = open_network(channel)
+            for dev in serve_can(served.network, served.server):
+                kind = dev.profile.kind
+                served.devices[kind] = dev
+                namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
+                served.urls[kind] = (f"can://virtual/{channel}?node={CAN_PROFILES[kind].default_node}"
+                                     f"&sync={CAN_SYNC_HZ:g}{namespace}")
+        if profile.shaker:
+            served.ptys["shaker"] = Pty.open()
+            served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
+            served.urls["shaker"] = f"serial://{served.ptys['shaker'].path}"
+        served.server.start()
+        for device in served.devices.values():
+            start = getattr(device, "start", None)
+            if start is not None:
+                start()
+    except BaseException:
+        served.stop()
+        raise
+    return served

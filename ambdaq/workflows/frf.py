@@ -1,0 +1,139 @@
+"""Frequency responses with the controller's test-signal input (the sensitivity measurement of
+ISO 14839-3): switch the signal on for a recording, and estimate H1 with coherence from
+recordings.  Works with any controller that reports the input (its ExcitationSpec): its axes,
+unit, limits and rate are the device's own."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.frf import COHERENT, coherent_band, h1_estimate
+from ..daq.coefficients import file_sha256
+from ..daq.frequency_response import FrequencyResponse
+from ..daq.mcapfile import McapFile
+from ..daq.reader import ambdaq_channels, load
+from ..drivers.excitation import OFF, Excitation, ExcitationRequest
+from ..drivers.interfaces import Controller, Source
+from ..errors import BadInputError, DeviceError
+from ..units import RAD_S_TO_RPM
+
+
+@dataclass
+class Excited:
+    """A controller whose test signal is on until it is closed.
+
+    Attributes
+    ----------
+    controller : Controller
+        The device.
+    excitation : Excitation
+        What runs, in the device's units.
+    switch_off_problem : str or None
+        Set if the signal could not be switched off at the end (the recording is kept).
+    """
+
+    controller: Controller
+    excitation: Excitation
+    switch_off_problem: str | None = None
+
+
+def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
+    """Switch the test signal on at the first of ``sources`` that reports a test-signal input,
+    checked against what it reports; it is switched off when that device is closed, before it
+    is released, however the recording ends (its duration, Ctrl-C, a failure).
+
+    Parameters
+    ----------
+    sources : list of Source
+        Opened devices (a whole simulated rig, or hardware).
+    request : ExcitationRequest
+        Axis, amplitude (um for a displacement input, else the input's unit), frequency (Hz).
+    """
+    controller = next((s for s in sources if isinstance(s, Controller) and s.capabilities.excitation), None)
+    if controller is None:
+        raise BadInputError("no device here reports a test-signal input (frf measure needs an AMB controller with one)")
+    spec = controller.capabilities.excitation
+    try:
+        excitation = request.resolve(spec)
+    except ValueError as err:
+        raise BadInputError(str(err)) from None
+    controller.write_param(spec.parameter, excitation.values())
+    state = Excited(controller, excitation)
+
+    def switch_off(device: Controller) -> None:
+        try:
+            device.write_param(spec.parameter, list(OFF))
+        except DeviceError as err:  # the recording is kept; the caller says the signal may still be on
+            state.switch_off_problem = str(err)
+
+    controller.before_close(switch_off)
+    return state
+
+
+def _excited_axis(ff, path: Path, given: str | None) -> str:
+    """The input axis: ``given``, or the one axis whose feedforward input is not zero."""
+    if given:
+        if given not in ff.fields:
+            raise BadInputError(f"--input {given!r}: {path} has {', '.join(ff.fields)}")
+        return given
+    live = [a for a in ff.fields if np.any(ff[a] != 0.0)]
+    if len(live) != 1:
+        raise BadInputError(f"{path}: {len(live)} axes carry a feedforward input ({', '.join(live) or 'none'}); "
+                            "name the excited one with --input AXIS")
+    return live[0]
+
+
+def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str | None,
+                       input_topic: str = "/amb/ff", output_topic: str = "/amb/error") -> FrequencyResponse:
+    """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
+    freq, columns = None, {}
+    for path in paths:
+        spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))  # base-motion rigs have no rotor topic
+        rec = load(path, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
+        x_data, y_data = rec[input_topic], rec[output_topic]
+        n = min(len(x_data), len(y_data))
+        axis = _excited_axis(x_data, path, input_axis)
+        x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
+        if axis in columns:
+            raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")
+        outputs = list(y_data.fields)
+        try:
+            est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
+                              fs=rec[input_topic].nominal_rate, resolution_hz=resolution_hz)
+        except ValueError as err:
+            raise BadInputError(f"{path}: {err}") from None
+        if not np.all(np.isfinite(est.response)):
+            raise BadInputError(f"{path}: the input {axis} carries nothing at some frequencies (a sine, not noise?)")
+        if freq is not None and not np.array_equal(freq, est.freq_hz):
+            raise BadInputError(f"{path}: sample rate differs from the other recordings'")
+        freq = est.freq_hz
+        rpm = float(np.median(rec["/amb/rotor"]["speed"])) * RAD_S_TO_RPM if spinning else 0.0
+        columns[axis] = {
+            "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
+                       "segments": est.segments},
+            "outputs": {a: (est.response[:, i], est.coherence[:, i]) for i, a in enumerate(outputs)},
+        }
+    return FrequencyResponse(freq, columns, input_topic, output_topic, f"{y_unit}/{x_unit}")
+
+
+def summarize(frf: FrequencyResponse) -> dict:
+    """Per excited axis: the coherent band (coherence >= COHERENT), the median coherence there and
+    over the whole axis, the peak |H| inside the band (docs/frf.md)."""
+    out = {}
+    for axis, col in frf.columns.items():
+        h, c = col["outputs"][axis]
+        band = coherent_band(frf.freq_hz, c)
+        inside = np.zeros(c.shape, dtype=bool) if band is None else (frf.freq_hz >= band[0]) & (frf.freq_hz <= band[1])
+        peak = int(np.argmax(np.where(inside, np.abs(h), -np.inf))) if band is not None else int(np.argmax(np.abs(h)))
+        out[axis] = {"points": int(h.shape[0]), "coherent_band_hz": list(band) if band else None,
+                     "median_coherence_in_band": round(float(np.median(c[inside])), 4) if band else None,
+                     "median_coherence": round(float(np.median(c)), 4),
+                     "peak_gain": float(f"{np.abs(h[peak]):.4g}"), "peak_hz": float(frf.freq_hz[peak]),
+                     "source": col["source"]["path"]}
+    return out
+
+
+__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "summarize"]

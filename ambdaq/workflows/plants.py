@@ -1,0 +1,133 @@
+"""The loops an LMS design is made on, by name (``--plant``), for ``ambdaq lms`` and ``ambdaq push``.
+
+=========  ========================================================================================
+name       loop
+=========  ========================================================================================
+front      seed 000's one-axis model of the front bearing (Table 1, PID P 1.6, I 1, D 0.0015)
+rear       the same for the rear bearing (D 0.002, amplifier 2,500 Hz)
+bearings   both one-axis models (a schedule must converge on both)
+rig        the simulated spindle's own five-axis loop, linearised from its kernel at each speed
+tf:N/D     any plant G(s), V in -> sensor V out, as comma-separated coefficients of s (descending),
+           in the loop of seed 000's front PID, e.g. ``tf:2184000/1.5,0,-1770000``
+ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms.md):
+           ``A, B, C[, D]`` a continuous one-input plant G(s) (V -> sensor V) in the loop of seed
+           000's front PID; or ``M, B, C, h[, rpm]`` a discrete multi-axis loop with the feedforward
+           as its input, x[n+1] = M x + B r_c, e = C x - r_c (one set, or one per speed in ``rpm``)
+=========  ========================================================================================
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import ss2tf
+
+from ..analysis.lms import BEARINGS, PlantLoop, StateSpaceLoop
+from ..machines.spindle import N_AXES  # the controller's axes a plant's inputs stand for, in order
+from ..sim.rigs.spindle import SpindleRig
+from ..errors import BadInputError
+
+PLANT_NAMES = ("front", "rear", "bearings", "rig", "tf:NUM/DEN", "ss:FILE")
+_RIG: dict[str, StateSpaceLoop] = {}
+
+
+def rig_loop() -> StateSpaceLoop:
+    """The simulated spindle's loop (one per process: its linearisations are cached)."""
+    if "spindle" not in _RIG:
+        _RIG["spindle"] = StateSpaceLoop(SpindleRig().loop_matrices)
+    return _RIG["spindle"]
+
+
+def resolve_plant(spec: str) -> dict:
+    """``spec`` -> {name: (loop, controller axes it stands for)}."""
+    if spec == "front":
+        return {"front": (BEARINGS["front"], (0, 1))}
+    if spec == "rear":
+        return {"rear": (BEARINGS["rear"], (2, 3))}
+    if spec == "bearings":
+        return {"front": (BEARINGS["front"], (0, 1)), "rear": (BEARINGS["rear"], (2, 3))}
+    if spec == "rig":
+        return {"rig": (rig_loop(), (0, 1, 2, 3, 4))}
+    if spec.startswith("tf:"):
+        try:
+            num, den = (tuple(float(x) for x in part.split(",")) for part in spec[3:].split("/"))
+        except ValueError:
+            raise BadInputError(f"plant {spec!r}: expected tf:NUM/DEN with comma-separated coefficients of s") from None
+        if not den or den[0] == 0:
+            raise BadInputError(f"plant {spec!r}: the denominator's leading coefficient must not be 0")
+        return {"tf": (PlantLoop(num=num, den=den), (0, 1, 2, 3, 4))}
+    if spec.startswith("ss:"):
+        return state_space_plant(Path(spec[3:]))
+    raise BadInputError(f"unknown plant {spec!r}: expected one of {', '.join(PLANT_NAMES)}")
+
+
+def _arrays(path: Path) -> dict[str, np.ndarray]:
+    """The named arrays of a ``.npz`` or ``.json`` plant file."""
+    try:
+        if path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                return {k: np.asarray(z[k], dtype=float) for k in z.files}
+        return {k: np.asarray(v, dtype=float) for k, v in json.loads(path.read_text()).items()}
+    except (OSError, ValueError, TypeError, AttributeError) as err:
+        raise BadInputError(f"plant ss:{path}: cannot read a .npz or .json of named arrays ({err})") from None
+
+
+def state_space_plant(path: Path) -> dict:
+    """A plant in state space from ``path`` (see the module table), checked for shape and finiteness.
+
+    Parameters
+    ----------
+    path : Path
+        ``.npz`` or ``.json`` file.  Continuous plant: ``A`` (n, n), ``B`` (n, 1), ``C`` (1, n),
+        optional ``D`` (1, 1), in V and s.  Discrete loop: ``M`` (n, n) or (k, n, n), ``B``
+        (n, p) or (k, n, p) in state per m of feedforward, ``C`` (p, n) or (k, p, n) in m of
+        command error per state, ``h`` the sample period in s, and with k sets ``rpm`` (k,),
+        increasing, in rpm: between them the matrices are interpolated linearly, beyond them held.
+
+    Returns
+    -------
+    dict
+        {name: (loop, controller axes it stands for)}, as :func:`resolve_plant`.
+    """
+    a = _arrays(path)
+    where = f"plant ss:{path}"
+    bad = [k for k, v in a.items() if not np.all(np.isfinite(v))]
+    if bad:
+        raise BadInputError(f"{where}: {bad[0]} holds NaN or infinite values")
+    if "M" in a:
+        return {"ss": (_discrete_loop(a, where), tuple(range(a["B"].shape[-1])))}
+    if "A" not in a:
+        raise BadInputError(f"{where}: expected arrays A, B, C[, D] (continuous plant) or M, B, C, h[, rpm] (loop)")
+    A, B, C = (np.atleast_2d(a.get(k, np.zeros(0))) for k in "ABC")
+    D = np.atleast_2d(a.get("D", np.zeros((1, 1))))
+    n = A.shape[0]
+    if A.shape != (n, n) or B.shape != (n, 1) or C.shape != (1, n) or D.shape != (1, 1):
+        raise BadInputError(f"{where}: a continuous plant needs A (n, n), B (n, 1), C (1, n), D (1, 1); "
+                            f"got {A.shape}, {B.shape}, {C.shape}, {D.shape}")
+    num, den = ss2tf(A, B, C, D)
+    return {"ss": (PlantLoop(num=tuple(np.trim_zeros(num[0], "f")) or (0.0,), den=tuple(den)), tuple(range(N_AXES)))}
+
+
+def _discrete_loop(a: dict[str, np.ndarray], where: str) -> StateSpaceLoop:
+    """``M, B, C, h[, rpm]`` -> a :class:`StateSpaceLoop` interpolated over speed."""
+    if "h" not in a or a["h"].size != 1 or not a["h"].item() > 0:
+        raise BadInputError(f"{where}: a discrete loop needs h, its sample period in s (> 0)")
+    rpm = np.atleast_1d(a.get("rpm", np.zeros(1)))
+    k = rpm.size
+    M, B, C = (a[name] if a[name].ndim == 3 else np.broadcast_to(a[name], (k, *a[name].shape)) for name in "MBC")
+    n, p = M.shape[-1], B.shape[-1]
+    if (M.shape != (k, n, n) or B.shape != (k, n, p) or C.shape != (k, p, n) or not 1 <= p <= N_AXES
+            or np.any(np.diff(rpm) <= 0)):
+        raise BadInputError(f"{where}: a discrete loop needs M (k, n, n), B (k, n, p), C (k, p, n) with "
+                            f"1 <= p <= {N_AXES} and k increasing speeds in rpm; got M {M.shape}, B {B.shape}, "
+                            f"C {C.shape}, rpm {rpm.shape}")
+
+    def matrices(speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        i = int(np.clip(np.searchsorted(rpm, speed) - 1, 0, max(k - 2, 0)))
+        t = 0.0 if k == 1 else float(np.clip((speed - rpm[i]) / (rpm[i + 1] - rpm[i]), 0.0, 1.0))
+        j = min(i + 1, k - 1)
+        return tuple((1 - t) * X[i] + t * X[j] for X in (M, B, C))
+
+    return StateSpaceLoop(matrices, h=a["h"].item())

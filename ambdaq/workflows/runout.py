@@ -1,0 +1,171 @@
+"""Sensor runout from recordings: identify it per axis and harmonic into a coefficient file, and
+prove on a new recording that the command error went down (docs/push.md, docs/coefficients.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.rotor import RigidRotor
+from ..analysis.runout import harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average
+from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..daq.reader import Recording, load
+from ..errors import BadInputError
+from ..machines.spindle import AXES
+from ..units import RAD_S_TO_RPM
+
+UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
+# a recording this slow is a slow roll for identification (the speed spec's `slowroll` is 800 rpm)
+METHODS = {
+    "fit": lambda x, th, k: harmonic_fit(x, th, k),
+    "average": lambda x, th, k: synchronous_average(x, th, harmonics=k),
+    "lms": lambda x, th, k: lms_offline(x, th, harmonics=k).phasors,
+}
+
+
+def _rotor(rec, path: Path) -> tuple[RigidRotor, str, dict]:
+    for name, meta in rec.metadata.items():
+        if name.startswith("ambdaq.calibration.") and "rotor.mass_kg" in meta:
+            device = name.removeprefix("ambdaq.calibration.")
+            return RigidRotor.from_metadata(meta), device, rec.metadata.get(f"ambdaq.device.{device}", {})
+    raise BadInputError(f"{path}: no rotor model (rotor.* calibration) in the recording; the rig file must give one")
+
+
+@dataclass(frozen=True)
+class Identification:
+    """What ``runout identify`` found: the coefficients, and each recording's own estimate."""
+
+    coef: Coefficients
+    warnings: list[str]
+    paths: list[Path]
+    first: Recording  # the first recording's gap, current and rotor, for the report
+    spins: np.ndarray  # rad/s, per recording
+    per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
+
+
+def identify_recordings(paths: list[Path], harmonics: list[int], method: str) -> Identification:
+    """Runout per axis and harmonic from recordings at constant speed (one speed per file).
+
+    Harmonics above 1X come from every file (averaged); 1X comes from a slow roll if there is
+    one, else from separating runout and unbalance over the speeds, else (one fast recording)
+    with a warning that it holds the unbalance response.
+    """
+    per_file, warnings, sources, recs = [], [], [], []
+    rotor = device = identity = None
+    for path in paths:
+        rec = load(path, topics=["/amb/gap", "/amb/current", "/amb/rotor"])
+        recs.append(rec)
+        rotor, device, identity = _rotor(rec, path)
+        gap, cur, rot = rec["/amb/gap"], rec["/amb/current"], rec["/amb/rotor"]
+        n = min(len(gap), len(cur), len(rot))
+        speed = rot["speed"][:n]
+        w = float(np.median(speed))
+        if w <= 0 or np.std(speed) > 0.01 * w:
+            raise BadInputError(f"{path}: runout identification needs a constant speed; this recording runs from "
+                                f"{speed.min() * RAD_S_TO_RPM:.0f} to {speed.max() * RAD_S_TO_RPM:.0f} rpm")
+        theta = rot["angle"][:n]
+        fit = METHODS[method]
+        G = np.stack([fit(gap[a][:n], theta, harmonics) for a in AXES], axis=1)  # (harmonic, axis)
+        I = np.stack([fit(cur[a][:n], theta, harmonics) for a in AXES], axis=1)
+        r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
+        per_file.append((w, r))
+        sources.append({"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(w * RAD_S_TO_RPM, 1)})
+    spins = np.array([w for w, _ in per_file])
+    est = np.mean([r for _, r in per_file], axis=0)  # (harmonic, axis)
+    if 1 in harmonics:
+        i1 = harmonics.index(1)
+        slow = [r for w, r in per_file if w * RAD_S_TO_RPM <= UNBALANCE_NEGLIGIBLE_RPM]
+        if slow:
+            est[i1] = np.mean([r[i1] for r in slow], axis=0)
+        elif len(set(np.round(spins))) >= 2:
+            est[i1] = separate_unbalance(np.array([r[i1] for _, r in per_file]), spins, rotor).runout
+        else:
+            warnings.append(f"1X at {spins[0] * RAD_S_TO_RPM:.0f} rpm also holds the rotor's unbalance response "
+                            "(right for feedforward at this speed); add a slow roll (--rpm slowroll) or recordings "
+                            "at other speeds to separate the runout")
+    weights = {axis: [[float(est[i, a].real), float(est[i, a].imag)] for i in range(len(harmonics))]
+               for a, axis in enumerate(AXES)}
+    coef = Coefficients(
+        target={"rig": identity.get("profile", identity.get("model", "")), "device": device,
+                "serial": identity.get("serial", ""), "axes": list(AXES)},
+        source={"recordings": sources, "method": method, "created": now_iso()},
+        harmonics=list(harmonics),
+        weights=weights,
+    )
+    return Identification(coef, warnings, list(paths), recs[0], spins, np.array([r for _, r in per_file]))
+
+
+def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
+    """Per radial axis: harmonic phasors of the command error and the gap sensor (m), the error's RMS (m)."""
+    err, gap, rot = rec["/amb/error"], rec["/amb/gap"], rec["/amb/rotor"]
+    n = min(len(err), len(gap), len(rot))
+    if n < 2:
+        raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
+    theta = rot["angle"][:n]
+    out = {"rpm": float(np.median(rot["speed"][:n])) * RAD_S_TO_RPM, "axes": {}}
+    for a in AXES:
+        if a.endswith(("_x", "_y")) and a in err.fields:
+            out["axes"][a] = {"error": harmonic_fit(err[a][:n], theta, harmonics),
+                              "gap": harmonic_fit(gap[a][:n], theta, harmonics),
+                              "rms": float(np.sqrt(np.mean(err[a][:n] ** 2)))}
+    return out
+
+
+def _db(after: float, before: float) -> float:
+    return float(20 * np.log10(after / before))
+
+
+
+
+@dataclass
+class Check:
+    """What ``runout check`` found: per radial axis the command error's harmonics and RMS before
+    and after, in um, and what falls short of the asked reduction."""
+
+    before: dict
+    after: dict
+    axes: dict[str, dict]
+    failures: list[str] = field(default_factory=list)
+
+    @property
+    def speeds_differ(self) -> bool:
+        """Whether the two recordings run at speeds more than 1% apart (their harmonics then compare
+        different frequencies)."""
+        return abs(self.after["rpm"] - self.before["rpm"]) > 0.01 * max(self.before["rpm"], 1.0)
+
+
+def check_recordings(before: Recording, after: Recording, harmonics: list[int], *, min_db: float | None = None,
+                     max_rms_um: float | None = None) -> Check:
+    """The command error's 1X..NX and RMS per radial axis before and after, and the failures.
+
+    Parameters
+    ----------
+    before, after : Recording
+        With ``/amb/error``, ``/amb/gap`` and ``/amb/rotor``.
+    harmonics : list of int
+        Orders to compare.
+    min_db : float, optional
+        Every harmonic must fall by at least this, in dB.
+    max_rms_um : float, optional
+        The RMS after must be below this, in um.
+    """
+    b, a = _synchronous(before, harmonics), _synchronous(after, harmonics)
+    rows, failures = {}, []
+    for axis, rb in b["axes"].items():
+        ra = a["axes"][axis]
+        eb, ea = np.abs(rb["error"]) * 1e6, np.abs(ra["error"]) * 1e6
+        rows[axis] = {
+            "harmonics": [{"harmonic": k, "before_um": round(float(eb[i]), 4), "after_um": round(float(ea[i]), 4),
+                           "change_db": round(_db(ea[i], eb[i]), 2)} for i, k in enumerate(harmonics)],
+            "rms_before_um": round(rb["rms"] * 1e6, 4), "rms_after_um": round(ra["rms"] * 1e6, 4),
+            "sensor_1x_after_um": round(float(abs(ra["gap"][0])) * 1e6, 4),
+        }
+        for h in rows[axis]["harmonics"]:
+            if min_db is not None and not h["change_db"] <= -min_db:
+                failures.append(f"{axis} {h['harmonic']}X fell {-h['change_db']:.1f} dB (< {min_db:g} dB)")
+        if max_rms_um is not None and not rows[axis]["rms_after_um"] < max_rms_um:
+            failures.append(f"{axis} RMS {rows[axis]['rms_after_um']:.2f} um after (>= {max_rms_um:g} um)")
+    return Check({"path": str(before.path), "rpm": round(b["rpm"], 1)}, {"path": str(after.path), "rpm": round(a["rpm"], 1)},
+                 rows, failures)
