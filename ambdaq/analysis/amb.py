@@ -16,13 +16,35 @@ from dataclasses import dataclass
 import numpy as np
 
 
-
-def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: float) -> np.ndarray:
-    """Frequency response of the digital PID used by the simulated controller.
+def pid_z(*, p: float, i: float, d: float, nd: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The digital PID of the simulated controller as (num, den) in powers of z: the one statement
+    of the law (the step kernel runs the same difference equation).
 
     Parallel form with a Tustin integrator I h (z+1) / (2 (z-1)) (the readable term of seed 000
-    eq. 3) and a backward-Euler filtered derivative D (1 - z^-1) / (Tf + h - Tf z^-1),
-    Tf = (D/P)/Nd.
+    eq. 3) and a backward-Euler filtered derivative D (z - 1) / ((Tf + h) z - Tf), Tf = (D/P)/Nd.
+
+    Parameters
+    ----------
+    p : float
+        Proportional gain, in V/V.
+    i : float
+        Integral gain, in 1/s.
+    d : float
+        Derivative gain, in s.
+    nd : float
+        Derivative filter factor Nd.
+    h : float
+        Sample period, in s.
+    """
+    tf = d / p / nd
+    d1 = np.array([1.0, -1.0])
+    d2 = np.array([tf + h, -tf])
+    num = np.polymul(p * d1, d2) + np.polymul(i * h / 2 * np.array([1.0, 1.0]), d2) + np.polymul(d * d1, d1)
+    return num, np.polymul(d1, d2)
+
+
+def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: float) -> np.ndarray:
+    """Frequency response of the digital PID (:func:`pid_z`).
 
     Parameters
     ----------
@@ -45,10 +67,8 @@ def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: f
         C(exp(j 2 pi f h)), in V/V.
     """
     z = np.exp(1j * 2 * np.pi * np.asarray(f, dtype=float) * h)
-    tf = d / p / nd
-    integral = i * h * (z + 1) / (2 * (z - 1))
-    derivative = d * (1 - 1 / z) / (tf + h - tf / z)
-    return p + integral + derivative
+    num, den = pid_z(p=p, i=i, d=d, nd=nd, h=h)
+    return np.polyval(num, z) / np.polyval(den, z)
 
 
 def amplifier_response(f: np.ndarray, *, gain: float, wn_hz: float, zeta: float) -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.signal import cont2discrete, tf2ss
 
 from ..machines.spindle import ONE_AXIS_MASS, SPINDLE, BearingAxis
+from .amb import pid_z
 
 
 @dataclass(frozen=True)
@@ -58,14 +59,8 @@ class OneAxis:
         return np.trim_zeros(np.atleast_1d(np.squeeze(nz)), "f"), dz
 
     def controller_z(self) -> tuple[np.ndarray, np.ndarray]:
-        """The digital PID as (num, den) in powers of z (same law as the simulated controller)."""
-        h, tf = self.h, self.d / self.p / self.nd
-        # P + I h (z + 1) / (2 (z - 1)) + D (z - 1) / ((Tf + h) z - Tf)
-        d1 = np.array([1.0, -1.0])
-        d2 = np.array([tf + h, -tf])
-        num = (np.polymul(self.p * d1, d2) + np.polymul(self.i * h / 2 * np.array([1.0, 1.0]), d2)
-               + np.polymul(self.d * d1, d1))
-        return num, np.polymul(d1, d2)
+        """The digital PID as (num, den) in powers of z (the simulated controller's law)."""
+        return pid_z(p=self.p, i=self.i, d=self.d, nd=self.nd, h=self.h)
 
     def sensitivity_z(self) -> tuple[np.ndarray, np.ndarray]:
         """S = 1 / (1 + C P) as (num, den) in powers of z."""

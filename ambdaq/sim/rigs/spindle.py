@@ -118,26 +118,33 @@ def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarra
     return Phi, Gam[:, 0]
 
 
-def _schedule_rows(schedule):
-    """Rows (rpm_from, rpm_to, mu) for every harmonic, or a mapping harmonic -> rows, as tuples."""
+Schedule = dict[int, tuple[tuple[float, float, float], ...]]
+
+
+def per_harmonic(schedule) -> Schedule:
+    """The LMS step-size schedule as the rig holds it, harmonic (1-based) -> rows (rpm_from, rpm_to,
+    mu), from rows for every harmonic or from such a mapping (harmonics it does not name are held)."""
     if schedule is None:
-        return ()
+        return {}
     if isinstance(schedule, dict):
-        return {int(k): tuple(tuple(float(x) for x in r) for r in rows) for k, rows in schedule.items()}
-    return tuple(tuple(float(x) for x in r) for r in schedule)
+        return {int(k): tuple(tuple(float(x) for x in r) for r in rs) for k, rs in schedule.items()}
+    rows = tuple(tuple(float(x) for x in r) for r in schedule)
+    return {k: rows for k in range(1, N_HARMONICS + 1)}
 
 
-def mu_table(schedule: tuple[tuple[float, float, float], ...] | None) -> np.ndarray:
-    """LMS step size per harmonic and 100-rpm speed bin from ``(rpm_from, rpm_to, mu)`` rows.
+def schedule_rows(schedule: Schedule) -> list[tuple[float, float, float, float]]:
+    """The schedule as bank rows (harmonic, rpm_from, rpm_to, mu); harmonic 0 where every harmonic
+    has the same rows (docs/coefficients.md)."""
+    if len({schedule.get(k, ()) for k in range(1, N_HARMONICS + 1)}) == 1 and len(schedule) == N_HARMONICS:
+        return [(0.0, *r) for r in schedule[1]]
+    return [(float(k), *r) for k, rs in schedule.items() for r in rs]
 
-    ``schedule`` may also be a mapping harmonic (1-based) -> rows, to schedule harmonics apart.
-    """
+
+def mu_table(schedule: Schedule) -> np.ndarray:
+    """LMS step size per harmonic and 100-rpm speed bin (what the kernel looks up)."""
     table = np.zeros((N_HARMONICS, MU_BINS))
-    if schedule is None:
-        return table
-    per_harm = schedule if isinstance(schedule, dict) else {k: schedule for k in range(1, N_HARMONICS + 1)}
     centres = (np.arange(MU_BINS) + 0.5) * MU_BIN_RPM
-    for k, rows in per_harm.items():
+    for k, rows in schedule.items():
         for lo, hi, mu in rows:
             table[k - 1, (centres >= lo) & (centres < hi)] = mu
     return table
@@ -332,7 +339,7 @@ class SpindleRig(Rig, ExcitationInput):
         noise: bool = True,
     ) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
-        self.mu_schedule = _schedule_rows(mu_schedule)
+        self.mu_schedule = per_harmonic(mu_schedule)
         self._mu = mu_table(self.mu_schedule)
         self._ph_cos = np.ones((N_AXES, PHASE_BINS))
         self._ph_sin = np.zeros((N_AXES, PHASE_BINS))
@@ -428,7 +435,7 @@ class SpindleRig(Rig, ExcitationInput):
     def set_mu_schedule(self, schedule) -> None:
         """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
     mapping harmonic -> rows (harmonics not named are held)."""
-        self.mu_schedule = _schedule_rows(schedule)
+        self.mu_schedule = per_harmonic(schedule)
         self._mu = mu_table(self.mu_schedule)
 
     def set_lms_phase(self, phase_rad: np.ndarray | None) -> None:
@@ -625,9 +632,7 @@ class RunoutFeedforward(Feedforward):
         return {"axes": list(AXES), "harmonics": N_HARMONICS}
 
     def present(self, rig) -> BankImage:
-        sched = rig.mu_schedule
-        rows = ([(float(k), *r) for k, rs in sched.items() for r in rs] if isinstance(sched, dict)
-                else [(0.0, *r) for r in sched])
+        rows = schedule_rows(rig.mu_schedule)
         phase = rig.lms_phase
         return BankImage(rig.feedforward_weights, rig.feedforward_mode, rows, "", phase if np.any(phase) else None,
                          PHASE_BIN_HZ)
@@ -654,10 +659,8 @@ def _set_pid(which: int):
 
 
 def _read_schedule(rig) -> np.ndarray:
-    """``lms.schedule``: the rows (harmonic, rpm_from, rpm_to, mu), flattened."""
-    sched = rig.mu_schedule
-    per = sched if isinstance(sched, dict) else {k: sched for k in range(1, N_HARMONICS + 1)}
-    return np.array([(k, *row) for k, rows in per.items() for row in rows], dtype=float).ravel()
+    """``lms.schedule``: the rows (harmonic, rpm_from, rpm_to, mu) of every harmonic, flattened."""
+    return np.array([(k, *row) for k, rows in rig.mu_schedule.items() for row in rows], dtype=float).ravel()
 
 
 FIRMWARE = Firmware(
