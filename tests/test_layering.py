@@ -1,0 +1,86 @@
+"""The structure of the package, read from its own imports (docs/architecture.md, "Layering"):
+no import cycles, the hardware drivers never import the simulator, each part imports only what
+its layer may."""
+
+import ast
+from pathlib import Path
+
+import ambdaq
+
+ROOT = Path(ambdaq.__file__).parent
+
+MAY_IMPORT = {  # part -> the parts it may import (itself always)
+    "errors": set(),
+    "units": set(),
+    "speed": {"errors", "units"},
+    "machines": {"units"},
+    "analysis": {"machines", "units", "errors"},
+    "drivers": {"errors", "units", "speed"},
+    "daq": {"drivers", "machines", "errors", "units"},
+    "sim": {"drivers", "analysis", "machines", "speed", "units", "errors"},
+    "workflows": {"drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
+    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "machines", "speed", "units", "errors"},
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> set[str]:
+    """The ambdaq modules ``path`` imports, resolved (relative imports included; a name imported
+    from a package counts as its submodule where there is one)."""
+    mod = module_name(path)
+    package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("ambdaq")}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if not target.startswith("ambdaq"):
+                continue
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                out.add(sub if (ROOT.parent / (sub.replace(".", "/") + ".py")).exists()
+                        or (ROOT.parent / sub.replace(".", "/")).is_dir() else target)
+    return out
+
+
+GRAPH = {module_name(p): imports(p) for p in ROOT.rglob("*.py")}
+
+
+def part(mod: str) -> str:
+    return mod.split(".")[1] if mod.count(".") else ""
+
+
+def test_no_import_cycles():
+    seen, on_path = set(), []
+
+    def visit(m):
+        if m in on_path:
+            raise AssertionError("import cycle: " + " -> ".join(on_path[on_path.index(m):] + [m]))
+        if m in seen:
+            return
+        on_path.append(m)
+        for n in GRAPH.get(m, ()):
+            if n in GRAPH:
+                visit(n)
+        on_path.pop()
+        seen.add(m)
+
+    for m in GRAPH:
+        visit(m)
+
+
+def test_each_part_imports_only_what_its_layer_may():
+    wrong = [(m, n) for m, deps in GRAPH.items() for n in deps  # "": the package itself (__version__)
+             if part(m) in MAY_IMPORT and part(n) not in ("", part(m)) and part(n) not in MAY_IMPORT[part(m)]]
+    assert not wrong, wrong
+    # in particular: no hardware driver imports the simulator
+    assert not [(m, n) for m, deps in GRAPH.items() for n in deps if part(m) == "drivers" and part(n) == "sim"]
