@@ -97,7 +97,7 @@ def test_a_recording_without_excitation_is_refused(spindle_file, run_cli, tmp_pa
 def test_measure_through_the_served_controller(tmp_path):
     """``frf measure`` sets the controller's test signal over the serial line, records, and switches
     it off; the controller refuses an out-of-range signal."""
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--serial", "pty", "--duration", "60"],
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--duration", "60"],
                             stdout=subprocess.PIPE, text=True)
     try:
         _, pty = proc.stdout.readline().split()

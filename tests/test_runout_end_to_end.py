@@ -37,9 +37,9 @@ def harmonics(path):
 
 @pytest.fixture
 def served(request):
-    """``ambdaq sim serve --profile spindle --serial pty --rpm RPM`` in its own process."""
+    """``ambdaq sim serve --profile spindle --rpm RPM`` in its own process."""
     rpm = getattr(request, "param", 30000)
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle", "--serial", "pty",
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle",
                              "--rpm", str(rpm), "--duration", "120"], stdout=subprocess.PIPE, text=True)
     try:
         name, pty = proc.stdout.readline().split()

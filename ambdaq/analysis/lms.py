@@ -24,6 +24,7 @@ import numpy as np
 from scipy.signal import cont2discrete, tf2ss
 
 from ..machines.spindle import ONE_AXIS_MASS, SPINDLE, BearingAxis
+from ..units import RPM_TO_RAD_S
 from .amb import pid_z
 
 
@@ -177,7 +178,7 @@ def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmon
     M, B, C = loop.at(rpm)
     axes = list(range(B.shape[1])) if loop.axes is None else list(loop.axes)
     B, C = B[:, axes], C[axes]
-    phi = harmonic * rpm * 2 * np.pi / 60 * loop.h
+    phi = harmonic * rpm * RPM_TO_RAD_S * loop.h
     return _radius(M, -B, C, np.eye(len(axes)), mu, phi, g[axes])
 
 
@@ -227,7 +228,7 @@ def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
         return np.array([_radius_state_space(loop, float(n), mu, harmonic, g_at(n, n_axes)) for n in rpm])
     # e = S (r - r_c): the sensitivity in state space, its input u = -r_c
     A, B, C, D = tf2ss(*loop.sensitivity_z())
-    return np.array([_radius(A, B, C, D, mu, harmonic * n * 2 * np.pi / 60 * loop.h, g_at(n, 1)) for n in rpm])
+    return np.array([_radius(A, B, C, D, mu, harmonic * n * RPM_TO_RAD_S * loop.h, g_at(n, 1)) for n in rpm])
 
 
 @dataclass(frozen=True)

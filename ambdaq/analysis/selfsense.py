@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..units import RAD_S_TO_RPM
+
 POLE_PAIRS = 4
 ELECTRICAL_PERIOD = 2 * np.pi / POLE_PAIRS  # the estimate is unique modulo 90 deg (mechanical)
 
@@ -138,4 +140,4 @@ def lyapunov_bound(rate: float) -> LyapunovBound:
     inside = eps[lo:hi + 1]
     inside = inside[inside != 0]
     step = float(np.min(2 * inside / error_gain(inside)))  # rad per sample
-    return LyapunovBound(float(np.rad2deg(eps[lo])), float(np.rad2deg(eps[hi])), step * rate * 60 / (2 * np.pi))
+    return LyapunovBound(float(np.rad2deg(eps[lo])), float(np.rad2deg(eps[hi])), step * rate * RAD_S_TO_RPM)

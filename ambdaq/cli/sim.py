@@ -12,7 +12,7 @@ from ..machines.base_motion import PLANES
 from ..sim.rigs.base_motion import BaseExcitation
 from ..sim.rigs.cone import Impact
 from ..errors import BadInputError
-from ..sim.profiles import PROFILES
+from ..sim.profiles import PROFILES, profile as rig_profile
 from ..sim.source import SimSource
 from ..speed import SpeedProfile
 from ..sim.devices.banks import DEFAULT_UNLOCK_KEY
@@ -60,21 +60,21 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
     source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
     try:
         if excitation is not None:
-            if not hasattr(source.rig, "excitation_spec"):
+            if "excitation" not in source.rig.inputs:
                 raise BadInputError(f"--excite: the {profile} rig has no test-signal input")
             source.rig.set_excitation(excitation.resolve(source.rig.excitation_spec()))
         if base is not None:
             motion = _base_motion(profile, base)  # refused before the rig is asked
             source.rig.set_base_motion(motion)
         if fir_file is not None:
-            if not hasattr(source.rig, "set_feedforward_fir"):
+            if "fir" not in source.rig.inputs:
                 raise BadInputError(f"--fir: the {profile} rig has no FIR feedforward (use --profile base-motion)")
             taps, rate = fir_array(Coefficients.load(fir_file), list(PLANES), fir_file)
             if rate != source.rig.params.sample_rate:
                 raise BadInputError(f"{fir_file}: its FIR runs at {rate:g} Hz, the rig at {source.rig.params.sample_rate:g} Hz")
             source.rig.set_feedforward_fir(taps)
         if impact is not None or start != "levitated":
-            if not hasattr(source.rig, "set_impact"):
+            if "impact" not in source.rig.inputs:
                 raise BadInputError(f"--impact/--start: the {profile} rig has no hammer or touchdown bearings (use --profile cone)")
             source.rig.set_impact(None if impact is None else Impact.parse(impact))
             source.rig.restart(start)
@@ -85,8 +85,6 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 
 @command.command("serve")
 @click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
-@click.option("--serial", "serial_kind", type=click.Choice(["pty"]), default="pty", show_default=True,
-              help="Put the serial devices (the AMB controller) behind pseudo-terminals.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @speed_option
 @click.option("--truth", is_flag=True, help="The controller also streams /truth/runout and /truth/position.")
@@ -96,7 +94,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--base", metavar="SPEC", help="Base motion of the base-motion rig's simulated shaker (as for generate).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per device, NAME PATH, then serves until Ctrl-C:
@@ -125,7 +123,7 @@ def serve(profile, serial_kind, seed, speed, truth, drift_ppm, unlock_key, base,
 def _base_motion(profile: str, spec: str) -> BaseExcitation:
     """``--base SPEC`` for the ``profile`` rig; one line (BadInputError) if it has no moving base or
     the spec is wrong."""
-    if profile != "base-motion":
+    if "base" not in rig_profile(profile).rig.inputs:
         raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
     try:
         return BaseExcitation.parse(spec)

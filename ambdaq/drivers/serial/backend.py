@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+import importlib
+
 from ...errors import DeviceError
 from ..interfaces import BankPort, Controller
 from ..registry import Backend, Opened, OpenRequest
 from ..url import DeviceURL, Scheme
+
+
+DEVICE_TYPES = {
+    # the device_type a device names in its IDENTITY -> "module:class" of its driver (a Controller);
+    # a new device type on ambdaq's serial protocol is one driver module and one line here
+    "controller": "ambdaq.drivers.serial.controller:ControllerDriver",
+}
 
 
 class SerialBackend(Backend):
@@ -15,17 +24,16 @@ class SerialBackend(Backend):
                     ("baud",), opaque=True)
 
     def _driver(self, url: DeviceURL, name: str | None) -> Controller:
-        from .controller import ControllerDriver
         from .link import SerialLink
 
-        drivers = {"controller": ControllerDriver}  # device type (its IDENTITY) -> driver
         link = SerialLink(url.target, baudrate=url.integer("baud", 3_000_000))
         try:
             kind = link.identify().get("device_type")
-            driver = drivers.get(kind)
-            if driver is None:
+            target = DEVICE_TYPES.get(kind)
+            if target is None:
                 raise DeviceError(f"{url.text}: no driver for a device of type {kind!r}")
-            return driver(link, name=name or kind, url=url.text)
+            module, _, cls = target.partition(":")
+            return getattr(importlib.import_module(module), cls)(link, name=name or kind, url=url.text)
         except BaseException:
             link.close()
             raise

@@ -249,6 +249,7 @@ class BaseMotionRig(Rig, ExcitationInput):
     """
 
     profile = "base-motion"
+    inputs = frozenset({"excitation", "fir", "base"})
     excitation_axes = AXES  # test signal on the amplifier inputs, in V
     excitation_unit = "V"
     excitation_max = MAX_TEST_SIGNAL_V

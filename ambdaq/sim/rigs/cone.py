@@ -230,6 +230,7 @@ class ConeRig(Rig):
     """
 
     profile = "cone"
+    inputs = frozenset({"impact"})
 
     def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
                  truth: bool = False, ff_mode: str = "off", noise: bool = True, start: str = "levitated",

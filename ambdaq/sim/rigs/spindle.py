@@ -49,7 +49,7 @@ from .excitation import ExcitationInput
 from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE, PHASE_BIN_HZ,
                                   PHASE_BINS, SPINDLE, BearingAxis, SpindleParams)
 from ...speed import SpeedProfile
-from ...units import RPM_TO_RAD_S
+from ...units import RAD_S_TO_RPM, RPM_TO_RAD_S
 
 SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
 FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
@@ -206,7 +206,7 @@ def _simulate(
         out_rot[k, 1] = om
         out_rot[k, 2] = 1.0 if rev > st[0] else 0.0
         st[0] = rev
-        mbin = int(om * 60.0 / two_pi / 100.0)
+        mbin = int(om * RAD_S_TO_RPM / MU_BIN_RPM)
         if mbin >= mu_tab.shape[1]:
             mbin = mu_tab.shape[1] - 1
         th_mid = th + 0.5 * h * om
@@ -322,6 +322,7 @@ class SpindleRig(Rig, ExcitationInput):
     """
 
     profile = "spindle"
+    inputs = frozenset({"excitation"})
     excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
     excitation_unit = "m"
     excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal

@@ -1,0 +1,99 @@
+"""A back-end from another package, registered through the ``ambdaq.backends`` entry-point group
+(docs/architecture.md, "Adding a device type"): installed beside ambdaq, its scheme is found by
+``ambdaq record`` without a line of ambdaq changed, and what it streams is recorded exactly."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from ambdaq.daq import load
+
+PLUGIN = '''
+"""tone://NAME?hz=F: a 1 kHz source of a 1 um sine on one gap channel (a test back-end)."""
+import numpy as np
+
+from ambdaq.drivers.interfaces import Source
+from ambdaq.drivers.registry import Backend, Opened
+from ambdaq.drivers.signals import SampleBlock, SignalGroup
+from ambdaq.drivers.url import Scheme
+
+RATE = 1000.0
+
+
+class Tone(Source):
+    sample_rate = RATE
+
+    def __init__(self, name, hz):
+        self.name, self.hz, self.next, self.end = name, hz, 0, 0
+
+    def signal_groups(self):
+        return [SignalGroup("/tone/gap", "Gap", ("x",), ("m",))]
+
+    def identity(self):
+        return {"url": f"tone://{self.name}?hz={self.hz:g}", "kind": "tone generator"}
+
+    def device_calibration(self):
+        return {}
+
+    def start(self, n_samples):
+        self.end = n_samples
+
+    def read(self):
+        n = min(100, self.end - self.next)
+        if n <= 0:
+            return None
+        k = np.arange(self.next, self.next + n, dtype=np.int64)
+        self.next += n
+        x = 1e-6 * np.sin(2 * np.pi * self.hz * k / RATE)
+        return SampleBlock(k * 1_000_000, k.astype(np.uint32), {"/tone/gap": x[:, None]})
+
+    def _close(self):
+        self.end = self.next
+
+
+class ToneBackend(Backend):
+    scheme = Scheme("tone", "tone://NAME[?hz=F]", ("hz",))
+
+    def open(self, url, request):
+        return Opened([Tone(request.name or url.target, url.number("hz", 50.0))])
+'''
+
+
+def _installed(tmp_path):
+    """The plugin as an installed distribution would leave it: a module and a dist-info folder
+    whose entry_points.txt names the back-end."""
+    (tmp_path / "tone_plugin.py").write_text(PLUGIN)
+    info = tmp_path / "tone_plugin-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: tone-plugin\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[ambdaq.backends]\ntone = tone_plugin:ToneBackend\n")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+
+
+def _ambdaq(env, *args):
+    return subprocess.run([sys.executable, "-m", "ambdaq", *args], env=env, capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_an_entry_point_back_end_is_recorded_like_ambdaq_s_own(tmp_path):
+    env = _installed(tmp_path)
+    out = tmp_path / "tone.mcap"
+    run = _ambdaq(env, "record", "--device", "tone://gen?hz=50", "--duration", "0.5", "-q", "-o", str(out))
+    assert run.returncode == 0, run.stderr
+    gap = load(out)["/tone/gap"]
+    k = np.arange(500)
+    assert np.array_equal(gap.seq, k)
+    # float64 values are stored byte for byte and computed by the same expression: equal exactly
+    assert np.array_equal(gap["x"], 1e-6 * np.sin(2 * np.pi * 50.0 * k / 1000.0))
+
+
+def test_an_unknown_scheme_names_the_installed_ones(tmp_path):
+    env = _installed(tmp_path)
+    run = _ambdaq(env, "record", "--device", "bogus://x", "--duration", "0.1", "-o", str(tmp_path / "x.mcap"))
+    assert run.returncode == 2
+    assert "tone://NAME[?hz=F]" in run.stderr and "serial:" in run.stderr and len(run.stderr.splitlines()) == 1
+    # without the plugin on the path its scheme is as unknown as any other
+    run = _ambdaq({**os.environ}, "record", "--device", "tone://gen", "--duration", "0.1", "-o", str(tmp_path / "y.mcap"))
+    assert run.returncode == 2 and "unknown device URL 'tone://gen'" in run.stderr
