@@ -109,7 +109,7 @@ def chain(tmp_path_factory):
     summary = run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
                   "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json", "--json").stdout
     (d / "path_summary.json").write_text(summary)
-    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "2", "--settle", "0.2", "-o", d / "camp")
+    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "1", "--settle", "0.2", "-o", d / "camp")
     run("fx", "estimate", d / "camp", "--path", d / "path.json", "-o", d / "points.json")
     report = json.loads(run("fx", "fit", d / "points.json", "-o", d / "fir.json", "--exact", "--json",
                             "--plot", d / "fir.png").stdout)

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import csd, welch
 
 
 @dataclass(frozen=True)
@@ -67,6 +66,8 @@ def h1_estimate(x: np.ndarray, y: np.ndarray, *, fs: float, resolution_hz: float
     >>> print(f"{abs(h):.3f} {np.degrees(np.angle(h)):.1f}")
     0.500 -45.0
     """
+    from scipy.signal import csd, welch  # 1 s to import: only where an estimate is made (not frf measure)
+
     x = np.asarray(x, dtype=float)
     y2 = np.asarray(y, dtype=float).reshape(x.shape[0], -1)
     nperseg = int(round(fs / resolution_hz))

@@ -13,7 +13,6 @@ from ..daq.reader import load
 from ..errors import AmbdaqError
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
 from .figures import plot_option
-from .runout_plots import check_report, identify_report
 
 @click.group("runout")
 def command() -> None:
@@ -42,6 +41,8 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path):
     coef = ident.coef
     coef.save(output, overwrite=overwrite)
     if plot_path:
+        from .runout_plots import identify_report  # matplotlib and scipy.signal: only for a figure
+
         identify_report(ident, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     for w in ident.warnings:
@@ -88,6 +89,8 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
     result = check_recordings(*recs, orders, min_db=min_db, max_rms_um=max_rms)
     b, a, rows, failures = result.before, result.after, result.axes, result.failures
     if plot_path:
+        from .runout_plots import check_report  # matplotlib and scipy.signal: only for a figure
+
         check_report(*recs, orders, plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import signal
 import threading
+from typing import TYPE_CHECKING
 
 import click
 
 from ..daq.coefficients import Coefficients, fir_array
 from ..machines.base_motion import PLANES
-from ..sim.rigs.base_motion import BaseExcitation
-from ..sim.rigs.cone import Impact
 from ..errors import BadInputError
 from ..sim.profiles import PROFILES, profile as rig_profile
 from ..sim.source import SimSource
@@ -18,6 +17,9 @@ from ..speed import SpeedProfile
 from ..sim.devices.banks import DEFAULT_UNLOCK_KEY
 from .options import excitation_option, output_options, report_options, speed_option
 from .record import run_recording
+
+if TYPE_CHECKING:
+    from ..sim.rigs.base_motion import BaseExcitation
 
 
 @click.group("sim")
@@ -76,6 +78,8 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
         if impact is not None or start != "levitated":
             if "impact" not in source.rig.inputs:
                 raise BadInputError(f"--impact/--start: the {profile} rig has no hammer or touchdown bearings (use --profile cone)")
+            from ..sim.rigs.cone import Impact
+
             source.rig.set_impact(None if impact is None else Impact.parse(impact))
             source.rig.restart(start)
     except ValueError as err:
@@ -126,6 +130,8 @@ def _base_motion(profile: str, spec: str) -> BaseExcitation:
     if "base" not in rig_profile(profile).rig.inputs:
         raise BadInputError(f"--base: the {profile} rig has no moving base (use --profile base-motion)")
     try:
+        from ..sim.rigs.base_motion import BaseExcitation  # a rig module: loaded for the rig that needs it
+
         return BaseExcitation.parse(spec)
     except ValueError as err:
         raise BadInputError(str(err)) from None

@@ -14,7 +14,6 @@ import tty
 from dataclasses import dataclass, field
 
 from ..drivers.can.profiles import PROFILES as CAN_PROFILES
-from ..drivers.serial import framing
 from ..speed import SpeedProfile
 from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.canopen import open_network, serve_can
@@ -111,7 +110,6 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
         Serve the CANopen devices on a virtual bus (this process only).
     """
     profile = require_served(name)
-    framing.warm_up()  # before the rig's clock starts: compiling must not make it late
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
     if base_motion is not None:
         rig.set_base_motion(base_motion)

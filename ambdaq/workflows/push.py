@@ -25,11 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
 from ..daq.coefficients import Coefficients, file_sha256, fir_array, now_iso
 from ..drivers.coefbank import BankImage, crc32
 from ..errors import BadInputError, DeviceError, DeviceTimeout
-from .plants import resolve_plant
 
 KEY_ENV = "AMBDAQ_UNLOCK_KEY"
 STATE_ENV = "AMBDAQ_STATE_DIR"
@@ -103,15 +101,25 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
     problem = image.problem(len(axes), n_harm)
     if problem:
         raise BadInputError(f"{where}: {problem}")
-    if not rows:
-        return image
-    loops = resolve_plant(coef.lms_plant or "bearings")
+    if rows:
+        _check_schedule(rows, n_harm, coef.lms_plant or "bearings", phase, bin_hz, where)
+    return image
+
+
+def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phase: np.ndarray | None,
+                    bin_hz: float, where: str) -> None:
+    """BadInputError unless the LMS schedule ``rows`` is stable on the convergence map of ``plant``
+    (seed 000 Fig. 5).  The map needs scipy.signal and the rig's linearisation: imported here, so
+    a push without a schedule and ``controller status`` start without them."""
+    from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
+    from .plants import resolve_plant
+
+    loops = resolve_plant(plant)
     state_space = any(isinstance(loop, StateSpaceLoop) for loop, _ in loops.values())  # an eigenproblem per speed
     problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
                                rpm_step=250.0 if state_space else 100.0)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
-    return image
 
 
 def _fir_for(coef: Coefficients, status: dict, where: str) -> tuple[np.ndarray | None, float]:

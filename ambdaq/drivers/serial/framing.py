@@ -12,76 +12,26 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-import numpy as np
-from numba import njit
+from cobs import cobs
 
 DELIMITER = b"\x00"
 MAX_FRAME = 65536  # longest decoded frame we accept, in bytes
 
 
-@njit(cache=True, nogil=True)
-def _cobs_encode(src: np.ndarray, dst: np.ndarray) -> int:
-    n = src.shape[0]
-    code_pos, code, j = 0, 1, 1
-    for idx in range(n):
-        b = src[idx]
-        if b == 0:
-            dst[code_pos] = code
-            code_pos, code, j = j, 1, j + 1
-        else:
-            dst[j] = b
-            j += 1
-            code += 1
-            if code == 255:
-                dst[code_pos] = code
-                if idx == n - 1:  # canonical: no empty block after a full one at the end
-                    return j
-                code_pos, code, j = j, 1, j + 1
-    dst[code_pos] = code
-    return j
-
-
-@njit(cache=True, nogil=True)
-def _cobs_decode(src: np.ndarray, dst: np.ndarray) -> int:
-    """Decoded length, or -1 if ``src`` is not a valid COBS encoding."""
-    i, j, n = 0, 0, src.shape[0]
-    while i < n:
-        code = src[i]
-        if code == 0 or i + code > n:
-            return -1
-        for k in range(i + 1, i + code):
-            if src[k] == 0:
-                return -1
-            dst[j] = src[k]
-            j += 1
-        i += code
-        if code < 255 and i < n:
-            dst[j] = 0
-            j += 1
-    return j
-
-
 def cobs_encode(data: bytes) -> bytes:
-    """Consistent Overhead Byte Stuffing: ``data`` without any zero byte (overhead <= 1/254)."""
-    src = np.frombuffer(data, dtype=np.uint8)
-    dst = np.empty(src.shape[0] + src.shape[0] // 254 + 2, dtype=np.uint8)
-    return dst[: _cobs_encode(src, dst)].tobytes()
+    """Consistent Overhead Byte Stuffing (Cheshire and Baker, 1999): ``data`` without any zero
+    byte (overhead <= 1/254); the ``cobs`` package's C encoder, canonical (no empty block after a
+    full one at the end)."""
+    return cobs.encode(data)
 
 
 def cobs_decode(data: bytes) -> bytes:
-    """Inverse of :func:`cobs_encode`; raises ``ValueError`` on a malformed encoding."""
-    src = np.frombuffer(data, dtype=np.uint8)
-    dst = np.empty(src.shape[0], dtype=np.uint8)
-    n = _cobs_decode(src, dst)
-    if n < 0:
-        raise ValueError("malformed COBS frame")
-    return dst[:n].tobytes()
-
-
-def warm_up() -> None:
-    """Compile the COBS kernels now (first use compiles them, holding the GIL for a moment):
-    a simulated rig calls this before its clock starts, so compiling never makes it late."""
-    cobs_decode(cobs_encode(b"\x00warm\x00"))
+    """Inverse of :func:`cobs_encode`; raises ``ValueError`` on a malformed encoding (a zero byte,
+    a block running past the end)."""
+    try:
+        return cobs.decode(data)
+    except cobs.DecodeError as err:
+        raise ValueError(f"malformed COBS frame: {err}") from None
 
 
 def encode_frame(body: bytes) -> bytes:
