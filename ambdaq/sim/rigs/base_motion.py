@@ -162,7 +162,7 @@ class BaseExcitation:
 
 @njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
-    d_true, gap_noise, acc_noise, exc,  # per-step inputs: base acceleration (n, 4), unit normals, test signal
+    d_true, noise, exc,  # per-step inputs: base acceleration (n, 4), unit normals (gap 0:4, accel 4:8), test signal
     x, xh, eta, hist, pos,  # state: plant, observer, integrators, accelerometer history ring, ring position
     Phi, Gu, Gd, Gg, K, Keta, L, Cm, Tq, grav, W, ntaps, c,  # c = [h, gap_sd, acc_sd, dac_range]
     out_gap, out_cur, out_ff, out_u, out_acc, out_pos,
@@ -179,7 +179,7 @@ def _simulate(
     for k in range(d_true.shape[0]):
         p0 = pos[0]
         for ch in range(4):  # the accelerometers, into the FIR's history
-            hist[ch, p0] = d_true[k, ch] + acc_sd * acc_noise[k, ch]
+            hist[ch, p0] = d_true[k, ch] + acc_sd * noise[k, 4 + ch]
         for pl in range(2):
             o = 2 * pl
             for i in range(2):
@@ -187,7 +187,7 @@ def _simulate(
                 for j in range(6):
                     s += Cm[i, j] * x[pl, j]
                 out_pos[k, o + i] = s
-                ym[i] = s + gap_sd * gap_noise[k, o + i]
+                ym[i] = s + gap_sd * noise[k, o + i]
             for j in range(2):  # eq. 15: u_ff = W d, a 2 x 2 FIR on this plane's accelerometers
                 ff = exc[k, o + j]
                 for m in range(2):
@@ -374,7 +374,7 @@ class BaseMotionRig(Rig, ExcitationInput):
         else:
             white = self._base_rng.standard_normal((n, 4)) * motion.amplitude * self._base_gain
             d, self._base_zi = sosfilt(self._base_sos, white, axis=0, zi=self._base_zi)
-        return d
+        return np.ascontiguousarray(d)  # sosfilt may return F order; the kernel is compiled for C
 
     # --- stepping -------------------------------------------------------------------------
 
@@ -407,7 +407,7 @@ class BaseMotionRig(Rig, ExcitationInput):
         outs = [np.empty((n, 4)) for _ in range(6)]
         c = np.array([self.h, self.params.gap_noise, self.params.accel_noise, self.params.dac_range])
         c[1:3] *= 1.0 if self.noise else 0.0
-        _simulate(d, noise[:, 0:4], noise[:, 4:8], exc, self._x, self._xh, self._eta, self._hist, self._pos,
+        _simulate(d, noise, exc, self._x, self._xh, self._eta, self._hist, self._pos,
                   self.Phi, self.Gu, self.Gd, self.Gg, self.K, self.Keta, self.L, self.Cm, self.Tq, self._grav,
                   self._W, self._ntaps, c, *outs)
         self.step_index += n

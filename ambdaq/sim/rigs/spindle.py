@@ -164,7 +164,7 @@ def _converter(v, full_scale, lsb, inv_lsb):
 
 @njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
-    theta, omega, gap_noise, cur_noise, acc_noise, noise_sd,  # per-step inputs, unit normals
+    theta, omega, noise, noise_sd,  # per-step inputs; noise: unit normals, gap 0:5, current 5:10, accel 10:15
     z, amp, ctl, w, st,  # state (modified in place)
     Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
     ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
@@ -216,7 +216,7 @@ def _simulate(
             for j in range(nh):
                 r += run_s[a, j] * sk[j] + run_c[a, j] * ck[j]
             # sensor voltage through the 16-bit A/D
-            s_meas = _converter(ks * (pos + r + noise_sd[0] * gap_noise[k, a]), adc_rng, adc_lsb, inv_adc) * inv_ks
+            s_meas = _converter(ks * (pos + r + noise_sd[0] * noise[k, a]), adc_rng, adc_lsb, inv_adc) * inv_ks
             # feedforward r_c with the weights of the previous step (eq. 10)
             rc = 0.0
             if ff_mode > 0:
@@ -265,10 +265,10 @@ def _simulate(
             fu = unb[a] * om * om * np.cos(th_mid + unb_ph[a])
             F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
             out_gap[k, a] = s_meas
-            out_cur[k, a] = i0 + noise_sd[1] * cur_noise[k, a]
+            out_cur[k, a] = i0 + noise_sd[1] * noise[k, 5 + a]
             out_err[k, a] = e
             out_ff[k, a] = rc
-            out_acc[k, a] = -(fmag - fstat[a]) * inv_mh[a] + noise_sd[2] * acc_noise[k, a]
+            out_acc[k, a] = -(fmag - fstat[a]) * inv_mh[a] + noise_sd[2] * noise[k, 10 + a]
             out_run[k, a] = r
             out_pos[k, a] = pos
         for i in range(10):
@@ -452,7 +452,8 @@ class SpindleRig(Rig, ExcitationInput):
         ph = np.zeros((N_AXES, PHASE_BINS)) if phase_rad is None else np.asarray(phase_rad, dtype=float)
         if ph.shape != (N_AXES, PHASE_BINS) or not np.all(np.isfinite(ph)):
             raise ValueError(f"LMS phase table must be finite, shape ({N_AXES}, {PHASE_BINS}), not {ph.shape}")
-        self._ph_cos, self._ph_sin = np.cos(ph), np.sin(ph)
+        # C order whatever the caller's layout, so the kernel is compiled for one array type
+        self._ph_cos, self._ph_sin = np.ascontiguousarray(np.cos(ph)), np.ascontiguousarray(np.sin(ph))
 
     @property
     def lms_phase(self) -> np.ndarray:
@@ -526,7 +527,7 @@ class SpindleRig(Rig, ExcitationInput):
             Phi, Gam = self._discrete_rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
             sl = slice(lo, hi)
             _simulate(
-                theta[sl], omega[sl], noise[sl, 0:5], noise[sl, 5:10], noise[sl, 10:15], self._noise_sd,
+                theta[sl], omega[sl], noise[sl], self._noise_sd,
                 self._z, self._amp, self._ctl, self._w, self._st,
                 Phi, Gam, self._Pa, self._Ga,
                 self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
