@@ -136,7 +136,10 @@ def test_progress_reports_elapsed_samples_drops_rate(tmp_path, capsys):
                                                                                    progress_interval_s=0.25)
     assert len(seen) >= 4
     assert all(b.samples > a.samples and b.elapsed_s > a.elapsed_s for a, b in zip(seen, seen[1:]))
-    assert 5000 < seen[-1].rate_hz < 15000  # paced at 10 kHz
+    # paced at 10 kHz, although the controller's samples wait ~3 s for its clock map before they are
+    # written (they counted only then: 700 samples/s shown).  The band is wide, and the first report
+    # (0.25 s, with the devices' start-up in it) left out, because samples arrive in blocks of 0.1 s
+    assert all(5000 < p.rate_hz < 15000 for p in seen[1:]), [round(p.rate_hz) for p in seen]
     print_progress(seen[-1])
     line = capsys.readouterr().err
     assert "recording" in line and "samples" in line and "drops" in line and "samples/s" in line
@@ -164,3 +167,20 @@ def test_devices_lists_can_channels_and_serial_ports(run_cli):
     # never probed: IP networks, and the in-process bus (whose detection would invent a channel)
     assert not {c["interface"] for c in found["can"]} & {"udp_multicast", "socketcand", "virtual"}
     assert "socketcand" in run_cli("devices").output  # ... and said so
+
+
+def test_a_full_garbage_collection_never_stops_the_devices_while_recording(tmp_path):
+    """With numpy, scipy, numba and canopen loaded a full collection walks ~150,000 objects with the
+    GIL held (90-100 ms here), long enough for the in-process CAN rig to miss SYNCs.  While a
+    recording runs those objects are frozen out of the collector, and let back in after it."""
+    import gc
+
+    tracked = []
+    with open_url("sim://spindle", speed="10000") as rig:
+        res = Recorder(rig.sources, tmp_path / "gc.mcap", RecordOptions(duration_s=0.6)).run(
+            on_progress=lambda p: tracked.append(len(gc.get_objects())), progress_interval_s=0.1)
+    assert tracked and res.drops == 0
+    # what a full collection would walk mid-recording: the objects made since it began (a few
+    # thousand), not the heap (measured 150,000; 20,000 leaves room for other test modules' objects)
+    assert max(tracked) < 20_000, tracked
+    assert gc.get_freeze_count() == 0  # let back in
