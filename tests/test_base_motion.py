@@ -104,12 +104,12 @@ def chain(tmp_path_factory):
         return r
 
     for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z"):
-        run("sim", "generate", "--profile", "base-motion", "--duration", "20", "--excite", f"{a}:0.3", "-q",
+        run("sim", "generate", "--profile", "base-motion", "--duration", "10", "--excite", f"{a}:0.3", "-q",
             "-o", d / f"sp_{a}.mcap")
     summary = run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
                   "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json", "--json").stdout
     (d / "path_summary.json").write_text(summary)
-    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "1", "--settle", "0.2", "-o", d / "camp")
+    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "0.6", "--settle", "0.15", "-o", d / "camp")
     run("fx", "estimate", d / "camp", "--path", d / "path.json", "-o", d / "points.json")
     report = json.loads(run("fx", "fit", d / "points.json", "-o", d / "fir.json", "--exact", "--json",
                             "--plot", d / "fir.png").stdout)
@@ -219,7 +219,7 @@ def test_push_the_fir_to_the_served_controller(chain, tmp_path):
                 r = ambdaq("push", d / "fir.json", "--device", url, "--yes", key="ambdaq-sim")
                 assert r.returncode == 0 and "device-verified" in r.stdout, r.stderr
             out = tmp_path / f"{name}.mcap"
-            assert ambdaq("record", "--device", url, "--duration", "2", "-o", out, "-q").returncode == 0
+            assert ambdaq("record", "--device", url, "--duration", "1", "-o", out, "-q").returncode == 0
             g = load(out, topics=["/amb/gap"])["/amb/gap"]
             amps.append(harmonic(np.stack([g[a] for a in g.fields], axis=1), 40.0, skip=2000))
         drop = 20 * np.log10(amps[0] / amps[1])

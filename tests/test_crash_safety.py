@@ -40,7 +40,7 @@ def test_interrupt_finishes_the_file_cleanly(tmp_path, sig, times):
     for a reader that never returned, whatever else the machine is doing.)"""
     out = tmp_path / "stop.mcap"
     proc = start_recording(out)
-    wait_for_data(out, proc, 1.5)
+    wait_for_data(out, proc, 0.5)
     sent = time.monotonic()
     for _ in range(times):
         proc.send_signal(sig)

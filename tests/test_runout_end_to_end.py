@@ -74,8 +74,8 @@ def test_adaptive_lms_through_a_run_up_to_50000_rpm(served, tmp_path):
     ambdaq("lms", "schedule", "--plant", "rig", "--compensated", "--mu", "0.002", "-o", coef)
     r = ambdaq("push", coef, "--device", served, "--yes", env=env)
     assert "committed" in r.stdout
-    ambdaq("record", "--device", served, "--rpm", 50000, "--duration", 13, "-o", run, "-q")
-    ambdaq("sim", "generate", "--rpm", "0:50000:10", "--duration", 13, "-o", base, "-q")
+    ambdaq("record", "--device", served, "--rpm", 50000, "--duration", 11, "-o", run, "-q")
+    ambdaq("sim", "generate", "--rpm", "0:50000:10", "--duration", 11, "-o", base, "-q")
     lms, off = windows(run), windows(base)
     assert lms[:, 0].max() > 49000  # the run-up reached 50,000 rpm
     report = []

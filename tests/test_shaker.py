@@ -91,7 +91,7 @@ def test_campaign_drives_the_served_controller_and_shaker_in_another_process(tmp
         ports = dict(proc.stdout.readline().split() for _ in range(2))
         out = tmp_path / "camp"
         args = ["fx", "campaign", "--device", f"serial://{ports['controller']}", "--shaker", f"serial://{ports['shaker']}",
-                "--freqs", "10,60", "--amplitude", "2", "--alphas", "1,0.5-0.5j", "--seconds", "1", "--settle", "0.3",
+                "--freqs", "10,60", "--amplitude", "2", "--alphas", "1,0.5-0.5j", "--seconds", "0.5", "--settle", "0.2",
                 "-o", str(out)]
         # by URL, as on hardware: the shakers' gain is the engineer's to give, no device reports it
         r = subprocess.run(cmd + args, capture_output=True, text=True, timeout=60)

@@ -19,7 +19,6 @@ from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
 from .devices.rig_server import DeviceClock, RigServer
-from .devices.shaker import SimShaker
 from .profiles import require_served
 
 CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
@@ -129,6 +128,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.urls[kind] = (f"can://virtual/{channel}?node={CAN_PROFILES[kind].default_node}"
                                      f"&sync={CAN_SYNC_HZ:g}{namespace}")
         if profile.shaker:
+            from .devices.shaker import SimShaker  # brings the base-motion rig and scipy.signal: 1.7 s
+
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
             served.urls["shaker"] = f"serial://{served.ptys['shaker'].path}"

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 from scipy.linalg import solve_discrete_are
-from scipy.signal import butter, sosfilt, sosfreqz
 
 from ...drivers.signals import SampleBlock, SignalGroup
 from ...drivers.coefbank import BankImage
@@ -347,6 +346,8 @@ class BaseMotionRig(Rig, ExcitationInput):
             if problem:
                 raise ValueError(problem)
             if motion.kind == "noise":
+                from scipy.signal import butter, sosfreqz  # 1.1 s to import: only for noise
+
                 self._base_sos = butter(4, motion.band_hz, btype="bandpass", fs=self.params.sample_rate,
                                         output="sos")
                 self._base_zi = np.zeros((self._base_sos.shape[0], 2, 4))  # at rest
@@ -372,6 +373,8 @@ class BaseMotionRig(Rig, ExcitationInput):
             d1 = motion.amplitude * abs(motion.ratio) * np.sin(ph + np.angle(motion.ratio))
             d[:] = np.stack([d1, d2, d1, d2], axis=1)
         else:
+            from scipy.signal import sosfilt  # loaded by set_base_motion already
+
             white = self._base_rng.standard_normal((n, 4)) * motion.amplitude * self._base_gain
             d, self._base_zi = sosfilt(self._base_sos, white, axis=0, zi=self._base_zi)
         return np.ascontiguousarray(d)  # sosfilt may return F order; the kernel is compiled for C
