@@ -171,3 +171,23 @@ def test_a_closed_pipe_is_not_an_error(spindle_file):
     p.stdout.close()  # before a byte is read: every write meets a closed pipe
     _, err = p.communicate(timeout=60)
     assert b"Broken pipe" not in err and b"Exception ignored" not in err and b"Traceback" not in err, err
+
+
+@pytest.mark.parametrize("missing, args, extra", [
+    ("matplotlib", ["plot", "{file}", "--topic", "/amb/gap", "--field", "front_x", "-o", "{tmp}/p.png"], "ambdaq[plot]"),
+    ("pyarrow", ["export", "{file}", "--format", "parquet", "--topic", "/amb/gap", "-o", "{tmp}/g.parquet"],
+     "ambdaq[parquet]"),
+])
+def test_a_missing_extra_is_one_line_naming_it(spindle_file, tmp_path, missing, args, extra):
+    """A recording-only install has no matplotlib or pyarrow: the command that needs one says which
+    extra to install, in one line, exit 2.  The package is hidden from the import system here
+    (``sys.modules[name] = None`` makes ``import name`` fail as if it were not installed)."""
+    argv = [a.format(file=spindle_file, tmp=tmp_path) for a in args]
+    code = (f"import sys; sys.modules[{missing!r}] = None; sys.argv = ['ambdaq', *{argv!r}]; "
+            "from ambdaq.cli.main import main; main()")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and extra in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-c", code.replace(f"sys.modules[{missing!r}] = None; ", "")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr  # the same command with the package there

@@ -50,16 +50,9 @@ def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: f
     ----------
     f : ndarray
         Frequencies, in Hz.
-    p : float
-        Proportional gain, in V/V.
-    i : float
-        Integral gain, in 1/s.
-    d : float
-        Derivative gain, in s.
-    nd : float
-        Derivative filter factor Nd.
-    h : float
-        Sample period, in s.
+    p, i, d, nd, h : float
+        The law's gains (V/V, 1/s, s), derivative filter factor and sample period (s), as in
+        :func:`pid_z`.
 
     Returns
     -------

@@ -19,6 +19,7 @@ from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
 from .devices.rig_server import DeviceClock, RigServer
+from .devices.shaker import SimShaker
 from .profiles import require_served
 
 CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
@@ -59,7 +60,10 @@ class ServedRig:
     server : RigServer
         The rig in real time.
     devices : dict
-        The simulated devices by name (``controller``, ``shaker``, the CANopen kinds).
+        The simulated devices on pseudo-terminals by name (``controller``, ``shaker``): each runs
+        its own threads, started and stopped here.
+    can_devices : list of SimCanDevice
+        The CANopen devices; they answer on the network's thread and go with it.
     urls : dict of str to str
         The device URL of each, as a driver opens it.
     ptys : dict of str to Pty
@@ -68,6 +72,7 @@ class ServedRig:
 
     server: RigServer
     devices: dict = field(default_factory=dict)
+    can_devices: list = field(default_factory=list)
     urls: dict[str, str] = field(default_factory=dict)
     ptys: dict[str, Pty] = field(default_factory=dict)
     network: object = None
@@ -75,10 +80,9 @@ class ServedRig:
     def stop(self) -> None:
         """Stop every device and the rig; safe to call twice."""
         for device in self.devices.values():
-            stop = getattr(device, "stop", None)  # the CANopen devices go with their network
-            if stop is not None:
-                stop()
+            device.stop()
         self.devices.clear()
+        self.can_devices.clear()
         self.server.stop()
         if self.network is not None:
             self.network.disconnect()
@@ -121,23 +125,19 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
         if profile.can and can:
             channel = f"ambdaq-sim-{next(_channels)}"
             served.network = open_network(channel)
-            for dev in serve_can(served.network, served.server):
+            served.can_devices = serve_can(served.network, served.server)
+            for dev in served.can_devices:
                 kind = dev.profile.kind
-                served.devices[kind] = dev
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
                 served.urls[kind] = (f"can://virtual/{channel}?node={CAN_PROFILES[kind].default_node}"
                                      f"&sync={CAN_SYNC_HZ:g}{namespace}")
         if profile.shaker:
-            from .devices.shaker import SimShaker  # brings the base-motion rig and scipy.signal: 1.7 s
-
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
             served.urls["shaker"] = f"serial://{served.ptys['shaker'].path}"
         served.server.start()
         for device in served.devices.values():
-            start = getattr(device, "start", None)
-            if start is not None:
-                start()
+            device.start()
     except BaseException:
         served.stop()
         raise
