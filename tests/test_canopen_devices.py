@@ -75,10 +75,13 @@ def test_a_stalled_rig_thread_loses_no_sync_cycle(can_rig):
         t = np.concatenate([b.device_time_ns for b in blocks])
         seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
         assert len(t) == 250 and np.all(np.diff(seq) == 1)  # every SYNC answered, in order
-        # each cycle keeps the time of the SYNC it answers, as the bus stamped it (the host's own
-        # scheduling jitter moves when SYNCs go out, not which time a cycle gets)
+        # each cycle keeps the time of the SYNC it answers (the host's own scheduling jitter moves
+        # when SYNCs go out, not which time a cycle gets).  The host stamps its SYNC as it hands
+        # it to the interface, microseconds before the virtual bus stamps it: within a quarter
+        # of the 2 ms period, which still tells every cycle from its neighbours.
         syncs = [m.timestamp for m in iter(lambda: listener.recv(0), None) if m.arbitration_id == 0x80]
-        np.testing.assert_array_equal(t, np.round(np.array(syncs)[seq] * 1e9).astype(np.int64))
+        lag = np.round(np.array(syncs)[seq] * 1e9).astype(np.int64) - t
+        assert lag.min() >= 0 and lag.max() < 500_000
     finally:
         dev.close()
         listener.shutdown()
@@ -101,9 +104,12 @@ def test_each_driver_streams_its_simulated_device(can_rig, kind):
         seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
         assert len(t) == 250 and np.all(np.diff(seq) == 1)
         assert np.median(np.diff(t)) == pytest.approx(2e6, rel=0.05)  # 500 Hz SYNC
-        # every value is the rig's value at the SYNC instant, to the resolution of the wire format
-        for ti, row in zip(t[::25], vals[::25]):
-            _step, rows = server.sample_at(int(ti))
+        # every value is the rig's value at the SYNC instant, to the resolution of the wire format.
+        # The host stamps its SYNC as it hands it to the bus and the device samples when it gets
+        # it, microseconds later (under 0.5 ms: test_a_stalled_rig_thread...), which may be the
+        # next 100 us rig step: the row must be the rig's sample of one of the steps in between.
+        def mismatch(ti: int, row: np.ndarray) -> float:
+            _step, rows = server.sample_at(ti)
             expect = rows[p.rig_topic][[c.rig_column for c in p.channels]]
             if kind == "keyphasor":
                 expect[0] %= 2 * np.pi
@@ -111,7 +117,10 @@ def test_each_driver_streams_its_simulated_device(can_rig, kind):
             diff = row - expect
             if kind == "keyphasor":
                 diff[0] = (diff[0] + np.pi) % (2 * np.pi) - np.pi  # an angle is circular
-            np.testing.assert_array_less(np.abs(diff), tol)
+            return float(np.max(np.abs(diff) / tol))
+
+        for ti, row in zip(t[::25], vals[::25]):
+            assert min(mismatch(int(ti) + lag, row) for lag in range(0, 500_001, 100_000)) < 1.0
     finally:
         dev.close()
 

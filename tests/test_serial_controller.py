@@ -182,25 +182,38 @@ def test_fault_events_are_recorded_on_their_own_topic(bench, tmp_path):
 
 
 def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--duration", "30"],
-                            stdout=subprocess.PIPE, text=True)
+    """The controller over its pseudo-terminal and two CANopen devices through the simulated SLCAN
+    adapter, read by python-can's own ``slcan`` interface, recorded together from another process."""
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--can", "slcan",
+                             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        line = proc.stdout.readline().split()
-        assert line[0] == "controller" and line[1].startswith("/dev/")
+        lines = dict(proc.stdout.readline().split() for _ in range(6))
+        assert lines["controller"].startswith("/dev/") and lines["can"].startswith("/dev/")
+        assert lines["amplifier"].startswith(f"can://slcan{lines['can']}?")
         out = tmp_path / "remote.mcap"
-        r = run_cli("record", "--device", f"serial://{line[1]}", "--duration", "3", "--json", "-o", out)
+        r = run_cli("record", "--device", f"serial://{lines['controller']}", "--device", lines["amplifier"],
+                    "--device", lines["gap_sensor"], "--duration", "3", "--json", "-o", out)
         assert r.exit_code == 0, r.output
         summary = json.loads(r.stdout)
-        assert summary["samples"] == 30000 and summary["drops"] == 0
+        assert summary["samples"] == 30000 and summary["drops"] == 0  # the most any device wrote; no drops on any
+        assert summary["topics"]["/can/amb/gap"]["samples"] == summary["topics"]["/can/amb/current"]["samples"] == 1200
         # the device clock is mapped (its accuracy is checked against ground truth in the two-device test)
-        assert np.isfinite(summary["clocks"]["controller"]["drift_ppm"]) and summary["clocks"]["controller"]["points"] > 50
-        rotor = load(out)["/amb/rotor"]
-        np.testing.assert_allclose(rotor["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
+        assert np.isfinite(summary["clocks"]["dev0"]["drift_ppm"]) and summary["clocks"]["dev0"]["points"] > 50
+        rec = load(out)
+        np.testing.assert_allclose(rec["/amb/rotor"]["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
+        # the same rig seen by the controller's A/D and by the CAN gap conditioner (1e-8 m counts,
+        # its own noise): the mean gaps agree within 2 um, far below the +-0.5 mm range
+        can_gap, gap = rec["/can/amb/gap"], rec["/amb/gap"]
+        assert np.all(np.diff(can_gap.seq.astype(np.int64)) == 1)
+        for axis in ("front_x", "rear_y"):
+            assert abs(np.mean(can_gap[axis]) - np.mean(gap[axis])) < 2e-6
         info = run_cli("info", out).output
-        assert "[ambdaq.link.controller]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
+        assert "[ambdaq.link.dev0]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
+        assert "malformed_frames = 0" in info
     finally:
         proc.terminate()
-        proc.wait(timeout=10)
+        _out, err = proc.communicate(timeout=10)
+    assert " 0 lost" in err  # the adapter's backlog never overflowed
 
 
 def test_reconnect_marks_the_gap_and_goes_on(bench, tmp_path, run_cli):

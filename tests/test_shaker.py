@@ -22,7 +22,7 @@ from ambdaq.errors import BadInputError, DeviceError
 
 @pytest.fixture
 def served():
-    s = serve("base-motion", can=False)
+    s = serve("base-motion", can=None)
     yield s
     s.stop()
 

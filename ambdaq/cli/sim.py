@@ -96,32 +96,44 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--unlock-key", default=DEFAULT_UNLOCK_KEY, show_default=True,
               help="The key the controller wants before its coefficient banks can be written (ambdaq push).")
 @click.option("--base", metavar="SPEC", help="Base motion of the base-motion rig's simulated shaker (as for generate).")
+@click.option("--can", "can", type=click.Choice(["none", "slcan"]), default="none", show_default=True,
+              help="Serve the rig's CANopen devices through a simulated SLCAN USB-CAN adapter on a pseudo-terminal.")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
-    Prints one line per device, NAME PATH, then serves until Ctrl-C:
+    Prints one line per pseudo-terminal, NAME PATH, and with --can one per CANopen device,
+    KIND URL; then serves until Ctrl-C:
 
     \b
       ambdaq sim serve --rpm 30000 &
       ambdaq record --device serial:///dev/pts/N --duration 10 -o run.mcap
+      ambdaq sim serve --rpm 30000 --can slcan &
+      ambdaq record --device 'can://slcan/dev/pts/M?node=16&open_delay=0' --duration 10 -o can.mcap
     """
     from ..sim.devices.rig_server import DeviceClock
     from ..sim.serve import CONTROLLER_CLOCK, serve
 
     motion = None if base is None else _base_motion(profile, base)
     served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
-                   clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion, can=False)
+                   clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion,
+                   can=None if can == "none" else can)
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")
+    for dev in served.can_devices:
+        click.echo(f"{dev.profile.kind} {served.urls[dev.profile.kind]}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: stop.set())
     try:
         stop.wait(duration)
     finally:
+        adapter = served.devices.get("can")
         served.stop()
+        if adapter is not None:
+            click.echo(f"can: {adapter.frames_from_host} frames from the host, {adapter.frames_to_host} to it, "
+                       f"{adapter.lost} lost (the terminal's backlog was full)", err=True)
 
 
 def _base_motion(profile: str, spec: str) -> BaseExcitation:

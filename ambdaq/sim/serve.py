@@ -1,9 +1,10 @@
 """A simulated rig's devices on real transports: its AMB controller (and a base-motion rig's
-shaker generator) on pseudo-terminals, its CANopen devices on a python-can ``virtual`` bus.
+shaker generator) on pseudo-terminals, its CANopen devices on a python-can ``virtual`` bus,
+reached in this process directly or from any process through a simulated SLCAN adapter.
 
-The one way a simulated rig is served: ``ambdaq sim serve`` (another process: pseudo-terminals
-only, python-can's virtual bus does not cross processes) and ``sim://`` (this process: CAN too,
-:mod:`.backend`).  Each served device is named by a device URL that the real drivers open.
+The one way a simulated rig is served: ``ambdaq sim serve`` (another process: pseudo-terminals,
+CAN through the SLCAN adapter) and ``sim://`` (this process, :mod:`.backend`).  Each served
+device is named by a device URL that the real drivers open.
 """
 
 from __future__ import annotations
@@ -20,11 +21,16 @@ from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
 from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
+from .devices.slcan import SimSlcanAdapter
 from .profiles import require_served
 
 CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
 """The simulated controller's own clock: 5 s ahead of the host's, running 50 ppm fast."""
 CAN_SYNC_HZ = 800.0  # 7 frames per SYNC: 63% of 1 Mbit/s
+SLCAN_SYNC_HZ = 400.0
+"""Through the SLCAN adapter: python-can 4.6's slcan reader takes a byte per system call, about
+4,000 frames/s here at a full core (docs/performance.md); 400 Hz is 2,400 frames/s with all
+four devices."""
 CAN_NAMESPACED = ("gap_sensor", "amplifier", "keyphasor")  # their topics are the controller's too: /can/amb/...
 _channels = itertools.count()
 
@@ -60,8 +66,8 @@ class ServedRig:
     server : RigServer
         The rig in real time.
     devices : dict
-        The simulated devices on pseudo-terminals by name (``controller``, ``shaker``): each runs
-        its own threads, started and stopped here.
+        The simulated devices on pseudo-terminals by name (``controller``, ``shaker``, ``can``
+        the SLCAN adapter): each runs its own threads, started and stopped here.
     can_devices : list of SimCanDevice
         The CANopen devices; they answer on the network's thread and go with it.
     urls : dict of str to str
@@ -94,7 +100,7 @@ class ServedRig:
 
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
-          clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: bool = True) -> ServedRig:
+          clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual") -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -109,8 +115,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
         The controller's own clock.
     base_motion : BaseExcitation, optional
         The base's motion from the start (a rig with a moving base).
-    can : bool
-        Serve the CANopen devices on a virtual bus (this process only).
+    can : {"virtual", "slcan", None}
+        Where the CANopen devices are reached: python-can's ``virtual`` bus (this process only),
+        a simulated SLCAN adapter on a pseudo-terminal (any process), or not at all.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -122,15 +129,20 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
         served.devices["controller"] = SimController(FdPort(served.ptys["controller"].master), served.server,
                                                      profile.firmware, clock=clock, truth=truth, unlock_key=unlock_key)
         served.urls["controller"] = f"serial://{served.ptys['controller'].path}"
-        if profile.can and can:
+        if profile.can and can is not None:
             channel = f"ambdaq-sim-{next(_channels)}"
             served.network = open_network(channel)
             served.can_devices = serve_can(served.network, served.server)
+            bus, sync = f"virtual/{channel}?", CAN_SYNC_HZ
+            if can == "slcan":
+                served.ptys["can"] = Pty.open()
+                served.devices["can"] = SimSlcanAdapter(served.ptys["can"].master, channel)
+                bus, sync = f"slcan{served.ptys['can'].path}?open_delay=0&", SLCAN_SYNC_HZ
             for dev in served.can_devices:
                 kind = dev.profile.kind
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
-                served.urls[kind] = (f"can://virtual/{channel}?node={CAN_PROFILES[kind].default_node}"
-                                     f"&sync={CAN_SYNC_HZ:g}{namespace}")
+                served.urls[kind] = (f"can://{bus}node={CAN_PROFILES[kind].default_node}"
+                                     f"&sync={sync:g}{namespace}")
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)

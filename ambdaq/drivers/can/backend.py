@@ -13,22 +13,40 @@ class CanBackend(Backend):
     """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
 
     scheme = Scheme("can", "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller"
-                           "&sync=HZ&bitrate=1000000&namespace=NAME] (any python-can interface, e.g. "
-                           "can://virtual/amb0?node=16)", ("node", "kind", "sync", "bitrate", "namespace"))
+                           "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S] (any python-can interface, e.g. "
+                           "can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
+                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay"))
 
     def _on_hub(self, url: DeviceURL, node: int, make):
         """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
         from .bus import CanHub
 
-        interface, _, channel = url.target.partition("/")
-        if not channel:
-            raise BadInputError(f"device URL {url.text!r} names no channel: expected {self.scheme.form}")
-        hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000))
+        interface, channel, options = self.bus_of(url)
+        hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000), **options)
         try:
             return make(hub, node)
         except BaseException:
             hub.release()
             raise
+
+    def bus_of(self, url: DeviceURL) -> tuple[str, str, dict]:
+        """python-can interface, channel and bus options of ``url``.
+
+        A channel with a ``/`` in it is a device path (``can://slcan/dev/ttyACM0`` is slcan on
+        ``/dev/ttyACM0``).  ``open_delay`` is the seconds slcan waits after opening its serial port
+        (python-can's default, 2 s, is for adapters that reset when the port opens).
+        """
+        interface, _, channel = url.target.partition("/")
+        if not channel:
+            raise BadInputError(f"device URL {url.text!r} names no channel: expected {self.scheme.form}")
+        if "/" in channel:
+            channel = "/" + channel
+        options = {}
+        if "open_delay" in url.options:
+            if interface != "slcan":
+                raise BadInputError(f"option open_delay in {url.text!r} is for slcan adapters only")
+            options["sleep_after_open"] = url.number("open_delay", 2.0)
+        return interface, channel, options
 
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
         from .device import CanopenDevice

@@ -1,9 +1,10 @@
 """One CAN bus shared by the drivers of a rig: python-can bus, canopen network, SYNC, bus health.
 
 Devices on the same interface and channel share a :class:`CanHub` (reference-counted).  The hub
-produces SYNC (CiA 301, COB-ID 0x80) at the stream's rate, timestamps every SYNC cycle from the
-bus (the host's own SYNC, received back), checks the bus load of the requested stream, and
-watches error frames and the bus state (error-active, error-passive, bus-off).
+produces SYNC (CiA 301, COB-ID 0x80) at the stream's rate (or follows another master's SYNC),
+timestamps every SYNC cycle (its own as it is sent, another master's from the bus), checks the
+bus load of the requested stream, and watches error frames and the bus state (error-active,
+error-passive, bus-off).
 
 One receive thread reads the bus: process data (TPDOs, SYNC) goes straight to the handler
 registered for its COB-ID, everything else (SDO, EMCY, NMT, heartbeat) to the canopen network's
@@ -12,9 +13,11 @@ subscribers.  At full bus load that keeps the per-frame cost below python-can's 
 
 from __future__ import annotations
 
+import itertools
 import queue
 import threading
 import time
+from collections import deque
 from typing import Callable, NamedTuple
 
 import can
@@ -28,6 +31,7 @@ SYNC_COB_ID = 0x80
 MAX_LOAD = 0.80
 BUS_TOPIC = "/can/bus"
 RX_POLL_S = 0.001  # sleep when the bus is drained
+MAX_OUTSTANDING = SYNC_COUNTER_MAX // 2  # SYNCs sent and not yet answered (start_sync)
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -59,15 +63,16 @@ class CanHub:
     _hubs: dict[tuple[str, str], "CanHub"] = {}
     _hubs_lock = threading.Lock()
 
-    def __init__(self, interface: str, channel: str, bitrate: int) -> None:
+    def __init__(self, interface: str, channel: str, bitrate: int, **bus_options) -> None:
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
         try:
-            bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, receive_own_messages=True)
+            bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, **bus_options)
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
             raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
         self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
         self._fast: dict[int, Callable[[bytearray, float], None]] = {}
         self.error_frames = 0
+        self.malformed_frames = 0  # lines or records the interface could not parse: counted, skipped
         self.events: "queue.SimpleQueue[Event]" = queue.SimpleQueue()  # drained by whichever device asks
         self._refs = 0
         self.cycle = SyncCycle()
@@ -78,6 +83,10 @@ class CanHub:
         self.load_limit = MAX_LOAD
         self._sync_thread: threading.Thread | None = None
         self._sync_stop = threading.Event()
+        self._own_syncs: deque[tuple[int, float]] = deque()  # (counter, host time): SYNCs we sent
+        self.external_sync = False
+        self.answered = -1  # the newest SYNC cycle a device's reply was matched to (devices set it)
+        self.skipped_syncs = 0
         self.failure: str | None = None
         self._state = getattr(bus, "state", can.BusState.ACTIVE)
         self._fast[SYNC_COB_ID] = self._on_sync
@@ -87,11 +96,13 @@ class CanHub:
         self._watch.start()
 
     @classmethod
-    def acquire(cls, interface: str, channel: str, bitrate: int) -> "CanHub":
+    def acquire(cls, interface: str, channel: str, bitrate: int, **bus_options) -> "CanHub":
+        """The hub of ``interface``/``channel``, opened at ``bitrate`` (bit/s) with python-can's
+        ``bus_options`` (e.g. slcan's ``sleep_after_open``) if it is not open yet."""
         with cls._hubs_lock:
             hub = cls._hubs.get((interface, channel))
             if hub is None:
-                hub = cls._hubs[(interface, channel)] = cls(interface, channel, bitrate)
+                hub = cls._hubs[(interface, channel)] = cls(interface, channel, bitrate, **bus_options)
             elif hub.bitrate != bitrate:
                 raise BadInputError(f"CAN {interface}/{channel} is open at {hub.bitrate} bit/s, not {bitrate}")
             hub._refs += 1
@@ -113,11 +124,14 @@ class CanHub:
 
     # --- streams and SYNC ---------------------------------------------------------------------------
 
-    def register_stream(self, name: str, tpdo_bytes: list[int], sync_hz: float) -> None:
-        """Declare a device's TPDOs (data bytes each) sent on every SYNC at ``sync_hz`` (Hz)."""
+    def register_stream(self, name: str, tpdo_bytes: list[int], sync_hz: float, *, external: bool = False) -> None:
+        """Declare a device's TPDOs (data bytes each) sent on every SYNC at ``sync_hz`` (Hz); with
+        ``external`` another master on the bus produces the SYNC and ambdaq only listens."""
         if self.sync_hz is not None and abs(self.sync_hz - sync_hz) > 1e-9:
             raise BadInputError(f"devices on CAN {self.channel} ask for SYNC at {self.sync_hz:g} and {sync_hz:g} Hz")
-        self.sync_hz = sync_hz
+        if self._streams and external != self.external_sync:
+            raise BadInputError(f"devices on CAN {self.channel} ask for SYNC from ambdaq and from another master")
+        self.sync_hz, self.external_sync = sync_hz, external
         self._streams[name] = list(tpdo_bytes)
 
     def check_load(self) -> float:
@@ -149,11 +163,19 @@ class CanHub:
         """Drain the bus, then sleep RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
         than one per frame.  Sample times come from the frames' bus timestamps, not from when we
         read them, so the short wait costs nothing in timing."""
-        bus, fast, notify = self.network.bus, self._fast, self.network.notify
+        bus, fast, notify, own = self.network.bus, self._fast, self.network.notify, self._own_syncs
         while not self._sync_stop.is_set():
+            while own:
+                counter, sent = own.popleft()
+                self._on_sync(bytes([counter]), sent)
             try:
                 msg = bus.recv(0)
-            except (can.CanError, OSError, ValueError) as err:
+            except ValueError as err:  # the interface could not parse what its adapter sent (slcan: a garbled line)
+                self.malformed_frames += 1
+                self.events.put(Event(time.time_ns(), "malformed-frame", 0,
+                                      f"CAN {self.channel}: malformed frame from the interface ({err})", BUS_TOPIC))
+                continue
+            except (can.CanError, OSError) as err:
                 if not self._sync_stop.is_set():
                     self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
                 return
@@ -179,8 +201,19 @@ class CanHub:
             self._sync_listeners.remove(cb)
 
     def start_sync(self) -> None:
-        """Start producing SYNC at the registered rate (once per bus)."""
-        if self._sync_thread is not None:
+        """Start producing SYNC at the registered rate (once per bus; never with an external master).
+
+        A reply is matched to its SYNC by the counter it echoes, which tells apart 240 SYNCs.  When
+        the replies come back more than MAX_OUTSTANDING cycles behind (a reader that cannot keep
+        up, e.g. an SLCAN adapter whose serial line backs up), a reply could match the SYNC a whole
+        counter turn later; so the cycle is then not sent: it is counted, and lost, on every
+        device, and no reply is ever attributed to the wrong cycle.
+
+        A SYNC we send is timed by the host clock as it is handed to the interface, and reaches
+        the receive thread through a queue, not as an echo from the bus: not every interface
+        echoes what it sends (SLCAN adapters do not), and one way for all is simpler than two.
+        """
+        if self._sync_thread is not None or self.external_sync:
             return
         period = 1.0 / self.sync_hz
         self._sync_stop.clear()
@@ -188,10 +221,17 @@ class CanHub:
         def run() -> None:
             nxt = time.monotonic()
             counter = 0
-            while not self._sync_stop.is_set():
+            for count in itertools.count():
+                if self._sync_stop.is_set():
+                    return
                 nxt += period
                 counter = counter % SYNC_COUNTER_MAX + 1  # CiA 301: 1 .. 0x1019
                 msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False, data=bytes([counter]))
+                self._own_syncs.append((counter, time.time()))  # before a reply to it can come back
+                if 0 <= self.answered < count - MAX_OUTSTANDING:
+                    self.skipped_syncs += 1  # the cycle is counted, and lost, but never sent
+                    time.sleep(max(0.0, nxt - time.monotonic()))
+                    continue
                 try:
                     self.network.bus.send(msg)
                 except can.CanError as err:
@@ -216,8 +256,9 @@ class CanHub:
         """The SYNC that a reply echoing ``counter`` answers: the newest SYNC with that counter, or
         ``None`` if the reply is ahead of the newest SYNC seen (its counter is the next one).
 
-        That happens on python-can's virtual bus, which hands a SYNC to each listener in turn: the
-        device's node can get it and answer before our own copy reaches this thread.  The caller
+        That happens whenever a device answers before this thread has taken the SYNC in: ours
+        comes through a queue from the SYNC thread, another master's can be read after the
+        first replies on a busy bus.  The caller
         keeps such a reply until the SYNC arrives (:meth:`add_sync_listener`); without that it
         would be matched to the SYNC 240 cycles older, a duplicate row with an old time.
         """

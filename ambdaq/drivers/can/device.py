@@ -29,6 +29,9 @@ from .profiles import PROFILES, DeviceProfile
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
 _INTEGER = (od.INTEGER16, od.UNSIGNED16, od.UNSIGNED8, od.INTEGER32)
 HEARTBEAT_MS = 100
+HEARTBEAT_TIMEOUT_S = 0.6
+"""Silence after which a device is lost: six heartbeats, so a reader up to MAX_OUTSTANDING SYNC
+cycles behind (0.3 s at 400 Hz, through an SLCAN adapter) never reports a device that is there."""
 BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
 
 
@@ -165,6 +168,7 @@ class CanopenDevice(Source, Parameters):
                 self._early.append((values[-1], (*parts[:last], values)))
             else:  # flattened by the reader, off the bus thread
                 self._rows.append((cycle.count, cycle.time_ns, *parts[:last], values))
+                self.hub.answered = cycle.count
 
         return on_tpdo
 
@@ -176,6 +180,7 @@ class CanopenDevice(Source, Parameters):
             for counter, parts in early:
                 if counter == cycle.counter:
                     self._rows.append((cycle.count, cycle.time_ns, *parts))
+                    self.hub.answered = cycle.count
 
     def _on_emcy(self, err) -> None:
         self._emcy.put(Event(0, "fault", err.code, f"EMCY 0x{err.code:04X} {err.get_desc()} (register 0x{err.register:02X})"))
@@ -223,7 +228,7 @@ class CanopenDevice(Source, Parameters):
 
     def _liveness(self) -> str | None:
         silent = time.monotonic() - self._last_heartbeat
-        if silent > 3 * HEARTBEAT_MS / 1000:
+        if silent > HEARTBEAT_TIMEOUT_S:
             return f"no heartbeat from node {self.node_id} for {silent:.1f} s"
         return None
 
@@ -254,7 +259,9 @@ class CanopenDevice(Source, Parameters):
         return out
 
     def link_statistics(self) -> dict[str, str]:
-        return {"error_frames": str(self.hub.error_frames), "sync_hz": f"{self.sample_rate:g}",
+        return {"error_frames": str(self.hub.error_frames), "malformed_frames": str(self.hub.malformed_frames),
+                "skipped_syncs": str(self.hub.skipped_syncs),
+                "sync_hz": f"{self.sample_rate:g}",
                 "bitrate": str(self.hub.bitrate)}
 
     def _close(self) -> None:
