@@ -78,6 +78,6 @@ def command(devices, rig_path, duration, speed, truth, reconnect, out, quiet, as
             opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None))
         for d in rig.devices if rig is not None else ():
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
-                                calibration=d.calibration))
+                                calibration=d.calibration, description=d.description))
         run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json,
                       rig_file=rig.path if rig else None, reconnect=reconnect)

@@ -98,9 +98,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--base", metavar="SPEC", help="Base motion of the base-motion rig's simulated shaker (as for generate).")
 @click.option("--can", "can", type=click.Choice(["none", "slcan"]), default="none", show_default=True,
               help="Serve the rig's CANopen devices through a simulated SLCAN USB-CAN adapter on a pseudo-terminal.")
+@click.option("--third-party", is_flag=True,
+              help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
+                   "sending the raw frames of its DBC; docs/hardware.md).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per pseudo-terminal, NAME PATH, and with --can one per CANopen device,
@@ -115,14 +118,17 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, duratio
     from ..sim.devices.rig_server import DeviceClock
     from ..sim.serve import CONTROLLER_CLOCK, serve
 
+    if third_party and can == "none":
+        raise BadInputError("--third-party serves CAN devices: give --can slcan as well")
     motion = None if base is None else _base_motion(profile, base)
     served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
                    clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion,
-                   can=None if can == "none" else can)
+                   can=None if can == "none" else can, third_party=third_party)
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")
-    for dev in served.can_devices:
-        click.echo(f"{dev.profile.kind} {served.urls[dev.profile.kind]}")
+    for name, url in served.urls.items():
+        if url.startswith("can://"):
+            click.echo(f"{name} {url}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: stop.set())

@@ -368,8 +368,11 @@ class Recorder:
         self._priming: dict[str, list[SampleBlock]] = {}
         self._host_clocked: set[str] = set()
         self._events = 0
-        due = {s.name: None if opts.duration_s is None else int(round(opts.duration_s * s.sample_rate))
-               for s in self.sources}
+        due = {s.name: None if opts.duration_s is None or s.sample_rate is None
+               else int(round(opts.duration_s * s.sample_rate)) for s in self.sources}
+        # frames as they come (no nominal rate, e.g. a CAN bus's unknown frames): recorded for the
+        # duration by the host clock, then closed
+        by_time = [s for s in self.sources if s.sample_rate is None]
         readers = [_Reader(s, q, stop, opts.reconnect) for s in self.sources]
         failure: Exception | None = None
         # Ctrl-C and SIGTERM only raise a flag: the loop stops between blocks, never mid-write; a
@@ -416,6 +419,10 @@ class Recorder:
                 else:
                     self._take(source, item)
                 now = time.monotonic()
+                if by_time and opts.duration_s is not None and now - t0 >= opts.duration_s:
+                    for s in by_time:
+                        s.close()  # its reader ends: the block it was reading is written
+                    by_time = []
                 if now - last_flush >= opts.flush_interval_s:
                     for part in self._parts:
                         part.writer.flush()
@@ -452,6 +459,7 @@ class Recorder:
             raise DeviceError(f"{failure} (after {time.monotonic() - t0:.1f} s; recording finished cleanly: {where})") \
                 from failure
         rate = {s.name: s.sample_rate for s in self.sources}
+        rated = [(t.samples + t.drops) / rate[n] for n, t in self._totals.items() if rate[n]]
         topics = {}
         for s in self.sources:
             for g in s.signal_groups():
@@ -459,7 +467,7 @@ class Recorder:
                                    if k in ("samples", "drops", "duplicates", "wraps", "restarts")}
         return RecordResult(
             files=list(self._files),
-            duration_s=max((t.samples + t.drops) / rate[n] for n, t in self._totals.items()),
+            duration_s=max(rated) if rated else time.monotonic() - t0,
             samples=max(t.samples for t in self._totals.values()),
             drops=sum(t.drops for t in self._totals.values()),
             duplicates=sum(t.duplicates for t in self._totals.values()),

@@ -27,12 +27,14 @@ class Source(ABC):
     ----------
     name : str
         Device name in the recording.
-    sample_rate : float
-        Samples per second it declares, in Hz.
+    sample_rate : float or None
+        Samples per second it declares, in Hz; None for a device whose samples come as they
+        come (a CAN bus's unknown frames), which the recorder reads for the duration by the host
+        clock.
     """
 
     name: str
-    sample_rate: float
+    sample_rate: float | None
     _notes: dict[str, str] | None = None
     _released = False
     _close_hooks: list | None = None

@@ -46,12 +46,16 @@ class OpenRequest:
         Also record ground truth (simulated rigs).
     calibration : dict of str to str
         Notes stored with every device's calibration (a rig file's ``[device.calibration]``).
+    description : dict
+        What a rig file says of the device beyond its URL, for its back-end to read: a DBC or
+        EDS file and what to record of it (docs/hardware.md); paths are absolute.
     """
 
     name: str | None = None
     speed: SpeedProfile | None = None
     truth: bool | None = None
     calibration: dict[str, str] = field(default_factory=dict)
+    description: dict = field(default_factory=dict)
 
 
 class Opened:
@@ -179,10 +183,12 @@ def _request(speed: str | SpeedProfile | None, **kw) -> OpenRequest:
 
 
 def open_url(url: str | DeviceURL, *, name: str | None = None, speed: str | SpeedProfile | None = None,
-             truth: bool | None = None, calibration: dict[str, str] | None = None) -> Opened:
+             truth: bool | None = None, calibration: dict[str, str] | None = None,
+             description: dict | None = None) -> Opened:
     """Open what ``url`` names: one device, or a whole simulated rig (see :class:`OpenRequest`)."""
     parsed = parse_device_url(url)
-    return backend(parsed.scheme).open(parsed, _request(speed, name=name, truth=truth, calibration=calibration))
+    return backend(parsed.scheme).open(parsed, _request(speed, name=name, truth=truth, calibration=calibration,
+                                                        description=description))
 
 
 def open_device(url: str | DeviceURL, *, name: str | None = None, speed: str | SpeedProfile | None = None,

@@ -12,6 +12,11 @@
 
     [device.calibration]          # optional, stored in the recording's metadata
     note = "sensor gains from 2026-11-01 slow roll"
+
+A device described by a file no one here wrote adds its description (docs/hardware.md): a DBC
+device ``dbc``, ``messages``, ``counters``, ``raw``; a CANopen device from its EDS ``eds``,
+``mapping``, ``[[device.signal]]``.  Relative paths are taken from the rig file's folder; the
+device's back-end checks the rest.
 """
 
 from __future__ import annotations
@@ -33,6 +38,12 @@ class DeviceEntry:
     rpm: str | None = None
     unlock_key: str | None = None
     calibration: dict[str, str] = field(default_factory=dict)
+    description: dict = field(default_factory=dict)
+
+
+BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
+DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw", "eds", "mapping", "signal")
+PATH_KEYS = ("dbc", "eds")
 
 
 @dataclass(frozen=True)
@@ -64,9 +75,9 @@ def load_rig(path: str | Path) -> RigFile:
         where = f"{path}: device {i + 1}"
         if not isinstance(e, dict) or "url" not in e:
             raise BadInputError(f"{where}: needs url = \"scheme://...\"")
-        bad = sorted(set(e) - {"name", "url", "rpm", "unlock_key", "calibration"})
+        bad = sorted(set(e) - set(BASE_KEYS) - set(DESCRIPTION_KEYS))
         if bad:
-            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: name, url, rpm, unlock_key, calibration)")
+            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: {', '.join(BASE_KEYS + DESCRIPTION_KEYS)})")
         parse_device_url(str(e["url"]))
         cal = e.get("calibration", {})
         if not isinstance(cal, dict):
@@ -78,9 +89,21 @@ def load_rig(path: str | Path) -> RigFile:
                 rpm=None if "rpm" not in e else str(e["rpm"]),
                 unlock_key=None if "unlock_key" not in e else str(e["unlock_key"]),
                 calibration={str(k): str(v) for k, v in cal.items()},
+                description=_description(e, path.parent, where),
             )
         )
     names = [d.name for d in devices]
     if len(set(names)) != len(names):
         raise BadInputError(f"{path}: device names must be unique ({', '.join(names)})")
     return RigFile(path, str(doc.get("name", path.stem)), tuple(devices))
+
+
+def _description(entry: dict, folder: Path, where: str) -> dict:
+    """The device's description keys, with its files' paths made absolute."""
+    out = {k: entry[k] for k in DESCRIPTION_KEYS if k in entry}
+    for k in PATH_KEYS:
+        if k in out:
+            if not isinstance(out[k], str):
+                raise BadInputError(f"{where}: {k} must be a file name")
+            out[k] = str((folder / out[k]).resolve())
+    return out

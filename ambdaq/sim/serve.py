@@ -21,6 +21,7 @@ from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
 from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
+from .devices.probes import DBC_PATH as PROBES_DBC, SimProbeConditioner
 from .devices.slcan import SimSlcanAdapter
 from .profiles import require_served
 
@@ -100,7 +101,8 @@ class ServedRig:
 
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
-          clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual") -> ServedRig:
+          clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
+          third_party: bool = False) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -118,6 +120,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     can : {"virtual", "slcan", None}
         Where the CANopen devices are reached: python-can's ``virtual`` bus (this process only),
         a simulated SLCAN adapter on a pseudo-terminal (any process), or not at all.
+    third_party : bool
+        Also serve, on the same CAN bus, the devices described by vendor files rather than by
+        ambdaq (docs/hardware.md): a probe conditioner sending raw frames of its DBC.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -138,6 +143,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.ptys["can"] = Pty.open()
                 served.devices["can"] = SimSlcanAdapter(served.ptys["can"].master, channel)
                 bus, sync = f"slcan{served.ptys['can'].path}?open_delay=0&", SLCAN_SYNC_HZ
+            if third_party:
+                served.devices["probes"] = SimProbeConditioner(channel, served.server)
+                served.urls["probes"] = f"can://{bus}dbc={PROBES_DBC}"
             for dev in served.can_devices:
                 kind = dev.profile.kind
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""

@@ -3,6 +3,8 @@ interface and channel."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ...errors import BadInputError
 from ..interfaces import BankPort
 from ..registry import Backend, Opened, OpenRequest
@@ -13,9 +15,9 @@ class CanBackend(Backend):
     """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
 
     scheme = Scheme("can", "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller"
-                           "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S] (any python-can interface, e.g. "
-                           "can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
-                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay"))
+                           "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S] or can://INTERFACE/CHANNEL?dbc=FILE[&raw=1] "
+                           "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
+                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw"))
 
     def _on_hub(self, url: DeviceURL, node: int, make):
         """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
@@ -52,6 +54,9 @@ class CanBackend(Backend):
         from .device import CanopenDevice
         from .profiles import PROFILES
 
+        if "dbc" in url.options or "dbc" in request.description:
+            return self._open_dbc(url, request)
+
         kind = url.options.get("kind")
         if kind is not None and kind not in PROFILES:
             raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
@@ -63,6 +68,46 @@ class CanBackend(Backend):
             namespace=url.options.get("namespace", ""), url=url.text))
         dev.add_calibration(request.calibration)
         return Opened([dev])
+
+    def _open_dbc(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        """A raw-CAN device described by a DBC file: one source per topic (:mod:`.dbc`)."""
+        from .bus import CanHub
+        from .dbc import DbcMessageSource, DbcReceiver, DbcRequest, load_dbc
+
+        d = request.description
+        for key in ("node", "kind", "sync", "namespace"):
+            if key in url.options:
+                raise BadInputError(f"option {key} in {url.text!r} is for CANopen devices, not a DBC device")
+        messages, counters = d.get("messages", []), d.get("counters", {})
+        if not isinstance(messages, list) or not all(isinstance(m, str) for m in messages):
+            raise BadInputError(f"{url.text}: messages must be a list of DBC message names")
+        if not isinstance(counters, dict) or not all(isinstance(v, str) for v in counters.values()):
+            raise BadInputError(f"{url.text}: counters must be a table of message = \"counter signal\"")
+        raw = d.get("raw", url.flag("raw", False))
+        if not isinstance(raw, bool):
+            raise BadInputError(f"{url.text}: raw must be true or false")
+        path = d.get("dbc") or url.options["dbc"]
+        db = load_dbc(path)  # before the bus is opened: a bad file touches nothing
+        wanted = DbcRequest(Path(path), tuple(messages), dict(counters), raw)
+        name = request.name or Path(path).stem
+        interface, channel, options = self.bus_of(url)
+        hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000), **options)
+        try:
+            receiver = DbcReceiver(hub, db, wanted, name)
+        except BaseException:
+            hub.release()
+            raise
+        streams = list(receiver.streams.values()) + ([receiver.raw_stream] if receiver.raw_stream else [])
+        sources = []
+        for i, stream in enumerate(streams):
+            if i:
+                CanHub.acquire(interface, channel, hub.bitrate)  # each source releases the hub once
+            topic = stream.group.topic
+            part = topic.removeprefix(f"/{name}/").replace("/", ".") if topic.startswith(f"/{name}/") else "raw"
+            source = DbcMessageSource(receiver, stream, name=f"{name}.{part}", url=url.text)
+            source.add_calibration(request.calibration)
+            sources.append(source)
+        return Opened(sources)
 
     def controller(self, url: DeviceURL) -> BankPort:
         from .controller import CanopenController

@@ -6,9 +6,10 @@ timestamps every SYNC cycle (its own as it is sent, another master's from the bu
 bus load of the requested stream, and watches error frames and the bus state (error-active,
 error-passive, bus-off).
 
-One receive thread reads the bus: process data (TPDOs, SYNC) goes straight to the handler
-registered for its COB-ID, everything else (SDO, EMCY, NMT, heartbeat) to the canopen network's
-subscribers.  At full bus load that keeps the per-frame cost below python-can's own logger.
+One receive thread reads the bus: process data (TPDOs, SYNC, a DBC device's frames) goes straight
+to the handler registered for its identifier, SDO, EMCY, NMT and heartbeat to the canopen
+network's subscribers, and a frame nothing claims to the unknown-frame handlers (a DBC device
+counts them, or records them raw).  At full bus load that keeps the per-frame cost below python-can's own logger.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ class CanHub:
             raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
         self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
         self._fast: dict[int, Callable[[bytearray, float], None]] = {}
+        self._unknown: list[Callable[[can.Message], None]] = []  # frames nothing on the bus claims
         self.error_frames = 0
         self.malformed_frames = 0  # lines or records the interface could not parse: counted, skipped
         self.events: "queue.SimpleQueue[Event]" = queue.SimpleQueue()  # drained by whichever device asks
@@ -164,6 +166,7 @@ class CanHub:
         than one per frame.  Sample times come from the frames' bus timestamps, not from when we
         read them, so the short wait costs nothing in timing."""
         bus, fast, notify, own = self.network.bus, self._fast, self.network.notify, self._own_syncs
+        subscribers, unknown = self.network.subscribers, self._unknown
         while not self._sync_stop.is_set():
             while own:
                 counter, sent = own.popleft()
@@ -190,8 +193,17 @@ class CanHub:
             handler = fast.get(msg.arbitration_id)
             if handler is not None:
                 handler(msg.data, msg.timestamp)
-            elif not msg.is_remote_frame:
+            elif msg.is_remote_frame:
+                continue
+            elif msg.arbitration_id in subscribers:
                 notify(msg.arbitration_id, msg.data, msg.timestamp)
+            else:
+                for cb in unknown:
+                    cb(msg)
+
+    def on_unknown(self, handler: Callable[[can.Message], None]) -> None:
+        """Hand ``handler(message)`` every frame that no device registered or subscribed to."""
+        self._unknown.append(handler)
 
     def add_sync_listener(self, cb: Callable[[SyncCycle], None]) -> None:
         self._sync_listeners.append(cb)

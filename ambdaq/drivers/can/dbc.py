@@ -1,0 +1,258 @@
+"""Raw CAN devices described by a DBC file (decoded by cantools): sensors and conditioners that
+send their own frames, with no CANopen.
+
+Each DBC message the rig file asks for is one topic (``/<device>/<Message>``; a multiplexed message
+is one topic per multiplexer value, ``/<device>/<Message>/m<k>``, holding the signals of that value
+and the ones common to all), with the signals as fields, in the DBC's own units, scaled and
+byte-ordered as the DBC says.  A sample is one received frame, timed by its bus time stamp on the
+host clock.  A message whose DBC has a rolling counter signal names it in the rig file; its frames'
+counter gives the sequence number, so a lost frame is counted and a repeated one dropped as a
+duplicate (a counter of N bits sees fewer than 2**N lost in a row; more look like fewer).  Without a counter, frames are numbered as they arrive
+and a loss cannot be seen: the recording's metadata says which.
+
+Frames of identifiers the DBC does not describe are counted, and recorded raw to ``/can/raw``
+(identifier, length, flags and the eight data bytes) when the rig file asks.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import BadInputError, DeviceError
+from ..interfaces import Source
+from ..signals import SampleBlock, SignalGroup
+from .bus import CanHub
+
+RAW_TOPIC = "/can/raw"
+RAW_FIELDS = ("arbitration_id", "dlc", "extended", *(f"b{i}" for i in range(8)))
+BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
+
+
+def load_dbc(path: str | Path):
+    """The cantools database of DBC file ``path``; a missing or malformed file is one
+    :class:`BadInputError` line naming the file and, where cantools says, the line."""
+    try:
+        import cantools
+    except ImportError:
+        raise BadInputError("DBC devices need cantools: pip install 'ambdaq[dbc]'") from None
+    path = Path(path)
+    if not path.is_file():
+        raise BadInputError(f"{path}: no such DBC file")
+    try:
+        return cantools.database.load_file(str(path), database_format="dbc", strict=True)
+    except (cantools.database.errors.ParseError, cantools.database.UnsupportedDatabaseFormatError) as err:
+        text = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise BadInputError(f"{path}: not a valid DBC file: {text}") from None
+    except (UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError) as err:
+        raise BadInputError(f"{path}: not a valid DBC file ({type(err).__name__}: {err})") from None
+
+
+@dataclass
+class DbcRequest:
+    """What to record of a DBC device (a rig file's ``dbc``, ``messages``, ``counters``, ``raw``).
+
+    Parameters
+    ----------
+    path : Path
+        The DBC file.
+    messages : tuple of str
+        Message names to record; empty: every message of the DBC.
+    counters : dict of str to str
+        Message name -> its rolling counter signal.
+    raw : bool
+        Record frames of identifiers the DBC does not describe to ``/can/raw``.
+    """
+
+    path: Path
+    messages: tuple[str, ...] = ()
+    counters: dict[str, str] = field(default_factory=dict)
+    raw: bool = False
+
+
+class _Stream:
+    """Rows of one topic as the bus thread decodes them: (time ns, seq, values)."""
+
+    def __init__(self, group: SignalGroup, counter: str | None, counter_bits: int, rate_hz: float | None) -> None:
+        self.group = group
+        self.rate_hz = rate_hz
+        self.counter = counter
+        self.modulus = 1 << counter_bits if counter else 0
+        self.rows: deque = deque()
+        self.received = 0  # frames, or the unwrapped counter
+        self.last_counter: int | None = None
+
+    def add(self, t_ns: int, values: list[float], counter: int | None) -> None:
+        if counter is None:
+            seq = self.received
+            self.received += 1
+        else:  # unwrap the rolling counter: the same value again is a repeat (a duplicate the
+            # recorder drops and counts), any other the frames since the last one
+            step = counter + 1 if self.last_counter is None else (counter - self.last_counter) % self.modulus
+            self.last_counter = counter
+            self.received += step
+            seq = self.received - 1
+        self.rows.append((t_ns, seq, values))
+
+
+class DbcReceiver:
+    """Decodes the DBC's frames on the bus thread into one :class:`_Stream` per topic, and counts
+    (or keeps) the frames of unknown identifiers."""
+
+    def __init__(self, hub: CanHub, db, request: DbcRequest, device: str) -> None:
+        self.hub, self.db, self.request = hub, db, request
+        names = request.messages or tuple(m.name for m in db.messages)
+        prefix = f"/{device}"
+        self.streams: dict[tuple[int, int | None], _Stream] = {}
+        self.decoders: dict[int, tuple] = {}
+        for name in names:
+            try:
+                msg = db.get_message_by_name(name)
+            except KeyError:
+                raise BadInputError(f"{request.path}: no message {name!r} "
+                                    f"(it has {', '.join(m.name for m in db.messages)})") from None
+            counter = request.counters.get(name)
+            bits = 0
+            if counter is not None:
+                sig = next((s for s in msg.signals if s.name == counter), None)
+                if sig is None or sig.scale != 1 or sig.offset != 0 or sig.is_signed or sig.is_float:
+                    raise BadInputError(f"{request.path}: message {name} has no unsigned integer signal "
+                                        f"{counter!r} to count frames by")
+                bits = sig.length
+            mux = next((s for s in msg.signals if s.is_multiplexer), None)
+            plain = [s for s in msg.signals if s.multiplexer_ids is None and s is not mux and s.name != counter]
+            if mux is None:
+                keys = {None: plain}
+            else:
+                values = sorted({v for s in msg.signals if s.multiplexer_ids for v in s.multiplexer_ids})
+                keys = {v: plain + [s for s in msg.signals if s.multiplexer_ids and v in s.multiplexer_ids]
+                        for v in values}
+            if not msg.cycle_time:
+                raise BadInputError(f"{request.path}: message {name} has no cycle time (GenMsgCycleTime): "
+                                    "ambdaq records a DBC message at the rate its DBC declares")
+            rate = 1000.0 / msg.cycle_time / len(keys)  # multiplexed: the pages take turns
+            for key, signals in keys.items():
+                topic = f"{prefix}/{name}" + ("" if key is None else f"/m{key}")
+                group = SignalGroup(topic, f"Dbc{name}" + ("" if key is None else f"M{key}"),
+                                    tuple(s.name for s in signals), tuple(s.unit or "" for s in signals))
+                self.streams[(msg.frame_id, key)] = _Stream(group, counter, bits, rate)
+            self.decoders[msg.frame_id] = (msg, None if mux is None else mux.name, counter,
+                                           {k: [s.name for s in sig] for k, sig in keys.items()})
+        self.unknown = 0
+        self.undecodable = 0
+        self.raw_stream = _Stream(SignalGroup(RAW_TOPIC, "RawFrame", RAW_FIELDS,
+                                              ("", "byte", "", *("byte",) * 8)), None, 0, None) if request.raw else None
+        known = {m.frame_id for m in db.messages}
+        for frame_id in self.decoders:
+            hub.on_frame(frame_id, self._on_frame(frame_id))
+        hub.on_unknown(lambda msg: self._on_unknown(msg, known))
+
+    def _on_frame(self, frame_id: int):
+        msg, mux, counter, fields = self.decoders[frame_id]
+        streams = self.streams
+
+        def on_frame(data: bytearray, timestamp: float) -> None:  # on the bus thread
+            try:
+                decoded = msg.decode(bytes(data), decode_choices=False)
+            except Exception:  # cantools raises DecodeError, ValueError, KeyError ... on a bad frame
+                self.undecodable += 1
+                return
+            key = None if mux is None else int(decoded[mux])
+            names = fields.get(key)
+            if names is None:
+                self.undecodable += 1  # a multiplexer value the DBC does not define
+                return
+            streams[(frame_id, key)].add(int(round(timestamp * 1e9)), [float(decoded[n]) for n in names],
+                                         None if counter is None else int(decoded[counter]))
+
+        return on_frame
+
+    def _on_unknown(self, msg, known: set[int]) -> None:
+        if msg.arbitration_id in known:
+            return  # a DBC message the rig file did not ask for
+        self.unknown += 1
+        if self.raw_stream is not None:
+            data = bytes(msg.data) + bytes(8 - len(msg.data))
+            self.raw_stream.add(int(round(msg.timestamp * 1e9)),
+                                [float(msg.arbitration_id), float(msg.dlc), float(msg.is_extended_id), *data], None)
+
+
+class DbcMessageSource(Source):
+    """One topic of a DBC device, as a recorder source (see the module docstring)."""
+
+    def __init__(self, receiver: DbcReceiver, stream: _Stream, *, name: str, url: str) -> None:
+        self.receiver, self.stream = receiver, stream
+        self.name, self.url = name, url
+        self.sample_rate = stream.rate_hz
+        self._closed = threading.Event()
+        self._remaining: int | None = None
+        self._first: int | None = None
+        self._last_data = time.monotonic()
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return [self.stream.group]
+
+    def identity(self) -> dict[str, str]:
+        db_path = self.receiver.request.path
+        rate = {} if self.sample_rate is None else {"sample_rate_hz": f"{self.sample_rate:g}"}
+        return {"url": self.url, "kind": "dbc", "dbc": db_path.name, "topic": self.stream.group.topic, **rate,
+                "sequence": (f"rolling counter {self.stream.counter} ({self.stream.modulus})"
+                             if self.stream.counter else "arrival order: losses cannot be seen")}
+
+    def device_calibration(self) -> dict[str, str]:
+        return {"scaling": f"as {self.receiver.request.path.name} says"}
+
+    def start(self, n_samples: int | None) -> None:
+        self._remaining = n_samples
+        self.stream.rows.clear()
+        self._last_data = time.monotonic()
+
+    def read(self) -> SampleBlock | None:
+        rows = self.stream.rows
+        while True:
+            if self._closed.wait(BLOCK_S):
+                return None
+            if self.receiver.hub.failure is not None:
+                raise DeviceError(f"{self.name} ({self.url}): {self.receiver.hub.failure}")
+            n = len(rows)
+            if n:
+                got = [rows.popleft() for _ in range(n)]
+                self._last_data = time.monotonic()
+                break
+            silent = time.monotonic() - self._last_data
+            if silent > 2.0 and self.stream.group.topic != RAW_TOPIC:
+                raise DeviceError(f"{self.name} ({self.url}): no {self.stream.group.topic.rsplit('/', 1)[-1]} "
+                                  f"frame for {silent:.1f} s")
+        seq = np.array([r[1] for r in got], dtype=np.int64)
+        if self._first is None:
+            self._first = int(seq[0])
+        if self._remaining is not None:
+            keep = seq < self._first + self._remaining
+            if not keep.any():
+                return None
+            got = [r for r, k in zip(got, keep) if k]
+            seq = seq[keep]
+        t = np.array([r[0] for r in got], dtype=np.int64)
+        return SampleBlock(device_time_ns=t, seq=(seq & 0xFFFFFFFF).astype(np.uint32),
+                           values={self.stream.group.topic: np.array([r[2] for r in got], dtype=np.float64)},
+                           host_time_ns=t)
+
+    def link_statistics(self) -> dict[str, str]:
+        r = self.receiver
+        return {"unknown_frames": str(r.unknown), "undecodable_frames": str(r.undecodable),
+                "error_frames": str(r.hub.error_frames), "bitrate": str(r.hub.bitrate)}
+
+    def events(self):
+        out = []
+        while not self.receiver.hub.events.empty():
+            out.append(self.receiver.hub.events.get_nowait())
+        return out
+
+    def _close(self) -> None:
+        self._closed.set()
+        self.receiver.hub.release()
