@@ -31,7 +31,7 @@ from ..signals import Event
 SYNC_COB_ID = 0x80
 MAX_LOAD = 0.80
 BUS_TOPIC = "/can/bus"
-RX_POLL_S = 0.001  # sleep when the bus is drained
+RX_POLL_S = 0.001  # the longest wait for a frame when the bus is drained
 MAX_OUTSTANDING = SYNC_COUNTER_MAX // 2  # SYNCs sent and not yet answered (start_sync)
 
 
@@ -162,17 +162,20 @@ class CanHub:
         self._fast[cob_id] = handler
 
     def _receive(self) -> None:
-        """Drain the bus, then sleep RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
-        than one per frame.  Sample times come from the frames' bus timestamps, not from when we
-        read them, so the short wait costs nothing in timing."""
+        """Drain the bus without waiting, then wait up to RX_POLL_S for the next frame: one
+        wake-up per burst (a SYNC and its PDOs) rather than one per frame.  The wait is the
+        interface's own (not a sleep), so a serial adapter's line that is still arriving is read
+        to its end at once; sleeping there instead held an SLCAN reader to about one frame per
+        millisecond.  The time of our own SYNCs is stamped as they are sent."""
         bus, fast, notify, own = self.network.bus, self._fast, self.network.notify, self._own_syncs
         subscribers, unknown = self.network.subscribers, self._unknown
+        wait = 0.0
         while not self._sync_stop.is_set():
             while own:
                 counter, sent = own.popleft()
                 self._on_sync(bytes([counter]), sent)
             try:
-                msg = bus.recv(0)
+                msg = bus.recv(wait)
             except ValueError as err:  # the interface could not parse what its adapter sent (slcan: a garbled line)
                 self.malformed_frames += 1
                 self.events.put(Event(time.time_ns(), "malformed-frame", 0,
@@ -183,8 +186,9 @@ class CanHub:
                     self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
                 return
             if msg is None:
-                time.sleep(RX_POLL_S)
+                wait = RX_POLL_S
                 continue
+            wait = 0.0
             if msg.is_error_frame:
                 self.error_frames += 1
                 self.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
@@ -216,10 +220,11 @@ class CanHub:
         """Start producing SYNC at the registered rate (once per bus; never with an external master).
 
         A reply is matched to its SYNC by the counter it echoes, which tells apart 240 SYNCs.  When
-        the replies come back more than MAX_OUTSTANDING cycles behind (a reader that cannot keep
-        up, e.g. an SLCAN adapter whose serial line backs up), a reply could match the SYNC a whole
-        counter turn later; so the cycle is then not sent: it is counted, and lost, on every
-        device, and no reply is ever attributed to the wrong cycle.
+        the replies come back more than MAX_OUTSTANDING cycles behind the last SYNC sent (a reader
+        that cannot keep up, e.g. an SLCAN adapter whose serial line backs up), a reply could match
+        the SYNC a whole counter turn later; so cycles are then not sent until the replies catch
+        up: each is counted, and lost, on every device, and no reply is ever attributed to the
+        wrong cycle.
 
         A SYNC we send is timed by the host clock as it is handed to the interface, and reaches
         the receive thread through a queue, not as an echo from the bus: not every interface
@@ -232,7 +237,7 @@ class CanHub:
 
         def run() -> None:
             nxt = time.monotonic()
-            counter = 0
+            counter = last_sent = 0
             for count in itertools.count():
                 if self._sync_stop.is_set():
                     return
@@ -240,10 +245,11 @@ class CanHub:
                 counter = counter % SYNC_COUNTER_MAX + 1  # CiA 301: 1 .. 0x1019
                 msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False, data=bytes([counter]))
                 self._own_syncs.append((counter, time.time()))  # before a reply to it can come back
-                if 0 <= self.answered < count - MAX_OUTSTANDING:
+                if 0 <= self.answered < last_sent - MAX_OUTSTANDING:
                     self.skipped_syncs += 1  # the cycle is counted, and lost, but never sent
                     time.sleep(max(0.0, nxt - time.monotonic()))
                     continue
+                last_sent = count
                 try:
                     self.network.bus.send(msg)
                 except can.CanError as err:
