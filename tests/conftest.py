@@ -31,3 +31,15 @@ def spindle_file(tmp_path_factory) -> Path:
     )
     assert result.exit_code == 0, result.output
     return out
+
+
+@pytest.fixture(scope="session")
+def third_party_rig():
+    """The spindle served in this process with the devices described by vendor files (a DBC
+    probe conditioner, an EDS drive) on its CAN bus; shared by the DBC and EDS tests."""
+    from ambdaq.sim.serve import serve
+    from ambdaq.speed import SpeedProfile
+
+    served = serve("spindle", speed=SpeedProfile(30000, 30000), third_party=True)
+    yield served
+    served.stop()

@@ -201,12 +201,13 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
         assert np.isfinite(summary["clocks"]["dev0"]["drift_ppm"]) and summary["clocks"]["dev0"]["points"] > 50
         rec = load(out)
         np.testing.assert_allclose(rec["/amb/rotor"]["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
-        # the same rig seen by the controller's A/D and by the CAN gap conditioner (1e-8 m counts,
-        # its own noise): the mean gaps agree within 2 um, far below the +-0.5 mm range
+        # the same rotor seen by the controller's A/D at 10 kHz and by the CAN gap conditioner at
+        # 400 Hz: the same vibration, so the same RMS (1,200 samples of a signal that the 1X
+        # dominates estimate it within a few %; 10 % leaves room for the conditioner's own noise)
         can_gap, gap = rec["/can/amb/gap"], rec["/amb/gap"]
         assert np.all(np.diff(can_gap.seq.astype(np.int64)) == 1)
         for axis in ("front_x", "rear_y"):
-            assert abs(np.mean(can_gap[axis]) - np.mean(gap[axis])) < 2e-6
+            assert np.std(can_gap[axis]) == pytest.approx(np.std(gap[axis]), rel=0.10)
         info = run_cli("info", out).output
         assert "[ambdaq.link.dev0]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
         assert "malformed_frames = 0" in info

@@ -100,7 +100,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
               help="Serve the rig's CANopen devices through a simulated SLCAN USB-CAN adapter on a pseudo-terminal.")
 @click.option("--third-party", is_flag=True,
               help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
-                   "sending the raw frames of its DBC; docs/hardware.md).")
+                   "sending the raw frames of its DBC, a CiA 402 drive known by its EDS; docs/hardware.md).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
 def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, duration):

@@ -47,8 +47,8 @@ class OpenRequest:
     calibration : dict of str to str
         Notes stored with every device's calibration (a rig file's ``[device.calibration]``).
     description : dict
-        What a rig file says of the device beyond its URL, for its back-end to read: a DBC file
-        and what to record of it (docs/hardware.md); paths are absolute.
+        What a rig file says of the device beyond its URL, for its back-end to read: a DBC or
+        EDS file and what to record of it (docs/hardware.md); paths are absolute.
     """
 
     name: str | None = None

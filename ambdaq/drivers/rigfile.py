@@ -14,7 +14,8 @@
     note = "sensor gains from 2026-11-01 slow roll"
 
 A device described by a file no one here wrote adds its description (docs/hardware.md): a DBC
-device ``dbc``, ``messages``, ``counters``, ``raw``.  Relative paths are taken from the rig
+device ``dbc``, ``messages``, ``counters``, ``raw``; a CANopen device from its vendor's EDS
+``eds``, ``mapping`` and ``[[device.signal]]`` tables.  Relative paths are taken from the rig
 file's folder; the device's back-end checks the rest.
 """
 
@@ -41,8 +42,8 @@ class DeviceEntry:
 
 
 BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
-DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw")
-PATH_KEYS = ("dbc",)
+DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw", "eds", "mapping", "signal")
+PATH_KEYS = ("dbc", "eds")
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
 from .devices.probes import DBC_PATH as PROBES_DBC, SimProbeConditioner
 from .devices.slcan import SimSlcanAdapter
+from .devices.vendor_drive import DEFAULT_NODE as VENDOR_DRIVE_NODE, EDS_PATH as VENDOR_DRIVE_EDS, SimVendorDrive
 from .profiles import require_served
 
 CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
@@ -143,14 +144,17 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.ptys["can"] = Pty.open()
                 served.devices["can"] = SimSlcanAdapter(served.ptys["can"].master, channel)
                 bus, sync = f"slcan{served.ptys['can'].path}?open_delay=0&", SLCAN_SYNC_HZ
-            if third_party:
-                served.devices["probes"] = SimProbeConditioner(channel, served.server)
-                served.urls["probes"] = f"can://{bus}dbc={PROBES_DBC}"
             for dev in served.can_devices:
                 kind = dev.profile.kind
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
                 served.urls[kind] = (f"can://{bus}node={CAN_PROFILES[kind].default_node}"
                                      f"&sync={sync:g}{namespace}")
+            if third_party:
+                served.devices["probes"] = SimProbeConditioner(channel, served.server)
+                served.urls["probes"] = f"can://{bus}dbc={PROBES_DBC}"
+                # a new list: serve_can's SYNC handler keeps its own (ambdaq's device types only)
+                served.can_devices = [*served.can_devices, SimVendorDrive(served.network, served.server)]
+                served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)

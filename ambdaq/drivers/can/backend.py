@@ -15,9 +15,10 @@ class CanBackend(Backend):
     """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
 
     scheme = Scheme("can", "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller"
-                           "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S] or can://INTERFACE/CHANNEL?dbc=FILE[&raw=1] "
+                           "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S], can://INTERFACE/CHANNEL?node=N&eds=FILE"
+                           "[&sync=HZ|external] or can://INTERFACE/CHANNEL?dbc=FILE[&raw=1] "
                            "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
-                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw"))
+                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw", "eds"))
 
     def _on_hub(self, url: DeviceURL, node: int, make):
         """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
@@ -56,6 +57,8 @@ class CanBackend(Backend):
 
         if "dbc" in url.options or "dbc" in request.description:
             return self._open_dbc(url, request)
+        if "eds" in url.options or "eds" in request.description:
+            return self._open_eds(url, request)
 
         kind = url.options.get("kind")
         if kind is not None and kind not in PROFILES:
@@ -68,6 +71,35 @@ class CanBackend(Backend):
             namespace=url.options.get("namespace", ""), url=url.text))
         dev.add_calibration(request.calibration)
         return Opened([dev])
+
+    def _open_eds(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        """A CANopen device from its vendor's EDS (:mod:`.eds`): the EDS and the mapping are
+        checked before the bus is opened, so a refused mapping writes nothing to the device."""
+        from .eds import EdsDevice, load_eds, parse_signals, check_mapping
+
+        d = request.description
+        if "kind" in url.options or "namespace" in url.options:
+            raise BadInputError(f"{url.text}: kind and namespace are for ambdaq's own CANopen devices, not an EDS device")
+        if "node" not in url.options:
+            raise BadInputError(f"{url.text}: an EDS device needs node=N")
+        node = url.integer("node", 0)
+        path = Path(d.get("eds") or url.options["eds"])
+        name = request.name or path.stem
+        odict = load_eds(path, node)
+        mapping = d.get("mapping", "configure" if "signal" in d else "existing")
+        if mapping not in ("configure", "existing"):
+            raise BadInputError(f"{url.text}: mapping must be \"configure\" or \"existing\", not {mapping!r}")
+        signals = None
+        if mapping == "configure" or "signal" in d:
+            signals = parse_signals(odict, d.get("signal"), name, str(path))
+            if mapping == "configure":
+                check_mapping(signals, odict, path)
+        sync = url.options.get("sync", "800")
+        sync_hz = None if sync == "external" else url.number("sync", 800.0)
+        device = self._on_hub(url, node, lambda hub, n: EdsDevice(
+            hub, n, path, odict, signals, configure=mapping == "configure", sync_hz=sync_hz, name=name, url=url.text))
+        device.add_calibration(request.calibration)
+        return Opened([device])
 
     def _open_dbc(self, url: DeviceURL, request: OpenRequest) -> Opened:
         """A raw-CAN device described by a DBC file: one source per topic (:mod:`.dbc`)."""

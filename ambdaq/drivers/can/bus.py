@@ -189,6 +189,9 @@ class CanHub:
                 wait = RX_POLL_S
                 continue
             wait = 0.0
+            while own:  # a SYNC we sent while waiting comes before any reply to it
+                counter, sent = own.popleft()
+                self._on_sync(bytes([counter]), sent)
             if msg.is_error_frame:
                 self.error_frames += 1
                 self.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
@@ -293,6 +296,22 @@ class CanHub:
             cb(self.cycle)
 
     # --- health ------------------------------------------------------------------------------------
+
+    def statistics(self) -> dict[str, str]:
+        """The bus's counts, for each device's link statistics."""
+        return {"error_frames": str(self.error_frames), "malformed_frames": str(self.malformed_frames),
+                "skipped_syncs": str(self.skipped_syncs), "bitrate": str(self.bitrate)}
+
+    def take_events(self, *device_queues: "queue.SimpleQueue[Event]") -> list[Event]:
+        """Every event waiting in a device's ``device_queues`` and on the bus, in that order."""
+        out = []
+        for q in (*device_queues, self.events):
+            while True:
+                try:
+                    out.append(q.get_nowait())
+                except queue.Empty:
+                    break
+        return out
 
     def _watch_state(self) -> None:
         names = {can.BusState.ACTIVE: "error-active", can.BusState.PASSIVE: "error-passive",

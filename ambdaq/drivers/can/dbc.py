@@ -244,14 +244,10 @@ class DbcMessageSource(Source):
 
     def link_statistics(self) -> dict[str, str]:
         r = self.receiver
-        return {"unknown_frames": str(r.unknown), "undecodable_frames": str(r.undecodable),
-                "error_frames": str(r.hub.error_frames), "bitrate": str(r.hub.bitrate)}
+        return r.hub.statistics() | {"unknown_frames": str(r.unknown), "undecodable_frames": str(r.undecodable)}
 
     def events(self):
-        out = []
-        while not self.receiver.hub.events.empty():
-            out.append(self.receiver.hub.events.get_nowait())
-        return out
+        return self.receiver.hub.take_events()
 
     def _close(self) -> None:
         self._closed.set()

@@ -249,20 +249,10 @@ class CanopenDevice(Source, Parameters):
         self._last_heartbeat = self._last_data = time.monotonic()
 
     def events(self) -> list[Event]:
-        out = []
-        for q in (self._emcy, self.hub.events):
-            while True:
-                try:
-                    out.append(q.get_nowait())
-                except queue.Empty:
-                    break
-        return out
+        return self.hub.take_events(self._emcy)
 
     def link_statistics(self) -> dict[str, str]:
-        return {"error_frames": str(self.hub.error_frames), "malformed_frames": str(self.hub.malformed_frames),
-                "skipped_syncs": str(self.hub.skipped_syncs),
-                "sync_hz": f"{self.sample_rate:g}",
-                "bitrate": str(self.hub.bitrate)}
+        return self.hub.statistics() | {"sync_hz": f"{self.sample_rate:g}"}
 
     def _close(self) -> None:
         self._closed.set()

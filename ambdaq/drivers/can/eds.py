@@ -1,0 +1,390 @@
+"""Any CANopen device from its vendor's EDS: the objects a rig file names, in TPDOs on SYNC.
+
+The rig file names the EDS, the node and the objects to record, each as a topic and field with
+its scaling to SI units (``factor``, ``offset``, ``unit``; by default the EDS's own ``Factor``
+and ``Unit``).  With ``mapping = "configure"`` ambdaq maps them into the device's TPDOs by SDO
+(canopen's ``pdo`` API: disable, map, transmission type 1 = every SYNC, enable), packed in order
+or into the TPDO each signal names; with ``mapping = "existing"`` it reads the device's TPDO
+mapping and records it as it is.  A mapping the EDS forbids (unknown object, not PDO-mappable,
+more than 64 bits in a TPDO, more TPDOs than the device has) is refused before anything is
+written to the device.
+
+A sample is one SYNC cycle: every synchronous TPDO of the device arrived.  Such a device does
+not echo the SYNC counter, so its replies are matched to the newest SYNC the hub has taken in
+(its own are queued before they are sent, another master's come first on the bus).  A device
+answers its SYNCs in order; when the SYNC before got no reply, the reply that comes next may be
+that one, late, and could carry the wrong time: it is not kept, and both cycles count as lost
+(``ambiguous_replies`` in the link statistics).  A kept sample always has its own SYNC's time.  EMCY frames
+go to ``/amb/events``; NMT state changes seen in the heartbeat are recorded there too.
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+import struct
+import threading
+import time
+from collections import defaultdict, deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import canopen
+import numpy as np
+from canopen import objectdictionary as od
+
+from ...errors import BadInputError, DeviceError
+from ..interfaces import Source
+from ..signals import Event, SampleBlock, SignalGroup
+from .bus import CanHub
+
+MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803
+HEARTBEAT_MS = 100
+BLOCK_S = 0.1
+NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+_STRUCT = {od.BOOLEAN: "?", od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",
+           od.INTEGER32: "i", od.UNSIGNED32: "I", od.REAL32: "f", od.INTEGER64: "q", od.UNSIGNED64: "Q",
+           od.REAL64: "d"}
+
+
+def load_eds(path: str | Path, node_id: int) -> od.ObjectDictionary:
+    """The object dictionary of EDS file ``path``; a missing or malformed file is one
+    :class:`BadInputError` line naming the file (and the line, where the parser says)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInputError(f"{path}: no such EDS file")
+    try:
+        return canopen.import_od(str(path), node_id)
+    except Exception as err:  # configparser, int() and KeyError failures inside canopen's EDS reader
+        text = " ".join(str(err).split())[:200] or type(err).__name__
+        raise BadInputError(f"{path}: not a valid EDS file ({type(err).__name__}: {text})") from None
+
+
+@dataclass(frozen=True)
+class EdsSignal:
+    """One recorded object: where it is, where it goes, how it scales (SI = raw * factor + offset)."""
+
+    index: int
+    subindex: int
+    name: str
+    topic: str
+    field: str
+    factor: float
+    offset: float
+    unit: str
+    tpdo: int | None
+    var: od.ODVariable
+
+
+def _variable(d: od.ObjectDictionary, ref, where: str) -> od.ODVariable:
+    """The variable ``ref`` names: ``"0x6078"``, ``"0x2210.2"`` or ``"0x2210sub2"``, or its EDS name."""
+    text = str(ref)
+    m = re.fullmatch(r"(0x[0-9A-Fa-f]{1,4})(?:(?:\.|sub)(\d+|0x[0-9A-Fa-f]+))?", text)
+    try:
+        if m:
+            index, sub = int(m.group(1), 16), int(m.group(2) or "0", 0)
+            obj = d[index]
+            var = obj if isinstance(obj, od.ODVariable) else obj[sub]
+            if isinstance(obj, od.ODVariable) and sub:
+                raise KeyError(sub)
+        else:
+            var = d[text]
+            if not isinstance(var, od.ODVariable):
+                raise KeyError(text)
+    except KeyError:
+        raise BadInputError(f"{where}: no object {text} in the EDS") from None
+    return var
+
+
+def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> list[EdsSignal]:
+    """The rig file's ``[[device.signal]]`` tables, checked against the EDS."""
+    if not isinstance(entries, list) or not entries:
+        raise BadInputError(f"{where}: mapping = \"configure\" needs [[device.signal]] tables")
+    out = []
+    for i, e in enumerate(entries):
+        at = f"{where}: signal {i + 1}"
+        if not isinstance(e, dict) or "object" not in e:
+            raise BadInputError(f"{at}: needs object = \"0xINDEX[.SUB]\" (or the EDS name)")
+        bad = sorted(set(e) - {"object", "topic", "field", "factor", "offset", "unit", "tpdo"})
+        if bad:
+            raise BadInputError(f"{at}: unknown key {bad[0]!r} (keys: object, topic, field, factor, offset, unit, tpdo)")
+        var = _variable(d, e["object"], at)
+        try:
+            factor = float(e.get("factor", var.factor or 1.0))
+            offset = float(e.get("offset", 0.0))
+        except (TypeError, ValueError):
+            raise BadInputError(f"{at}: factor and offset must be numbers") from None
+        if not (np.isfinite(factor) and np.isfinite(offset)):
+            raise BadInputError(f"{at}: factor and offset must be finite")
+        tpdo = e.get("tpdo")
+        if tpdo is not None and (not isinstance(tpdo, int) or not 1 <= tpdo <= MAX_TPDOS):
+            raise BadInputError(f"{at}: tpdo must be 1..{MAX_TPDOS}")
+        out.append(EdsSignal(var.index, var.subindex, var.name, str(e.get("topic", f"/{device}")),
+                             str(e.get("field", _field_name(var.name))), factor, offset,
+                             str(e.get("unit", var.unit or "")), tpdo, var))
+    return out
+
+
+def _field_name(name: str) -> str:
+    return re.sub(r"[^0-9a-zA-Z]+", "_", name).strip("_").lower() or "value"
+
+
+def check_mapping(signals: list[EdsSignal], d: od.ObjectDictionary, path: Path) -> list[list[EdsSignal]]:
+    """The signals packed into TPDOs (in order, or as each names), refused as the EDS forbids."""
+    tpdos: list[list[EdsSignal]] = [[] for _ in range(MAX_TPDOS)]
+    for s in signals:
+        where = f"{path}: object 0x{s.index:04X}.{s.subindex} ({s.name})"
+        if not s.var.pdo_mappable:
+            raise BadInputError(f"{where} is not PDO-mappable")
+        if s.var.data_type not in _STRUCT:
+            raise BadInputError(f"{where} has a data type ambdaq cannot record from a PDO")
+        bits = 8 * struct.calcsize("<" + _STRUCT[s.var.data_type])
+        if s.tpdo is not None:
+            tpdos[s.tpdo - 1].append(s)
+        else:
+            n = next((k for k, t in enumerate(tpdos) if _bits(t) + bits <= 64), None)
+            if n is None:
+                raise BadInputError(f"{where} does not fit: {MAX_TPDOS} TPDOs of 64 bits are full")
+            tpdos[n].append(s)
+    for n, t in enumerate(tpdos):
+        if _bits(t) > 64:
+            raise BadInputError(f"{path}: TPDO{n + 1} would carry {_bits(t)} bits; a CAN frame holds 64")
+        if t and 0x1800 + n not in d:
+            raise BadInputError(f"{path}: the device has no TPDO{n + 1} (no object 0x{0x1800 + n:04X})")
+    return tpdos
+
+
+def _bits(signals: list[EdsSignal]) -> int:
+    return sum(8 * struct.calcsize("<" + _STRUCT[s.var.data_type]) for s in signals)
+
+
+class EdsDevice(Source):
+    """A CANopen device from its EDS (see the module docstring).
+
+    Parameters
+    ----------
+    hub : CanHub
+        The bus.
+    node_id : int
+        CANopen node id (1..127).
+    eds : Path
+        The vendor's EDS file.
+    object_dictionary : ObjectDictionary
+        It, loaded.
+    signals : list of EdsSignal, or None
+        The rig file's signals: their names and scaling for the objects they name.
+    configure : bool
+        Map ``signals`` into the TPDOs; otherwise record the device's TPDO mapping as it is.
+    sync_hz : float or None
+        SYNC rate, Hz, when ambdaq produces SYNC; None: another master does (the rate is measured).
+    name, url : str
+        Device name in recordings, its URL.
+    """
+
+    def __init__(self, hub: CanHub, node_id: int, eds: Path, object_dictionary: od.ObjectDictionary,
+                 signals: list[EdsSignal] | None, *, configure: bool, sync_hz: float | None, name: str,
+                 url: str) -> None:
+        if not 1 <= node_id <= 127:
+            raise BadInputError(f"CANopen node id must be 1..127, not {node_id}")
+        self.hub, self.node_id, self.eds, self.name, self.url = hub, node_id, eds, name, url
+        self.node = canopen.RemoteNode(node_id, object_dictionary)
+        self.node.sdo.RESPONSE_TIMEOUT = 0.5
+        hub.network.add_node(self.node)
+        self.external = sync_hz is None
+        self.sample_rate = self._measure_sync() if self.external else sync_hz
+        try:
+            self.identity_words = [struct.unpack("<I", self.node.sdo.upload(0x1018, i))[0] for i in (1, 2, 4)]
+            if configure:
+                self._configure(check_mapping(signals or [], object_dictionary, eds))
+            self.tpdos = self._read_mapping(signals)
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
+            hub.network.nodes.pop(node_id, None)
+            raise DeviceError(f"CANopen node {node_id} ({eds.name}): {err}") from None
+        if not self.tpdos:
+            hub.network.nodes.pop(node_id, None)
+            raise DeviceError(f"CANopen node {node_id} ({eds.name}): no TPDO is mapped and sent on SYNC")
+        by_topic: dict[str, list[EdsSignal]] = defaultdict(list)
+        for _cob, _fmt, sigs in self.tpdos:
+            for s in sigs:
+                by_topic[s.topic].append(s)
+        self.groups = [SignalGroup(t, "Eds" + _field_name(t).title().replace("_", ""),
+                                   tuple(s.field for s in sigs), tuple(s.unit for s in sigs))
+                       for t, sigs in by_topic.items()]
+        order = [s for _c, _f, sigs in self.tpdos for s in sigs]
+        self._columns = {t: [order.index(s) for s in sigs] for t, sigs in by_topic.items()}
+        self._factor = np.array([s.factor for s in order])
+        self._offset = np.array([s.offset for s in order])
+        self._rows: deque = deque()
+        self._parts: list = [None] * len(self.tpdos)
+        self._answered: int | None = None  # the SYNC cycle of the last complete reply
+        self.ambiguous_replies = 0
+        self._events: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self._nmt_state: int | None = None
+        self._closed = threading.Event()
+        self._remaining: int | None = None
+        self._first: int | None = None
+        self._last_data = time.monotonic()
+
+    # --- set-up -------------------------------------------------------------------------------------
+
+    def _measure_sync(self) -> float:
+        """The rate of another master's SYNC, Hz, from what the bus carries for half a second."""
+        first = self.hub.cycle
+        t0 = time.monotonic()
+        time.sleep(0.5)
+        last = self.hub.cycle
+        if last.count - first.count < 2 or first.count < 0:
+            raise DeviceError(f"CANopen node {self.node_id}: no SYNC from another master on "
+                              f"{self.hub.interface}/{self.hub.channel} (sync=external) within {time.monotonic() - t0:.1f} s")
+        return round((last.count - first.count) * 1e9 / (last.time_ns - first.time_ns), 1)
+
+    def _configure(self, tpdos: list[list[EdsSignal]]) -> None:
+        """Map ``tpdos`` by SDO with canopen's pdo API: each TPDO disabled, mapped, synchronous on
+        every SYNC, enabled; unused TPDOs disabled."""
+        self.node.nmt.send_command(0x80)  # PRE-OPERATIONAL: PDO mapping may change
+        self.node.tpdo.read()
+        for n, sigs in enumerate(tpdos):
+            if 0x1800 + n not in self.node.object_dictionary:
+                continue
+            pdo = self.node.tpdo[n + 1]
+            pdo.clear()
+            for s in sigs:
+                pdo.add_variable(s.index, s.subindex)
+            pdo.trans_type = 1
+            pdo.cob_id = 0x180 + 0x100 * n + self.node_id  # CiA 301 default COB-IDs
+            pdo.enabled = bool(sigs)
+            pdo.save()
+
+    def _read_mapping(self, wanted: list[EdsSignal] | None) -> list[tuple[int, struct.Struct, list[EdsSignal]]]:
+        """The device's enabled synchronous TPDOs as (COB-ID, layout, signals), read back by SDO;
+        with a configured mapping, the rig file's names and scaling for each object."""
+        self.node.tpdo.read()
+        named = {(s.index, s.subindex): s for s in wanted or ()}
+        out = []
+        for n in range(1, MAX_TPDOS + 1):
+            if 0x1800 + n - 1 not in self.node.object_dictionary:
+                continue
+            pdo = self.node.tpdo[n]
+            if not pdo.enabled or not pdo.map or not 1 <= (pdo.trans_type or 0) <= 240:
+                continue
+            sigs = []
+            for v in pdo.map:
+                s = named.get((v.index, v.subindex))
+                if s is None:
+                    var = v.od
+                    s = EdsSignal(v.index, v.subindex, var.name, f"/{self.name}", _field_name(var.name),
+                                  float(var.factor or 1.0), 0.0, var.unit or "", n, var)
+                sigs.append(s)
+            out.append((pdo.cob_id, struct.Struct("<" + "".join(_STRUCT[s.var.data_type] for s in sigs)), sigs))
+        return out
+
+    # --- recorder source ----------------------------------------------------------------------------
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return self.groups
+
+    def identity(self) -> dict[str, str]:
+        vendor, product, serial = self.identity_words
+        return {"url": self.url, "kind": "eds", "eds": self.eds.name, "vendor_id": f"0x{vendor:08X}",
+                "product_code": f"0x{product:08X}", "serial": str(serial), "node_id": str(self.node_id),
+                "sample_rate_hz": f"{self.sample_rate:g}", "sync": "external" if self.external else "ambdaq",
+                "tpdos": "; ".join(f"0x{cob:03X}: " + ", ".join(f"0x{s.index:04X}.{s.subindex}" for s in sigs)
+                                   for cob, _f, sigs in self.tpdos)}
+
+    def device_calibration(self) -> dict[str, str]:
+        return {s.field: f"{s.factor:g} {s.unit} per count + {s.offset:g} (0x{s.index:04X}.{s.subindex} {s.name})"
+                for _c, _f, sigs in self.tpdos for s in sigs}
+
+    def start(self, n_samples: int | None) -> None:
+        self._remaining = n_samples
+        self.hub.register_stream(self.name, [fmt.size for _c, fmt, _s in self.tpdos], self.sample_rate,
+                                 external=self.external)
+        self.hub.check_load()
+        for i, (cob, fmt, _s) in enumerate(self.tpdos):
+            self.hub.on_frame(cob, self._on_tpdo(i, fmt))
+        self.hub.on_frame(0x700 + self.node_id, self._on_heartbeat)
+        self.node.emcy.add_callback(self._on_emcy)
+        try:
+            if 0x1017 in self.node.object_dictionary:
+                self.node.sdo[0x1017].raw = HEARTBEAT_MS
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
+            raise DeviceError(f"CANopen node {self.node_id}: setting its heartbeat failed: {err}") from None
+        self.node.nmt.send_command(0x01)  # OPERATIONAL
+        self._last_data = time.monotonic()
+        self.hub.start_sync()
+
+    def _on_tpdo(self, i: int, fmt: struct.Struct):
+        last = len(self._parts) - 1
+
+        def on_tpdo(data: bytearray, timestamp: float) -> None:  # on the bus thread
+            if len(data) != fmt.size:
+                return  # never recorded: a cycle with it is a drop
+            cycle = self.hub.cycle
+            self._parts[i] = (cycle.count, fmt.unpack(data))
+            if i < last:
+                return
+            parts, self._parts = self._parts, [None] * len(self._parts)
+            previous, self._answered = self._answered, cycle.count
+            if any(p is None or p[0] != cycle.count for p in parts):
+                return  # part of this cycle was lost, or came with another SYNC: a drop
+            if previous is not None and cycle.count - previous != 1:
+                # the SYNC before this one got no reply: this one may be it, late; kept, it could
+                # carry the wrong time, so it is not kept (both cycles are drops)
+                self.ambiguous_replies += 1
+                return
+            self._rows.append((cycle.count, cycle.time_ns, [v for p in parts for v in p[1]]))
+            self.hub.answered = cycle.count
+
+        return on_tpdo
+
+    def _on_heartbeat(self, data: bytearray, timestamp: float) -> None:
+        state = data[0] & 0x7F if data else None
+        if state != self._nmt_state:
+            self._nmt_state = state
+            self._events.put(Event(int(timestamp * 1e9), "nmt", state or 0,
+                                   f"node {self.node_id} {NMT_STATES.get(state, f'state 0x{state:02X}')}"))
+
+    def _on_emcy(self, err) -> None:
+        self._events.put(Event(0, "fault", err.code, f"EMCY 0x{err.code:04X} {err.get_desc()} (register 0x{err.register:02X})"))
+
+    def read(self) -> SampleBlock | None:
+        while True:
+            if self._closed.wait(BLOCK_S):
+                return None
+            if self.hub.failure is not None:
+                raise DeviceError(f"{self.name} ({self.url}): {self.hub.failure}")
+            n = len(self._rows)
+            if n:
+                rows = [self._rows.popleft() for _ in range(n)]
+                self._last_data = time.monotonic()
+                break
+            silent = time.monotonic() - self._last_data
+            if silent > max(1.0, 20 / self.sample_rate):
+                raise DeviceError(f"{self.name} ({self.url}): no process data from node {self.node_id} for {silent:.1f} s")
+        cycles = np.array([r[0] for r in rows], dtype=np.int64)
+        if self._first is None:
+            self._first = int(cycles[0])
+        if self._remaining is not None:
+            keep = cycles < self._first + self._remaining
+            if not keep.any():
+                return None
+            rows = [r for r, k in zip(rows, keep) if k]
+            cycles = cycles[keep]
+        si = np.array([r[2] for r in rows], dtype=np.float64) * self._factor + self._offset
+        t = np.array([r[1] for r in rows], dtype=np.int64)
+        return SampleBlock(device_time_ns=t, seq=(cycles & 0xFFFFFFFF).astype(np.uint32),
+                           values={g.topic: si[:, self._columns[g.topic]] for g in self.groups}, host_time_ns=t)
+
+    def events(self) -> list[Event]:
+        return self.hub.take_events(self._events)
+
+    def link_statistics(self) -> dict[str, str]:
+        return self.hub.statistics() | {"ambiguous_replies": str(self.ambiguous_replies)}
+
+    def _close(self) -> None:
+        self._closed.set()
+        try:
+            self.node.nmt.send_command(0x80)  # PRE-OPERATIONAL: TPDOs stop
+        except Exception:  # the bus may be gone already
+            pass
+        self.hub.release()
