@@ -229,13 +229,17 @@ class EdsDevice(Source):
 
     def _measure_sync(self) -> float:
         """The rate of another master's SYNC, Hz, from what the bus carries for half a second."""
-        first = self.hub.cycle
         t0 = time.monotonic()
+        first = self.hub.cycle
+        while first.count < 0 and time.monotonic() - t0 < 1.0:
+            time.sleep(0.01)
+            first = self.hub.cycle
         time.sleep(0.5)
         last = self.hub.cycle
-        if last.count - first.count < 2 or first.count < 0:
+        if first.count < 0 or last.count - first.count < 2:
             raise DeviceError(f"CANopen node {self.node_id}: no SYNC from another master on "
-                              f"{self.hub.interface}/{self.hub.channel} (sync=external) within {time.monotonic() - t0:.1f} s")
+                              f"{self.hub.interface}/{self.hub.channel} (sync=external) within "
+                              f"{time.monotonic() - t0:.1f} s")
         return round((last.count - first.count) * 1e9 / (last.time_ns - first.time_ns), 1)
 
     def _configure(self, tpdos: list[list[EdsSignal]]) -> None:
