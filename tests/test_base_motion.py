@@ -104,7 +104,7 @@ def chain(tmp_path_factory):
         return r
 
     for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z"):
-        run("sim", "generate", "--profile", "base-motion", "--duration", "10", "--excite", f"{a}:0.3", "-q",
+        run("sim", "generate", "--profile", "base-motion", "--duration", "6", "--excite", f"{a}:0.3", "-q",
             "-o", d / f"sp_{a}.mcap")
     summary = run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
                   "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json", "--json").stdout

@@ -202,12 +202,15 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
         rec = load(out)
         np.testing.assert_allclose(rec["/amb/rotor"]["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
         # the same rotor seen by the controller's A/D at 10 kHz and by the CAN gap conditioner at
-        # 400 Hz: the same vibration, so the same RMS (1,200 samples of a signal that the 1X
-        # dominates estimate it within a few %; 10 % leaves room for the conditioner's own noise)
+        # 400 Hz.  400 Hz is commensurate with 500 Hz rotation (2X lands on Nyquist, 4X on DC), so
+        # neither the mean nor the RMS of the CAN samples estimates the signal's; what holds is
+        # that every CAN sample is a value the gap takes: inside the controller's range, widened
+        # by 2 um for the two sensors' own noise and quantisation
         can_gap, gap = rec["/can/amb/gap"], rec["/amb/gap"]
         assert np.all(np.diff(can_gap.seq.astype(np.int64)) == 1)
         for axis in ("front_x", "rear_y"):
-            assert np.std(can_gap[axis]) == pytest.approx(np.std(gap[axis]), rel=0.10)
+            assert gap[axis].min() - 2e-6 <= can_gap[axis].min() and can_gap[axis].max() <= gap[axis].max() + 2e-6
+            assert np.ptp(can_gap[axis]) > 0.5 * np.ptp(gap[axis])  # and it moves with the rotor
         info = run_cli("info", out).output
         assert "[ambdaq.link.dev0]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
         assert "malformed_frames = 0" in info

@@ -95,8 +95,8 @@ class SerialLink:
                 self._tx_seq = (self._tx_seq + 1) & 0xFFFF
                 try:  # stamped t1 as it is written
                     self._port.write(encode_frame(proto.pack(MsgType.TIME_REQUEST, seq, proto.time_request(time.time_ns()))))
-                except (serial.SerialException, OSError):
-                    return
+                except (serial.SerialException, OSError, TypeError):  # TypeError: pyserial closed the port
+                    return  # meanwhile (its fd is None): the link is going away
 
     @property
     def one_way_latency_ns(self) -> int | None:
