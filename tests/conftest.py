@@ -33,10 +33,12 @@ def spindle_file(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="session")
+
+@pytest.fixture(scope="module")
 def third_party_rig():
     """The spindle served in this process with the devices described by vendor files (a DBC
-    probe conditioner, an EDS drive) on its CAN bus; shared by the DBC and EDS tests."""
+    probe conditioner, an EDS drive) on its CAN bus.  Module-scoped: held for one module's tests
+    only, since the rig and the conditioner run threads that would load every later test."""
     from ambdaq.sim.serve import serve
     from ambdaq.speed import SpeedProfile
 

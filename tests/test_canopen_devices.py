@@ -307,8 +307,8 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     ctl_sim.start()
     try:
         ctl = open_device(f"serial://{pty.path}")
-        gap = open_device(f"can://virtual/{channel}?kind=gap_sensor&sync=800&namespace=can")
-        res = Recorder([ctl, gap], tmp_path / "mixed.mcap", RecordOptions(duration_s=5)).run()
+        gap = open_device(f"can://virtual/{channel}?kind=gap_sensor&sync=500&namespace=can")
+        res = Recorder([ctl, gap], tmp_path / "mixed.mcap", RecordOptions(duration_s=8)).run()
     finally:
         ctl_sim.stop()
         server.stop()

@@ -13,8 +13,8 @@ from .source import FF_CHOICES
 class SimBackend(Backend):
     """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
 
-    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1]",
-                    ("seed", "rpm", "truth", "ff", "noise"))
+    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&third_party=0|1]",
+                    ("seed", "rpm", "truth", "ff", "noise", "third_party"))
 
     def _serve(self, url: DeviceURL, request: OpenRequest):
         from .serve import serve
@@ -25,7 +25,8 @@ class SimBackend(Backend):
         speed = request.speed if request.speed is not None else SpeedProfile.parse(url.options.get("rpm", "0"))
         return serve(url.target, seed=seed, speed=speed,
                      truth=url.flag("truth", False) if request.truth is None else request.truth,
-                     ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True))
+                     ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True),
+                     third_party=url.flag("third_party", False))
 
     def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
         served = self._serve(url, request)

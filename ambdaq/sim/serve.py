@@ -144,6 +144,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.ptys["can"] = Pty.open()
                 served.devices["can"] = SimSlcanAdapter(served.ptys["can"].master, channel)
                 bus, sync = f"slcan{served.ptys['can'].path}?open_delay=0&", SLCAN_SYNC_HZ
+            if third_party:  # the probe conditioner's 1,000 frames/s and the drive's TPDOs share the bus
+                sync = min(sync, SLCAN_SYNC_HZ)
             for dev in served.can_devices:
                 kind = dev.profile.kind
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
@@ -154,7 +156,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.urls["probes"] = f"can://{bus}dbc={PROBES_DBC}"
                 # a new list: serve_can's SYNC handler keeps its own (ambdaq's device types only)
                 served.can_devices = [*served.can_devices, SimVendorDrive(served.network, served.server)]
-                served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
+                if can == "virtual":  # its replies are matched by bus time, which python-can's slcan lacks
+                    served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)

@@ -83,6 +83,10 @@ class CanBackend(Backend):
         if "node" not in url.options:
             raise BadInputError(f"{url.text}: an EDS device needs node=N")
         node = url.integer("node", 0)
+        if url.target.partition("/")[0] == "slcan":
+            raise BadInputError(f"{url.text}: python-can's slcan interface stamps a frame when it reads it, so the replies "
+                                "of a device that does not echo the SYNC counter cannot be matched to their SYNC; "
+                                "use an interface with bus time stamps (socketcan, pcan, kvaser, vector ...)")
         path = Path(d.get("eds") or url.options["eds"])
         name = request.name or path.stem
         odict = load_eds(path, node)

@@ -33,6 +33,7 @@ MAX_LOAD = 0.80
 BUS_TOPIC = "/can/bus"
 RX_POLL_S = 0.001  # the longest wait for a frame when the bus is drained
 MAX_OUTSTANDING = SYNC_COUNTER_MAX // 2  # SYNCs sent and not yet answered (start_sync)
+RECENT_CYCLES = 16  # kept for matching replies by time (cycle_at)
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -79,6 +80,7 @@ class CanHub:
         self._refs = 0
         self.cycle = SyncCycle()
         self.by_counter: dict[int, SyncCycle] = {}  # the last SYNC_COUNTER_MAX cycles, by counter
+        self.recent: deque[SyncCycle] = deque(maxlen=RECENT_CYCLES)  # the newest cycles, oldest first
         self._sync_listeners: list[Callable[[SyncCycle], None]] = []
         self._streams: dict[str, list[int]] = {}
         self.sync_hz: float | None = None
@@ -288,10 +290,19 @@ class CanHub:
             return None
         return self.by_counter.get(counter)
 
+    def cycle_at(self, time_ns: int) -> SyncCycle | None:
+        """The newest SYNC sent at or before ``time_ns`` (a reply's bus time), among the recent
+        ones; None if it is older than those."""
+        for c in reversed(self.recent):
+            if c.time_ns <= time_ns:
+                return c
+        return None
+
     def _on_sync(self, data: bytearray, timestamp: float) -> None:
         counter = data[0] if data else 0
         self.cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))
         self.by_counter[counter] = self.cycle
+        self.recent.append(self.cycle)
         for cb in list(self._sync_listeners):
             cb(self.cycle)
 

@@ -10,12 +10,14 @@ more than 64 bits in a TPDO, more TPDOs than the device has) is refused before a
 written to the device.
 
 A sample is one SYNC cycle: every synchronous TPDO of the device arrived.  Such a device does
-not echo the SYNC counter, so its replies are matched to the newest SYNC the hub has taken in
-(its own are queued before they are sent, another master's come first on the bus).  A device
-answers its SYNCs in order; when the SYNC before got no reply, the reply that comes next may be
-that one, late, and could carry the wrong time: it is not kept, and both cycles count as lost
-(``ambiguous_replies`` in the link statistics).  A kept sample always has its own SYNC's time.  EMCY frames
-go to ``/amb/events``; NMT state changes seen in the heartbeat are recorded there too.
+not echo the SYNC counter, so a reply is matched to its SYNC by time, as CiA 301 has it: ambdaq
+sets the device's synchronous window (0x1007) to half a SYNC period, inside which the device
+sends its synchronous PDOs or not at all, and takes a reply whose bus time stamp falls inside the
+window after a SYNC as that SYNC's.  A reply outside every window is not kept (``late_replies``
+in the link statistics; its cycle counts as lost).  This needs the interface's bus time stamps:
+python-can's ``slcan`` interface stamps a frame when it reads it, so an EDS device is refused
+there.  A device whose EDS has no 0x1007 cannot promise the window; the host applies it anyway
+and the metadata says so.
 """
 
 from __future__ import annotations
@@ -216,8 +218,10 @@ class EdsDevice(Source):
         self._offset = np.array([s.offset for s in order])
         self._rows: deque = deque()
         self._parts: list = [None] * len(self.tpdos)
-        self._answered: int | None = None  # the SYNC cycle of the last complete reply
-        self.ambiguous_replies = 0
+        self.late_replies = 0
+        self.window_ns = int(0.5e9 / self.sample_rate)  # the synchronous window: half a SYNC period
+        dictionary = self.node.object_dictionary
+        self.window_on_device = 0x1007 in dictionary and dictionary[0x1007].writable  # set in start()
         self._events: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._nmt_state: int | None = None
         self._closed = threading.Event()
@@ -292,6 +296,8 @@ class EdsDevice(Source):
         return {"url": self.url, "kind": "eds", "eds": self.eds.name, "vendor_id": f"0x{vendor:08X}",
                 "product_code": f"0x{product:08X}", "serial": str(serial), "node_id": str(self.node_id),
                 "sample_rate_hz": f"{self.sample_rate:g}", "sync": "external" if self.external else "ambdaq",
+                "synchronous_window_us": f"{self.window_ns / 1000:g}" + ("" if self.window_on_device else
+                                                                          " (host only: the device has no 0x1007)"),
                 "tpdos": "; ".join(f"0x{cob:03X}: " + ", ".join(f"0x{s.index:04X}.{s.subindex}" for s in sigs)
                                    for cob, _f, sigs in self.tpdos)}
 
@@ -308,11 +314,16 @@ class EdsDevice(Source):
             self.hub.on_frame(cob, self._on_tpdo(i, fmt))
         self.hub.on_frame(0x700 + self.node_id, self._on_heartbeat)
         self.node.emcy.add_callback(self._on_emcy)
+        od_ = self.node.object_dictionary
         try:
-            if 0x1017 in self.node.object_dictionary:
+            if 0x1017 in od_:
                 self.node.sdo[0x1017].raw = HEARTBEAT_MS
+            if self.window_on_device:  # CiA 301 synchronous window, us
+                if 0x1006 in od_ and od_[0x1006].writable:
+                    self.node.sdo[0x1006].raw = int(round(1e6 / self.sample_rate))
+                self.node.sdo[0x1007].raw = self.window_ns // 1000
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
-            raise DeviceError(f"CANopen node {self.node_id}: setting its heartbeat failed: {err}") from None
+            raise DeviceError(f"CANopen node {self.node_id}: setting its heartbeat and SYNC window failed: {err}") from None
         self.node.nmt.send_command(0x01)  # OPERATIONAL
         self._last_data = time.monotonic()
         self.hub.start_sync()
@@ -323,19 +334,18 @@ class EdsDevice(Source):
         def on_tpdo(data: bytearray, timestamp: float) -> None:  # on the bus thread
             if len(data) != fmt.size:
                 return  # never recorded: a cycle with it is a drop
-            cycle = self.hub.cycle
-            self._parts[i] = (cycle.count, fmt.unpack(data))
+            t_ns = int(timestamp * 1e9)
+            cycle = self.hub.cycle_at(t_ns)
+            if cycle is None or t_ns - cycle.time_ns > self.window_ns:
+                self.late_replies += 1  # outside every synchronous window: whose it is, is unknown
+                self._parts[i] = None
+                return
+            self._parts[i] = (cycle, fmt.unpack(data))
             if i < last:
                 return
             parts, self._parts = self._parts, [None] * len(self._parts)
-            previous, self._answered = self._answered, cycle.count
-            if any(p is None or p[0] != cycle.count for p in parts):
-                return  # part of this cycle was lost, or came with another SYNC: a drop
-            if previous is not None and cycle.count - previous != 1:
-                # the SYNC before this one got no reply: this one may be it, late; kept, it could
-                # carry the wrong time, so it is not kept (both cycles are drops)
-                self.ambiguous_replies += 1
-                return
+            if any(p is None or p[0].count != cycle.count for p in parts):
+                return  # part of this cycle was lost or late: a drop
             self._rows.append((cycle.count, cycle.time_ns, [v for p in parts for v in p[1]]))
             self.hub.answered = cycle.count
 
@@ -383,7 +393,7 @@ class EdsDevice(Source):
         return self.hub.take_events(self._events)
 
     def link_statistics(self) -> dict[str, str]:
-        return self.hub.statistics() | {"ambiguous_replies": str(self.ambiguous_replies)}
+        return self.hub.statistics() | {"late_replies": str(self.late_replies)}
 
     def _close(self) -> None:
         self._closed.set()

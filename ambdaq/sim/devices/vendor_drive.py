@@ -6,8 +6,8 @@ A canopen ``LocalNode`` answers SDO from the EDS.  Like a real device it checks 
 written to it (CiA 301 abort codes: 0x06020000 no such object, 0x06040041 not mappable,
 0x06040042 longer than the PDO) and, when OPERATIONAL, sends each valid TPDO whose transmission
 type is synchronous (1..240: every n-th SYNC) with the mapped objects' values, sampled from the
-rig when the SYNC arrives.  It does not echo the SYNC counter: the host matches its replies to
-the newest SYNC.  It raises EMCY 0x2310 when a phase current exceeds OVERCURRENT_A.  Its EDS
+rig when the SYNC arrives, unless its synchronous window (0x1007, set by the host) has closed by
+then.  It does not echo the SYNC counter: the host matches its replies to their SYNC by time.  It raises EMCY 0x2310 when a phase current exceeds OVERCURRENT_A.  Its EDS
 lists 0x6077 (torque actual value) as mappable, but this firmware refuses to map it (0x06040041):
 vendors' EDS files and firmware do disagree, and the host must show the device's own answer.
 """
@@ -15,6 +15,7 @@ vendors' EDS files and firmware do disagree, and the host must show the device's
 from __future__ import annotations
 
 import struct
+import time
 from pathlib import Path
 
 import canopen
@@ -90,7 +91,10 @@ class SimVendorDrive:
             return
         amps = rows["/amb/current"][self._columns]
         self._update(amps)
+        window_us = struct.unpack("<I", self.node.get_data(0x1007, 0))[0]
         for n in range(4):
+            if window_us and (time.time() - timestamp) * 1e6 > window_us:
+                return  # CiA 301: no synchronous PDO after the synchronous window has closed
             cob_id = struct.unpack("<I", self.node.get_data(0x1800 + n, 1))[0]
             ttype = self.node.get_data(0x1800 + n, 2)[0]
             if cob_id & 0x80000000 or not 1 <= ttype <= 240 or self._syncs % ttype:
