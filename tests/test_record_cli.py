@@ -163,10 +163,33 @@ def test_devices_lists_can_channels_and_serial_ports(run_cli):
     r = run_cli("devices", "--json")
     assert r.exit_code == 0
     found = json.loads(r.stdout)
-    assert set(found) == {"can", "serial"}
+    assert set(found) == {"can", "slcan", "serial"}
     # never probed: IP networks, and the in-process bus (whose detection would invent a channel)
     assert not {c["interface"] for c in found["can"]} & {"udp_multicast", "socketcand", "virtual"}
     assert "socketcand" in run_cli("devices").output  # ... and said so
+
+
+def test_devices_asks_a_named_port_for_an_slcan_adapter(run_cli):
+    """Through python-can's own slcan interface (V and N), the simulated adapter on a
+    pseudo-terminal answers; a port with no adapter behind it is one line, exit 1."""
+    from ambdaq.sim.devices.slcan import SimSlcanAdapter
+    from ambdaq.sim.serve import Pty
+
+    pty, silent = Pty.open(), Pty.open()
+    adapter = SimSlcanAdapter(pty.master, "ask-slcan")
+    adapter.start()
+    try:
+        r = run_cli("devices", "--ask-slcan", pty.path, "--json")
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.stdout)["slcan"][-1] == {"port": pty.path, "hardware_version": "10",
+                                                     "software_version": "13", "serial": "A3BD",
+                                                     "url": f"can://slcan{pty.path}?node=N"}
+        r = run_cli("devices", "--ask-slcan", silent.path)
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "no SLCAN adapter" in r.output
+    finally:
+        adapter.stop()
+        pty.close()
+        silent.close()
 
 
 def test_a_full_garbage_collection_never_stops_the_devices_while_recording(tmp_path):

@@ -1,4 +1,4 @@
-"""What this host can talk to: CAN interfaces and channels, serial ports."""
+"""What this host can talk to: CAN interfaces and channels, serial ports, SLCAN adapters."""
 
 from __future__ import annotations
 
@@ -50,3 +50,41 @@ def serial_ports() -> list[dict[str, str]]:
         {"port": p.device, "description": p.description or "", "hwid": p.hwid or "", "url": f"serial://{p.device}"}
         for p in list_ports.comports()
     ]
+
+
+SLCAN_USB_IDS = {
+    (0x16D0, 0x117E): "CANable (slcan firmware)",
+    (0x04D8, 0x000A): "USBtin",
+    (0x0403, 0xFFA8): "Lawicel CANUSB",
+}
+"""USB vendor and product ids of SLCAN adapters, recognised without opening their port."""
+
+
+def slcan_adapters() -> list[dict[str, str]]:
+    """Serial ports whose USB ids are a known SLCAN adapter's, as ``can://slcan/...`` URL stems."""
+    found = []
+    for p in list_ports.comports():
+        name = SLCAN_USB_IDS.get((p.vid, p.pid)) if p.vid is not None else None
+        if name is not None:
+            found.append({"port": p.device, "adapter": name, "url": f"can://slcan{p.device}?node=N"})
+    return found
+
+
+def ask_slcan(port: str, timeout_s: float = 0.5) -> dict[str, str]:
+    """The version and serial number of the SLCAN adapter on ``port``, asked through python-can's
+    ``slcan`` interface (``V`` and ``N``); DeviceError if nothing answers as an SLCAN adapter."""
+    from ..errors import DeviceError
+
+    try:
+        bus = can.Bus(interface="slcan", channel=port, sleep_after_open=0)
+    except (can.CanError, OSError, ValueError) as err:
+        raise DeviceError(f"{port}: cannot open it as an SLCAN adapter: {err}") from None
+    try:
+        hw, sw = bus.get_version(timeout_s)
+        serial = bus.get_serial_number(timeout_s)
+    finally:
+        bus.shutdown()
+    if hw is None:
+        raise DeviceError(f"{port}: no SLCAN adapter answered the version request (V) within {timeout_s:g} s")
+    return {"port": port, "hardware_version": str(hw), "software_version": str(sw), "serial": serial or "",
+            "url": f"can://slcan{port}?node=N"}
