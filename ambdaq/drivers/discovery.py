@@ -40,7 +40,8 @@ def can_channels() -> list[dict[str, str]]:
             lg.setLevel(lvl)
     for cfg in configs:
         iface, channel = str(cfg.get("interface", "")), str(cfg.get("channel", ""))
-        found.append({"interface": iface, "channel": channel, "url": f"can://{iface}/{channel}?node=N"})
+        path = channel if channel.startswith("/") else f"/{channel}"  # a device path keeps its one slash
+        found.append({"interface": iface, "channel": channel, "url": f"can://{iface}{path}?node=N"})
     return found
 
 
