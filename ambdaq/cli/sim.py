@@ -101,9 +101,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--third-party", is_flag=True,
               help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
                    "sending the raw frames of its DBC, a CiA 402 drive known by its EDS; docs/hardware.md).")
+@click.option("--xcp", "xcp_port", type=click.IntRange(0, 65535), metavar="PORT",
+              help="Also serve the controller's XCP slave (XCP on TCP) on 127.0.0.1:PORT (0: a free port); "
+                   "its A2L: ambdaq sim a2l.")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp_port, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per pseudo-terminal, NAME PATH, and with --can one per CANopen device,
@@ -123,12 +126,14 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
     motion = None if base is None else _base_motion(profile, base)
     served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
                    clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion,
-                   can=None if can == "none" else can, third_party=third_party)
+                   can=None if can == "none" else can, third_party=third_party, xcp_port=xcp_port)
     for name, pty in served.ptys.items():
         click.echo(f"{name} {pty.path}")
     for name, url in served.urls.items():
         if url.startswith("can://"):
             click.echo(f"{name} {url}")
+    if "xcp" in served.devices:
+        click.echo(f"xcp 127.0.0.1:{served.devices['xcp'].port}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: stop.set())
@@ -140,6 +145,26 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
         if adapter is not None:
             click.echo(f"can: {adapter.frames_from_host} frames from the host, {adapter.frames_to_host} to it, "
                        f"{adapter.lost} lost (the terminal's backlog was full)", err=True)
+
+
+@command.command("a2l")
+@click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Write it here instead of stdout.")
+def a2l(profile, out):
+    """The A2L (ASAM MCD-2 MC) file of the simulated controller's XCP slave: its measurements,
+    their addresses, types and units.
+
+    \b
+      ambdaq sim a2l -o spindle.a2l
+    """
+    from ..sim.devices.xcp import a2l_text, measurement_map
+
+    text = a2l_text(measurement_map(rig_profile(profile).build()))
+    if out is None:
+        click.echo(text, nl=False)
+    else:
+        with open(out, "w") as fh:
+            fh.write(text)
 
 
 def _base_motion(profile: str, spec: str) -> BaseExcitation:

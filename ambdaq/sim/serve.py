@@ -23,6 +23,7 @@ from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
 from .devices.probes import DBC_PATH as PROBES_DBC, SimProbeConditioner
 from .devices.slcan import SimSlcanAdapter
+from .devices.xcp import XcpSlave
 from .devices.vendor_drive import DEFAULT_NODE as VENDOR_DRIVE_NODE, EDS_PATH as VENDOR_DRIVE_EDS, SimVendorDrive
 from .profiles import require_served
 
@@ -103,7 +104,7 @@ class ServedRig:
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
           clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
-          third_party: bool = False) -> ServedRig:
+          third_party: bool = False, xcp_port: int | None = None) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -158,6 +159,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.can_devices = [*served.can_devices, SimVendorDrive(served.network, served.server)]
                 if can == "virtual":  # its replies are matched by bus time, which python-can's slcan lacks
                     served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
+        if xcp_port is not None:
+            served.devices["xcp"] = XcpSlave(served.server, xcp_port)
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
