@@ -76,9 +76,8 @@ def test_a_stalled_rig_thread_loses_no_sync_cycle(can_rig):
         seq = np.concatenate([b.seq for b in blocks]).astype(np.int64)
         assert len(t) == 250 and np.all(np.diff(seq) == 1)  # every SYNC answered, in order
         # each cycle keeps the time of the SYNC it answers (the host's own scheduling jitter moves
-        # when SYNCs go out, not which time a cycle gets).  The host stamps its SYNC as it hands
-        # it to the interface, microseconds before the virtual bus stamps it: within a quarter
-        # of the 2 ms period, which still tells every cycle from its neighbours.
+        # when SYNCs go out, not which time a cycle gets): the bus's time of it, from its echo
+        # (a quarter of the 2 ms period is allowed, for an interface that times it as it is sent)
         syncs = [m.timestamp for m in iter(lambda: listener.recv(0), None) if m.arbitration_id == 0x80]
         lag = np.round(np.array(syncs)[seq] * 1e9).astype(np.int64) - t
         assert lag.min() >= 0 and lag.max() < 500_000
@@ -327,7 +326,7 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     assert np.percentile(np.abs(err[settled]), 99.9) < 100.0, (np.abs(err).max(), np.percentile(err, [1, 50, 99]))
     assert np.abs(err).max() < 200.0  # see the two-controller test in test_serial_controller.py
     assert res.clocks["gap_sensor"] == {"host_clock": True, "uncertainty_us": 0.0}
-    assert res.alignment_us is not None and res.alignment_us < 100.0
+    assert res.alignment_us is not None and res.alignment_us < 200.0  # the recorder's own worst-case estimate
 
 
 def test_amplifier_enable_and_gap_sensor_calibration_by_sdo(can_rig):

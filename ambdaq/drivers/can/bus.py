@@ -2,7 +2,8 @@
 
 Devices on the same interface and channel share a :class:`CanHub` (reference-counted).  The hub
 produces SYNC (CiA 301, COB-ID 0x80) at the stream's rate (or follows another master's SYNC),
-timestamps every SYNC cycle (its own as it is sent, another master's from the bus), checks the
+timestamps every SYNC cycle (from the bus, or its own as it is sent where the interface does not
+echo it), checks the
 bus load of the requested stream, and watches error frames and the bus state (error-active,
 error-passive, bus-off).
 
@@ -34,6 +35,10 @@ BUS_TOPIC = "/can/bus"
 RX_POLL_S = 0.001  # the longest wait for a frame when the bus is drained
 MAX_OUTSTANDING = SYNC_COUNTER_MAX // 2  # SYNCs sent and not yet answered (start_sync)
 RECENT_CYCLES = 16  # kept for matching replies by time (cycle_at)
+OWN_ECHO = ("virtual", "socketcan")
+"""Interfaces that hand a frame we send back to us with its bus time (python-can's
+``receive_own_messages``): our SYNC is timed by that echo.  Any other (an SLCAN adapter) is timed
+as it is handed to the interface."""
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -67,6 +72,9 @@ class CanHub:
 
     def __init__(self, interface: str, channel: str, bitrate: int, **bus_options) -> None:
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
+        self.own_echo = interface in OWN_ECHO
+        if self.own_echo:
+            bus_options["receive_own_messages"] = True
         try:
             bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, **bus_options)
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
@@ -231,9 +239,10 @@ class CanHub:
         up: each is counted, and lost, on every device, and no reply is ever attributed to the
         wrong cycle.
 
-        A SYNC we send is timed by the host clock as it is handed to the interface, and reaches
-        the receive thread through a queue, not as an echo from the bus: not every interface
-        echoes what it sends (SLCAN adapters do not), and one way for all is simpler than two.
+        A SYNC we send is timed by its echo from the bus where the interface gives one
+        (OWN_ECHO: the time the devices see); otherwise it is timed by the host clock as it is
+        handed to the interface and reaches the receive thread through a queue (SLCAN adapters do
+        not echo).  A cycle held back is counted through the queue on every interface.
         """
         if self._sync_thread is not None or self.external_sync:
             return
@@ -249,11 +258,13 @@ class CanHub:
                 nxt += period
                 counter = counter % SYNC_COUNTER_MAX + 1  # CiA 301: 1 .. 0x1019
                 msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False, data=bytes([counter]))
-                self._own_syncs.append((counter, time.time()))  # before a reply to it can come back
                 if 0 <= self.answered < last_sent - MAX_OUTSTANDING:
                     self.skipped_syncs += 1  # the cycle is counted, and lost, but never sent
+                    self._own_syncs.append((counter, time.time()))
                     time.sleep(max(0.0, nxt - time.monotonic()))
                     continue
+                if not self.own_echo:
+                    self._own_syncs.append((counter, time.time()))  # before a reply to it can come back
                 last_sent = count
                 try:
                     self.network.bus.send(msg)
