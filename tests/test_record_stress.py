@@ -9,7 +9,7 @@ import numpy as np
 
 from ambdaq.daq import load
 
-RUNS, SECONDS = 4, 2.0
+RUNS, SECONDS = 3, 2.0
 
 
 def test_in_process_rig_under_cpu_load_counts_every_sample_exactly(run_cli, tmp_path):
