@@ -257,7 +257,6 @@ class CanHub:
                     return
                 nxt += period
                 counter = counter % SYNC_COUNTER_MAX + 1  # CiA 301: 1 .. 0x1019
-                msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False, data=bytes([counter]))
                 if 0 <= self.answered < last_sent - MAX_OUTSTANDING:
                     self.skipped_syncs += 1  # the cycle is counted, and lost, but never sent
                     self._own_syncs.append((counter, time.time()))
@@ -267,7 +266,8 @@ class CanHub:
                     self._own_syncs.append((counter, time.time()))  # before a reply to it can come back
                 last_sent = count
                 try:
-                    self.network.bus.send(msg)
+                    self.network.bus.send(can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False,
+                                                      data=bytes([counter])))
                 except can.CanError as err:
                     self.failure = f"CAN {self.channel}: SYNC could not be sent: {err}"
                     return
@@ -301,13 +301,16 @@ class CanHub:
             return None
         return self.by_counter.get(counter)
 
-    def cycle_at(self, time_ns: int) -> SyncCycle | None:
-        """The newest SYNC sent at or before ``time_ns`` (a reply's bus time), among the recent
-        ones; None if it is older than those."""
+    def cycle_at(self, time_ns: int) -> tuple[SyncCycle | None, SyncCycle | None]:
+        """The newest SYNC sent at or before ``time_ns`` (a reply's bus time) and the one sent
+        before it, among the recent ones (None where older than those)."""
+        newest = None
         for c in reversed(self.recent):
             if c.time_ns <= time_ns:
-                return c
-        return None
+                if newest is not None:
+                    return newest, c
+                newest = c
+        return newest, None
 
     def _on_sync(self, data: bytearray, timestamp: float) -> None:
         counter = data[0] if data else 0

@@ -9,15 +9,16 @@ mapping and records it as it is.  A mapping the EDS forbids (unknown object, not
 more than 64 bits in a TPDO, more TPDOs than the device has) is refused before anything is
 written to the device.
 
-A sample is one SYNC cycle: every synchronous TPDO of the device arrived.  Such a device does
-not echo the SYNC counter, so a reply is matched to its SYNC by time, as CiA 301 has it: ambdaq
-sets the device's synchronous window (0x1007) to half a SYNC period, inside which the device
-sends its synchronous PDOs or not at all, and takes a reply whose bus time stamp falls inside the
-window after a SYNC as that SYNC's.  A reply outside every window is not kept (``late_replies``
-in the link statistics; its cycle counts as lost).  This needs the interface's bus time stamps:
-python-can's ``slcan`` interface stamps a frame when it reads it, so an EDS device is refused
-there.  A device whose EDS has no 0x1007 cannot promise the window; the host applies it anyway
-and the metadata says so.
+A sample is one SYNC cycle: every synchronous TPDO of the device arrived. Such a device does not
+echo the SYNC counter, so a reply is matched to its SYNC by time, as CiA 301 has it: ambdaq sets
+the device's synchronous window (0x1007) to half a SYNC period, inside which the device sends its
+synchronous PDOs or not at all, and takes a reply whose bus time stamp falls inside the window
+after exactly one SYNC as that SYNC's. A reply inside no window, or inside two (the host's SYNC
+thread can send two SYNCs closer than a period when it runs late), is not kept
+(``late_replies`` in the link statistics; its cycle counts as lost). This needs the interface's
+bus time stamps: python-can's ``slcan`` interface stamps a frame when it reads it, so an EDS
+device is refused there. A device whose EDS has no 0x1007 cannot promise the window; the host
+applies it anyway and the metadata says so.
 """
 
 from __future__ import annotations
@@ -335,9 +336,12 @@ class EdsDevice(Source):
             if len(data) != fmt.size:
                 return  # never recorded: a cycle with it is a drop
             t_ns = int(timestamp * 1e9)
-            cycle = self.hub.cycle_at(t_ns)
-            if cycle is None or t_ns - cycle.time_ns > self.window_ns:
-                self.late_replies += 1  # outside every synchronous window: whose it is, is unknown
+            cycle, before = self.hub.cycle_at(t_ns)
+            if (cycle is None or t_ns - cycle.time_ns > self.window_ns
+                    or (before is not None and t_ns - before.time_ns <= self.window_ns)):
+                # outside every synchronous window, or inside two (SYNCs the host sent late, closer
+                # than a window apart): whose reply it is, is unknown
+                self.late_replies += 1
                 self._parts[i] = None
                 return
             self._parts[i] = (cycle, fmt.unpack(data))
