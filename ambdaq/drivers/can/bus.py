@@ -32,7 +32,8 @@ from ..signals import Event
 SYNC_COB_ID = 0x80
 MAX_LOAD = 0.80
 BUS_TOPIC = "/can/bus"
-RX_POLL_S = 0.001  # the longest wait for a frame when the bus is drained
+RX_POLL_S = 0.001  # the wait when the bus is drained
+BYTE_STREAM_INTERFACES = ("slcan", "serial", "seeedstudio", "robotell")  # python-can's serial-line ones
 MAX_OUTSTANDING = SYNC_COUNTER_MAX // 2  # SYNCs sent and not yet answered (start_sync)
 RECENT_CYCLES = 16  # kept for matching replies by time (cycle_at)
 OWN_ECHO = ("virtual", "socketcan")
@@ -172,13 +173,15 @@ class CanHub:
         self._fast[cob_id] = handler
 
     def _receive(self) -> None:
-        """Drain the bus without waiting, then wait up to RX_POLL_S for the next frame: one
-        wake-up per burst (a SYNC and its PDOs) rather than one per frame.  The wait is the
-        interface's own (not a sleep), so a serial adapter's line that is still arriving is read
-        to its end at once; sleeping there instead held an SLCAN reader to about one frame per
-        millisecond.  The time of our own SYNCs is stamped as they are sent."""
+        """Drain the bus, then wait RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
+        than one per frame.  On an interface that reads a byte stream (BYTE_STREAM_INTERFACES:
+        an SLCAN adapter's serial line) the wait is the interface's own, so a line that is still
+        arriving is read to its end at once; a sleep there held the reader to about a frame per
+        millisecond.  Elsewhere it is a sleep: waking for every frame of a burst costs the other
+        threads of the process (a serial controller's time sync among them) the GIL."""
         bus, fast, notify, own = self.network.bus, self._fast, self.network.notify, self._own_syncs
         subscribers, unknown = self.network.subscribers, self._unknown
+        stream = self.interface in BYTE_STREAM_INTERFACES
         wait = 0.0
         while not self._sync_stop.is_set():
             while own:
@@ -196,7 +199,10 @@ class CanHub:
                     self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
                 return
             if msg is None:
-                wait = RX_POLL_S
+                if stream:
+                    wait = RX_POLL_S
+                else:
+                    time.sleep(RX_POLL_S)
                 continue
             wait = 0.0
             while own:  # a SYNC we sent while waiting comes before any reply to it
