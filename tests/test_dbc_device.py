@@ -76,7 +76,7 @@ def test_a_lost_frame_is_counted_from_the_rolling_counter():
     s = _Stream(SignalGroup("/p/m", "M", ("x",), ("um",)), "counter", 4, 500.0)
     for counter in (14, 15, 0, 2, 3, 3, 4):  # one lost after 0; 3 repeated
         s.add(0, [0.0], counter)
-    assert [r[1] for r in s.rows] == [14, 15, 16, 18, 19, 19, 20]  # a gap, and a duplicate for the recorder to drop
+    assert [r[0] for r in s.queue.rows] == [14, 15, 16, 18, 19, 19, 20]  # a gap, and a duplicate for the recorder to drop
 
 
 @pytest.mark.parametrize("damage, says", [

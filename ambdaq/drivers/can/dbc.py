@@ -16,22 +16,19 @@ Frames of identifiers the DBC does not describe are counted, and recorded raw to
 
 from __future__ import annotations
 
-import threading
-import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ...errors import BadInputError, DeviceError
+from ...errors import BadInputError
 from ..interfaces import Source
 from ..signals import SampleBlock, SignalGroup
 from .bus import CanHub
+from .rows import RowQueue
 
 RAW_TOPIC = "/can/raw"
 RAW_FIELDS = ("arbitration_id", "dlc", "extended", *(f"b{i}" for i in range(8)))
-BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
 
 
 def load_dbc(path: str | Path):
@@ -76,14 +73,14 @@ class DbcRequest:
 
 
 class _Stream:
-    """Rows of one topic as the bus thread decodes them: (time ns, seq, values)."""
+    """Rows of one topic as the bus thread decodes them: (seq, time ns, values)."""
 
     def __init__(self, group: SignalGroup, counter: str | None, counter_bits: int, rate_hz: float | None) -> None:
         self.group = group
         self.rate_hz = rate_hz
         self.counter = counter
         self.modulus = 1 << counter_bits if counter else 0
-        self.rows: deque = deque()
+        self.queue = RowQueue(2.0 if rate_hz else float("inf"))  # frames of unknown ids may never come
         self.received = 0  # frames, or the unwrapped counter
         self.last_counter: int | None = None
 
@@ -97,7 +94,7 @@ class _Stream:
             self.last_counter = counter
             self.received += step
             seq = self.received - 1
-        self.rows.append((t_ns, seq, values))
+        self.queue.rows.append((seq, t_ns, values))
 
 
 class DbcReceiver:
@@ -189,10 +186,6 @@ class DbcMessageSource(Source):
         self.receiver, self.stream = receiver, stream
         self.name, self.url = name, url
         self.sample_rate = stream.rate_hz
-        self._closed = threading.Event()
-        self._remaining: int | None = None
-        self._first: int | None = None
-        self._last_data = time.monotonic()
 
     def signal_groups(self) -> list[SignalGroup]:
         return [self.stream.group]
@@ -208,36 +201,19 @@ class DbcMessageSource(Source):
         return {"scaling": f"as {self.receiver.request.path.name} says"}
 
     def start(self, n_samples: int | None) -> None:
-        self._remaining = n_samples
-        self.stream.rows.clear()
-        self._last_data = time.monotonic()
+        self.stream.queue.rows.clear()
+        self.stream.queue.start(n_samples)
 
     def read(self) -> SampleBlock | None:
-        rows = self.stream.rows
-        while True:
-            if self._closed.wait(BLOCK_S):
-                return None
-            if self.receiver.hub.failure is not None:
-                raise DeviceError(f"{self.name} ({self.url}): {self.receiver.hub.failure}")
-            n = len(rows)
-            if n:
-                got = [rows.popleft() for _ in range(n)]
-                self._last_data = time.monotonic()
-                break
-            silent = time.monotonic() - self._last_data
-            if silent > 2.0 and self.stream.group.topic != RAW_TOPIC:
-                raise DeviceError(f"{self.name} ({self.url}): no {self.stream.group.topic.rsplit('/', 1)[-1]} "
-                                  f"frame for {silent:.1f} s")
-        seq = np.array([r[1] for r in got], dtype=np.int64)
-        if self._first is None:
-            self._first = int(seq[0])
-        if self._remaining is not None:
-            keep = seq < self._first + self._remaining
-            if not keep.any():
-                return None
-            got = [r for r, k in zip(got, keep) if k]
-            seq = seq[keep]
-        t = np.array([r[0] for r in got], dtype=np.int64)
+        hub = self.receiver.hub
+        taken = self.stream.queue.take(
+            lambda: None if hub.failure is None else f"{self.name} ({self.url}): {hub.failure}",
+            lambda silent: f"{self.name} ({self.url}): no {self.stream.group.topic.rsplit('/', 1)[-1]} frame "
+                           f"for {silent:.1f} s")
+        if taken is None:
+            return None
+        got, seq = taken
+        t = np.array([r[1] for r in got], dtype=np.int64)
         return SampleBlock(device_time_ns=t, seq=(seq & 0xFFFFFFFF).astype(np.uint32),
                            values={self.stream.group.topic: np.array([r[2] for r in got], dtype=np.float64)},
                            host_time_ns=t)
@@ -250,5 +226,5 @@ class DbcMessageSource(Source):
         return self.receiver.hub.take_events()
 
     def _close(self) -> None:
-        self._closed.set()
+        self.stream.queue.closed.set()
         self.receiver.hub.release()

@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import queue
 import struct
-import threading
 import time
-from collections import deque
 
 import canopen
 import numpy as np
@@ -25,6 +23,7 @@ from ..interfaces import Parameters, Source
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
 from .profiles import PROFILES, DeviceProfile
+from .rows import RowQueue
 
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
 _INTEGER = (od.INTEGER16, od.UNSIGNED16, od.UNSIGNED8, od.INTEGER32)
@@ -32,7 +31,6 @@ HEARTBEAT_MS = 100
 HEARTBEAT_TIMEOUT_S = 0.6
 """Silence after which a device is lost: six heartbeats, so a reader up to MAX_OUTSTANDING SYNC
 cycles behind (0.3 s at 400 Hz, through an SLCAN adapter) never reports a device that is there."""
-BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
 
 
 def _sdo_error(node: int, what: str, err: Exception) -> DeviceError:
@@ -96,14 +94,11 @@ class CanopenDevice(Source, Parameters):
         self._tpdo_fmt = [struct.Struct("<" + "".join(_FMT[t] for _i, t in found.tpdo_layout(i)))
                           for i in range(len(found.tpdos))]
         self._scale = np.array([c.scale for c in found.channels])
-        self._rows: deque = deque()  # (cycle, time ns, row), appended by the bus thread
+        self._rows = RowQueue(max(1.0, 20 / sync_hz))  # (cycle, time ns, TPDO parts), from the bus thread
         self._emcy: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._parts: list = [None] * len(found.tpdos)
         self._early: list[tuple[int, tuple]] = []  # complete replies ahead of their SYNC's echo
-        self._last_heartbeat = self._last_data = time.monotonic()
-        self._remaining: int | None = None
-        self._first_cycle: int | None = None
-        self._closed = threading.Event()
+        self._last_heartbeat = time.monotonic()
         self._subscribed = False
 
     # --- recorder source ----------------------------------------------------------------------------
@@ -138,12 +133,12 @@ class CanopenDevice(Source, Parameters):
             self.hub.add_sync_listener(self._on_sync_cycle)
 
     def start(self, n_samples: int | None) -> None:
-        self._remaining = n_samples
+        self._rows.start(n_samples)
         self.hub.register_stream(self.name, self.profile.tpdo_bytes(), self.sample_rate)
         self.hub.check_load()
         self.configure()
         self.node.nmt.send_command(0x01)  # start remote node: OPERATIONAL
-        self._last_heartbeat = self._last_data = time.monotonic()
+        self._last_heartbeat = self._rows.last_row = time.monotonic()
         self.hub.start_sync()
 
     def _tpdo_callback(self, i: int):
@@ -167,7 +162,7 @@ class CanopenDevice(Source, Parameters):
             if cycle is None:
                 self._early.append((values[-1], (*parts[:last], values)))
             else:  # flattened by the reader, off the bus thread
-                self._rows.append((cycle.count, cycle.time_ns, *parts[:last], values))
+                self._rows.rows.append((cycle.count, cycle.time_ns, *parts[:last], values))
                 self.hub.answered = cycle.count
 
         return on_tpdo
@@ -179,7 +174,7 @@ class CanopenDevice(Source, Parameters):
             early, self._early = self._early, []
             for counter, parts in early:
                 if counter == cycle.counter:
-                    self._rows.append((cycle.count, cycle.time_ns, *parts))
+                    self._rows.rows.append((cycle.count, cycle.time_ns, *parts))
                     self.hub.answered = cycle.count
 
     def _on_emcy(self, err) -> None:
@@ -190,31 +185,15 @@ class CanopenDevice(Source, Parameters):
 
     def read(self) -> SampleBlock | None:
         """Rows of the SYNC cycles since the last call (at least one), as a block."""
-        while True:
-            if self._closed.wait(BLOCK_S):
-                return None
-            failure = self.hub.failure or self._liveness()
-            if failure is not None:
-                raise DeviceError(f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: {failure}")
-            n = len(self._rows)
-            if n:
-                rows = [self._rows.popleft() for _ in range(n)]
-                self._last_data = time.monotonic()
-                break
-            silent = time.monotonic() - self._last_data
-            if silent > max(1.0, 20 / self.sample_rate):  # alive (heartbeat) but no process data
-                raise DeviceError(f"{self.name} ({self.url}): no process data from node {self.node_id} for "
-                                  f"{silent:.1f} s (is it OPERATIONAL, are its TPDOs mapped?)")
+        taken = self._rows.take(
+            lambda: None if (f := self.hub.failure or self._liveness()) is None
+            else f"{self.name} ({self.url}) lost at {time.strftime('%H:%M:%S')}: {f}",
+            lambda silent: f"{self.name} ({self.url}): no process data from node {self.node_id} for {silent:.1f} s "
+                           "(is it OPERATIONAL, are its TPDOs mapped?)")  # alive (heartbeat) but silent
+        if taken is None:
+            return None
+        rows, cycles = taken
         rows = [(r[0], r[1], [v for part in r[2:-1] for v in part] + list(r[-1][:-1])) for r in rows]
-        cycles = np.array([r[0] for r in rows], dtype=np.int64)
-        if self._first_cycle is None:
-            self._first_cycle = int(cycles[0])
-        if self._remaining is not None:
-            keep = cycles < self._first_cycle + self._remaining
-            if not keep.any():
-                return None
-            rows = [r for r, k in zip(rows, keep) if k]
-            cycles = cycles[keep]
         raw = np.array([r[2] for r in rows], dtype=np.float64)
         nch = len(self.profile.channels)
         t = np.array([r[1] for r in rows], dtype=np.int64)
@@ -246,7 +225,7 @@ class CanopenDevice(Source, Parameters):
             raise _sdo_error(self.node_id, "reading its identity (0x1018)", err) from None
         self.configure()
         self.node.nmt.send_command(0x01)
-        self._last_heartbeat = self._last_data = time.monotonic()
+        self._last_heartbeat = self._rows.last_row = time.monotonic()
 
     def events(self) -> list[Event]:
         return self.hub.take_events(self._emcy)
@@ -255,7 +234,7 @@ class CanopenDevice(Source, Parameters):
         return self.hub.statistics() | {"sync_hz": f"{self.sample_rate:g}"}
 
     def _close(self) -> None:
-        self._closed.set()
+        self._rows.closed.set()
         self.hub.remove_sync_listener(self._on_sync_cycle)
         try:
             self.node.nmt.send_command(0x80)  # back to PRE-OPERATIONAL: TPDOs stop

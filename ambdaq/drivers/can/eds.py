@@ -26,9 +26,8 @@ from __future__ import annotations
 import queue
 import re
 import struct
-import threading
 import time
-from collections import defaultdict, deque
+from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,10 +39,10 @@ from ...errors import BadInputError, DeviceError
 from ..interfaces import Source
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
+from .rows import RowQueue
 
 MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803
 HEARTBEAT_MS = 100
-BLOCK_S = 0.1
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _STRUCT = {od.BOOLEAN: "?", od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",
            od.INTEGER32: "i", od.UNSIGNED32: "I", od.REAL32: "f", od.INTEGER64: "q", od.UNSIGNED64: "Q",
@@ -217,7 +216,7 @@ class EdsDevice(Source):
         self._columns = {t: [order.index(s) for s in sigs] for t, sigs in by_topic.items()}
         self._factor = np.array([s.factor for s in order])
         self._offset = np.array([s.offset for s in order])
-        self._rows: deque = deque()
+        self._rows = RowQueue(max(1.0, 20 / self.sample_rate))  # (cycle, time ns, raw values)
         self._parts: list = [None] * len(self.tpdos)
         self.late_replies = 0
         self.window_ns = int(0.5e9 / self.sample_rate)  # the synchronous window: half a SYNC period
@@ -225,10 +224,6 @@ class EdsDevice(Source):
         self.window_on_device = 0x1007 in dictionary and dictionary[0x1007].writable  # set in start()
         self._events: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._nmt_state: int | None = None
-        self._closed = threading.Event()
-        self._remaining: int | None = None
-        self._first: int | None = None
-        self._last_data = time.monotonic()
 
     # --- set-up -------------------------------------------------------------------------------------
 
@@ -307,7 +302,7 @@ class EdsDevice(Source):
                 for _c, _f, sigs in self.tpdos for s in sigs}
 
     def start(self, n_samples: int | None) -> None:
-        self._remaining = n_samples
+        self._rows.start(n_samples)
         self.hub.register_stream(self.name, [fmt.size for _c, fmt, _s in self.tpdos], self.sample_rate,
                                  external=self.external)
         self.hub.check_load()
@@ -326,7 +321,7 @@ class EdsDevice(Source):
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             raise DeviceError(f"CANopen node {self.node_id}: setting its heartbeat and SYNC window failed: {err}") from None
         self.node.nmt.send_command(0x01)  # OPERATIONAL
-        self._last_data = time.monotonic()
+        self._rows.last_row = time.monotonic()
         self.hub.start_sync()
 
     def _on_tpdo(self, i: int, fmt: struct.Struct):
@@ -350,7 +345,7 @@ class EdsDevice(Source):
             parts, self._parts = self._parts, [None] * len(self._parts)
             if any(p is None or p[0].count != cycle.count for p in parts):
                 return  # part of this cycle was lost or late: a drop
-            self._rows.append((cycle.count, cycle.time_ns, [v for p in parts for v in p[1]]))
+            self._rows.rows.append((cycle.count, cycle.time_ns, [v for p in parts for v in p[1]]))
             self.hub.answered = cycle.count
 
         return on_tpdo
@@ -366,28 +361,12 @@ class EdsDevice(Source):
         self._events.put(Event(0, "fault", err.code, f"EMCY 0x{err.code:04X} {err.get_desc()} (register 0x{err.register:02X})"))
 
     def read(self) -> SampleBlock | None:
-        while True:
-            if self._closed.wait(BLOCK_S):
-                return None
-            if self.hub.failure is not None:
-                raise DeviceError(f"{self.name} ({self.url}): {self.hub.failure}")
-            n = len(self._rows)
-            if n:
-                rows = [self._rows.popleft() for _ in range(n)]
-                self._last_data = time.monotonic()
-                break
-            silent = time.monotonic() - self._last_data
-            if silent > max(1.0, 20 / self.sample_rate):
-                raise DeviceError(f"{self.name} ({self.url}): no process data from node {self.node_id} for {silent:.1f} s")
-        cycles = np.array([r[0] for r in rows], dtype=np.int64)
-        if self._first is None:
-            self._first = int(cycles[0])
-        if self._remaining is not None:
-            keep = cycles < self._first + self._remaining
-            if not keep.any():
-                return None
-            rows = [r for r, k in zip(rows, keep) if k]
-            cycles = cycles[keep]
+        taken = self._rows.take(
+            lambda: None if self.hub.failure is None else f"{self.name} ({self.url}): {self.hub.failure}",
+            lambda silent: f"{self.name} ({self.url}): no process data from node {self.node_id} for {silent:.1f} s")
+        if taken is None:
+            return None
+        rows, cycles = taken
         si = np.array([r[2] for r in rows], dtype=np.float64) * self._factor + self._offset
         t = np.array([r[1] for r in rows], dtype=np.int64)
         return SampleBlock(device_time_ns=t, seq=(cycles & 0xFFFFFFFF).astype(np.uint32),
@@ -400,7 +379,7 @@ class EdsDevice(Source):
         return self.hub.statistics() | {"late_replies": str(self.late_replies)}
 
     def _close(self) -> None:
-        self._closed.set()
+        self._rows.closed.set()
         try:
             self.node.nmt.send_command(0x80)  # PRE-OPERATIONAL: TPDOs stop
         except Exception:  # the bus may be gone already
