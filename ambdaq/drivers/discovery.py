@@ -7,6 +7,8 @@ import logging
 import can
 from serial.tools import list_ports
 
+from ..errors import DeviceError
+
 
 NOT_SEARCHED = {
     "socketcand": "its servers announce themselves by a UDP beacon every 3 s on the LAN, too slow to wait for",
@@ -74,8 +76,6 @@ def slcan_adapters() -> list[dict[str, str]]:
 def ask_slcan(port: str, timeout_s: float = 0.5) -> dict[str, str]:
     """The version and serial number of the SLCAN adapter on ``port``, asked through python-can's
     ``slcan`` interface (``V`` and ``N``); DeviceError if nothing answers as an SLCAN adapter."""
-    from ..errors import DeviceError
-
     try:
         bus = can.Bus(interface="slcan", channel=port, sleep_after_open=0)
     except (can.CanError, OSError, ValueError) as err:

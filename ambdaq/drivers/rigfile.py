@@ -55,6 +55,14 @@ class RigFile:
     devices: tuple[DeviceEntry, ...]
 
 
+def check_keys(table: dict, allowed: tuple[str, ...], where: str) -> None:
+    """A rig file's table may hold only ``allowed`` keys: the first other one is one
+    :class:`BadInputError` line, so a typo never passes silently."""
+    bad = sorted(set(table) - set(allowed))
+    if bad:
+        raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: {', '.join(allowed)})")
+
+
 def load_rig(path: str | Path) -> RigFile:
     """Read and check a rig file; every problem is one :class:`BadInputError` line."""
     path = Path(path)
@@ -75,9 +83,7 @@ def load_rig(path: str | Path) -> RigFile:
         where = f"{path}: device {i + 1}"
         if not isinstance(e, dict) or "url" not in e:
             raise BadInputError(f"{where}: needs url = \"scheme://...\"")
-        bad = sorted(set(e) - set(BASE_KEYS) - set(DESCRIPTION_KEYS))
-        if bad:
-            raise BadInputError(f"{where}: unknown key {bad[0]!r} (keys: {', '.join(BASE_KEYS + DESCRIPTION_KEYS)})")
+        check_keys(e, BASE_KEYS + DESCRIPTION_KEYS, where)
         parse_device_url(str(e["url"]))
         cal = e.get("calibration", {})
         if not isinstance(cal, dict):

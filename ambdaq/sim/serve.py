@@ -34,6 +34,7 @@ SLCAN_SYNC_HZ = 400.0
 """Through the SLCAN adapter: python-can 4.6's slcan reader takes a byte per system call, about
 4,000 frames/s here at a full core (docs/performance.md); 400 Hz is 2,400 frames/s with all
 four devices."""
+THIRD_PARTY_SYNC_HZ = 400.0  # with the drive's TPDOs, 800 Hz is 81 % (refused); 400 Hz with the probes too: ~55 %
 CAN_NAMESPACED = ("gap_sensor", "amplifier", "keyphasor")  # their topics are the controller's too: /can/amb/...
 _channels = itertools.count()
 
@@ -145,8 +146,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.ptys["can"] = Pty.open()
                 served.devices["can"] = SimSlcanAdapter(served.ptys["can"].master, channel)
                 bus, sync = f"slcan{served.ptys['can'].path}?open_delay=0&", SLCAN_SYNC_HZ
-            if third_party:  # the probe conditioner's 1,000 frames/s and the drive's TPDOs share the bus
-                sync = min(sync, SLCAN_SYNC_HZ)
+            if third_party:
+                sync = min(sync, THIRD_PARTY_SYNC_HZ)
             for dev in served.can_devices:
                 kind = dev.profile.kind
                 namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""

@@ -20,17 +20,25 @@ class CanBackend(Backend):
                            "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
                     ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw", "eds"))
 
-    def _on_hub(self, url: DeviceURL, node: int, make):
-        """``make(hub, node)`` on the shared bus ``url`` names; the hub is released if that fails."""
+    def _on_hub(self, url: DeviceURL, make):
+        """``make(hub)`` on the shared bus ``url`` names; the hub is released if that fails."""
         from .bus import CanHub
 
         interface, channel, options = self.bus_of(url)
         hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000), **options)
         try:
-            return make(hub, node)
+            return make(hub)
         except BaseException:
             hub.release()
             raise
+
+    @staticmethod
+    def _node(url: DeviceURL, default: int) -> int:
+        """The URL's CANopen node id (1..127), checked before the bus is opened."""
+        node = url.integer("node", default)
+        if not 1 <= node <= 127:
+            raise BadInputError(f"CANopen node id must be 1..127, not {node}")
+        return node
 
     def bus_of(self, url: DeviceURL) -> tuple[str, str, dict]:
         """python-can interface, channel and bus options of ``url``.
@@ -65,9 +73,9 @@ class CanBackend(Backend):
             raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
         if "node" not in url.options and kind is None:
             raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {self.scheme.form}")
-        node = url.integer("node", PROFILES[kind].default_node if kind else 0)
-        dev = self._on_hub(url, node, lambda hub, n: CanopenDevice(
-            hub, n, kind=kind, sync_hz=url.number("sync", 800.0), name=request.name,
+        node = self._node(url, PROFILES[kind].default_node if kind else 0)
+        dev = self._on_hub(url, lambda hub: CanopenDevice(
+            hub, node, kind=kind, sync_hz=url.number("sync", 800.0), name=request.name,
             namespace=url.options.get("namespace", ""), url=url.text))
         dev.add_calibration(request.calibration)
         return Opened([dev])
@@ -82,7 +90,7 @@ class CanBackend(Backend):
             raise BadInputError(f"{url.text}: kind and namespace are for ambdaq's own CANopen devices, not an EDS device")
         if "node" not in url.options:
             raise BadInputError(f"{url.text}: an EDS device needs node=N")
-        node = url.integer("node", 0)
+        node = self._node(url, 0)
         if url.target.partition("/")[0] == "slcan":
             raise BadInputError(f"{url.text}: python-can's slcan interface stamps a frame when it reads it, so the replies "
                                 "of a device that does not echo the SYNC counter cannot be matched to their SYNC; "
@@ -93,21 +101,17 @@ class CanBackend(Backend):
         mapping = d.get("mapping", "configure" if "signal" in d else "existing")
         if mapping not in ("configure", "existing"):
             raise BadInputError(f"{url.text}: mapping must be \"configure\" or \"existing\", not {mapping!r}")
-        signals = None
-        if mapping == "configure" or "signal" in d:
-            signals = parse_signals(odict, d.get("signal"), name, str(path))
-            if mapping == "configure":
-                check_mapping(signals, odict, path)
+        signals = parse_signals(odict, d.get("signal"), name, str(path)) if "signal" in d or mapping == "configure" else None
+        tpdos = check_mapping(signals, odict, path) if mapping == "configure" else None
         sync = url.options.get("sync", "800")
         sync_hz = None if sync == "external" else url.number("sync", 800.0)
-        device = self._on_hub(url, node, lambda hub, n: EdsDevice(
-            hub, n, path, odict, signals, configure=mapping == "configure", sync_hz=sync_hz, name=name, url=url.text))
+        device = self._on_hub(url, lambda hub: EdsDevice(hub, node, path, odict, signals, tpdos, sync_hz=sync_hz,
+                                                         name=name, url=url.text))
         device.add_calibration(request.calibration)
         return Opened([device])
 
     def _open_dbc(self, url: DeviceURL, request: OpenRequest) -> Opened:
         """A raw-CAN device described by a DBC file: one source per topic (:mod:`.dbc`)."""
-        from .bus import CanHub
         from .dbc import DbcMessageSource, DbcReceiver, DbcRequest, load_dbc
 
         d = request.description
@@ -126,18 +130,12 @@ class CanBackend(Backend):
         db = load_dbc(path)  # before the bus is opened: a bad file touches nothing
         wanted = DbcRequest(Path(path), tuple(messages), dict(counters), raw)
         name = request.name or Path(path).stem
-        interface, channel, options = self.bus_of(url)
-        hub = CanHub.acquire(interface, channel, url.integer("bitrate", 1_000_000), **options)
-        try:
-            receiver = DbcReceiver(hub, db, wanted, name)
-        except BaseException:
-            hub.release()
-            raise
+        receiver = self._on_hub(url, lambda hub: DbcReceiver(hub, db, wanted, name))
         streams = list(receiver.streams.values()) + ([receiver.raw_stream] if receiver.raw_stream else [])
         sources = []
         for i, stream in enumerate(streams):
             if i:
-                CanHub.acquire(interface, channel, hub.bitrate)  # each source releases the hub once
+                receiver.hub.retain()  # each source releases the hub once
             topic = stream.group.topic
             part = topic.removeprefix(f"/{name}/").replace("/", ".") if topic.startswith(f"/{name}/") else "raw"
             source = DbcMessageSource(receiver, stream, name=f"{name}.{part}", url=url.text)
@@ -151,5 +149,5 @@ class CanBackend(Backend):
 
         if url.options.get("kind", "controller") != "controller":
             raise BadInputError(f"{url.text}: a push goes to the controller (kind=controller), not a {url.options['kind']}")
-        return self._on_hub(url, url.integer("node", CONTROLLER.default_node),
-                            lambda hub, n: CanopenController(hub, n, url=url.text))
+        node = self._node(url, CONTROLLER.default_node)
+        return self._on_hub(url, lambda hub: CanopenController(hub, node, url=url.text))

@@ -87,9 +87,8 @@ class CanHub:
         self.malformed_frames = 0  # lines or records the interface could not parse: counted, skipped
         self.events: "queue.SimpleQueue[Event]" = queue.SimpleQueue()  # drained by whichever device asks
         self._refs = 0
-        self.cycle = SyncCycle()
         self.by_counter: dict[int, SyncCycle] = {}  # the last SYNC_COUNTER_MAX cycles, by counter
-        self.recent: deque[SyncCycle] = deque(maxlen=RECENT_CYCLES)  # the newest cycles, oldest first
+        self.recent: deque[SyncCycle] = deque([SyncCycle()], maxlen=RECENT_CYCLES)  # newest last
         self._sync_listeners: list[Callable[[SyncCycle], None]] = []
         self._streams: dict[str, list[int]] = {}
         self.sync_hz: float | None = None
@@ -120,6 +119,11 @@ class CanHub:
                 raise BadInputError(f"CAN {interface}/{channel} is open at {hub.bitrate} bit/s, not {bitrate}")
             hub._refs += 1
             return hub
+
+    def retain(self) -> None:
+        """One more holder of this hub (a device with several sources); each releases it once."""
+        with self._hubs_lock:
+            self._refs += 1
 
     def release(self) -> None:
         with self._hubs_lock:
@@ -307,12 +311,17 @@ class CanHub:
             return None
         return self.by_counter.get(counter)
 
+    @property
+    def cycle(self) -> SyncCycle:
+        """The newest SYNC (count -1 before the first)."""
+        return self.recent[-1]
+
     def cycle_at(self, time_ns: int) -> tuple[SyncCycle | None, SyncCycle | None]:
         """The newest SYNC sent at or before ``time_ns`` (a reply's bus time) and the one sent
         before it, among the recent ones (None where older than those)."""
         newest = None
         for c in reversed(self.recent):
-            if c.time_ns <= time_ns:
+            if c.count >= 0 and c.time_ns <= time_ns:
                 if newest is not None:
                     return newest, c
                 newest = c
@@ -320,11 +329,11 @@ class CanHub:
 
     def _on_sync(self, data: bytearray, timestamp: float) -> None:
         counter = data[0] if data else 0
-        self.cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))
-        self.by_counter[counter] = self.cycle
-        self.recent.append(self.cycle)
+        cycle = SyncCycle(self.cycle.count + 1, counter, int(round(timestamp * 1e9)))
+        self.by_counter[counter] = cycle
+        self.recent.append(cycle)
         for cb in list(self._sync_listeners):
-            cb(self.cycle)
+            cb(cycle)
 
     # --- health ------------------------------------------------------------------------------------
 

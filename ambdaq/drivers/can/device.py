@@ -45,7 +45,7 @@ class CanopenDevice(Source, Parameters):
     hub : CanHub
         The bus.
     node_id : int
-        CANopen node id (1..127).
+        CANopen node id (1..127, checked by the back-end).
     kind : str, optional
         Expected device type; found from the identity's product code when omitted.
     sync_hz : float
@@ -60,8 +60,6 @@ class CanopenDevice(Source, Parameters):
 
     def __init__(self, hub: CanHub, node_id: int, *, kind: str | None = None, sync_hz: float = 800.0,
                  name: str | None = None, namespace: str = "", url: str = "") -> None:
-        if not 1 <= node_id <= 127:
-            raise BadInputError(f"CANopen node id must be 1..127, not {node_id}")
         self.hub = hub
         self.node_id = node_id
         self.url = url or f"can://{hub.interface}/{hub.channel}?node={node_id}"

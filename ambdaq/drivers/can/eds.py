@@ -37,10 +37,12 @@ from canopen import objectdictionary as od
 
 from ...errors import BadInputError, DeviceError
 from ..interfaces import Source
+from ..rigfile import check_keys
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
 from .rows import RowQueue
 
+SIGNAL_KEYS = ("object", "topic", "field", "factor", "offset", "unit", "tpdo")  # a [[device.signal]] table
 MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803
 HEARTBEAT_MS = 100
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
@@ -107,9 +109,7 @@ def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> l
         at = f"{where}: signal {i + 1}"
         if not isinstance(e, dict) or "object" not in e:
             raise BadInputError(f"{at}: needs object = \"0xINDEX[.SUB]\" (or the EDS name)")
-        bad = sorted(set(e) - {"object", "topic", "field", "factor", "offset", "unit", "tpdo"})
-        if bad:
-            raise BadInputError(f"{at}: unknown key {bad[0]!r} (keys: object, topic, field, factor, offset, unit, tpdo)")
+        check_keys(e, SIGNAL_KEYS, at)
         var = _variable(d, e["object"], at)
         try:
             factor = float(e.get("factor", var.factor or 1.0))
@@ -175,8 +175,9 @@ class EdsDevice(Source):
         It, loaded.
     signals : list of EdsSignal, or None
         The rig file's signals: their names and scaling for the objects they name.
-    configure : bool
-        Map ``signals`` into the TPDOs; otherwise record the device's TPDO mapping as it is.
+    tpdos : list of list of EdsSignal, or None
+        The signals packed into TPDOs (:func:`check_mapping`), to be mapped by SDO; None: record
+        the device's TPDO mapping as it is.
     sync_hz : float or None
         SYNC rate, Hz, when ambdaq produces SYNC; None: another master does (the rate is measured).
     name, url : str
@@ -184,10 +185,8 @@ class EdsDevice(Source):
     """
 
     def __init__(self, hub: CanHub, node_id: int, eds: Path, object_dictionary: od.ObjectDictionary,
-                 signals: list[EdsSignal] | None, *, configure: bool, sync_hz: float | None, name: str,
-                 url: str) -> None:
-        if not 1 <= node_id <= 127:
-            raise BadInputError(f"CANopen node id must be 1..127, not {node_id}")
+                 signals: list[EdsSignal] | None, tpdos: list[list[EdsSignal]] | None, *, sync_hz: float | None,
+                 name: str, url: str) -> None:
         self.hub, self.node_id, self.eds, self.name, self.url = hub, node_id, eds, name, url
         self.node = canopen.RemoteNode(node_id, object_dictionary)
         self.node.sdo.RESPONSE_TIMEOUT = 0.5
@@ -196,8 +195,8 @@ class EdsDevice(Source):
         self.sample_rate = self._measure_sync() if self.external else sync_hz
         try:
             self.identity_words = [struct.unpack("<I", self.node.sdo.upload(0x1018, i))[0] for i in (1, 2, 4)]
-            if configure:
-                self._configure(check_mapping(signals or [], object_dictionary, eds))
+            if tpdos is not None:
+                self._configure(tpdos)
             self.tpdos = self._read_mapping(signals)
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             hub.network.nodes.pop(node_id, None)
