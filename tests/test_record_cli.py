@@ -137,9 +137,10 @@ def test_progress_reports_elapsed_samples_drops_rate(tmp_path, capsys):
     assert len(seen) >= 4
     assert all(b.samples > a.samples and b.elapsed_s > a.elapsed_s for a, b in zip(seen, seen[1:]))
     # paced at 10 kHz, although the controller's samples wait ~3 s for its clock map before they are
-    # written (they counted only then: 700 samples/s shown).  The band is wide, and the first report
-    # (0.25 s, with the devices' start-up in it) left out, because samples arrive in blocks of 0.1 s
-    assert all(5000 < p.rate_hz < 15000 for p in seen[1:]), [round(p.rate_hz) for p in seen]
+    # written (they counted only then: 700 samples/s shown).  The band is wide, and the reports of
+    # the first second left out: the rate is over the whole elapsed time, start-up included, which
+    # on a loaded machine took 0.5 s (4,632 samples/s at the second report on a fresh clone)
+    assert all(5000 < p.rate_hz < 15000 for p in seen if p.elapsed_s >= 1.0), [round(p.rate_hz) for p in seen]
     print_progress(seen[-1])
     line = capsys.readouterr().err
     assert "recording" in line and "samples" in line and "drops" in line and "samples/s" in line
