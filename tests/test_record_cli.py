@@ -135,7 +135,10 @@ def test_progress_reports_elapsed_samples_drops_rate(tmp_path, capsys):
         Recorder(rig.sources, tmp_path / "p.mcap", RecordOptions(duration_s=1.6)).run(on_progress=seen.append,
                                                                                    progress_interval_s=0.25)
     assert len(seen) >= 4
-    assert all(b.samples > a.samples and b.elapsed_s > a.elapsed_s for a, b in zip(seen, seen[1:]))
+    # the counts never go back, and they grow (not necessarily within every 0.25 s: a loaded fresh
+    # machine left one interval without a written block)
+    assert all(b.samples >= a.samples and b.elapsed_s > a.elapsed_s for a, b in zip(seen, seen[1:]))
+    assert seen[-1].samples > seen[0].samples
     # paced at 10 kHz, although the controller's samples wait ~3 s for its clock map before they are
     # written (they counted only then: 700 samples/s shown).  The band is wide, and the reports of
     # the first second left out: the rate is over the whole elapsed time, start-up included, which
