@@ -10,6 +10,15 @@ from click.testing import CliRunner
 from ambdaq.cli.main import cli
 
 
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``realtime`` run their devices against the wall clock; they share one xdist
+    group, so they run one at a time on one worker, and at most one other worker's compute load
+    (the one busy process the recorder is built and tested to stand beside) runs next to them."""
+    for item in items:
+        if item.get_closest_marker("realtime") is not None:
+            item.add_marker(pytest.mark.xdist_group("realtime"))
+
+
 @pytest.fixture
 def run_cli():
     """Invoke ``ambdaq ARGS...`` through click's runner; returns the result (exit_code, output)."""

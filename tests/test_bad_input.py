@@ -10,6 +10,8 @@ from mcap.writer import Writer
 from ambdaq.daq import load
 from ambdaq.errors import BadInputError
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 
 def one_line_error(result, *needles):
     assert result.exit_code == 2, result.output

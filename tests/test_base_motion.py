@@ -12,6 +12,8 @@ from ambdaq.daq import load
 from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
 from ambdaq.units import GRAVITY
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 FS = 10_000.0
 
 

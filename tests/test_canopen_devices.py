@@ -21,6 +21,8 @@ from ambdaq.sim.devices.canopen import open_network, serve_can
 from ambdaq.sim.devices.rig_server import RigServer
 from ambdaq.errors import BadInputError, DeviceError
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 _channels = itertools.count()
 
 

@@ -13,6 +13,8 @@ import pytest
 
 from ambdaq.daq import load
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 AMBDAQ = [sys.executable, "-m", "ambdaq"]
 
 

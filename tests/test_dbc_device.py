@@ -17,6 +17,8 @@ from mcap_ros2.decoder import DecoderFactory
 from ambdaq.daq import load
 from ambdaq.sim.devices.probes import DBC_PATH, VENDOR_ID
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 
 @pytest.fixture
 def probes(third_party_rig):

@@ -7,8 +7,11 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from ambdaq.daq import load
+
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 
 PLUGIN = '''
 """tone://NAME?hz=F: a 1 kHz source of a 1 um sine on one gap channel (a test back-end)."""

@@ -16,6 +16,8 @@ from ambdaq.drivers.serial.controller import ControllerDriver
 from ambdaq.drivers.serial.link import SerialLink
 from ambdaq.errors import DeviceError
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
 

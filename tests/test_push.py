@@ -26,6 +26,8 @@ from ambdaq.sim.devices.faults import FaultyPort
 from ambdaq.sim.devices.rig_server import RigServer
 from ambdaq.sim.serve import Pty
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 AXES = ["front_x", "front_y", "rear_x", "rear_y", "axial"]
 _channels = itertools.count()
 

@@ -4,11 +4,14 @@ import json
 import time
 
 import numpy as np
+import pytest
 
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Progress, Recorder, RecordOptions, print_progress
 from ambdaq.drivers.registry import open_url
+
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 
 
 def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
@@ -95,7 +98,10 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
             assert b[0] > a[-1], topic
         lost = sum(json.loads(McapFile(p).metadata()["ambdaq.statistics"][topic])["drops"] for p in parts)
         seq = np.concatenate(pieces)
-        assert seq[-1] - seq[0] + 1 == len(seq) + lost, topic  # ... and every sample between is there or counted
+        # ... every sample between is there or counted, and so is every period asked for after the
+        # last one (a CAN device whose last SYNC went unanswered under load loses its tail, counted)
+        assert seq[-1] - seq[0] + 1 <= len(seq) + lost, topic
+        assert len(seq) + lost == round(3.5 * load(parts[0])[topic].nominal_rate), topic
 
 
 def test_split_by_size(tmp_path, run_cli):

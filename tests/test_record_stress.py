@@ -6,8 +6,11 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from ambdaq.daq import load
+
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 
 RUNS, SECONDS = 3, 2.0
 

@@ -9,6 +9,8 @@ from ambdaq.daq.coefficients import Coefficients
 from ambdaq.sim.rigs.spindle import SPINDLE
 from ambdaq.errors import BadInputError
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 TRUE = SPINDLE.runout_amp[:, :6] * np.exp(1j * SPINDLE.runout_phase[:, :6])
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 

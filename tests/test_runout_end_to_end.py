@@ -11,6 +11,8 @@ import pytest
 
 from ambdaq.daq import load
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 RADIAL = ("front_x", "front_y", "rear_x", "rear_y")
 
 

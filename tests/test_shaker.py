@@ -19,6 +19,8 @@ from ambdaq.sim.serve import serve
 from ambdaq.sim.devices.shaker import SHAKER_GAIN
 from ambdaq.errors import BadInputError, DeviceError
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 
 @pytest.fixture
 def served():

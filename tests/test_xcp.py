@@ -12,6 +12,8 @@ import pytest
 from ambdaq.sim.serve import serve
 from ambdaq.speed import SpeedProfile
 
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
 pyxcp = pytest.importorskip("pyxcp")  # the xcp extra, in the test extras
 
 
