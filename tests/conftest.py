@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
+
+
+def pytest_configure(config):
+    """Caches (the parsed A2L files) go to a folder of this run, not the user's ~/.cache."""
+    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
 
 
 def pytest_collection_modifyitems(config, items):

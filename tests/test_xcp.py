@@ -1,63 +1,266 @@
-"""The simulated controller's XCP slave, proven against an independent master (pyxcp, no ambdaq
-code on the master side), and its A2L file, read by an independent parser (pya2ldb)."""
+"""XCP: the simulated controller's slave proven against an independent master (pyxcp, no ambdaq
+code on the master side) and its A2L file read by an independent parser (pya2ldb); then
+ambdaq's XCP device, recording and pushing through it."""
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import struct
+import subprocess
+import sys
+from collections import deque
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
+from ambdaq.daq import load
+from ambdaq.drivers.coefbank import BankImage, crc32
+from ambdaq.drivers.registry import open_controller
+from ambdaq.errors import DeviceError
 from ambdaq.sim.serve import serve
 from ambdaq.speed import SpeedProfile
 
 pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 
 pyxcp = pytest.importorskip("pyxcp")  # the xcp extra, in the test extras
+RADIAL = ("front_x", "front_y", "rear_x", "rear_y")
+
+
+class Served:
+    """The spindle served in this process with its XCP slave; every rig block kept by seq."""
+
+    def __init__(self) -> None:
+        self.rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp_port=0)
+        self.slave = self.rig.devices["xcp"]
+        self.blocks: deque = deque(maxlen=2000)  # 20 s
+        self.rig.server.subscribe(self.blocks.append)
+
+    def truth(self, topic: str, field: str, seq: np.ndarray) -> np.ndarray:
+        """The rig's value of ``topic``/``field`` at each sample ``seq``."""
+        col = [g.fields for g in self.rig.server.rig.signal_groups() if g.topic == topic][0].index(field)
+        by_seq = {int(s): v for b in list(self.blocks) for s, v in zip(b.seq, b.values[topic][:, col])}
+        return np.array([by_seq[int(s)] for s in seq])
 
 
 @pytest.fixture(scope="module")
-def slave():
-    served = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp_port=0)
-    yield served.devices["xcp"]
-    served.stop()
+def served():
+    s = Served()
+    yield s
+    s.rig.stop()
 
 
-def master(port: int):
-    from pyxcp.config import create_application_from_config
-    from pyxcp.master import Master
+@pytest.fixture(scope="module")
+def a2l(tmp_path_factory):
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    path = tmp_path_factory.mktemp("a2l") / "spindle.a2l"
+    assert CliRunner().invoke(cli, ["sim", "a2l", "-o", str(path)]).exit_code == 0
+    return path
+
+
+def application(port: int):
+    """pyxcp's configuration, made first: its DAQ classes would otherwise parse pytest's argv."""
+    from pyxcp.config import create_application_from_config, set_application
 
     app = create_application_from_config({"Transport": {"Eth": {"host": "127.0.0.1", "port": port,
                                                                 "protocol": "TCP"}}}, log_level=logging.ERROR)
     app.transport.layer = "ETH"
-    return Master("eth", config=app)
+    set_application(app)  # pyxcp's DAQ classes take their settings from the global one
+    return app
 
 
-def test_pyxcp_reads_the_a2l_measurements_from_the_slave(slave, tmp_path, run_cli):
-    a2l = tmp_path / "spindle.a2l"
-    assert run_cli("sim", "a2l", "-o", a2l).exit_code == 0
+def master(port: int, policy=None, app=None):
+    from pyxcp.master import Master
+
+    return Master("eth", config=app or application(port), policy=policy)
+
+
+def described(a2l):
+    """The A2L's measurements as pya2ldb reads them: name -> (address, data type, unit)."""
     from pya2l import import_a2l, model
 
     session = import_a2l(str(a2l), in_memory=True, loglevel="ERROR", progress_bar=False)
-    described = {m.name: (m.ecu_address.address, m.datatype, m.phys_unit.unit) for m in session.query(model.Measurement)}
-    assert len(described) == len(slave.memory.measurements) == 28
-    with master(slave.port) as x:
+    return {m.name: (m.ecu_address.address, m.datatype, m.phys_unit.unit) for m in session.query(model.Measurement)}
+
+
+def test_pyxcp_reads_the_a2l_measurements_from_the_slave(served, a2l):
+    found = described(a2l)
+    assert len(found) == len(served.slave.memory.measurements) == 29  # the counter and 28 rig fields
+    from pyxcp.master.errorhandler import SystemExit as XcpError
+
+    with master(served.slave.port) as x:
         connected = x.connect()
         assert connected.maxCto == 255 and connected.commModeBasic.byteOrder == "INTEL"
+        assert connected.resource.calpag and connected.resource.daq
         assert x.identifier(1) == "AMBDAQ_SPINDLE"  # the A2L's PROJECT name
         values = {}
-        for name, (address, datatype, unit) in described.items():
+        for name, (address, datatype, unit) in found.items():
+            if name == "control_period":
+                assert datatype == "ULONG"
+                continue
             assert datatype == "FLOAT32_IEEE" and unit  # every measurement in SI, its unit stated
             values[name] = struct.unpack("<f", x.shortUpload(4, address))[0]
         # the rig's state, read through the A2L's addresses: 30,000 rpm (float32), gaps of tens of um
-        assert described["amb_rotor_speed"][2] == "rad/s" and described["amb_gap_front_x"][2] == "m"
-        assert values["amb_rotor_speed"] == pytest.approx(30000 * 2 * np.pi / 60, abs=1e-3)
-        assert all(abs(values[f"amb_gap_{a}"]) < 1e-4 for a in ("front_x", "front_y", "rear_x", "rear_y"))
-        assert -1e-6 <= values["amb_rotor_angle"] < 2 * np.pi + 1e-6  # wrapped to a turn, to float32 rounding
-        # a command this slave lacks (no DAQ yet) is answered ERR_CMD_UNKNOWN, as the standard asks
-        from pyxcp.master.errorhandler import SystemExit as XcpError
-
+        assert found["amb.rotor.speed"][2] == "rad/s" and found["amb.gap.front_x"][2] == "m"
+        assert values["amb.rotor.speed"] == pytest.approx(30000 * 2 * np.pi / 60, abs=1e-3)
+        assert all(abs(values[f"amb.gap.{a}"]) < 1e-4 for a in RADIAL)
+        assert -1e-6 <= values["amb.rotor.angle"] < 2 * np.pi + 1e-6  # wrapped to a turn, to float32 rounding
+        # calibration is locked until seed & key; a command this slave lacks is ERR_CMD_UNKNOWN
+        assert x.getStatus().resourceProtectionStatus.calpag
         with pytest.raises(XcpError, match="ERR_CMD_UNKNOWN"):
-            x.getDaqProcessorInfo()
+            x.programStart()
         x.disconnect()
+
+
+def test_pyxcp_daq_list_samples_every_control_period(served, a2l):
+    """A DAQ list set up by pyxcp's own DaqProcessor on event 0 delivers every control period,
+    timestamped on the controller's clock, with the rig's values."""
+    from pyxcp.daq_stim import DaqList, DaqOnlinePolicy
+
+    names = ["control_period", "amb.gap.front_x", "amb.gap.rear_y", "amb.current.front_x", "amb.rotor.angle"]
+    found = described(a2l)
+    app = application(served.slave.port)
+    rows = []
+
+    class Keep(DaqOnlinePolicy):
+        def initialize(self):
+            pass
+
+        def finalize(self):
+            pass
+
+        def on_daq_list(self, _daq, _ts0, ts1, payload):
+            rows.append((ts1, payload))
+
+    policy = Keep([DaqList(name="amb", event_num=0, stim=False, enable_timestamps=True, priority=0, prescaler=1,
+                           measurements=[(n, found[n][0], 0, "U32" if n == "control_period" else "F32")
+                                         for n in names])])
+    with master(served.slave.port, policy, app) as x:
+        x.connect()
+        x.getCommModeInfo()
+        policy.setup()
+        policy.start()
+        import time
+
+        time.sleep(1.0)
+        policy.stop()
+        x.disconnect()
+    seq = np.array([p[0] for _t, p in rows], dtype=np.int64)
+    assert len(seq) > 9000 and np.all(np.diff(seq) == 1)  # every period of the second, none twice
+    # 1 us ticks of a clock 50 ppm fast: 100.005 us per period, so steps of 100 or 101 us
+    steps = np.diff([t for t, _p in rows]) / 1000
+    assert set(np.unique(steps)) <= {100.0, 101.0} and abs(steps.mean() - 100.005) < 0.01
+    for k, name in enumerate(names[1:], start=1):
+        topic, field = "/" + "/".join(name.split(".")[:2]), name.split(".")[2]
+        # float32 is the slave's type: the cast is the one rounding, so the values are equal exactly
+        got = np.array([p[k] for _t, p in rows])
+        np.testing.assert_array_equal(got, served.truth(topic, field, seq).astype(np.float32), err_msg=name)
+
+
+def test_record_over_xcp_holds_what_the_controller_sent(served, a2l, tmp_path, run_cli):
+    url = f"xcp+tcp://127.0.0.1:{served.slave.port}"
+    out = tmp_path / "xcp.mcap"
+    r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1.5", "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    assert summary["samples"] == 15000 and summary["drops"] == 0 and summary["duplicates"] == 0
+    rec = load(out)
+    assert set(rec) == {"/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/accel", "/amb/rotor"}
+    gap = rec["/amb/gap"]
+    assert gap.units["front_x"] == "m" and rec["/amb/rotor"].units["speed"] == "rad/s"
+    for topic, field in (("/amb/gap", "front_x"), ("/amb/current", "rear_y"), ("/amb/rotor", "angle")):
+        got = rec[topic]
+        np.testing.assert_array_equal(got[field], served.truth(topic, field, got.seq).astype(np.float32))
+    # the official reader and ROS 2 decoder read the same SI values
+    with open(out, "rb") as fh:
+        decoded = [m for _s, _c, _m, m in make_reader(fh, decoder_factories=[DecoderFactory()])
+                   .iter_decoded_messages(topics=["/amb/gap"])]
+    assert len(decoded) == len(gap)
+    np.testing.assert_array_equal([m.front_x for m in decoded[:500]], gap["front_x"][:500])
+    info = run_cli("info", out).output
+    assert "xcp controller" in info and "AMBDAQ_SPINDLE" in info
+
+
+def test_push_over_xcp_refusals_leave_the_active_page(served, a2l):
+    url = f"xcp+tcp://127.0.0.1:{served.slave.port}?a2l={a2l}"
+    with open_controller(url) as port:
+        status = port.bank_status()
+        before = port.read_bank("active", status["active_length"])
+        assert crc32(before) == int(status["active_crc32"], 16)  # BUILD_CHECKSUM agrees with the host
+        with pytest.raises(DeviceError, match="unlock refused: wrong key"):
+            port.unlock("not-the-key")
+    with open_controller(url) as port:  # a wrong key ends the session (ASAM XCP Part 2): a new one
+        image = BankImage(np.full((5, status["harmonics"], 2), 1e-6)).encode()
+        port.unlock("ambdaq-sim")
+        port.write_bank(image)
+        held = port.bank_status()
+        assert held["inactive_crc32"] == f"{crc32(image):08x}" and held["inactive_length"] == len(image)
+        with pytest.raises(DeviceError, match="refused the page switch: crc"):
+            port.commit_bank(crc32(image) ^ 1, {"file": "wrong-crc"})
+        after = port.bank_status()
+        assert after["active_bank"] == status["active_bank"] and port.read_bank("active", len(before)) == before
+
+
+@pytest.mark.parametrize("case", ["garbled", "missing", "key"])
+def test_bad_a2l_or_url_is_one_line_exit_2(a2l, tmp_path, run_cli, case):
+    bad = tmp_path / "bad.a2l"
+    bad.write_text(a2l.read_text().replace("ECU_ADDRESS 0x00010008", "ECU_ADDRESS zz"))
+    url, want = {"garbled": (f"xcp+tcp://127.0.0.1:9?a2l={bad}", f"A2L file {bad}: line "),
+                 "missing": ("xcp+tcp://127.0.0.1:9", "needs its A2L file"),
+                 "key": (f"xcp+tcp://127.0.0.1:9?a2l={a2l}&key=acme", "unknown XCP key algorithm 'acme'")}[case]
+    r = run_cli("record", "--device", url, "--duration", "1", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and want in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_path):
+    """Record, identify, push, record and `runout check` over XCP, the slave served by `ambdaq sim
+    serve --xcp` in its own process: the same 20 dB / 5 um as over serial."""
+    ambdaq = [sys.executable, "-m", "ambdaq"]
+    env = {**os.environ, "AMBDAQ_UNLOCK_KEY": "ambdaq-sim", "AMBDAQ_STATE_DIR": str(tmp_path / "state")}
+    proc = subprocess.Popen([*ambdaq, "sim", "serve", "--rpm", "30000", "--xcp", "tcp:0", "--duration", "120"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while not line.startswith("xcp "):
+            line = proc.stdout.readline()
+            assert line, "sim serve printed no xcp URL"
+        url = f"{line.split()[1]}?a2l={a2l}"
+
+        def run(*args):
+            r = subprocess.run([*ambdaq, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+            assert r.returncode == 0, r.stderr
+            return r.stdout
+
+        before, after, coef = tmp_path / "before.mcap", tmp_path / "after.mcap", tmp_path / "coef.json"
+        run("record", "--device", url, "--duration", 2.5, "-q", "-o", before)  # 1,250 turns at 30,000 rpm
+        run("runout", "identify", before, "-o", coef)
+        assert "device-verified" in run("push", coef, "--device", url, "--yes")
+        run("record", "--device", url, "--duration", 2.5, "-q", "-o", after)
+        check = json.loads(run("runout", "check", before, after, "--min-db", 20, "--max-rms", 5, "--json"))
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    for a in RADIAL:
+        axis = check["axes"][a]
+        assert axis["harmonics"][0]["change_db"] <= -20 and axis["harmonics"][1]["change_db"] <= -20, check
+        assert axis["rms_after_um"] < 5.0, check  # (and `runout check` exited 0 on the same limits)
+
+
+def test_a2l_is_read_once_and_a_damaged_cache_is_read_again(a2l):
+    """The parsed A2L is kept by its SHA-256; a cache entry that is not JSON is parsed again."""
+    import hashlib
+
+    from ambdaq.drivers.xcp.a2l import _cache_dir, read_a2l
+
+    first = read_a2l(a2l)
+    entry = _cache_dir() / f"{hashlib.sha256(a2l.read_bytes()).hexdigest()}.json"
+    assert entry.exists() and read_a2l(a2l) == first
+    entry.write_text("{not json")
+    assert read_a2l(a2l) == first and json.loads(entry.read_text())["project"] == "AMBDAQ_SPINDLE"

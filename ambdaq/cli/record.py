@@ -60,22 +60,26 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
 @click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")
 @click.option("--reconnect", is_flag=True,
               help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
+@click.option("--a2l", "a2l", type=click.Path(dir_okay=False), metavar="FILE",
+              help="A2L file of the --device XCP controllers (xcp+tcp://...).")
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, out, quiet, as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, a2l, out, quiet, as_json):
     """Record devices in real time into an MCAP file.
 
     \b
     Examples:
       ambdaq record --device sim://spindle --duration 10 --rpm 30000 -o run.mcap
       ambdaq record --rig lab.toml --split-duration 60 -o long.mcap
+      ambdaq record --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --duration 10 -o run.mcap
     """
     if not devices and not rig_path:
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
     rig = load_rig(rig_path) if rig_path else None
     with Opened() as opened:  # however the recording ends, every device and simulated rig is closed
         for i, url in enumerate(devices):
-            opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None))
+            opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None,
+                                description={"a2l": str(Path(a2l).resolve())} if a2l else None))
         for d in rig.devices if rig is not None else ():
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
                                 calibration=d.calibration, description=d.description))

@@ -101,12 +101,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--third-party", is_flag=True,
               help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
                    "sending the raw frames of its DBC, a CiA 402 drive known by its EDS; docs/hardware.md).")
-@click.option("--xcp", "xcp_port", type=click.IntRange(0, 65535), metavar="PORT",
-              help="Also serve the controller's XCP slave (XCP on TCP) on 127.0.0.1:PORT (0: a free port); "
-                   "its A2L: ambdaq sim a2l.")
+@click.option("--xcp", "xcp", metavar="tcp:PORT",
+              help="Also serve the controller's XCP slave, XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port); "
+                   "it prints the xcp+tcp:// URL; its A2L: ambdaq sim a2l.")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp_port, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per pseudo-terminal, NAME PATH, and with --can one per CANopen device,
@@ -117,10 +117,18 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
       ambdaq record --device serial:///dev/pts/N --duration 10 -o run.mcap
       ambdaq sim serve --rpm 30000 --can slcan &
       ambdaq record --device 'can://slcan/dev/pts/M?node=16&open_delay=0' --duration 10 -o can.mcap
+      ambdaq sim serve --rpm 30000 --xcp tcp:5555 &
+      ambdaq record --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --duration 10 -o xcp.mcap
     """
     from ..sim.devices.rig_server import DeviceClock
     from ..sim.serve import CONTROLLER_CLOCK, serve
 
+    xcp_port = None
+    if xcp is not None:
+        kind, _, port = xcp.partition(":")
+        if kind != "tcp" or not port.isdigit() or int(port) > 65535:
+            raise BadInputError(f"--xcp {xcp!r}: expected tcp:PORT (XCP on SxI and CAN are not served yet)")
+        xcp_port = int(port)
     if third_party and can == "none":
         raise BadInputError("--third-party serves CAN devices: give --can slcan as well")
     motion = None if base is None else _base_motion(profile, base)
@@ -133,7 +141,7 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
         if url.startswith("can://"):
             click.echo(f"{name} {url}")
     if "xcp" in served.devices:
-        click.echo(f"xcp 127.0.0.1:{served.devices['xcp'].port}")
+        click.echo(f"xcp xcp+tcp://127.0.0.1:{served.devices['xcp'].port}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: stop.set())
@@ -149,17 +157,18 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
 
 @command.command("a2l")
 @click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
+@click.option("--truth", is_flag=True, help="The slave of `sim serve --truth`, with the /truth/... measurements.")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Write it here instead of stdout.")
-def a2l(profile, out):
+def a2l(profile, truth, out):
     """The A2L (ASAM MCD-2 MC) file of the simulated controller's XCP slave: its measurements,
     their addresses, types and units.
 
     \b
       ambdaq sim a2l -o spindle.a2l
     """
-    from ..sim.devices.xcp import a2l_text, measurement_map
+    from ..sim.devices.xcp_memory import a2l_text
 
-    text = a2l_text(measurement_map(rig_profile(profile).build()))
+    text = a2l_text(rig_profile(profile).build(truth=truth))
     if out is None:
         click.echo(text, nl=False)
     else:

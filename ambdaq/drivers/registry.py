@@ -14,6 +14,7 @@ imports it.
 from __future__ import annotations
 
 import importlib
+import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -27,9 +28,11 @@ BACKENDS = {
     "sim": "ambdaq.sim.backend:SimBackend",
     "can": "ambdaq.drivers.can.backend:CanBackend",
     "serial": "ambdaq.drivers.serial.backend:SerialBackend",
+    "xcp+tcp": "ambdaq.drivers.xcp.backend:XcpBackend",
 }
 """Scheme -> ``module:class`` of ambdaq's own back-ends."""
 ENTRY_POINTS = "ambdaq.backends"
+SCHEME_NAME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*")  # RFC 3986, section 3.1
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,7 @@ def parse_device_url(text: str | DeviceURL) -> DeviceURL:
     if isinstance(text, DeviceURL):
         return text
     name, sep, _rest = str(text).partition(":")
-    found = backend(name) if sep and name.isidentifier() else None
+    found = backend(name) if sep and SCHEME_NAME.fullmatch(name) else None
     if found is None or (not found.scheme.opaque and "://" not in text):
         raise BadInputError(f"unknown device URL {text!r}: expected {expected_forms()}")
     return found.scheme.parse(str(text))

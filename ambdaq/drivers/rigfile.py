@@ -42,8 +42,8 @@ class DeviceEntry:
 
 
 BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
-DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw", "eds", "mapping", "signal")
-PATH_KEYS = ("dbc", "eds")
+DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw", "eds", "mapping", "signal", "a2l", "measurements")
+PATH_KEYS = ("dbc", "eds", "a2l")
 
 
 @dataclass(frozen=True)

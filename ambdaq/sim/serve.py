@@ -161,7 +161,7 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 if can == "virtual":  # its replies are matched by bus time, which python-can's slcan lacks
                     served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
         if xcp_port is not None:
-            served.devices["xcp"] = XcpSlave(served.server, xcp_port)
+            served.devices["xcp"] = XcpSlave(served.server, xcp_port, served.devices["controller"].banks, clock)
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)

@@ -25,7 +25,7 @@ from ...errors import BadInputError
 from ..interfaces import Source
 from ..signals import SampleBlock, SignalGroup
 from .bus import CanHub
-from .rows import RowQueue
+from ..rows import RowQueue
 
 RAW_TOPIC = "/can/raw"
 RAW_FIELDS = ("arbitration_id", "dlc", "extended", *(f"b{i}" for i in range(8)))

@@ -23,7 +23,7 @@ from ..interfaces import Parameters, Source
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
 from .profiles import PROFILES, DeviceProfile
-from .rows import RowQueue
+from ..rows import RowQueue
 
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
 _INTEGER = (od.INTEGER16, od.UNSIGNED16, od.UNSIGNED8, od.INTEGER32)

@@ -40,7 +40,7 @@ from ..interfaces import Source
 from ..rigfile import check_keys
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
-from .rows import RowQueue
+from ..rows import RowQueue
 
 SIGNAL_KEYS = ("object", "topic", "field", "factor", "offset", "unit", "tpdo")  # a [[device.signal]] table
 MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803

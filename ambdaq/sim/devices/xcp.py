@@ -1,144 +1,148 @@
 """The simulated AMB controller's XCP slave (ASAM MCD-1 XCP 1.x) on XCP-on-TCP.
 
 Measurement and calibration systems (CANape, INCA, pyxcp) reach an embedded controller through
-XCP; this is the simulated spindle controller's. The protocol layer (ASAM XCP Part 2) answers,
-in Intel byte order, byte address granularity, MAX_CTO 255:
+XCP; this is the simulated spindle controller's, on the same rig and coefficient banks as its
+serial port.  Its memory is :mod:`.xcp_memory`'s.  The protocol layer (ASAM XCP Part 2)
+answers, in Intel byte order, byte address granularity, MAX_CTO 255, MAX_DTO 1024:
 
-    CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID (type 1: the A2L's
-    ASAP2 name), SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM (XCP_ADD_11)
+- standard: CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID (type 1: the A2L's
+  ASAP2 name), SET_REQUEST (STORE_CAL_REQ), GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD,
+  BUILD_CHECKSUM (XCP_CRC_32);
+- calibration: DOWNLOAD, SHORT_DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO;
+- DAQ (dynamic lists): GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO,
+  GET_DAQ_CLOCK, FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, SET_DAQ_PTR, WRITE_DAQ,
+  SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH;
 
-and refuses any other command with ERR_CMD_UNKNOWN, as a slave that lacks it does. The transport
-layer (ASAM XCP Part 3, Ethernet) frames each packet as LEN (u16) CTR (u16) PACKET.
+and refuses any other command with ERR_CMD_UNKNOWN, as a slave that lacks it does.
 
-Memory (see :class:`MeasurementMap`): every field of every signal group the rig streams is a
-FLOAT32_IEEE at a fixed address from MEASUREMENT_BASE, in the groups' order; a read returns the
-rig's newest sample, as a read of a controller's RAM returns the values of its last control
-period.  :func:`a2l_text` writes the A2L file that describes this map.
+Resources: CAL/PAG is protected (seed & key, the ``ambdaq-sim`` algorithm of
+:mod:`ambdaq.drivers.xcp.keys` keyed with the banks' unlock key); a wrong key is answered
+ERR_ACCESS_LOCKED and ends the session, as the standard asks.  DAQ is open.
 
-Not yet (docs/hardware.md): DAQ lists, calibration pages, seed & key, XCP on SxI and CAN.
+DAQ: one event channel, ``control`` (event 0), every control period (100 us at 10 kHz).  Each
+DTO is PID (absolute ODT number), then on a list's first ODT a 4-byte timestamp in 1 us ticks
+of the controller's own clock, then the ODT's entries.  DTOs are queued for the socket by a
+sender thread; when the master falls behind by more than ``DAQ_QUEUE_S`` the newest are
+dropped and counted (:attr:`XcpSlave.overruns`), and the gaps show in ``control_period``.
+
+The transport layer (ASAM XCP Part 3, Ethernet) frames each packet as LEN (u16) CTR (u16)
+PACKET; the slave's CTR counts every packet it sends, responses and DTOs alike.
 """
 
 from __future__ import annotations
 
+import os
+import queue
 import socket
 import struct
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from .rig_server import RigServer
+import numpy as np
 
-MEASUREMENT_BASE = 0x0001_0000
-ASAP2_NAME = "AMBDAQ_SPINDLE"
+from ...drivers.coefbank import crc32
+from ...drivers.signals import SampleBlock
+from ...drivers.xcp.keys import sim_key
+from .banks import CoefficientBanks
+from .rig_server import DeviceClock, RigServer
+from .xcp_memory import (ASAP2_NAME, ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, MEASUREMENT_BASE, STATUS_BASE,
+                         CalibrationConstants, CalibrationPages, MeasurementMap, Refused)
+
 MAX_CTO = 255
 MAX_DTO = 1024
 PID_RES, PID_ERR = 0xFF, 0xFE
-ERR_CMD_SYNCH, ERR_CMD_UNKNOWN, ERR_CMD_SYNTAX, ERR_OUT_OF_RANGE, ERR_ACCESS_DENIED = 0x00, 0x20, 0x21, 0x22, 0x24
-CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
-SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF6, 0xF5, 0xF4, 0xF3
-CHECKSUM_ADD_11 = 0x01
+ERR_CMD_SYNCH, ERR_CMD_UNKNOWN, ERR_CMD_SYNTAX, ERR_DAQ_ACTIVE, ERR_SEQUENCE, ERR_DAQ_CONFIG = \
+    0x00, 0x20, 0x21, 0x11, 0x29, 0x2A
+RES_CALPAG, RES_DAQ = 0x01, 0x04
+CHECKSUM_CRC_32 = 0x09
 TCP_HEADER = struct.Struct("<HH")
+SEED_BYTES = 16
+EVENT_NAME = b"control"
+EVENT_CYCLE, EVENT_UNIT_100US = 1, 5  # one control period: 1 x 100 us
+TIMESTAMP_MODE = 0x30 | 0x08 | 0x04  # unit 1 us, fixed (every first ODT), 4 bytes
+DAQ_PROPERTIES = 0x01 | 0x02 | 0x10  # dynamic configuration, prescaler, timestamps
+MAX_DAQ_LISTS, MAX_ODT_ENTRY_SIZE = 16, 255
+DAQ_QUEUE_S = 2.0
+
+CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
+SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF9, 0xF8, 0xF7, 0xF6, 0xF5, 0xF4, 0xF3
+DOWNLOAD, SHORT_DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO = 0xF0, 0xED, 0xEB, 0xEA, 0xE9
+SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
+GET_DAQ_CLOCK, GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDC, 0xDA, 0xD9, 0xD7
+FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
 
 
-@dataclass(frozen=True)
-class Measurement:
-    """One measurement variable: ``name`` (A2L), its rig ``topic`` and ``field``, ``address``, ``unit``."""
+@dataclass
+class DaqList:
+    """One dynamic DAQ list: its ODTs' entries (size, address), mode and state."""
 
-    name: str
-    topic: str
-    field: str
-    address: int
-    unit: str
-
-
-def measurement_map(rig) -> list[Measurement]:
-    """Every field of every signal group ``rig`` streams, a FLOAT32 each from MEASUREMENT_BASE."""
-    out = []
-    address = MEASUREMENT_BASE
-    for group in rig.signal_groups():
-        for field, unit in zip(group.fields, group.units):
-            out.append(Measurement(f"{group.topic.strip('/').replace('/', '_')}_{field}", group.topic, field,
-                                   address, unit))
-            address += 4
-    return out
-
-
-class MeasurementMap:
-    """The controller's measurement RAM: each rig field a FLOAT32 at its address."""
-
-    def __init__(self, server: RigServer) -> None:
-        self.server = server
-        self.measurements = measurement_map(server.rig)
-        self.end = MEASUREMENT_BASE + 4 * len(self.measurements)
-        self._columns = {g.topic: {f: i for i, f in enumerate(g.fields)} for g in server.rig.signal_groups()}
-
-    def read(self, address: int, length: int) -> bytes:
-        """``length`` bytes from ``address``; IndexError outside the map."""
-        if address < MEASUREMENT_BASE or address + length > self.end:
-            raise IndexError(address)
-        _step, rows = self.server.sample_at(time.time_ns())
-        image = b"".join(struct.pack("<f", float(rows[m.topic][self._columns[m.topic][m.field]]))
-                         for m in self.measurements)
-        offset = address - MEASUREMENT_BASE
-        return image[offset : offset + length]
-
-
-def a2l_text(measurements: list[Measurement]) -> str:
-    """The ASAM MCD-2 MC (A2L) description of the measurement map, for ``measurements``."""
-    blocks = []
-    for m in measurements:
-        blocks.append(f"""    /begin MEASUREMENT {m.name} "{m.topic} {m.field}"
-      FLOAT32_IEEE CM_IDENTITY_{_unit_id(m.unit)} 0 0 -1e12 1e12
-      ECU_ADDRESS 0x{m.address:08X}
-      PHYS_UNIT "{m.unit}"
-    /end MEASUREMENT""")
-    units = sorted({m.unit for m in measurements})
-    methods = "\n".join(f"""    /begin COMPU_METHOD CM_IDENTITY_{_unit_id(u)} "identity, {u}"
-      IDENTICAL "%12.6" "{u}"
-    /end COMPU_METHOD""" for u in units)
-    return f"""ASAP2_VERSION 1 71
-/begin PROJECT {ASAP2_NAME} "ambdaq simulated spindle AMB controller"
-  /begin MODULE CONTROLLER "measurement map of the XCP slave (ambdaq/sim/devices/xcp.py)"
-    /begin MOD_PAR ""
-      /begin MEMORY_SEGMENT MEASUREMENT_RAM "" DATA RAM INTERN 0x{MEASUREMENT_BASE:08X} 0x{len(measurements) * 4:X} -1 -1 -1 -1 -1
-      /end MEMORY_SEGMENT
-    /end MOD_PAR
-    /begin MOD_COMMON ""
-      BYTE_ORDER MSB_LAST
-      ALIGNMENT_FLOAT32_IEEE 4
-    /end MOD_COMMON
-{methods}
-{chr(10).join(blocks)}
-  /end MODULE
-/end PROJECT
-"""
-
-
-def _unit_id(unit: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in unit) or "none"
+    odts: list[list[tuple[int, int] | None]] = field(default_factory=list)
+    timestamp: bool = False
+    prescaler: int = 1
+    selected: bool = False
+    running: bool = False
+    first_pid: int = 0
 
 
 class XcpSlave:
-    """The XCP-on-TCP slave of ``server``'s controller on 127.0.0.1:``port`` (0: any free port)."""
+    """The XCP-on-TCP slave of ``server``'s controller on 127.0.0.1:``port`` (0: any free port).
 
-    def __init__(self, server: RigServer, port: int = 0) -> None:
+    Parameters
+    ----------
+    server : RigServer
+        The running rig.
+    port : int
+        TCP port; 0 takes a free one (:attr:`port` says which).
+    banks : CoefficientBanks
+        The controller's coefficient banks (shared with its other ports).
+    clock : DeviceClock
+        The controller's clock, which stamps the DTOs.
+    """
+
+    def __init__(self, server: RigServer, port: int, banks: CoefficientBanks, clock: DeviceClock) -> None:
+        self.server = server
         self.memory = MeasurementMap(server)
+        self.pages = CalibrationPages(banks)
+        self.constants = CalibrationConstants(server.rig.calibration())
+        self.banks = banks
+        self.clock = clock
         self._listener = socket.create_server(("127.0.0.1", port))
         self.port = self._listener.getsockname()[1]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="xcp-slave", daemon=True)
-        self._mta = 0
-        self._id_pos: int | None = None  # after GET_ID: uploads read the identification from here
+        self._sender = threading.Thread(target=self._send_loop, name="xcp-daq", daemon=True)
+        blocks_per_s = server.rig.params.sample_rate / server.block
+        self._out: queue.Queue[tuple[list, np.ndarray]] = queue.Queue(maxsize=int(DAQ_QUEUE_S * blocks_per_s))
+        self._tx = threading.Lock()  # the socket and CTR: responses and DTOs share them
+        self._conn: socket.socket | None = None
+        self._ctr = 0
+        self.overruns = 0  # DTO blocks dropped because the master fell behind
+        self._reset_session()
+
+    def _reset_session(self) -> None:
         self._connected = False
-        self._id = ASAP2_NAME.encode()
+        self._mta = 0
+        self._upload_text: bytes | None = None  # after GET_ID / GET_DAQ_EVENT_INFO: uploads read this
+        self._seed = b""
+        self._protected = RES_CALPAG
+        self._daq: list[DaqList] = []
+        self._ptr: tuple[int, int, int] | None = None
+        self._plan: list | None = None  # the running lists' DTO layout
 
     def start(self) -> None:
+        self.server.subscribe(self._on_block)
         self._thread.start()
+        self._sender.start()
 
     def stop(self) -> None:
+        self.server.unsubscribe(self._on_block)
         self._stop.set()
         self._listener.close()
         self._thread.join(timeout=1.0)
+        self._sender.join(timeout=1.0)
+
+    # --- transport ------------------------------------------------------------------------------
 
     def _serve(self) -> None:
         self._listener.settimeout(0.1)
@@ -149,12 +153,16 @@ class XcpSlave:
                 continue
             with conn:
                 conn.settimeout(0.1)
+                with self._tx:
+                    self._conn, self._ctr = conn, 0
                 self._session(conn)
-            self._connected = False
+                with self._tx:
+                    self._conn = None
+            self._reset_session()
 
     def _session(self, conn: socket.socket) -> None:
         """One master's connection: packets in, responses out, until it closes."""
-        buf, ctr = b"", 0
+        buf = b""
         while not self._stop.is_set():
             try:
                 chunk = conn.recv(4096)
@@ -172,8 +180,77 @@ class XcpSlave:
                 packet, buf = buf[TCP_HEADER.size : TCP_HEADER.size + length], buf[TCP_HEADER.size + length :]
                 reply = self.command(packet)
                 if reply is not None:
-                    conn.sendall(TCP_HEADER.pack(len(reply), ctr) + reply)
-                    ctr = (ctr + 1) & 0xFFFF
+                    with self._tx:
+                        try:
+                            conn.sendall(TCP_HEADER.pack(len(reply), self._ctr) + reply)
+                        except OSError:
+                            return
+                        self._ctr = (self._ctr + 1) & 0xFFFF
+
+    def _send_loop(self) -> None:
+        """Send the queued DTOs, numbering them as they go (the CTR of every packet the slave sends)."""
+        while not self._stop.is_set():
+            try:
+                rows, included = self._out.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            n, k = included.shape
+            with self._tx:
+                if self._conn is None:
+                    continue
+                number = ((self._ctr + np.cumsum(included.ravel()) - 1) & 0xFFFF).astype("<u2").reshape(n, k)
+                self._ctr = (self._ctr + int(included.sum())) & 0xFFFF
+                for j, row in enumerate(rows):
+                    row[:, 2:4] = number[:, j : j + 1].view(np.uint8)
+                # one packet per ODT per period that samples it, in order of period, then list and ODT
+                keep = np.concatenate([np.repeat(included[:, j : j + 1], r.shape[1], axis=1)
+                                       for j, r in enumerate(rows)], axis=1)
+                try:
+                    self._conn.sendall(np.concatenate(rows, axis=1)[keep].tobytes())
+                except OSError:
+                    pass
+
+    # --- DAQ --------------------------------------------------------------------------------------
+
+    def _on_block(self, block: SampleBlock) -> None:
+        """Every control period of ``block``, as the running DAQ lists sample it, queued to send."""
+        plan = self._plan
+        if not plan:
+            return
+        n = len(block)
+        images = self.memory.images(block.seq, block.values)
+        ticks = (self.clock.at(block.device_time_ns) // 1000).astype("<u4").view(np.uint8).reshape(n, 4)
+        seq = block.seq.astype(np.int64)
+        rows, included = [], []
+        for prescaler, pid, stamped, index in plan:
+            width = TCP_HEADER.size + 1 + 4 * stamped + index.shape[0]
+            row = np.empty((n, width), dtype=np.uint8)
+            row[:, 0:2] = np.frombuffer(struct.pack("<H", width - TCP_HEADER.size), np.uint8)
+            row[:, 4] = pid
+            if stamped:
+                row[:, 5:9] = ticks
+            row[:, width - index.shape[0] :] = images[:, index]
+            rows.append(row)
+            included.append(seq % prescaler == 0)
+        try:
+            self._out.put_nowait((rows, np.stack(included, axis=1)))
+        except queue.Full:
+            self.overruns += 1
+
+    def _arm(self) -> None:
+        """The DTO layout of the running lists: per ODT its list's prescaler, its PID, whether it
+        carries the timestamp, and its bytes' indexes into the RAM image."""
+        plan = []
+        for daq in self._daq:
+            if not daq.running:
+                continue
+            for j, entries in enumerate(daq.odts):
+                index = [np.arange(a - MEASUREMENT_BASE, a - MEASUREMENT_BASE + s) for s, a in filter(None, entries)]
+                plan.append((daq.prescaler, daq.first_pid + j, daq.timestamp and j == 0,
+                             np.concatenate(index) if index else np.zeros(0, dtype=np.int64)))
+        self._plan = plan or None
+
+    # --- commands ---------------------------------------------------------------------------------
 
     def command(self, packet: bytes) -> bytes | None:
         """The response to one command packet (ASAM XCP Part 2); None for none."""
@@ -182,51 +259,251 @@ class XcpSlave:
         pid = packet[0]
         if pid == CONNECT:
             self._connected = True
-            # RESOURCE: none of CAL/PAG, DAQ, STIM, PGM yet; COMM_MODE_BASIC: Intel, byte granularity
-            return struct.pack("<BBBBHBB", PID_RES, 0x00, 0x00, MAX_CTO, MAX_DTO, 0x01, 0x01)
+            # RESOURCE: CAL/PAG and DAQ; COMM_MODE_BASIC: Intel, byte granularity, GET_COMM_MODE_INFO
+            return struct.pack("<BBBBHBB", PID_RES, RES_CALPAG | RES_DAQ, 0x80, MAX_CTO, MAX_DTO, 0x01, 0x01)
         if not self._connected:
             return None  # a slave that is not connected answers nothing but CONNECT
         try:
-            if pid == DISCONNECT:
-                self._connected = False
-                return bytes([PID_RES])
-            if pid == GET_STATUS:
-                return struct.pack("<BBBBH", PID_RES, 0x00, 0x00, 0x00, 0x0000)
-            if pid == SYNCH:
-                return bytes([PID_ERR, ERR_CMD_SYNCH])
-            if pid == GET_COMM_MODE_INFO:
-                return struct.pack("<BBBBBBBB", PID_RES, 0, 0x00, 0, 0, 0, 0, 0x10)
-            if pid == GET_ID:
-                if packet[1] != 1:  # only the ASAP2 name (the A2L's project)
-                    return struct.pack("<BBHI", PID_RES, 0, 0, 0)
-                self._id_pos = 0
-                return struct.pack("<BBHI", PID_RES, 0, 0, len(self._id))
-            if pid == SET_MTA:
-                _res, _ext, self._mta = struct.unpack_from("<HBI", packet, 1)
-                self._id_pos = None
-                return bytes([PID_RES])
-            if pid == UPLOAD:
-                n = packet[1]
-                return bytes([PID_RES]) + self._read_mta(n)
-            if pid == SHORT_UPLOAD:
-                n, _res, _ext, address = struct.unpack_from("<BBBI", packet, 1)
-                if n > MAX_CTO - 1:
-                    return bytes([PID_ERR, ERR_OUT_OF_RANGE])
-                return bytes([PID_RES]) + self.memory.read(address, n)
-            if pid == BUILD_CHECKSUM:
-                (size,) = struct.unpack_from("<I", packet, 4)
-                data = self.memory.read(self._mta, size)
-                self._mta += size
-                return struct.pack("<BBHI", PID_RES, CHECKSUM_ADD_11, 0, sum(data) & 0xFF)
+            handler = self._HANDLERS.get(pid)
+            if handler is None:
+                return bytes([PID_ERR, ERR_CMD_UNKNOWN])
+            return handler(self, packet)
+        except Refused as err:
+            return bytes([PID_ERR, err.code])
         except (IndexError, struct.error):
             return bytes([PID_ERR, ERR_OUT_OF_RANGE if pid != SET_MTA else ERR_CMD_SYNTAX])
-        return bytes([PID_ERR, ERR_CMD_UNKNOWN])
 
-    def _read_mta(self, n: int) -> bytes:
-        if self._id_pos is not None:  # the identification string
-            data = self._id[self._id_pos : self._id_pos + n]
-            self._id_pos += len(data)
-            return data
-        data = self.memory.read(self._mta, n)
+    def _disconnect(self, _p: bytes) -> bytes:
+        self._stop_daq()
+        self._connected = False
+        self._protected = RES_CALPAG
+        return bytes([PID_RES])
+
+    def _get_status(self, _p: bytes) -> bytes:
+        session = 0x40 if self._plan else 0x00  # DAQ_RUNNING
+        return struct.pack("<BBBBH", PID_RES, session, self._protected, 0x00, 0x0000)
+
+    def _synch(self, _p: bytes) -> bytes:
+        return bytes([PID_ERR, ERR_CMD_SYNCH])
+
+    def _get_comm_mode_info(self, _p: bytes) -> bytes:
+        return struct.pack("<BBBBBBBB", PID_RES, 0, 0x00, 0, 0, 0, 0, 0x10)
+
+    def _get_id(self, p: bytes) -> bytes:
+        if p[1] != 1:  # only the ASAP2 name (the A2L's project)
+            return struct.pack("<BBHI", PID_RES, 0, 0, 0)
+        self._upload_text = ASAP2_NAME.encode()
+        return struct.pack("<BBHI", PID_RES, 0, 0, len(self._upload_text))
+
+    def _set_request(self, p: bytes) -> bytes:
+        if p[1] & 0x01:  # STORE_CAL_REQ
+            if self._protected & RES_CALPAG:
+                raise Refused(ERR_ACCESS_LOCKED, "calibration is locked")
+            self.pages.store()
+        return bytes([PID_RES])
+
+    def _get_seed(self, p: bytes) -> bytes:
+        mode, resource = p[1], p[2]
+        if mode != 0 or resource not in (RES_CALPAG, RES_DAQ):
+            raise Refused(ERR_OUT_OF_RANGE, "seed: mode 0 for CAL/PAG or DAQ")
+        if not self._protected & resource:
+            return bytes([PID_RES, 0])
+        self._seed_for = resource
+        self._seed = os.urandom(SEED_BYTES)
+        return bytes([PID_RES, len(self._seed)]) + self._seed
+
+    def _unlock(self, p: bytes) -> bytes:
+        key = p[2 : 2 + p[1]]
+        if not self._seed or key != sim_key(self._seed_for, self._seed, self.banks.key):
+            self._seed = b""
+            self._connected = False  # a wrong key ends the session (ASAM XCP Part 2, UNLOCK)
+            return bytes([PID_ERR, ERR_ACCESS_LOCKED])
+        self._protected &= ~self._seed_for
+        self._seed = b""
+        if self._seed_for == RES_CALPAG:
+            self.banks.unlock(self.banks.key)
+        return bytes([PID_RES, self._protected])
+
+    def _set_mta(self, p: bytes) -> bytes:
+        _res, _ext, self._mta = struct.unpack_from("<HBI", p, 1)
+        self._upload_text = None
+        if self._mta == STATUS_BASE:
+            self.pages.snapshot_status()
+        return bytes([PID_RES])
+
+    def _read(self, address: int, n: int) -> bytes:
+        if self.pages.owns(address):
+            return self.pages.read(address, n)
+        if self.constants.owns(address):
+            return self.constants.read(address, n)
+        return self.memory.read(address, n)
+
+    def _upload(self, p: bytes) -> bytes:
+        n = p[1]
+        if n > MAX_CTO - 1:
+            raise Refused(ERR_OUT_OF_RANGE, "upload longer than MAX_CTO - 1")
+        if self._upload_text is not None:
+            data, self._upload_text = self._upload_text[:n], self._upload_text[n:]
+            return bytes([PID_RES]) + data
+        data = self._read(self._mta, n)
         self._mta += n
-        return data
+        return bytes([PID_RES]) + data
+
+    def _short_upload(self, p: bytes) -> bytes:
+        n, _res, _ext, address = struct.unpack_from("<BBBI", p, 1)
+        if n > MAX_CTO - 1:
+            raise Refused(ERR_OUT_OF_RANGE, "upload longer than MAX_CTO - 1")
+        if address == STATUS_BASE:
+            self.pages.snapshot_status()
+        return bytes([PID_RES]) + self._read(address, n)
+
+    def _build_checksum(self, p: bytes) -> bytes:
+        (size,) = struct.unpack_from("<I", p, 4)
+        crc = crc32(self._read(self._mta, size))
+        self._mta += size
+        return struct.pack("<BBHI", PID_RES, CHECKSUM_CRC_32, 0, crc)
+
+    def _download(self, p: bytes) -> bytes:
+        n = p[1]
+        data = p[2 : 2 + n]
+        if len(data) != n:
+            raise Refused(ERR_CMD_SYNTAX, "download shorter than its count")
+        self.pages.write(self._mta, data, not self._protected & RES_CALPAG)
+        self._mta += n
+        return bytes([PID_RES])
+
+    def _short_download(self, p: bytes) -> bytes:
+        n, _res, _ext, address = struct.unpack_from("<BBBI", p, 1)
+        self.pages.write(address, p[8 : 8 + n], not self._protected & RES_CALPAG)
+        return bytes([PID_RES])
+
+    def _set_cal_page(self, p: bytes) -> bytes:
+        mode, segment, page = p[1], p[2], p[3]
+        if mode & 0x01 and self._protected & RES_CALPAG:
+            raise Refused(ERR_ACCESS_LOCKED, "calibration is locked")
+        self.pages.set_page(mode, segment, page)
+        if mode & 0x01:
+            self._protected |= RES_CALPAG  # every switch unlocks anew, as the banks do
+        return bytes([PID_RES])
+
+    def _get_cal_page(self, p: bytes) -> bytes:
+        mode = p[1]
+        page = self.pages.ecu_page if mode & 0x01 else self.pages.xcp_page
+        return bytes([PID_RES, 0, 0, page])
+
+    def _get_pag_processor_info(self, _p: bytes) -> bytes:
+        return bytes([PID_RES, 1, 0x00])  # one segment, no freeze
+
+    def _get_daq_processor_info(self, _p: bytes) -> bytes:
+        # key byte 0: absolute ODT number as PID, address extension free, default optimisation
+        return struct.pack("<BBHHBB", PID_RES, DAQ_PROPERTIES, MAX_DAQ_LISTS, 1, 0, 0x00)
+
+    def _get_daq_resolution_info(self, _p: bytes) -> bytes:
+        return struct.pack("<BBBBBBH", PID_RES, 1, MAX_ODT_ENTRY_SIZE, 1, 0, TIMESTAMP_MODE, 1)
+
+    def _get_daq_event_info(self, p: bytes) -> bytes:
+        (event,) = struct.unpack_from("<H", p, 2)
+        if event != 0:
+            raise Refused(ERR_OUT_OF_RANGE, f"no event channel {event}")
+        self._upload_text = EVENT_NAME
+        return struct.pack("<BBBBBBB", PID_RES, 0x04, 0xFF, len(EVENT_NAME), EVENT_CYCLE, EVENT_UNIT_100US, 0xFF)
+
+    def _get_daq_clock(self, _p: bytes) -> bytes:
+        step, _rows = self.server.sample_at(time.time_ns())
+        ticks = (self.clock.at(int(step) * self.server.rig.params.period_ns) // 1000) & 0xFFFFFFFF
+        return struct.pack("<BBBBI", PID_RES, 0, 0, 0, ticks)
+
+    def _stop_daq(self) -> None:
+        for d in self._daq:
+            d.running = False
+        self._plan = None
+
+    def _free_daq(self, _p: bytes) -> bytes:
+        self._stop_daq()
+        self._daq, self._ptr = [], None
+        return bytes([PID_RES])
+
+    def _alloc_daq(self, p: bytes) -> bytes:
+        (count,) = struct.unpack_from("<H", p, 2)
+        if self._daq or count > MAX_DAQ_LISTS:
+            raise Refused(ERR_SEQUENCE if self._daq else ERR_OUT_OF_RANGE, "ALLOC_DAQ once after FREE_DAQ")
+        self._daq = [DaqList() for _ in range(count)]
+        return bytes([PID_RES])
+
+    def _alloc_odt(self, p: bytes) -> bytes:
+        (daq,), count = struct.unpack_from("<H", p, 2), p[4]
+        self._daq[daq].odts = [[] for _ in range(count)]
+        return bytes([PID_RES])
+
+    def _alloc_odt_entry(self, p: bytes) -> bytes:
+        (daq,), odt, count = struct.unpack_from("<H", p, 2), p[4], p[5]
+        self._daq[daq].odts[odt] = [None] * count
+        return bytes([PID_RES])
+
+    def _set_daq_ptr(self, p: bytes) -> bytes:
+        (daq,), odt, entry = struct.unpack_from("<H", p, 2), p[4], p[5]
+        if entry >= len(self._daq[daq].odts[odt]):
+            raise IndexError(entry)
+        self._ptr = (daq, odt, entry)
+        return bytes([PID_RES])
+
+    def _write_daq(self, p: bytes) -> bytes:
+        _bit, size, _ext, address = struct.unpack_from("<BBBI", p, 1)
+        if self._ptr is None:
+            raise Refused(ERR_SEQUENCE, "WRITE_DAQ before SET_DAQ_PTR")
+        if not (MEASUREMENT_BASE <= address and address + size <= self.memory.end) or size > MAX_ODT_ENTRY_SIZE:
+            raise Refused(ERR_OUT_OF_RANGE, f"no measurement at 0x{address:08X}+{size}")
+        daq, odt, entry = self._ptr
+        entries = self._daq[daq].odts[odt]
+        entries[entry] = (size, address)
+        self._ptr = (daq, odt, entry + 1)
+        odt_bytes = 1 + 4 * (odt == 0) + sum(s for s, _a in filter(None, entries))
+        if odt_bytes > MAX_DTO:
+            raise Refused(ERR_DAQ_CONFIG, f"ODT {odt} longer than MAX_DTO")
+        return bytes([PID_RES])
+
+    def _set_daq_list_mode(self, p: bytes) -> bytes:
+        mode, daq, event, prescaler, _priority = struct.unpack_from("<BHHBB", p, 1)
+        if event != 0:
+            raise Refused(ERR_OUT_OF_RANGE, f"no event channel {event}")
+        d = self._daq[daq]
+        d.timestamp, d.prescaler = bool(mode & 0x10), max(1, prescaler)
+        return bytes([PID_RES])
+
+    def _start_stop_daq_list(self, p: bytes) -> bytes:
+        mode, (daq,) = p[1], struct.unpack_from("<H", p, 2)
+        d = self._daq[daq]
+        d.first_pid = sum(len(x.odts) for x in self._daq[:daq])
+        if d.first_pid + len(d.odts) > 0xFC:
+            raise Refused(ERR_DAQ_CONFIG, "more ODTs than PIDs")
+        if mode == 0:
+            d.running = False
+        elif mode == 1:
+            d.running = True
+        elif mode == 2:
+            d.selected = True
+        self._arm()
+        return bytes([PID_RES, d.first_pid])
+
+    def _start_stop_synch(self, p: bytes) -> bytes:
+        mode = p[1]
+        for d in self._daq:
+            if mode == 0:
+                d.running = False
+            elif d.selected:
+                d.running, d.selected = mode == 1, False
+        self._arm()
+        return bytes([PID_RES])
+
+    _HANDLERS = {
+        DISCONNECT: _disconnect, GET_STATUS: _get_status, SYNCH: _synch, GET_COMM_MODE_INFO: _get_comm_mode_info,
+        GET_ID: _get_id, SET_REQUEST: _set_request, GET_SEED: _get_seed, UNLOCK: _unlock, SET_MTA: _set_mta,
+        UPLOAD: _upload, SHORT_UPLOAD: _short_upload, BUILD_CHECKSUM: _build_checksum, DOWNLOAD: _download,
+        SHORT_DOWNLOAD: _short_download, SET_CAL_PAGE: _set_cal_page, GET_CAL_PAGE: _get_cal_page,
+        GET_PAG_PROCESSOR_INFO: _get_pag_processor_info, GET_DAQ_PROCESSOR_INFO: _get_daq_processor_info,
+        GET_DAQ_RESOLUTION_INFO: _get_daq_resolution_info, GET_DAQ_EVENT_INFO: _get_daq_event_info,
+        GET_DAQ_CLOCK: _get_daq_clock, FREE_DAQ: _free_daq, ALLOC_DAQ: _alloc_daq, ALLOC_ODT: _alloc_odt,
+        ALLOC_ODT_ENTRY: _alloc_odt_entry, SET_DAQ_PTR: _set_daq_ptr, WRITE_DAQ: _write_daq,
+        SET_DAQ_LIST_MODE: _set_daq_list_mode, START_STOP_DAQ_LIST: _start_stop_daq_list,
+        START_STOP_SYNCH: _start_stop_synch,
+    }

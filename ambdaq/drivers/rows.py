@@ -1,5 +1,6 @@
-"""Rows that a CAN bus thread decodes and a device's reader thread hands to the recorder: the
-wait, the silence limit and the cut at the samples asked for, once for every kind of CAN device."""
+"""Rows that a receive thread decodes and a device's reader thread hands to the recorder: the
+wait, the silence limit and the cut at the samples asked for, once for every device whose
+samples arrive one by one (CANopen, DBC and EDS devices on a CAN bus; XCP DAQ)."""
 
 from __future__ import annotations
 
@@ -10,13 +11,13 @@ from typing import Callable
 
 import numpy as np
 
-from ...errors import DeviceError
+from ..errors import DeviceError
 
 BLOCK_S = 0.1  # hand rows to the recorder every 100 ms
 
 
 class RowQueue:
-    """Rows ``(seq, time ns, values...)`` appended by the bus thread, taken in blocks by the reader.
+    """Rows ``(seq, time ns, values...)`` appended by the receive thread, taken in blocks by the reader.
 
     Parameters
     ----------

@@ -1,0 +1,50 @@
+"""``xcp+tcp://`` URLs: a controller's XCP slave on XCP-on-TCP, described by its A2L file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ...errors import BadInputError
+from ..interfaces import BankPort
+from ..registry import Backend, Opened, OpenRequest
+from ..url import DeviceURL, Scheme
+from .keys import algorithm
+
+DEFAULT_KEY_ALGORITHM = "ambdaq-sim"
+
+
+class XcpBackend(Backend):
+    """Opens the XCP slave at HOST:PORT with the A2L the URL (``a2l=``), the rig file or
+    ``--a2l`` names."""
+
+    scheme = Scheme("xcp+tcp", "xcp+tcp://HOST:PORT?a2l=FILE[&key=ALGORITHM&counter=NAME&event=N&store=1]",
+                    ("a2l", "key", "counter", "event", "store"))
+
+    def _open(self, url: DeviceURL, name: str | None, description: dict):
+        from .a2l import read_a2l
+        from .device import COUNTER, XcpController
+
+        host, sep, port = url.target.rpartition(":")
+        if not sep or not port.isdigit() or not 0 < int(port) < 65536 or not host:
+            raise BadInputError(f"device URL {url.text!r}: expected {self.scheme.form}")
+        a2l = url.options.get("a2l") or description.get("a2l")
+        if not a2l:
+            raise BadInputError(f"{url.text}: an XCP device needs its A2L file (a2l=FILE in the URL, --a2l, or the rig file)")
+        measurements = description.get("measurements")
+        if measurements is not None and not (isinstance(measurements, list) and all(isinstance(m, str) for m in measurements)):
+            raise BadInputError(f"{url.text}: measurements must be a list of A2L names")
+        return XcpController(url.text, host.strip("[]"), int(port), read_a2l(Path(a2l)), name=name or "controller",
+                             measurements=measurements, counter=url.options.get("counter", COUNTER),
+                             event=url.integer("event", 0), store=url.flag("store", False),
+                             key_algorithm=algorithm(url.options.get("key", DEFAULT_KEY_ALGORITHM)))
+
+    def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
+        if request.speed is not None:
+            raise BadInputError(f"{url.text}: ambdaq sets no speed over XCP (--rpm); the controller's own "
+                                "speed command is a calibration object of its A2L")
+        dev = self._open(url, request.name, request.description)
+        dev.add_calibration(request.calibration)
+        return Opened([dev])
+
+    def controller(self, url: DeviceURL) -> BankPort:
+        return self._open(url, None, {})

@@ -1,0 +1,325 @@
+"""An AMB controller over ASAM XCP, with pyxcp as the master: measurements from its A2L file
+recorded through a DAQ list on the controller's event, and ``ambdaq push`` into a calibration
+page (docs/hardware.md, "XCP").
+
+Recording: one dynamic DAQ list on event ``event`` (default 0) with the first-ODT timestamp,
+holding the counter (``counter``, default ``control_period``) and the measurements asked for.
+The counter is each sample's ``seq`` (gaps are drops, counted as for any device); the DAQ
+timestamp is its device time; its arrival is what the recorder's clock map learns from.
+
+Pushing (:class:`~ambdaq.drivers.interfaces.BankPort`, the same rules as every controller):
+seed & key for CAL/PAG (the algorithm by name, :mod:`.keys`); the image is downloaded into the
+inactive page of segment 0 (``coefficient_bank``: u32 length + image); the device's CRC-32 of
+it comes from BUILD_CHECKSUM (XCP_CRC_32); the host's CRC-32 and its push record go to
+``push_record``; SET_CAL_PAGE (ECU) to that page is the commit, which the controller does at a
+control-period boundary or refuses (its reason in ``bank_status``); the push log and layout are
+read from ``bank_status``; ``store=1`` then asks STORE_CAL_REQ (non-volatile memory).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+import time
+from contextlib import contextmanager
+
+import numpy as np
+
+from ...errors import DeviceError
+from ..interfaces import BankPort, Source
+from ..rows import RowQueue
+from ..signals import SampleBlock, SignalGroup
+from .a2l import A2lFile
+from .keys import KeyAlgorithm
+
+COUNTER = "control_period"
+BLOBS = ("coefficient_bank", "push_record", "bank_status")
+RES_CALPAG = 0x01
+LENGTH = struct.Struct("<I")
+TIMESTAMP_WRAP_NS = (1 << 32) * 1000  # a 4-byte timestamp in 1 us ticks turns every 71.6 min
+SILENT_S = 2.0
+
+
+def _application(host: str, port: int):
+    """pyxcp's configuration for XCP-on-TCP to ``host``:``port``.  Made before anything of pyxcp
+    asks for one: its DAQ classes otherwise make their own from ``sys.argv`` (ambdaq's options)."""
+    from pyxcp.config import create_application_from_config, set_application
+
+    app = create_application_from_config({"Transport": {"Eth": {"host": host, "port": port, "protocol": "TCP"},
+                                                         "timeout": 0.5}}, log_level=logging.CRITICAL)
+    app.transport.layer = "ETH"
+    set_application(app)  # pyxcp's DAQ classes take their settings from the global one
+    return app
+
+
+class XcpController(Source, BankPort):
+    """The controller at ``host``:``port`` described by ``a2l``.
+
+    Parameters
+    ----------
+    url : str
+        Its device URL (for messages and metadata).
+    host, port : str, int
+        XCP-on-TCP address.
+    a2l : A2lFile
+        Its A2L file.
+    name : str
+        Device name in the recording.
+    measurements : list of str, optional
+        A2L measurements to record (default: every one the A2L places in a topic, but the counter).
+    counter : str
+        The measurement that counts control periods (each sample's seq).
+    event : int
+        DAQ event channel to sample on.
+    key_algorithm : callable
+        The seed & key algorithm (:mod:`.keys`).
+    store : bool
+        After a push, ask the controller to store the page in non-volatile memory.
+    """
+
+    def __init__(self, url: str, host: str, port: int, a2l: A2lFile, *, name: str = "controller",
+                 measurements: list[str] | None = None, counter: str = COUNTER, event: int = 0,
+                 key_algorithm: KeyAlgorithm, store: bool = False) -> None:
+        from pyxcp.daq_stim import DaqList, DaqOnlinePolicy
+        from pyxcp.master import Master
+
+        app = _application(host, port)
+        self.url, self.a2l, self.name, self.event, self.store = url, a2l, name, event, store
+        self.key_algorithm = key_algorithm
+        if counter not in a2l.measurements:
+            raise DeviceError(f"{url}: the A2L has no counter measurement {counter!r} (counter=NAME names it)")
+        self.counter = a2l.measurements[counter]
+        chosen = measurements or [n for n in a2l.measurements if n != counter]
+        missing = [n for n in chosen if n not in a2l.measurements]
+        if missing:
+            raise DeviceError(f"{url}: the A2L has no measurement {missing[0]!r}")
+        by_topic: dict[str, list] = {}
+        for n in chosen:  # grouped by topic, in the order topics first appear
+            by_topic.setdefault(a2l.measurements[n].topic, []).append(a2l.measurements[n])
+        self.fields = [m for group in by_topic.values() for m in group]
+        self._groups = [SignalGroup(topic, ms[0].type_name, tuple(m.field for m in ms), tuple(m.unit for m in ms))
+                        for topic, ms in by_topic.items()]
+        self._columns, k = [], 1  # payload columns of each group (column 0: the counter)
+        for ms in by_topic.values():
+            self._columns.append(np.arange(k, k + len(ms)))
+            k += len(ms)
+        self._factor = np.array([1.0] + [m.factor for m in self.fields])
+        self._offset = np.array([0.0] + [m.offset for m in self.fields])
+        self._rows = RowQueue(SILENT_S)
+        self._failure: str | None = None
+        owner = self
+
+        class Sink(DaqOnlinePolicy):
+            """Every DAQ list sample as a row (seq, arrival ns, device ns, raw values)."""
+
+            def initialize(self) -> None:
+                pass
+
+            def finalize(self) -> None:
+                pass
+
+            def on_daq_list(self, _daq_list: int, _ts0: int, ts1: int, payload: list) -> None:
+                owner._rows.rows.append((payload[0], time.time_ns(), ts1, payload))
+
+        self._sink = Sink([DaqList(name="ambdaq", event_num=event, stim=False, enable_timestamps=True,
+                                   measurements=[(m.name, m.address, 0, m.datatype) for m in [self.counter, *self.fields]],
+                                   priority=0, prescaler=1)])
+        self._xcp = Master("eth", config=app, policy=self._sink)
+        with self._errors("connect"):
+            self._xcp.__enter__()
+            self._xcp.connect()
+            if self._xcp.slaveProperties.optionalCommMode:
+                self._xcp.getCommModeInfo()
+            self.project = self._xcp.identifier(1)
+            info = self._xcp.getDaqEventInfo(event)
+            self._constants = {name: ",".join(repr(v) for v in struct.unpack(f"<{n}d", self._fetch(address, 8 * n)))
+                               for name, (address, n) in a2l.constants.items()}
+        from pyxcp.daq_stim import event_channel_cycle_to_ns
+
+        period_ns = event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit)
+        if period_ns <= 0:
+            raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
+        self.sample_rate = 1e9 / period_ns
+        self._streaming = False
+        self._session_over = False
+        self._last_stamp: int | None = None
+        self._wraps = 0
+
+    # --- errors -----------------------------------------------------------------------------------
+
+    @contextmanager
+    def _errors(self, what: str):
+        """pyxcp's errors (its XCP error responses, timeouts, a lost socket) as one DeviceError."""
+        from pyxcp.master.errorhandler import SystemExit as XcpError
+        from pyxcp.master.errorhandler import UnrecoverableError, set_suppress_xcp_error_log
+        from pyxcp.types import XcpTimeoutError
+
+        set_suppress_xcp_error_log(True)  # no log or frame dump of pyxcp's own: the one line below says it
+        try:
+            yield
+        except (XcpError, UnrecoverableError) as err:
+            raise DeviceError(f"{self.url}: {what}: the controller answered {err}") from None
+        except XcpTimeoutError:
+            raise DeviceError(f"{self.url}: {what}: no answer (timeout)") from None
+        except (OSError, ConnectionError) as err:
+            raise DeviceError(f"{self.url}: {what}: {err}") from None
+        finally:
+            set_suppress_xcp_error_log(False)
+
+    # --- Source -----------------------------------------------------------------------------------
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return list(self._groups)
+
+    def identity(self) -> dict[str, str]:
+        return {"url": self.url, "kind": "xcp controller", "model": self.project, "a2l": self.a2l.path.name,
+                "a2l_sha256": self.a2l.sha256, "sample_rate_hz": f"{self.sample_rate:g}", "event": str(self.event),
+                "counter": self.counter.name}
+
+    def device_calibration(self) -> dict[str, str]:
+        """The controller's calibration constants (A2L FLOAT64 characteristics, read at open)."""
+        return dict(self._constants)
+
+    def start(self, n_samples: int | None) -> None:
+        with self._errors("DAQ setup"):
+            self._sink.setup()
+            self._rows.start(n_samples)
+            self._sink.start()
+        self._streaming = True
+
+    def read(self) -> SampleBlock | None:
+        taken = self._rows.take(lambda: self._failure, lambda s: f"{self.url}: no DAQ data for {s:.1f} s")
+        if taken is None:
+            return None
+        rows, seq = taken
+        stamp = np.array([r[2] for r in rows], dtype=np.int64)
+        # the 1 us timestamp turns every 71.6 min: unwrap it (pyxcp counts it from the first DTO)
+        wraps = np.cumsum(np.diff(stamp, prepend=stamp[0] if self._last_stamp is None else self._last_stamp) < 0)
+        device = stamp + (self._wraps + wraps) * TIMESTAMP_WRAP_NS
+        self._wraps += int(wraps[-1])
+        self._last_stamp = int(stamp[-1])
+        raw = np.array([r[3] for r in rows], dtype=np.float64)
+        values = raw * self._factor + self._offset
+        return SampleBlock(device, (seq & 0xFFFFFFFF).astype(np.uint32),
+                           {g.topic: values[:, cols] for g, cols in zip(self._groups, self._columns)},
+                           received_ns=int(rows[-1][1]))
+
+    # --- BankPort -------------------------------------------------------------------------------
+
+    def _blob(self, name: str) -> tuple[int, int]:
+        if name not in self.a2l.blobs:
+            raise DeviceError(f"{self.url}: the A2L describes no {name!r}, so this controller takes no push over XCP")
+        return self.a2l.blobs[name]
+
+    def _download(self, address: int, data: bytes) -> None:
+        """DOWNLOAD ``data`` at ``address``, one command and its response at a time (pyxcp's own
+        ``push`` sends full chunks without waiting for their responses, as in block mode, which
+        this slave does not offer)."""
+        self._xcp.setMta(address)
+        step = self._xcp.slaveProperties.maxCto - 2
+        for i in range(0, len(data), step):
+            self._xcp.download(data[i : i + step])
+
+    def _fetch(self, address: int, length: int) -> bytes:
+        self._xcp.setMta(address)
+        return bytes(self._xcp.fetch(length)) if length else b""
+
+    def _pages(self) -> tuple[int, int]:
+        """(active, inactive) page of segment 0: the ECU's page runs."""
+        active = int(self._xcp.getCalPage(0x01, 0))
+        return active, 1 - active
+
+    def _page_image(self, page: int) -> tuple[int, int]:
+        """Length and device-computed CRC-32 (BUILD_CHECKSUM, XCP_CRC_32) of the image on ``page``."""
+        base, size = self._blob("coefficient_bank")
+        self._xcp.setCalPage(0x02, 0, page)
+        (length,) = LENGTH.unpack(self._fetch(base, 4))
+        if not 0 < length <= size - 4:
+            return 0, 0
+        self._xcp.setMta(base + 4)
+        got = self._xcp.buildChecksum(length)
+        if got.checksumType != "XCP_CRC_32":
+            raise DeviceError(f"{self.url}: BUILD_CHECKSUM answers {got.checksumType}, not XCP_CRC_32")
+        return length, int(got.checksum)
+
+    def unlock(self, key: str) -> None:
+        with self._errors("unlock"):
+            if not self._xcp.getStatus().resourceProtectionStatus.calpag:
+                return
+            seed = self._xcp.getSeed(0, RES_CALPAG)
+            answer = self.key_algorithm(RES_CALPAG, bytes(seed.seed or b""), key)
+        try:
+            with self._errors("unlock"):
+                self._xcp.unlock(len(answer), answer)
+        except DeviceError:
+            self._session_over = True  # a slave refusing a key ends the session (ASAM XCP Part 2, UNLOCK)
+            raise DeviceError(f"{self.url}: unlock refused: wrong key for calibration (seed & key)") from None
+
+    def write_bank(self, image: bytes) -> None:
+        base, size = self._blob("coefficient_bank")
+        if len(image) + 4 > size:
+            raise DeviceError(f"{self.url}: a {len(image)}-byte image does not fit the {size}-byte calibration page")
+        with self._errors("write the inactive page"):
+            _active, inactive = self._pages()
+            self._xcp.setCalPage(0x02, 0, inactive)
+            self._download(base, LENGTH.pack(len(image)) + image)
+
+    def bank_status(self) -> dict:
+        base, size = self._blob("bank_status")
+        with self._errors("read the bank status"):
+            (length,) = LENGTH.unpack(self._fetch(base, 4))  # SET_MTA at its start takes the snapshot
+            if not 0 < length <= size - 4:
+                raise DeviceError(f"{self.url}: bank_status holds no status (length {length})")
+            status = json.loads(self._fetch(base + 4, length))
+            active, inactive = self._pages()
+            a_len, a_crc = self._page_image(active)
+            i_len, i_crc = self._page_image(inactive)
+        status.update(active_bank=active, active_crc32=f"{a_crc:08x}", active_length=a_len,
+                      inactive_crc32=f"{i_crc:08x}", inactive_length=i_len)
+        return status
+
+    def commit_bank(self, crc: int, record: dict) -> int:
+        base, size = self._blob("push_record")
+        body = json.dumps({**record, "crc32": f"{crc:08x}"}).encode()
+        if len(body) + 4 > size:
+            raise DeviceError(f"{self.url}: the push record ({len(body)} bytes) does not fit push_record")
+        with self._errors("write the push record"):
+            _active, inactive = self._pages()
+            self._download(base, LENGTH.pack(len(body)) + body)
+        try:
+            with self._errors("switch the page"):
+                self._xcp.setCalPage(0x01, 0, inactive)
+        except DeviceError as err:
+            reason = self.bank_status().get("last_refusal") or str(err)
+            raise DeviceError(f"{self.url}: the controller refused the page switch: {reason}") from None
+        status = self.bank_status()
+        if self.store:
+            with self._errors("store the page (STORE_CAL_REQ)"):
+                self._xcp.setRequest(0x01, 0)
+        return int(status.get("last_effective_sample", -1))
+
+    def read_bank(self, which: str, length: int) -> bytes:
+        base, _size = self._blob("coefficient_bank")
+        with self._errors(f"read the {which} page"):
+            active, inactive = self._pages()
+            self._xcp.setCalPage(0x02, 0, active if which == "active" else inactive)
+            return self._fetch(base + 4, length)
+
+    def _close(self) -> None:
+        self._rows.closed.set()
+        try:
+            if self._session_over:
+                return
+            if self._streaming:
+                with self._errors("DAQ stop"):
+                    self._sink.stop()
+            with self._errors("disconnect"):
+                self._xcp.disconnect()
+        except DeviceError:
+            pass
+        finally:
+            try:
+                self._xcp.close()
+            except Exception:  # a socket already gone
+                pass
