@@ -13,7 +13,7 @@ counter and the 28 measurements of ``ambdaq sim a2l``, one DTO of 117 bytes per 
 CPU: the process's user + system seconds over the recording (``resource.getrusage``), in % of
 one core.  Lost: gaps in the counter (the recorder's drops; in the baseline the same count).
 
-    python benchmarks/bench_xcp.py [--seconds 20]
+    python benchmarks/bench_xcp.py [--seconds 20] [--transport tcp|sxi]
 """
 
 from __future__ import annotations
@@ -52,11 +52,15 @@ def phase_pyxcp(url: str, a2l: str, seconds: float) -> dict:
     from pyxcp.master import Master
 
     from ambdaq.drivers.xcp.a2l import read_a2l
+    from ambdaq.drivers.xcp.device import sxi_transport, tcp_transport
 
-    host, port = url.split("//")[1].rsplit(":", 1)
-    app = create_application_from_config({"Transport": {"Eth": {"host": host, "port": int(port), "protocol": "TCP"}}},
-                                         log_level=logging.ERROR)
-    app.transport.layer = "ETH"
+    if url.startswith("xcp+tcp://"):
+        host, port = url.split("//")[1].rsplit(":", 1)
+        layer, settings = tcp_transport(host, int(port))
+    else:  # the same settings a user of pyxcp would give for this line
+        layer, settings = sxi_transport("/" + url.split(":", 1)[1].lstrip("/"), 3_000_000)
+    app = create_application_from_config({"Transport": settings}, log_level=logging.ERROR)
+    app.transport.layer = layer
     set_application(app)
     ms = read_a2l(a2l).measurements
     names = ["control_period", *[n for n in ms if n != "control_period"]]
@@ -74,7 +78,7 @@ def phase_pyxcp(url: str, a2l: str, seconds: float) -> dict:
 
     policy = Keep([DaqList(name="amb", event_num=0, stim=False, enable_timestamps=True, priority=0, prescaler=1,
                            measurements=[(n, ms[n].address, 0, ms[n].datatype) for n in names])])
-    with Master("eth", config=app, policy=policy) as x:
+    with Master(layer.lower(), config=app, policy=policy) as x:
         x.connect()
         x.getCommModeInfo()
         policy.setup()
@@ -92,6 +96,7 @@ def phase_pyxcp(url: str, a2l: str, seconds: float) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--transport", choices=["tcp", "sxi"], default="tcp", help="XCP on TCP, or on SxI (a pty)")
     ap.add_argument("--phase", choices=["ambdaq", "pyxcp"], help=argparse.SUPPRESS)
     ap.add_argument("--url", help=argparse.SUPPRESS)
     ap.add_argument("--a2l", help=argparse.SUPPRESS)
@@ -108,7 +113,8 @@ def main() -> None:
         results = {}
         for phase in ("ambdaq", "pyxcp"):
             proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--can", "none",
-                                     "--xcp", "tcp:0"], stdout=subprocess.PIPE, text=True)
+                                     "--xcp", "tcp:0" if args.transport == "tcp" else "sxi"],
+                                    stdout=subprocess.PIPE, text=True)
             try:
                 line = ""
                 while not line.startswith("xcp "):
@@ -121,7 +127,8 @@ def main() -> None:
                 proc.terminate()
                 proc.wait(timeout=10)
     due = int(args.seconds * 10_000)
-    print(f"XCP DAQ at 10 kHz for {args.seconds:g} s ({due:,} control periods), served in another process")
+    print(f"XCP on {args.transport.upper()}, DAQ at 10 kHz for {args.seconds:g} s ({due:,} control periods), "
+          "served in another process")
     for phase, r in results.items():
         print(f"  {phase:<7} samples {r['samples']:>9,}  lost {r['lost']:>6,}  CPU {r['cpu_s']:6.2f} s "
               f"= {100 * r['cpu_s'] / r['wall_s']:5.1f} % of a core")

@@ -34,8 +34,10 @@ class Served:
     """The spindle served in this process with its XCP slave; every rig block kept by seq."""
 
     def __init__(self) -> None:
-        self.rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp_port=0)
+        self.rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp="tcp:0")
         self.slave = self.rig.devices["xcp"]
+        self.url = self.rig.urls["xcp"]
+        self.port = int(self.url.rsplit(":", 1)[1])
         self.blocks: deque = deque(maxlen=2000)  # 20 s
         self.rig.server.subscribe(self.blocks.append)
 
@@ -94,7 +96,7 @@ def test_pyxcp_reads_the_a2l_measurements_from_the_slave(served, a2l):
     assert len(found) == len(served.slave.memory.measurements) == 29  # the counter and 28 rig fields
     from pyxcp.master.errorhandler import SystemExit as XcpError
 
-    with master(served.slave.port) as x:
+    with master(served.port) as x:
         connected = x.connect()
         assert connected.maxCto == 255 and connected.commModeBasic.byteOrder == "INTEL"
         assert connected.resource.calpag and connected.resource.daq
@@ -125,7 +127,7 @@ def test_pyxcp_daq_list_samples_every_control_period(served, a2l):
 
     names = ["control_period", "amb.gap.front_x", "amb.gap.rear_y", "amb.current.front_x", "amb.rotor.angle"]
     found = described(a2l)
-    app = application(served.slave.port)
+    app = application(served.port)
     rows = []
 
     class Keep(DaqOnlinePolicy):
@@ -141,7 +143,7 @@ def test_pyxcp_daq_list_samples_every_control_period(served, a2l):
     policy = Keep([DaqList(name="amb", event_num=0, stim=False, enable_timestamps=True, priority=0, prescaler=1,
                            measurements=[(n, found[n][0], 0, "U32" if n == "control_period" else "F32")
                                          for n in names])])
-    with master(served.slave.port, policy, app) as x:
+    with master(served.port, policy, app) as x:
         x.connect()
         x.getCommModeInfo()
         policy.setup()
@@ -164,7 +166,7 @@ def test_pyxcp_daq_list_samples_every_control_period(served, a2l):
 
 
 def test_record_over_xcp_holds_what_the_controller_sent(served, a2l, tmp_path, run_cli):
-    url = f"xcp+tcp://127.0.0.1:{served.slave.port}"
+    url = served.url
     out = tmp_path / "xcp.mcap"
     r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1.5", "--json", "-o", out)
     assert r.exit_code == 0, r.output
@@ -188,7 +190,7 @@ def test_record_over_xcp_holds_what_the_controller_sent(served, a2l, tmp_path, r
 
 
 def test_push_over_xcp_refusals_leave_the_active_page(served, a2l):
-    url = f"xcp+tcp://127.0.0.1:{served.slave.port}?a2l={a2l}"
+    url = f"{served.url}?a2l={a2l}"
     with open_controller(url) as port:
         status = port.bank_status()
         before = port.read_bank("active", status["active_length"])
@@ -264,3 +266,33 @@ def test_a2l_is_read_once_and_a_damaged_cache_is_read_again(a2l):
     assert entry.exists() and read_a2l(a2l) == first
     entry.write_text("{not json")
     assert read_a2l(a2l) == first and json.loads(entry.read_text())["project"] == "AMBDAQ_SPINDLE"
+
+
+def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
+    """The same slave on a serial line (a pseudo-terminal; SxI framed with LEN and CTR words):
+    pyxcp's SxI transport reads a measurement, ambdaq records every period and pushes."""
+    rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp="sxi")
+    try:
+        url = rig.urls["xcp"]
+        assert url.startswith("xcp+sxi:///dev/pts/")
+        from pyxcp.master import Master
+
+        from ambdaq.drivers.xcp.device import _application, sxi_transport
+
+        layer, settings = sxi_transport(url[len("xcp+sxi://"):], 3_000_000)
+        with Master("sxi", config=_application(layer, settings)) as x:
+            x.connect()
+            address = described(a2l)["amb.rotor.speed"][0]
+            assert struct.unpack("<f", x.shortUpload(4, address))[0] == pytest.approx(30000 * np.pi / 30, abs=1e-3)
+            x.disconnect()
+        out = tmp_path / "sxi.mcap"
+        r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1", "--json", "-o", out)
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.stdout)["samples"] == 10000 and json.loads(r.stdout)["drops"] == 0
+        coef = tmp_path / "coef.json"
+        assert run_cli("runout", "identify", out, "-o", coef).exit_code == 0
+        monkeypatch.setenv("AMBDAQ_STATE_DIR", str(tmp_path / "state"))
+        r = run_cli("push", coef, "--device", f"{url}?a2l={a2l}", "--key", "ambdaq-sim", "--yes")
+        assert r.exit_code == 0 and "device-verified" in r.output, r.output
+    finally:
+        rig.stop()

@@ -101,9 +101,9 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--third-party", is_flag=True,
               help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
                    "sending the raw frames of its DBC, a CiA 402 drive known by its EDS; docs/hardware.md).")
-@click.option("--xcp", "xcp", metavar="tcp:PORT",
-              help="Also serve the controller's XCP slave, XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port); "
-                   "it prints the xcp+tcp:// URL; its A2L: ambdaq sim a2l.")
+@click.option("--xcp", "xcp", metavar="tcp:PORT|sxi",
+              help="Also serve the controller's XCP slave: XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port), or "
+                   "XCP on SxI on a pseudo-terminal; it prints the xcp+tcp:// or xcp+sxi:// URL; its A2L: ambdaq sim a2l.")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
 def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, duration):
@@ -123,25 +123,22 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
     from ..sim.devices.rig_server import DeviceClock
     from ..sim.serve import CONTROLLER_CLOCK, serve
 
-    xcp_port = None
-    if xcp is not None:
+    if xcp is not None and xcp != "sxi":
         kind, _, port = xcp.partition(":")
         if kind != "tcp" or not port.isdigit() or int(port) > 65535:
-            raise BadInputError(f"--xcp {xcp!r}: expected tcp:PORT (XCP on SxI and CAN are not served yet)")
-        xcp_port = int(port)
+            raise BadInputError(f"--xcp {xcp!r}: expected tcp:PORT or sxi (XCP on CAN is not served yet)")
     if third_party and can == "none":
         raise BadInputError("--third-party serves CAN devices: give --can slcan as well")
     motion = None if base is None else _base_motion(profile, base)
     served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
                    clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion,
-                   can=None if can == "none" else can, third_party=third_party, xcp_port=xcp_port)
+                   can=None if can == "none" else can, third_party=third_party, xcp=xcp)
     for name, pty in served.ptys.items():
-        click.echo(f"{name} {pty.path}")
+        if name != "xcp":
+            click.echo(f"{name} {pty.path}")
     for name, url in served.urls.items():
-        if url.startswith("can://"):
+        if url.startswith(("can://", "xcp+")):
             click.echo(f"{name} {url}")
-    if "xcp" in served.devices:
-        click.echo(f"xcp xcp+tcp://127.0.0.1:{served.devices['xcp'].port}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: stop.set())

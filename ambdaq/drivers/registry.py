@@ -28,7 +28,8 @@ BACKENDS = {
     "sim": "ambdaq.sim.backend:SimBackend",
     "can": "ambdaq.drivers.can.backend:CanBackend",
     "serial": "ambdaq.drivers.serial.backend:SerialBackend",
-    "xcp+tcp": "ambdaq.drivers.xcp.backend:XcpBackend",
+    "xcp+tcp": "ambdaq.drivers.xcp.backend:XcpTcpBackend",
+    "xcp+sxi": "ambdaq.drivers.xcp.backend:XcpSxiBackend",
 }
 """Scheme -> ``module:class`` of ambdaq's own back-ends."""
 ENTRY_POINTS = "ambdaq.backends"

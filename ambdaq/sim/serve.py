@@ -105,7 +105,7 @@ class ServedRig:
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
           clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
-          third_party: bool = False, xcp_port: int | None = None) -> ServedRig:
+          third_party: bool = False, xcp: str | None = None) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -126,6 +126,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     third_party : bool
         Also serve, on the same CAN bus, the devices described by vendor files rather than by
         ambdaq (docs/hardware.md): a probe conditioner sending raw frames of its DBC.
+    xcp : {"tcp:PORT", "sxi"}, optional
+        Also serve the controller's XCP slave: on TCP on 127.0.0.1:PORT (0: a free port), or on
+        SxI on a pseudo-terminal; ``urls["xcp"]`` says where.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -160,8 +163,14 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 served.can_devices = [*served.can_devices, SimVendorDrive(served.network, served.server)]
                 if can == "virtual":  # its replies are matched by bus time, which python-can's slcan lacks
                     served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
-        if xcp_port is not None:
-            served.devices["xcp"] = XcpSlave(served.server, xcp_port, served.devices["controller"].banks, clock)
+        if xcp is not None:
+            slave = served.devices["xcp"] = XcpSlave(served.server, served.devices["controller"].banks, clock)
+            if xcp == "sxi":
+                served.ptys["xcp"] = Pty.open()
+                slave.serve_pty(served.ptys["xcp"])
+            else:
+                slave.serve_tcp(int(xcp.partition(":")[2]))
+            served.urls["xcp"] = slave.url
         if profile.shaker:
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)

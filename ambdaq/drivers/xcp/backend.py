@@ -1,4 +1,5 @@
-"""``xcp+tcp://`` URLs: a controller's XCP slave on XCP-on-TCP, described by its A2L file."""
+"""``xcp+tcp://`` and ``xcp+sxi:`` URLs: a controller's XCP slave on TCP or on a serial line,
+described by its A2L file."""
 
 from __future__ import annotations
 
@@ -11,29 +12,28 @@ from ..url import DeviceURL, Scheme
 from .keys import algorithm
 
 DEFAULT_KEY_ALGORITHM = "ambdaq-sim"
+OPTIONS = ("a2l", "key", "counter", "event", "store")
 
 
-class XcpBackend(Backend):
-    """Opens the XCP slave at HOST:PORT with the A2L the URL (``a2l=``), the rig file or
-    ``--a2l`` names."""
+class _XcpBackend(Backend):
+    """Opens the XCP slave a URL names with the A2L the URL (``a2l=``), the rig file or
+    ``--a2l`` names; subclasses say how the slave is reached."""
 
-    scheme = Scheme("xcp+tcp", "xcp+tcp://HOST:PORT?a2l=FILE[&key=ALGORITHM&counter=NAME&event=N&store=1]",
-                    ("a2l", "key", "counter", "event", "store"))
+    def transport(self, url: DeviceURL) -> tuple[str, dict]:
+        raise NotImplementedError
 
     def _open(self, url: DeviceURL, name: str | None, description: dict):
         from .a2l import read_a2l
         from .device import COUNTER, XcpController
 
-        host, sep, port = url.target.rpartition(":")
-        if not sep or not port.isdigit() or not 0 < int(port) < 65536 or not host:
-            raise BadInputError(f"device URL {url.text!r}: expected {self.scheme.form}")
+        transport = self.transport(url)
         a2l = url.options.get("a2l") or description.get("a2l")
         if not a2l:
             raise BadInputError(f"{url.text}: an XCP device needs its A2L file (a2l=FILE in the URL, --a2l, or the rig file)")
         measurements = description.get("measurements")
         if measurements is not None and not (isinstance(measurements, list) and all(isinstance(m, str) for m in measurements)):
             raise BadInputError(f"{url.text}: measurements must be a list of A2L names")
-        return XcpController(url.text, host.strip("[]"), int(port), read_a2l(Path(a2l)), name=name or "controller",
+        return XcpController(url.text, transport, read_a2l(Path(a2l)), name=name or "controller",
                              measurements=measurements, counter=url.options.get("counter", COUNTER),
                              event=url.integer("event", 0), store=url.flag("store", False),
                              key_algorithm=algorithm(url.options.get("key", DEFAULT_KEY_ALGORITHM)))
@@ -48,3 +48,29 @@ class XcpBackend(Backend):
 
     def controller(self, url: DeviceURL) -> BankPort:
         return self._open(url, None, {})
+
+
+class XcpTcpBackend(_XcpBackend):
+    """XCP on TCP (ASAM XCP Part 3, Ethernet)."""
+
+    scheme = Scheme("xcp+tcp", "xcp+tcp://HOST:PORT?a2l=FILE[&key=ALGORITHM&counter=NAME&event=N&store=1]", OPTIONS)
+
+    def transport(self, url: DeviceURL) -> tuple[str, dict]:
+        from .device import tcp_transport
+
+        host, sep, port = url.target.rpartition(":")
+        if not sep or not port.isdigit() or not 0 < int(port) < 65536 or not host:
+            raise BadInputError(f"device URL {url.text!r}: expected {self.scheme.form}")
+        return tcp_transport(host.strip("[]"), int(port))
+
+
+class XcpSxiBackend(_XcpBackend):
+    """XCP on SxI (ASAM XCP Part 3, a serial line), framed LEN and CTR words without checksum."""
+
+    scheme = Scheme("xcp+sxi", "xcp+sxi:///dev/ttyUSB0?a2l=FILE[&baud=3000000&key=ALGORITHM&counter=NAME&event=N&store=1]",
+                    (*OPTIONS, "baud"), opaque=True)
+
+    def transport(self, url: DeviceURL) -> tuple[str, dict]:
+        from .device import sxi_transport
+
+        return sxi_transport(url.target, url.integer("baud", 3_000_000))

@@ -41,27 +41,37 @@ TIMESTAMP_WRAP_NS = (1 << 32) * 1000  # a 4-byte timestamp in 1 us ticks turns e
 SILENT_S = 2.0
 
 
-def _application(host: str, port: int):
-    """pyxcp's configuration for XCP-on-TCP to ``host``:``port``.  Made before anything of pyxcp
-    asks for one: its DAQ classes otherwise make their own from ``sys.argv`` (ambdaq's options)."""
+def tcp_transport(host: str, port: int) -> tuple[str, dict]:
+    """pyxcp's transport settings for XCP on TCP to ``host``:``port``."""
+    return "ETH", {"Eth": {"host": host, "port": port, "protocol": "TCP"}}
+
+
+def sxi_transport(port: str, baud: int) -> tuple[str, dict]:
+    """pyxcp's transport settings for XCP on SxI on serial ``port``: LEN and CTR words, no checksum."""
+    return "SXI", {"SxI": {"port": port, "bitrate": baud, "header_format": "HEADER_LEN_CTR_WORD",
+                           "tail_format": "NO_CHECKSUM"}}
+
+
+def _application(layer: str, settings: dict):
+    """pyxcp's configuration for the transport ``layer`` with ``settings``.  Made before anything
+    of pyxcp asks for one: its DAQ classes otherwise make their own from ``sys.argv``."""
     from pyxcp.config import create_application_from_config, set_application
 
-    app = create_application_from_config({"Transport": {"Eth": {"host": host, "port": port, "protocol": "TCP"},
-                                                         "timeout": 0.5}}, log_level=logging.CRITICAL)
-    app.transport.layer = "ETH"
+    app = create_application_from_config({"Transport": {**settings, "timeout": 0.5}}, log_level=logging.CRITICAL)
+    app.transport.layer = layer
     set_application(app)  # pyxcp's DAQ classes take their settings from the global one
     return app
 
 
 class XcpController(Source, BankPort):
-    """The controller at ``host``:``port`` described by ``a2l``.
+    """The controller reached through ``transport``, described by ``a2l``.
 
     Parameters
     ----------
     url : str
         Its device URL (for messages and metadata).
-    host, port : str, int
-        XCP-on-TCP address.
+    transport : (str, dict)
+        pyxcp's transport layer and its settings (:func:`tcp_transport`, :func:`sxi_transport`).
     a2l : A2lFile
         Its A2L file.
     name : str
@@ -78,13 +88,13 @@ class XcpController(Source, BankPort):
         After a push, ask the controller to store the page in non-volatile memory.
     """
 
-    def __init__(self, url: str, host: str, port: int, a2l: A2lFile, *, name: str = "controller",
+    def __init__(self, url: str, transport: tuple[str, dict], a2l: A2lFile, *, name: str = "controller",
                  measurements: list[str] | None = None, counter: str = COUNTER, event: int = 0,
                  key_algorithm: KeyAlgorithm, store: bool = False) -> None:
         from pyxcp.daq_stim import DaqList, DaqOnlinePolicy
         from pyxcp.master import Master
 
-        app = _application(host, port)
+        app = _application(*transport)
         self.url, self.a2l, self.name, self.event, self.store = url, a2l, name, event, store
         self.key_algorithm = key_algorithm
         if counter not in a2l.measurements:
@@ -125,7 +135,7 @@ class XcpController(Source, BankPort):
         self._sink = Sink([DaqList(name="ambdaq", event_num=event, stim=False, enable_timestamps=True,
                                    measurements=[(m.name, m.address, 0, m.datatype) for m in [self.counter, *self.fields]],
                                    priority=0, prescaler=1)])
-        self._xcp = Master("eth", config=app, policy=self._sink)
+        self._xcp = Master(transport[0].lower(), config=app, policy=self._sink)
         with self._errors("connect"):
             self._xcp.__enter__()
             self._xcp.connect()

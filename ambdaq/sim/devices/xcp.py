@@ -1,4 +1,4 @@
-"""The simulated AMB controller's XCP slave (ASAM MCD-1 XCP 1.x) on XCP-on-TCP.
+"""The simulated AMB controller's XCP slave (ASAM MCD-1 XCP 1.x) on XCP-on-TCP or on SxI.
 
 Measurement and calibration systems (CANape, INCA, pyxcp) reach an embedded controller through
 XCP; this is the simulated spindle controller's, on the same rig and coefficient banks as its
@@ -25,14 +25,17 @@ of the controller's own clock, then the ODT's entries.  DTOs are queued for the 
 sender thread; when the master falls behind by more than ``DAQ_QUEUE_S`` the newest are
 dropped and counted (:attr:`XcpSlave.overruns`), and the gaps show in ``control_period``.
 
-The transport layer (ASAM XCP Part 3, Ethernet) frames each packet as LEN (u16) CTR (u16)
-PACKET; the slave's CTR counts every packet it sends, responses and DTOs alike.
+The transport layers (ASAM XCP Part 3): on TCP (Ethernet) each packet is framed LEN (u16) CTR
+(u16) PACKET; on SxI (a serial line, here a pseudo-terminal) the same, the header format
+LEN_CTR_WORD without checksum.  The slave's CTR counts every packet it sends, responses and DTOs
+alike.
 """
 
 from __future__ import annotations
 
 import os
 import queue
+import select
 import socket
 import struct
 import threading
@@ -56,7 +59,8 @@ ERR_CMD_SYNCH, ERR_CMD_UNKNOWN, ERR_CMD_SYNTAX, ERR_DAQ_ACTIVE, ERR_SEQUENCE, ER
     0x00, 0x20, 0x21, 0x11, 0x29, 0x2A
 RES_CALPAG, RES_DAQ = 0x01, 0x04
 CHECKSUM_CRC_32 = 0x09
-TCP_HEADER = struct.Struct("<HH")
+HEADER = struct.Struct("<HH")  # LEN, CTR: XCP on TCP, and XCP on SxI with LEN_CTR_WORD framing
+READ_WAIT_S, WRITE_WAIT_S = 0.1, 0.5
 SEED_BYTES = 16
 EVENT_NAME = b"control"
 EVENT_CYCLE, EVENT_UNIT_100US = 1, 5  # one control period: 1 x 100 us
@@ -85,37 +89,81 @@ class DaqList:
     first_pid: int = 0
 
 
+class TcpLink:
+    """One master's TCP connection (ASAM XCP Part 3, Ethernet)."""
+
+    def __init__(self, conn: socket.socket) -> None:
+        self.conn = conn
+        conn.settimeout(READ_WAIT_S)
+
+    def read(self) -> bytes | None:
+        """What came (b"" for nothing yet); None when the master closed the connection."""
+        try:
+            return self.conn.recv(65536) or None
+        except socket.timeout:
+            return b""
+        except OSError:
+            return None
+
+    def write(self, data: bytes) -> None:
+        self.conn.sendall(data)
+
+
+class PtyLink:
+    """The slave's end of a serial line, a pseudo-terminal's master (ASAM XCP Part 3, SxI)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def read(self) -> bytes | None:
+        r, _, _ = select.select([self.fd], [], [], READ_WAIT_S)
+        if not r:
+            return b""
+        try:
+            return os.read(self.fd, 65536)
+        except OSError:
+            return None
+
+    def write(self, data: bytes) -> None:
+        """Write ``data``; OSError when the line takes nothing for WRITE_WAIT_S (no master reads
+        it any more: a line, unlike a socket, does not say when its other end went away)."""
+        view = memoryview(data)
+        while view:
+            _, w, _ = select.select([], [self.fd], [], WRITE_WAIT_S)
+            if not w:
+                raise OSError("the master reads no more")
+            view = view[os.write(self.fd, view[:4096]) :]
+
+
 class XcpSlave:
-    """The XCP-on-TCP slave of ``server``'s controller on 127.0.0.1:``port`` (0: any free port).
+    """The XCP slave of ``server``'s controller; :meth:`serve_tcp` or :meth:`serve_pty` puts it on
+    a transport.
 
     Parameters
     ----------
     server : RigServer
         The running rig.
-    port : int
-        TCP port; 0 takes a free one (:attr:`port` says which).
     banks : CoefficientBanks
         The controller's coefficient banks (shared with its other ports).
     clock : DeviceClock
         The controller's clock, which stamps the DTOs.
     """
 
-    def __init__(self, server: RigServer, port: int, banks: CoefficientBanks, clock: DeviceClock) -> None:
+    def __init__(self, server: RigServer, banks: CoefficientBanks, clock: DeviceClock) -> None:
         self.server = server
         self.memory = MeasurementMap(server)
         self.pages = CalibrationPages(banks)
         self.constants = CalibrationConstants(server.rig.calibration())
         self.banks = banks
         self.clock = clock
-        self._listener = socket.create_server(("127.0.0.1", port))
-        self.port = self._listener.getsockname()[1]
+        self.url = ""
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._serve, name="xcp-slave", daemon=True)
+        self._thread: threading.Thread | None = None
         self._sender = threading.Thread(target=self._send_loop, name="xcp-daq", daemon=True)
         blocks_per_s = server.rig.params.sample_rate / server.block
         self._out: queue.Queue[tuple[list, np.ndarray]] = queue.Queue(maxsize=int(DAQ_QUEUE_S * blocks_per_s))
-        self._tx = threading.Lock()  # the socket and CTR: responses and DTOs share them
-        self._conn: socket.socket | None = None
+        self._tx = threading.Lock()  # the link and CTR: responses and DTOs share them
+        self._link: TcpLink | PtyLink | None = None
         self._ctr = 0
         self.overruns = 0  # DTO blocks dropped because the master fell behind
         self._reset_session()
@@ -130,6 +178,18 @@ class XcpSlave:
         self._ptr: tuple[int, int, int] | None = None
         self._plan: list | None = None  # the running lists' DTO layout
 
+    def serve_tcp(self, port: int) -> None:
+        """XCP on TCP on 127.0.0.1:``port`` (0: a free one); :attr:`url` says where."""
+        listener = socket.create_server(("127.0.0.1", port))
+        self.url = f"xcp+tcp://127.0.0.1:{listener.getsockname()[1]}"
+        self._thread = threading.Thread(target=self._serve_tcp, args=(listener,), name="xcp-slave", daemon=True)
+
+    def serve_pty(self, pty) -> None:
+        """XCP on SxI on ``pty`` (its master; LEN and CTR words, no checksum); :attr:`url` says where."""
+        self.url = f"xcp+sxi://{pty.path}"
+        self._thread = threading.Thread(target=self._serve_link, args=(PtyLink(pty.master),), name="xcp-slave",
+                                        daemon=True)
+
     def start(self) -> None:
         self.server.subscribe(self._on_block)
         self._thread.start()
@@ -138,54 +198,48 @@ class XcpSlave:
     def stop(self) -> None:
         self.server.unsubscribe(self._on_block)
         self._stop.set()
-        self._listener.close()
         self._thread.join(timeout=1.0)
         self._sender.join(timeout=1.0)
 
     # --- transport ------------------------------------------------------------------------------
 
-    def _serve(self) -> None:
-        self._listener.settimeout(0.1)
-        while not self._stop.is_set():
-            try:
-                conn, _addr = self._listener.accept()
-            except (socket.timeout, OSError):
-                continue
-            with conn:
-                conn.settimeout(0.1)
-                with self._tx:
-                    self._conn, self._ctr = conn, 0
-                self._session(conn)
-                with self._tx:
-                    self._conn = None
-            self._reset_session()
+    def _serve_tcp(self, listener: socket.socket) -> None:
+        listener.settimeout(READ_WAIT_S)
+        with listener:
+            while not self._stop.is_set():
+                try:
+                    conn, _addr = listener.accept()
+                except (socket.timeout, OSError):
+                    continue
+                with conn:
+                    self._serve_link(TcpLink(conn))
 
-    def _session(self, conn: socket.socket) -> None:
-        """One master's connection: packets in, responses out, until it closes."""
+    def _serve_link(self, link: TcpLink | PtyLink) -> None:
+        """One link's packets in, responses out, until it closes (a line never does)."""
+        with self._tx:
+            self._link, self._ctr = link, 0
         buf = b""
         while not self._stop.is_set():
-            try:
-                chunk = conn.recv(4096)
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            if not chunk:
-                return
+            chunk = link.read()
+            if chunk is None:
+                break
             buf += chunk
-            while len(buf) >= TCP_HEADER.size:
-                length, _ctr = TCP_HEADER.unpack_from(buf)
-                if len(buf) < TCP_HEADER.size + length:
+            while len(buf) >= HEADER.size:
+                length, _ctr = HEADER.unpack_from(buf)
+                if len(buf) < HEADER.size + length:
                     break
-                packet, buf = buf[TCP_HEADER.size : TCP_HEADER.size + length], buf[TCP_HEADER.size + length :]
+                packet, buf = buf[HEADER.size : HEADER.size + length], buf[HEADER.size + length :]
                 reply = self.command(packet)
                 if reply is not None:
                     with self._tx:
                         try:
-                            conn.sendall(TCP_HEADER.pack(len(reply), self._ctr) + reply)
+                            link.write(HEADER.pack(len(reply), self._ctr) + reply)
                         except OSError:
-                            return
+                            self._stop_daq()
                         self._ctr = (self._ctr + 1) & 0xFFFF
+        with self._tx:
+            self._link = None
+        self._reset_session()
 
     def _send_loop(self) -> None:
         """Send the queued DTOs, numbering them as they go (the CTR of every packet the slave sends)."""
@@ -196,7 +250,7 @@ class XcpSlave:
                 continue
             n, k = included.shape
             with self._tx:
-                if self._conn is None:
+                if self._link is None or not self._plan:
                     continue
                 number = ((self._ctr + np.cumsum(included.ravel()) - 1) & 0xFFFF).astype("<u2").reshape(n, k)
                 self._ctr = (self._ctr + int(included.sum())) & 0xFFFF
@@ -206,9 +260,9 @@ class XcpSlave:
                 keep = np.concatenate([np.repeat(included[:, j : j + 1], r.shape[1], axis=1)
                                        for j, r in enumerate(rows)], axis=1)
                 try:
-                    self._conn.sendall(np.concatenate(rows, axis=1)[keep].tobytes())
+                    self._link.write(np.concatenate(rows, axis=1)[keep].tobytes())
                 except OSError:
-                    pass
+                    self._stop_daq()  # the master is gone: a slave stops its DAQ
 
     # --- DAQ --------------------------------------------------------------------------------------
 
@@ -223,9 +277,9 @@ class XcpSlave:
         seq = block.seq.astype(np.int64)
         rows, included = [], []
         for prescaler, pid, stamped, index in plan:
-            width = TCP_HEADER.size + 1 + 4 * stamped + index.shape[0]
+            width = HEADER.size + 1 + 4 * stamped + index.shape[0]
             row = np.empty((n, width), dtype=np.uint8)
-            row[:, 0:2] = np.frombuffer(struct.pack("<H", width - TCP_HEADER.size), np.uint8)
+            row[:, 0:2] = np.frombuffer(struct.pack("<H", width - HEADER.size), np.uint8)
             row[:, 4] = pid
             if stamped:
                 row[:, 5:9] = ticks
