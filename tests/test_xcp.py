@@ -296,3 +296,17 @@ def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
         assert r.exit_code == 0 and "device-verified" in r.output, r.output
     finally:
         rig.stop()
+
+
+def test_devices_asks_an_address_for_an_xcp_slave(served, a2l, tmp_path, run_cli):
+    r = run_cli("devices", "--ask-xcp", served.url, "--json")
+    assert r.exit_code == 0, r.output
+    (slave,) = json.loads(r.stdout)["xcp"]
+    assert slave == {"url": served.url, "asap2_name": "AMBDAQ_SPINDLE", "max_cto": "255", "max_dto": "1024",
+                     "byte_order": "INTEL", "resources": "calpag,daq", "protected": "calpag", "event_0_period_us": "100"}
+    # nothing listening there: one line, exit 1, for asking and for recording alike
+    for args in (("devices", "--ask-xcp", "xcp+tcp://127.0.0.1:9"),
+                 ("record", "--device", "xcp+tcp://127.0.0.1:9", "--a2l", a2l, "--duration", "1", "-o", tmp_path / "x.mcap")):
+        r = run_cli(*args)
+        assert r.exit_code == 1 and "127.0.0.1:9" in r.output and "Connection refused" in r.output, r.output
+        assert len(r.output.strip().splitlines()) == 1

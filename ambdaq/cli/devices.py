@@ -1,4 +1,4 @@
-"""``ambdaq devices``: CAN interfaces/channels and serial ports on this host."""
+"""``ambdaq devices``: CAN interfaces/channels, serial ports and, where asked, XCP slaves."""
 
 from __future__ import annotations
 
@@ -7,18 +7,22 @@ import json
 import click
 
 from ..drivers.discovery import NOT_SEARCHED, ask_slcan, can_channels, serial_ports, slcan_adapters
+from ..errors import BadInputError
 
 
 @click.command("devices")
 @click.option("--ask-slcan", "ask", metavar="PORT", multiple=True,
               help="Ask the serial port PORT whether an SLCAN adapter is there (its version and serial number); "
                    "repeatable. Ports are never written to unless named here.")
+@click.option("--ask-xcp", "ask_xcp", metavar="URL", multiple=True,
+              help="Ask whether an XCP slave answers at URL (xcp+tcp://HOST:PORT or xcp+sxi:PORT): its A2L "
+                   "project, resources, first event; repeatable.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
-def command(ask, as_json):
-    """List CAN channels (python-can's detection), SLCAN adapters (by their USB ids) and serial
-    ports (pyserial's list_ports)."""
+def command(ask, ask_xcp, as_json):
+    """List CAN channels (python-can's detection), SLCAN adapters (by their USB ids), serial
+    ports (pyserial's list_ports) and the XCP slaves asked for."""
     found = {"can": can_channels(), "slcan": slcan_adapters() + [ask_slcan(port) for port in ask],
-             "serial": serial_ports()}
+             "serial": serial_ports(), "xcp": [_ask_xcp(url) for url in ask_xcp]}
     if as_json:
         click.echo(json.dumps(found, indent=2))
         return
@@ -32,5 +36,18 @@ def command(ask, as_json):
     click.echo("serial (pyserial):" if found["serial"] else "serial (pyserial): none")
     for p in found["serial"]:
         click.echo(f"  {p['port']:<20} {p['description']:<30} {p['url']}")
+    for x in found["xcp"]:
+        click.echo(f"XCP slave {x['url']}: {x['asap2_name']}, resources {x['resources']} (locked: "
+                   f"{x['protected'] or 'none'}), MAX_CTO {x['max_cto']}, MAX_DTO {x['max_dto']}"
+                   + (f", event 0 every {x['event_0_period_us']} us" if "event_0_period_us" in x else ""))
     click.echo("not searched: " + "; ".join(f"{k} ({why})" for k, why in NOT_SEARCHED.items()))
     click.echo("simulated rigs: sim://spindle (in process); ambdaq sim serve (on a pseudo-terminal)")
+
+
+def _ask_xcp(text: str) -> dict[str, str]:
+    from ..drivers.registry import backend, parse_device_url
+
+    url = parse_device_url(text)
+    if not url.scheme.startswith("xcp+"):
+        raise BadInputError(f"--ask-xcp {text!r}: expected xcp+tcp://HOST:PORT or xcp+sxi:PORT")
+    return backend(url.scheme).ask(url)

@@ -49,6 +49,12 @@ class _XcpBackend(Backend):
     def controller(self, url: DeviceURL) -> BankPort:
         return self._open(url, None, {})
 
+    def ask(self, url: DeviceURL) -> dict[str, str]:
+        """Who answers XCP at ``url`` (``ambdaq devices --ask-xcp``); no A2L needed."""
+        from .device import ask_slave
+
+        return ask_slave(url.text, self.transport(url))
+
 
 class XcpTcpBackend(_XcpBackend):
     """XCP on TCP (ASAM XCP Part 3, Ethernet)."""

@@ -63,6 +63,50 @@ def _application(layer: str, settings: dict):
     return app
 
 
+@contextmanager
+def xcp_errors(url: str, what: str):
+    """pyxcp's errors (XCP error responses, timeouts, a refused or lost connection) while doing
+    ``what`` with the slave at ``url``, as one DeviceError."""
+    from pyxcp.master.errorhandler import SystemExit as XcpError
+    from pyxcp.master.errorhandler import UnrecoverableError, set_suppress_xcp_error_log
+    from pyxcp.types import XcpTimeoutError
+    from serial import SerialException
+
+    set_suppress_xcp_error_log(True)  # no log or frame dump of pyxcp's own: the one line below says it
+    try:
+        yield
+    except (XcpError, UnrecoverableError) as err:
+        raise DeviceError(f"{url}: {what}: the controller answered {err}") from None
+    except XcpTimeoutError:
+        raise DeviceError(f"{url}: {what}: no answer (timeout)") from None
+    except (OSError, SerialException) as err:
+        raise DeviceError(f"{url}: {what}: {err}") from None
+    finally:
+        set_suppress_xcp_error_log(False)
+
+
+def ask_slave(url: str, transport: tuple[str, dict]) -> dict[str, str]:
+    """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS and the first
+    event channel; DeviceError if nothing does."""
+    from pyxcp.master import Master
+
+    with xcp_errors(url, "ask"):
+        with Master(transport[0].lower(), config=_application(*transport)) as x:
+            got = x.connect()
+            out = {"url": url, "asap2_name": x.identifier(1), "max_cto": str(got.maxCto), "max_dto": str(got.maxDto),
+                   "byte_order": str(got.commModeBasic.byteOrder),
+                   "resources": ",".join(r for r in ("calpag", "daq", "stim", "pgm") if getattr(got.resource, r)),
+                   "protected": ",".join(r for r in ("calpag", "daq", "stim", "pgm")
+                                         if getattr(x.getStatus().resourceProtectionStatus, r))}
+            if got.resource.daq:
+                from pyxcp.daq_stim import event_channel_cycle_to_ns
+
+                info = x.getDaqEventInfo(0)
+                out["event_0_period_us"] = f"{event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit) / 1e3:g}"
+            x.disconnect()
+    return out
+
+
 class XcpController(Source, BankPort):
     """The controller reached through ``transport``, described by ``a2l``.
 
@@ -91,7 +135,7 @@ class XcpController(Source, BankPort):
     def __init__(self, url: str, transport: tuple[str, dict], a2l: A2lFile, *, name: str = "controller",
                  measurements: list[str] | None = None, counter: str = COUNTER, event: int = 0,
                  key_algorithm: KeyAlgorithm, store: bool = False) -> None:
-        from pyxcp.daq_stim import DaqList, DaqOnlinePolicy
+        from pyxcp.daq_stim import DaqList, DaqOnlinePolicy, event_channel_cycle_to_ns
         from pyxcp.master import Master
 
         app = _application(*transport)
@@ -135,21 +179,25 @@ class XcpController(Source, BankPort):
         self._sink = Sink([DaqList(name="ambdaq", event_num=event, stim=False, enable_timestamps=True,
                                    measurements=[(m.name, m.address, 0, m.datatype) for m in [self.counter, *self.fields]],
                                    priority=0, prescaler=1)])
-        self._xcp = Master(transport[0].lower(), config=app, policy=self._sink)
-        with self._errors("connect"):
-            self._xcp.__enter__()
-            self._xcp.connect()
-            if self._xcp.slaveProperties.optionalCommMode:
-                self._xcp.getCommModeInfo()
-            self.project = self._xcp.identifier(1)
-            info = self._xcp.getDaqEventInfo(event)
-            self._constants = {name: ",".join(repr(v) for v in struct.unpack(f"<{n}d", self._fetch(address, 8 * n)))
-                               for name, (address, n) in a2l.constants.items()}
-        from pyxcp.daq_stim import event_channel_cycle_to_ns
-
-        period_ns = event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit)
-        if period_ns <= 0:
-            raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
+        self._xcp = None
+        try:
+            with self._errors("connect"):
+                self._xcp = Master(transport[0].lower(), config=app, policy=self._sink)
+                self._xcp.__enter__()
+                self._xcp.connect()
+                if self._xcp.slaveProperties.optionalCommMode:
+                    self._xcp.getCommModeInfo()
+                self.project = self._xcp.identifier(1)
+                info = self._xcp.getDaqEventInfo(event)
+                self._constants = {name: ",".join(repr(v) for v in struct.unpack(f"<{n}d", self._fetch(address, 8 * n)))
+                                   for name, (address, n) in a2l.constants.items()}
+            period_ns = event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit)
+            if period_ns <= 0:
+                raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
+        except DeviceError:
+            if self._xcp is not None:
+                self._xcp.close()
+            raise
         self.sample_rate = 1e9 / period_ns
         self._streaming = False
         self._session_over = False
@@ -158,24 +206,8 @@ class XcpController(Source, BankPort):
 
     # --- errors -----------------------------------------------------------------------------------
 
-    @contextmanager
     def _errors(self, what: str):
-        """pyxcp's errors (its XCP error responses, timeouts, a lost socket) as one DeviceError."""
-        from pyxcp.master.errorhandler import SystemExit as XcpError
-        from pyxcp.master.errorhandler import UnrecoverableError, set_suppress_xcp_error_log
-        from pyxcp.types import XcpTimeoutError
-
-        set_suppress_xcp_error_log(True)  # no log or frame dump of pyxcp's own: the one line below says it
-        try:
-            yield
-        except (XcpError, UnrecoverableError) as err:
-            raise DeviceError(f"{self.url}: {what}: the controller answered {err}") from None
-        except XcpTimeoutError:
-            raise DeviceError(f"{self.url}: {what}: no answer (timeout)") from None
-        except (OSError, ConnectionError) as err:
-            raise DeviceError(f"{self.url}: {what}: {err}") from None
-        finally:
-            set_suppress_xcp_error_log(False)
+        return xcp_errors(self.url, what)
 
     # --- Source -----------------------------------------------------------------------------------
 
