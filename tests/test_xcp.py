@@ -270,7 +270,8 @@ def test_a2l_is_read_once_and_a_damaged_cache_is_read_again(a2l):
 
 def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
     """The same slave on a serial line (a pseudo-terminal; SxI framed with LEN and CTR words):
-    pyxcp's SxI transport reads a measurement, ambdaq records every period and pushes."""
+    pyxcp's SxI transport reads a measurement, ambdaq records every period, pushes and has the
+    page stored (STORE_CAL_REQ)."""
     rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp="sxi")
     try:
         url = rig.urls["xcp"]
@@ -292,8 +293,11 @@ def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
         coef = tmp_path / "coef.json"
         assert run_cli("runout", "identify", out, "-o", coef).exit_code == 0
         monkeypatch.setenv("AMBDAQ_STATE_DIR", str(tmp_path / "state"))
-        r = run_cli("push", coef, "--device", f"{url}?a2l={a2l}", "--key", "ambdaq-sim", "--yes")
+        r = run_cli("push", coef, "--device", f"{url}?a2l={a2l}&store=1", "--key", "ambdaq-sim", "--yes")
         assert r.exit_code == 0 and "device-verified" in r.output, r.output
+        with open_controller(f"{url}?a2l={a2l}") as port:  # store=1: STORE_CAL_REQ kept the new page
+            status = port.bank_status()
+            assert status["stored_crc32"] == status["active_crc32"] and status["log"][-1]["file"] == "coef.json"
     finally:
         rig.stop()
 
@@ -310,3 +314,95 @@ def test_devices_asks_an_address_for_an_xcp_slave(served, a2l, tmp_path, run_cli
         r = run_cli(*args)
         assert r.exit_code == 1 and "127.0.0.1:9" in r.output and "Connection refused" in r.output, r.output
         assert len(r.output.strip().splitlines()) == 1
+
+
+def test_xcp_on_can_with_a_prescaler_the_bus_can_carry(a2l, tmp_path, run_cli):
+    """The same slave on the rig's CAN bus (python-can's virtual interface, in this process):
+    pyxcp's CAN transport reads a measurement; a DAQ list the bus cannot carry is refused with the
+    prescaler that fits; two measurements every 10th period are recorded with none lost."""
+    rig = serve("spindle", speed=SpeedProfile(30000, 30000), can="virtual", xcp="can")
+    blocks: deque = deque(maxlen=500)
+    rig.server.subscribe(blocks.append)
+    try:
+        url = rig.urls["xcp"]
+        assert url.startswith("xcp+can://virtual/") and "id_master=0x7F1&id_slave=0x7F2" in url
+        from pyxcp.config import create_application_from_config
+        from pyxcp.master import Master
+
+        interface, channel = url[len("xcp+can://"):].split("?")[0].split("/", 1)
+        app = create_application_from_config({"Transport": {"CAN": {
+            "interface": interface, "channel": channel, "can_id_master": 0x7F1, "can_id_slave": 0x7F2}}},
+            log_level=logging.ERROR)
+        app.transport.layer = "CAN"
+        with Master("can", config=app) as x:
+            connected = x.connect()
+            assert connected.maxCto == 8 and connected.maxDto == 8  # one CAN frame per packet
+            address = described(a2l)["amb.rotor.speed"][0]
+            assert struct.unpack("<f", x.shortUpload(4, address))[0] == pytest.approx(30000 * np.pi / 30, abs=1e-3)
+            x.disconnect()
+        # every measurement every period: 18 frames per sample, far beyond 1 Mbit/s
+        r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1", "-o", tmp_path / "all.mcap")
+        assert r.exit_code == 2 and "give prescaler=" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+        rigfile = tmp_path / "rig.toml"
+        rigfile.write_text(f'''[[device]]
+name = "controller"
+url = "{url}&prescaler=10"
+a2l = "{a2l}"
+measurements = ["amb.gap.front_x", "amb.rotor.angle"]
+''')
+        out = tmp_path / "can.mcap"
+        r = run_cli("record", "--rig", rigfile, "--duration", "1", "--json", "-o", out)
+        assert r.exit_code == 0, r.output
+        summary = json.loads(r.stdout)
+        assert summary["samples"] == 1000 and summary["drops"] == 0  # 10 kHz / 10 for 1 s
+        gap = load(out)["/amb/gap"]
+        assert list(gap.fields) == ["front_x"] and gap.nominal_rate == 1000.0
+        assert np.all(np.diff(gap.seq.astype(np.int64)) == 1)
+        col = [g.fields for g in rig.server.rig.signal_groups() if g.topic == "/amb/gap"][0].index("front_x")
+        by_seq = {int(s): v for b in list(blocks) for s, v in zip(b.seq, b.values["/amb/gap"][:, col])}
+        # seq counts samples: the controller's period is seq x 10 (float32 on the wire, exactly)
+        np.testing.assert_array_equal(gap["front_x"], np.float32([by_seq[int(s) * 10] for s in gap.seq]))
+    finally:
+        rig.stop()
+
+
+def test_xcp_on_can_across_processes_through_slcan(a2l, tmp_path, run_cli):
+    """`sim serve --can slcan --xcp can` in its own process: the slave on the rig's CAN bus,
+    reached through the simulated SLCAN adapter with python-can's slcan interface."""
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--can", "slcan",
+                             "--xcp", "can", "--duration", "60"], stdout=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while not line.startswith("xcp "):
+            line = proc.stdout.readline()
+            assert line, "sim serve printed no xcp URL"
+        url = line.split()[1]
+        assert url.startswith("xcp+can://slcan/dev/pts/")
+        rigfile = tmp_path / "rig.toml"
+        rigfile.write_text(f'[[device]]\nname = "controller"\nurl = "{url}&prescaler=20"\na2l = "{a2l}"\n'
+                           'measurements = ["amb.gap.front_x", "amb.rotor.angle"]\n')
+        r = run_cli("record", "--rig", rigfile, "--duration", "1", "--json", "-o", tmp_path / "can.mcap")
+        assert r.exit_code == 0, r.output
+        summary = json.loads(r.stdout)
+        assert summary["samples"] == 500 and summary["drops"] == 0  # 10 kHz / 20 for 1 s
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_a_slave_that_never_answers_is_one_line_exit_1(a2l, tmp_path, run_cli):
+    """A TCP port that accepts and then says nothing (a hung controller): a timeout, one line."""
+    import socket
+    import threading
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    held = []
+    threading.Thread(target=lambda: held.append(listener.accept()), daemon=True).start()
+    try:
+        r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{port}", "--a2l", a2l, "--duration", "1",
+                    "-o", tmp_path / "x.mcap")
+        assert r.exit_code == 1 and "connect" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+        assert not (tmp_path / "x.mcap").exists()
+    finally:
+        listener.close()

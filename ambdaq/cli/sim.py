@@ -101,9 +101,10 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 @click.option("--third-party", is_flag=True,
               help="With --can: also serve devices described by vendor files, not by ambdaq (a probe conditioner "
                    "sending the raw frames of its DBC, a CiA 402 drive known by its EDS; docs/hardware.md).")
-@click.option("--xcp", "xcp", metavar="tcp:PORT|sxi",
-              help="Also serve the controller's XCP slave: XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port), or "
-                   "XCP on SxI on a pseudo-terminal; it prints the xcp+tcp:// or xcp+sxi:// URL; its A2L: ambdaq sim a2l.")
+@click.option("--xcp", "xcp", metavar="tcp:PORT|sxi|can",
+              help="Also serve the controller's XCP slave: XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port), "
+                   "XCP on SxI on a pseudo-terminal, or XCP on CAN on the rig's bus (with --can slcan); it prints "
+                   "its xcp+... URL; its A2L: ambdaq sim a2l.")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
 def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, duration):
@@ -123,10 +124,13 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
     from ..sim.devices.rig_server import DeviceClock
     from ..sim.serve import CONTROLLER_CLOCK, serve
 
-    if xcp is not None and xcp != "sxi":
+    if xcp is not None and xcp not in ("sxi", "can"):
         kind, _, port = xcp.partition(":")
         if kind != "tcp" or not port.isdigit() or int(port) > 65535:
-            raise BadInputError(f"--xcp {xcp!r}: expected tcp:PORT or sxi (XCP on CAN is not served yet)")
+            raise BadInputError(f"--xcp {xcp!r}: expected tcp:PORT, sxi or can")
+    if xcp == "can" and can != "slcan":
+        raise BadInputError("--xcp can serves XCP on the rig's CAN bus: give --can slcan as well (another "
+                            "process reaches the bus through the simulated SLCAN adapter)")
     if third_party and can == "none":
         raise BadInputError("--third-party serves CAN devices: give --can slcan as well")
     motion = None if base is None else _base_motion(profile, base)

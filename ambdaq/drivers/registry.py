@@ -30,6 +30,7 @@ BACKENDS = {
     "serial": "ambdaq.drivers.serial.backend:SerialBackend",
     "xcp+tcp": "ambdaq.drivers.xcp.backend:XcpTcpBackend",
     "xcp+sxi": "ambdaq.drivers.xcp.backend:XcpSxiBackend",
+    "xcp+can": "ambdaq.drivers.xcp.backend:XcpCanBackend",
 }
 """Scheme -> ``module:class`` of ambdaq's own back-ends."""
 ENTRY_POINTS = "ambdaq.backends"

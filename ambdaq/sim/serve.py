@@ -126,9 +126,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     third_party : bool
         Also serve, on the same CAN bus, the devices described by vendor files rather than by
         ambdaq (docs/hardware.md): a probe conditioner sending raw frames of its DBC.
-    xcp : {"tcp:PORT", "sxi"}, optional
-        Also serve the controller's XCP slave: on TCP on 127.0.0.1:PORT (0: a free port), or on
-        SxI on a pseudo-terminal; ``urls["xcp"]`` says where.
+    xcp : {"tcp:PORT", "sxi", "can"}, optional
+        Also serve the controller's XCP slave: on TCP on 127.0.0.1:PORT (0: a free port), on SxI
+        on a pseudo-terminal, or on CAN on the rig's bus; ``urls["xcp"]`` says where.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -168,6 +168,10 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
             if xcp == "sxi":
                 served.ptys["xcp"] = Pty.open()
                 slave.serve_pty(served.ptys["xcp"])
+            elif xcp == "can":
+                if served.network is None:
+                    raise ValueError("XCP on CAN needs the rig's CAN bus (can='virtual' or 'slcan')")
+                slave.serve_can(channel, bus)
             else:
                 slave.serve_tcp(int(xcp.partition(":")[2]))
             served.urls["xcp"] = slave.url

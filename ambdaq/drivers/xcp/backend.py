@@ -1,5 +1,5 @@
-"""``xcp+tcp://`` and ``xcp+sxi:`` URLs: a controller's XCP slave on TCP or on a serial line,
-described by its A2L file."""
+"""``xcp+tcp://``, ``xcp+sxi:`` and ``xcp+can://`` URLs: a controller's XCP slave on TCP, on a
+serial line or on a CAN bus, described by its A2L file."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ..url import DeviceURL, Scheme
 from .keys import algorithm
 
 DEFAULT_KEY_ALGORITHM = "ambdaq-sim"
-OPTIONS = ("a2l", "key", "counter", "event", "store")
+OPTIONS = ("a2l", "key", "counter", "event", "store", "prescaler")
 
 
 class _XcpBackend(Backend):
@@ -21,6 +21,10 @@ class _XcpBackend(Backend):
 
     def transport(self, url: DeviceURL) -> tuple[str, dict]:
         raise NotImplementedError
+
+    def bus_bitrate(self, url: DeviceURL) -> int | None:
+        """The CAN bus's bit rate, on CAN (for the bus-load check); None elsewhere."""
+        return None
 
     def _open(self, url: DeviceURL, name: str | None, description: dict):
         from .a2l import read_a2l
@@ -36,7 +40,8 @@ class _XcpBackend(Backend):
         return XcpController(url.text, transport, read_a2l(Path(a2l)), name=name or "controller",
                              measurements=measurements, counter=url.options.get("counter", COUNTER),
                              event=url.integer("event", 0), store=url.flag("store", False),
-                             key_algorithm=algorithm(url.options.get("key", DEFAULT_KEY_ALGORITHM)))
+                             key_algorithm=algorithm(url.options.get("key", DEFAULT_KEY_ALGORITHM)),
+                             prescaler=url.integer("prescaler", 1), bus_bitrate=self.bus_bitrate(url))
 
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
         if request.speed is not None:
@@ -80,3 +85,25 @@ class XcpSxiBackend(_XcpBackend):
         from .device import sxi_transport
 
         return sxi_transport(url.target, url.integer("baud", 3_000_000))
+
+
+class XcpCanBackend(_XcpBackend):
+    """XCP on CAN (ASAM XCP Part 3, CAN) on any python-can interface and channel."""
+
+    scheme = Scheme("xcp+can", "xcp+can://INTERFACE/CHANNEL?a2l=FILE&id_master=0x7F1&id_slave=0x7F2"
+                    "[&prescaler=N&bitrate=1000000&open_delay=S&key=ALGORITHM&counter=NAME&event=N&store=1]",
+                    (*OPTIONS, "id_master", "id_slave", "bitrate", "open_delay"))
+
+    def transport(self, url: DeviceURL) -> tuple[str, dict]:
+        from ..can.backend import CanBackend
+        from .device import can_transport
+
+        interface, channel, options = CanBackend().bus_of(url)
+        ids = [url.integer(k, -1) for k in ("id_master", "id_slave")]
+        if not all(0 <= i <= 0x1FFFFFFF for i in ids):
+            raise BadInputError(f"{url.text}: XCP on CAN needs id_master and id_slave (CAN identifiers): "
+                                f"expected {self.scheme.form}")
+        return can_transport(interface, channel, *ids, self.bus_bitrate(url), options.get("sleep_after_open"))
+
+    def bus_bitrate(self, url: DeviceURL) -> int:
+        return url.integer("bitrate", 1_000_000)

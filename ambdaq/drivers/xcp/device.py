@@ -26,7 +26,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from ...errors import DeviceError
+from ...errors import BadInputError, DeviceError
+from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import BankPort, Source
 from ..rows import RowQueue
 from ..signals import SampleBlock, SignalGroup
@@ -34,11 +35,11 @@ from .a2l import A2lFile
 from .keys import KeyAlgorithm
 
 COUNTER = "control_period"
-BLOBS = ("coefficient_bank", "push_record", "bank_status")
 RES_CALPAG = 0x01
 LENGTH = struct.Struct("<I")
 TIMESTAMP_WRAP_NS = (1 << 32) * 1000  # a 4-byte timestamp in 1 us ticks turns every 71.6 min
 SILENT_S = 2.0
+TIMEOUT_S = 0.5  # a command unanswered this long is a timeout (pyxcp's default is 2 s)
 
 
 def tcp_transport(host: str, port: int) -> tuple[str, dict]:
@@ -52,13 +53,27 @@ def sxi_transport(port: str, baud: int) -> tuple[str, dict]:
                            "tail_format": "NO_CHECKSUM"}}
 
 
+def can_transport(interface: str, channel: str, id_master: int, id_slave: int, bitrate: int,
+                  open_delay: float | None) -> tuple[str, dict]:
+    """pyxcp's transport settings for XCP on CAN on python-can's ``interface`` and ``channel``."""
+    settings: dict = {"CAN": {"interface": interface, "channel": channel, "can_id_master": id_master,
+                              "can_id_slave": id_slave, "bitrate": bitrate}}
+    if open_delay is not None:
+        settings["SlCan"] = {"sleep_after_open": open_delay}
+    return "CAN", settings
+
+
 def _application(layer: str, settings: dict):
     """pyxcp's configuration for the transport ``layer`` with ``settings``.  Made before anything
     of pyxcp asks for one: its DAQ classes otherwise make their own from ``sys.argv``."""
     from pyxcp.config import create_application_from_config, set_application
 
-    app = create_application_from_config({"Transport": {**settings, "timeout": 0.5}}, log_level=logging.CRITICAL)
+    app = create_application_from_config({"Transport": {k: v for k, v in settings.items() if k != "SlCan"}},
+                                         log_level=logging.CRITICAL)
+    for key, value in settings.get("SlCan", {}).items():
+        setattr(app.transport.can.slcan, key, value)
     app.transport.layer = layer
+    app.transport.timeout = TIMEOUT_S
     set_application(app)  # pyxcp's DAQ classes take their settings from the global one
     return app
 
@@ -130,16 +145,25 @@ class XcpController(Source, BankPort):
         The seed & key algorithm (:mod:`.keys`).
     store : bool
         After a push, ask the controller to store the page in non-volatile memory.
+    prescaler : int
+        Sample every this many events (the DAQ list's prescaler); each sample's seq is then the
+        counter divided by it.
+    bus_bitrate : int, optional
+        On CAN: the bus's bit rate, to refuse a DAQ list the bus cannot carry (above 80 % load).
     """
 
     def __init__(self, url: str, transport: tuple[str, dict], a2l: A2lFile, *, name: str = "controller",
                  measurements: list[str] | None = None, counter: str = COUNTER, event: int = 0,
-                 key_algorithm: KeyAlgorithm, store: bool = False) -> None:
+                 key_algorithm: KeyAlgorithm, store: bool = False, prescaler: int = 1,
+                 bus_bitrate: int | None = None) -> None:
         from pyxcp.daq_stim import DaqList, DaqOnlinePolicy, event_channel_cycle_to_ns
         from pyxcp.master import Master
 
         app = _application(*transport)
         self.url, self.a2l, self.name, self.event, self.store = url, a2l, name, event, store
+        if not 1 <= prescaler <= 255:
+            raise BadInputError(f"{url}: prescaler must be 1..255, not {prescaler}")
+        self.prescaler = prescaler
         self.key_algorithm = key_algorithm
         if counter not in a2l.measurements:
             raise DeviceError(f"{url}: the A2L has no counter measurement {counter!r} (counter=NAME names it)")
@@ -174,11 +198,12 @@ class XcpController(Source, BankPort):
                 pass
 
             def on_daq_list(self, _daq_list: int, _ts0: int, ts1: int, payload: list) -> None:
-                owner._rows.rows.append((payload[0], time.time_ns(), ts1, payload))
+                # the counter steps by the prescaler from one sample to the next
+                owner._rows.rows.append((payload[0] // owner.prescaler, time.time_ns(), ts1, payload))
 
         self._sink = Sink([DaqList(name="ambdaq", event_num=event, stim=False, enable_timestamps=True,
                                    measurements=[(m.name, m.address, 0, m.datatype) for m in [self.counter, *self.fields]],
-                                   priority=0, prescaler=1)])
+                                   priority=0, prescaler=prescaler)])
         self._xcp = None
         try:
             with self._errors("connect"):
@@ -194,11 +219,13 @@ class XcpController(Source, BankPort):
             period_ns = event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit)
             if period_ns <= 0:
                 raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
-        except DeviceError:
+            if bus_bitrate is not None:
+                self._check_bus_load(1e9 / period_ns, bus_bitrate)
+        except (DeviceError, BadInputError):
             if self._xcp is not None:
                 self._xcp.close()
             raise
-        self.sample_rate = 1e9 / period_ns
+        self.sample_rate = 1e9 / period_ns / prescaler
         self._streaming = False
         self._session_over = False
         self._last_stamp: int | None = None
@@ -208,6 +235,18 @@ class XcpController(Source, BankPort):
 
     def _errors(self, what: str):
         return xcp_errors(self.url, what)
+
+    def _check_bus_load(self, event_hz: float, bitrate: int) -> None:
+        """Refuse a DAQ list whose DTOs would load the CAN bus above MAX_LOAD: every sample
+        is ceil((4-byte timestamp + entries) / 7) frames of PID + 7 bytes (ASAM XCP Part 3, CAN)."""
+        size = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
+        frames = -(-(4 + sum(size[m.datatype] for m in [self.counter, *self.fields])) // 7)
+        load = bus_load([8] * frames, event_hz / self.prescaler, bitrate)
+        if load > MAX_LOAD:
+            fits = int(np.ceil(bus_load([8] * frames, event_hz, bitrate) / MAX_LOAD))
+            raise BadInputError(f"{self.url}: {len(self.fields) + 1} measurements every {self.prescaler} event(s) "
+                                f"are {frames} frames per sample, {load:.0%} of the {bitrate:,} bit/s bus; "
+                                f"give prescaler={fits} or more, or fewer measurements")
 
     # --- Source -----------------------------------------------------------------------------------
 
@@ -286,6 +325,7 @@ class XcpController(Source, BankPort):
         return length, int(got.checksum)
 
     def unlock(self, key: str) -> None:
+        self._key = key
         with self._errors("unlock"):
             if not self._xcp.getStatus().resourceProtectionStatus.calpag:
                 return
@@ -336,7 +376,8 @@ class XcpController(Source, BankPort):
             reason = self.bank_status().get("last_refusal") or str(err)
             raise DeviceError(f"{self.url}: the controller refused the page switch: {reason}") from None
         status = self.bank_status()
-        if self.store:
+        if self.store:  # the switch locked calibration again: storing needs it unlocked
+            self.unlock(self._key)
             with self._errors("store the page (STORE_CAL_REQ)"):
                 self._xcp.setRequest(0x01, 0)
         return int(status.get("last_effective_sample", -1))

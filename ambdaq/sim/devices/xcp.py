@@ -1,9 +1,9 @@
-"""The simulated AMB controller's XCP slave (ASAM MCD-1 XCP 1.x) on XCP-on-TCP or on SxI.
+"""The simulated AMB controller's XCP slave (ASAM MCD-1 XCP 1.x) on TCP, on SxI or on CAN.
 
 Measurement and calibration systems (CANape, INCA, pyxcp) reach an embedded controller through
 XCP; this is the simulated spindle controller's, on the same rig and coefficient banks as its
 serial port.  Its memory is :mod:`.xcp_memory`'s.  The protocol layer (ASAM XCP Part 2)
-answers, in Intel byte order, byte address granularity, MAX_CTO 255, MAX_DTO 1024:
+answers, in Intel byte order, byte address granularity, MAX_CTO 255 and MAX_DTO 1024 (on CAN 8):
 
 - standard: CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID (type 1: the A2L's
   ASAP2 name), SET_REQUEST (STORE_CAL_REQ), GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD,
@@ -27,8 +27,9 @@ dropped and counted (:attr:`XcpSlave.overruns`), and the gaps show in ``control_
 
 The transport layers (ASAM XCP Part 3): on TCP (Ethernet) each packet is framed LEN (u16) CTR
 (u16) PACKET; on SxI (a serial line, here a pseudo-terminal) the same, the header format
-LEN_CTR_WORD without checksum.  The slave's CTR counts every packet it sends, responses and DTOs
-alike.
+LEN_CTR_WORD without checksum; the slave's CTR counts every packet it sends, responses and DTOs
+alike.  On CAN a packet is one classic frame's data, master to slave on CAN_ID_MASTER and slave
+to master on CAN_ID_SLAVE, and MAX_CTO = MAX_DTO = 8.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ RES_CALPAG, RES_DAQ = 0x01, 0x04
 CHECKSUM_CRC_32 = 0x09
 HEADER = struct.Struct("<HH")  # LEN, CTR: XCP on TCP, and XCP on SxI with LEN_CTR_WORD framing
 READ_WAIT_S, WRITE_WAIT_S = 0.1, 0.5
+CAN_ID_MASTER, CAN_ID_SLAVE = 0x7F1, 0x7F2  # the simulated slave's XCP-on-CAN identifiers
 SEED_BYTES = 16
 EVENT_NAME = b"control"
 EVENT_CYCLE, EVENT_UNIT_100US = 1, 5  # one control period: 1 x 100 us
@@ -90,7 +92,7 @@ class DaqList:
 
 
 class TcpLink:
-    """One master's TCP connection (ASAM XCP Part 3, Ethernet)."""
+    """One master's TCP connection: bytes in and out."""
 
     def __init__(self, conn: socket.socket) -> None:
         self.conn = conn
@@ -110,7 +112,7 @@ class TcpLink:
 
 
 class PtyLink:
-    """The slave's end of a serial line, a pseudo-terminal's master (ASAM XCP Part 3, SxI)."""
+    """The slave's end of a serial line, a pseudo-terminal's master: bytes in and out."""
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
@@ -135,6 +137,71 @@ class PtyLink:
             view = view[os.write(self.fd, view[:4096]) :]
 
 
+class StreamTransport:
+    """XCP on TCP and on SxI (LEN_CTR_WORD, no checksum): each packet framed LEN CTR PACKET on a
+    byte stream (ASAM XCP Part 3)."""
+
+    max_cto, max_dto = MAX_CTO, MAX_DTO
+
+    def __init__(self, link: TcpLink | PtyLink) -> None:
+        self.link = link
+        self._buf = b""
+
+    def packets(self) -> list[bytes] | None:
+        """The packets that came (none yet: []); None when the link closed."""
+        chunk = self.link.read()
+        if chunk is None:
+            return None
+        self._buf += chunk
+        out = []
+        while len(self._buf) >= HEADER.size:
+            length, _ctr = HEADER.unpack_from(self._buf)
+            if len(self._buf) < HEADER.size + length:
+                break
+            out.append(self._buf[HEADER.size : HEADER.size + length])
+            self._buf = self._buf[HEADER.size + length :]
+        return out
+
+    def send(self, packet: bytes, ctr: int) -> None:
+        self.link.write(HEADER.pack(len(packet), ctr) + packet)
+
+    def send_dtos(self, rows: list[np.ndarray], included: np.ndarray, ctr: int) -> None:
+        """The DTO ``rows`` (one array per ODT, a period per row, its header's CTR still to fill) of
+        the periods ``included`` samples, numbered from ``ctr``."""
+        n, k = included.shape
+        number = ((ctr + np.cumsum(included.ravel()) - 1) & 0xFFFF).astype("<u2").reshape(n, k)
+        for j, row in enumerate(rows):
+            row[:, 2:4] = number[:, j : j + 1].view(np.uint8)
+        # one packet per ODT per period that samples it, in order of period, then list and ODT
+        keep = np.concatenate([np.repeat(included[:, j : j + 1], r.shape[1], axis=1) for j, r in enumerate(rows)],
+                              axis=1)
+        self.link.write(np.concatenate(rows, axis=1)[keep].tobytes())
+
+
+class CanTransport:
+    """XCP on CAN (ASAM XCP Part 3): a packet per frame, no header, master to slave on
+    ``id_master``, slave to master on ``id_slave``; MAX_CTO = MAX_DTO = 8."""
+
+    max_cto = max_dto = 8
+
+    def __init__(self, bus, id_master: int, id_slave: int) -> None:
+        self.bus, self.id_master, self.id_slave = bus, id_master, id_slave
+
+    def packets(self) -> list[bytes]:
+        msg = self.bus.recv(READ_WAIT_S)
+        return [bytes(msg.data)] if msg is not None and msg.arbitration_id == self.id_master else []
+
+    def send(self, packet: bytes, _ctr: int) -> None:
+        import can
+
+        self.bus.send(can.Message(arbitration_id=self.id_slave, data=packet, is_extended_id=self.id_slave > 0x7FF))
+
+    def send_dtos(self, rows: list[np.ndarray], included: np.ndarray, _ctr: int) -> None:
+        for i in range(included.shape[0]):
+            for j in np.flatnonzero(included[i]):
+                self.send(rows[j][i, HEADER.size :].tobytes(), 0)
+
+
 class XcpSlave:
     """The XCP slave of ``server``'s controller; :meth:`serve_tcp` or :meth:`serve_pty` puts it on
     a transport.
@@ -157,13 +224,14 @@ class XcpSlave:
         self.banks = banks
         self.clock = clock
         self.url = ""
+        self._closers: list = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._sender = threading.Thread(target=self._send_loop, name="xcp-daq", daemon=True)
         blocks_per_s = server.rig.params.sample_rate / server.block
         self._out: queue.Queue[tuple[list, np.ndarray]] = queue.Queue(maxsize=int(DAQ_QUEUE_S * blocks_per_s))
         self._tx = threading.Lock()  # the link and CTR: responses and DTOs share them
-        self._link: TcpLink | PtyLink | None = None
+        self._link: StreamTransport | CanTransport | None = None
         self._ctr = 0
         self.overruns = 0  # DTO blocks dropped because the master fell behind
         self._reset_session()
@@ -187,8 +255,20 @@ class XcpSlave:
     def serve_pty(self, pty) -> None:
         """XCP on SxI on ``pty`` (its master; LEN and CTR words, no checksum); :attr:`url` says where."""
         self.url = f"xcp+sxi://{pty.path}"
-        self._thread = threading.Thread(target=self._serve_link, args=(PtyLink(pty.master),), name="xcp-slave",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._serve_link, args=(StreamTransport(PtyLink(pty.master)),),
+                                        name="xcp-slave", daemon=True)
+
+    def serve_can(self, channel: str, url_bus: str) -> None:
+        """XCP on CAN on python-can's virtual ``channel`` (CAN_ID_MASTER, CAN_ID_SLAVE); the
+        master reaches it at ``url_bus`` (``virtual/CHANNEL?``, or the SLCAN adapter's
+        ``slcan/dev/pts/N?open_delay=0&``: a URL up to its next option)."""
+        import can
+
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.url = f"xcp+can://{url_bus}id_master=0x{CAN_ID_MASTER:X}&id_slave=0x{CAN_ID_SLAVE:X}"
+        self._closers.append(bus.shutdown)
+        self._thread = threading.Thread(target=self._serve_link, args=(CanTransport(bus, CAN_ID_MASTER, CAN_ID_SLAVE),),
+                                        name="xcp-slave", daemon=True)
 
     def start(self) -> None:
         self.server.subscribe(self._on_block)
@@ -200,6 +280,8 @@ class XcpSlave:
         self._stop.set()
         self._thread.join(timeout=1.0)
         self._sender.join(timeout=1.0)
+        for close in self._closers:
+            close()
 
     # --- transport ------------------------------------------------------------------------------
 
@@ -212,31 +294,26 @@ class XcpSlave:
                 except (socket.timeout, OSError):
                     continue
                 with conn:
-                    self._serve_link(TcpLink(conn))
+                    self._serve_link(StreamTransport(TcpLink(conn)))
 
-    def _serve_link(self, link: TcpLink | PtyLink) -> None:
-        """One link's packets in, responses out, until it closes (a line never does)."""
+    def _serve_link(self, link: StreamTransport | CanTransport) -> None:
+        """One link's packets in, responses out, until it closes (a line or a bus never does)."""
         with self._tx:
             self._link, self._ctr = link, 0
-        buf = b""
         while not self._stop.is_set():
-            chunk = link.read()
-            if chunk is None:
+            packets = link.packets()
+            if packets is None:
                 break
-            buf += chunk
-            while len(buf) >= HEADER.size:
-                length, _ctr = HEADER.unpack_from(buf)
-                if len(buf) < HEADER.size + length:
-                    break
-                packet, buf = buf[HEADER.size : HEADER.size + length], buf[HEADER.size + length :]
+            for packet in packets:
                 reply = self.command(packet)
-                if reply is not None:
-                    with self._tx:
-                        try:
-                            link.write(HEADER.pack(len(reply), self._ctr) + reply)
-                        except OSError:
-                            self._stop_daq()
-                        self._ctr = (self._ctr + 1) & 0xFFFF
+                if reply is None:
+                    continue
+                with self._tx:
+                    try:
+                        link.send(reply, self._ctr)
+                    except OSError:
+                        self._stop_daq()
+                    self._ctr = (self._ctr + 1) & 0xFFFF
         with self._tx:
             self._link = None
         self._reset_session()
@@ -248,21 +325,14 @@ class XcpSlave:
                 rows, included = self._out.get(timeout=0.1)
             except queue.Empty:
                 continue
-            n, k = included.shape
             with self._tx:
                 if self._link is None or not self._plan:
                     continue
-                number = ((self._ctr + np.cumsum(included.ravel()) - 1) & 0xFFFF).astype("<u2").reshape(n, k)
-                self._ctr = (self._ctr + int(included.sum())) & 0xFFFF
-                for j, row in enumerate(rows):
-                    row[:, 2:4] = number[:, j : j + 1].view(np.uint8)
-                # one packet per ODT per period that samples it, in order of period, then list and ODT
-                keep = np.concatenate([np.repeat(included[:, j : j + 1], r.shape[1], axis=1)
-                                       for j, r in enumerate(rows)], axis=1)
                 try:
-                    self._link.write(np.concatenate(rows, axis=1)[keep].tobytes())
+                    self._link.send_dtos(rows, included, self._ctr)
                 except OSError:
                     self._stop_daq()  # the master is gone: a slave stops its DAQ
+                self._ctr = (self._ctr + int(included.sum())) & 0xFFFF
 
     # --- DAQ --------------------------------------------------------------------------------------
 
@@ -314,7 +384,8 @@ class XcpSlave:
         if pid == CONNECT:
             self._connected = True
             # RESOURCE: CAL/PAG and DAQ; COMM_MODE_BASIC: Intel, byte granularity, GET_COMM_MODE_INFO
-            return struct.pack("<BBBBHBB", PID_RES, RES_CALPAG | RES_DAQ, 0x80, MAX_CTO, MAX_DTO, 0x01, 0x01)
+            cto, dto = self._limits()
+            return struct.pack("<BBBBHBB", PID_RES, RES_CALPAG | RES_DAQ, 0x80, cto, dto, 0x01, 0x01)
         if not self._connected:
             return None  # a slave that is not connected answers nothing but CONNECT
         try:
@@ -326,6 +397,11 @@ class XcpSlave:
             return bytes([PID_ERR, err.code])
         except (IndexError, struct.error):
             return bytes([PID_ERR, ERR_OUT_OF_RANGE if pid != SET_MTA else ERR_CMD_SYNTAX])
+
+    def _limits(self) -> tuple[int, int]:
+        """MAX_CTO and MAX_DTO of the link the master is on."""
+        link = self._link
+        return (link.max_cto, link.max_dto) if link is not None else (MAX_CTO, MAX_DTO)
 
     def _disconnect(self, _p: bytes) -> bytes:
         self._stop_daq()
@@ -394,7 +470,7 @@ class XcpSlave:
 
     def _upload(self, p: bytes) -> bytes:
         n = p[1]
-        if n > MAX_CTO - 1:
+        if n > self._limits()[0] - 1:
             raise Refused(ERR_OUT_OF_RANGE, "upload longer than MAX_CTO - 1")
         if self._upload_text is not None:
             data, self._upload_text = self._upload_text[:n], self._upload_text[n:]
@@ -405,7 +481,7 @@ class XcpSlave:
 
     def _short_upload(self, p: bytes) -> bytes:
         n, _res, _ext, address = struct.unpack_from("<BBBI", p, 1)
-        if n > MAX_CTO - 1:
+        if n > self._limits()[0] - 1:
             raise Refused(ERR_OUT_OF_RANGE, "upload longer than MAX_CTO - 1")
         if address == STATUS_BASE:
             self.pages.snapshot_status()
@@ -512,7 +588,7 @@ class XcpSlave:
         entries[entry] = (size, address)
         self._ptr = (daq, odt, entry + 1)
         odt_bytes = 1 + 4 * (odt == 0) + sum(s for s, _a in filter(None, entries))
-        if odt_bytes > MAX_DTO:
+        if odt_bytes > self._limits()[1]:
             raise Refused(ERR_DAQ_CONFIG, f"ODT {odt} longer than MAX_DTO")
         return bytes([PID_RES])
 
