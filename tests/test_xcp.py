@@ -233,7 +233,7 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
         while not line.startswith("xcp "):
             line = proc.stdout.readline()
             assert line, "sim serve printed no xcp URL"
-        url = f"{line.split()[1]}?a2l={a2l}"
+        url = line.split()[1]  # the A2L by option, as the user types it
 
         def run(*args):
             r = subprocess.run([*ambdaq, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
@@ -241,10 +241,10 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
             return r.stdout
 
         before, after, coef = tmp_path / "before.mcap", tmp_path / "after.mcap", tmp_path / "coef.json"
-        run("record", "--device", url, "--duration", 2.5, "-q", "-o", before)  # 1,250 turns at 30,000 rpm
+        run("record", "--device", url, "--a2l", a2l, "--duration", 2.5, "-q", "-o", before)  # 1,250 turns
         run("runout", "identify", before, "-o", coef)
-        assert "device-verified" in run("push", coef, "--device", url, "--yes")
-        run("record", "--device", url, "--duration", 2.5, "-q", "-o", after)
+        assert "device-verified" in run("push", coef, "--device", url, "--a2l", a2l, "--yes")
+        run("record", "--device", url, "--a2l", a2l, "--duration", 2.5, "-q", "-o", after)
         check = json.loads(run("runout", "check", before, after, "--min-db", 20, "--max-rms", 5, "--json"))
     finally:
         proc.terminate()
@@ -406,3 +406,18 @@ def test_a_slave_that_never_answers_is_one_line_exit_1(a2l, tmp_path, run_cli):
         assert not (tmp_path / "x.mcap").exists()
     finally:
         listener.close()
+
+
+def test_an_xcp_error_response_is_named_with_its_meaning(served):
+    """A command out of sequence (WRITE_DAQ before SET_DAQ_PTR, sent by pyxcp itself): the slave
+    answers ERR_SEQUENCE, which ambdaq reports as one line with its meaning."""
+    from ambdaq.drivers.xcp.device import xcp_errors
+
+    with master(served.port) as x:
+        x.connect()
+        x.freeDaq()
+        with pytest.raises(DeviceError) as err:
+            with xcp_errors(served.url, "write a DAQ entry"):
+                x.writeDaq(0xFF, 4, 0, 0x0001_0000)
+        x.disconnect()
+    assert str(err.value) == f"{served.url}: write a DAQ entry: the controller answered ERR_SEQUENCE (commands out of sequence)"

@@ -15,19 +15,21 @@ from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
 
 
-def _target(device: str | None, rig: str | None) -> tuple[str, str | None]:
-    """The device URL and the rig file's unlock key for it: ``--device`` is a URL or, with
-    ``--rig``, a device name in the rig file."""
+def _target(device: str | None, rig: str | None, a2l: str | None) -> tuple[str, str | None, dict]:
+    """The device URL, the rig file's unlock key for it and its description (an XCP controller's
+    A2L, from the rig file or ``--a2l``): ``--device`` is a URL or, with ``--rig``, a device name
+    in the rig file."""
+    given = {"a2l": str(Path(a2l).resolve())} if a2l else {}
     if rig is None:
         if device is None:
             raise BadInputError("name the controller: --device URL (or --rig FILE with its unlock_key)")
-        return device, None
+        return device, None, given
     entries = load_rig(rig).devices
     chosen = [e for e in entries if device in (e.name, e.url)] if device else [e for e in entries if e.unlock_key]
     if len(chosen) != 1:
         raise BadInputError(f"{rig}: {'no' if not chosen else 'more than one'} device "
                             f"{'named ' + repr(device) if device else 'with an unlock_key'}; pass --device NAME")
-    return chosen[0].url, chosen[0].unlock_key
+    return chosen[0].url, chosen[0].unlock_key, {**chosen[0].description, **given}
 
 
 @click.command("push")
@@ -35,9 +37,11 @@ def _target(device: str | None, rig: str | None) -> tuple[str, str | None]:
 @click.option("--device", metavar="URL", help="The controller: serial:PORT or can://IF/CH?node=N (or a name in --rig).")
 @click.option("--rig", type=click.Path(dir_okay=False), help="Rig file: the controller's URL and unlock_key.")
 @click.option("--key", help="Unlock key (else $AMBDAQ_UNLOCK_KEY, else the rig file's unlock_key).")
+@click.option("--a2l", type=click.Path(dir_okay=False), metavar="FILE",
+              help="The A2L file of an XCP controller (xcp+tcp://, xcp+sxi:, xcp+can://).")
 @click.option("--dry-run", is_flag=True, help="Validate and print the difference from the active bank; write nothing.")
 @click.option("--yes", is_flag=True, help="Do not ask before committing.")
-def push_command(file, device, rig, key, dry_run, yes):
+def push_command(file, device, rig, key, a2l, dry_run, yes):
     """Download coefficient FILE into the controller: validate, write the inactive bank, check the
     device's CRC-32, commit at a control-period boundary, log.
 
@@ -46,11 +50,12 @@ def push_command(file, device, rig, key, dry_run, yes):
       ambdaq push coef.json --device serial:///dev/pts/5 --dry-run
       ambdaq push coef.json --device serial:///dev/pts/5 --yes
       ambdaq push coef.json --device "can://socketcan/can0?node=0x50" --key "$KEY" --yes
+      ambdaq push coef.json --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --yes
     """
-    url, rig_key = _target(device, rig)
+    url, rig_key, description = _target(device, rig, a2l)
     coef = Coefficients.load(file)  # a broken file fails before any device is opened
     unlock_key = None if dry_run else resolve_key(key, rig_key)
-    port = open_controller(url)
+    port = open_controller(url, description)
     try:
         plan = plan_push(port, file, coef)
         status = plan.status
@@ -84,10 +89,11 @@ def controller_group() -> None:
 
 @controller_group.command("status")
 @click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT or can://IF/CH?node=N.")
+@click.option("--a2l", type=click.Path(dir_okay=False), metavar="FILE", help="The A2L file of an XCP controller.")
 @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
-def status_command(device, as_json):
+def status_command(device, a2l, as_json):
     """Active coefficient bank, its CRC-32 and source file hash, and the controller's push log."""
-    port = open_controller(device)
+    port = open_controller(device, {"a2l": str(Path(a2l).resolve())} if a2l else None)
     try:
         st = port.bank_status()
     finally:

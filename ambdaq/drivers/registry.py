@@ -138,8 +138,9 @@ class Backend(ABC):
         """Where the devices behind ``url`` are reached (hardware: the URL itself)."""
         return Endpoints({"device": url.text})
 
-    def controller(self, url: DeviceURL) -> BankPort:
-        """The controller's coefficient banks at ``url`` (``ambdaq push``)."""
+    def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
+        """The controller's coefficient banks at ``url`` (``ambdaq push``); ``description``: what a
+        rig file or an option says of it beyond its URL (an XCP controller's A2L)."""
         raise BadInputError(f"{url.text}: a {url.scheme}:// device has no coefficient banks to push to")
 
 
@@ -213,7 +214,8 @@ def endpoints(url: str | DeviceURL, *, speed: str | SpeedProfile | None = None) 
     return backend(parsed.scheme).endpoints(parsed, _request(speed))
 
 
-def open_controller(url: str | DeviceURL) -> BankPort:
-    """The coefficient banks of the controller at ``url`` (``ambdaq push``, ``controller status``)."""
+def open_controller(url: str | DeviceURL, description: dict | None = None) -> BankPort:
+    """The coefficient banks of the controller at ``url`` (``ambdaq push``, ``controller status``);
+    ``description`` as in :class:`OpenRequest`."""
     parsed = parse_device_url(url)
-    return backend(parsed.scheme).controller(parsed)
+    return backend(parsed.scheme).controller(parsed, description)

@@ -50,6 +50,6 @@ class SimBackend(Backend):
             raise
         return opened
 
-    def controller(self, url: DeviceURL):
+    def controller(self, url: DeviceURL, description: dict | None = None):
         raise BadInputError(f"{url.text}: a push needs a controller that keeps running: start `ambdaq sim serve` "
                             "and push to the serial:// port it prints")

@@ -143,7 +143,7 @@ class CanBackend(Backend):
             sources.append(source)
         return Opened(sources)
 
-    def controller(self, url: DeviceURL) -> BankPort:
+    def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         from .controller import CanopenController
         from .profiles import CONTROLLER
 

@@ -52,7 +52,7 @@ class SerialBackend(Backend):
             raise
         return Opened([dev])
 
-    def controller(self, url: DeviceURL) -> BankPort:
+    def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         dev = self._driver(url, None)
         if not dev.capabilities.banks:
             dev.close()

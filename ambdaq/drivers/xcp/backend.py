@@ -51,8 +51,8 @@ class _XcpBackend(Backend):
         dev.add_calibration(request.calibration)
         return Opened([dev])
 
-    def controller(self, url: DeviceURL) -> BankPort:
-        return self._open(url, None, {})
+    def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
+        return self._open(url, None, description or {})
 
     def ask(self, url: DeviceURL) -> dict[str, str]:
         """Who answers XCP at ``url`` (``ambdaq devices --ask-xcp``); no A2L needed."""

@@ -78,6 +78,39 @@ def _application(layer: str, settings: dict):
     return app
 
 
+XCP_ERRORS = {
+    # ASAM MCD-1 XCP Part 2, the error codes of a negative response, and what each means
+    0x00: ("ERR_CMD_SYNCH", "command processor synchronisation"),
+    0x10: ("ERR_CMD_BUSY", "command not executed: the slave is busy"),
+    0x11: ("ERR_DAQ_ACTIVE", "command rejected while DAQ is running"),
+    0x12: ("ERR_PGM_ACTIVE", "command rejected while programming is running"),
+    0x20: ("ERR_CMD_UNKNOWN", "unknown command, or an optional one the slave lacks"),
+    0x21: ("ERR_CMD_SYNTAX", "command syntax invalid"),
+    0x22: ("ERR_OUT_OF_RANGE", "a command parameter is out of range"),
+    0x23: ("ERR_WRITE_PROTECTED", "the memory location is write protected"),
+    0x24: ("ERR_ACCESS_DENIED", "the memory location is not accessible"),
+    0x25: ("ERR_ACCESS_LOCKED", "access denied: seed & key is required"),
+    0x26: ("ERR_PAGE_NOT_VALID", "the page is not available"),
+    0x27: ("ERR_MODE_NOT_VALID", "the page mode is not available"),
+    0x28: ("ERR_SEGMENT_NOT_VALID", "the segment is not valid"),
+    0x29: ("ERR_SEQUENCE", "commands out of sequence"),
+    0x2A: ("ERR_DAQ_CONFIG", "the DAQ configuration is not valid"),
+    0x30: ("ERR_MEMORY_OVERFLOW", "memory overflow"),
+    0x31: ("ERR_GENERIC", "generic error"),
+    0x32: ("ERR_VERIFY", "the slave's verification found an error"),
+}
+
+
+def _xcp_error_text(err) -> str:
+    """``ERR_NAME (meaning)`` of a pyxcp error, else its own text."""
+    code = getattr(err, "error_code", None)
+    try:
+        name, meaning = XCP_ERRORS[int(code)]
+    except (TypeError, ValueError, KeyError):
+        return str(err)
+    return f"{name} ({meaning})"
+
+
 @contextmanager
 def xcp_errors(url: str, what: str):
     """pyxcp's errors (XCP error responses, timeouts, a refused or lost connection) while doing
@@ -91,7 +124,7 @@ def xcp_errors(url: str, what: str):
     try:
         yield
     except (XcpError, UnrecoverableError) as err:
-        raise DeviceError(f"{url}: {what}: the controller answered {err}") from None
+        raise DeviceError(f"{url}: {what}: the controller answered {_xcp_error_text(err)}") from None
     except XcpTimeoutError:
         raise DeviceError(f"{url}: {what}: no answer (timeout)") from None
     except (OSError, SerialException) as err:
