@@ -252,6 +252,9 @@ def test_validation_refuses_before_anything_is_written(ctl, tmp_path):
         "axis 'spare' does not exist": runout_file(tmp_path / "a.json", rig, axes=AXES[:4] + ["spare"]),
         "exceeds 1 mm": runout_file(tmp_path / "big.json", rig, scale=1e3),
         "LMS schedule is not stable": runout_file(tmp_path / "s.json", rig, schedule=[(0, 60000, 0.001)]),
+        # the work a file can ask for is bounded: 200 such rows, for the controller's 8 harmonics
+        # on both bearings every 100 rpm, are 1,920,000 points of the map
+        "1,920,000 points of the convergence map": runout_file(tmp_path / "g.json", rig, schedule=[(0, 60000, 0.001)] * 200),
     }
     doc = json.loads((tmp_path / "a.json").read_text())  # a file whose harmonics the controller lacks
     doc["runout"]["harmonics"] = [1, 2, 3, 4, 5, 9]

@@ -82,7 +82,7 @@ def test_coefficient_file_is_checked(tmp_path, run_cli):
     c = Coefficients.load(tmp_path / "c.json")
     c.weights["rear_y"][2][1] = float("nan")
     c.save(tmp_path / "nan.json")
-    with pytest.raises(BadInputError, match="not a finite number"):
+    with pytest.raises(BadInputError, match=r"runout\.weights\.rear_y\.2\.1: Input should be a finite number"):
         Coefficients.load(tmp_path / "nan.json")
     with pytest.raises(BadInputError, match="not an ambdaq coefficient file"):
         (tmp_path / "x.json").write_text('{"format": "other"}')

@@ -13,6 +13,7 @@ from ..errors import BadInputError
 from ..machines.base_motion import PLANES
 from ..workflows import fx
 from .figures import plot_option, pyplot
+from .options import POSITIVE
 
 
 def _freqs(spec: str) -> list[float]:
@@ -45,11 +46,11 @@ def command() -> None:
 @click.option("--shaker", metavar="URL",
               help="The two-channel SCPI generator driving the base shakers (serial:///dev/ttyUSB1, "
                    "serial:socket://HOST:5025); default for sim://base-motion: its simulated one.")
-@click.option("--shaker-gain", type=click.FloatRange(min=0, min_open=True),
+@click.option("--shaker-gain", type=POSITIVE,
               help="Base acceleration per generator volt, m/s^2/V (required on hardware; a simulated rig reports "
                    "its shakers').")
 @click.option("--freqs", default="5:100:5", show_default=True, help="FROM:TO:STEP or F1,F2,... Hz.")
-@click.option("--amplitude", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+@click.option("--amplitude", type=POSITIVE, default=1.0, show_default=True,
               help="Peak base acceleration d2, m/s^2.")
 @click.option("--alphas", default="1,-1+0.5j", show_default=True,
               help="Two disturbance ratios d1/d2 (seed 002 eq. A-10); each frequency is run with both.")

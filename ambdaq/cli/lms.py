@@ -16,6 +16,7 @@ from ..daq.frequency_response import FrequencyResponse
 from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
+from .options import POSITIVE
 
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
                             help=f"Loop to design on: {', '.join(PLANT_NAMES)} (docs/lms.md).")
@@ -57,7 +58,7 @@ def command() -> None:
 @plant_option
 @click.option("--harmonic", type=click.IntRange(1, 8), default=1, show_default=True)
 @click.option("--rpm-max", type=click.FloatRange(min=1000), default=60000.0, show_default=True)
-@click.option("--mu-max", type=click.FloatRange(min=0, min_open=True), default=0.01, show_default=True,
+@click.option("--mu-max", type=POSITIVE, default=0.01, show_default=True,
               help="The map spans -MU_MAX .. +MU_MAX.")
 @click.option("--compensated", is_flag=True, help="Map the phase-compensated update instead of seed 000's.")
 @plot_option("Write the map as an image (Fig. 5).")
@@ -126,7 +127,7 @@ def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant:
 
 @command.command("schedule")
 @plant_option
-@click.option("--mu", type=click.FloatRange(min=0, min_open=True), default=0.001, show_default=True,
+@click.option("--mu", type=POSITIVE, default=0.001, show_default=True,
               help="Step size magnitude.")
 @click.option("--dead-band", type=click.FloatRange(min=0), default=500.0, show_default=True,
               help="Hold the weights this many rpm either side of a sign flip (seed 000 update).")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,6 +11,23 @@ from pathlib import Path
 import click
 
 SIZE_UNITS = {"": 1, "k": 10**3, "m": 10**6, "g": 10**9, "ki": 2**10, "mi": 2**20, "gi": 2**30}
+
+
+class FinitePositive(click.FloatRange):
+    """A finite number above 0 (click's FloatRange lets ``nan`` and ``inf`` through)."""
+
+    def __init__(self) -> None:
+        super().__init__(min=0, min_open=True)
+
+    def convert(self, value, param, ctx):
+        out = super().convert(value, param, ctx)
+        if not math.isfinite(out):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return out
+
+
+POSITIVE = FinitePositive()
+"""The type of every option that takes a duration, an amplitude or a limit above 0."""
 
 
 class ByteSize(click.ParamType):
@@ -55,7 +73,7 @@ def output_options(command):
     f = click.option("--overwrite", is_flag=True, help="Replace existing output files.")(f)
     f = click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
                      help="Chunk compression.")(f)
-    f = click.option("--split-duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+    f = click.option("--split-duration", type=POSITIVE, metavar="SECONDS",
                      help="Start a new file every SECONDS on the host clock from the start (NAME_000.mcap, "
                           "NAME_001.mcap ...); each sample goes to the part its time falls in.")(f)
     f = click.option("--split-size", type=ByteSize(), help="Start a new file when one reaches SIZE (e.g. 100M).")(f)

@@ -12,7 +12,7 @@ from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import Output, output_options, report_options, speed_option
+from .options import POSITIVE, Output, output_options, report_options, speed_option
 
 
 def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
@@ -54,7 +54,7 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
 @click.option("--device", "devices", multiple=True, metavar="URL", envvar="AMBDAQ_DEVICE",
               help="Device URL, e.g. sim://spindle?seed=3 (repeatable).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False), help="Rig file (TOML) listing devices.")
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+@click.option("--duration", type=POSITIVE, metavar="SECONDS",
               help="Recording length; default: until Ctrl-C.")
 @speed_option
 @click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")

@@ -13,6 +13,7 @@ from ..daq.reader import load
 from ..errors import AmbdaqError
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
 from .figures import plot_option
+from .options import POSITIVE
 
 @click.group("runout")
 def command() -> None:
@@ -69,7 +70,7 @@ class CheckFailed(AmbdaqError):
 @click.argument("after", type=click.Path(dir_okay=False))
 @click.option("--harmonics", type=click.IntRange(1, 8), default=2, show_default=True, help="Compare 1X .. NX.")
 @click.option("--min-db", type=click.FloatRange(min=0), help="Fail (exit 1) unless every harmonic falls this much.")
-@click.option("--max-rms", type=click.FloatRange(min=0, min_open=True),
+@click.option("--max-rms", type=POSITIVE,
               help="Fail (exit 1) unless the command error's RMS after is below this, in um.")
 @plot_option("Image (.png, .pdf, .svg): command-error orbits and spectra before and after.")
 @click.option("--json", "as_json", is_flag=True)

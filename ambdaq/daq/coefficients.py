@@ -77,31 +77,17 @@ class Coefficients:
 
     @classmethod
     def load(cls, path: str | Path) -> "Coefficients":
-        """Read and check a coefficient file: format, version, checksum, finite weights."""
+        """Read and check a coefficient file: format, version, checksum, then every value's type
+        and range (:mod:`.coefficient_schema`)."""
+        from .coefficient_schema import check_coefficients
+
         path = Path(path)
-        doc = read_sealed(path, FORMAT, VERSION, "coefficient file")
-        try:
-            runout = doc["runout"]
-            weights = {axis: [[float(a), float(b)] for a, b in rows] for axis, rows in runout["weights"].items()}
-            harmonics = [int(k) for k in runout["harmonics"]]
-        except (KeyError, TypeError, ValueError) as err:
-            raise BadInputError(f"{path}: malformed runout section ({err})") from None
-        for axis, rows in weights.items():
-            if len(rows) != len(harmonics):
-                raise BadInputError(f"{path}: {axis} has {len(rows)} weight pairs for {len(harmonics)} harmonics")
-            if not all(math.isfinite(v) for r in rows for v in r):
-                raise BadInputError(f"{path}: {axis} has a weight that is not a finite number")
-        phase = doc.get("lms_phase", {})
-        if phase:
-            try:
-                bin_hz = float(phase["bin_hz"])
-                rows = {axis: [float(v) for v in vals] for axis, vals in phase["phase_rad"].items()}
-            except (KeyError, TypeError, ValueError, AttributeError) as err:
-                raise BadInputError(f"{path}: malformed lms_phase section ({err})") from None
-            if not (bin_hz > 0 and all(math.isfinite(v) for r in rows.values() for v in r)):
-                raise BadInputError(f"{path}: lms_phase needs a positive bin_hz and finite phases")
-        return cls(doc.get("target", {}), doc.get("source", {}), harmonics, weights,
-                   doc.get("lms_schedule", []), phase, doc.get("fir", {}), str(doc.get("lms_plant", "")))
+        doc = check_coefficients(read_sealed(path, FORMAT, VERSION, "coefficient file"), path)
+        return cls(doc.target, doc.source, list(doc.runout.harmonics),
+                   {axis: [list(pair) for pair in rows] for axis, rows in doc.runout.weights.items()},
+                   [list(row) for row in doc.lms_schedule],
+                   doc.lms_phase.model_dump() if doc.lms_phase else {},
+                   doc.fir.model_dump() if doc.fir else {}, doc.lms_plant)
 
 
 def fir_array(coef: Coefficients, planes: list[str], where: str) -> tuple[np.ndarray, float]:

@@ -28,6 +28,8 @@ from pathlib import Path
 from ..errors import BadInputError
 from .registry import parse_device_url
 
+MAX_BYTES = 2**20  # a rig file lists a machine's devices: a megabyte is far beyond any
+
 
 @dataclass(frozen=True)
 class DeviceEntry:
@@ -67,11 +69,15 @@ def load_rig(path: str | Path) -> RigFile:
     """Read and check a rig file; every problem is one :class:`BadInputError` line."""
     path = Path(path)
     try:
+        if not path.is_file():
+            raise BadInputError(f"{path}: {'not a regular file' if path.exists() else 'no such rig file'}")
+        if path.stat().st_size > MAX_BYTES:
+            raise BadInputError(f"{path}: a rig file is at most {MAX_BYTES:,} bytes")
         doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise BadInputError(f"{path}: no such rig file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as err:
         raise BadInputError(f"{path}: not a valid TOML rig file ({err})") from None
+    except RecursionError:
+        raise BadInputError(f"{path}: not a rig file: tables or arrays nested too deep") from None
     unknown = sorted(set(doc) - {"name", "device"})
     if unknown:
         raise BadInputError(f"{path}: unknown key {unknown[0]!r}; a rig file has 'name' and [[device]] tables")

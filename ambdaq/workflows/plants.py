@@ -18,7 +18,6 @@ ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from scipy.signal import ss2tf
 from ..analysis.lms import BEARINGS, PlantLoop, StateSpaceLoop
 from ..machines.spindle import N_AXES  # the controller's axes a plant's inputs stand for, in order
 from ..sim.rigs.spindle import SpindleRig
+from ..daq.sealed import read_json
 from ..errors import BadInputError
 
 PLANT_NAMES = ("front", "rear", "bearings", "rig", "tf:NUM/DEN", "ss:FILE")
@@ -38,6 +38,9 @@ def rig_loop() -> StateSpaceLoop:
     if "spindle" not in _RIG:
         _RIG["spindle"] = StateSpaceLoop(SpindleRig().loop_matrices)
     return _RIG["spindle"]
+
+
+MAX_ORDER = 64  # a plant model's order: the rig's linearisation is 20
 
 
 def resolve_plant(spec: str) -> dict:
@@ -57,6 +60,10 @@ def resolve_plant(spec: str) -> dict:
             raise BadInputError(f"plant {spec!r}: expected tf:NUM/DEN with comma-separated coefficients of s") from None
         if not den or den[0] == 0:
             raise BadInputError(f"plant {spec!r}: the denominator's leading coefficient must not be 0")
+        if not all(np.isfinite(num + den)) or len(den) > MAX_ORDER + 1:
+            raise BadInputError(f"plant {spec!r}: finite coefficients, a denominator of order {MAX_ORDER} at most")
+        if len(np.trim_zeros(np.array(num), "f")) > len(den):
+            raise BadInputError(f"plant {spec!r}: improper (the numerator's order is above the denominator's)")
         return {"tf": (PlantLoop(num=num, den=den), (0, 1, 2, 3, 4))}
     if spec.startswith("ss:"):
         return state_space_plant(Path(spec[3:]))
@@ -69,7 +76,7 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as z:
                 return {k: np.asarray(z[k], dtype=float) for k in z.files}
-        return {k: np.asarray(v, dtype=float) for k, v in json.loads(path.read_text()).items()}
+        return {k: np.asarray(v, dtype=float) for k, v in read_json(path, "plant file").items()}
     except (OSError, ValueError, TypeError, AttributeError) as err:
         raise BadInputError(f"plant ss:{path}: cannot read a .npz or .json of named arrays ({err})") from None
 

@@ -18,6 +18,7 @@ one); a commit whose answer is lost is resolved by reading the status.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ from ..drivers.coefbank import BankImage, crc32
 from ..errors import BadInputError, DeviceError, DeviceTimeout
 
 KEY_ENV = "AMBDAQ_UNLOCK_KEY"
+MAX_MAP_POINTS = 20_000  # convergence-map points a schedule may check: 8 harmonics x 0..60,000 rpm x 2 bearings is 9,600
 STATE_ENV = "AMBDAQ_STATE_DIR"
 
 
@@ -116,8 +118,14 @@ def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phas
 
     loops = resolve_plant(plant)
     state_space = any(isinstance(loop, StateSpaceLoop) for loop, _ in loops.values())  # an eigenproblem per speed
+    step = 250.0 if state_space else 100.0
+    points = sum(max(0, math.ceil((hi - max(lo, step / 2)) / step)) * (n_harm if k == 0 else 1)
+                 for k, lo, hi, mu in rows if mu != 0) * len(loops)
+    if points > MAX_MAP_POINTS:
+        raise BadInputError(f"{where}: the LMS schedule asks for {points:,} points of the convergence map to check; "
+                            f"at most {MAX_MAP_POINTS:,} (fewer or narrower rows)")
     problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
-                               rpm_step=250.0 if state_space else 100.0)
+                               rpm_step=step)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
 

@@ -1,0 +1,116 @@
+"""Hostile input (issue 18): documents and options built to break the parsers get one line and
+exit 2, before any device is opened, and bounded work."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+
+import pytest
+
+from ambdaq.daq.coefficients import Coefficients
+from ambdaq.daq.sealed import seal
+
+NOWHERE = "serial:///dev/null"  # a broken file fails before any device is opened
+
+
+def one_line_exit_2(result, *needles):
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and "Traceback" not in result.output, result.output
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+@pytest.fixture
+def good():
+    """A coefficient document as `runout identify` writes it (two harmonics, two axes)."""
+    return Coefficients(target={"axes": ["front_x", "front_y"]}, source={"method": "test"}, harmonics=[1, 2],
+                        weights={"front_x": [[1e-6, 2e-6], [3e-7, 0.0]], "front_y": [[0.0, 1e-6], [0.0, 0.0]]},
+                        lms_schedule=[[1, 0.0, 60000.0, 0.001]]).to_dict()
+
+
+def sealed(doc: dict) -> str:
+    return json.dumps(seal({k: v for k, v in doc.items() if k != "checksum"}))
+
+
+def edit(doc: dict, change) -> str:
+    d = copy.deepcopy(doc)
+    change(d)
+    return sealed(d)
+
+
+CASES = {
+    # name: (file text from the good document, what the line must name)
+    "nested 100,000 deep": (lambda d: '{"a":' * 100_000 + "1" + "}" * 100_000, "JSON nested too deep"),
+    "an integer of 5,000 digits": (lambda d: sealed(d).replace('"version": 1', '"version": ' + "9" * 5000),
+                                   "not a JSON coefficient file"),
+    "an integer of 400 digits": (lambda d: edit(d, lambda x: x["runout"]["weights"]["front_x"][0].__setitem__(0, 10**400)),
+                                 "runout.weights.front_x.0.0"),
+    "weights a list": (lambda d: edit(d, lambda x: x["runout"].__setitem__("weights", [1, 2])), "runout.weights"),
+    "a NaN weight": (lambda d: edit(d, lambda x: x["runout"]["weights"]["front_y"][1].__setitem__(1, float("nan"))),
+                     "runout.weights.front_y.1.1"),
+    "a schedule not a list": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", 5)), "lms_schedule"),
+    "integer schedule rows": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [1, 2])), "lms_schedule.0"),
+    "strings in a row": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [["a", "b", "c"]])),
+                         "lms_schedule.0.0"),
+    "a range of 1e300 rpm": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [[0, 1e300, 0.001]])),
+                             "lms_schedule.0.1"),
+    "a range of 1e9 rpm": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [[0, 1e9, 0.001]])),
+                           "lms_schedule.0.1"),
+    "a range run backwards": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [[9000, 100, 0.001]])),
+                              "rpm_from 9000 is not below rpm_to 100"),
+    "a step size above 1": (lambda d: edit(d, lambda x: x.__setitem__("lms_schedule", [[0, 100, 5.0]])),
+                            "lms_schedule.0.2"),
+    "weights missing a harmonic": (lambda d: edit(d, lambda x: x["runout"]["weights"]["front_x"].pop()),
+                                   "front_x has 1 weight pairs for 2 harmonics"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_malformed_coefficient_file_is_one_line_naming_the_key(good, tmp_path, run_cli, case):
+    make, needle = CASES[case]
+    path = tmp_path / "coef.json"
+    path.write_text(make(good))
+    one_line_exit_2(run_cli("push", path, "--device", NOWHERE, "--dry-run"), str(path), needle)
+
+
+def test_the_good_document_loads(good, tmp_path):
+    """The cases above differ from a file that loads only in what they break."""
+    path = tmp_path / "coef.json"
+    path.write_text(sealed(good))
+    coef = Coefficients.load(path)
+    assert coef.harmonics == [1, 2] and coef.lms_schedule == [[1, 0.0, 60000.0, 0.001]]
+
+
+def test_a_fifo_is_refused_not_read(tmp_path, run_cli):
+    """A FIFO would block the read forever: it is refused for not being a regular file."""
+    fifo = tmp_path / "coef.json"
+    os.mkfifo(fifo)
+    one_line_exit_2(run_cli("push", fifo, "--device", NOWHERE, "--dry-run"), "not a regular file")
+
+
+def test_an_improper_plant_is_one_line(tmp_path, run_cli):
+    one_line_exit_2(run_cli("lms", "schedule", "--plant", "tf:1,0/1", "--mu", "0.001", "-o", tmp_path / "s.json"),
+                    "improper")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_a_duration_that_is_not_a_finite_number(tmp_path, run_cli, value):
+    r = run_cli("record", "--device", "sim://spindle", "--duration", value, "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and "Invalid value for '--duration'" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_rig_file_nested_too_deep(tmp_path, run_cli):
+    rig = tmp_path / "deep.toml"
+    rig.write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    one_line_exit_2(run_cli("record", "--rig", rig, "-o", tmp_path / "x.mcap"), "nested too deep")
+
+
+def test_a_split_recording_whose_first_part_exists_writes_nothing(tmp_path, run_cli):
+    first = tmp_path / "run_000.mcap"
+    first.write_bytes(b"keep me")
+    one_line_exit_2(run_cli("record", "--device", "sim://spindle", "--duration", "2", "--split-duration", "1",
+                            "-o", tmp_path / "run.mcap"), "run_000.mcap exists")
+    assert first.read_bytes() == b"keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["run_000.mcap"]
