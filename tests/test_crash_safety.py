@@ -82,4 +82,5 @@ def test_kill_9_loses_only_the_last_moments(tmp_path, run_cli):
     # wakes late (1.13 s lost measured beside the other test worker), so 1.5 s: what this guards
     # is that data is flushed as it goes, not only at the end (3 s would be lost then)
     assert 0 <= lost_s <= 1.5, lost_s
-    assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0, "duplicates": 0, "wraps": 0, "restarts": 0}
+    assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0, "duplicates": 0, "wraps": 0, "restarts": 0,
+                                            "samples_lost": 0, "seconds_kept": len(gap) / 10000, "seconds_lost": 0.0}

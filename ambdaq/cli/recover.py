@@ -15,13 +15,20 @@ from ..daq.recover import recover
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable report.")
 def command(file, output, overwrite, as_json):
-    """Recover every complete chunk of FILE into a finished, indexed OUTPUT."""
+    """Recover every intact chunk of FILE, wherever the damage, into a finished, indexed OUTPUT;
+    say per topic the samples and seconds kept and lost (docs/data-format.md, "Recovery")."""
     report = recover(file, output, overwrite=overwrite)
     if as_json:
         click.echo(json.dumps(report.as_dict(), indent=2))
     else:
         click.echo(
             f"recovered {report.messages} messages in {report.chunks_kept} chunks -> {output}; "
-            f"dropped {report.chunks_dropped} damaged chunks and {report.bytes_dropped} trailing bytes",
+            f"lost {report.chunks_dropped} damaged chunks, {report.bytes_dropped} bytes unread"
+            + (f", {report.orphan_messages} messages of unknown channels" if report.orphan_messages else ""),
             err=True,
         )
+        for topic, t in report.topics.items():
+            kept = "?" if t["seconds_kept"] is None else f"{t['seconds_kept']:.3f} s"
+            lost = "?" if t["seconds_lost"] is None else f"{t['seconds_lost']:.3f} s"
+            click.echo(f"  {topic:<28} kept {t['samples']:>10,} samples ({kept}), lost {t['samples_lost']:>8,} ({lost})",
+                       err=True)

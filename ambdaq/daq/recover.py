@@ -1,13 +1,27 @@
 """Rebuild an indexed MCAP file from an unfinished or damaged one (``ambdaq recover``).
 
-The data section is walked record by record.  Schemas, channels, metadata and attachments are
-kept; every chunk whose records decompress and match their CRC is re-emitted with fresh message
-indexes; a chunk that is cut off or corrupt is counted and dropped, as is a truncated tail.
-Statistics (samples, drops per topic) are recomputed from the recovered sequence numbers.
+Every complete chunk is kept, wherever the damage is (docs/data-format.md, "Recovery"):
+
+- **Chunks are found by what they are, not by where the record before them says.**  The file is
+  scanned for the Chunk opcode; a candidate is a chunk when its header holds together (a known
+  compression, its compressed data inside the file) and its records decompress to the CRC-32
+  its header states.  Its end is taken from its own compressed size, so a damaged record
+  length (its own or a neighbour's) costs nothing, and one bad byte costs at most the chunk it
+  is in.
+- **Schemas, channels, metadata and attachments** are read record by record in the stretches
+  between chunks, each stretch until its first record that does not parse; the summary (after
+  Data End) is read for the schema and channel records it repeats, so a damaged data-section
+  channel record is still known.  A kept chunk's messages on a channel known from neither are
+  dropped and counted (``orphan_messages``): without its channel record a message cannot be
+  read.
+- **Statistics** (samples, drops per topic) are recomputed from the recovered sequence numbers;
+  per topic the report says the seconds kept (samples) and lost (gaps in ``seq``), at the rate
+  its device declared.
 """
 
 from __future__ import annotations
 
+import json
 import struct
 import zlib
 from dataclasses import dataclass
@@ -15,13 +29,17 @@ from pathlib import Path
 
 import numpy as np
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Metadata, Schema
+from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
-from .mcapfile import MAGIC, BlockWriter, _read, decompress, iter_records
+from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, decompress, iter_records
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
 from .writer import PROFILE
+
+CHUNK_HEAD = struct.Struct("<QQQII")  # message start, end, uncompressed size, CRC-32, compression name length
+COMPRESSIONS = {b"": "", b"zstd": "zstd", b"lz4": "lz4"}
+MAX_UNCOMPRESSED = 1 << 31  # a chunk is MiBs: a damaged size hint is never taken beyond this
 
 
 @dataclass
@@ -33,26 +51,72 @@ class RecoveryReport:
     messages: int
     bytes_dropped: int
     topics: dict[str, dict]
+    orphan_messages: int = 0
 
     def as_dict(self) -> dict:
         return {"chunks_kept": self.chunks_kept, "chunks_dropped": self.chunks_dropped, "messages": self.messages,
-                "bytes_dropped": self.bytes_dropped, "topics": self.topics}
+                "orphan_messages": self.orphan_messages, "bytes_dropped": self.bytes_dropped, "topics": self.topics}
 
 
-def _chunk_records(body: memoryview) -> bytes:
-    """Decompress a chunk body and check its CRC; raises ValueError when damaged."""
-    _start, _end, usize, crc, nlen = struct.unpack_from("<QQQII", body, 0)
-    p = 8 + 8 + 8 + 4 + 4
-    method = bytes(body[p : p + nlen]).decode()
+def chunk_at(data: bytes, pos: int) -> tuple[bytes, int] | None:
+    """The records of the chunk whose record starts at ``pos`` and the offset just past its data,
+    or None unless a whole, intact chunk is there (see the module docstring)."""
+    n = len(data)
+    head = pos + 9
+    if data[pos] != Opcode.CHUNK or head + CHUNK_HEAD.size > n:
+        return None
+    _start, _end, usize, crc, nlen = CHUNK_HEAD.unpack_from(data, head)
+    p = head + CHUNK_HEAD.size
+    if nlen > 4 or p + nlen + 8 > n:
+        return None
+    method = COMPRESSIONS.get(bytes(data[p : p + nlen]))
+    if method is None:
+        return None
     p += nlen
-    (clen,) = struct.unpack_from("<Q", body, p)
+    (clen,) = struct.unpack_from("<Q", data, p)
     p += 8
-    if p + clen > len(body):
-        raise ValueError("chunk data runs past its record")
-    data = decompress(bytes(body[p : p + clen]), method, usize)
-    if len(data) != usize or (crc and zlib.crc32(data) != crc):
-        raise ValueError("chunk CRC mismatch")
-    return data
+    if p + clen > n:
+        return None
+    try:  # the size is a hint (a zstd frame states its own): the CRC says whether the data is whole
+        records = bytes(decompress(bytes(data[p : p + clen]), method, min(usize, MAX_UNCOMPRESSED)))
+    except Exception:  # whatever the codec says about damaged data
+        return None
+    if (zlib.crc32(records) != crc) if crc else len(records) != usize:
+        return None
+    return records, p + clen
+
+
+def find_chunks(data: bytes, start: int) -> tuple[list[tuple[int, int, bytes]], int]:
+    """Every intact chunk from ``start`` on: (record offset, end offset, records), in file order;
+    and how many candidates had a chunk's header but not its data (damaged chunks)."""
+    found, damaged, pos = [], 0, start
+    while True:
+        q = data.find(bytes([Opcode.CHUNK]), pos)
+        if q < 0 or q + 9 > len(data):
+            return found, damaged
+        got = chunk_at(data, q)
+        if got is None:
+            damaged += _looks_like_a_chunk(data, q)
+            pos = q + 1
+            continue
+        records, end = got
+        found.append((q, end, records))
+        pos = end
+
+
+def _looks_like_a_chunk(data: bytes, pos: int) -> int:
+    """1 when a chunk's header is at ``pos`` (its record length agreeing with its own sizes) but its
+    data did not check: a damaged chunk; else 0."""
+    head = pos + 9
+    if head + CHUNK_HEAD.size + 8 > len(data):
+        return 0
+    (length,) = struct.unpack_from("<Q", data, pos + 1)
+    nlen = CHUNK_HEAD.unpack_from(data, head)[4]
+    p = head + CHUNK_HEAD.size
+    if nlen > 4 or bytes(data[p : p + nlen]) not in COMPRESSIONS or p + nlen + 8 > len(data):
+        return 0
+    (clen,) = struct.unpack_from("<Q", data, p + nlen)
+    return int(length == CHUNK_HEAD.size + 4 + nlen + 8 + clen)
 
 
 def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> RecoveryReport:
@@ -75,58 +139,186 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
     data = src.read_bytes()
     if not data.startswith(MAGIC):
         raise BadInputError(f"{src}: not an MCAP file (bad magic bytes)")
+    chunks, damaged = find_chunks(data, len(MAGIC))
     schemas: dict[int, Schema] = {}
-    layouts: dict[int, TopicLayout] = {}
-    stats: dict[int, SampleCounts] = {}
-    trackers: dict[int, SequenceTracker] = {}
-    kept = dropped = messages = 0
-    consumed = len(MAGIC)
+    channels: dict[int, Channel] = {}
+    metadata: list[Metadata] = []
+    attachments: list[Attachment] = []
+    covered = len(MAGIC) + sum(end - pos for pos, end, _r in chunks)
+    bounds = [len(MAGIC), *[x for pos, end, _r in chunks for x in (pos, end)], len(data)]
+    for a, b in zip(bounds[0::2], bounds[1::2]):
+        covered += _read_stretch(data, a, b, schemas, channels, metadata, attachments)
+    layouts, stats, trackers = {}, {}, {}
     tmp = dst.with_name(dst.name + ".part")
+    messages = orphans = 0
     with open(tmp, "wb") as out:
         w = BlockWriter(out, profile=PROFILE)
-        for op, pos, body in iter_records(data, len(MAGIC)):
-            consumed = pos + 9 + len(body)
-            if op == Opcode.DATA_END or op == Opcode.FOOTER:
-                break
-            try:
-                if op == Opcode.SCHEMA:
-                    s = _read(Schema, body)
-                    schemas[s.id] = s
-                    w.add_schema(s.name, s.encoding, s.data, schema_id=s.id)
-                elif op == Opcode.CHANNEL:
-                    c = _read(Channel, body)
-                    w.add_channel(c.topic, c.schema_id, c.message_encoding, c.metadata, channel_id=c.id)
-                    s = schemas.get(c.schema_id)
-                    group = parse_schema(s.name, s.data.decode(errors="replace")) if s is not None else None
-                    if group is not None:
-                        layouts[c.id] = TopicLayout(group)
-                        stats[c.id] = SampleCounts((c.metadata or {}).get("device", ""))
-                        trackers[c.id] = SequenceTracker()
-                elif op == Opcode.METADATA:
-                    m = _read(Metadata, body)
-                    if m.name != "ambdaq.statistics":  # recomputed below
-                        w.add_metadata(m.name, m.metadata)
-                elif op == Opcode.ATTACHMENT:
-                    a = _read(Attachment, body)
-                    w.add_attachment(a.name, a.media_type, a.data, a.log_time)
-                elif op == Opcode.CHUNK:
-                    records = _chunk_records(body)
-                    messages += _count(records, layouts, stats, trackers)
-                    w.add_chunk_records(records)
-                    kept += 1
-            except Exception:
-                if op == Opcode.CHUNK:
-                    dropped += 1
+        for s in schemas.values():
+            w.add_schema(s.name, s.encoding, s.data, schema_id=s.id)
+        for c in channels.values():
+            if c.schema_id not in schemas and c.schema_id != 0:
                 continue
+            w.add_channel(c.topic, c.schema_id, c.message_encoding, c.metadata, channel_id=c.id)
+            s = schemas.get(c.schema_id)
+            group = parse_schema(s.name, s.data.decode(errors="replace")) if s is not None else None
+            if group is not None:
+                layouts[c.id] = TopicLayout(group)
+                stats[c.id] = SampleCounts((c.metadata or {}).get("device", ""))
+                trackers[c.id] = SequenceTracker()
+        known = {c.id for c in channels.values() if c.schema_id in schemas or c.schema_id == 0}
+        for m in metadata:
+            if m.name not in ("ambdaq.statistics", "ambdaq.recovery"):  # recomputed below
+                w.add_metadata(m.name, m.metadata)
+        for a in attachments:
+            w.add_attachment(a.name, a.media_type, a.data, a.log_time)
+        for _pos, _end, records in chunks:
+            records, lost = _known_only(records, known)
+            orphans += lost
+            messages += _count(records, layouts, stats, trackers)
+            w.add_chunk_records(records)
+        rates = _declared_rates(metadata)
+        written = _written_samples(metadata)
+        topics = {}
+        for cid, st in stats.items():
+            topic = w.channel_topic(cid)
+            d = {k: v for k, v in st.as_dict().items() if k in ("samples", "drops", "duplicates", "wraps", "restarts")}
+            # lost: what the finished file said it held less what is kept; of an unfinished one,
+            # the gaps in seq (a lost first or last chunk leaves none)
+            lost = written[topic] - st.samples if topic in written else st.drops
+            rate = rates.get(st.device)
+            d["samples_lost"] = lost
+            d["seconds_kept"] = round(st.samples / rate, 6) if rate else None
+            d["seconds_lost"] = round(lost / rate, 6) if rate else None
+            topics[topic] = d
+        indexed = _indexed_chunks(data)
+        if indexed is not None:
+            damaged = len(indexed - {pos for pos, _end, _r in chunks})
+        dropped_bytes = len(data) - covered
         w.add_metadata("ambdaq.statistics", {w.channel_topic(cid): st.as_json() for cid, st in stats.items()})
-        w.add_metadata("ambdaq.recovery", {"source": str(src), "chunks_kept": str(kept), "chunks_dropped": str(dropped),
-                                           "bytes_dropped": str(len(data) - consumed)})
+        w.add_metadata("ambdaq.recovery", {"source": str(src), "chunks_kept": str(len(chunks)),
+                                           "chunks_dropped": str(damaged), "orphan_messages": str(orphans),
+                                           "bytes_dropped": str(dropped_bytes)})
         w.finish()
     tmp.replace(dst)
-    return RecoveryReport(kept, dropped, messages, len(data) - consumed,
-                          {w.channel_topic(cid): {k: v for k, v in st.as_dict().items()
-                                                  if k in ("samples", "drops", "duplicates", "wraps", "restarts")}
-                           for cid, st in stats.items()})
+    return RecoveryReport(len(chunks), damaged, messages, dropped_bytes, topics, orphans)
+
+
+def _read_stretch(data: bytes, start: int, end: int, schemas: dict, channels: dict, metadata: list,
+                  attachments: list) -> int:
+    """Read the non-chunk records from ``start`` to ``end``; the bytes read.  After a record that
+    does not parse, go on at the next offset where a record parses and the one after it starts
+    (or the stretch ends) there: a damaged record costs itself and no more."""
+    pos, read = start, 0
+    while pos + 9 <= end:
+        got = _record_at(data, pos, end)
+        if got is None:
+            pos = _next_record(data, pos + 1, end)
+            continue
+        op, record, rec_end = got
+        if op == Opcode.SCHEMA:
+            schemas.setdefault(record.id, record)
+        elif op == Opcode.CHANNEL:
+            channels.setdefault(record.id, record)
+        elif op == Opcode.METADATA:
+            metadata.append(record)
+        elif op == Opcode.ATTACHMENT:
+            attachments.append(record)
+        read += rec_end - pos
+        if op == Opcode.FOOTER and data[rec_end:end] == MAGIC:
+            read += len(MAGIC)
+            break
+        pos = rec_end
+    return read
+
+
+RECORD_CLASSES = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel, Opcode.METADATA: Metadata,
+                  Opcode.ATTACHMENT: Attachment}
+
+
+def _record_at(data: bytes, pos: int, end: int):
+    """(opcode, parsed record or None, end offset) of a record at ``pos`` that lies within ``end``,
+    is of a known kind and, if ambdaq keeps it, parses; else None."""
+    op, length = struct.unpack_from("<BQ", data, pos)
+    rec_end = pos + 9 + length
+    if op not in KNOWN_OPCODES or rec_end > end:
+        return None
+    cls = RECORD_CLASSES.get(op)
+    if cls is None:
+        return op, None, rec_end
+    try:
+        return op, _read(cls, memoryview(data)[pos + 9 : rec_end]), rec_end
+    except Exception:  # whatever the record classes say of damaged bytes
+        return None
+
+
+def _next_record(data: bytes, pos: int, end: int) -> int:
+    """The first offset from ``pos`` where a record is (:func:`_record_at`) and the next one starts
+    or the stretch ends; ``end`` if none."""
+    for q in range(pos, end - 8):
+        if data[q] not in KNOWN_OPCODES:
+            continue
+        got = _record_at(data, q, end)
+        if got is not None and (got[2] == end or (got[2] + 9 <= end and _record_at(data, got[2], end) is not None)):
+            return q
+    return end
+
+
+KNOWN_OPCODES = {int(op) for op in Opcode}
+
+
+def _known_only(records: bytes, known: set[int]) -> tuple[bytes, int]:
+    """``records`` without the messages on channels not in ``known``, and how many those were."""
+    keep, lost, clean = [], 0, True
+    for op, pos, body in iter_records(records, 0):
+        if op == MESSAGE_OPCODE and struct.unpack_from("<H", body, 0)[0] not in known:
+            lost += 1
+            clean = False
+            continue
+        keep.append(bytes(records[pos : pos + 9 + len(body)]))
+    return (records if clean else b"".join(keep)), lost
+
+
+def _written_samples(metadata: list[Metadata]) -> dict[str, int]:
+    """Samples per topic that a finished file's ``ambdaq.statistics`` says it held."""
+    out = {}
+    for m in metadata:
+        if m.name == "ambdaq.statistics":
+            for topic, text in m.metadata.items():
+                try:
+                    out[topic] = int(json.loads(text)["samples"])
+                except (ValueError, KeyError, TypeError):
+                    pass
+    return out
+
+
+def _indexed_chunks(data: bytes) -> set[int] | None:
+    """The chunk offsets the summary's Chunk Index records give, if the footer and summary hold."""
+    fpos = len(data) - len(MAGIC) - FOOTER_SIZE
+    if fpos < len(MAGIC) or data[-len(MAGIC):] != MAGIC:
+        return None
+    op, length, summary_start = struct.unpack_from("<BQQ", data, fpos)
+    if op != Opcode.FOOTER or length != FOOTER_SIZE - 9 or not len(MAGIC) <= summary_start < fpos:
+        return None
+    out = set()
+    for op, _pos, body in iter_records(data, summary_start, fpos):
+        if op == Opcode.CHUNK_INDEX:
+            try:
+                out.add(_read(ChunkIndex, body).chunk_start_offset)
+            except Exception:  # a damaged index: no count from it
+                return None
+    return out
+
+
+def _declared_rates(metadata: list[Metadata]) -> dict[str, float]:
+    """Each device's declared sample rate (Hz), from its ``ambdaq.device.<name>`` metadata."""
+    out = {}
+    for m in metadata:
+        if m.name.startswith("ambdaq.device."):
+            try:
+                out[m.name[len("ambdaq.device."):]] = float(m.metadata["sample_rate_hz"])
+            except (KeyError, ValueError):
+                pass
+    return out
 
 
 def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, SampleCounts],
