@@ -39,12 +39,14 @@ def load_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     doc = read_sealed(path, FORMAT, VERSION, "compensator points file")
     try:
         f = np.array(doc["freq_hz"], dtype=float)
+        if f.ndim != 1:
+            raise ValueError("freq_hz is not a list of frequencies")
         W = np.empty((f.shape[0], 2, 2, 2), dtype=complex)
         for p, plane in enumerate(PLANES):
             for j, m in PAIRS:
                 v = doc["planes"][plane][f"W{j + 1}{m + 1}"]
                 W[:, p, j, m] = np.array(v["re"], dtype=float) + 1j * np.array(v["im"], dtype=float)
-    except (KeyError, TypeError, ValueError) as err:
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
         raise BadInputError(f"{path}: malformed points file ({err})") from None
     if not np.all(np.isfinite(W)):
         raise BadInputError(f"{path}: a compensator point is not a finite number")

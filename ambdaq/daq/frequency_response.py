@@ -82,11 +82,11 @@ class FrequencyResponse:
                 for out, v in col["outputs"].items():
                     h = np.array(v["re"], dtype=float) + 1j * np.array(v["im"], dtype=float)
                     c = np.array(v["coherence"], dtype=float)
-                    if h.shape != freq.shape or c.shape != freq.shape:
-                        raise ValueError(f"{name} -> {out} has {h.shape[0]} points for {freq.shape[0]} frequencies")
+                    if freq.ndim != 1 or h.shape != freq.shape or c.shape != freq.shape:
+                        raise ValueError(f"{name} -> {out} has {h.size} points for {freq.size} frequencies")
                     outs[out] = (h, c)
                 columns[name] = {"source": dict(col.get("source", {})), "outputs": outs}
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
             raise BadInputError(f"{path}: malformed frequency response ({err})") from None
         values = [freq] + [x for col in columns.values() for pair in col["outputs"].values() for x in pair]
         if not all(np.all(np.isfinite(v)) for v in values):

@@ -459,16 +459,25 @@ class McapFile:
         """All metadata records, name -> map."""
         out = {}
         for idx in self.summary.metadata_indexes:
-            op, length = struct.unpack_from("<BQ", self._data, idx.offset)
-            out[idx.name] = _read(Metadata, memoryview(self._data)[idx.offset + 9 : idx.offset + 9 + length]).metadata
+            out[idx.name] = self._indexed(Metadata, idx.offset, idx.name).metadata
         return out
+
+    def _indexed(self, cls, offset: int, name: str):
+        """The record of class ``cls`` an index puts at ``offset``; a damaged one is a BadInputError."""
+        try:
+            op, length = struct.unpack_from("<BQ", self._data, offset)
+            if offset + 9 + length > len(self._data):
+                raise ValueError("it runs past the end of the file")
+            return _read(cls, memoryview(self._data)[offset + 9 : offset + 9 + length])
+        except Exception as err:  # whatever the record classes say of damaged bytes
+            raise BadInputError(f"{self.path}: the {cls.__name__.lower()} record {name!r} is damaged ({err}); "
+                                "try: ambdaq recover") from None
 
     def attachments(self) -> dict[str, bytes]:
         """All attachments, name -> bytes."""
         out = {}
         for idx in self.summary.attachment_indexes:
-            op, length = struct.unpack_from("<BQ", self._data, idx.offset)
-            out[idx.name] = _read(Attachment, memoryview(self._data)[idx.offset + 9 : idx.offset + 9 + length]).data
+            out[idx.name] = self._indexed(Attachment, idx.offset, idx.name).data
         return out
 
     def chunk_records(self, ci: ChunkIndex, into: bytearray | None = None) -> bytes | memoryview:

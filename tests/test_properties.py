@@ -1,0 +1,190 @@
+"""Property-based tests (hypothesis) of every parser and decoder of outside input (issue 18 item 4):
+whatever the input, it ends in a value or one of ambdaq's documented errors (exit 2 for bad
+input), within a time bound, and leaves no file half-written.
+
+Each property runs a few dozen examples in the default suite (seconds) and, marked ``soak``
+(``pytest -m soak tests/test_properties.py``), thousands.  The deadline is a hang detector, not
+a speed target: a parse of these small inputs takes milliseconds, a hang takes forever.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ambdaq.daq.coefficients import Coefficients
+from ambdaq.daq.compensator_points import load_points, save_points
+from ambdaq.daq.frequency_response import FrequencyResponse
+from ambdaq.daq.recover import recover
+from ambdaq.daq.sealed import seal
+from ambdaq.drivers.rigfile import load_rig
+from ambdaq.drivers.serial.framing import FrameDecoder, encode_frame
+from ambdaq.errors import BadInputError
+
+QUICK = settings(max_examples=40, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                     HealthCheck.too_slow])
+SOAK = settings(max_examples=3000, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                       HealthCheck.too_slow])
+PROFILES = [pytest.param(QUICK, id="quick"), pytest.param(SOAK, id="soak", marks=pytest.mark.soak)]
+
+# any JSON value, with the numbers that break parsers: huge integers, NaN, infinities
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(min_value=-(10**400), max_value=10**400)
+    | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=20),
+    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=10), inner, max_size=5),
+    max_leaves=30)
+
+
+def _paths(doc, prefix=()):
+    """Every path into a JSON document (lists and dicts)."""
+    yield prefix
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            yield from _paths(v, (*prefix, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            yield from _paths(v, (*prefix, i))
+
+
+def mutated(draw, doc: dict) -> dict:
+    """``doc`` with one subtree (not format or version) replaced by any JSON value."""
+    paths = [p for p in _paths(doc) if p and p[0] not in ("format", "version", "checksum")]
+    path = draw(st.sampled_from(paths))
+    out = json.loads(json.dumps(doc))
+    node = out
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = draw(JSON)
+    return out
+
+
+def documents():
+    """A valid coefficient, frequency-response and points document, as ambdaq writes them."""
+    coef = Coefficients(target={"axes": ["front_x", "front_y"]}, source={"method": "test"}, harmonics=[1, 2],
+                        weights={"front_x": [[1e-6, 2e-6], [3e-7, 0.0]], "front_y": [[0.0, 1e-6], [0.0, 0.0]]},
+                        lms_schedule=[[1, 100.0, 60000.0, 0.001]],
+                        lms_phase={"bin_hz": 10.0, "phase_rad": {"front_x": [0.1, 0.2]}}).to_dict()
+    f = np.array([10.0, 20.0])
+    frf = FrequencyResponse(f, {"front_x": {"source": {"file": "a.mcap"},
+                                           "outputs": {"front_x": (np.array([1 + 1j, 2 - 1j]), np.array([0.9, 0.95]))}}})
+    return {"coefficient": (coef, Coefficients.load), "frequency-response": (frf.to_dict(), FrequencyResponse.load)}
+
+
+def _points_doc(tmp: Path) -> dict:
+    W = np.ones((2, 2, 2, 2), dtype=complex)
+    save_points(tmp / "p.json", [10.0, 20.0], W, [[0.1, 0.2], [0.1, 0.2]], {"campaign": "x"})
+    return json.loads((tmp / "p.json").read_text())
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+@pytest.mark.parametrize("kind", ["coefficient", "frequency-response", "points"])
+def test_a_sealed_document_with_any_value_anywhere_loads_or_is_bad_input(tmp_path, kind, profile):
+    if kind == "points":
+        doc, load = _points_doc(tmp_path), load_points
+    else:
+        doc, load = documents()[kind]
+
+    @profile
+    @given(st.data())
+    def check(data):
+        broken = mutated(data.draw, doc)
+        path = tmp_path / "doc.json"
+        path.write_text(json.dumps(seal({k: v for k, v in broken.items() if k != "checksum"})))
+        try:
+            load(path)
+        except BadInputError:
+            pass
+
+    check()
+
+
+RIG = '''name = "bench"
+
+[[device]]
+name = "controller"
+url = "serial:///dev/ttyUSB0"
+unlock_key = "k"
+
+[device.calibration]
+gap_sensor_gain_v_per_m = "10000"
+'''
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_a_rig_file_with_any_edit_loads_or_is_bad_input(tmp_path, profile):
+    @profile
+    @given(st.integers(0, len(RIG)), st.integers(0, 20), st.text(max_size=30))
+    def check(at, cut, insert):
+        path = tmp_path / "rig.toml"
+        path.write_text(RIG[:at] + insert + RIG[at + cut:])
+        try:
+            load_rig(path)
+        except BadInputError:
+            pass
+
+    check()
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_the_serial_decoder_takes_any_bytes_and_keeps_the_good_frames(profile):
+    @profile
+    @given(st.binary(max_size=500), st.lists(st.binary(min_size=1, max_size=60), max_size=5), st.binary(max_size=200))
+    def check(noise, bodies, tail):
+        dec = FrameDecoder()
+        out = dec.feed(noise)  # garbage: counted, never an exception
+        # a zero byte ends whatever the noise left open; every frame after it comes back whole
+        out = dec.feed(b"\x00" + b"".join(encode_frame(b) for b in bodies))
+        assert out == bodies
+        dec.feed(tail)
+
+    check()
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory):
+    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.sim.source import SimSource
+    from ambdaq.speed import SpeedProfile
+
+    path = tmp_path_factory.mktemp("prop") / "run.mcap"
+    Recorder([SimSource("spindle", seed=5, speed=SpeedProfile(30000, 30000), block_s=0.01)], path,
+             RecordOptions(duration_s=0.05, chunk_size=8 * 1024, fsync=False)).run()
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_reading_and_recovering_a_damaged_file_ends_in_data_or_bad_input(small_recording, tmp_path, profile):
+    from ambdaq.daq import load
+    from ambdaq.daq.mcapfile import McapFile
+
+    data = small_recording
+
+    @profile
+    @given(st.lists(st.tuples(st.integers(0, len(data) - 1), st.integers(1, 255)), max_size=4),
+           st.integers(0, len(data)))
+    def check(flips, keep):
+        damaged = bytearray(data[:keep])
+        for at, x in flips:
+            if at < len(damaged):
+                damaged[at] ^= x
+        bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+        bad.write_bytes(damaged)
+        try:
+            load(bad)
+        except BadInputError:
+            pass
+        try:
+            report = recover(bad, fixed, overwrite=True)
+        except BadInputError:
+            assert not fixed.with_name(fixed.name + ".part").exists()
+            return
+        assert not fixed.with_name(fixed.name + ".part").exists()  # finished, or nothing
+        McapFile(fixed)  # a complete, indexed file
+        assert report.messages >= 0
+
+    check()
