@@ -114,3 +114,11 @@ def test_a_split_recording_whose_first_part_exists_writes_nothing(tmp_path, run_
     one_line_exit_2(run_cli("record", "--device", "sim://spindle", "--duration", "2", "--split-duration", "1",
                             "-o", tmp_path / "run.mcap"), "run_000.mcap exists")
     assert first.read_bytes() == b"keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["run_000.mcap"]
+
+
+@pytest.mark.parametrize("command", [("lms", "map"), ("lms", "schedule", "--mu", "0.001")])
+def test_a_plant_whose_numbers_overflow_is_one_line(tmp_path, run_cli, command):
+    """Finite coefficients whose loop overflows (1e-300 s^0 over s + 1e300): the convergence map
+    cannot be computed, which is the plant's fault, not ambdaq's."""
+    out = ("-o", tmp_path / "s.json") if command[1] == "schedule" else ()
+    one_line_exit_2(run_cli(*command, "--plant", "tf:1e-300/1,1e300", *out), "cannot be analysed")

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..analysis.lms import (PhaseTable, StateSpaceLoop, converges, convergence_radius, measured_phase_compensation, mu_sign,
                             phase_compensation, sign_changes, sign_schedule)
-from ..workflows.plants import PLANT_NAMES, resolve_plant
+from ..workflows.plants import PLANT_NAMES, analysing, resolve_plant
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
 from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
@@ -72,23 +72,24 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
       ambdaq lms map --plant rig --harmonic 2 --json
     """
     loops = resolve_plant(plant)
-    phase = _phase_table(loops) if compensated else None
-    step = _grid_step(loops, 50.0)
-    rpm = np.arange(step, rpm_max + step / 2, step)
-    mu = np.linspace(-mu_max, mu_max, 41)
-    report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
-    maps = {}
-    for name, (loop, axes) in loops.items():
-        ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
-        if plot_path:  # the whole map only for the picture: the report needs the signs alone
-            maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
-        signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
-        none = rpm[signs == 0]
-        report["loops"][name] = {
-            "sign_flips_rpm": sign_changes(signs, rpm),
-            "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
-            "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[:: max(1, len(rpm) // 12)], signs[:: max(1, len(rpm) // 12)])},
-        }
+    with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
+        phase = _phase_table(loops) if compensated else None
+        step = _grid_step(loops, 50.0)
+        rpm = np.arange(step, rpm_max + step / 2, step)
+        mu = np.linspace(-mu_max, mu_max, 41)
+        report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
+        maps = {}
+        for name, (loop, axes) in loops.items():
+            ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
+            if plot_path:  # the whole map only for the picture: the report needs the signs alone
+                maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
+            signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
+            none = rpm[signs == 0]
+            report["loops"][name] = {
+                "sign_flips_rpm": sign_changes(signs, rpm),
+                "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
+                "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[:: max(1, len(rpm) // 12)], signs[:: max(1, len(rpm) // 12)])},
+            }
     if as_json:
         click.echo(json.dumps(report, indent=2))
     else:
@@ -156,15 +157,17 @@ def schedule_command(plant, mu, dead_band, harmonics, compensated, frf_file, wei
     step = _grid_step(loops, 10.0)
     compensated = compensated or frf_file is not None
     if compensated:
-        phase = _measured_phase_table(frf_file) if frf_file else _phase_table(loops)
+        with analysing(plant):
+            phase = _measured_phase_table(frf_file) if frf_file else _phase_table(loops)
         rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
         phase_doc = {"bin_hz": phase.bin_hz,
                      "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
     else:
         phase_doc = {}
-        rows = [[k, *r] for k in range(1, harmonics + 1)
-                for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
-                                       rpm_max=rpm_max, harmonic=k, step=step)]
+        with analysing(plant):
+            rows = [[k, *r] for k in range(1, harmonics + 1)
+                    for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
+                                           rpm_max=rpm_max, harmonic=k, step=step)]
         rows = [r for r in rows if r[3] != 0.0]  # a harmonic not named in a speed range is held
     if weights_file:
         base = Coefficients.load(weights_file)

@@ -18,6 +18,7 @@ ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,16 @@ def rig_loop() -> StateSpaceLoop:
 
 
 MAX_ORDER = 64  # a plant model's order: the rig's linearisation is 20
+
+
+@contextmanager
+def analysing(spec: str):
+    """A plant the convergence map cannot be computed for (its numbers overflow, its matrices are
+    singular) is bad input: one line naming it, not an internal error."""
+    try:
+        yield
+    except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError, ValueError) as err:
+        raise BadInputError(f"plant {spec!r} cannot be analysed on the convergence map ({err})") from None
 
 
 def resolve_plant(spec: str) -> dict:

@@ -114,7 +114,7 @@ def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phas
     (seed 000 Fig. 5).  The map needs scipy.signal and the rig's linearisation: imported here, so
     a push without a schedule and ``controller status`` start without them."""
     from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
-    from .plants import resolve_plant
+    from .plants import analysing, resolve_plant
 
     loops = resolve_plant(plant)
     state_space = any(isinstance(loop, StateSpaceLoop) for loop, _ in loops.values())  # an eigenproblem per speed
@@ -124,8 +124,9 @@ def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phas
     if points > MAX_MAP_POINTS:
         raise BadInputError(f"{where}: the LMS schedule asks for {points:,} points of the convergence map to check; "
                             f"at most {MAX_MAP_POINTS:,} (fewer or narrower rows)")
-    problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
-                               rpm_step=step)
+    with analysing(plant):
+        problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
+                                   rpm_step=step)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")
 
