@@ -122,3 +122,23 @@ def test_a_plant_whose_numbers_overflow_is_one_line(tmp_path, run_cli, command):
     cannot be computed, which is the plant's fault, not ambdaq's."""
     out = ("-o", tmp_path / "s.json") if command[1] == "schedule" else ()
     one_line_exit_2(run_cli(*command, "--plant", "tf:1e-300/1,1e300", *out), "cannot be analysed")
+
+
+def test_frequency_response_and_points_files_name_the_offending_key(tmp_path, run_cli):
+    import numpy as np
+
+    from ambdaq.daq.compensator_points import save_points
+    from ambdaq.daq.frequency_response import FrequencyResponse
+
+    frf = FrequencyResponse(np.array([10.0, 20.0]), {"front_x": {"source": {}, "outputs": {
+        "front_x": (np.array([1 + 1j, 2 - 1j]), np.array([0.9, 0.95]))}}}).to_dict()
+    frf["columns"]["front_x"]["outputs"]["front_x"]["coherence"][1] = 2.0  # a coherence above 1
+    (tmp_path / "loop.frf.json").write_text(sealed(frf))
+    one_line_exit_2(run_cli("lms", "schedule", "--plant", "rig", "--frf", tmp_path / "loop.frf.json",
+                            "-o", tmp_path / "s.json"), "columns.front_x.outputs.front_x.coherence.1")
+    save_points(tmp_path / "p.json", [10.0, 20.0], np.ones((2, 2, 2, 2), dtype=complex), [[0.1, 0.2]] * 2, {})
+    points = json.loads((tmp_path / "p.json").read_text())
+    points["planes"]["vertical"]["W12"]["im"] = [0.0]  # one value for two frequencies
+    (tmp_path / "p.json").write_text(sealed(points))
+    one_line_exit_2(run_cli("fx", "fit", tmp_path / "p.json", "-o", tmp_path / "fir.json"),
+                    "planes.vertical.W12 has 2 re and 1 im values for 2 frequencies")

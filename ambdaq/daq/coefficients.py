@@ -78,11 +78,11 @@ class Coefficients:
     @classmethod
     def load(cls, path: str | Path) -> "Coefficients":
         """Read and check a coefficient file: format, version, checksum, then every value's type
-        and range (:mod:`.coefficient_schema`)."""
-        from .coefficient_schema import check_coefficients
+        and range (:mod:`.sealed_schemas`)."""
+        from .sealed_schemas import CoefficientDocument, check_document
 
         path = Path(path)
-        doc = check_coefficients(read_sealed(path, FORMAT, VERSION, "coefficient file"), path)
+        doc = check_document(CoefficientDocument, read_sealed(path, FORMAT, VERSION, "coefficient file"), path)
         return cls(doc.target, doc.source, list(doc.runout.harmonics),
                    {axis: [list(pair) for pair in rows] for axis, rows in doc.runout.weights.items()},
                    [list(row) for row in doc.lms_schedule],

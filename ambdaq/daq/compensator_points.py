@@ -36,7 +36,10 @@ def save_points(path: str | Path, freqs: list[float], W: np.ndarray, residual: l
 
 def load_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A points file -> (freq_hz (n,), W (n, plane, j, m) complex); checked like every ambdaq file."""
+    from .sealed_schemas import PointsDocument, check_document
+
     doc = read_sealed(path, FORMAT, VERSION, "compensator points file")
+    check_document(PointsDocument, doc, path)  # types, ranges, lengths: one line naming the key
     try:
         f = np.array(doc["freq_hz"], dtype=float)
         if f.ndim != 1:

@@ -72,8 +72,11 @@ class FrequencyResponse:
     @classmethod
     def load(cls, path: str | Path) -> "FrequencyResponse":
         """Read and check a frequency-response file: format, version, checksum, shapes, finite values."""
+        from .sealed_schemas import FrequencyResponseDocument, check_document
+
         path = Path(path)
         doc = read_sealed(path, FORMAT, VERSION, "frequency-response file")
+        check_document(FrequencyResponseDocument, doc, path)  # types, ranges, lengths: one line naming the key
         try:
             freq = np.array(doc["freq_hz"], dtype=float)
             columns = {}

@@ -1,10 +1,11 @@
-"""The coefficient file's shape and ranges, checked before anything uses them (docs/coefficients.md).
+"""The shapes and ranges of the sealed documents (the coefficient, frequency-response and
+compensator points files), checked before anything uses them (docs/coefficients.md).
 
-A coefficient file comes from ambdaq, but it travels: it is mailed, edited, kept for years. So
-every value is checked for type and range once, here, and a file that fails says where in one
-line (``coef.json: lms_schedule.0.2: Input should be less than or equal to 500000``), exit 2,
-before a controller is opened.  The bounds also bound the work a file can ask for: the
-convergence map's speed grid is at most MAX_RPM / 100 rpm steps per row and harmonic.
+A document comes from ambdaq, but it travels: it is mailed, edited, kept for years. So every
+value is checked for type and range once, here, and a file that fails says where in one line
+(``coef.json: lms_schedule.0.2: Input should be less than or equal to 500000``), exit 2, before
+a controller is opened.  The bounds also bound the work a file can ask for: the convergence
+map's speed grid is at most MAX_RPM / 100 rpm steps per row and harmonic.
 
 pydantic (v2) rather than jsonschema: the checks are the Python types the loader wants
 (tuples of finite floats, bounded lists, dicts of them), strict (no "1.5" taken for 1.5), and
@@ -26,6 +27,7 @@ MAX_ROWS = 1_000  # LMS schedule rows
 MAX_AXES = 64
 MAX_PHASE_BINS = 100_000
 MAX_TAPS = 10_000
+MAX_FREQUENCIES = 1_000_000
 
 Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 Rpm = Annotated[float, Field(strict=True, ge=0, le=MAX_RPM, allow_inf_nan=False)]
@@ -98,11 +100,78 @@ class CoefficientDocument(_Strict):
         return rows
 
 
-def check_coefficients(doc: dict, path) -> CoefficientDocument:
-    """``doc`` (a coefficient file's JSON) checked; the first problem as one BadInputError line
-    naming the key (``runout.weights.front_x.0.1: ...``)."""
+Spectrum = Annotated[list[Finite], Field(max_length=MAX_FREQUENCIES)]
+
+
+class Response(_Strict):
+    re: Spectrum
+    im: Spectrum
+    # coherence is at most 1; the estimate's last bits may pass it by a rounding, not by a millionth
+    coherence: Annotated[list[Annotated[float, Field(strict=True, ge=0, le=1 + 1e-6, allow_inf_nan=False)]],
+                         Field(max_length=MAX_FREQUENCIES)]
+
+
+class Column(_Strict):
+    source: dict = Field(default_factory=dict)
+    outputs: Annotated[dict[Name, Response], Field(max_length=MAX_AXES)]
+
+
+class FrequencyResponseDocument(_Strict):
+    """A frequency-response file's content (docs/frf.md)."""
+
+    format: str
+    version: int
+    input_topic: str = ""
+    output_topic: str = ""
+    unit: str = ""
+    freq_hz: Annotated[list[Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]],
+                       Field(max_length=MAX_FREQUENCIES)]
+    columns: Annotated[dict[Name, Column], Field(max_length=MAX_AXES)]
+
+    @model_validator(mode="after")
+    def _one_value_per_frequency(self) -> "FrequencyResponseDocument":
+        n = len(self.freq_hz)
+        for name, col in self.columns.items():
+            for out, r in col.outputs.items():
+                if not len(r.re) == len(r.im) == len(r.coherence) == n:
+                    raise ValueError(f"columns.{name}.outputs.{out} has {len(r.re)} re, {len(r.im)} im and "
+                                     f"{len(r.coherence)} coherence values for {n} frequencies")
+        return self
+
+
+class Phasors(_Strict):
+    re: Spectrum
+    im: Spectrum
+
+
+class PointsDocument(_Strict):
+    """A compensator points file's content (docs/base-motion.md)."""
+
+    format: str
+    version: int
+    unit: str = ""
+    freq_hz: Annotated[list[Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]],
+                       Field(max_length=MAX_FREQUENCIES)]
+    planes: Annotated[dict[Name, dict[Literal["W11", "W12", "W21", "W22"], Phasors]], Field(max_length=MAX_AXES)]
+    residual: list[list[Finite]] = Field(default_factory=list)
+    source: dict = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_value_per_frequency(self) -> "PointsDocument":
+        n = len(self.freq_hz)
+        for plane, ws in self.planes.items():
+            for w, p in ws.items():
+                if not len(p.re) == len(p.im) == n:
+                    raise ValueError(f"planes.{plane}.{w} has {len(p.re)} re and {len(p.im)} im values for {n} "
+                                     "frequencies")
+        return self
+
+
+def check_document(model: type[BaseModel], doc: dict, path):
+    """``doc`` (a sealed document's JSON) checked against ``model``; the first problem as one
+    BadInputError line naming the key (``runout.weights.front_x.0.1: ...``)."""
     try:
-        return CoefficientDocument.model_validate(doc)
+        return model.model_validate(doc)
     except ValidationError as err:
         first = err.errors()[0]
         where = ".".join(str(p) for p in first["loc"] if not str(p).startswith(("tuple[", "function-")))
