@@ -18,6 +18,7 @@ ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms
 
 from __future__ import annotations
 
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -47,11 +48,17 @@ MAX_ORDER = 64  # a plant model's order: the rig's linearisation is 20
 @contextmanager
 def analysing(spec: str):
     """A plant the convergence map cannot be computed for (its numbers overflow, its matrices are
-    singular) is bad input: one line naming it, not an internal error."""
-    try:
-        yield
-    except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError, ValueError) as err:
-        raise BadInputError(f"plant {spec!r} cannot be analysed on the convergence map ({err})") from None
+    singular) is bad input: one line naming it, not an internal error nor scipy's warnings before
+    it (they are shown only when the map is computed after all)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError, ValueError) as err:
+            hint = "; scipy: " + str(caught[0].message) if caught else ""
+            raise BadInputError(f"plant {spec!r} cannot be analysed on the convergence map ({err}{hint})") from None
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def resolve_plant(spec: str) -> dict:
