@@ -118,3 +118,18 @@ def test_a_flipped_record_length_mid_file_costs_nothing(recording, tmp_path, run
     report = json.loads(r.stdout)
     assert report["chunks_kept"] == len(summary.chunk_indexes) and report["chunks_dropped"] == 0
     assert report["messages"] == sum(summary.statistics.channel_message_counts.values())
+
+
+def test_without_an_index_a_damaged_chunk_is_still_counted(recording, tmp_path, run_cli):
+    """An unfinished file (no summary) with one chunk's data damaged: the chunk is found by its
+    header and counted lost, the others kept."""
+    path, data, summary = recording
+    cis = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    damaged = bytearray(data[: cis[-1].chunk_start_offset])  # cut before the last chunk: no summary
+    middle = cis[len(cis) // 2]
+    damaged[middle.chunk_start_offset + middle.chunk_length // 2] ^= 0xFF
+    (tmp_path / "bad.mcap").write_bytes(damaged)
+    r = run_cli("recover", tmp_path / "bad.mcap", "-o", tmp_path / "fixed.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    report = json.loads(r.stdout)
+    assert report["chunks_dropped"] == 1 and report["chunks_kept"] == len(cis) - 2

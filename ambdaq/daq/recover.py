@@ -116,7 +116,7 @@ def _looks_like_a_chunk(data: bytes, pos: int) -> int:
     if nlen > 4 or bytes(data[p : p + nlen]) not in COMPRESSIONS or p + nlen + 8 > len(data):
         return 0
     (clen,) = struct.unpack_from("<Q", data, p + nlen)
-    return int(length == CHUNK_HEAD.size + 4 + nlen + 8 + clen)
+    return int(length == CHUNK_HEAD.size + nlen + 8 + clen)
 
 
 def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> RecoveryReport:
