@@ -55,6 +55,46 @@ FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
+CHUNK_HEAD = struct.Struct("<QQQII")  # message start, end, uncompressed size, CRC-32, compression name length
+CHUNK_COMPRESSIONS = {b"": "", b"zstd": "zstd", b"lz4": "lz4"}
+
+
+@dataclass(frozen=True)
+class ChunkHeader:
+    """What a Chunk record's header says: its record length, uncompressed size, CRC-32 (0: none),
+    compression, and where its compressed data lies (``data_start`` .. ``data_end``)."""
+
+    record_length: int
+    uncompressed_size: int
+    crc: int
+    compression: str
+    data_start: int
+    data_end: int
+
+
+def chunk_header(data, pos: int) -> ChunkHeader | None:
+    """The header of the Chunk record at ``pos``, or None unless one is there: the Chunk opcode, a
+    known compression and compressed data that ends inside ``data``.  The record length is
+    reported, not relied on (recovery finds chunks whose length field is damaged)."""
+    n = len(data)
+    head = pos + 9
+    if pos + 1 > n or data[pos] != Opcode.CHUNK or head + CHUNK_HEAD.size > n:
+        return None
+    (length,) = struct.unpack_from("<Q", data, pos + 1)
+    _start, _end, usize, crc, nlen = CHUNK_HEAD.unpack_from(data, head)
+    p = head + CHUNK_HEAD.size
+    if nlen > 4 or p + nlen + 8 > n:
+        return None
+    method = CHUNK_COMPRESSIONS.get(bytes(data[p : p + nlen]))
+    if method is None:
+        return None
+    (clen,) = struct.unpack_from("<Q", data, p + nlen)
+    start = p + nlen + 8
+    if start + clen > n:
+        return None
+    return ChunkHeader(length, usize, crc, method, start, start + clen)
+
+
 def compress(data: bytes | memoryview, method: str) -> bytes:
     """Compress chunk records with ``method`` ("zstd", "lz4" or "none")."""
     if method == "zstd":
@@ -483,20 +523,12 @@ class McapFile:
     def chunk_records(self, ci: ChunkIndex, into: bytearray | None = None) -> bytes | memoryview:
         """The decompressed records of one chunk (into ``into`` where it can: see :func:`decompress`)."""
         pos = ci.chunk_start_offset
+        h = chunk_header(self._data, pos)
+        if h is None:
+            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted (not a chunk); try: ambdaq recover")
+        packed, usize = memoryview(self._data)[h.data_start : h.data_end], h.uncompressed_size
         try:
-            op, _length, _s, _e, usize, _crc, nlen = struct.unpack_from("<BQQQQII", self._data, pos)
-            p = pos + 1 + 8 + 8 + 8 + 8 + 4 + 4
-            method = self._data[p : p + nlen].decode()
-            p += nlen
-            (clen,) = struct.unpack_from("<Q", self._data, p)
-            p += 8
-            if op != Opcode.CHUNK or p + clen > len(self._data):
-                raise ValueError("not a chunk")
-            packed = memoryview(self._data)[p : p + clen]
-        except Exception as err:
-            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
-        try:
-            return decompress(packed, method, usize, into if into is not None and len(into) >= usize else None)
+            return decompress(packed, h.compression, usize, into if into is not None and len(into) >= usize else None)
         except BadInputError:
             raise
         except Exception as err:

@@ -32,14 +32,13 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
-from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, decompress, iter_records
+from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, decompress, iter_records
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
 from .writer import PROFILE
 
-CHUNK_HEAD = struct.Struct("<QQQII")  # message start, end, uncompressed size, CRC-32, compression name length
-COMPRESSIONS = {b"": "", b"zstd": "zstd", b"lz4": "lz4"}
 MAX_UNCOMPRESSED = 1 << 31  # a chunk is MiBs: a damaged size hint is never taken beyond this
+KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
 @dataclass
@@ -61,29 +60,17 @@ class RecoveryReport:
 def chunk_at(data: bytes, pos: int) -> tuple[bytes, int] | None:
     """The records of the chunk whose record starts at ``pos`` and the offset just past its data,
     or None unless a whole, intact chunk is there (see the module docstring)."""
-    n = len(data)
-    head = pos + 9
-    if data[pos] != Opcode.CHUNK or head + CHUNK_HEAD.size > n:
-        return None
-    _start, _end, usize, crc, nlen = CHUNK_HEAD.unpack_from(data, head)
-    p = head + CHUNK_HEAD.size
-    if nlen > 4 or p + nlen + 8 > n:
-        return None
-    method = COMPRESSIONS.get(bytes(data[p : p + nlen]))
-    if method is None:
-        return None
-    p += nlen
-    (clen,) = struct.unpack_from("<Q", data, p)
-    p += 8
-    if p + clen > n:
+    h = chunk_header(data, pos)
+    if h is None:
         return None
     try:  # the size is a hint (a zstd frame states its own): the CRC says whether the data is whole
-        records = bytes(decompress(bytes(data[p : p + clen]), method, min(usize, MAX_UNCOMPRESSED)))
+        records = bytes(decompress(bytes(data[h.data_start : h.data_end]), h.compression,
+                                   min(h.uncompressed_size, MAX_UNCOMPRESSED)))
     except Exception:  # whatever the codec says about damaged data
         return None
-    if (zlib.crc32(records) != crc) if crc else len(records) != usize:
+    if (zlib.crc32(records) != h.crc) if h.crc else len(records) != h.uncompressed_size:
         return None
-    return records, p + clen
+    return records, h.data_end
 
 
 def find_chunks(data: bytes, start: int) -> tuple[list[tuple[int, int, bytes]], int]:
@@ -105,18 +92,10 @@ def find_chunks(data: bytes, start: int) -> tuple[list[tuple[int, int, bytes]], 
 
 
 def _looks_like_a_chunk(data: bytes, pos: int) -> int:
-    """1 when a chunk's header is at ``pos`` (its record length agreeing with its own sizes) but its
-    data did not check: a damaged chunk; else 0."""
-    head = pos + 9
-    if head + CHUNK_HEAD.size + 8 > len(data):
-        return 0
-    (length,) = struct.unpack_from("<Q", data, pos + 1)
-    nlen = CHUNK_HEAD.unpack_from(data, head)[4]
-    p = head + CHUNK_HEAD.size
-    if nlen > 4 or bytes(data[p : p + nlen]) not in COMPRESSIONS or p + nlen + 8 > len(data):
-        return 0
-    (clen,) = struct.unpack_from("<Q", data, p + nlen)
-    return int(length == CHUNK_HEAD.size + nlen + 8 + clen)
+    """1 when a chunk's header is at ``pos`` (its record length agreeing with where its data ends)
+    but its data did not check: a damaged chunk; else 0."""
+    h = chunk_header(data, pos)
+    return int(h is not None and pos + 9 + h.record_length == h.data_end)
 
 
 def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> RecoveryReport:
@@ -262,8 +241,6 @@ def _next_record(data: bytes, pos: int, end: int) -> int:
             return q
     return end
 
-
-KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
 def _known_only(records: bytes, known: set[int]) -> tuple[bytes, int]:

@@ -76,14 +76,8 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
     for axis, rows in coef.weights.items():
         for k, pair in zip(coef.harmonics, rows):
             w[axes.index(axis), k - 1] = pair
-    rows = []
-    for r in coef.lms_schedule:
-        if len(r) == 3:
-            rows.append((0.0, *map(float, r)))
-        elif len(r) == 4:
-            rows.append(tuple(map(float, r)))
-        else:
-            raise BadInputError(f"{where}: an lms_schedule row is [rpm_from, rpm_to, mu] or [harmonic, rpm_from, rpm_to, mu]")
+    # rows of 3 or 4 numbers (checked when the file was read): harmonic 0 is every harmonic
+    rows = [tuple(map(float, r)) if len(r) == 4 else (0.0, *map(float, r)) for r in coef.lms_schedule]
     phase, bin_hz = None, 10.0
     if coef.lms_phase:
         bin_hz = float(coef.lms_phase["bin_hz"])

@@ -37,6 +37,8 @@ from ...errors import BadInputError
 DATATYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULONG": "U32", "SLONG": "I32",
              "A_UINT64": "U64", "A_INT64": "I64", "FLOAT32_IEEE": "F32", "FLOAT64_IEEE": "F64"}
 """A2L data type -> pyxcp's DAQ element type."""
+SIZES = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
+"""pyxcp's DAQ element type -> its size in bytes."""
 DEFAULT_TOPIC = "/xcp"
 CACHE_VERSION = 1
 

@@ -31,7 +31,7 @@ from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import BankPort, Source
 from ..rows import RowQueue
 from ..signals import SampleBlock, SignalGroup
-from .a2l import A2lFile
+from .a2l import SIZES, A2lFile
 from .keys import KeyAlgorithm
 
 COUNTER = "control_period"
@@ -272,8 +272,7 @@ class XcpController(Source, BankPort):
     def _check_bus_load(self, event_hz: float, bitrate: int) -> None:
         """Refuse a DAQ list whose DTOs would load the CAN bus above MAX_LOAD: every sample
         is ceil((4-byte timestamp + entries) / 7) frames of PID + 7 bytes (ASAM XCP Part 3, CAN)."""
-        size = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
-        frames = -(-(4 + sum(size[m.datatype] for m in [self.counter, *self.fields])) // 7)
+        frames = -(-(4 + sum(SIZES[m.datatype] for m in [self.counter, *self.fields])) // 7)
         load = bus_load([8] * frames, event_hz / self.prescaler, bitrate)
         if load > MAX_LOAD:
             fits = int(np.ceil(bus_load([8] * frames, event_hz, bitrate) / MAX_LOAD))

@@ -168,11 +168,12 @@ class CalibrationPages:
         self._staged[:] = bytes(CAL_SIZE)
         self._staged[: 4 + len(held)] = LENGTH.pack(len(held)) + held
 
-    def _page_bytes(self, page: int) -> bytes:
+    def _page_bytes(self, page: int) -> bytes | bytearray:
+        """Page ``page`` as the master reads it (the staged page itself, not a copy per upload)."""
         if page == self.banks.active:
             image = self.banks.read("active", 0, CAL_SIZE)
             return LENGTH.pack(len(image)) + image
-        return bytes(self._staged)
+        return self._staged
 
     # --- memory access ----------------------------------------------------------------------
 
