@@ -111,6 +111,16 @@ def test_bad_options(args, needle, tmp_path, run_cli):
     assert r.exit_code == 2 and needle in r.output and "Traceback" not in r.output
 
 
+@pytest.mark.parametrize("url", ["can://udp_multicast/239.74.163.2?node=16",
+                                 "xcp+can://udp_multicast/239.74.163.2?id_master=1&id_slave=2&a2l=x.a2l"])
+def test_can_over_an_ip_network_is_refused(url, tmp_path, run_cli):
+    """The house never sends traffic onto a network: python-can's network interface is refused by
+    the URL parser itself, before any bus is opened."""
+    one_line_error(run_cli("record", "--device", url, "--duration", "0.1", "-o", tmp_path / "x.mcap"),
+                   "sends CAN frames onto an IP network")
+    assert not (tmp_path / "x.mcap").exists()
+
+
 def test_no_device(tmp_path, run_cli):
     one_line_error(run_cli("record", "-o", tmp_path / "x.mcap"), "give --device URL or --rig FILE")
 

@@ -12,7 +12,7 @@ from ..errors import DeviceError
 
 NOT_SEARCHED = {
     "socketcand": "its servers announce themselves by a UDP beacon every 3 s on the LAN, too slow to wait for",
-    "udp_multicast": "it talks over an IP network",
+    "udp_multicast": "it talks over an IP network (its URLs are refused: can/backend.py NETWORK_INTERFACES)",
     "virtual": "in-process only, what sim:// runs on; detection would invent a channel name",
 }
 """python-can interfaces ``ambdaq devices`` does not ask, and why."""

@@ -11,6 +11,10 @@ from ..registry import Backend, Opened, OpenRequest
 from ..url import DeviceURL, Scheme
 
 
+NETWORK_INTERFACES = ("udp_multicast",)
+"""python-can interfaces that carry CAN over an IP network: refused, whatever the URL."""
+
+
 class CanBackend(Backend):
     """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
 
@@ -48,6 +52,9 @@ class CanBackend(Backend):
         (python-can's default, 2 s, is for adapters that reset when the port opens).
         """
         interface, _, channel = url.target.partition("/")
+        if interface in NETWORK_INTERFACES:
+            raise BadInputError(f"{url.text}: python-can's {interface} interface sends CAN frames onto an IP "
+                                "network; ambdaq talks only to the buses and ports it is given")
         if not channel:
             raise BadInputError(f"device URL {url.text!r} names no channel: expected {self.scheme.form}")
         if "/" in channel:
