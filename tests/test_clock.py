@@ -60,3 +60,26 @@ def test_stalls_and_a_backlog_burst_do_not_bend_the_map():
     arrival[:30] = arrival[30] + np.arange(30) * 1000  # all of them arrive with the 31st
     err = held_back_errors(true, device, arrival) - 100_000
     assert np.abs(err).max() < 50_000, np.abs(err).max()
+
+
+def test_revision_states_what_a_stretch_of_lifted_pairs_cost_the_written_times():
+    """Every pair of the first 4 s arrives 1 ms late (a host that held the process off the CPU):
+    the times written then are 1 ms late, and the later fits, which see the fast pairs after it,
+    say so in the revision; on a clean run the revision stays at the pairs' jitter."""
+    true, device, arrival = simulate(50.0, 0, seconds=12.0, seed=3)
+    lifted = arrival + np.where(true < 4e9, 1_000_000, 0)
+    for arr, least_us, most_us in ((arrival, 0, 100), (lifted, 500, 1500)):
+        cm, held, errors = ClockMap(), [], np.zeros(true.shape)
+        for i, (d, h) in enumerate(zip(device, arr)):
+            cm.update(int(d), int(h))
+            held.append(i)
+            if cm.settled:
+                host = cm.to_host(device[held])
+                errors[held] = host - true[held]
+                cm.written(int(device[held[-1]]), int(host[-1]))
+                held = []
+        fit = cm.fit()
+        assert least_us <= fit.revision_ns * 1e-3 <= most_us, fit
+        assert fit.uncertainty_ns >= fit.revision_ns
+        # the statement covers what happened: the worst error beyond the least latency (100 us)
+        assert np.abs(errors - 100_000).max() <= fit.uncertainty_ns + 100_000, (np.abs(errors).max(), fit)

@@ -62,11 +62,22 @@ def test_interrupt_finishes_the_file_cleanly(tmp_path, sig, times):
 def test_kill_9_loses_only_the_last_moments(tmp_path, run_cli):
     out = tmp_path / "crash.mcap"
     proc = start_recording(out)
-    wait_for_data(out, proc, 3.0)
+    wait_for_data(out, proc, 0.0)
+    # the file grows while the recording runs: chunks reach the OS as they are closed (every 0.5 s),
+    # not only at the end.  What was on disk at a moment is a prefix of what is there later.
+    sizes = []
+    watch_until = time.monotonic() + 3.0
+    while time.monotonic() < watch_until:
+        sizes.append(out.stat().st_size)
+        time.sleep(0.05)
+    snapshot = tmp_path / "snapshot.mcap"
+    snapshot.write_bytes(out.read_bytes())
     os.kill(proc.pid, signal.SIGKILL)
     killed_ns = time.time_ns()
     proc.communicate(timeout=30)
+    assert len(set(sizes)) >= 3, sizes  # grew at least twice in 3 s (six times on an idle host)
     before = out.read_bytes()
+    assert before[:snapshot.stat().st_size] == snapshot.read_bytes()  # written bytes are never rewritten
     r = run_cli("info", out)
     assert r.exit_code == 2 and "ambdaq recover" in r.output and "Traceback" not in r.output
     fixed = tmp_path / "fixed.mcap"
@@ -77,10 +88,14 @@ def test_kill_9_loses_only_the_last_moments(tmp_path, run_cli):
     assert report["chunks_kept"] >= 4
     gap = load(fixed)["/amb/gap"]
     np.testing.assert_array_equal(np.diff(gap.seq.astype(np.int64)), 1)  # contiguous from the first sample
+    r = run_cli("recover", snapshot, "-o", tmp_path / "snapshot-fixed.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    earlier = load(tmp_path / "snapshot-fixed.mcap")["/amb/gap"]
+    assert len(earlier) > 10000 and gap.seq[-1] >= earlier.seq[-1]  # all that was on disk then is kept
     lost_s = (killed_ns - int(gap.log_time[-1])) * 1e-9
-    # chunks are handed to the OS every 0.5 s of the recorder's loop; on a loaded host the loop
-    # wakes late (1.13 s lost measured beside the other test worker), so 1.5 s: what this guards
-    # is that data is flushed as it goes, not only at the end (3 s would be lost then)
-    assert 0 <= lost_s <= 1.5, lost_s
+    # what the kill itself cost: the last 0.5 s, or as much more as the recorder's loop woke late on
+    # a loaded host (1.13 s beside the other test worker here, 1.56 s on a loaded CI host).  The
+    # checks above already prove flushing as it goes; this bound says the loss stays short.
+    assert 0 <= lost_s <= 2.5, lost_s
     assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0, "duplicates": 0, "wraps": 0, "restarts": 0,
                                             "samples_lost": 0, "seconds_kept": len(gap) / 10000, "seconds_lost": 0.0}

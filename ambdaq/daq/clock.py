@@ -17,7 +17,13 @@ worst misalignment of the lower-hull edge at the pairs' mean (Moon, Skelly and T
 The line itself is one fastest one-way latency after the true instant; where the driver measures
 that latency (half the least round trip of a time exchange, as NTP does) it is subtracted
 (:attr:`ClockMap.latency_ns`).  The 95th percentile of the bin minima's distance from the line is
-reported as the map's uncertainty.
+reported as the map's spread.
+
+A time written with one fit is never rewritten, but the fits that come after it (two-sided: pairs
+from before and after it) are better estimates.  Each refit measures how far it would move the
+times written in the last ``SPAN_S`` seconds: the largest such move over the recording is the
+map's *revision*, what a loaded host (every pair lifted for a while) cost the samples written
+while it lasted.  The map's uncertainty is the larger of its spread and its revision.
 """
 
 from __future__ import annotations
@@ -35,13 +41,15 @@ REFIT_S = 0.25  # refit every quarter second of device time
 
 @dataclass(frozen=True)
 class ClockFit:
-    """The present estimate: drift (ppm), offset at the first pair (ns), uncertainty (ns)."""
+    """The present estimate: drift (ppm), offset at the first pair (ns), uncertainty (ns: the
+    larger of the fastest pairs' spread about the line and the revision), revision (ns)."""
 
     drift_ppm: float
     offset_ns: float
     uncertainty_ns: float
     points: int
     latency_ns: int = 0
+    revision_ns: float = 0.0
 
 
 def floor_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
@@ -91,6 +99,8 @@ class ClockMap:
         self._spread = float("nan")  # of the bin minima about the line, once settled
         self._settled = False
         self.latency_ns = 0  # one-way latency of the fastest pairs, subtracted when known
+        self._written: deque[tuple[int, int]] = deque()  # (device ns, host ns written) of the last SPAN_S
+        self._revision = 0.0  # the most a refit moved a written time, ns
 
     @property
     def ready(self) -> bool:
@@ -123,6 +133,16 @@ class ClockMap:
         if x >= self._next_fit:
             self._next_fit = x + REFIT_S
             self._a, self._b, self._spread = floor_line(np.asarray(self._x), np.asarray(self._y))
+            while self._written and self._written[0][0] < device_ns - SPAN_S * 1e9:
+                self._written.popleft()
+            if self._written:
+                d, h = np.array(self._written, dtype=np.int64).T
+                self._revision = max(self._revision, float(np.abs(self.to_host(d) - h).max()))
+
+    def written(self, device_ns: int, host_ns: int) -> None:
+        """Note that the sample at ``device_ns`` was written at ``host_ns`` (both ns; one per block
+        is enough): later refits measure how far they would move it (the revision)."""
+        self._written.append((int(device_ns), int(host_ns)))
 
     def to_host(self, device_ns: np.ndarray) -> np.ndarray:
         """Host times (int64 ns) of device times ``device_ns`` (int64 ns)."""
@@ -132,6 +152,8 @@ class ClockMap:
         return self._h0 + dd + np.round(self._a + self._b * (dd * 1e-9) - self.latency_ns).astype(np.int64)
 
     def fit(self) -> ClockFit:
-        """The present estimate; uncertainty: the bin minima's spread about the line (NaN until settled)."""
+        """The present estimate; uncertainty: the larger of the bin minima's spread about the line
+        and the revision (NaN until settled)."""
         # host = device (1 + b): b is in ns per s of device time, i.e. ppm * 1e3
-        return ClockFit(self._b * 1e-3, self._a - self.latency_ns, self._spread, len(self._x), self.latency_ns)
+        return ClockFit(self._b * 1e-3, self._a - self.latency_ns, max(self._spread, self._revision), len(self._x),
+                        self.latency_ns, self._revision)

@@ -554,6 +554,7 @@ class Recorder:
                 # or before the last one written: those (and only those) go just after it, 1 ns
                 # apart, so time never runs back and every other sample keeps its best estimate
                 host = np.maximum(host, last + 1 + np.arange(host.shape[0], dtype=np.int64))
+            cm.written(int(b.device_time_ns[-1]), int(host[-1]))
             self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, host, b.received_ns, b.status))
 
     # --- writing ---------------------------------------------------------------------------------
@@ -615,7 +616,8 @@ class Recorder:
         for name, cm in self._clocks.items():
             fit = cm.fit()
             out[name] = {"drift_ppm": round(float(fit.drift_ppm), 3), "offset_ns": round(float(fit.offset_ns)),
-                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3), "points": fit.points,
+                         "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3),
+                         "revision_us": round(fit.revision_ns * 1e-3, 3), "points": fit.points,
                          "latency_us": round(fit.latency_ns * 1e-3, 3)}
         for name in self._host_clocked:
             out[name] = {"host_clock": True, "uncertainty_us": 0.0}
