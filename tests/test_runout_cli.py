@@ -94,7 +94,7 @@ def test_report_orbit_after_is_the_true_rotor_motion(tmp_path, run_cli):
     angle) is the rotor's true motion at the sensor, and the report is written."""
     from matplotlib.image import imread
 
-    from ambdaq.cli.runout_plots import synthesise
+    from ambdaq.analysis.runout import synthesise
     from ambdaq.daq import load
 
     fast, slow = tmp_path / "fast.mcap", tmp_path / "slow.mcap"

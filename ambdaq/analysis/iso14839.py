@@ -86,6 +86,29 @@ def loop_functions(h_error_per_input: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return gs, gc, go
 
 
+def model_sensitivity(M: np.ndarray, B: np.ndarray, C: np.ndarray, h: float, freq_hz: np.ndarray) -> np.ndarray:
+    """The sensitivity function ``Gs`` of each axis of a discrete loop with the feedforward as its
+    input, ``x[n+1] = M x + B r_c``, ``e = C x - r_c`` (the simulated spindle's linearisation,
+    ``SpindleRig.loop_matrices``): ``Gs = -e/r_c = 1 - diag(C (zI - M)^-1 B)``.
+
+    Parameters
+    ----------
+    M, B, C : ndarray
+        Loop matrices, shapes (n, n), (n, axes), (axes, n).
+    h : float
+        Sample period, in s.
+    freq_hz : ndarray
+        Frequencies, in Hz.
+
+    Returns
+    -------
+    ndarray of complex, shape (axes, len(freq_hz))
+    """
+    eye = np.eye(M.shape[0])
+    out = [1.0 - np.diag(C @ np.linalg.solve(np.exp(2j * np.pi * f * h) * eye - M, B)) for f in np.asarray(freq_hz, float)]
+    return np.array(out).T
+
+
 def magnitude_upper_bound(gain: np.ndarray, coherence: np.ndarray, segments: int) -> np.ndarray:
     """A 95 % upper bound of the true |H| at each point of an H1 estimate: the estimate plus two of
     its normalised random errors, ``eps = sqrt(1 - g2) / (sqrt(g2) sqrt(2 n))`` (Bendat and Piersol,
@@ -143,11 +166,11 @@ def grade_stability(freq_hz: np.ndarray, gs: np.ndarray, coherence: np.ndarray, 
                     min_coherence: float = 0.9) -> StabilityGrade:
     """Peak |Gs| over ``band_hz`` and its ISO 14839-3 zone, if the measurement supports one.
 
-    A grade is given only if the coherence at the peak is at least ``min_coherence`` and no other
-    point of the band could hide a higher peak: each point's 95 % upper bound
-    (:func:`magnitude_upper_bound`) must stay below the peak found.  Points where the excitation
-    explains little of the output (low frequencies, where |Gs| is small) pass that test; a
-    resonance drowned in noise does not.
+    A grade is given only if the coherence at the peak is at least ``min_coherence`` and no poorly
+    measured point of the band could hide a higher peak: at every point whose coherence is below
+    ``min_coherence`` the 95 % upper bound of |Gs| (:func:`magnitude_upper_bound`) must stay below
+    the peak found.  Points where the excitation explains little of the output because |Gs| is
+    small there (low frequencies) pass that test; a resonance drowned in noise does not.
 
     Parameters
     ----------
@@ -178,17 +201,17 @@ def grade_stability(freq_hz: np.ndarray, gs: np.ndarray, coherence: np.ndarray, 
     result = dict(peak=peak, peak_hz=float(freq_hz[at]), coherence_at_peak=coh, band_hz=(lo, hi))
     if coh < min_coherence:
         return StabilityGrade(**result, zone=None,
-                              reason=f"coherence {coh:.2f} at the peak ({freq_hz[at]:g} Hz) is below {min_coherence:g}: "
+                              reason=f"coherence {coh:.3f} at the peak ({freq_hz[at]:g} Hz) is below {min_coherence:g}: "
                                      "excite with a larger amplitude or for longer")
     bound = magnitude_upper_bound(gain, coherence, segments)
-    hidden = inside & (bound > peak)
+    hidden = inside & (np.asarray(coherence) < min_coherence) & (bound > peak)
     if hidden.any():
         worst = int(np.flatnonzero(hidden)[np.argmin(np.asarray(coherence)[hidden])])
         return StabilityGrade(**result, zone=None,
-                              reason=f"at {freq_hz[worst]:g} Hz the coherence is {coherence[worst]:.2f}: a higher peak "
+                              reason=f"at {freq_hz[worst]:g} Hz the coherence is {coherence[worst]:.3f}: a higher peak "
                                      "could hide there; excite with a larger amplitude or for longer, or narrow --band")
     return StabilityGrade(**result, zone=limits.zone(peak))
 
 
 __all__ = ["STABILITY_LIMITS", "VIBRATION_LIMITS", "ZONES", "StabilityGrade", "ZoneLimits", "db",
-           "grade_stability", "loop_functions", "magnitude_upper_bound"]
+           "grade_stability", "loop_functions", "magnitude_upper_bound", "model_sensitivity"]

@@ -25,6 +25,27 @@ from numba import njit
 from .rotor import RigidRotor
 
 
+def synthesise(phasors: np.ndarray, harmonics: list[int], theta: np.ndarray) -> np.ndarray:
+    """The signal a set of harmonic phasors describes, at the given rotor angles.
+
+    Parameters
+    ----------
+    phasors : ndarray of complex, shape (harmonic,) or (harmonic, axis)
+        ``a + j b`` for ``a sin k theta + b cos k theta`` (the convention of ``harmonic_fit``), any unit.
+    harmonics : list of int
+        Order k of each row (1 = 1X).
+    theta : ndarray, shape (n,)
+        Rotor angle, in rad.
+
+    Returns
+    -------
+    ndarray, shape (n,) or (n, axis)
+        ``sum_k Im(p_k exp(j k theta))``, in the unit of ``phasors``.
+    """
+    e = np.exp(1j * np.outer(theta, np.asarray(harmonics)))  # (n, harmonic)
+    return (e @ phasors).imag
+
+
 @njit(cache=True, nogil=True, fastmath=True)
 def _harmonic_sums(s1: np.ndarray, c1: np.ndarray, x: np.ndarray, kmax: int, k: np.ndarray):
     """One pass: sums of sin m theta and cos m theta for m = 0..2 kmax (they make A^T A) and

@@ -30,6 +30,7 @@ COMMANDS = {
     "frf": "frf:command",
     "fx": "fx:command",
     "identify": "identify:command",
+    "iso": "iso:command",
     "info": "info:command",
     "lms": "lms:command",
     "model": "model:command",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
@@ -112,3 +113,39 @@ def status_command(device, a2l, as_json):
         click.echo(f"  {e.get('host_time', '?')}  bank {e['bank']}  crc {e['crc32']}  {e.get('file', '?')} "
                    f"sha256 {e.get('file_sha256', '')[:12]}  from sample {e['effective_sample']}  "
                    f"by {e.get('host', '?')} -> {e.get('target', '?')}")
+
+
+@controller_group.command("param")
+@click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT, sim://spindle ...")
+@click.argument("name")
+@click.argument("values", nargs=-1, type=float)
+@click.option("--yes", is_flag=True, help="Write without asking (changing a gain on a levitated rotor changes the loop).")
+def param_command(device, name, values, yes):
+    """Read a controller parameter, or write VALUES to it (e.g. pid.d, speed.rpm; docs/protocol.md).
+
+    \b
+    Example:
+      ambdaq controller param --device serial:///dev/pts/5 pid.d
+      ambdaq controller param --device serial:///dev/pts/5 pid.d 0.001 0.001 0.002 0.002 0.002 --yes
+    """
+    from ..drivers.interfaces import Controller
+    from ..drivers.registry import open_device
+
+    if any(not math.isfinite(v) for v in values):
+        raise BadInputError(f"{name}: values must be finite numbers")
+    dev = open_device(device)
+    try:
+        if not isinstance(dev, Controller):
+            raise BadInputError(f"{device}: not a controller with parameters")
+        if values:
+            old = dev.read_param(name)
+            if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
+                raise click.Abort()
+            dev.write_param(name, list(values))
+        click.echo(f"{name} = {_values(dev.read_param(name))}")
+    finally:
+        dev.close()
+
+
+def _values(values) -> str:
+    return " ".join(f"{float(v):g}" for v in values)

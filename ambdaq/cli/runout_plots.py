@@ -7,6 +7,7 @@ import numpy as np
 
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
+from ..analysis.runout import synthesise
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import Recording
 from .figures import pyplot
@@ -14,27 +15,6 @@ from .figures import pyplot
 BEARINGS = ("front", "rear")
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
 COLOURS = {"front_x": "C0", "front_y": "C1", "rear_x": "C2", "rear_y": "C3"}
-
-
-def synthesise(phasors: np.ndarray, harmonics: list[int], theta: np.ndarray) -> np.ndarray:
-    """The signal a set of harmonic phasors describes, at the given rotor angles.
-
-    Parameters
-    ----------
-    phasors : ndarray of complex, shape (harmonic,) or (harmonic, axis)
-        ``a + j b`` for ``a sin k theta + b cos k theta`` (the convention of ``harmonic_fit``), any unit.
-    harmonics : list of int
-        Order k of each row (1 = 1X).
-    theta : ndarray, shape (n,)
-        Rotor angle, in rad.
-
-    Returns
-    -------
-    ndarray, shape (n,) or (n, axis)
-        ``sum_k Im(p_k exp(j k theta))``, in the unit of ``phasors``.
-    """
-    e = np.exp(1j * np.outer(theta, np.asarray(harmonics)))  # (n, harmonic)
-    return (e @ phasors).imag
 
 
 def _last_revolutions(theta: np.ndarray, revs: int) -> slice:

@@ -73,13 +73,16 @@ def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
     return state
 
 
-def _excited_axis(ff, path: Path, given: str | None) -> str:
-    """The input axis: ``given``, or the one axis whose feedforward input is not zero."""
+def excited_axis(ff, path: Path, given: str | None) -> str:
+    """The input axis: ``given``, or the one axis whose feedforward input is not zero (for at least
+    a tenth of the recording)."""
     if given:
         if given not in ff.fields:
             raise BadInputError(f"--input {given!r}: {path} has {', '.join(ff.fields)}")
         return given
-    live = [a for a in ff.fields if np.any(ff[a] != 0.0)]
+    # an axis whose input runs for a moment only (a test signal still on for the first block of a
+    # new stream, before the controller switched it off) is not the excited one
+    live = [a for a in ff.fields if np.count_nonzero(ff[a]) >= 0.1 * len(ff)]
     if len(live) != 1:
         raise BadInputError(f"{path}: {len(live)} axes carry a feedforward input ({', '.join(live) or 'none'}); "
                             "name the excited one with --input AXIS")
@@ -95,7 +98,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         rec = load(path, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
         x_data, y_data = rec[input_topic], rec[output_topic]
         n = min(len(x_data), len(y_data))
-        axis = _excited_axis(x_data, path, input_axis)
+        axis = excited_axis(x_data, path, input_axis)
         x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
         if axis in columns:
             raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")
@@ -136,4 +139,4 @@ def summarize(frf: FrequencyResponse) -> dict:
     return out
 
 
-__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "summarize"]
+__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "summarize"]

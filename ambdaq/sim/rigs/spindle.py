@@ -432,6 +432,7 @@ class SpindleRig(Rig, ExcitationInput):
         tf = d / p / self.params.derivative_filter
         self._pid_p, self._pid_i = p.copy(), i.copy()
         self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
+        self._linear = None  # loop_matrices is linearised again, at these gains
 
     def set_mu_schedule(self, schedule) -> None:
         """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
@@ -492,6 +493,7 @@ class SpindleRig(Rig, ExcitationInput):
             "adc_bits": str(p.adc_bits),
             "dac_bits": str(p.dac_bits),
             "units": "SI: m, A, m/s^2, rad, rad/s",
+            "machine.min_clearance_m": repr(p.min_clearance),
             **p.rotor_metadata(),
         }
 
@@ -551,7 +553,8 @@ class SpindleRig(Rig, ExcitationInput):
         return self.loop_matrices(rpm)[0]
 
     def loop_matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The simulated loop linearised at ``rpm`` (rpm) with the feedforward as its input:
+        """The simulated loop linearised at ``rpm`` (rpm), at the present PID gains, with the
+        feedforward as its input:
         x[n+1] = M x[n] + B r_c[n],  e[n] = C x[n] - r_c[n].
 
         ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
@@ -590,6 +593,7 @@ class SpindleRig(Rig, ExcitationInput):
             self.params, unbalance=(0.0, 0.0), runout_amp=np.zeros_like(self.params.runout_amp)
         )
         probe = SpindleRig(quiet, speed=SpeedProfile(rpm, rpm), noise=False)
+        probe.set_pid(*self.pid_gains)  # the loop as it runs now (ISO 14839-3 predictions after a retune)
         probe._fgrav = np.zeros(5)
         probe._fstat = np.zeros(5)
         n_state = 10 + 10 + 15

@@ -1,0 +1,221 @@
+"""``ambdaq iso``: the ISO 14839 evaluations a machine is accepted against (docs/iso.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
+from ..errors import BadInputError
+from .figures import plot_option, pyplot
+from .options import POSITIVE
+
+
+class LimitsArg(click.ParamType):
+    """``AB,BC,CD``: three increasing zone boundaries, each a number (a gain, a fraction of Cmin) or,
+    for a gain, in dB (``9.5dB``)."""
+
+    name = "AB,BC,CD"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, ZoneLimits):
+            return value
+        try:
+            parts = [p.strip().lower() for p in str(value).split(",")]
+            if len(parts) != 3:
+                raise ValueError("three boundaries")
+            gains = [10 ** (float(p[:-2]) / 20) if p.endswith("db") else float(p) for p in parts]
+            return ZoneLimits(*gains)
+        except (ValueError, OverflowError) as err:
+            self.fail(f"{value!r}: expected three increasing boundaries A/B,B/C,C/D, e.g. 3,4,5 or 9.5dB,12dB,14dB "
+                      f"({err})", param, ctx)
+
+
+class BandArg(click.ParamType):
+    """``LO:HI`` in Hz."""
+
+    name = "LO:HI"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            lo, hi = (float(v) for v in str(value).split(":"))
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+                raise ValueError
+            return lo, hi
+        except ValueError:
+            self.fail(f"{value!r}: expected LO:HI in Hz with 0 <= LO < HI, e.g. 10:2000", param, ctx)
+
+
+@click.group("iso")
+def command() -> None:
+    """ISO 14839 evaluations: stability margin (part 3), vibration zones (part 2)."""
+
+
+@command.command("stability")
+@click.argument("recordings", nargs=-1, type=click.Path(dir_okay=False))
+@click.option("--device", metavar="URL", help="Measure on this controller (sim://spindle, serial://..., xcp+...).")
+@click.option("--rpm", "speeds", type=click.FloatRange(min=0, max=200_000), multiple=True, metavar="RPM",
+              help="A speed to measure at (repeatable; 0: standstill); set through the controller's speed parameter.")
+@click.option("--axes", help="Comma-separated axes to excite; default: every axis of the test-signal input.")
+@click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
+              help="RMS of the white-noise test signal: um for a displacement input, else the input's unit.")
+@click.option("--duration", type=POSITIVE, default=10.0, show_default=True, metavar="SECONDS", help="Per axis and speed.")
+@click.option("--settle", type=POSITIVE, default=60.0, show_default=True, metavar="SECONDS",
+              help="Longest wait for the rotor to reach each speed.")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
+              help="Where the measured recordings go; default: beside -o, in NAME_runs/.")
+@click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True, help="Frequency step, Hz.")
+@click.option("--band", type=BandArg(), help="Band searched for the peak, Hz; default: every measured frequency.")
+@click.option("--limits", type=LimitsArg(), default=",".join(f"{v:g}" for v in STABILITY_LIMITS.as_list()), show_default=True,
+              help="Peak |Gs| at the zone boundaries A/B, B/C, C/D (gains, or e.g. 9.5dB,12dB,14dB).")
+@click.option("--min-coherence", type=click.FloatRange(0.0, 1.0), default=0.9, show_default=True,
+              help="Least coherence at the peak for a grade.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Results file (JSON).")
+@click.option("--overwrite", is_flag=True)
+@plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the results (without curves) as JSON.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
+def stability(recordings, device, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
+              min_coherence, output, overwrite, plot_path, as_json, quiet):
+    """ISO 14839-3: peak of the sensitivity function per axis and speed, and its zone.
+
+    Measures with --device (white noise at the sensor summing point, one axis at a time, at each
+    --rpm), or grades RECORDINGS made with the test signal on (frf measure). A grade is given only
+    where the coherence supports it; otherwise the axis is "not measured", with the reason.
+
+    \b
+    Example:
+      ambdaq iso stability --device serial:///dev/pts/5 --rpm 0 --rpm 20000 -o stability.json
+      ambdaq iso stability gs_*.mcap -o stability.json --limits 9.5dB,12dB,14dB
+    """
+    from ..workflows import iso_stability as iso
+
+    if bool(recordings) == bool(device):
+        raise BadInputError("iso stability takes either --device URL (measure) or recordings to grade, not both or neither")
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
+    if device:
+        where = Path(runs_dir) if runs_dir else out.with_name(out.stem + "_runs")
+
+        def announce(axis, rpm, path):
+            if not quiet:
+                at = "at the present speed" if rpm is None else f"at {rpm:,.0f} rpm"
+                click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
+
+        paths = iso.measure(device, list(speeds) or None, [a.strip() for a in axes.split(",")] if axes else None,
+                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce)
+    else:
+        paths = [Path(p) for p in recordings]
+    runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence)
+    iso.check_speeds(runs, list(speeds) or None)
+    iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
+    if plot_path:
+        _plot(runs, limits, plot_path)
+    if as_json:
+        click.echo(json.dumps({"standard": "ISO 14839-3", "limits_peak_gs": limits.as_list(),
+                               "runs": [r.as_dict(curves=False) for r in runs]}, indent=2))
+    else:
+        click.echo(stability_table(runs, limits))
+    click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
+    ungraded = [r for r in runs if r.grade.zone is None]
+    if ungraded:  # the results are kept, but an acceptance run with an ungraded axis has not passed
+        first = ungraded[0]
+        raise BadInputError(f"{len(ungraded)} of {len(runs)} runs not graded; {first.axis} at {first.speed_rpm:,.0f} rpm: "
+                            f"{first.grade.reason}")
+
+
+def stability_table(runs, limits: ZoneLimits) -> str:
+    """The results as a table for the terminal."""
+    bounds = "  ".join(f"{z} < {v:.2f} ({db(v):.1f} dB)" for z, v in zip("ABC", limits.as_list()))
+    lines = [f"ISO 14839-3 peak sensitivity |Gs| (zones: {bounds} <= D)",
+             f"{'speed rpm':>10}  {'axis':<9} {'peak |Gs|':>9} {'dB':>6} {'at Hz':>7} {'coherence':>9}  zone"]
+    for r in runs:
+        g = r.grade
+        if np.isnan(g.peak):
+            lines.append(f"{r.speed_rpm:>10,.0f}  {r.axis:<9} not measured: {g.reason}")
+            continue
+        zone = g.zone if g.zone else f"not measured: {g.reason}"
+        lines.append(f"{r.speed_rpm:>10,.0f}  {r.axis:<9} {g.peak:>9.3f} {g.peak_db:>6.2f} {g.peak_hz:>7g} "
+                     f"{g.coherence_at_peak:>9.3f}  {zone}")
+    return "\n".join(lines)
+
+
+def _plot(runs, limits: ZoneLimits, path: str) -> None:
+    plt = pyplot()
+    speeds = sorted({r.speed_rpm for r in runs})
+    fig, axes = plt.subplots(len(speeds), 1, figsize=(9, 3.2 * len(speeds) + 0.6), squeeze=False, sharex=True,
+                             constrained_layout=True)
+    for ax, rpm in zip(axes[:, 0], speeds):
+        for r in (r for r in runs if r.speed_rpm == rpm):
+            trusted = r.coherence >= 0.9
+            mag = db(np.abs(r.gs))
+            line = ax.semilogx(r.freq_hz, np.where(trusted, mag, np.nan), lw=0.9,
+                               label=f"{r.axis}: {r.grade.peak_db:.1f} dB, zone {r.grade.zone or '-'}")[0]
+            ax.semilogx(r.freq_hz, np.where(trusted, np.nan, mag), lw=0.5, alpha=0.3, color=line.get_color())
+        for z, v in zip(("A/B", "B/C", "C/D"), limits.as_list()):
+            ax.axhline(db(v), color="grey", lw=0.7, ls="--")
+            ax.annotate(z, (1.0, db(v)), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=7)
+        ax.set(ylabel="|Gs| [dB]", title=f"sensitivity function at {rpm:,.0f} rpm (faint: coherence < 0.9)")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, loc="lower right")
+    axes[-1, 0].set(xlabel="frequency [Hz]")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+@command.command("vibration")
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--cmin", type=POSITIVE, metavar="UM",
+              help="Minimum clearance (the touchdown bearings' radial clearance), um; default: what the recording's "
+                   "controller reports.")
+@click.option("--coefficients", type=click.Path(dir_okay=False),
+              help="Runout coefficient file (runout identify): the sensors' runout is taken out first.")
+@click.option("--band-rpm", type=POSITIVE, default=1000.0, show_default=True, help="Width of the speed bands, rpm.")
+@click.option("--limits", type=LimitsArg(), default=",".join(f"{v:g}" for v in VIBRATION_LIMITS.as_list()),
+              show_default=True, help="Displacement per Cmin at the zone boundaries A/B, B/C, C/D.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Results file (JSON).")
+@click.option("--overwrite", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrite, as_json):
+    """ISO 14839-2: the rotor's vibration at each radial bearing against Cmin, per speed band.
+
+    Graded: per 0.1 s window, the orbit's largest excursion from its mean centre; each band takes
+    its worst window (docs/iso.md). RECORDINGS: a run-up, a coast-down or steady runs.
+
+    \b
+    Example:
+      ambdaq iso vibration runup.mcap --coefficients runout.json
+      ambdaq iso vibration run_*.mcap --cmin 150 --band-rpm 5000 --json
+    """
+    from ..daq.sealed import write_sealed
+    from ..workflows import iso_vibration as iso
+
+    grades, info = iso.evaluate([Path(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,
+                                band_rpm=band_rpm, coefficients=Path(coefficients) if coefficients else None,
+                                limits=limits)
+    doc = {**info, "bands": [g.as_dict() for g in grades]}
+    if output:
+        write_sealed(output, {"format": "ambdaq-iso-vibration", "version": 1, **doc}, overwrite=overwrite)
+    if as_json:
+        click.echo(json.dumps(doc, indent=2))
+    else:
+        bounds = "  ".join(f"{z} < {v:g} Cmin ({v * info['cmin_um']:.0f} um)" for z, v in zip("ABC", limits.as_list()))
+        taken = "runout taken out" if info["runout_removed"] else "runout not taken out (no --coefficients)"
+        click.echo(f"ISO 14839-2 vibration, Cmin {info['cmin_um']:g} um ({info['cmin_from']}), {taken}\n"
+                   f"zones: {bounds} <= D\n"
+                   f"{'bearing':<8} {'band rpm':>17} {'windows':>7} {'max um':>8} {'/Cmin':>6}  zone  {'at rpm':>8}")
+        for g in grades:
+            click.echo(f"{g.bearing:<8} {g.rpm_from:>8,.0f}-{g.rpm_to:<8,.0f} {g.windows:>7} {g.max_um:>8.2f} "
+                       f"{g.ratio:>6.3f}  {g.zone:<4}  {g.at_rpm:>8,.0f}")
+        worst = max(grades, key=lambda g: g.ratio)
+        click.echo(f"worst: {worst.bearing} {worst.max_um:.2f} um = {worst.ratio:.3f} Cmin at {worst.at_rpm:,.0f} rpm, "
+                   f"zone {worst.zone}")
+    if output:
+        click.echo(f"-> {output}", err=True)
