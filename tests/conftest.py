@@ -38,6 +38,29 @@ def run_cli():
 
 
 @pytest.fixture(scope="session")
+def build_once(tmp_path_factory):
+    """``build_once(name, build)``: a directory that ``build(dir)`` fills once per run, whichever
+    xdist worker asks first; the others wait for it and reuse it.  For artefacts that compute-only
+    tests and a real-time one both need: the real-time worker then rarely builds them itself."""
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # every worker's parent
+
+    def get(name: str, build) -> Path:
+        out = shared / f"shared-{name}"
+        with open(shared / f"shared-{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (out / ".built").exists():
+                out.mkdir(exist_ok=True)
+                build(out)
+                (out / ".built").touch()
+        return out
+
+    return get
+
+
+@pytest.fixture(scope="session")
 def spindle_file(tmp_path_factory) -> Path:
     """2 s of the spindle at 30,000 rpm with ground truth, generated unpaced."""
     out = tmp_path_factory.mktemp("rec") / "spindle.mcap"

@@ -12,8 +12,6 @@ from ambdaq.daq import load
 from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
 from ambdaq.units import GRAVITY
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
-
 FS = 10_000.0
 
 
@@ -90,14 +88,14 @@ def test_fir_fit_and_knee():
 
 
 @pytest.fixture(scope="module")
-def chain(tmp_path_factory):
+def chain(build_once):
     """The engineer's chain, every step a CLI command: secondary path (broadband test signal per
-    axis), stepped-sine campaign, MFXLMS estimate, FIR fit."""
+    axis), stepped-sine campaign, MFXLMS estimate, FIR fit.  Built once per run (the compute tests
+    and the real-time push share it)."""
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli
 
-    d = tmp_path_factory.mktemp("fx")
     runner = CliRunner()
 
     def run(*args):
@@ -105,17 +103,20 @@ def chain(tmp_path_factory):
         assert r.exit_code == 0, r.output
         return r
 
-    for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z"):
-        run("sim", "generate", "--profile", "base-motion", "--duration", "6", "--excite", f"{a}:0.3", "-q",
-            "-o", d / f"sp_{a}.mcap")
-    summary = run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
-                  "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json", "--json").stdout
-    (d / "path_summary.json").write_text(summary)
-    run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "0.6", "--settle", "0.15", "-o", d / "camp")
-    run("fx", "estimate", d / "camp", "--path", d / "path.json", "-o", d / "points.json")
-    report = json.loads(run("fx", "fit", d / "points.json", "-o", d / "fir.json", "--exact", "--json",
-                            "--plot", d / "fir.png").stdout)
-    return d, report, run
+    def build(d):
+        for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z"):
+            run("sim", "generate", "--profile", "base-motion", "--duration", "6", "--excite", f"{a}:0.3", "-q",
+                "-o", d / f"sp_{a}.mcap")
+        summary = run("frf", "estimate", *[d / f"sp_{a}.mcap" for a in ("amb1_y", "amb2_y", "amb1_z", "amb2_z")],
+                      "--output-topic", "/amb/gap", "--resolution", "5", "-o", d / "path.json", "--json").stdout
+        (d / "path_summary.json").write_text(summary)
+        run("fx", "campaign", "--freqs", "5,20,40,70,100", "--seconds", "0.6", "--settle", "0.15", "-o", d / "camp")
+        run("fx", "estimate", d / "camp", "--path", d / "path.json", "-o", d / "points.json")
+        (d / "fit.json").write_text(run("fx", "fit", d / "points.json", "-o", d / "fir.json", "--exact", "--json",
+                                        "--plot", d / "fir.png").stdout)
+
+    d = build_once("base-motion-chain", build)
+    return d, json.loads((d / "fit.json").read_text()), run
 
 
 def test_secondary_path_coherence_is_reported_over_the_band_it_holds(chain):
@@ -191,6 +192,7 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
     assert r.exit_code == 2 and "no base-motion FIR for plane" in r.output
 
 
+@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 def test_push_the_fir_to_the_served_controller(chain, tmp_path):
     """``ambdaq sim serve --profile base-motion --base sine:40:1`` in its own process; from another,
     record, push the fitted FIR (verified, logged), record again: the controller applies u = W d

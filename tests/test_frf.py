@@ -16,8 +16,6 @@ from ambdaq.drivers.serial.controller import ControllerDriver
 from ambdaq.drivers.serial.link import SerialLink
 from ambdaq.errors import DeviceError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
-
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
 
@@ -96,6 +94,7 @@ def test_a_recording_without_excitation_is_refused(spindle_file, run_cli, tmp_pa
     assert r.exit_code == 2 and "0 axes carry a feedforward input" in r.output
 
 
+@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 def test_measure_through_the_served_controller(tmp_path):
     """``frf measure`` sets the controller's test signal over the serial line, records, and switches
     it off; the controller refuses an out-of-range signal."""

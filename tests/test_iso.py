@@ -91,7 +91,11 @@ def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, ru
     assert got["peak_db"] > runs["front_x"]["peak_db"] + 2.5
     saved = json.loads((tmp_path / "detuned.json").read_text())
     assert saved["format"] == "ambdaq-iso-stability" and saved["runs"][0]["zone"] == "C"
-    assert len(saved["runs"][0]["curves"]["freq_hz"]) == 500 and (tmp_path / "detuned.png").stat().st_size > 20_000
+    curves = saved["runs"][0]["curves"]
+    assert len(curves["freq_hz"]) == 500 and (tmp_path / "detuned.png").stat().st_size > 20_000
+    gs, gc, go = (np.array(curves[f"{g}_real"]) + 1j * np.array(curves[f"{g}_imag"]) for g in ("gs", "gc", "go"))
+    np.testing.assert_allclose(gc, 1 - gs, atol=1e-12)  # Gc = 1 - Gs and Go = Gc / Gs (ISO 14839-3)
+    np.testing.assert_allclose(go, gc / gs, rtol=1e-9)
 
 
 def test_an_excitation_too_weak_is_not_graded(run_cli, tmp_path):

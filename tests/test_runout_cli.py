@@ -9,8 +9,6 @@ from ambdaq.daq.coefficients import Coefficients
 from ambdaq.sim.rigs.spindle import SPINDLE
 from ambdaq.errors import BadInputError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
-
 TRUE = SPINDLE.runout_amp[:, :6] * np.exp(1j * SPINDLE.runout_phase[:, :6])
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
@@ -40,6 +38,7 @@ def test_slow_roll_recording(tmp_path, run_cli):
     assert doc["source"]["recordings"][0]["speed_rpm"] == 800.0 and len(doc["source"]["recordings"][0]["sha256"]) == 64
 
 
+@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 def test_over_the_real_drivers(tmp_path, run_cli):
     """sim:// records through the serial controller driver (float32 on the wire): same accuracy."""
     rec = tmp_path / "live.mcap"

@@ -154,9 +154,11 @@ class AxisRun:
                "coherence_at_peak": None if np.isnan(g.coherence_at_peak) else round(g.coherence_at_peak, 4),
                "band_hz": list(g.band_hz), "zone": g.zone, "reason": g.reason,
                "synchronous_bins_skipped_hz": self.skipped_hz}
-        if curves:
-            out["curves"] = {"freq_hz": self.freq_hz.tolist(), "gs_re": self.gs.real.tolist(),
-                             "gs_im": self.gs.imag.tolist(), "coherence": self.coherence.tolist()}
+        if curves:  # the standard's three loop functions; Go is infinite where Gs is 0 (JSON null)
+            _gs, gc, go = loop_functions(-self.gs)
+            out["curves"] = {"freq_hz": self.freq_hz.tolist(), "coherence": self.coherence.tolist(),
+                             **{f"{name}_{part}": [None if not np.isfinite(v) else float(v) for v in getattr(g, part)]
+                                for name, g in (("gs", self.gs), ("gc", gc), ("go", go)) for part in ("real", "imag")}}
         return out
 
 
