@@ -60,6 +60,25 @@ def build_once(tmp_path_factory):
     return get
 
 
+@pytest.fixture
+def served(request):
+    """``ambdaq sim serve --profile spindle --rpm RPM`` in its own process (RPM: the test's indirect
+    parameter, 30,000 by default); yields the controller's ``serial://`` URL."""
+    import subprocess
+    import sys
+
+    rpm = getattr(request, "param", 30000)
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle",
+                             "--rpm", str(rpm), "--duration", "180"], stdout=subprocess.PIPE, text=True)
+    try:
+        name, pty = proc.stdout.readline().split()
+        assert name == "controller"
+        yield f"serial://{pty}"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
 @pytest.fixture(scope="session")
 def spindle_file(tmp_path_factory) -> Path:
     """2 s of the spindle at 30,000 rpm with ground truth, generated unpaced."""

@@ -3,8 +3,6 @@ linearisation, vibration zones (part 2) against the simulator's true rotor motio
 be graded."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -45,21 +43,8 @@ def test_zones_and_their_boundaries(run_cli, tmp_path):
     assert r.exit_code == 2 and "either --device URL (measure) or recordings" in r.output
 
 
-@pytest.fixture
-def served():
-    """``ambdaq sim serve --profile spindle`` (standstill) in its own process."""
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle", "--duration", "180"],
-                            stdout=subprocess.PIPE, text=True)
-    try:
-        name, pty = proc.stdout.readline().split()
-        assert name == "controller"
-        yield f"serial://{pty}"
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
-
-
 @pytest.mark.realtime
+@pytest.mark.parametrize("served", [0], indirect=True)  # standstill
 def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, run_cli, tmp_path):
     """Every axis at standstill, then the front bearing detuned (a lower derivative gain) at 12,000 rpm:
     the measured peak |Gs| is the linearised loop's within 0.5 dB, and the zone moves as the model says."""

@@ -37,21 +37,6 @@ def harmonics(path):
     return out
 
 
-@pytest.fixture
-def served(request):
-    """``ambdaq sim serve --profile spindle --rpm RPM`` in its own process."""
-    rpm = getattr(request, "param", 30000)
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle",
-                             "--rpm", str(rpm), "--duration", "120"], stdout=subprocess.PIPE, text=True)
-    try:
-        name, pty = proc.stdout.readline().split()
-        assert name == "controller"
-        yield f"serial://{pty}"
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
-
-
 def windows(path, seconds=0.2):
     """Per window: speed (rpm), worst radial |1X| and |2X| of the command error, its RMS (um)."""
     rec = load(path, topics=["/amb/error", "/amb/rotor"])
