@@ -39,6 +39,7 @@ COMMANDS = {
     "record": "record:command",
     "recover": "recover:command",
     "runout": "runout:command",
+    "runup": "runup:command",
     "selfsense": "selfsense:command",
     "sim": "sim:command",
 }

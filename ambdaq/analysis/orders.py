@@ -1,0 +1,193 @@
+"""Order tracking on the key-phasor angle: the 1X (and NX) vector of a signal against speed through
+a run-up or a coast-down, its peaks and critical speeds, and the modes a loop model predicts
+(Campbell).
+
+A machinery engineer reads a run-up as Bently-style plots: the 1X vector's amplitude and phase
+against speed (Bode) and the vector itself (polar), with the slow-roll vector taken out, and a
+waterfall of spectra against speed with the order lines.  Here each vector is the least-squares
+fit of ``a sin k theta + b cos k theta`` over a window of whole revolutions (the convention of
+:mod:`.runout`: the phasor ``a + j b`` of ``R sin(k theta + phi)`` is ``R exp(j phi)``, the phase
+measured from the key-phasor mark).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .runout import harmonic_fit
+
+CRITICAL_AMPLIFICATION = 2.5
+"""API 684: a mode amplified less than this (half-power method) is critically damped: not a
+critical speed that needs a separation margin."""
+
+
+@dataclass(frozen=True)
+class OrderTrack:
+    """Vectors of some orders of one or more signals, per window of whole revolutions.
+
+    Attributes
+    ----------
+    rpm : ndarray, shape (w,)
+        Mean speed of each window, in rpm.
+    orders : tuple of int
+        The orders (1 = 1X).
+    vectors : ndarray of complex, shape (w, len(orders), signals)
+        ``R exp(j phi)`` per window, order and signal, in the signals' unit.
+    """
+
+    rpm: np.ndarray
+    orders: tuple[int, ...]
+    vectors: np.ndarray
+
+    def order(self, k: int) -> np.ndarray:
+        """The vectors of order ``k``, shape (w, signals)."""
+        return self.vectors[:, self.orders.index(k), :]
+
+    def compensated(self, reference: np.ndarray) -> "OrderTrack":
+        """This track with a reference vector per order and signal taken out (slow-roll compensation).
+
+        Parameters
+        ----------
+        reference : ndarray of complex, shape (len(orders), signals)
+            In the signals' unit.
+        """
+        return OrderTrack(self.rpm, self.orders, self.vectors - reference[None, :, :])
+
+
+def order_track(x: np.ndarray, theta: np.ndarray, speed_rpm: np.ndarray, *, orders=(1, 2), revolutions: int = 8,
+                min_rpm: float = 60.0) -> OrderTrack:
+    """Track the vectors of ``orders`` over windows of ``revolutions`` whole revolutions.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,) or (n, signals)
+        Signals, any unit (gap sensors, in m).
+    theta : ndarray, shape (n,)
+        Key-phasor angle at each sample, in rad (wrapped or not).
+    speed_rpm : ndarray, shape (n,)
+        Speed at each sample, in rpm.
+    orders : sequence of int
+        Orders to track (1 = 1X).
+    revolutions : int
+        Revolutions per window: more averages noise away, fewer follow a fast ramp (8 at 5,000 rpm/s
+        spans 96 rpm at 50,000 rpm).
+    min_rpm : float
+        Windows slower than this (in rpm; a rotor at rest has no revolutions to fit) are left out.
+
+    Returns
+    -------
+    OrderTrack
+    """
+    x2 = np.asarray(x, dtype=float).reshape(len(theta), -1)
+    turns = np.unwrap(np.asarray(theta, dtype=float)) / (2 * np.pi)
+    turns -= turns[0]
+    edges = np.searchsorted(turns, np.arange(0.0, turns[-1], revolutions))
+    rpm, vecs = [], []
+    for s, e in zip(edges[:-1], edges[1:]):
+        if e - s < 4 * (2 * max(orders) + 1):  # too few samples per window to fit its orders
+            continue
+        speed = float(np.mean(speed_rpm[s:e]))
+        if speed < min_rpm:
+            continue
+        rpm.append(speed)
+        vecs.append(harmonic_fit(x2[s:e], theta[s:e], tuple(orders)).reshape(len(orders), -1))
+    if not rpm:
+        raise ValueError(f"no window of {revolutions} revolutions above {min_rpm:g} rpm")
+    return OrderTrack(np.array(rpm), tuple(orders), np.array(vecs))
+
+
+@dataclass(frozen=True)
+class OneXPeak:
+    """A peak of the 1X amplitude against speed, with its half-power band inside the run.
+
+    Attributes
+    ----------
+    rpm : float
+        Speed of the peak, in rpm.
+    amplitude : float
+        1X amplitude there, in the signal's unit.
+    band_rpm : tuple of float
+        The half-power band (amplitude above peak / sqrt 2), in rpm.
+    phase_change_deg : float
+        Phase change across that band, in degrees.
+    amplification : float
+        The peak's speed over the band's width, ``rpm / (high - low)``: the amplification factor
+        of the half-power method (API 684).
+    """
+
+    rpm: float
+    amplitude: float
+    band_rpm: tuple[float, float]
+    phase_change_deg: float
+    amplification: float
+
+    def is_critical(self, min_amplification: float = CRITICAL_AMPLIFICATION) -> bool:
+        """A critical speed: amplified at least ``min_amplification`` (API 684 calls a mode with
+        less critically damped) with the phase turning through the band, as at a resonance."""
+        return self.amplification >= min_amplification and self.phase_change_deg >= 60.0
+
+
+def one_x_peaks(rpm: np.ndarray, vector: np.ndarray) -> list[OneXPeak]:
+    """Every local peak of ``|vector|`` against speed whose half-power band lies inside the run.
+
+    Parameters
+    ----------
+    rpm : ndarray, shape (w,)
+        Speed per window, in rpm (a run-up or a coast-down; sorted here).
+    vector : ndarray of complex, shape (w,)
+        1X vector per window, any unit.
+    """
+    order = np.argsort(rpm)
+    r, v = np.asarray(rpm)[order], np.asarray(vector)[order]
+    amp = np.abs(v)
+    phase = np.degrees(np.unwrap(np.angle(v)))
+    peaks = []
+    for i in range(1, amp.shape[0] - 1):
+        if not (amp[i] >= amp[i - 1] and amp[i] > amp[i + 1]):
+            continue
+        half = amp[i] / np.sqrt(2.0)
+        below = np.flatnonzero(amp[:i] <= half)
+        above = np.flatnonzero(amp[i + 1:] <= half)
+        if below.size == 0 or above.size == 0:  # a hump wider than the run: no half-power band here
+            continue
+        lo, hi = int(below[-1]), i + 1 + int(above[0])
+        if np.any(amp[lo:hi + 1] > amp[i]):  # a higher peak inside: this one is its shoulder
+            continue
+        peaks.append(OneXPeak(float(r[i]), float(amp[i]), (float(r[lo]), float(r[hi])),
+                              float(abs(phase[hi] - phase[lo])), float(r[i] / max(r[hi] - r[lo], 1e-9))))
+    return peaks
+
+
+def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies and damping ratios of a discrete loop's lightly damped modes (its poles).
+
+    Parameters
+    ----------
+    M : ndarray, shape (n, n)
+        The loop's state matrix, ``x[n+1] = M x[n] + ...``.
+    h : float
+        Sample period, in s.
+    max_damping : float
+        Modes with more damping than this are left out.
+    fmax_hz : float, optional
+        Highest frequency kept, in Hz (default: Nyquist).
+
+    Returns
+    -------
+    freq_hz, damping : ndarray
+        Sorted by frequency; one per complex pair.
+    """
+    z = np.linalg.eigvals(M)
+    z = z[(np.imag(z) > 0) & (np.abs(z) > 0)]
+    s = np.log(z) / h
+    wn = np.abs(s)
+    zeta = -np.real(s) / np.where(wn > 0, wn, 1.0)
+    f = np.imag(s) / (2 * np.pi)
+    keep = (zeta <= max_damping) & (f > 0) & (f <= (fmax_hz if fmax_hz is not None else 0.5 / h))
+    idx = np.argsort(f[keep])
+    return f[keep][idx], zeta[keep][idx]
+
+
+__all__ = ["CRITICAL_AMPLIFICATION", "OneXPeak", "OrderTrack", "loop_modes", "one_x_peaks", "order_track"]

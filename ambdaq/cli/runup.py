@@ -1,0 +1,158 @@
+"""``ambdaq runup``: run-up and coast-down diagnostics (order tracking, Bode, polar, waterfall, Campbell)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..analysis.orders import CRITICAL_AMPLIFICATION
+from ..errors import BadInputError
+from .figures import plot_option, pyplot
+
+
+def _orders(value: str) -> tuple[int, ...]:
+    try:
+        out = tuple(sorted({int(v) for v in value.split(",")}))
+    except ValueError:
+        raise BadInputError(f"--orders {value!r}: expected comma-separated orders, e.g. 1,2") from None
+    if not out or out[0] < 1 or out[-1] > 20:
+        raise BadInputError(f"--orders {value!r}: orders are 1 .. 20")
+    return out
+
+
+def _speeds(value: str | None) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value.split(":"))
+        if not 0 <= lo < hi < 1e6:
+            raise ValueError
+    except ValueError:
+        raise BadInputError(f"--speeds {value!r}: expected FROM:TO in rpm, e.g. 0:50000") from None
+    return lo, hi
+
+
+@click.command("runup")
+@click.argument("recording", type=click.Path(dir_okay=False))
+@click.option("--coefficients", type=click.Path(dir_okay=False),
+              help="Runout coefficient file (runout identify): the sensor runout is taken out (the rotor's motion is left).")
+@click.option("--slow-roll", type=click.Path(dir_okay=False),
+              help="Slow-roll recording: its vector per order is taken out of every window's (Bently style).")
+@click.option("--orders", default="1,2", show_default=True, help="Orders to track.")
+@click.option("--revolutions", type=click.IntRange(1, 1000), default=8, show_default=True,
+              help="Revolutions per tracking window.")
+@click.option("--speeds", metavar="FROM:TO", help="Speed range the run must cover, rpm.")
+@click.option("--model", type=click.Choice(["spindle"]), help="Overlay the modes this model's loop predicts (Campbell).")
+@click.option("--waterfall-axis", help="Gap axis of the waterfall; default: the first radial one.")
+@plot_option("Bode, polar, waterfall with order lines (and Campbell with --model) (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the tracked vectors and peaks as JSON.")
+def command(recording, coefficients, slow_roll, orders, revolutions, speeds, model, waterfall_axis, plot_path, as_json):
+    """Order tracking of a run-up or coast-down on the key-phasor: 1X (and NX) amplitude and phase
+    against speed, 1X peaks with their amplification factor (critical speeds, API 684), a waterfall.
+
+    \b
+    Example:
+      ambdaq runup runup.mcap --coefficients coef.json --model spindle --plot runup.png
+      ambdaq runup coastdown.mcap --slow-roll slow.mcap --orders 1,2,3 --json
+    """
+    from ..workflows.runup_diagnostics import analyse
+
+    res = analyse(Path(recording), coefficients=Path(coefficients) if coefficients else None,
+                  slow_roll=Path(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
+                  speeds=_speeds(speeds), waterfall_axis=waterfall_axis, model=model)
+    t = res.track
+    if as_json:
+        click.echo(json.dumps({
+            "recording": recording, "compensation": res.compensation, "revolutions": revolutions,
+            "rpm": np.round(t.rpm, 1).tolist(),
+            "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
+                                   "phase_deg": np.round(np.degrees(np.angle(t.order(k)[:, i])), 2).tolist()}
+                         for k in t.orders} for i, a in enumerate(res.axes)},
+            "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
+                              "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
+                              "amplification": round(p.amplification, 2), "critical": p.is_critical()} for p in peaks]
+                         for a, peaks in res.peaks.items()},
+            "model_modes": None if res.modes is None else {"rpm": res.modes[0].round(1).tolist(),
+                                                          "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row]
+                                                                      for row in res.modes[1]]},
+        }, indent=2))
+    else:
+        _print_table(res)
+    if plot_path:
+        _plot(res, plot_path, Path(recording).name)
+        click.echo(f"-> {plot_path}", err=True)
+
+
+def _print_table(res) -> None:
+    t = res.track
+    lo, hi = float(t.rpm.min()), float(t.rpm.max())
+    at = np.linspace(lo, hi, 5)
+    idx = [int(np.argmin(np.abs(t.rpm - r))) for r in at]
+    click.echo(f"run {lo:,.0f}-{hi:,.0f} rpm, {t.rpm.shape[0]} windows; compensation: {res.compensation}")
+    click.echo(f"{'axis':<9} order " + "".join(f"{t.rpm[i]:>17,.0f} rpm" for i in idx))
+    for j, a in enumerate(res.axes):
+        for k in t.orders:
+            v = t.order(k)[:, j]
+            cells = "".join(f"{abs(v[i]) * 1e6:>11.2f} um {np.degrees(np.angle(v[i])):>5.0f}°" for i in idx)
+            click.echo(f"{a:<9} {k:>4}X {cells}")
+    for a, peaks in res.peaks.items():
+        if not peaks:
+            click.echo(f"{a}: no 1X peak with its half-power band inside the run: no critical speed")
+        for p in peaks:
+            verdict = ("a critical speed" if p.is_critical() else
+                       f"critically damped (amplification < {CRITICAL_AMPLIFICATION:g}, API 684)")
+            click.echo(f"{a}: 1X peak {p.amplitude * 1e6:.2f} um at {p.rpm:,.0f} rpm, half-power band "
+                       f"{p.band_rpm[0]:,.0f}-{p.band_rpm[1]:,.0f} rpm, phase turns {p.phase_change_deg:.0f}°, "
+                       f"amplification {p.amplification:.1f}: {verdict}")
+
+
+def _plot(res, path: str, name: str) -> None:
+    plt = pyplot()
+    from matplotlib.colors import LogNorm
+
+    t = res.track
+    fig = plt.figure(figsize=(13, 10), constrained_layout=True)
+    grid = fig.add_gridspec(2, 2)
+    amp_ax, ph_ax = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0])
+    polar = fig.add_subplot(grid[0, 1], projection="polar")
+    fall = fig.add_subplot(grid[1, 1])
+    for j, a in enumerate(res.axes):
+        for k in t.orders:
+            v = t.order(k)[:, j] * 1e6
+            line = amp_ax.plot(t.rpm, np.abs(v), lw=0.9 if k == 1 else 0.6, ls="-" if k == 1 else "--",
+                               label=f"{a} {k}X")[0]
+            if k == 1:
+                ph_ax.plot(t.rpm, np.degrees(np.angle(v)), ".", ms=1.5, color=line.get_color(), label=f"{a} 1X")
+                polar.plot(np.angle(v), np.abs(v), lw=0.8, color=line.get_color(), label=a)
+                for p in res.peaks.get(a, []):
+                    amp_ax.annotate(f"{p.rpm:,.0f} rpm, AF {p.amplification:.1f}", (p.rpm, p.amplitude * 1e6),
+                                    fontsize=7, xytext=(5, 5), textcoords="offset points")
+    amp_ax.set(ylabel="amplitude [µm, 0-peak]", title=f"order tracking, {res.compensation}")
+    ph_ax.set(xlabel="speed [rpm]", ylabel="1X phase [deg] from the key-phasor", ylim=(-180, 180), yticks=range(-180, 181, 90))
+    for ax in (amp_ax, ph_ax):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    polar.set_title("1X vector over the run [µm, deg]", fontsize=10)
+    polar.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.15, -0.12))
+    rpm, f, a = res.waterfall
+    keep = f <= min(f[-1], 1.2 * max(t.orders + (4,)) * rpm.max() / 60.0)
+    order = np.argsort(rpm)
+    mesh = fall.pcolormesh(f[keep], rpm[order], np.maximum(a[order][:, keep] * 1e6, 1e-3), shading="nearest",
+                           norm=LogNorm(vmin=1e-2, vmax=max(1e-1, float(a.max() * 1e6))), cmap="viridis")
+    fig.colorbar(mesh, ax=fall, label="amplitude [µm]")
+    for k in range(1, 5):
+        fall.plot(k * rpm[order] / 60.0, rpm[order], color="w", lw=0.6, ls=":")
+        fall.annotate(f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7, ha="center", va="bottom")
+    if res.modes is not None:
+        speeds, table = res.modes
+        for m in range(table.shape[1]):
+            fall.plot(table[:, m], speeds, color="r", lw=0.9, label="model modes" if m == 0 else None)
+        fall.legend(fontsize=7, loc="lower right")
+    fall.set(xlabel="frequency [Hz]", ylabel="speed [rpm]", xlim=(0, f[keep][-1]),
+             title=f"waterfall of {res.waterfall_axis}" + (" with the model's modes (Campbell)" if res.modes else ""))
+    fig.suptitle(f"run-up diagnostics: {name}")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

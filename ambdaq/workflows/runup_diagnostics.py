@@ -1,0 +1,170 @@
+"""Run-up and coast-down diagnostics from a recording: order tracking on the key-phasor with the
+sensor runout or the slow-roll vector taken out, 1X peaks and critical speeds, a waterfall of the
+gap spectrum against speed, and the modes a model predicts over it (Campbell).
+
+Two compensations, one at a time:
+
+* ``coefficients`` (a runout coefficient file): the sensors' runout, identified with the rotor
+  motion separated out (``ambdaq runout identify``), is taken out sample by sample. What is left is
+  the rotor's own motion: right for an AMB, whose loop makes the rotor follow the runout at low
+  speed.
+* ``slow_roll`` (a slow-roll recording): its vector per order and axis is taken out of every
+  window's, as machinery engineers do on fluid-film machines. On an AMB it also takes out what the
+  rotor did at slow roll, so a rotor that follows the runout shows as still (docs/iso.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, order_track
+from ..analysis.runout import harmonic_fit, synthesise
+from ..analysis.spectrum import amplitude_spectrum
+from ..daq.coefficients import Coefficients
+from ..daq.mcapfile import McapFile
+from ..daq.reader import ambdaq_channels, load
+from ..errors import BadInputError
+from ..units import RAD_S_TO_RPM
+
+WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
+MODEL_SPEEDS = 26  # speeds the model's modes are computed at over the run
+
+
+@dataclass
+class RunupDiagnostics:
+    """What :func:`analyse` found.
+
+    Attributes
+    ----------
+    axes : list of str
+        The radial gap axes tracked.
+    track : OrderTrack
+        Their order vectors per window, compensated, in m.
+    compensation : str
+        What was taken out (``none``, ``runout coefficients FILE``, ``slow-roll vector FILE``).
+    peaks : dict
+        Axis -> its 1X peaks.
+    waterfall : tuple of ndarray
+        (rpm per spectrum, frequency in Hz, amplitude in m with shape (spectra, bins)) of
+        ``waterfall_axis``.
+    waterfall_axis : str
+    modes : tuple of ndarray or None
+        (rpm, frequency in Hz per mode with shape (speeds, modes)) from the model, if one was given.
+    """
+
+    axes: list[str]
+    track: OrderTrack
+    compensation: str
+    peaks: dict[str, list[OneXPeak]]
+    waterfall: tuple[np.ndarray, np.ndarray, np.ndarray]
+    waterfall_axis: str
+    modes: tuple[np.ndarray, np.ndarray] | None
+
+
+def _gap_and_angle(path: Path):
+    if "/amb/rotor" not in ambdaq_channels(McapFile(path)):
+        raise BadInputError(f"{path}: no rotor angle (/amb/rotor): order tracking needs the key-phasor; "
+                            "record with the controller's rotor angle")
+    rec = load(path, topics=["/amb/gap", "/amb/rotor"])
+    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    n = min(len(gap), len(rot))
+    axes = [a for a in gap.fields if a.endswith(("_x", "_y"))]
+    if not axes:
+        raise BadInputError(f"{path}: /amb/gap has no radial axes (NAME_x, NAME_y)")
+    x = np.column_stack([gap[a][:n] for a in axes])
+    return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate
+
+
+def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray, np.ndarray]:
+    """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed.
+
+    Parameters
+    ----------
+    model : str
+        ``spindle``: the simulated spindle's own linearised loop.
+    rpm_from, rpm_to : float
+        Speed range, in rpm.
+    """
+    if model != "spindle":
+        raise BadInputError(f"--model {model!r}: the model known here is 'spindle' (the simulated spindle's loop)")
+    from ..sim.rigs.spindle import SpindleRig
+
+    rig = SpindleRig()
+    speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
+    freqs = [loop_modes(rig.loop_matrices(float(r))[0], rig.h, fmax_hz=2000.0)[0] for r in speeds]
+    width = max(len(f) for f in freqs)
+    table = np.full((speeds.shape[0], width), np.nan)
+    for i, f in enumerate(freqs):
+        table[i, : len(f)] = f
+    return speeds, table
+
+
+def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
+            revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
+            model: str | None = None) -> RunupDiagnostics:
+    """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
+
+    Parameters
+    ----------
+    path : Path
+        The recording (gap sensors and the rotor angle).
+    coefficients : Path, optional
+        Runout coefficient file: its runout is taken out sample by sample.
+    slow_roll : Path, optional
+        Slow-roll recording: its vectors are taken out of every window's.
+    orders : sequence of int
+        Orders tracked (1 = 1X).
+    revolutions : int
+        Revolutions per window.
+    speeds : (float, float), optional
+        The speed range (rpm) the run must cover; one line, exit 2, if it does not.
+    waterfall_axis : str, optional
+        Gap axis of the waterfall; default: the first radial one.
+    model : str, optional
+        ``spindle``: its loop's modes over the run's speeds (the Campbell diagram).
+    """
+    if coefficients is not None and slow_roll is not None:
+        raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
+    axes, x, theta, rpm, fs = _gap_and_angle(path)
+    if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
+        raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
+                            f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
+    compensation = "none"
+    if coefficients is not None:
+        coef = Coefficients.load(coefficients)
+        missing = [a for a in axes if a not in coef.weights]
+        if missing:
+            raise BadInputError(f"{coefficients}: no runout for {', '.join(missing)}")
+        phasors = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
+        x = x - synthesise(phasors, coef.harmonics, theta)
+        compensation = f"runout coefficients {coefficients}"
+    try:
+        track = order_track(x, theta, rpm, orders=orders, revolutions=revolutions)
+    except ValueError as err:
+        raise BadInputError(f"{path}: {err}: the rotor never turned") from None
+    if slow_roll is not None:
+        s_axes, sx, s_theta, s_rpm, _ = _gap_and_angle(slow_roll)
+        if s_axes != axes:
+            raise BadInputError(f"{slow_roll}: its axes ({', '.join(s_axes)}) are not the run's ({', '.join(axes)})")
+        if np.median(s_rpm) > 0.1 * rpm.max():
+            raise BadInputError(f"{slow_roll}: ran at {np.median(s_rpm):,.0f} rpm: a slow roll is below a tenth of the "
+                                f"run's top speed ({rpm.max():,.0f} rpm)")
+        track = track.compensated(harmonic_fit(sx, s_theta, tuple(orders)).reshape(len(orders), -1))
+        compensation = f"slow-roll vector {slow_roll}"
+    peaks = {a: one_x_peaks(track.rpm, track.order(1)[:, i]) for i, a in enumerate(axes)} if 1 in orders else {}
+    w_axis = waterfall_axis or axes[0]
+    if w_axis not in axes:
+        raise BadInputError(f"--waterfall-axis {w_axis}: the radial axes are {', '.join(axes)}")
+    n = int(round(WATERFALL_S * fs))
+    col = x[:, axes.index(w_axis)]
+    rows = [(float(rpm[s:s + n].mean()), amplitude_spectrum(col[s:s + n], fs=fs))
+            for s in range(0, x.shape[0] - n + 1, n)]
+    waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
+    modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
+    return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes)
+
+
+__all__ = ["RunupDiagnostics", "analyse", "model_modes"]

@@ -1,0 +1,95 @@
+"""Run-up diagnostics: order tracking against the simulator's true rotor motion, 1X peaks against a
+resonance of known speed and damping, and what cannot be tracked."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ambdaq.analysis.orders import CRITICAL_AMPLIFICATION, one_x_peaks, order_track
+from ambdaq.daq import load
+
+
+@pytest.mark.parametrize("zeta, critical", [(0.1, True), (0.15, True), (0.3, False)])
+def test_one_x_peak_of_a_resonance_of_known_speed_and_damping(zeta, critical):
+    """The unbalance response of one mode at 18,000 rpm: its peak is at 18,000 / sqrt(1 - 2 zeta^2),
+    the phase turns through it, and the half-power amplification is about 1 / (2 zeta)."""
+    rpm = np.linspace(1000, 60000, 600)  # 98.5 rpm per window, as 8 revolutions at 5,000 rpm/s give
+    r = rpm / 18000.0
+    v = 10e-6 * r**2 / ((1 - r**2) + 2j * zeta * r)
+    (peak,) = one_x_peaks(rpm, v)
+    assert abs(peak.rpm - 18000 / np.sqrt(1 - 2 * zeta**2)) < 100  # one window
+    assert peak.phase_change_deg > 60
+    if zeta <= 0.15:  # the half-power width of an r^2-forced mode is 2 zeta to first order: 15 % at 0.15
+        assert peak.amplification == pytest.approx(1 / (2 * zeta), rel=0.15)
+    assert peak.is_critical() is critical and (peak.amplification >= CRITICAL_AMPLIFICATION) is critical
+
+
+@pytest.fixture(scope="module")
+def runup(tmp_path_factory):
+    """A run-up to 30,000 rpm with the truth, a slow roll, and the runout identified from it."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    d = tmp_path_factory.mktemp("runup")
+    for args in (["sim", "generate", "--rpm", "0:30000:3", "--duration", "3", "--truth", "-q", "-o", d / "runup.mcap"],
+                 ["sim", "generate", "--rpm", "slowroll", "--duration", "2", "-q", "-o", d / "slow.mcap"],
+                 ["runout", "identify", d / "slow.mcap", "-o", d / "runout.json"]):
+        r = CliRunner().invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+    return d
+
+
+def test_order_tracking_with_the_runout_out_is_the_true_rotor(runup, run_cli):
+    r = run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json", "--orders", "1,2", "--json",
+                "--model", "spindle", "--plot", runup / "runup.png")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    rec = load(runup / "runup.mcap")
+    truth, rot = rec["/truth/position"], rec["/amb/rotor"]
+    axes = list(out["axes"])
+    assert axes == ["front_x", "front_y", "rear_x", "rear_y"]
+    true = order_track(np.column_stack([truth[a] for a in axes]), rot["angle"], rot["speed"] * 60 / (2 * np.pi))
+    np.testing.assert_allclose(out["rpm"], true.rpm, atol=0.05)
+    for i, a in enumerate(axes):
+        for k in (1, 2):
+            got = np.array(out["axes"][a][f"{k}X"]["amplitude_um"]) * np.exp(1j * np.radians(out["axes"][a][f"{k}X"]["phase_deg"]))
+            # the identified runout is within 0.07 um of the true one; the sensor noise (0.2 um RMS)
+            # over 8 revolutions adds about 0.05 um: 0.3 um
+            assert np.abs(got - true.order(k)[:, i] * 1e6).max() < 0.3, (a, k)
+    # the rotor follows 16 um of rear runout at low speed and lets go of it above the ~300 Hz modes
+    rear = np.array(out["axes"]["rear_x"]["1X"]["amplitude_um"])
+    assert rear[np.array(out["rpm"]) < 5000].mean() > 25 and rear[-5:].mean() < 25
+    modes = out["model_modes"]
+    assert modes["rpm"][0] == pytest.approx(out["rpm"][0], abs=0.1)
+    assert any(280 < f < 330 for f in modes["freq_hz"][0] if f is not None)  # the radial rigid-body modes
+    assert (runup / "runup.png").stat().st_size > 60_000
+
+
+def test_slow_roll_compensation_takes_out_what_the_rotor_did_at_slow_roll(runup, run_cli):
+    """Bently's slow-roll vector is runout plus the rotor's slow-roll motion: on an AMB, whose loop
+    makes the rotor follow the runout at low speed, the compensated 1X starts near zero and the
+    rotor's real motion there is lost; the coefficient file keeps it."""
+    slow = json.loads(run_cli("runup", runup / "runup.mcap", "--slow-roll", runup / "slow.mcap", "--json").stdout)
+    coef = json.loads(run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json", "--json").stdout)
+    assert slow["rpm"] == coef["rpm"] and slow["rpm"][0] < 2000
+    first_slow, first_rotor = (d["axes"]["rear_x"]["1X"]["amplitude_um"][0] for d in (slow, coef))
+    assert first_slow < 5.0 and first_rotor > 25.0  # 3.6 against 31.7 um at 1,549 rpm here
+    text = run_cli("runup", runup / "runup.mcap", "--slow-roll", runup / "slow.mcap").output
+    # up to 30,000 rpm the slow-roll-compensated 1X only rises: no peak with a half-power band
+    assert "compensation: slow-roll vector" in text and "rear_x: no 1X peak with its half-power band inside the run" in text
+
+
+def test_what_cannot_be_tracked_is_one_line_exit_2(runup, run_cli, tmp_path):
+    r = run_cli("runup", runup / "runup.mcap", "--speeds", "0:50000")
+    assert r.exit_code == 2 and "rpm, not 0-50,000: record a run-up (or coast-down) over the whole range" in r.output
+    r = run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json", "--slow-roll", runup / "slow.mcap")
+    assert r.exit_code == 2 and "not both" in r.output
+    r = run_cli("runup", runup / "runup.mcap", "--slow-roll", runup / "runup.mcap")
+    assert r.exit_code == 2 and "a slow roll is below a tenth" in r.output
+    base = tmp_path / "base.mcap"
+    assert run_cli("sim", "generate", "--profile", "base-motion", "--duration", "0.3", "-q", "-o", base).exit_code == 0
+    r = run_cli("runup", base)
+    assert r.exit_code == 2 and "no rotor angle (/amb/rotor): order tracking needs the key-phasor" in r.output
+    assert len(r.output.strip().splitlines()) == 1
