@@ -93,3 +93,13 @@ def test_what_cannot_be_tracked_is_one_line_exit_2(runup, run_cli, tmp_path):
     r = run_cli("runup", base)
     assert r.exit_code == 2 and "no rotor angle (/amb/rotor): order tracking needs the key-phasor" in r.output
     assert len(r.output.strip().splitlines()) == 1
+
+
+def test_plot_marks_the_orders_of_a_steady_run_and_the_clearance(runup, run_cli, tmp_path):
+    steady = tmp_path / "steady.mcap"
+    assert run_cli("sim", "generate", "--rpm", "20000", "--duration", "0.5", "-q", "-o", steady).exit_code == 0
+    for rec, extra in ((steady, ()), (runup / "runup.mcap", ("--cmin", "200"))):
+        out = tmp_path / f"{rec.stem}.png"
+        r = run_cli("plot", rec, "--field", "rear_x", "-o", out, *extra)
+        assert r.exit_code == 0, r.output
+        assert out.stat().st_size > 50_000

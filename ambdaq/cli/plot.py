@@ -8,7 +8,7 @@ import numpy as np
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import load
 from ..errors import BadInputError
-from .options import window_options
+from .options import POSITIVE, window_options
 from .figures import ImagePath, pyplot
 
 UNIT_SCALE = {"m": (1e6, "µm"), "m/s^2": (1.0, "m/s²"), "A": (1.0, "A"), "rad": (1.0, "rad"), "rad/s": (1.0, "rad/s")}
@@ -27,12 +27,25 @@ def orbit_partner(field: str, fields) -> str | None:
 @click.option("--topic", default="/amb/gap", show_default=True)
 @click.option("--field", "field_name", required=True, help="Field, e.g. front_x.")
 @window_options
+@click.option("--cmin", type=POSITIVE, metavar="UM",
+              help="Minimum clearance for the orbit's clearance circle, um; default: what the recording reports.")
 @click.option("-o", "--output", type=ImagePath(), required=True, help="Image file (.png, .pdf, .svg ...).")
-def command(file, topic, field_name, start, end, output):
-    """Plot FIELD of TOPIC: time series, amplitude spectrum, and the bearing's X-Y orbit."""
+def command(file, topic, field_name, start, end, cmin, output):
+    """Plot FIELD of TOPIC: time series, amplitude spectrum (with the speed and its orders where the
+    rotor angle was recorded), and the bearing's X-Y orbit (with the clearance circle where Cmin is
+    known)."""
+    from matplotlib.ticker import MaxNLocator
+
+    from ..daq.mcapfile import McapFile
+    from ..daq.reader import ambdaq_channels
+    from ..units import RAD_S_TO_RPM
+    from ..workflows.iso_vibration import recorded_cmin
+
     plt = pyplot()
 
-    data = load(file, topics=[topic], start=start, end=end)[topic]
+    spinning = topic != "/amb/rotor" and "/amb/rotor" in ambdaq_channels(McapFile(file))
+    rec = load(file, topics=[topic] + (["/amb/rotor"] if spinning else []), start=start, end=end)
+    data = rec[topic]
     y = data[field_name]
     if len(data) < 2:
         raise BadInputError(f"{file}: {topic} has {len(data)} samples in the window; nothing to plot")
@@ -47,13 +60,36 @@ def command(file, topic, field_name, start, end, output):
     f, a = amplitude_spectrum(y, fs=data.sample_rate)
     ax = axes[1]
     ax.semilogy(f, np.maximum(a * scale, 1e-12), lw=0.6)
-    ax.set(xlabel="frequency [Hz]", ylabel=f"amplitude [{unit}]", title="spectrum (Hann)")
+    title = "spectrum (Hann)"
+    if spinning and len(rec["/amb/rotor"]):
+        rpm = rec["/amb/rotor"]["speed"] * RAD_S_TO_RPM
+        lo, hi, mean = float(rpm.min()), float(rpm.max()), float(rpm.mean())
+        if hi - lo <= 0.02 * max(mean, 1.0) and mean / 60.0 > 2 * (f[1] - f[0]):  # steady: mark the orders
+            title = f"spectrum (Hann) at {mean:,.0f} rpm"
+            for k in range(1, 7):
+                if k * mean / 60.0 < f[-1]:
+                    ax.axvline(k * mean / 60.0, color="C3", lw=0.6, ls=":", alpha=0.8)
+                    ax.annotate(f"{k}X", (k * mean / 60.0, 0.98), xycoords=("data", "axes fraction"), color="C3",
+                                fontsize=7, ha="left", va="top")
+        else:
+            title = f"spectrum (Hann), {lo:,.0f}-{hi:,.0f} rpm (no order marks: the speed changed)"
+    ax.set(xlabel="frequency [Hz]", ylabel=f"amplitude [{unit}]", title=title)
+    ax.xaxis.set_major_locator(MaxNLocator(6))
     ax.grid(alpha=0.3, which="both")
     if partner:
         ax = axes[2]
         ax.plot(y * scale, data[partner] * scale, lw=0.4)
         ax.set(xlabel=f"{field_name} [{unit}]", ylabel=f"{partner} [{unit}]", title="orbit")
+        clearance = cmin * 1e-6 if cmin is not None else recorded_cmin(file)
+        if clearance is not None and data.units[field_name] == "m":
+            t = np.linspace(0, 2 * np.pi, 361)
+            ax.plot(clearance * scale * np.cos(t), clearance * scale * np.sin(t), color="k", lw=0.8,
+                    label=f"Cmin {clearance * 1e6:g} µm")
+            ax.legend(fontsize=7, loc="upper right")
+            ax.set_title("orbit and the touchdown clearance")
         ax.set_aspect("equal", adjustable="datalim")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(MaxNLocator(5))
         ax.grid(alpha=0.3)
     fig.savefig(output, dpi=110)
     plt.close(fig)
