@@ -133,7 +133,7 @@ def test_what_cannot_be_graded_is_one_line_exit_2(run_cli, tmp_path):
     r = run_cli("iso", "vibration", base)
     assert r.exit_code == 2 and "no minimum clearance: pass --cmin UM" in r.output
     r = run_cli("iso", "vibration", base, "--cmin", "150")
-    assert r.exit_code == 2 and "no rotor speed and angle (/amb/rotor): record with the key-phasor" in r.output
+    assert r.exit_code == 2 and "no rotor angle and speed (/amb/rotor): grading vibration per speed needs the key-phasor" in r.output
     assert len(r.output.strip().splitlines()) == 1
     steady = tmp_path / "steady.mcap"
     assert run_cli("sim", "generate", "--excite", "front_x:2", "--duration", "1", "-q", "-o", steady).exit_code == 0

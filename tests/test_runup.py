@@ -91,7 +91,7 @@ def test_what_cannot_be_tracked_is_one_line_exit_2(runup, run_cli, tmp_path):
     base = tmp_path / "base.mcap"
     assert run_cli("sim", "generate", "--profile", "base-motion", "--duration", "0.3", "-q", "-o", base).exit_code == 0
     r = run_cli("runup", base)
-    assert r.exit_code == 2 and "no rotor angle (/amb/rotor): order tracking needs the key-phasor" in r.output
+    assert r.exit_code == 2 and "no rotor angle and speed (/amb/rotor): order tracking needs the key-phasor" in r.output
     assert len(r.output.strip().splitlines()) == 1
 
 

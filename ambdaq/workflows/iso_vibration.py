@@ -22,12 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
-from ..analysis.runout import synthesise
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
-from ..daq.reader import ambdaq_channels, load
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
+from .runout import gap_and_rotor, runout_at
 
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
 BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
@@ -129,21 +128,12 @@ def evaluate(paths: list[Path], *, cmin_m: float | None, band_rpm: float = 1000.
     rows: dict[str, list[np.ndarray]] = {b: [] for b in BEARINGS}
     sources = []
     for path in paths:
-        if "/amb/rotor" not in ambdaq_channels(McapFile(path)):
-            raise BadInputError(f"{path}: no rotor speed and angle (/amb/rotor): record with the key-phasor "
-                                "(the controller's rotor angle) to grade vibration per speed")
-        rec = load(path, topics=["/amb/gap", "/amb/rotor"])
-        gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
-        m = min(len(gap), len(rot))
+        gap, rot, m = gap_and_rotor(path, "grading vibration per speed")
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:
             raise BadInputError(f"{path}: {m} samples, fewer than one {WINDOW_S:g} s window")
         speed = rot["speed"][:m] * RAD_S_TO_RPM
-        removed = None
-        if coef is not None:
-            phasors = np.array([[complex(*coef.weights[a][i]) if a in coef.weights else 0j for a in gap.fields]
-                                for i in range(len(coef.harmonics))])
-            removed = synthesise(phasors, coef.harmonics, rot["angle"][:m])
+        removed = None if coef is None else runout_at(coef, list(gap.fields), rot["angle"][:m], coefficients)
         fields = list(gap.fields)
         for bearing, (ax, ay) in BEARINGS.items():
             if ax not in gap.fields or ay not in gap.fields:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.rotor import RigidRotor
-from ..analysis.runout import harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average
+from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average,
+                               synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.reader import Recording, load
 from ..errors import BadInputError
@@ -23,6 +24,38 @@ METHODS = {
     "average": lambda x, th, k: synchronous_average(x, th, harmonics=k),
     "lms": lambda x, th, k: lms_offline(x, th, harmonics=k).phasors,
 }
+
+
+def gap_and_rotor(path: Path, purpose: str):
+    """The gap sensors and the rotor angle and speed of a recording, cut to the same length; one
+    line, exit 2, if it has no rotor topic (``purpose`` says what needed it).
+
+    Returns
+    -------
+    gap, rotor : TopicData
+        ``/amb/gap`` (m) and ``/amb/rotor`` (angle in rad, speed in rad/s).
+    n : int
+        Samples both have.
+    """
+    from ..daq.mcapfile import McapFile
+    from ..daq.reader import ambdaq_channels
+
+    if "/amb/rotor" not in ambdaq_channels(McapFile(path)):
+        raise BadInputError(f"{path}: no rotor angle and speed (/amb/rotor): {purpose} needs the key-phasor; "
+                            "record with the controller's rotor angle")
+    rec = load(path, topics=["/amb/gap", "/amb/rotor"])
+    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    return gap, rot, min(len(gap), len(rot))
+
+
+def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
+    """The sensor runout a coefficient file describes, at the rotor angles ``theta`` (rad), for
+    ``axes``: shape (n, len(axes)), in m."""
+    missing = [a for a in axes if a not in coef.weights]
+    if missing:
+        raise BadInputError(f"{where}: no runout for {', '.join(missing)}")
+    phasors = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
+    return synthesise(phasors, coef.harmonics, theta)
 
 
 def _rotor(rec, path: Path) -> tuple[RigidRotor, str, dict]:

@@ -21,13 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, order_track
-from ..analysis.runout import harmonic_fit, synthesise
+from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.coefficients import Coefficients
-from ..daq.mcapfile import McapFile
-from ..daq.reader import ambdaq_channels, load
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
+from .runout import gap_and_rotor, runout_at
 
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
 MODEL_SPEEDS = 26  # speeds the model's modes are computed at over the run
@@ -65,12 +64,7 @@ class RunupDiagnostics:
 
 
 def _gap_and_angle(path: Path):
-    if "/amb/rotor" not in ambdaq_channels(McapFile(path)):
-        raise BadInputError(f"{path}: no rotor angle (/amb/rotor): order tracking needs the key-phasor; "
-                            "record with the controller's rotor angle")
-    rec = load(path, topics=["/amb/gap", "/amb/rotor"])
-    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
-    n = min(len(gap), len(rot))
+    gap, rot, n = gap_and_rotor(path, "order tracking")
     axes = [a for a in gap.fields if a.endswith(("_x", "_y"))]
     if not axes:
         raise BadInputError(f"{path}: /amb/gap has no radial axes (NAME_x, NAME_y)")
@@ -134,12 +128,7 @@ def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | N
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
     compensation = "none"
     if coefficients is not None:
-        coef = Coefficients.load(coefficients)
-        missing = [a for a in axes if a not in coef.weights]
-        if missing:
-            raise BadInputError(f"{coefficients}: no runout for {', '.join(missing)}")
-        phasors = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
-        x = x - synthesise(phasors, coef.harmonics, theta)
+        x = x - runout_at(Coefficients.load(coefficients), axes, theta, coefficients)
         compensation = f"runout coefficients {coefficients}"
     try:
         track = order_track(x, theta, rpm, orders=orders, revolutions=revolutions)
