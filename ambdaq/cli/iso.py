@@ -117,7 +117,9 @@ def stability(recordings, device, speeds, axes, amplitude, duration, settle, run
     iso.check_speeds(runs, list(speeds) or None)
     iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
     if plot_path:
-        _plot(runs, limits, plot_path)
+        stability_figure([{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": r.freq_hz, "gs": r.gs,
+                           "coherence": r.coherence, "peak_db": r.grade.peak_db, "zone": r.grade.zone} for r in runs],
+                         limits, plot_path)
     if as_json:
         click.echo(json.dumps({"standard": "ISO 14839-3", "limits_peak_gs": limits.as_list(),
                                "runs": [r.as_dict(curves=False) for r in runs]}, indent=2))
@@ -147,18 +149,30 @@ def stability_table(runs, limits: ZoneLimits) -> str:
     return "\n".join(lines)
 
 
-def _plot(runs, limits: ZoneLimits, path: str) -> None:
+def stability_figure(curves: list[dict], limits: ZoneLimits, out) -> None:
+    """|Gs| against frequency per axis, one panel per speed, with the zone limits.
+
+    Parameters
+    ----------
+    curves : list of dict
+        Each with ``speed_rpm``, ``axis``, ``freq_hz`` (Hz), ``gs`` (complex), ``coherence``,
+        ``peak_db`` (or None) and ``zone`` (or None).
+    limits : ZoneLimits
+        Peak |Gs| at the zone boundaries.
+    out : str or file
+        Where the image goes (a path, or a binary file for PNG).
+    """
     plt = pyplot()
-    speeds = sorted({r.speed_rpm for r in runs})
+    speeds = sorted({c["speed_rpm"] for c in curves})
     fig, axes = plt.subplots(len(speeds), 1, figsize=(9, 3.2 * len(speeds) + 0.6), squeeze=False, sharex=True,
                              constrained_layout=True)
     for ax, rpm in zip(axes[:, 0], speeds):
-        for r in (r for r in runs if r.speed_rpm == rpm):
-            trusted = r.coherence >= 0.9
-            mag = db(np.abs(r.gs))
-            line = ax.semilogx(r.freq_hz, np.where(trusted, mag, np.nan), lw=0.9,
-                               label=f"{r.axis}: {r.grade.peak_db:.1f} dB, zone {r.grade.zone or '-'}")[0]
-            ax.semilogx(r.freq_hz, np.where(trusted, np.nan, mag), lw=0.5, alpha=0.3, color=line.get_color())
+        for c in (c for c in curves if c["speed_rpm"] == rpm):
+            trusted = np.asarray(c["coherence"]) >= 0.9
+            mag = db(np.abs(c["gs"]))
+            peak = "not graded" if c["zone"] is None else f"{c['peak_db']:.1f} dB, zone {c['zone']}"
+            line = ax.semilogx(c["freq_hz"], np.where(trusted, mag, np.nan), lw=0.9, label=f"{c['axis']}: {peak}")[0]
+            ax.semilogx(c["freq_hz"], np.where(trusted, np.nan, mag), lw=0.5, alpha=0.3, color=line.get_color())
         for z, v in zip(("A/B", "B/C", "C/D"), limits.as_list()):
             ax.axhline(db(v), color="grey", lw=0.7, ls="--")
             ax.annotate(z, (1.0, db(v)), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=7)
@@ -166,7 +180,39 @@ def _plot(runs, limits: ZoneLimits, path: str) -> None:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7, loc="lower right")
     axes[-1, 0].set(xlabel="frequency [Hz]")
-    fig.savefig(path, dpi=100)
+    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
+    plt.close(fig)
+
+
+def vibration_figure(bands: list[dict], limits: ZoneLimits, cmin_um: float, out) -> None:
+    """Each bearing's graded orbit per speed band against the zone limits (as fractions of Cmin).
+
+    Parameters
+    ----------
+    bands : list of dict
+        ``iso vibration``'s bands (``bearing``, ``rpm_from``, ``rpm_to``, ``max_um``).
+    limits : ZoneLimits
+        Displacement per Cmin at the zone boundaries.
+    cmin_um : float
+        Minimum clearance, in um.
+    out : str or file
+        Where the image goes (a path, or a binary file for PNG).
+    """
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9, 4), constrained_layout=True)
+    for bearing in sorted({b["bearing"] for b in bands}):
+        rows = [b for b in bands if b["bearing"] == bearing]
+        ax.step([r["rpm_from"] for r in rows] + [rows[-1]["rpm_to"]], [r["max_um"] for r in rows] + [rows[-1]["max_um"]],
+                where="post", label=f"{bearing} bearing")
+    for z, v in zip(("A/B", "B/C", "C/D"), limits.as_list()):
+        ax.axhline(v * cmin_um, color="grey", lw=0.7, ls="--")
+        ax.annotate(f"{z} {v:g} Cmin", (1.0, v * cmin_um), xycoords=("axes fraction", "data"), ha="right", va="bottom",
+                    fontsize=7)
+    ax.set(xlabel="speed [rpm]", ylabel="orbit maximum from its centre [µm]",
+           title=f"ISO 14839-2 vibration per speed band, Cmin {cmin_um:g} µm")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower left")
+    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
     plt.close(fig)
 
 
@@ -182,8 +228,9 @@ def _plot(runs, limits: ZoneLimits, path: str) -> None:
               show_default=True, help="Displacement per Cmin at the zone boundaries A/B, B/C, C/D.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Results file (JSON).")
 @click.option("--overwrite", is_flag=True)
+@plot_option("Orbit maxima per speed band against the zone limits (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
-def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrite, as_json):
+def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrite, plot_path, as_json):
     """ISO 14839-2: the rotor's vibration at each radial bearing against Cmin, per speed band.
 
     Graded: per 0.1 s window, the orbit's largest excursion from its mean centre; each band takes
@@ -217,5 +264,7 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
         worst = max(grades, key=lambda g: g.ratio)
         click.echo(f"worst: {worst.bearing} {worst.max_um:.2f} um = {worst.ratio:.3f} Cmin at {worst.at_rpm:,.0f} rpm, "
                    f"zone {worst.zone}")
-    if output:
-        click.echo(f"-> {output}", err=True)
+    if plot_path:
+        vibration_figure(doc["bands"], limits, info["cmin_um"], plot_path)
+    if output or plot_path:
+        click.echo(f"-> {', '.join(p for p in (output, plot_path) if p)}", err=True)

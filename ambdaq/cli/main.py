@@ -37,6 +37,7 @@ COMMANDS = {
     "plot": "plot:command",
     "push": "push:push_command",
     "record": "record:command",
+    "report": "report:command",
     "recover": "recover:command",
     "runout": "runout:command",
     "runup": "runup:command",

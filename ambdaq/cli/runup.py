@@ -82,7 +82,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
     else:
         _print_table(res)
     if plot_path:
-        _plot(res, plot_path, Path(recording).name)
+        runup_figure(res, plot_path, Path(recording).name)
         click.echo(f"-> {plot_path}", err=True)
 
 
@@ -109,7 +109,10 @@ def _print_table(res) -> None:
                        f"amplification {p.amplification:.1f}: {verdict}")
 
 
-def _plot(res, path: str, name: str) -> None:
+def runup_figure(res, out, name: str) -> None:
+    """Bode (1X and NX amplitude, 1X phase), the 1X polar plot, and the waterfall with the order
+    lines and the model's modes, of :func:`~ambdaq.workflows.runup_diagnostics.analyse`'s result;
+    ``out`` a path or a binary file (PNG)."""
     plt = pyplot()
     from matplotlib.colors import LogNorm
 
@@ -154,5 +157,5 @@ def _plot(res, path: str, name: str) -> None:
     fall.set(xlabel="frequency [Hz]", ylabel="speed [rpm]", xlim=(0, f[keep][-1]),
              title=f"waterfall of {res.waterfall_axis}" + (" with the model's modes (Campbell)" if res.modes else ""))
     fig.suptitle(f"run-up diagnostics: {name}")
-    fig.savefig(path, dpi=100)
+    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
     plt.close(fig)

@@ -167,6 +167,63 @@ class PointsDocument(_Strict):
         return self
 
 
+MaybeFinite = Annotated[float | None, Field(strict=True, allow_inf_nan=False)]
+Zone = Literal["A", "B", "C", "D"]
+
+
+class StabilityCurves(_Strict):
+    freq_hz: Annotated[list[Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]], Field(max_length=MAX_FREQUENCIES)]
+    coherence: list[Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]]
+    gs_real: list[MaybeFinite]
+    gs_imag: list[MaybeFinite]
+    gc_real: list[MaybeFinite]
+    gc_imag: list[MaybeFinite]
+    go_real: list[MaybeFinite]
+    go_imag: list[MaybeFinite]
+
+    @model_validator(mode="after")
+    def _one_value_per_frequency(self) -> "StabilityCurves":
+        n = len(self.freq_hz)
+        for name in ("coherence", "gs_real", "gs_imag", "gc_real", "gc_imag", "go_real", "go_imag"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} values for {n} frequencies")
+        return self
+
+
+class StabilityRun(_Strict):
+    axis: Name
+    speed_rpm: Rpm
+    source: dict[Name, Annotated[str, Field(max_length=4096)]]
+    segments: Annotated[int, Field(strict=True, ge=1)]
+    peak: Annotated[float | None, Field(strict=True, ge=0, allow_inf_nan=False)]
+    peak_db: MaybeFinite
+    peak_hz: Annotated[float | None, Field(strict=True, ge=0, allow_inf_nan=False)]
+    coherence_at_peak: Annotated[float | None, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
+    band_hz: tuple[Finite, Finite]
+    zone: Zone | None
+    reason: Annotated[str, Field(max_length=1000)]
+    synchronous_bins_skipped_hz: Annotated[list[Finite], Field(max_length=MAX_FREQUENCIES)]
+    curves: StabilityCurves
+
+    @model_validator(mode="after")
+    def _graded_or_told_why(self) -> "StabilityRun":
+        if (self.zone is None) == (self.reason == ""):
+            raise ValueError("a run has a zone or the reason it has none, not both or neither")
+        return self
+
+
+class StabilityDocument(_Strict):
+    """``ambdaq-iso-stability`` version 1 (``ambdaq iso stability -o``)."""
+
+    format: Literal["ambdaq-iso-stability"]
+    version: Literal[1]
+    standard: Literal["ISO 14839-3"]
+    limits_peak_gs: tuple[Finite, Finite, Finite]
+    min_coherence: Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
+    resolution_hz: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+    runs: Annotated[list[StabilityRun], Field(min_length=1, max_length=10_000)]
+
+
 def check_document(model: type[BaseModel], doc: dict, path):
     """``doc`` (a sealed document's JSON) checked against ``model``; the first problem as one
     BadInputError line naming the key (``runout.weights.front_x.0.1: ...``)."""

@@ -261,5 +261,13 @@ def save(path: Path, runs: list[AxisRun], *, limits: ZoneLimits, min_coherence: 
     return write_sealed(path, doc, overwrite=overwrite)
 
 
-__all__ = ["AxisRun", "check_speeds", "evaluate", "measure", "save", "synchronous_bins",
+def load_results(path: Path):
+    """A results file of :func:`save`, checked (format, checksum, every value's type and range)."""
+    from ..daq.sealed import read_sealed
+    from ..daq.sealed_schemas import StabilityDocument, check_document
+
+    return check_document(StabilityDocument, read_sealed(path, FORMAT, VERSION, "ISO 14839-3 results file"), path)
+
+
+__all__ = ["AxisRun", "load_results", "check_speeds", "evaluate", "measure", "save", "synchronous_bins",
            "wait_for_speed"]

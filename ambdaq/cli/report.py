@@ -1,0 +1,214 @@
+"""``ambdaq report``: one self-contained HTML commissioning report for a machine (docs/iso.md).
+
+The page carries its figures inline (PNG, base64) and its style: it opens from a mail attachment
+or a USB stick with no network, and prints.  Every number in its tables is the value ``--json``
+prints, written as JSON writes it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..analysis.iso14839 import ZoneLimits
+from ..errors import BadInputError
+from .options import POSITIVE
+
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+h1 { font-size: 1.6em; } h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; margin-top: 2em; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }
+th, td { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: right; }
+th { background: #eee; } td.text, th.text { text-align: left; }
+td.zone-A { background: #d8f0d8; } td.zone-B { background: #f3f0c8; } td.zone-C { background: #f6dcc0; }
+td.zone-D { background: #f4c4c4; } td.zone-none { background: #ddd; }
+figure { margin: 1em 0; } figure img { max-width: 100%; } figcaption { font-size: 0.85em; color: #555; }
+p.note { font-size: 0.9em; color: #444; }
+@media print { body { margin: 0; } h2 { break-before: auto; } figure { break-inside: avoid; } }
+"""
+
+BROWSERS = ("chromium", "chromium-browser", "google-chrome")
+# what Debian's chromium needs to run headless here without reaching for the network
+HEADLESS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync")
+
+
+def browser() -> str:
+    """A headless-capable Chromium on the PATH; one line naming the package otherwise."""
+    for name in BROWSERS:
+        found = shutil.which(name)
+        if found:
+            return found
+    raise BadInputError("--pdf needs a Chromium (Debian: apt-get install chromium)")
+
+
+def print_pdf(page: Path, pdf: Path) -> None:
+    """``page`` printed to ``pdf`` by headless Chromium."""
+    with tempfile.TemporaryDirectory(prefix="ambdaq-chromium-") as profile:
+        r = subprocess.run([browser(), *HEADLESS, f"--user-data-dir={profile}", "--no-pdf-header-footer",
+                            f"--print-to-pdf={pdf}", page.resolve().as_uri()], capture_output=True, text=True, timeout=120)
+    if r.returncode != 0 or not pdf.exists():
+        raise BadInputError(f"chromium could not print {page}: {(r.stderr.strip().splitlines() or ['no output'])[-1]}")
+
+
+def _cell(value, cls: str = "") -> str:
+    text = "–" if value is None else (value if isinstance(value, str) else json.dumps(value))
+    return f'<td class="{cls}">{html.escape(text)}</td>' if cls else f"<td>{html.escape(text)}</td>"
+
+
+def _table(headers: list[str], rows: list[list[str]], table_id: str) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join(f"<tr>{''.join(r)}</tr>" for r in rows)
+    return f'<table id="{table_id}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def _figure(png: bytes, caption: str) -> str:
+    data = base64.b64encode(png).decode()
+    return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def _png(draw) -> bytes:
+    buf = io.BytesIO()
+    draw(buf)
+    return buf.getvalue()
+
+
+def render(found, title: str) -> str:
+    """The report page of a :class:`~ambdaq.workflows.commissioning.Commissioning`."""
+    from .iso import stability_figure, vibration_figure
+    from .runup import runup_figure
+
+    d = found.data
+    parts = [f"<h1>{html.escape(title)}</h1>"]
+    m = d["machine"]
+    if m:
+        rows = [[_cell(name, "text"), *[_cell(dev.get(k), "text") for k in ("kind", "model", "serial", "firmware", "url")]]
+                for name, dev in m["devices"].items()]
+        parts += ["<h2>Machine</h2>",
+                  f'<p class="note">From {html.escape(m["recording"])}, recorded {html.escape(m["start_time"])} on '
+                  f'{html.escape(m["host"])} with ambdaq {html.escape(m["ambdaq_version"])}.</p>',
+                  _table(["device", "kind", "model", "serial", "firmware", "URL"], rows, "machine")]
+    s = d["stability"]
+    if s:
+        limits = ZoneLimits(*s["limits_peak_gs"])
+        rows = [[_cell(r["speed_rpm"]), _cell(r["axis"], "text"), _cell(r["peak"]), _cell(r["peak_db"]), _cell(r["peak_hz"]),
+                 _cell(r["coherence_at_peak"]), _cell(r["zone"] or f"not measured: {r['reason']}", f"zone-{r['zone'] or 'none'} text")]
+                for r in s["rows"]]
+        curves = [{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": np.array(r.curves.freq_hz),
+                   "gs": np.array([np.nan if v is None else v for v in r.curves.gs_real])
+                   + 1j * np.array([np.nan if v is None else v for v in r.curves.gs_imag]),
+                   "coherence": np.array(r.curves.coherence), "peak_db": r.peak_db, "zone": r.zone}
+                  for r in found.stability.runs]
+        parts += ["<h2>Stability margin, ISO 14839-3</h2>",
+                  f'<p class="note">Peak of the sensitivity function |Gs| per axis and speed, measured with the '
+                  f"controller's test signal at the sensor summing point ({html.escape(s['file'])}). Zone limits "
+                  f"A/B {limits.ab:g}, B/C {limits.bc:g}, C/D {limits.cd:g} (peak |Gs|); a grade needs a coherence "
+                  f"of at least {s['min_coherence']:g} at the peak.</p>",
+                  _table(["speed [rpm]", "axis", "peak |Gs|", "peak [dB]", "at [Hz]", "coherence", "zone"], rows, "stability"),
+                  _figure(_png(lambda out: stability_figure(curves, limits, out)),
+                          "Sensitivity function |Gs| in dB against frequency in Hz, per axis; dashed: the zone limits.")]
+    v = d["vibration"]
+    if v:
+        limits = ZoneLimits(*v["limits_ratio_cmin"])
+        rows = [[_cell(b["bearing"], "text"), _cell(b["rpm_from"]), _cell(b["rpm_to"]), _cell(b["windows"]),
+                 _cell(b["max_um"]), _cell(b["ratio_cmin"]), _cell(b["zone"], f"zone-{b['zone']} text"), _cell(b["at_rpm"])]
+                for b in v["bands"]]
+        removed = ("the sensor runout taken out (" + html.escape(v["runout_removed"]["path"]) + ")"
+                   if v["runout_removed"] else "the sensor runout not taken out")
+        parts += ["<h2>Vibration, ISO 14839-2</h2>",
+                  f'<p class="note">Largest orbit excursion from its centre per 0.1 s window, worst window per '
+                  f"{v['band_rpm']:g} rpm band, against Cmin {v['cmin_um']:g} µm ({html.escape(v['cmin_from'])}), "
+                  f"{removed}.</p>",
+                  _table(["bearing", "from [rpm]", "to [rpm]", "windows", "max [µm]", "/ Cmin", "zone", "at [rpm]"], rows,
+                         "vibration"),
+                  _figure(_png(lambda out: vibration_figure(v["bands"], limits, v["cmin_um"], out)),
+                          "Orbit maximum in µm per speed band in rpm, per bearing; dashed: the zone limits.")]
+    r = d["runout"]
+    if r:
+        rows = []
+        for axis, row in r["axes"].items():
+            cells = [_cell(axis, "text")]
+            for h in row["harmonics"]:
+                cells += [_cell(h["before_um"]), _cell(h["after_um"]), _cell(h["change_db"])]
+            rows.append(cells + [_cell(row["rms_before_um"]), _cell(row["rms_after_um"])])
+        orders = [h["harmonic"] for h in next(iter(r["axes"].values()))["harmonics"]]
+        headers = ["axis"] + [f"{k}X {w}" for k in orders for w in ("before [µm]", "after [µm]", "change [dB]")]
+        parts += ["<h2>Runout before and after the push</h2>",
+                  f'<p class="note">Command error at {r["before"]["rpm"]:,.0f} rpm ({html.escape(r["before"]["path"])}) '
+                  f'and {r["after"]["rpm"]:,.0f} rpm ({html.escape(r["after"]["path"])}).</p>',
+                  _table(headers + ["RMS before [µm]", "RMS after [µm]"], rows, "runout")]
+    log = d["push_log"]
+    parts.append("<h2>Push log</h2>")
+    if log:
+        rows = [[_cell(e["host_time"], "text"), _cell(e["bank"]), _cell(e["crc32"], "text"), _cell(e["file"], "text"),
+                 _cell((e["file_sha256"] or "")[:16], "text"), _cell(e["target"], "text"), _cell(e["effective_sample"])]
+                for e in log]
+        parts.append(_table(["host time", "bank", "CRC-32", "file", "sha256", "target", "from sample"], rows, "push-log"))
+    else:
+        parts.append('<p class="note">No push of these coefficients in the push log.</p>')
+    if found.runup is not None:
+        u = d["runup"]
+        peaks = "; ".join(f"{a}: " + (", ".join(f"{p['amplitude_um']} µm at {p['rpm']:,.0f} rpm (amplification "
+                                               f"{p['amplification']}{', critical' if p['critical'] else ''})" for p in ps)
+                                      or "no 1X peak inside the run")
+                          for a, ps in u["peaks_1x"].items())
+        parts += ["<h2>Run-up</h2>",
+                  f'<p class="note">{u["rpm_from"]:,.0f} to {u["rpm_to"]:,.0f} rpm, {u["windows"]} windows; compensation: '
+                  f"{html.escape(u['compensation'])}. 1X peaks: {html.escape(peaks)}.</p>",
+                  _figure(_png(lambda out: runup_figure(found.runup, out, Path(d["files"]["runup"]).name)),
+                          "Order tracking (1X, 2X amplitude in µm and 1X phase in degrees against speed in rpm), the "
+                          "1X vector, and the waterfall of the gap spectrum with the order lines.")]
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+            f"<style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
+
+
+@click.command("report")
+@click.option("--stability", type=click.Path(dir_okay=False), help="ISO 14839-3 results (iso stability -o).")
+@click.option("--runup", type=click.Path(dir_okay=False), help="A run-up or coast-down recording.")
+@click.option("--coefficients", type=click.Path(dir_okay=False), help="The runout coefficient file that was pushed.")
+@click.option("--before", type=click.Path(dir_okay=False), help="A recording before the push (one speed).")
+@click.option("--after", type=click.Path(dir_okay=False), help="A recording after the push, at the same speed.")
+@click.option("--push-log", type=click.Path(dir_okay=False), help="Push log (JSON lines); default: this machine's.")
+@click.option("--cmin", type=POSITIVE, metavar="UM", help="Minimum clearance, um; default: what the run-up reports.")
+@click.option("--title", default="AMB commissioning report", show_default=True)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The report (.html).")
+@click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
+@click.option("--overwrite", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
+def command(stability, runup, coefficients, before, after, push_log, cmin, title, output, pdf, overwrite, as_json):
+    """One self-contained HTML commissioning report from a session's files: the machine, the ISO
+    14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
+    push with the push log, the run-up's order tracking.
+
+    \b
+    Example:
+      ambdaq report --stability stability.json --runup runup.mcap --coefficients coef.json \\
+                    --before before.mcap --after after.mcap -o report.html --pdf report.pdf
+    """
+    from ..workflows.commissioning import SessionFiles, gather
+
+    out = Path(output)
+    for target in (out, Path(pdf) if pdf else None):
+        if target is not None and target.exists() and not overwrite:
+            raise BadInputError(f"{target} exists: choose another name or pass --overwrite")
+    if pdf:
+        browser()  # before the work: a missing browser is one line now, not after a minute of figures
+    as_path = (lambda v: Path(v) if v else None)
+    found = gather(SessionFiles(as_path(stability), as_path(runup), as_path(coefficients), as_path(before),
+                                as_path(after), as_path(push_log), None if cmin is None else cmin * 1e-6))
+    out.write_text(render(found, title))
+    if pdf:
+        print_pdf(out, Path(pdf))
+    if as_json:
+        click.echo(json.dumps(found.data, indent=2))
+    click.echo(f"-> {out}" + (f", {pdf}" if pdf else ""), err=True)

@@ -1,0 +1,147 @@
+"""The commissioning record of one machine from the files of a session: its identity, the ISO 14839-3
+stability table, the ISO 14839-2 zones through a run-up, the runout before and after the push with
+the push log, and the run-up's order tracking.  The numbers here are what ``ambdaq report`` puts in
+its tables and prints with ``--json``; the figures are drawn from the same objects.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..daq.coefficients import file_sha256
+from ..daq.mcapfile import McapFile
+from ..daq.reader import load
+from ..errors import BadInputError
+from . import iso_stability, iso_vibration, runup_diagnostics
+from .push import local_log_path
+from .runout import check_recordings
+
+IDENTITY_KEYS = ("kind", "model", "serial", "firmware", "software_version", "url", "sample_rate_hz")
+
+
+@dataclass
+class SessionFiles:
+    """What a commissioning session left behind (each optional, at least one given).
+
+    Attributes
+    ----------
+    stability : Path or None
+        ``ambdaq iso stability -o`` results.
+    runup : Path or None
+        A run-up or coast-down recording (ISO 14839-2 zones, order tracking).
+    coefficients : Path or None
+        The runout coefficient file that was pushed (its runout is taken out of the run-up).
+    before, after : Path or None
+        Recordings at one speed before and after the push.
+    push_log : Path or None
+        The host's push log (JSON lines); default: this machine's, if it exists.
+    cmin_m : float or None
+        Minimum clearance, in m; default: what the run-up's controller reports.
+    """
+
+    stability: Path | None = None
+    runup: Path | None = None
+    coefficients: Path | None = None
+    before: Path | None = None
+    after: Path | None = None
+    push_log: Path | None = None
+    cmin_m: float | None = None
+
+
+def machine_identity(path: Path) -> dict:
+    """The devices a recording was made with (kind, model, serial, firmware, URL) and when."""
+    meta = McapFile(path).metadata()
+    session = meta.get("ambdaq.session", {})
+    devices = {name.removeprefix("ambdaq.device."): {k: v for k, v in m.items() if k in IDENTITY_KEYS}
+               for name, m in meta.items() if name.startswith("ambdaq.device.")}
+    return {"recording": str(path), "start_time": session.get("start_time", ""),
+            "ambdaq_version": session.get("ambdaq_version", ""), "host": session.get("host", ""), "devices": devices}
+
+
+def _push_entries(path: Path | None, coefficients: Path | None) -> list[dict]:
+    """The push log's entries (of the coefficient file, if one is given); none if there is no log."""
+    log = path if path is not None else local_log_path()
+    if not log.exists():
+        if path is not None:
+            raise BadInputError(f"{path}: no such push log")
+        return []
+    sha = file_sha256(coefficients) if coefficients is not None else None
+    entries = []
+    for n, line in enumerate(log.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            raise BadInputError(f"{log}: line {n} is not JSON: not a push log") from None
+        if not isinstance(entry, dict):
+            raise BadInputError(f"{log}: line {n} is not an entry: not a push log")
+        if sha is None or entry.get("file_sha256") == sha:
+            entries.append({k: entry.get(k) for k in ("host_time", "bank", "crc32", "file", "file_sha256", "target",
+                                                      "host", "effective_sample")})
+    return entries
+
+
+@dataclass
+class Commissioning:
+    """What :func:`gather` found.
+
+    Attributes
+    ----------
+    data : dict
+        Everything the report's tables show, as plain data (``ambdaq report --json``):
+        ``machine``, ``stability`` (rows and limits), ``vibration`` (bands and Cmin), ``runup``
+        (the order tracking's range and 1X peaks), ``runout`` (before and after, per axis),
+        ``push_log``, ``files``; a part whose files were not given is None.
+    stability : StabilityDocument or None
+        The results file, with its curves, for the figure.
+    runup : RunupDiagnostics or None
+        The run-up's order tracking, for the figures.
+    """
+
+    data: dict
+    stability: object | None
+    runup: runup_diagnostics.RunupDiagnostics | None
+
+
+def gather(files: SessionFiles) -> Commissioning:
+    """Read and evaluate a session's files (see :class:`SessionFiles`)."""
+    if not any((files.stability, files.runup, files.before)):
+        raise BadInputError("a report needs at least one of --stability, --runup or --before/--after")
+    if (files.before is None) != (files.after is None):
+        raise BadInputError("--before and --after go together: the runout check compares the two")
+    doc = iso_stability.load_results(files.stability) if files.stability else None
+    first = files.runup or files.before or Path(doc.runs[0].source.get("path", ""))
+    out: dict = {"machine": machine_identity(first) if first.is_file() else None}
+    out["stability"] = None if doc is None else {
+        "file": str(files.stability), "limits_peak_gs": list(doc.limits_peak_gs), "min_coherence": doc.min_coherence,
+        "rows": [{"speed_rpm": r.speed_rpm, "axis": r.axis, "peak": r.peak, "peak_db": r.peak_db, "peak_hz": r.peak_hz,
+                  "coherence_at_peak": r.coherence_at_peak, "zone": r.zone, "reason": r.reason} for r in doc.runs]}
+    if files.runup:
+        grades, info = iso_vibration.evaluate([files.runup], cmin_m=files.cmin_m, band_rpm=5000.0,
+                                              coefficients=files.coefficients)
+        out["vibration"] = {**{k: info[k] for k in ("cmin_um", "cmin_from", "limits_ratio_cmin", "band_rpm",
+                                                    "runout_removed")},
+                            "bands": [g.as_dict() for g in grades]}
+        diag = runup_diagnostics.analyse(files.runup, coefficients=files.coefficients, orders=(1, 2))
+        out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
+                        "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
+                        "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
+                                          "amplification": round(p.amplification, 2), "critical": p.is_critical()}
+                                         for p in ps] for a, ps in diag.peaks.items()}}
+    else:
+        diag = None
+        out["vibration"] = out["runup"] = None
+    if files.before:
+        check = check_recordings(load(files.before), load(files.after), [1, 2])
+        out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
+    else:
+        out["runout"] = None
+    out["push_log"] = _push_entries(files.push_log, files.coefficients)
+    out["files"] = {k: str(v) for k, v in vars(files).items() if isinstance(v, Path)}
+    return Commissioning(out, doc, diag)
+
+
+__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity"]

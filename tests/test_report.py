@@ -1,0 +1,160 @@
+"""The commissioning report: rendered by a real headless browser (Debian's chromium) with no console
+errors, its tables carrying the numbers of --json, printed to PDF; and what it refuses."""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+from html.parser import HTMLParser
+
+import pytest
+
+from ambdaq.cli.report import HEADLESS
+
+
+@pytest.fixture(scope="session")
+def chromium():
+    """Debian's chromium; installed here if the machine lacks it and we may (root with apt-get), so
+    the README's test command works on a fresh machine."""
+    found = shutil.which("chromium")
+    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
+        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+        subprocess.run(["apt-get", "update", "-qq"], check=True, capture_output=True, env=env, timeout=600)
+        subprocess.run(["apt-get", "install", "-y", "-qq", "chromium"], check=True, capture_output=True, env=env,
+                       timeout=900)
+        found = shutil.which("chromium")
+    assert found, "the report test needs Debian's chromium: apt-get install chromium"
+    return found
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """A commissioning session's files from the simulated spindle (generated unpaced)."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+    from ambdaq.daq.coefficients import file_sha256
+    from ambdaq.workflows.push import append_local_log
+
+    d = tmp_path_factory.mktemp("session")
+
+    def run(*args):
+        r = CliRunner().invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+
+    axes = ("front_x", "front_y", "rear_x", "rear_y", "axial")
+    for a in axes:
+        run("sim", "generate", "--excite", f"{a}:2", "--duration", "2", "-q", "-o", d / f"gs_{a}.mcap")
+    run("iso", "stability", *[d / f"gs_{a}.mcap" for a in axes], "-o", d / "stability.json")
+    run("sim", "generate", "--rpm", "slowroll", "--duration", "2", "-q", "-o", d / "slow.mcap")
+    run("runout", "identify", d / "slow.mcap", "-o", d / "coef.json")
+    run("sim", "generate", "--rpm", "0:30000:3", "--duration", "3", "-q", "-o", d / "runup.mcap")
+    run("sim", "generate", "--rpm", "30000", "--duration", "2", "-q", "-o", d / "before.mcap")
+    run("sim", "generate", "--rpm", "30000", "--duration", "2", "--ff", "lms", "-q", "-o", d / "after.mcap")
+    os.environ["AMBDAQ_STATE_DIR"] = str(d / "state")
+    try:  # the push log as push writes it: one entry of these coefficients, one of another file
+        append_local_log({"host_time": "2026-11-23T10:00:00Z", "bank": 1, "crc32": "0x1a2b3c4d", "file": "coef.json",
+                          "file_sha256": file_sha256(d / "coef.json"), "target": "serial:///dev/pts/5",
+                          "host": "bench", "effective_sample": 123456})
+        append_local_log({"host_time": "2026-11-22T09:00:00Z", "bank": 0, "crc32": "0x0", "file": "old.json",
+                          "file_sha256": "0" * 64, "target": "serial:///dev/pts/5", "host": "bench",
+                          "effective_sample": 1})
+    finally:
+        del os.environ["AMBDAQ_STATE_DIR"]
+    return d
+
+
+class Tables(HTMLParser):
+    """The text of every table cell, by table id."""
+
+    def __init__(self):
+        super().__init__()
+        self.tables, self._id, self._row, self._cell = {}, None, None, None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table":
+            self._id = dict(attrs)["id"]
+            self.tables[self._id] = []
+        elif tag == "tr" and self._id:
+            self._row = []
+        elif tag == "td" and self._row is not None:
+            self._cell = ""
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell += data
+
+    def handle_endtag(self, tag):
+        if tag == "td" and self._cell is not None:
+            self._row.append(self._cell)
+            self._cell = None
+        elif tag == "tr" and self._row is not None:
+            if self._row:
+                self.tables[self._id].append(self._row)
+            self._row = None
+        elif tag == "table":
+            self._id = None
+
+
+def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, chromium, tmp_path):
+    page, pdf = tmp_path / "report.html", tmp_path / "report.pdf"
+    r = run_cli("report", "--stability", session / "stability.json", "--runup", session / "runup.mcap",
+                "--coefficients", session / "coef.json", "--before", session / "before.mcap", "--after",
+                session / "after.mcap", "--push-log", session / "state" / "push.log", "-o", page, "--pdf", pdf, "--json")
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    # self-contained: no file or address outside the page
+    text = page.read_text()
+    assert not re.search(r'(src|href)="(?!data:)', text)
+
+    shot = tmp_path / "report.png"
+    browse = [chromium, *HEADLESS, f"--user-data-dir={tmp_path / 'profile'}", "--enable-logging=stderr", "--v=0"]
+    done = subprocess.run([*browse, "--window-size=1200,3000", f"--screenshot={shot}", page.as_uri()],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and shot.stat().st_size > 100_000, done.stderr[-2000:]
+    console = [line for line in done.stderr.splitlines() if "CONSOLE" in line or "Uncaught" in line
+               or "Failed to load resource" in line]
+    assert console == [], console
+    dom = subprocess.run([*browse, "--dump-dom", page.as_uri()], capture_output=True, text=True, timeout=120)
+    assert dom.returncode == 0
+    tables = Tables()
+    tables.feed(dom.stdout)  # the page as the browser built it
+
+    # every number in the tables is the one --json printed, written as JSON writes it
+    stab = tables.tables["stability"]
+    assert len(stab) == len(data["stability"]["rows"]) == 5
+    for cells, row in zip(stab, data["stability"]["rows"]):
+        assert cells[:6] == [json.dumps(row[k]) if not isinstance(row[k], str) else row[k]
+                             for k in ("speed_rpm", "axis", "peak", "peak_db", "peak_hz", "coherence_at_peak")]
+        assert cells[6] == row["zone"]
+    vib = tables.tables["vibration"]
+    assert len(vib) == len(data["vibration"]["bands"]) == 12  # 2 bearings x 6 bands of 5,000 rpm
+    for cells, band in zip(vib, data["vibration"]["bands"]):
+        assert cells == [band["bearing"], *(json.dumps(band[k]) for k in ("rpm_from", "rpm_to", "windows", "max_um",
+                                                                          "ratio_cmin")), band["zone"], json.dumps(band["at_rpm"])]
+    runout = tables.tables["runout"]
+    for cells, (axis, row) in zip(runout, data["runout"]["axes"].items()):
+        expect = [axis] + [json.dumps(h[k]) for h in row["harmonics"] for k in ("before_um", "after_um", "change_db")]
+        assert cells == expect + [json.dumps(row["rms_before_um"]), json.dumps(row["rms_after_um"])]
+        assert row["harmonics"][0]["change_db"] < -20  # the LMS took the runout out of the command error
+    (entry,) = data["push_log"]  # only the push of these coefficients
+    assert tables.tables["push-log"] == [["2026-11-23T10:00:00Z", "1", "0x1a2b3c4d", "coef.json",
+                                          entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
+    assert data["machine"]["devices"]["rig"]["url"].startswith("sim://spindle")
+    assert pdf.read_bytes()[:5] == b"%PDF-" and pdf.stat().st_size > 100_000
+
+
+def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):
+    r = run_cli("report", "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "needs at least one of --stability, --runup or --before/--after" in r.output
+    r = run_cli("report", "--before", session / "before.mcap", "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "--before and --after go together" in r.output
+    bad = tmp_path / "stability.json"
+    bad.write_text((session / "stability.json").read_text().replace('"zone": "A"', '"zone": "B"', 1))
+    r = run_cli("report", "--stability", bad, "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "checksum mismatch" in r.output
+    r = run_cli("report", "--stability", session / "stability.json", "--push-log", tmp_path / "none.log",
+                "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "no such push log" in r.output
+    assert not (tmp_path / "r.html").exists()
