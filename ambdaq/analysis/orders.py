@@ -129,8 +129,13 @@ class OneXPeak:
         return self.amplification >= min_amplification and self.phase_change_deg >= 60.0
 
 
-def one_x_peaks(rpm: np.ndarray, vector: np.ndarray) -> list[OneXPeak]:
-    """Every local peak of ``|vector|`` against speed whose half-power band lies inside the run.
+def one_x_peaks(rpm: np.ndarray, vector: np.ndarray, *, significance: float = 5.0) -> list[OneXPeak]:
+    """Every local peak of ``|vector|`` against speed whose half-power band lies inside the run and
+    that stands out of the estimate's scatter: the peak's rise above its half-power level must be at
+    least ``significance`` times the window-to-window scatter of the vector (the median of
+    ``|v[i+1] - v[i]| / sqrt 2`` over the run: a true vector changes little from one window to the
+    next, so this is the estimate's noise).  A 1X that is only sensor noise has peaks everywhere,
+    none of them significant.
 
     Parameters
     ----------
@@ -138,16 +143,21 @@ def one_x_peaks(rpm: np.ndarray, vector: np.ndarray) -> list[OneXPeak]:
         Speed per window, in rpm (a run-up or a coast-down; sorted here).
     vector : ndarray of complex, shape (w,)
         1X vector per window, any unit.
+    significance : float
+        Least rise of a peak above its half-power level, in units of the scatter.
     """
     order = np.argsort(rpm)
     r, v = np.asarray(rpm)[order], np.asarray(vector)[order]
     amp = np.abs(v)
+    scatter = float(np.median(np.abs(np.diff(v)))) / np.sqrt(2.0) if v.shape[0] > 1 else 0.0
     phase = np.degrees(np.unwrap(np.angle(v)))
     peaks = []
     for i in range(1, amp.shape[0] - 1):
         if not (amp[i] >= amp[i - 1] and amp[i] > amp[i + 1]):
             continue
         half = amp[i] / np.sqrt(2.0)
+        if amp[i] - half < significance * scatter:
+            continue
         below = np.flatnonzero(amp[:i] <= half)
         above = np.flatnonzero(amp[i + 1:] <= half)
         if below.size == 0 or above.size == 0:  # a hump wider than the run: no half-power band here

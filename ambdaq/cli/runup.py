@@ -45,7 +45,8 @@ def _speeds(value: str | None) -> tuple[float, float] | None:
 @click.option("--revolutions", type=click.IntRange(1, 1000), default=8, show_default=True,
               help="Revolutions per tracking window.")
 @click.option("--speeds", metavar="FROM:TO", help="Speed range the run must cover, rpm.")
-@click.option("--model", type=click.Choice(["spindle"]), help="Overlay the modes this model's loop predicts (Campbell).")
+@click.option("--model", type=click.Choice(["spindle", "cone"]),
+              help="Overlay the modes this model's loop predicts (Campbell): the spindle's or the cone rotor's.")
 @click.option("--waterfall-axis", help="Gap axis of the waterfall; default: the first radial one.")
 @plot_option("Bode, polar, waterfall with order lines (and Campbell with --model) (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the tracked vectors and peaks as JSON.")
@@ -100,7 +101,8 @@ def _print_table(res) -> None:
             click.echo(f"{a:<9} {k:>4}X {cells}")
     for a, peaks in res.peaks.items():
         if not peaks:
-            click.echo(f"{a}: no 1X peak with its half-power band inside the run: no critical speed")
+            click.echo(f"{a}: no 1X peak that stands out of the scatter with its half-power band inside the run: "
+                       "no critical speed")
         for p in peaks:
             verdict = ("a critical speed" if p.is_critical() else
                        f"critically damped (amplification < {CRITICAL_AMPLIFICATION:g}, API 684)")
@@ -151,8 +153,8 @@ def runup_figure(res, out, name: str) -> None:
         fall.annotate(f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7, ha="center", va="bottom")
     if res.modes is not None:
         speeds, table = res.modes
-        for m in range(table.shape[1]):
-            fall.plot(table[:, m], speeds, color="r", lw=0.9, label="model modes" if m == 0 else None)
+        for m in range(table.shape[1]):  # points: a mode may enter or leave the damping limit over the run
+            fall.plot(table[:, m], speeds, "o", color="r", ms=2.5, label="model modes" if m == 0 else None)
         fall.legend(fontsize=7, loc="lower right")
     fall.set(xlabel="frequency [Hz]", ylabel="speed [rpm]", xlim=(0, f[keep][-1]),
              title=f"waterfall of {res.waterfall_axis}" + (" with the model's modes (Campbell)" if res.modes else ""))

@@ -25,9 +25,10 @@ from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.coefficients import Coefficients
 from ..errors import BadInputError
-from ..units import RAD_S_TO_RPM
+from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
 from .runout import gap_and_rotor, runout_at
 
+AXIAL = ("axial", "x")  # the spin axis's gap (the spindle's axial, the cone rotor's x): no orbit, not tracked
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
 MODEL_SPEEDS = 26  # speeds the model's modes are computed at over the run
 
@@ -65,9 +66,9 @@ class RunupDiagnostics:
 
 def _gap_and_angle(path: Path):
     gap, rot, n = gap_and_rotor(path, "order tracking")
-    axes = [a for a in gap.fields if a.endswith(("_x", "_y"))]
+    axes = [a for a in gap.fields if a not in AXIAL]
     if not axes:
-        raise BadInputError(f"{path}: /amb/gap has no radial axes (NAME_x, NAME_y)")
+        raise BadInputError(f"{path}: /amb/gap has no radial axes")
     x = np.column_stack([gap[a][:n] for a in axes])
     return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate
 
@@ -78,17 +79,30 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
     Parameters
     ----------
     model : str
-        ``spindle``: the simulated spindle's own linearised loop.
+        ``spindle``: the simulated spindle's own linearised loop; ``cone``: seed 001's coupled 5-DOF
+        cone rotor under its PD control, current loop and eddy-current lag (eq. 10-16).
     rpm_from, rpm_to : float
         Speed range, in rpm.
     """
-    if model != "spindle":
-        raise BadInputError(f"--model {model!r}: the model known here is 'spindle' (the simulated spindle's loop)")
-    from ..sim.rigs.spindle import SpindleRig
-
-    rig = SpindleRig()
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
-    freqs = [loop_modes(rig.loop_matrices(float(r))[0], rig.h, fmax_hz=2000.0)[0] for r in speeds]
+    if model == "spindle":
+        from ..sim.rigs.spindle import SpindleRig
+
+        rig = SpindleRig()
+        freqs = [loop_modes(rig.loop_matrices(float(r))[0], rig.h, fmax_hz=2000.0)[0] for r in speeds]
+    elif model == "cone":
+        from ..analysis.cone_rotor import controlled_eigenvalues
+        from ..sim.rigs.cone import CONE
+
+        freqs = []
+        for r in speeds:
+            s = controlled_eigenvalues(CONE.rotor, CONE.control, float(r) * RPM_TO_RAD_S)
+            s = s[s.imag > 0]
+            zeta = -s.real / np.abs(s)
+            f = s.imag / (2 * np.pi)
+            freqs.append(np.sort(f[(zeta <= 0.5) & (f <= 2000.0)]))
+    else:
+        raise BadInputError(f"--model {model!r}: the models known here are 'spindle' and 'cone'")
     width = max(len(f) for f in freqs)
     table = np.full((speeds.shape[0], width), np.nan)
     for i, f in enumerate(freqs):
@@ -118,7 +132,7 @@ def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | N
     waterfall_axis : str, optional
         Gap axis of the waterfall; default: the first radial one.
     model : str, optional
-        ``spindle``: its loop's modes over the run's speeds (the Campbell diagram).
+        ``spindle`` or ``cone``: its loop's modes over the run's speeds (the Campbell diagram).
     """
     if coefficients is not None and slow_roll is not None:
         raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
@@ -126,7 +140,7 @@ def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | N
     if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
         raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
-    compensation = "none"
+    compensation = "none (the sensor signal as recorded)"
     if coefficients is not None:
         x = x - runout_at(Coefficients.load(coefficients), axes, theta, coefficients)
         compensation = f"runout coefficients {coefficients}"

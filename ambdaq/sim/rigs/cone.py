@@ -239,6 +239,7 @@ class ConeRig(Rig):
             raise ValueError("the cone rig has no feedforward; use ff=off")
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
+        self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)
         r = params.rotor
         self._Minv = np.linalg.inv(r.mass_matrix())
         n, J = r.frames()
@@ -284,6 +285,7 @@ class ConeRig(Rig):
             SignalGroup("/amb/voltage", "Voltage", COILS, ("V",) * 8),
             SignalGroup("/amb/control", "Control", AXES, ("V",) * 5),
             SignalGroup("/amb/hammer", "Force", ("hammer",), ("N",)),
+            SignalGroup("/amb/rotor", "Rotor", ("angle", "speed", "keyphasor"), ("rad", "rad/s", "1")),
         ]
         if self.truth:
             groups.append(SignalGroup("/truth/position", "Position", AXES, ("m",) * 5))
@@ -310,7 +312,14 @@ class ConeRig(Rig):
                   self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
         self.step_index += n
         force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise
-        arrays = [outs[0], outs[1], outs[2], outs[3], force] + ([outs[4]] if self.truth else [])
+        # the spin as the spindle's controller reports it: angle in [0, 2 pi), speed, a key-phasor
+        # pulse at the sample where a revolution begins
+        theta, spin = self.speed.angle_speed(steps * self.h)
+        rev = np.floor(theta / (2 * np.pi))
+        pulse = np.diff(np.concatenate(([self._last_rev], rev))) > 0
+        self._last_rev = float(rev[-1])
+        rotor = np.column_stack([theta - rev * 2 * np.pi, spin, pulse.astype(float)])
+        arrays = [outs[0], outs[1], outs[2], outs[3], force, rotor] + ([outs[4]] if self.truth else [])
         return self._block(steps, arrays)
 
     def step_jacobian(self, speed_rpm: float = 0.0) -> np.ndarray:
