@@ -117,16 +117,19 @@ def test_record_two_controllers_with_drifting_clocks_aligns_them(bench, tmp_path
     misalign = np.abs(gap.log_time[ia] - pos.log_time[ib]) * 1e-3
     # Unmapped, the clocks would be 8 s apart, and drift alone would part them by 100 ppm * 8 s =
     # 800 us. Mapped, an idle host aligns them within 35 us, but on a loaded 2-core host every
-    # pair is lifted by scheduler delays, and CI once measured 121 us. So the bound is 250 us
-    # (2.5 sample periods at 10 kHz): a working map passes it on any host, and a broken one
+    # pair is lifted by scheduler delays (CI once measured 121 us), and a host that holds the
+    # process off the CPU lifts them for a while: the recorder states that part (alignment_us,
+    # the maps' uncertainty with their revision; docs/protocol.md). So the bound is 2.5 sample
+    # periods at 10 kHz plus that statement: a working map passes it on any host, and a broken one
     # (no offset, no drift, no latency) fails it by far.
-    assert misalign.max() < 250.0, np.percentile(misalign, [50, 99, 99.9, 100])
+    claim = res.alignment_us
+    assert claim is not None
+    assert misalign.max() < 250.0 + claim, (claim, np.percentile(misalign, [50, 99, 99.9, 100]))
     # against the true instants: a small constant latency and a spread that includes the first
     # seconds, mapped with the drift estimated from 3 s of pairs (same reasoning for the bound)
     true = bench.server.start_wall_ns + gap.seq.astype(np.int64) * 100_000
     err = (gap.log_time - true) * 1e-3
-    assert np.percentile(err, 99) - np.percentile(err, 1) < 250.0, np.percentile(err, [1, 50, 99])
-    assert res.alignment_us is not None
+    assert np.percentile(err, 99) - np.percentile(err, 1) < 250.0 + claim, (claim, np.percentile(err, [1, 50, 99]))
     meta = McapFile(tmp_path / "two.mcap").metadata()
     assert float(meta["ambdaq.clock.ctlB"]["drift_ppm"]) > 45
 

@@ -123,9 +123,11 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
                 if on_run is not None:
                     on_run(axis, rpm, path)
                 excited = excite(opened.sources, ExcitationRequest(axis, amplitude))
-                Recorder(opened.sources, path, RecordOptions(duration_s=duration_s), overwrite=overwrite).run()
+                result = Recorder(opened.sources, path, RecordOptions(duration_s=duration_s), overwrite=overwrite).run()
             if excited.switch_off_problem:
                 raise DeviceError(f"could not switch the test signal off after {path}: {excited.switch_off_problem}")
+            if result.stopped_by_user:  # Ctrl-C stops the whole measurement, not only this run
+                raise DeviceError(f"stopped by the user during {path} (kept); the runs before it are in {out_dir}")
             paths.append(path)
             i += 1
     return paths
