@@ -29,14 +29,27 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
             print_progress(p)
 
     def stopping(files: list[Path]) -> None:  # at once, so a user who pressed Ctrl-C knows it was heard
-        if tty and not quiet:
-            sys.stderr.write("\n")
         click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
 
-    result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=0.5 if tty else 5.0,
-                          on_stopping=stopping)
-    if not quiet and tty:
-        sys.stderr.write("\n")
+    if tty and not quiet:  # a terminal: the live status (docs/cli.md), redrawn twice a second
+        from rich.console import Console
+        from rich.live import Live
+
+        from .live import LiveView, status_table
+
+        view = LiveView({s.name: s.sample_rate for s in sources})
+        groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
+        shown: list[Progress] = []
+
+        def redraw(p: Progress) -> None:
+            live.update(status_table(p, shown[-1] if shown else None, view.bearings(groups)))
+            shown[:] = [p]
+
+        with Live(console=Console(stderr=True), refresh_per_second=2) as live:
+            result = recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping,
+                                  on_block=view.observe)
+    else:
+        result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=5.0, on_stopping=stopping)
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2))
     elif not quiet:

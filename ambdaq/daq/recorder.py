@@ -88,13 +88,18 @@ def _freeze_heap() -> None:
 @dataclass
 class Progress:
     """Figures shown while recording: the samples of the device with the most (received, including
-    those waiting for the device's clock map), losses summed over devices (as judged when written)."""
+    those waiting for the device's clock map), losses summed over devices (as judged when written),
+    each device's own counts, the bytes in the files, and the seconds to the next file when the
+    recording splits by duration."""
 
     elapsed_s: float
     samples: int
     drops: int
     duplicates: int
     rate_hz: float
+    devices: dict[str, SampleCounts] = field(default_factory=dict)
+    file_bytes: int = 0
+    next_split_s: float | None = None
 
 
 @dataclass
@@ -250,6 +255,7 @@ class Recorder:
         self._split = options.split_size is not None or options.split_duration_s is not None
         self._name = split_names(Path(output), self._split)
         self._overwrite = overwrite
+        self._on_block: Callable[[str, SampleBlock], None] | None = None
         if not overwrite and self._name(0).exists():
             raise BadInputError(f"{self._name(0)} exists: choose another -o or pass --overwrite")
 
@@ -340,7 +346,8 @@ class Recorder:
     # --- the run ---------------------------------------------------------------------------------
 
     def run(self, on_progress: Callable[[Progress], None] | None = None, progress_interval_s: float = 0.5,
-            on_stopping: Callable[[list[Path]], None] | None = None) -> RecordResult:
+            on_stopping: Callable[[list[Path]], None] | None = None,
+            on_block: Callable[[str, SampleBlock], None] | None = None) -> RecordResult:
         """Record until the duration is reached, every device ends, or the user stops.
 
         Parameters
@@ -352,7 +359,11 @@ class Recorder:
         on_stopping : callable, optional
             Called once, at once, when the user stops (Ctrl-C, SIGTERM), with the files being
             finished.
+        on_block : callable, optional
+            Called with (device, block) for every block as it is received, before its clock is
+            mapped, on the recorder's thread (the live view keeps a reference; it must be quick).
         """
+        self._on_block = on_block
         opts = self.options
         q: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
         stop = threading.Event()
@@ -501,6 +512,8 @@ class Recorder:
         if isinstance(item, Event):
             self._write_event(source.name, time.time_ns(), item)
         elif item is not None:
+            if self._on_block is not None:  # as received: a live view need not wait for the clock map
+                self._on_block(source.name, item)
             self._ingest(source, item)
             self._write_events(source)
 
@@ -634,8 +647,14 @@ class Recorder:
         for name, blocks in self._priming.items():
             now[name].samples += sum(len(b) for b in blocks)
         samples = max(c.samples for c in now.values())
+        next_split = None
+        if self.options.split_duration_s is not None:
+            period = self.options.split_duration_s * 1e9
+            since = time.time_ns() - self._start_ns
+            next_split = ((since // period + 1) * period - since) * 1e-9
         return Progress(elapsed, samples, sum(c.drops for c in now.values()),
-                        sum(c.duplicates for c in now.values()), samples / elapsed if elapsed > 0 else 0.0)
+                        sum(c.duplicates for c in now.values()), samples / elapsed if elapsed > 0 else 0.0,
+                        now, sum(part.writer.bytes_written for part in self._parts), next_split)
 
 
 def print_progress(p: Progress, stream=None) -> None:

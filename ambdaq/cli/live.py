@@ -1,0 +1,137 @@
+"""What a recording shows while it runs: per device its sample rate and losses, per bearing the gap's
+DC and 1X amplitude from the key-phasor, the speed, the file size and the time to the next split.
+
+The recorder hands every block it receives to :meth:`LiveView.observe` (a reference kept in a
+short ring, no copy, no arithmetic on the recorder's thread), before its clock is mapped, so a
+controller's figures show from its first block; they are computed only when the terminal is
+redrawn, over the device's last ``WINDOW_S`` seconds of samples.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..analysis.runout import harmonic_fit
+from ..units import RAD_S_TO_RPM
+from ..daq.recorder import Progress
+
+WINDOW_S = 0.2  # the window the gap figures are computed over: 100 revolutions at 30,000 rpm
+GAP, ROTOR = "/amb/gap", "/amb/rotor"
+
+
+@dataclass(frozen=True)
+class BearingStatus:
+    """One radial bearing's gap over the last window.
+
+    Attributes
+    ----------
+    device : str
+        The device that measures it.
+    bearing : str
+        ``front``, ``rear`` ...: the axes ``NAME_x`` and ``NAME_y``.
+    dc_um : tuple of float
+        Mean gap of x and y, in um.
+    one_x_um : tuple of float or None
+        1X amplitude (0-peak) of x and y from the key-phasor, in um; None below one revolution.
+    speed_rpm : float or None
+        Mean speed, in rpm (None without a rotor angle).
+    """
+
+    device: str
+    bearing: str
+    dc_um: tuple[float, float]
+    one_x_um: tuple[float, float] | None
+    speed_rpm: float | None
+
+
+class LiveView:
+    """The recent gap and rotor blocks of each device, and the figures computed from them."""
+
+    def __init__(self, rates: dict[str, float | None], window_s: float = WINDOW_S) -> None:
+        """``rates``: each device's sample rate (Hz; None for a device without one, not shown)."""
+        self.window = {d: int(round(r * window_s)) for d, r in rates.items() if r}
+        self._blocks: dict[str, deque] = {}
+
+    def observe(self, device: str, block) -> None:
+        """Keep a received block that carries the gap (called by the recorder for every block)."""
+        if GAP not in block.values or len(block) == 0 or device not in self.window:
+            return
+        ring = self._blocks.setdefault(device, deque())
+        ring.append(block)
+        held = sum(len(b) for b in ring)
+        while len(ring) > 1 and held - len(ring[0]) >= self.window[device]:
+            held -= len(ring.popleft())
+
+    def bearings(self, groups: dict[str, dict[str, list[str]]]) -> list[BearingStatus]:
+        """The status of every radial bearing (axes ``NAME_x``, ``NAME_y``) of every device.
+
+        Parameters
+        ----------
+        groups : dict
+            Device -> topic -> field names, as its signal groups give them (``/amb/gap``, and
+            ``/amb/rotor`` with ``angle`` in rad and ``speed`` in rad/s).
+        """
+        out = []
+        for device, ring in self._blocks.items():
+            blocks = list(ring)  # the recorder's thread may append meanwhile
+            names = groups.get(device, {}).get(GAP)
+            rotor = groups.get(device, {}).get(ROTOR, [])
+            if not blocks or not names:
+                continue
+            recent = slice(-self.window[device], None)
+            gap = np.concatenate([b.values[GAP] for b in blocks])[recent]
+            theta = speed = None
+            if "angle" in rotor and "speed" in rotor and all(ROTOR in b.values for b in blocks):
+                rot = np.concatenate([b.values[ROTOR] for b in blocks])[recent]
+                theta, speed = np.unwrap(rot[:, rotor.index("angle")]), rot[:, rotor.index("speed")]
+            for bearing in sorted({n[:-2] for n in names if n.endswith(("_x", "_y"))}):
+                if f"{bearing}_x" not in names or f"{bearing}_y" not in names:
+                    continue
+                cols = gap[:, [names.index(f"{bearing}_x"), names.index(f"{bearing}_y")]]
+                one_x = None
+                if theta is not None and theta[-1] - theta[0] >= 2 * np.pi:
+                    one_x = tuple(float(v) * 1e6 for v in np.abs(harmonic_fit(cols, theta, (1,))[0]))
+                out.append(BearingStatus(device, bearing, tuple(float(v) * 1e6 for v in cols.mean(axis=0)), one_x,
+                                         None if speed is None else float(speed.mean()) * RAD_S_TO_RPM))
+        return out
+
+
+def status_table(p: Progress, previous: Progress | None, bearings: list[BearingStatus]):
+    """The rich renderable of one redraw: the recording's line, a row per device, a row per bearing.
+
+    Parameters
+    ----------
+    p, previous : Progress
+        This report and the one before it (for the rates over the last interval).
+    bearings : list of BearingStatus
+    """
+    from rich.console import Group
+    from rich.table import Table
+
+    size = f"{p.file_bytes / 1e6:,.1f} MB"
+    split = "" if p.next_split_s is None else f"   next file in {p.next_split_s:,.1f} s"
+    devices = Table(title=f"recording {p.elapsed_s:,.1f} s   {size}{split}", title_justify="left")
+    for col in ("device", "samples/s", "samples", "drops", "duplicates"):
+        devices.add_column(col, justify="left" if col == "device" else "right")
+    for name, c in p.devices.items():
+        before = previous.devices.get(name) if previous is not None else None
+        dt = p.elapsed_s - previous.elapsed_s if previous is not None else p.elapsed_s
+        rate = (c.samples - (before.samples if before else 0)) / dt if dt > 0 else 0.0
+        devices.add_row(name, f"{rate:,.0f}", f"{c.samples:,d}", f"{c.drops:,d}", f"{c.duplicates:,d}")
+    parts = [devices]
+    if bearings:
+        table = Table()
+        for col in ("bearing", "rpm", "gap DC x / y [µm]", "1X x / y [µm]"):
+            table.add_column(col, justify="left" if col == "bearing" else "right")
+        for b in bearings:
+            one_x = "–" if b.one_x_um is None else f"{b.one_x_um[0]:.2f} / {b.one_x_um[1]:.2f}"
+            table.add_row(f"{b.device} {b.bearing}", "–" if b.speed_rpm is None else f"{b.speed_rpm:,.0f}",
+                          f"{b.dc_um[0]:.2f} / {b.dc_um[1]:.2f}", one_x)
+        parts.append(table)
+    return Group(*parts)
+
+
+__all__ = ["BearingStatus", "LiveView", "WINDOW_S", "status_table"]
