@@ -20,6 +20,7 @@ from ..daq.recorder import Progress
 
 WINDOW_S = 0.2  # the window the gap figures are computed over: 100 revolutions at 30,000 rpm
 GAP, ROTOR = "/amb/gap", "/amb/rotor"
+ORBIT_POINTS = 400  # an orbit's points on the live view
 
 
 @dataclass(frozen=True)
@@ -34,17 +35,26 @@ class BearingStatus:
         ``front``, ``rear`` ...: the axes ``NAME_x`` and ``NAME_y``.
     dc_um : tuple of float
         Mean gap of x and y, in um.
-    one_x_um : tuple of float or None
-        1X amplitude (0-peak) of x and y from the key-phasor, in um; None below one revolution.
+    one_x : tuple of complex or None
+        1X vector of x and y from the key-phasor, ``R exp(j phi)`` in um (phase from the mark);
+        None below one revolution.
     speed_rpm : float or None
         Mean speed, in rpm (None without a rotor angle).
+    orbit_um : tuple of ndarray
+        The window's x and y about their mean, in um, at most ``ORBIT_POINTS`` points each.
     """
 
     device: str
     bearing: str
     dc_um: tuple[float, float]
-    one_x_um: tuple[float, float] | None
+    one_x: tuple[complex, complex] | None
     speed_rpm: float | None
+    orbit_um: tuple[np.ndarray, np.ndarray]
+
+    @property
+    def one_x_um(self) -> tuple[float, float] | None:
+        """1X amplitude (0-peak) of x and y, in um."""
+        return None if self.one_x is None else (abs(self.one_x[0]), abs(self.one_x[1]))
 
 
 class LiveView:
@@ -93,9 +103,12 @@ class LiveView:
                 cols = gap[:, [names.index(f"{bearing}_x"), names.index(f"{bearing}_y")]]
                 one_x = None
                 if theta is not None and theta[-1] - theta[0] >= 2 * np.pi:
-                    one_x = tuple(float(v) * 1e6 for v in np.abs(harmonic_fit(cols, theta, (1,))[0]))
-                out.append(BearingStatus(device, bearing, tuple(float(v) * 1e6 for v in cols.mean(axis=0)), one_x,
-                                         None if speed is None else float(speed.mean()) * RAD_S_TO_RPM))
+                    one_x = tuple(complex(v) * 1e6 for v in harmonic_fit(cols, theta, (1,))[0])
+                mean = cols.mean(axis=0)
+                step = max(1, cols.shape[0] // ORBIT_POINTS)
+                orbit = (cols[::step, 0] - mean[0]) * 1e6, (cols[::step, 1] - mean[1]) * 1e6
+                out.append(BearingStatus(device, bearing, tuple(float(v) * 1e6 for v in mean), one_x,
+                                         None if speed is None else float(speed.mean()) * RAD_S_TO_RPM, orbit))
         return out
 
 

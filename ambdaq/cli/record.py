@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -16,8 +17,9 @@ from .options import POSITIVE, Output, output_options, report_options, speed_opt
 
 
 def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
-                  reconnect: bool = False) -> None:
-    """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim)."""
+                  reconnect: bool = False, live: "LiveOptions | None" = None) -> None:
+    """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim);
+    with ``live``, serve the topics to Foxglove while recording."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
                             compression=out.compression, reconnect=reconnect, fsync=out.fsync)
     recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig_file,
@@ -31,25 +33,13 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
     def stopping(files: list[Path]) -> None:  # at once, so a user who pressed Ctrl-C knows it was heard
         click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
 
-    if tty and not quiet:  # a terminal: the live status (docs/cli.md), redrawn twice a second
-        from rich.console import Console
-        from rich.live import Live
-
-        from .live import LiveView, status_table
-
-        view = LiveView({s.name: s.sample_rate for s in sources})
-        groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
-        shown: list[Progress] = []
-
-        def redraw(p: Progress) -> None:
-            live.update(status_table(p, shown[-1] if shown else None, view.bearings(groups)))
-            shown[:] = [p]
-
-        with Live(console=Console(stderr=True), refresh_per_second=2) as live:
-            result = recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping,
-                                  on_block=view.observe)
-    else:
-        result = recorder.run(on_progress=None if quiet else progress, progress_interval_s=5.0, on_stopping=stopping)
+    server = start_live(sources, live) if live is not None else None
+    observers = [server.observe] if server is not None else []
+    try:
+        result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping, observers)
+    finally:
+        if server is not None:
+            server.close()
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2))
     elif not quiet:
@@ -61,6 +51,63 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
             f"-> {', '.join(str(f) for f in result.files)} ({size:.1f} MB)",
             err=True,
         )
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """``--live``: where the Foxglove WebSocket server listens and the display rate, Hz."""
+
+    port: int
+    host: str = "127.0.0.1"
+    display_hz: float = 100.0
+
+
+def start_live(sources, live: LiveOptions):
+    """The Foxglove live server for ``sources``; one line if the extra is missing or the port is taken."""
+    try:
+        import foxglove  # noqa: F401 (the live extra)
+    except ImportError:
+        raise BadInputError("--live needs foxglove-sdk, the live extra: pip install 'ambdaq[live]'") from None
+    from .foxglove_live import FoxgloveLive
+
+    if live.host not in ("127.0.0.1", "localhost", "::1"):
+        click.echo(f"ambdaq: warning: the live view is served on {live.host}: anyone who reaches it sees the "
+                   "machine's signals", err=True)
+    try:
+        server = FoxgloveLive(sources, live.host, live.port, live.display_hz)
+    except RuntimeError as err:  # foxglove-sdk reports a bind failure so
+        raise BadInputError(f"--live {live.port}: cannot serve on {live.host}:{live.port} ({err})") from None
+    click.echo(f"ambdaq: live view on ws://{live.host}:{server.port} (Foxglove: open a WebSocket connection)", err=True)
+    return server
+
+
+def _run(recorder, sources, status: bool, progress, stopping, observers: list):
+    """Run ``recorder`` with the live terminal status when ``status`` (stderr is a terminal), else
+    with ``progress`` lines; ``observers`` see every block as it is received."""
+
+    def observe(device, block) -> None:
+        for o in observers:
+            o(device, block)
+
+    if not status:
+        return recorder.run(on_progress=progress, progress_interval_s=5.0, on_stopping=stopping,
+                            on_block=observe if observers else None)
+    from rich.console import Console
+    from rich.live import Live
+
+    from .live import LiveView, status_table
+
+    view = LiveView({s.name: s.sample_rate for s in sources})
+    observers = [view.observe, *observers]
+    groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
+    shown: list[Progress] = []
+
+    def redraw(p: Progress) -> None:
+        live.update(status_table(p, shown[-1] if shown else None, view.bearings(groups)))
+        shown[:] = [p]
+
+    with Live(console=Console(stderr=True), refresh_per_second=2) as live:
+        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, on_block=observe)
 
 
 @click.command("record")
@@ -75,9 +122,17 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
               help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
 @click.option("--a2l", "a2l", type=click.Path(dir_okay=False), metavar="FILE",
               help="A2L file of the --device XCP controllers (xcp+tcp://...).")
+@click.option("--live", "live_port", type=click.IntRange(0, 65535), is_flag=False, flag_value=8765, metavar="[PORT]",
+              help="Serve the topics to Foxglove over its WebSocket protocol while recording (default port 8765; "
+                   "0: any free one); the file keeps every sample (docs/live.md).")
+@click.option("--live-host", default="127.0.0.1", show_default=True,
+              help="Address the live view listens on; anything but loopback is warned about.")
+@click.option("--live-rate", type=POSITIVE, default=100.0, show_default=True, metavar="HZ",
+              help="Samples per second and topic sent to the live view.")
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, a2l, out, quiet, as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port, live_host, live_rate, out, quiet,
+            as_json):
     """Record devices in real time into an MCAP file.
 
     \b
@@ -97,4 +152,5 @@ def command(devices, rig_path, duration, speed, truth, reconnect, a2l, out, quie
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
                                 calibration=d.calibration, description=d.description))
         run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json,
-                      rig_file=rig.path if rig else None, reconnect=reconnect)
+                      rig_file=rig.path if rig else None, reconnect=reconnect,
+                      live=None if live_port is None else LiveOptions(live_port, live_host, live_rate))

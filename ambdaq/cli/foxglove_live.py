@@ -1,0 +1,127 @@
+"""``ambdaq record --live``: the recording's topics served over the Foxglove WebSocket protocol while
+the file keeps every sample (docs/live.md).
+
+The server is foxglove-sdk's (``foxglove.start_server``, in Rust on its own threads): each client
+has a bounded queue that drops its oldest messages when the client is slow, so no viewer can stall
+the recorder. The recorder hands every received block to :meth:`FoxgloveLive.observe`, which logs
+every ``decimation``-th sample of each topic as JSON (a display rate a viewer can take: 100 Hz by
+default against the devices' 10 kHz). A thread of its own publishes the derived topics five times
+a second from the last 0.2 s: ``/live/1x`` (the 1X vector per radial axis from the key-phasor),
+``/live/orbit/<bearing>`` (x and y about their mean) and ``/live/speed``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from .live import LiveView
+
+DERIVED_HZ = 5.0  # the derived topics' rate
+BACKLOG = 1024  # messages queued per client before its oldest are dropped (foxglove-sdk's default)
+
+
+def _schema(name: str, fields: list[str], units: list[str]) -> dict:
+    props = {f: {"type": "number", "description": u} for f, u in zip(fields, units)}
+    props["seq"] = {"type": "integer", "description": "the device's sample number"}
+    return {"title": name, "type": "object", "properties": props}
+
+
+class FoxgloveLive:
+    """A Foxglove WebSocket server for one recording.
+
+    Parameters
+    ----------
+    sources : list of Source
+        The recording's devices (their signal groups become the channels).
+    host : str
+        Address to bind (127.0.0.1 unless the user asks otherwise).
+    port : int
+        TCP port; 0 picks a free one (:attr:`port` tells which).
+    display_hz : float
+        Samples per second and topic sent to viewers.
+    """
+
+    def __init__(self, sources, host: str, port: int, display_hz: float = 100.0) -> None:
+        import foxglove
+
+        self._context = foxglove.Context()
+        self.server = foxglove.start_server(name="ambdaq", host=host, port=port, context=self._context,
+                                            message_backlog_size=BACKLOG)
+        self.port = self.server.port
+        self._channels: dict[tuple[str, str], object] = {}
+        self._fields: dict[tuple[str, str], list[str]] = {}
+        self._every: dict[str, int] = {}
+        self._groups = {}
+        for s in sources:
+            self._groups[s.name] = {g.topic: list(g.fields) for g in s.signal_groups()}
+            rate = s.sample_rate or display_hz
+            self._every[s.name] = max(1, int(round(rate / display_hz)))
+            for g in s.signal_groups():
+                key = (s.name, g.topic)
+                topic = g.topic if sum(g.topic in gs for gs in self._groups.values()) == 1 else f"{g.topic}@{s.name}"
+                self._channels[key] = foxglove.Channel(topic, schema=_schema(g.type_name, list(g.fields), list(g.units)),
+                                                       message_encoding="json", context=self._context)
+                self._fields[key] = list(g.fields)
+        self._next: dict[str, int] = {}
+        self.view = LiveView({s.name: s.sample_rate for s in sources})
+        self._derived = {name: foxglove.Channel(name, message_encoding="json", context=self._context)
+                         for name in ("/live/1x", "/live/speed")}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._publish_derived, name="foxglove-derived", daemon=True)
+        self._thread.start()
+
+    def observe(self, device: str, block) -> None:
+        """Log every ``decimation``-th sample of the block's topics; keep it for the derived topics
+        (the recorder calls this for every block it receives)."""
+        self.view.observe(device, block)
+        every = self._every.get(device, 1)
+        seq = block.seq.astype(np.int64)
+        first = self._next.get(device, int(seq[0]))
+        pick = np.flatnonzero((seq >= first) & ((seq - first) % every == 0))
+        if pick.size == 0:
+            return
+        self._next[device] = int(seq[pick[-1]]) + every
+        now = time.time_ns()
+        for topic, values in block.values.items():
+            channel = self._channels.get((device, topic))
+            if channel is None:
+                continue
+            fields = self._fields[(device, topic)]
+            rows = values[pick].tolist()
+            for s, row in zip(seq[pick].tolist(), rows):
+                channel.log({**dict(zip(fields, row)), "seq": s}, log_time=now)
+
+    def _publish_derived(self) -> None:
+        import foxglove
+
+        orbits: dict[str, object] = {}
+        while not self._stop.wait(1.0 / DERIVED_HZ):
+            now = time.time_ns()
+            speeds = {}
+            for b in self.view.bearings(self._groups):
+                if b.one_x is not None:
+                    for axis, v in zip(("x", "y"), b.one_x):
+                        self._derived["/live/1x"].log(
+                            {"device": b.device, "axis": f"{b.bearing}_{axis}", "amplitude_um": abs(v),
+                             "phase_deg": float(np.degrees(np.angle(v)))}, log_time=now)
+                if b.speed_rpm is not None:
+                    speeds[b.device] = b.speed_rpm
+                name = f"/live/orbit/{b.bearing}"
+                if name not in orbits:
+                    orbits[name] = foxglove.Channel(name, message_encoding="json", context=self._context)
+                orbits[name].log({"device": b.device, "x_um": b.orbit_um[0].tolist(), "y_um": b.orbit_um[1].tolist()},
+                                 log_time=now)
+            for device, rpm in speeds.items():
+                self._derived["/live/speed"].log({"device": device, "rpm": rpm}, log_time=now)
+
+    def close(self) -> None:
+        """Stop the derived topics and the server."""
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.server.stop()
+
+
+__all__ = ["FoxgloveLive"]

@@ -1,0 +1,97 @@
+"""``record --live``: the topics served over the Foxglove WebSocket protocol (foxglove-sdk's server)
+and read by an independent client from the npm registry (@foxglove/ws-protocol, run by Node); the
+file keeps every sample; a slow viewer costs none; a taken port is one line."""
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ambdaq.analysis.runout import harmonic_fit
+from ambdaq.daq import load
+
+CLIENT = Path(__file__).parent / "live_client"
+
+
+@pytest.fixture(scope="session")
+def node_client(tmp_path_factory):
+    """The client script with its pinned packages installed from the npm registry."""
+    npm = shutil.which("npm")
+    assert npm and shutil.which("node"), "the live view test needs Node.js and npm"
+    d = tmp_path_factory.mktemp("live-client")
+    for name in ("package.json", "client.js"):
+        shutil.copy(CLIENT / name, d / name)
+    r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error"], cwd=d, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def start_recording(out: Path, *extra: str) -> tuple[subprocess.Popen, int]:
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--rpm", "30000",
+                             "--duration", "6", "-o", str(out), "--json", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:
+        if "live view on ws://127.0.0.1:" in line:
+            return proc, int(line.split("ws://127.0.0.1:")[1].split()[0])
+    raise AssertionError(proc.communicate())
+
+
+@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+def test_a_foxglove_client_receives_the_topics_and_a_slow_one_costs_no_samples(node_client, tmp_path):
+    out = tmp_path / "live.mcap"
+    proc, port = start_recording(out, "--live", "0")
+    url = f"ws://127.0.0.1:{port}"
+    topics = ["/amb/gap", "/live/1x", "/live/speed", "/live/orbit/front"]
+    slow = subprocess.Popen(["node", "client.js", url, "3", *topics], cwd=node_client, env={**os.environ, "SLOW": "1"},
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    fast = subprocess.run(["node", "client.js", url, "2.5", *topics], cwd=node_client, capture_output=True, text=True,
+                          timeout=60)
+    assert fast.returncode == 0, fast.stderr
+    slow.wait(timeout=60)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    summary = json.loads(stdout)
+    # the file keeps every sample, with a slow viewer connected the whole time
+    assert summary["samples"] == 60000 and summary["drops"] == 0 and summary["duplicates"] == 0
+
+    got = [json.loads(line) for line in fast.stdout.splitlines()]
+    gap = [m["data"] for m in got if m["topic"] == "/amb/gap"]
+    rec = load(out, topics=["/amb/gap", "/amb/rotor"])
+    g, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    # decimated to 100 Hz: every 100th sample of the 10 kHz stream, each equal to the file's
+    seqs = np.array([m["seq"] for m in gap])
+    assert len(gap) >= 150 and np.all(np.diff(seqs) == 100)
+    at = np.searchsorted(g.seq, seqs)
+    for field in g.fields:
+        np.testing.assert_array_equal([m[field] for m in gap], g[field][at])
+    # the 1X vector: the live one over 0.2 s against the whole recording's (the rig runs steadily;
+    # 0.2 um RMS sensor noise over 100 revolutions moves it by well under 1 %: 2 % and 2 degrees)
+    whole = harmonic_fit(np.column_stack([g["front_x"], g["front_y"]]), np.unwrap(rot["angle"]), (1,))[0] * 1e6
+    one_x = [m["data"] for m in got if m["topic"] == "/live/1x" and m["data"]["axis"] in ("front_x", "front_y")]
+    assert one_x
+    for m in one_x:
+        v = whole[0 if m["axis"] == "front_x" else 1]
+        assert m["amplitude_um"] == pytest.approx(abs(v), rel=0.02)
+        assert abs((m["phase_deg"] - np.degrees(np.angle(v)) + 180) % 360 - 180) < 2.0
+    speed = [m["data"]["rpm"] for m in got if m["topic"] == "/live/speed"]
+    assert speed and all(abs(s - 30000) < 30 for s in speed)
+    orbit = next(m["data"] for m in got if m["topic"] == "/live/orbit/front")
+    assert 100 <= len(orbit["x_um"]) == len(orbit["y_um"]) <= 400
+    assert max(np.hypot(orbit["x_um"], orbit["y_um"])) == pytest.approx(np.hypot(*np.abs(whole)), rel=0.3)
+
+
+def test_a_port_in_use_is_one_line_before_recording(run_cli, tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = run_cli("record", "--device", "sim://spindle", "--duration", "1", "--live", str(port), "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and f"--live {port}: cannot serve on 127.0.0.1:{port}" in r.output
+    assert "Address already in use" in r.output and not (tmp_path / "x.mcap").exists()
