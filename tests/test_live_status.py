@@ -34,6 +34,12 @@ def test_bearing_figures_are_the_last_windows_dc_and_1x():
     # 0.2 s at 30,000 rpm is 100 whole revolutions: the mean and the 1X fit are exact to rounding
     assert front.dc_um == pytest.approx((12.0, -12.0), abs=1e-9)
     assert front.one_x_um == pytest.approx((17.0, 8.5), rel=1e-9)
+    assert len(front.orbit_um[0]) == len(front.orbit_um[1]) == 400  # 2,000 samples, every 5th
+    short = LiveView({"ctl": 10_000.0}, window_s=0.2)
+    n = np.arange(540)
+    short.observe("ctl", SampleBlock(n * 100_000, n.astype(np.uint32),
+                                     {"/amb/gap": np.zeros((540, 3)), "/amb/rotor": np.zeros((540, 3))}))
+    assert len(short.bearings(GROUPS)[0].orbit_um[0]) <= 400  # a window not yet full is capped too
 
 
 def strip(text: str) -> str:

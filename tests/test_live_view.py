@@ -33,8 +33,8 @@ def node_client(tmp_path_factory):
     return d
 
 
-def start_recording(out: Path, *extra: str) -> tuple[subprocess.Popen, int]:
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--rpm", "30000",
+def start_recording(url: str, out: Path, *extra: str) -> tuple[subprocess.Popen, int]:
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", url,
                              "--duration", "6", "-o", str(out), "--json", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     for line in proc.stderr:
@@ -44,9 +44,11 @@ def start_recording(out: Path, *extra: str) -> tuple[subprocess.Popen, int]:
 
 
 @pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
-def test_a_foxglove_client_receives_the_topics_and_a_slow_one_costs_no_samples(node_client, tmp_path):
+def test_a_foxglove_client_receives_the_topics_and_a_slow_one_costs_no_samples(node_client, served, tmp_path):
+    """The spindle at 30,000 rpm served in its own process (as a controller would be), recorded over
+    its serial line with --live, two Node clients connected."""
     out = tmp_path / "live.mcap"
-    proc, port = start_recording(out, "--live", "0")
+    proc, port = start_recording(served, out, "--live", "0")
     url = f"ws://127.0.0.1:{port}"
     topics = ["/amb/gap", "/live/1x", "/live/speed", "/live/orbit/front"]
     slow = subprocess.Popen(["node", "client.js", url, "3", *topics], cwd=node_client, env={**os.environ, "SLOW": "1"},

@@ -105,7 +105,7 @@ class LiveView:
                 if theta is not None and theta[-1] - theta[0] >= 2 * np.pi:
                     one_x = tuple(complex(v) * 1e6 for v in harmonic_fit(cols, theta, (1,))[0])
                 mean = cols.mean(axis=0)
-                step = max(1, cols.shape[0] // ORBIT_POINTS)
+                step = max(1, -(-cols.shape[0] // ORBIT_POINTS))  # ceil: at most ORBIT_POINTS
                 orbit = (cols[::step, 0] - mean[0]) * 1e6, (cols[::step, 1] - mean[1]) * 1e6
                 out.append(BearingStatus(device, bearing, tuple(float(v) * 1e6 for v in mean), one_x,
                                          None if speed is None else float(speed.mean()) * RAD_S_TO_RPM, orbit))
