@@ -51,7 +51,7 @@ def test_a_terminal_shows_the_live_status(tmp_path):
     out = tmp_path / "live.mcap"
     master, slave = pty.openpty()
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--rpm", "30000",
-                             "--duration", "4", "-o", str(out)], stderr=slave, stdout=subprocess.PIPE)
+                             "--duration", "3", "-o", str(out)], stderr=slave, stdout=subprocess.PIPE)
     os.close(slave)
     chunks = []
     while True:
