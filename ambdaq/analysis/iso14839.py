@@ -65,25 +65,24 @@ def db(gain: np.ndarray | float) -> np.ndarray | float:
     return 20.0 * np.log10(gain)
 
 
-def loop_functions(h_error_per_input: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ISO 14839-3's sensitivity, closed-loop and open-loop functions from the measured response of
-    the command error to the test signal (``e / x``, the H1 estimate of ``frf``).
+def sensitivity(h_error_per_input: np.ndarray) -> np.ndarray:
+    """ISO 14839-3's sensitivity function from the measured response of the command error to the
+    test signal (``e / x``, the H1 estimate of ``frf``): ``Gs = -e/x`` (the module docstring).
 
     Parameters
     ----------
     h_error_per_input : ndarray of complex
         ``e / x`` at each frequency, in m/m (or V/V).
-
-    Returns
-    -------
-    gs, gc, go : ndarray of complex
-        ``Gs = -e/x``, ``Gc = 1 - Gs`` and ``Go = Gc / Gs`` (dimensionless).
     """
-    gs = -np.asarray(h_error_per_input)
-    gc = 1.0 - gs
+    return -np.asarray(h_error_per_input)
+
+
+def closed_and_open_loop(gs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The closed-loop ``Gc = 1 - Gs`` and open-loop ``Go = Gc / Gs`` functions of a sensitivity
+    function ``gs`` (dimensionless, complex); ``Go`` is infinite where ``Gs`` is 0."""
+    gc = 1.0 - np.asarray(gs)
     with np.errstate(divide="ignore", invalid="ignore"):
-        go = gc / gs
-    return gs, gc, go
+        return gc, gc / gs
 
 
 def model_sensitivity(M: np.ndarray, B: np.ndarray, C: np.ndarray, h: float, freq_hz: np.ndarray) -> np.ndarray:
@@ -214,4 +213,4 @@ def grade_stability(freq_hz: np.ndarray, gs: np.ndarray, coherence: np.ndarray, 
 
 
 __all__ = ["STABILITY_LIMITS", "VIBRATION_LIMITS", "ZONES", "StabilityGrade", "ZoneLimits", "db",
-           "grade_stability", "loop_functions", "magnitude_upper_bound", "model_sensitivity"]
+           "closed_and_open_loop", "grade_stability", "magnitude_upper_bound", "model_sensitivity", "sensitivity"]

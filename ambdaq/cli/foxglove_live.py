@@ -54,14 +54,14 @@ class FoxgloveLive:
         self._channels: dict[tuple[str, str], object] = {}
         self._fields: dict[tuple[str, str], list[str]] = {}
         self._every: dict[str, int] = {}
-        self._groups = {}
+        self._groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
         for s in sources:
-            self._groups[s.name] = {g.topic: list(g.fields) for g in s.signal_groups()}
             rate = s.sample_rate or display_hz
             self._every[s.name] = max(1, int(round(rate / display_hz)))
             for g in s.signal_groups():
                 key = (s.name, g.topic)
-                topic = g.topic if sum(g.topic in gs for gs in self._groups.values()) == 1 else f"{g.topic}@{s.name}"
+                shared = sum(g.topic in gs for gs in self._groups.values()) > 1  # every device's, not the first's
+                topic = f"{g.topic}@{s.name}" if shared else g.topic
                 self._channels[key] = foxglove.Channel(topic, schema=_schema(g.type_name, list(g.fields), list(g.units)),
                                                        message_encoding="json", context=self._context)
                 self._fields[key] = list(g.fields)

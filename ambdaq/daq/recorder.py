@@ -85,21 +85,36 @@ def _freeze_heap() -> None:
     gc.freeze()
 
 
-@dataclass
+@dataclass(frozen=True)
 class Progress:
-    """Figures shown while recording: the samples of the device with the most (received, including
-    those waiting for the device's clock map), losses summed over devices (as judged when written),
-    each device's own counts, the bytes in the files, and the seconds to the next file when the
-    recording splits by duration."""
+    """Figures shown while recording: each device's counts (samples received, including those
+    waiting for the device's clock map; losses as judged when written), the bytes in the files,
+    and the seconds to the next file when the recording splits by duration."""
 
     elapsed_s: float
-    samples: int
-    drops: int
-    duplicates: int
-    rate_hz: float
-    devices: dict[str, SampleCounts] = field(default_factory=dict)
+    devices: dict[str, SampleCounts]
     file_bytes: int = 0
     next_split_s: float | None = None
+
+    @property
+    def samples(self) -> int:
+        """The samples of the device with the most."""
+        return max((c.samples for c in self.devices.values()), default=0)
+
+    @property
+    def drops(self) -> int:
+        """Summed over devices."""
+        return sum(c.drops for c in self.devices.values())
+
+    @property
+    def duplicates(self) -> int:
+        """Summed over devices."""
+        return sum(c.duplicates for c in self.devices.values())
+
+    @property
+    def rate_hz(self) -> float:
+        """:attr:`samples` over the time elapsed since the start, in samples/s."""
+        return self.samples / self.elapsed_s if self.elapsed_s > 0 else 0.0
 
 
 @dataclass
@@ -646,15 +661,12 @@ class Recorder:
         # own clock) are recorded: they count as soon as they arrive, not when they are written
         for name, blocks in self._priming.items():
             now[name].samples += sum(len(b) for b in blocks)
-        samples = max(c.samples for c in now.values())
         next_split = None
         if self.options.split_duration_s is not None:
             period = self.options.split_duration_s * 1e9
             since = time.time_ns() - self._start_ns
             next_split = ((since // period + 1) * period - since) * 1e-9
-        return Progress(elapsed, samples, sum(c.drops for c in now.values()),
-                        sum(c.duplicates for c in now.values()), samples / elapsed if elapsed > 0 else 0.0,
-                        now, sum(part.writer.bytes_written for part in self._parts), next_split)
+        return Progress(elapsed, now, sum(part.writer.bytes_written for part in self._parts), next_split)
 
 
 def print_progress(p: Progress, stream=None) -> None:

@@ -20,7 +20,8 @@ import numpy as np
 
 from ..analysis.frf import h1_estimate
 from ..analysis.runout import harmonic_fit, synthesise
-from ..analysis.iso14839 import STABILITY_LIMITS, StabilityGrade, ZoneLimits, grade_stability, loop_functions
+from ..analysis.iso14839 import (STABILITY_LIMITS, StabilityGrade, ZoneLimits, closed_and_open_loop, grade_stability,
+                                 sensitivity)
 from ..daq.coefficients import file_sha256
 from ..daq.mcapfile import McapFile
 from ..daq.reader import ambdaq_channels, load
@@ -157,7 +158,7 @@ class AxisRun:
                "band_hz": list(g.band_hz), "zone": g.zone, "reason": g.reason,
                "synchronous_bins_skipped_hz": self.skipped_hz}
         if curves:  # the standard's three loop functions; Go is infinite where Gs is 0 (JSON null)
-            _gs, gc, go = loop_functions(-self.gs)
+            gc, go = closed_and_open_loop(self.gs)
             out["curves"] = {"freq_hz": self.freq_hz.tolist(), "coherence": self.coherence.tolist(),
                              **{f"{name}_{part}": [None if not np.isfinite(v) else float(v) for v in getattr(g, part)]
                                 for name, g in (("gs", self.gs), ("gc", gc), ("go", go)) for part in ("real", "imag")}}
@@ -234,7 +235,7 @@ def evaluate(paths: list[Path], *, resolution_hz: float = 10.0, band_hz: tuple[f
             est = h1_estimate(xs, ys, fs=x.nominal_rate, resolution_hz=resolution_hz)
         except ValueError as err:
             raise BadInputError(f"{path}: {err}") from None
-        gs, _gc, _go = loop_functions(est.response[:, 0])
+        gs = sensitivity(est.response[:, 0])
         coh = est.coherence[:, 0]
         sync = synchronous_bins(est.freq_hz, rpm, resolution_hz)
         keep = ~sync & np.isfinite(gs)
