@@ -129,3 +129,54 @@ def excitation_option(f):
              "white noise of that RMS, AXIS:AMP:HZ for a sine of that peak; AMP in um where the controller's input "
              "is a displacement (spindle), else in its unit (V: base-motion).",
     )(f)
+
+
+class Seconds(click.ParamType):
+    """A time: ``30``, ``30s``, ``500ms``, ``2min``, in s (finite, above 0)."""
+
+    name = "SECONDS"
+    UNITS = {"": 1.0, "s": 1.0, "ms": 1e-3, "min": 60.0}
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            return value
+        m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*(s|ms|min)?\s*", str(value))
+        if not m or float(m.group(1)) <= 0:
+            self.fail(f"{value!r} is not a time above 0: expected e.g. 30s, 500ms, 2min", param, ctx)
+        return float(m.group(1)) * self.UNITS[m.group(2) or ""]
+
+
+def snapshot_options(command):
+    """--snapshot, --post, --trigger, --cmin, --snapshot-memory: handed to the command as one
+    ``snapshot: SnapshotOptions | None`` (triggers parsed here, so a bad one is exit 2 before anything opens)."""
+    from ..daq.snapshot import SnapshotOptions
+    from ..daq.triggers import ManualTrigger, parse_trigger
+    from ..errors import BadInputError
+
+    @functools.wraps(command)
+    def bundled(*args, snapshot_s, post_s, triggers, cmin_um, snapshot_memory, **kwargs):
+        if snapshot_s is None:
+            if triggers or post_s is not None:
+                raise BadInputError("--trigger and --post need --snapshot SECONDS (the time kept before a trigger)")
+            return command(*args, snapshot=None, **kwargs)
+        parsed = [parse_trigger(t) for t in triggers] or [ManualTrigger()]
+        return command(*args, snapshot=SnapshotOptions(snapshot_s, 5.0 if post_s is None else post_s,
+                                                       snapshot_memory, parsed,
+                                                       None if cmin_um is None else cmin_um * 1e-6), **kwargs)
+
+    f = click.option("--snapshot-memory", type=ByteSize(), default="1G", show_default=True,
+                     help="Most memory the snapshot may hold (all devices); a --snapshot that needs more is refused.")(
+        bundled)
+    f = click.option("--cmin", "cmin_um", type=POSITIVE, metavar="UM",
+                     help="Minimum clearance (the touchdown bearings'), um, for the excursion and touchdown triggers; "
+                          "default: the devices' calibration (machine.min_clearance_m).")(f)
+    f = click.option("--trigger", "triggers", multiple=True, metavar="EXPR",
+                     help="What writes a snapshot (repeatable): fault, manual, excursion>F (F of Cmin), "
+                          "touchdown[:8A|:25V], speed:LO..HI (rpm), TOPIC.FIELD>V, TOPIC.FIELD<V, |TOPIC.FIELD|>V. "
+                          "SIGUSR1 and Enter always fire (docs/live.md).")(f)
+    f = click.option("--post", "post_s", type=Seconds(), metavar="SECONDS",
+                     help="Time written after a trigger (default 5s).")(f)
+    f = click.option("--snapshot", "snapshot_s", type=Seconds(), metavar="SECONDS",
+                     help="Keep the last SECONDS in memory and write NAME_<time>_<cause>.mcap around each trigger "
+                          "instead of one recording.")(f)
+    return f

@@ -3,28 +3,44 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import click
 
 from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
+from ..daq.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import POSITIVE, Output, output_options, report_options, speed_option
+from .options import POSITIVE, Output, output_options, report_options, snapshot_options, speed_option
 
 
 def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
-                  reconnect: bool = False, live: "LiveOptions | None" = None) -> None:
+                  reconnect: bool = False, live: "LiveOptions | None" = None,
+                  snapshot: SnapshotOptions | None = None) -> None:
     """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim);
-    with ``live``, serve the topics to Foxglove while recording."""
+    with ``live``, serve the topics to Foxglove while recording; with ``snapshot``, write a file
+    around each trigger instead of one recording."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
-                            compression=out.compression, reconnect=reconnect, fsync=out.fsync)
+                            compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot)
     recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig_file,
                         overwrite=out.overwrite)
     tty = sys.stderr.isatty()
+    if snapshot is not None and not quiet:
+        manual = "SIGUSR1" + (" or Enter" if sys.stdin.isatty() else "")
+        click.echo(f"ambdaq: snapshot: the last {snapshot.pre_s:g} s in memory (at most "
+                   f"{recorder.snapshot_bound / 1e6:.1f} MB), {snapshot.post_s:g} s after each trigger: "
+                   f"{', '.join(t.text for t in snapshot.triggers)}; {manual} fires one (pid {os.getpid()})", err=True)
+    if snapshot is not None and sys.stdin.isatty():
+        threading.Thread(target=_enter_fires, args=(recorder,), name="enter-trigger", daemon=True).start()
+
+    def snapped(path: Path, firing) -> None:
+        if not quiet:
+            click.echo(f"ambdaq: {firing.cause}: {firing.detail} -> {path}", err=True)
 
     def progress(p: Progress) -> None:
         if p.elapsed_s >= 1.0:  # only for anything longer than a second
@@ -36,12 +52,18 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
     server = start_live(sources, live) if live is not None else None
     observers = [server.observe] if server is not None else []
     try:
-        result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping, observers)
+        result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping, observers, snapped)
     finally:
         if server is not None:
             server.close()
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2))
+    elif not quiet and snapshot is not None:
+        how = " (stopped)" if result.stopped_by_user else ""
+        dups = f", {result.duplicates} duplicates dropped" if result.duplicates else ""
+        click.echo(f"watched {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops{dups}; "
+                   f"{len(result.files)} snapshots, memory peak {result.snapshot['memory_peak_bytes'] / 1e6:.1f} MB"
+                   + "".join(f"\n  {f} ({f.stat().st_size / 1e6:.1f} MB)" for f in result.files), err=True)
     elif not quiet:
         size = sum(f.stat().st_size for f in result.files) / 1e6
         how = " (stopped)" if result.stopped_by_user else ""
@@ -81,9 +103,16 @@ def start_live(sources, live: LiveOptions):
     return server
 
 
-def _run(recorder, sources, status: bool, progress, stopping, observers: list):
+def _enter_fires(recorder) -> None:
+    """Enter on the terminal fires the manual trigger (a snapshot recording's key press)."""
+    for _ in sys.stdin:
+        recorder.trigger("Enter")
+
+
+def _run(recorder, sources, status: bool, progress, stopping, observers: list, snapped):
     """Run ``recorder`` with the live terminal status when ``status`` (stderr is a terminal), else
-    with ``progress`` lines; ``observers`` see every block as it is received."""
+    with ``progress`` lines; ``observers`` see every block as it is received; ``snapped`` hears of
+    every snapshot file opened."""
 
     def observe(device, block) -> None:
         for o in observers:
@@ -91,7 +120,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list):
 
     if not status:
         return recorder.run(on_progress=progress, progress_interval_s=5.0, on_stopping=stopping,
-                            on_block=observe if observers else None)
+                            on_block=observe if observers else None, on_snapshot=snapped)
     from rich.console import Console
     from rich.live import Live
 
@@ -107,7 +136,8 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list):
         shown[:] = [p]
 
     with Live(console=Console(stderr=True), refresh_per_second=2) as live:
-        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, on_block=observe)
+        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, on_block=observe,
+                            on_snapshot=snapped)
 
 
 @click.command("record")
@@ -129,10 +159,11 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list):
               help="Address the live view listens on; anything but loopback is warned about.")
 @click.option("--live-rate", type=POSITIVE, default=100.0, show_default=True, metavar="HZ",
               help="Samples per second and topic sent to the live view.")
+@snapshot_options
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port, live_host, live_rate, out, quiet,
-            as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port, live_host, live_rate, snapshot, out,
+            quiet, as_json):
     """Record devices in real time into an MCAP file.
 
     \b
@@ -140,6 +171,7 @@ def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port
       ambdaq record --device sim://spindle --duration 10 --rpm 30000 -o run.mcap
       ambdaq record --rig lab.toml --split-duration 60 -o long.mcap
       ambdaq record --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --duration 10 -o run.mcap
+      ambdaq record --device sim://spindle --snapshot 30s --trigger fault --trigger 'excursion>0.5' -o event.mcap
     """
     if not devices and not rig_path:
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
@@ -153,4 +185,5 @@ def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port
                                 calibration=d.calibration, description=d.description))
         run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json,
                       rig_file=rig.path if rig else None, reconnect=reconnect,
-                      live=None if live_port is None else LiveOptions(live_port, live_host, live_rate))
+                      live=None if live_port is None else LiveOptions(live_port, live_host, live_rate),
+                      snapshot=snapshot)

@@ -15,7 +15,7 @@ from ..sim.profiles import PROFILES, profile as rig_profile
 from ..sim.source import SimSource
 from ..speed import SpeedProfile
 from ..sim.devices.banks import DEFAULT_UNLOCK_KEY
-from .options import POSITIVE, excitation_option, output_options, report_options, speed_option
+from .options import POSITIVE, excitation_option, output_options, report_options, snapshot_options, speed_option
 from .record import run_recording
 
 if TYPE_CHECKING:
@@ -46,10 +46,11 @@ def command() -> None:
                    "half-sine of PEAK_N newtons from 0.2 s, every EVERY_S s (default 0.5).")
 @click.option("--start", type=click.Choice(["levitated", "touchdown"]), default="levitated", show_default=True,
               help="Cone rig: start levitated, or at rest on the touchdown bearings with the amplifiers just enabled.")
+@snapshot_options
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, out, quiet,
-             as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, snapshot, out,
+             quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -58,6 +59,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --duration 20 --excite front_x:2 -o frf_front_x.mcap
       ambdaq sim generate --profile base-motion --duration 10 --base noise:5-100:1 -o base.mcap
       ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
+      ambdaq sim generate --profile cone --start touchdown --duration 2 --snapshot 0.5s --trigger touchdown -o td.mcap
     """
     source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
     try:
@@ -84,7 +86,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             source.rig.restart(start)
     except ValueError as err:
         raise BadInputError(str(err)) from None
-    run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json)
+    run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot)
 
 
 @command.command("serve")

@@ -32,6 +32,8 @@ from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
 from .mcapfile import CHUNK_SIZE
 from .sequence import SampleCounts, SequenceTracker
+from .snapshot import SnapshotOptions, Snapshots, check_memory, memory_bound, snapshot_name
+from .triggers import Device, Firing
 from .writer import RecordingWriter
 
 
@@ -62,6 +64,9 @@ class RecordOptions:
     fsync : bool
         Force each flushed chunk to the disk: a power cut then loses at most ``flush_interval_s``
         plus the time the disk takes to sync; without it, whatever the OS still held.
+    snapshot : SnapshotOptions, optional
+        Keep the last seconds in memory and write a file around each trigger instead of one
+        recording (:mod:`.snapshot`).
     """
 
     duration_s: float | None = None
@@ -72,6 +77,7 @@ class RecordOptions:
     chunk_size: int = CHUNK_SIZE
     reconnect: bool = False
     fsync: bool = True
+    snapshot: SnapshotOptions | None = None
 
 
 
@@ -95,6 +101,7 @@ class Progress:
     devices: dict[str, SampleCounts]
     file_bytes: int = 0
     next_split_s: float | None = None
+    snapshots: int | None = None  # snapshot files opened so far (None: not a snapshot recording)
 
     @property
     def samples(self) -> int:
@@ -136,6 +143,7 @@ class RecordResult:
     clocks: dict[str, dict] = field(default_factory=dict)
     events: int = 0
     alignment_us: float | None = None
+    snapshot: dict | None = None  # a snapshot recording's memory figures and triggers fired
 
     def as_dict(self) -> dict:
         return {
@@ -149,6 +157,7 @@ class RecordResult:
             "topics": self.topics,
             "clocks": self.clocks,
             "alignment_us": self.alignment_us,
+            "snapshot": self.snapshot,
         }
 
 
@@ -271,13 +280,26 @@ class Recorder:
         self._name = split_names(Path(output), self._split)
         self._overwrite = overwrite
         self._on_block: Callable[[str, SampleBlock], None] | None = None
-        if not overwrite and self._name(0).exists():
+        self._output = Path(output)
+        self._manual: queue.SimpleQueue[str] = queue.SimpleQueue()
+        snap = options.snapshot
+        if snap is not None:
+            if self._split:
+                raise BadInputError("--snapshot writes a file per trigger: it takes no --split-size or --split-duration")
+            armed = [Device(s.name, s.signal_groups(), s.calibration()) for s in sources]
+            for trigger in snap.triggers:
+                trigger.arm(armed, snap.cmin_m)
+            self.snapshot_bound = memory_bound([(s.sample_rate, s.signal_groups()) for s in sources if s.sample_rate],
+                                               snap)
+            if any(not s.sample_rate for s in sources):  # frames as they come: only the byte limit holds them
+                self.snapshot_bound = snap.max_bytes
+            check_memory(self.snapshot_bound, snap)
+        elif not overwrite and self._name(0).exists():
             raise BadInputError(f"{self._name(0)} exists: choose another -o or pass --overwrite")
 
     # --- parts ---------------------------------------------------------------------------------
 
-    def _new_writer(self, index: int, start_ns: int) -> RecordingWriter:
-        path = self._name(index)
+    def _new_writer(self, path: Path, start_ns: int, part: str) -> RecordingWriter:
         if path.exists():
             if not self._overwrite:
                 raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
@@ -293,7 +315,7 @@ class Recorder:
                     "command": self.command,
                     "host": platform.node(),
                     "devices": ",".join(s.name for s in self.sources),
-                    "part": str(index),
+                    "part": part,
                     "requested_duration_s": "" if self.options.duration_s is None else f"{self.options.duration_s:g}",
                 },
             )
@@ -311,7 +333,7 @@ class Recorder:
         end = None
         if self.options.split_duration_s is not None:
             end = self._start_ns + int(round((index + 1) * self.options.split_duration_s * 1e9))
-        part = _Part(index, self._new_writer(index, start_ns), start_ns, end)
+        part = _Part(index, self._new_writer(self._name(index), start_ns, str(index)), start_ns, end)
         self._files.append(part.writer.path)
         self._parts.append(part)
         return part
@@ -342,9 +364,14 @@ class Recorder:
     def _finish_part(self, part: _Part) -> None:
         """Its host-time span, clock fits and link statistics go into the part's metadata, then it is
         finished."""
-        w = part.writer
-        w.add_metadata("ambdaq.part", {"index": str(part.index), "start_ns": str(part.start_ns),
-                                       "end_ns": "" if part.end_ns is None else str(part.end_ns)})
+        self._finish_file(part.writer, "ambdaq.part", {
+            "index": str(part.index), "start_ns": str(part.start_ns),
+            "end_ns": "" if part.end_ns is None else str(part.end_ns)})
+
+    def _finish_file(self, w: RecordingWriter, kind: str, span: dict[str, str]) -> None:
+        """``span`` under ``kind`` (``ambdaq.part``, ``ambdaq.snapshot``), the clock fits and link
+        statistics go into the file's metadata; its counts into the recording's; then it is closed."""
+        w.add_metadata(kind, span)
         for name, rep in self._clock_report().items():
             w.add_metadata(f"ambdaq.clock.{name}", {k: str(v) for k, v in rep.items()})
         alignment = self._alignment_us()
@@ -354,15 +381,17 @@ class Recorder:
             stats = s.link_statistics()
             if stats:
                 w.add_metadata(f"ambdaq.link.{s.name}", stats)
-        for name, counts in w.counts.items():
-            self._totals[name].add(counts)
+        if self._snapshots is None:  # a snapshot recording counts every sample once, as it is judged
+            for name, counts in w.counts.items():
+                self._totals[name].add(counts)
         w.close()
 
     # --- the run ---------------------------------------------------------------------------------
 
     def run(self, on_progress: Callable[[Progress], None] | None = None, progress_interval_s: float = 0.5,
             on_stopping: Callable[[list[Path]], None] | None = None,
-            on_block: Callable[[str, SampleBlock], None] | None = None) -> RecordResult:
+            on_block: Callable[[str, SampleBlock], None] | None = None,
+            on_snapshot: Callable[[Path, Firing], None] | None = None) -> RecordResult:
         """Record until the duration is reached, every device ends, or the user stops.
 
         Parameters
@@ -377,6 +406,8 @@ class Recorder:
         on_block : callable, optional
             Called with (device, block) for every block as it is received, before its clock is
             mapped, on the recorder's thread (the live view keeps a reference; it must be quick).
+        on_snapshot : callable, optional
+            A snapshot recording calls it with (file, firing) when a trigger opens a file.
         """
         self._on_block = on_block
         opts = self.options
@@ -394,6 +425,13 @@ class Recorder:
         self._priming: dict[str, list[SampleBlock]] = {}
         self._host_clocked: set[str] = set()
         self._events = 0
+        self._snapshots: Snapshots | None = None
+        if opts.snapshot is not None:
+            self._snapshots = Snapshots(
+                opts.snapshot, self._names,
+                lambda f: snapshot_name(self._output, f, lambda p: p.exists() or p in self._files),
+                self._new_writer, lambda w, meta: self._finish_file(w, "ambdaq.snapshot", meta), on_snapshot)
+            self._files = self._snapshots.files  # the files so far, for a user who stops
         due = {s.name: None if opts.duration_s is None or s.sample_rate is None
                else int(round(opts.duration_s * s.sample_rate)) for s in self.sources}
         # frames as they come (no nominal rate, e.g. a CAN bus's unknown frames): recorded for the
@@ -411,10 +449,13 @@ class Recorder:
 
             for sig in (signal.SIGINT, signal.SIGTERM):
                 handlers[sig] = signal.signal(sig, on_signal)
+            if self._snapshots is not None:  # the manual trigger; SimpleQueue.put is safe in a handler
+                handlers[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda signum, frame: self.trigger("SIGUSR1"))
         t0 = time.monotonic()
         _freeze_heap()
         try:
-            self._open_part(self._start_ns)
+            if self._snapshots is None:
+                self._open_part(self._start_ns)
             for s in self.sources:
                 s.start(due[s.name])
         except BaseException:  # nothing recorded: every device is closed, no empty file is left
@@ -449,9 +490,12 @@ class Recorder:
                     for s in by_time:
                         s.close()  # its reader ends: the block it was reading is written
                     by_time = []
+                self._take_manual()
                 if now - last_flush >= opts.flush_interval_s:
                     for part in self._parts:
                         part.writer.flush()
+                    if self._snapshots is not None:
+                        self._snapshots.flush()
                     last_flush = now
                 if on_progress is not None and now - last_progress >= progress_interval_s:
                     last_progress = now
@@ -475,6 +519,9 @@ class Recorder:
             for part in self._parts:
                 self._finish_part(part)
             self._parts.clear()
+            if self._snapshots is not None:
+                self._take_manual()
+                self._snapshots.close()
             while closer.is_alive() and signals[0] < 2:
                 closer.join(0.1)
             for sig, old in handlers.items():
@@ -502,7 +549,24 @@ class Recorder:
             clocks=self._clock_report(),
             events=self._events,
             alignment_us=self._alignment_us(),
+            snapshot=None if self._snapshots is None else {
+                "pre_s": opts.snapshot.pre_s, "post_s": opts.snapshot.post_s,
+                "memory_bound_bytes": self.snapshot_bound, "memory_peak_bytes": self._snapshots.peak_bytes,
+                "evicted_early": self._snapshots.evicted_early, "files": len(self._snapshots.files)},
         )
+
+    def trigger(self, cause: str = "manual") -> None:
+        """Fire the manual trigger of a snapshot recording now (thread- and signal-safe): a key press,
+        SIGUSR1, a notebook's call."""
+        self._manual.put(cause)
+
+    def _take_manual(self) -> None:
+        while self._snapshots is not None:
+            try:
+                how = self._manual.get_nowait()
+            except queue.Empty:
+                return
+            self._snapshots.fire(Firing(time.time_ns(), "manual", f"manual trigger ({how})"))
 
     def _close_sources(self) -> None:
         for s in self.sources:
@@ -517,10 +581,14 @@ class Recorder:
         self._flush_priming(name)
         if due is not None:
             missing = self._trackers[name].missing_after(due)
-            if missing:
+            if missing and self._snapshots is not None:
+                self._totals[name].drops += missing
+            elif missing:
                 part = self._part_for(self._last_time[name] or self._start_ns)
                 part.writer.counts[name].drops += missing
         self._ended.add(name)
+        if self._snapshots is not None:
+            self._snapshots.device_ended(name)
         self._close_finished_parts()
 
     def _take(self, source, item) -> None:
@@ -594,6 +662,13 @@ class Recorder:
             return
         t = block.host_time_ns
         verdict = self._trackers[device].admit(block.seq, t)
+        if self._snapshots is not None:
+            self._totals[device].add(verdict.counts(device, slice(0, n), block.seq, t))
+            self._snapshots.write(device, block, verdict)
+            kept = np.flatnonzero(verdict.keep)
+            if kept.size:
+                self._last_time[device] = int(t[kept[-1]])
+            return
         pos = 0
         while pos < n:
             part = self._part_for(int(t[pos]))
@@ -625,7 +700,10 @@ class Recorder:
             self._write_event(source.name, t, ev)
 
     def _write_event(self, device: str, t_ns: int, ev: Event) -> None:
-        self._part_for(t_ns).writer.write_event(ev.topic, device, t_ns, ev)
+        if self._snapshots is not None:
+            self._snapshots.write_event(device, t_ns, ev)
+        else:
+            self._part_for(t_ns).writer.write_event(ev.topic, device, t_ns, ev)
         self._events += 1
 
     # --- reports ---------------------------------------------------------------------------------
@@ -666,6 +744,8 @@ class Recorder:
             period = self.options.split_duration_s * 1e9
             since = time.time_ns() - self._start_ns
             next_split = ((since // period + 1) * period - since) * 1e-9
+        if self._snapshots is not None:
+            return Progress(elapsed, now, self._snapshots.bytes_written, None, len(self._snapshots.files))
         return Progress(elapsed, now, sum(part.writer.bytes_written for part in self._parts), next_split)
 
 
@@ -674,6 +754,8 @@ def print_progress(p: Progress, stream=None) -> None:
     stream = sys.stderr if stream is None else stream
     text = (f"recording {p.elapsed_s:7.1f} s  {p.samples:>10d} samples  {p.drops:>6d} drops  "
             f"{p.duplicates:>4d} duplicates  {p.rate_hz:10.0f} samples/s")
+    if p.snapshots is not None:
+        text += f"  {p.snapshots} snapshots"
     end = "\r" if stream.isatty() else "\n"
     stream.write(text + end)
     stream.flush()

@@ -13,8 +13,9 @@ from .source import FF_CHOICES
 class SimBackend(Backend):
     """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
 
-    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&third_party=0|1]",
-                    ("seed", "rpm", "truth", "ff", "noise", "third_party"))
+    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&third_party=0|1"
+                           "&fault=SECONDS]",
+                    ("seed", "rpm", "truth", "ff", "noise", "third_party", "fault"))
 
     def _serve(self, url: DeviceURL, request: OpenRequest):
         from .serve import serve
@@ -23,10 +24,14 @@ class SimBackend(Backend):
         if seed < 0:
             raise BadInputError(f"option seed={seed} in {url.text!r}: expected an integer >= 0")
         speed = request.speed if request.speed is not None else SpeedProfile.parse(url.options.get("rpm", "0"))
+        fault = url.number("fault", -1.0) if "fault" in url.options else None
+        if fault is not None and fault < 0:
+            raise BadInputError(f"option fault={url.options['fault']} in {url.text!r}: expected the seconds (>= 0) "
+                                "after the start at which the controller reports a fault")
         return serve(url.target, seed=seed, speed=speed,
                      truth=url.flag("truth", False) if request.truth is None else request.truth,
                      ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True),
-                     third_party=url.flag("third_party", False))
+                     third_party=url.flag("third_party", False), fault_after_s=fault)
 
     def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
         served = self._serve(url, request)

@@ -19,6 +19,7 @@ from ..speed import SpeedProfile
 from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
+from .devices.faults import ScheduledFault
 from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
 from .devices.probes import DBC_PATH as PROBES_DBC, SimProbeConditioner
@@ -105,7 +106,7 @@ class ServedRig:
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
           clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
-          third_party: bool = False, xcp: str | None = None) -> ServedRig:
+          third_party: bool = False, xcp: str | None = None, fault_after_s: float | None = None) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -129,6 +130,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     xcp : {"tcp:PORT", "sxi", "can"}, optional
         Also serve the controller's XCP slave: on TCP on 127.0.0.1:PORT (0: a free port), on SxI
         on a pseudo-terminal, or on CAN on the rig's bus; ``urls["xcp"]`` says where.
+    fault_after_s : float, optional
+        The controller reports an injected fault (:data:`~ambdaq.sim.devices.faults.INJECTED_FAULT`)
+        this many seconds after the rig starts, in s.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -179,6 +183,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
             served.ptys["shaker"] = Pty.open()
             served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
             served.urls["shaker"] = f"serial://{served.ptys['shaker'].path}"
+        if fault_after_s is not None:
+            served.devices["fault"] = ScheduledFault(served.devices["controller"], fault_after_s)
         served.server.start()
         for device in served.devices.values():
             device.start()

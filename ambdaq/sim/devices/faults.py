@@ -1,11 +1,15 @@
-"""A byte stream that damages what goes through it: for testing the serial path's resilience."""
+"""Faults on purpose: a byte stream that damages what goes through it (the serial path's resilience),
+and a controller fault at a set time (``sim://PROFILE?fault=SECONDS``: rehearsing what a fault does
+to a recording, e.g. a snapshot's ``fault`` trigger)."""
 
 from __future__ import annotations
 
 import random
 import threading
 
-from .controller import FdPort
+from .controller import FdPort, SimController
+
+INJECTED_FAULT = (0x2310, 2, "injected fault: amplifier over-current")  # code (CiA 402's), severity, text
 
 
 class FaultyPort(FdPort):
@@ -48,3 +52,18 @@ class FaultyPort(FdPort):
             frame = bytearray(self.rng.randbytes(self.rng.randrange(1, 40))) + frame
             self.damaged += 1
         super().write(bytes(frame))
+
+
+class ScheduledFault:
+    """Makes ``controller`` report :data:`INJECTED_FAULT` ``after_s`` seconds after :meth:`start`."""
+
+    def __init__(self, controller: SimController, after_s: float) -> None:
+        code, severity, text = INJECTED_FAULT
+        self._timer = threading.Timer(after_s, controller.fault, (code, severity, f"{text} (at {after_s:g} s)"))
+        self._timer.daemon = True
+
+    def start(self) -> None:
+        self._timer.start()
+
+    def stop(self) -> None:
+        self._timer.cancel()

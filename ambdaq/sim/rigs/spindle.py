@@ -494,6 +494,8 @@ class SpindleRig(Rig, ExcitationInput):
             "dac_bits": str(p.dac_bits),
             "units": "SI: m, A, m/s^2, rad, rad/s",
             "machine.min_clearance_m": repr(p.min_clearance),
+            # the control current at which one coil of a pair stops conducting: the force saturates
+            "machine.current_limit_a": repr(min(ax.bias for ax in p.axes)),
             **p.rotor_metadata(),
         }
 
