@@ -124,6 +124,27 @@ def test_threshold_and_excursion_fire_at_each_hammer_strike(tmp_path):
         assert np.array_equal(rec["/amb/gap"]["x"], gap["x"][seq])
 
 
+def test_an_orbit_at_the_limit_every_revolution_is_one_firing(tmp_path):
+    """At 30,000 rpm the front orbit (runout and unbalance, about 38 um) crosses 0.25 Cmin (37.5 um) on
+    hundreds of revolutions a second; the trigger fires once, at the first crossing of the whole run,
+    and not again while the crossings come closer together than the 0.25 s re-arm time."""
+    args = ["--rpm", "30000", "--duration", "2"]
+    generate(tmp_path, "whole.mcap", *args)
+    out = generate(tmp_path, "orb.mcap", *args, "--snapshot", "0.1s", "--post", "0.1s", "--trigger", "excursion>0.25")
+    gap = load(tmp_path / "whole.mcap")["/amb/gap"]
+    radius = np.maximum(np.hypot(gap["front_x"], gap["front_y"]), np.hypot(gap["rear_x"], gap["rear_y"]))
+    radius = np.maximum(radius, np.abs(gap["axial"]))
+    over = radius > 0.25 * 150e-6
+    crossings = np.flatnonzero(over & ~np.concatenate(([False], over[:-1])))
+    assert len(crossings) > 50 and np.max(np.diff(crossings)) < 0.25 * RATE  # never quiet for 0.25 s
+    (f,) = snapshots(tmp_path, "orb")
+    meta = snap_meta(load(f))
+    assert out["snapshot"]["files"] == 1 and len(meta["triggers"].split("; ")) == 1
+    snap = load(f)["/amb/gap"]
+    assert snap.seq[0] == max(0, crossings[0] - 1000)
+    assert int(meta["trigger_ns"]) == snap.log_time[np.flatnonzero(snap.seq == crossings[0])[0]]
+
+
 class Scripted(Source):
     """A 1 kHz device whose ``seq`` loses and repeats samples where the script says, unpaced."""
 
@@ -215,16 +236,16 @@ def test_triggers_need_a_snapshot_and_a_clearance(tmp_path):
 @pytest.mark.realtime
 def test_fault_and_sigusr1_on_the_served_spindle(tmp_path):
     """``ambdaq record`` of the spindle served in this process, its controller reporting an injected
-    fault 4.5 s after it starts; SIGUSR1 1.5 s after the recording says it is armed (so the second before
+    fault 5.5 s after it starts; SIGUSR1 2.5 s after the recording says it is armed (so the second before
     it is recorded: the window never reaches back before the recording's start).  Two files, each
     with every device's samples over [T - 1 s, T + 0.5 s) and the fault event in the fault's."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle?fault=4.5", "--rpm", "12000",
-         "--duration", "6", "--snapshot", "1s", "--post", "0.5s", "--trigger", "fault", "--json",
+        [sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle?fault=5.5", "--rpm", "12000",
+         "--duration", "7", "--snapshot", "1s", "--post", "0.5s", "--trigger", "fault", "--json",
          "-o", str(tmp_path / "rt.mcap")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
     assert "snapshot: the last 1 s in memory (at most" in line and "SIGUSR1 fires one" in line, line
-    time.sleep(1.5)
+    time.sleep(2.5)
     os.kill(proc.pid, signal.SIGUSR1)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
@@ -236,11 +257,15 @@ def test_fault_and_sigusr1_on_the_served_spindle(tmp_path):
         meta = snap_meta(rec)
         t = int(meta["trigger_ns"])
         assert meta["cause"] == name.removesuffix(".mcap") and int(meta["end_ns"]) == t + 500_000_000
+        # each device's samples reach the window's edges within its own largest spacing in the file:
+        # 0.1 ms for the controller (stamped by its clock); for the CAN gap sensor, stamped by the
+        # host when its SYNC goes out, up to tens of ms on a loaded host (the SYNC thread waits for
+        # the CPU); plus 2 ms for the clock map
         for topic in ("/amb/gap", "/can/amb/gap"):
             d = rec[topic]
-            period = 1e9 / d.nominal_rate
-            assert t - 1e9 <= d.log_time[0] <= t - 1e9 + 3 * period + 2e6, (topic, d.log_time[0] - t)
-            assert t + 0.5e9 - 3 * period - 2e6 <= d.log_time[-1] < t + 0.5e9, (topic, d.log_time[-1] - t)
+            slack = np.diff(d.log_time).max() + 2e6
+            assert t - 1e9 <= d.log_time[0] <= t - 1e9 + slack, (topic, d.log_time[0] - t)
+            assert t + 0.5e9 - slack <= d.log_time[-1] < t + 0.5e9, (topic, d.log_time[-1] - t)
             assert np.all(np.diff(d.seq.astype(np.int64)) == 1)  # every sample of the span, once
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory

@@ -206,16 +206,19 @@ class _Ring:
         return [*self.segments, *self.gathering]
 
     def after(self, t_ns: int, end_ns: int) -> list[_Held]:
-        """Held samples with host time in (t_ns, end_ns)."""
+        """Held samples with host time in (t_ns, end_ns), oldest first; searched from the newest, so
+        catching a snapshot up with the last block costs one look, not the whole ring."""
         out = []
-        for h in self.all():
+        for h in reversed(self.all()):
             t = h.block.host_time_ns
-            if t[-1] <= t_ns or t[0] >= end_ns:
+            if t[-1] <= t_ns:
+                break
+            if t[0] >= end_ns:
                 continue
             a, b = int(np.searchsorted(t, t_ns, "right")), int(np.searchsorted(t, end_ns, "left"))
             if b > a:
                 out.append(h if (a, b) == (0, len(h)) else h.slice(a, b))
-        return out
+        return out[::-1]
 
     def evict_before(self, t_ns: int) -> None:
         """Drop the segments that end before ``t_ns``."""

@@ -39,6 +39,8 @@ AT_LIMIT = 0.98  # an amplifier output this close to its limit is saturated
 AT_CLEARANCE = 0.9  # a gap this close to the clearance is on the touchdown bearing
 TOUCHDOWN_WINDOW_NS = 20_000_000  # saturation and contact this close together are one touchdown
 NEVER = -(2**62)  # "no such sample yet", as a time in ns
+REARM_NS = 250_000_000  # a condition must have been false this long before it fires again: a revolution
+# of anything faster than 240 rpm is shorter, so a once-per-revolution crossing is one firing
 FORMS = ("fault, manual, excursion>F (a fraction of Cmin), touchdown[:8A|:25V], speed:LO..HI (rpm), "
          "TOPIC.FIELD>V, TOPIC.FIELD<V, |TOPIC.FIELD|>V")
 
@@ -99,7 +101,9 @@ class Trigger:
 
 
 class _Edges:
-    """Rising edges of a condition evaluated per sample, remembering the last sample of each device.
+    """Rising edges of a condition evaluated per sample, per device, with a re-arm time: after its
+    condition was last true, a trigger fires again only once it has been false for ``REARM_NS`` (an
+    orbit just at the limit crosses it every revolution: that is one event, not 500 a second).
 
     ``entering``: the condition must have been seen false first (a recording that starts inside a
     speed band has not entered it); otherwise a condition true at the first sample fires there (a
@@ -109,15 +113,25 @@ class _Edges:
     def __init__(self, entering: bool = False) -> None:
         self.entering = entering
         self._last: dict[str, bool] = {}
+        self._last_true: dict[str, int] = {}  # host time of the device's last sample where it held, ns
 
-    def rising(self, device: str, condition: np.ndarray) -> np.ndarray:
-        """Indices where ``condition`` turns true."""
+    def rising(self, device: str, condition: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
+        """Indices of the samples (host times ``t_ns``) where ``condition`` fires."""
         if condition.size == 0:
             return np.empty(0, dtype=np.int64)
         before = self._last.get(device, bool(condition[0]) if self.entering else False)
         self._last[device] = bool(condition[-1])
         previous = np.concatenate(([before], condition[:-1]))
-        return np.flatnonzero(condition & ~previous)
+        true = np.flatnonzero(condition)
+        out = []
+        for i in np.flatnonzero(condition & ~previous).tolist():
+            k = int(np.searchsorted(true, i))  # true[k] == i; true[k - 1] the last sample before it that held
+            last = int(t_ns[true[k - 1]]) if k > 0 else self._last_true.get(device)
+            if last is None or int(t_ns[i]) - last >= REARM_NS:
+                out.append(i)
+        if true.size:
+            self._last_true[device] = int(t_ns[true[-1]])
+        return np.array(out, dtype=np.int64)
 
 
 class FaultTrigger(Trigger):
@@ -185,7 +199,7 @@ class ExcursionTrigger(Trigger):
         return [Firing(int(block.host_time_ns[i]), "excursion",
                        f"{device}: gap {r[i] * 1e6:.1f} um beyond {self.limit_m * 1e6:.1f} um "
                        f"({self.fraction:g} Cmin)")
-                for i in self._edges.rising(device, r > self.limit_m)]
+                for i in self._edges.rising(device, r > self.limit_m, block.host_time_ns)]
 
 
 class TouchdownTrigger(Trigger):
@@ -250,7 +264,7 @@ class TouchdownTrigger(Trigger):
         return [Firing(int(t[i]), "touchdown",
                        f"{device}: an amplifier at its limit with a gap within {100 - AT_CLEARANCE * 100:.0f} % "
                        f"of the clearance ({self.clearance_m * 1e6:.0f} um)")
-                for i in self._edges.rising(device, both)]
+                for i in self._edges.rising(device, both, t)]
 
     @staticmethod
     def _latest(t: np.ndarray, condition: np.ndarray, before: int | None) -> np.ndarray:
@@ -282,7 +296,7 @@ class SpeedTrigger(Trigger):
         inside = (rpm >= self.lo) & (rpm <= self.hi)
         return [Firing(int(block.host_time_ns[i]), f"speed-{self.lo:.0f}-{self.hi:.0f}",
                        f"{device}: {rpm[i]:.0f} rpm entered {self.lo:.0f}..{self.hi:.0f} rpm")
-                for i in self._edges.rising(device, inside)]
+                for i in self._edges.rising(device, inside, block.host_time_ns)]
 
 
 class ThresholdTrigger(Trigger):
@@ -314,7 +328,7 @@ class ThresholdTrigger(Trigger):
         name = re.sub(r"[^A-Za-z0-9_]+", "-", f"{self.topic}.{self.field_name}").strip("-")
         return [Firing(int(block.host_time_ns[i]), name,
                        f"{device}: {self.topic}.{self.field_name} = {v[i]:.6g} {self.unit} {self.op} {self.value:g}")
-                for i in self._edges.rising(device, hit)]
+                for i in self._edges.rising(device, hit, block.host_time_ns)]
 
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
