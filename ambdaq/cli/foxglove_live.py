@@ -67,8 +67,12 @@ class FoxgloveLive:
                 self._fields[key] = list(g.fields)
         self._next: dict[str, int] = {}
         self.view = LiveView({s.name: s.sample_rate for s in sources})
+        # every channel is advertised from the start, so a client that connects early sees the orbits
+        # without waiting for a new advertisement (bearings: the gap's NAME_x/NAME_y pairs)
+        bearings = sorted({f[:-2] for groups in self._groups.values() for f in groups.get("/amb/gap", [])
+                           if f.endswith("_x") and f"{f[:-2]}_y" in groups["/amb/gap"]})
         self._derived = {name: foxglove.Channel(name, message_encoding="json", context=self._context)
-                         for name in ("/live/1x", "/live/speed")}
+                         for name in ("/live/1x", "/live/speed", *(f"/live/orbit/{b}" for b in bearings))}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._publish_derived, name="foxglove-derived", daemon=True)
         self._thread.start()
@@ -95,9 +99,6 @@ class FoxgloveLive:
                 channel.log({**dict(zip(fields, row)), "seq": s}, log_time=now)
 
     def _publish_derived(self) -> None:
-        import foxglove
-
-        orbits: dict[str, object] = {}
         while not self._stop.wait(1.0 / DERIVED_HZ):
             now = time.time_ns()
             speeds = {}
@@ -109,10 +110,7 @@ class FoxgloveLive:
                              "phase_deg": float(np.degrees(np.angle(v)))}, log_time=now)
                 if b.speed_rpm is not None:
                     speeds[b.device] = b.speed_rpm
-                name = f"/live/orbit/{b.bearing}"
-                if name not in orbits:
-                    orbits[name] = foxglove.Channel(name, message_encoding="json", context=self._context)
-                orbits[name].log({"device": b.device, "x_um": b.orbit_um[0].tolist(), "y_um": b.orbit_um[1].tolist()},
+                self._derived[f"/live/orbit/{b.bearing}"].log({"device": b.device, "x_um": b.orbit_um[0].tolist(), "y_um": b.orbit_um[1].tolist()},
                                  log_time=now)
             for device, rpm in speeds.items():
                 self._derived["/live/speed"].log({"device": device, "rpm": rpm}, log_time=now)
