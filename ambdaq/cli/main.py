@@ -27,6 +27,7 @@ COMMANDS = {
     "controller": "push:controller_group",
     "devices": "devices:command",
     "export": "export:command",
+    "fleet": "fleet:command",
     "frf": "frf:command",
     "fx": "fx:command",
     "identify": "identify:command",

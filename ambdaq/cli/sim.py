@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
@@ -87,6 +88,32 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
     except ValueError as err:
         raise BadInputError(str(err)) from None
     run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot)
+
+
+@command.command("fleet")
+@click.option("-o", "--output", "folder", type=click.Path(file_okay=False), required=True,
+              help="Folder for the recordings: FOLDER/<machine>/<machine>_<date>.mcap.")
+@click.option("--machines", type=click.IntRange(1, 1000), default=10, show_default=True)
+@click.option("--days", type=click.IntRange(1, 3650), default=4, show_default=True, help="One recording a day each.")
+@click.option("--duration", type=POSITIVE, default=1.0, show_default=True, metavar="SECONDS", help="Each recording's.")
+@click.option("--rpm", type=POSITIVE, default=30000.0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Everything follows from it.")
+@click.option("--drop-chance", type=click.FloatRange(0, 1), default=0.15, show_default=True,
+              help="Chance that a recording lost a run of samples.")
+def fleet(folder, machines, days, duration, rpm, seed, drop_chance):
+    """Record a fleet of simulated spindles once a day: each its own runout, an unbalance that grows,
+    occasional drops (what `ambdaq fleet scan` is tested on).
+
+    \b
+    Example:
+      ambdaq sim fleet --machines 10 --days 4 -o fleet/ && ambdaq fleet scan fleet/ -o fleet.parquet
+    """
+    from ..workflows.simulated_fleet import generate_fleet
+
+    paths = generate_fleet(Path(folder), n_machines=machines, days=days, duration_s=duration, rpm=rpm, seed=seed,
+                           drop_chance=drop_chance)
+    size = sum(p.stat().st_size for p in paths) / 1e6
+    click.echo(f"{len(paths)} recordings of {machines} machines over {days} days ({size:.1f} MB) -> {folder}", err=True)
 
 
 @command.command("serve")

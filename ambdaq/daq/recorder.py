@@ -67,6 +67,10 @@ class RecordOptions:
     snapshot : SnapshotOptions, optional
         Keep the last seconds in memory and write a file around each trigger instead of one
         recording (:mod:`.snapshot`).
+    start_ns : int, optional
+        The recording's start on the host clock, ns since the epoch; default: now.  Only for
+        sources that share the host clock without stamping it (a generated recording dated in a
+        simulated past: ``sim fleet``).
     """
 
     duration_s: float | None = None
@@ -78,6 +82,7 @@ class RecordOptions:
     reconnect: bool = False
     fsync: bool = True
     snapshot: SnapshotOptions | None = None
+    start_ns: int | None = None
 
 
 
@@ -413,7 +418,7 @@ class Recorder:
         opts = self.options
         q: queue.Queue = queue.Queue(maxsize=QUEUE_BLOCKS)
         stop = threading.Event()
-        self._start_ns = time.time_ns()
+        self._start_ns = time.time_ns() if opts.start_ns is None else opts.start_ns
         self._names = [s.name for s in self.sources]
         self._files: list[Path] = []
         self._parts: list[_Part] = []

@@ -33,14 +33,22 @@ class SimSource(Source):
         Device name in the recording.
     block_s : float
         Block length, in s: the writer encodes whole blocks.
+    params : optional
+        The rig's parameters (its profile's dataclass, e.g. another machine's runout and
+        unbalance); default: the profile's.
+    identity : dict, optional
+        More identity entries (e.g. ``active_coefficients_sha256``).
     """
 
     def __init__(self, profile: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
                  truth: bool = False, ff_mode: str = "off", noise: bool = True, name: str = "rig",
-                 block_s: float = 1.0) -> None:
+                 block_s: float = 1.0, params=None, identity: dict[str, str] | None = None) -> None:
         self.name = name
         self.speed = speed
-        self.rig = rig_profile(profile).build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
+        extra = {} if params is None else {"params": params}
+        self.rig = rig_profile(profile).build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise,
+                                              **extra)
+        self._identity = dict(identity or {})
         self.sample_rate = self.rig.params.sample_rate
         self.block = max(1, int(round(block_s * self.sample_rate)))
         self._remaining: int | None = None
@@ -56,6 +64,7 @@ class SimSource(Source):
             "seed": str(self.rig.seed),
             "speed_rpm": self.speed.spec(),
             "sample_rate_hz": f"{self.sample_rate:g}",
+            **self._identity,
         }
 
     def device_calibration(self) -> dict[str, str]:

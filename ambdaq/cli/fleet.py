@@ -1,0 +1,176 @@
+"""``ambdaq fleet``: every recording of every machine as one Parquet dataset, scanned on Dask, and the
+trends over it (docs/fleet.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+from ..errors import BadInputError, DeviceError
+from .figures import plot_option, pyplot
+from .options import POSITIVE
+
+
+def _client(scheduler: str | None, workers: int):
+    """A Dask client: the scheduler named (or in DASK_SCHEDULER_ADDRESS), else a LocalCluster of
+    ``workers`` processes on this machine."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise BadInputError("fleet needs dask.distributed, the fleet extra: pip install 'ambdaq[fleet]'") from None
+    address = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS")
+    if address:
+        try:
+            return Client(address, timeout="10s")
+        except (OSError, TimeoutError) as err:
+            raise DeviceError(f"--scheduler {address}: cannot reach the Dask scheduler ({err})") from None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                           host="127.0.0.1")
+    return Client(cluster)
+
+
+@click.group("fleet")
+def command() -> None:
+    """Fleet analysis: scan every recording into one table, and trend it per machine."""
+
+
+@command.command("scan")
+@click.argument("inputs", nargs=-1, required=True, metavar="FOLDER_OR_GLOB...")
+@click.option("-o", "--output", "dataset", type=click.Path(file_okay=False), required=True,
+              help="The Parquet dataset (a folder, partitioned by machine), created or added to.")
+@click.option("--scheduler", metavar="tcp://HOST:8786",
+              help="A Dask scheduler to run on (default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")
+@click.option("--workers", type=click.IntRange(1, 256), default=os.cpu_count() or 1, show_default="the CPUs",
+              help="Worker processes of the local cluster.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress or summary.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was scanned as JSON.")
+def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
+    """One row per recording (or split part): machine, time, speed, drops, runout and 1X per axis and
+    harmonic, the ISO 14839-2 zone; files already scanned and unchanged are skipped.
+
+    \b
+    Examples:
+      ambdaq fleet scan recordings/ -o fleet.parquet
+      ambdaq fleet scan 'plant/**/*.mcap' -o fleet.parquet --scheduler tcp://10.0.0.5:8786
+    """
+    from ..workflows.fleet import recordings, scan
+
+    paths = recordings(inputs)
+    client = _client(scheduler, workers)
+    try:
+        progress = None
+        if not quiet and not as_json:
+            from rich.progress import Progress
+
+            bar = Progress(transient=False)
+            task = bar.add_task("scanning", total=None)
+            bar.start()
+
+            def progress(row, done, total):
+                bar.update(task, completed=done, total=total)
+        try:
+            report = scan(paths, Path(dataset), client, on_row=progress)
+        finally:
+            if progress is not None:
+                bar.stop()
+    finally:
+        client.close()
+    if as_json:
+        click.echo(json.dumps({"scanned": len(report.scanned), "unchanged": report.unchanged,
+                               "writing": report.writing, "errors": [{"path": p, "error": e} for p, e in report.errors],
+                               "interrupted": report.interrupted, "seconds": round(report.seconds, 3),
+                               "bytes_read": report.bytes_read}, indent=2))
+    elif not quiet:
+        click.echo(f"{len(report.scanned)} scanned ({report.bytes_read / 1e6:.1f} MB in {report.seconds:.1f} s), "
+                   f"{report.unchanged} unchanged, {len(report.writing)} being written -> {dataset}", err=True)
+        for p in report.writing:
+            click.echo(f"  skipped, no footer yet (being written?): {p}", err=True)
+        for p, e in report.errors:
+            click.echo(f"  error: {p}: {e}", err=True)
+    if report.interrupted:
+        raise DeviceError(f"interrupted: {len(report.scanned)} rows written to {dataset}; run the same scan "
+                          "again to go on")
+
+
+FIGURES = ("onex", "runout", "vibration")
+
+
+@command.command("trend")
+@click.argument("dataset", type=click.Path(exists=True, file_okay=False))
+@click.option("--machine", help="The machine whose trend is plotted (default: every machine's summary).")
+@click.option("--threshold", type=POSITIVE, default=5.0, show_default=True, metavar="UM",
+              help="List machines whose 1X, runout or orbit moved more than this from their first recording.")
+@plot_option("Trend plot of one --machine: 1X per axis, runout per harmonic, orbit against the zones (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the rows and the movements as JSON.")
+def trend_command(dataset, machine, threshold, plot_path, as_json):
+    """Trends over a fleet dataset, and the machines whose figures moved.
+
+    \b
+    Examples:
+      ambdaq fleet trend fleet.parquet
+      ambdaq fleet trend fleet.parquet --machine AMB-07 --plot amb07.png
+    """
+    import numpy as np
+
+    from ..machines.spindle import AXES
+    from ..workflows.fleet import BEARINGS, HARMONICS, moved, read
+
+    df = read(Path(dataset), machine)
+    figures = ([f"onex_{a}_um" for a in AXES] + [f"runout_{a}_{k}x_um" for a in AXES for k in HARMONICS]
+               + [f"vibration_{b}_um" for b in BEARINGS])
+    movements = moved(df, figures, threshold)
+    if plot_path:
+        if machine is None:
+            raise BadInputError("--plot draws one machine's trend: give --machine")
+        plt = pyplot()
+        fig, axs = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+        t = df["start"]
+        for a in AXES:
+            axs[0].plot(t, df[f"onex_{a}_um"], "o-", label=a)
+        axs[0].set_ylabel("1X gap [µm]")
+        for k in HARMONICS:
+            axs[1].plot(t, df[[f"runout_{a}_{k}x_um" for a in AXES]].mean(axis=1), "o-", label=f"{k}X")
+        axs[1].set_ylabel("sensor runout, mean of axes [µm]")
+        for b in BEARINGS:
+            axs[2].plot(t, df[f"vibration_{b}_um"], "o-", label=f"{b} orbit")
+        cmin = df["cmin_um"].dropna()
+        if not cmin.empty:
+            for r, z in ((0.3, "A/B"), (0.4, "B/C"), (0.5, "C/D")):  # ISO 14839-2 boundaries per Cmin
+                axs[2].axhline(r * cmin.iloc[0], color="grey", lw=0.8, ls="--")
+                axs[2].annotate(z, (t.iloc[0], r * cmin.iloc[0]), fontsize=8, color="grey")
+        axs[2].set_ylabel("orbit max [µm] (ISO 14839-2)")
+        for ax in axs:
+            ax.legend(fontsize=7, ncol=5)
+            ax.grid(True, alpha=0.3)
+        fig.suptitle(f"{machine}: {len(df)} recordings")
+        fig.autofmt_xdate()
+        fig.savefig(plot_path, dpi=100)
+        plt.close(fig)
+    if as_json:
+        cols = ["path", "machine", "start", "duration_s", "rpm_min", "rpm_max", "drops", "zone", "error", "note",
+                "coefficients_sha256", *figures]
+        rows = json.loads(df[cols].to_json(orient="records", date_format="iso"))
+        click.echo(json.dumps({"rows": rows, "moved": [
+            {"machine": m.machine, "figure": m.figure, "first_um": round(m.first, 3), "last_um": round(m.last, 3),
+             "first": m.first_start, "last": m.last_start} for m in movements]}, indent=2))
+        return
+    good = df[df["error"].isna()]
+    click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'drops':>6s} {'zone now':>8s} "
+               f"{'1X front_x um':>13s} {'errors':>6s}")
+    for m, rows in df.groupby("machine"):
+        ok = good[good["machine"] == m].sort_values("start")
+        last = ok.iloc[-1] if len(ok) else None
+        click.echo(f"{m:10s} {len(rows):10d} {str(ok['start'].min())[:16]:>17s} {str(ok['start'].max())[:16]:>17s} "
+                   f"{int(rows['drops'].sum()):6d} {str(last['zone'] if last is not None else '-'):>8s} "
+                   f"{(last['onex_front_x_um'] if last is not None else np.nan):13.2f} "
+                   f"{int(rows['error'].notna().sum()):6d}")
+    if movements:
+        click.echo(f"moved more than {threshold:g} um since the first recording:")
+        for mv in movements:
+            click.echo(f"  {mv.machine:10s} {mv.figure:22s} {mv.first:8.2f} -> {mv.last:8.2f} um "
+                       f"({mv.change:+.2f}; {mv.first_start[:10]} -> {mv.last_start[:10]})")
+    else:
+        click.echo(f"no machine moved more than {threshold:g} um since its first recording")

@@ -1,0 +1,402 @@
+"""A fleet's recordings as one table: one row per recording (or split part), computed in parallel on
+Dask (docs/fleet.md).
+
+:func:`scan_recording` is one file's row, made by the same library calls as the single-file
+commands (``runout identify``: :func:`~.runout.identify_recordings`; ``iso vibration``:
+:func:`~.iso_vibration.evaluate`), so the fleet has no second implementation of either.
+:func:`scan` runs it as one Dask task per file on whatever cluster the caller's client reaches and
+writes each row, as it comes back, to a Parquet dataset partitioned by machine
+(``DATASET/machine=M/<key>.parquet``, one small file per recording, written to a temporary name and
+renamed, so an interrupted scan leaves only whole rows).  A second scan skips every file whose size
+and modification time are unchanged, and re-reads (by SHA-256) one whose time moved.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ..analysis.runout import harmonic_fit
+from ..daq.coefficients import file_sha256
+from ..daq.mcapfile import MAGIC, McapFile
+from ..daq.reader import load
+from ..errors import AmbdaqError, BadInputError
+from ..machines.spindle import AXES
+from ..units import RAD_S_TO_RPM
+from .iso_vibration import BEARINGS, evaluate
+from .runout import identify_recordings
+
+HARMONICS = (1, 2, 3, 4)  # the runout orders kept per axis: seed 000's largest
+BAND_RPM = 1000.0  # iso vibration's default speed band
+WRITING_S = 60.0  # a file without its footer that changed this recently is being written, not truncated
+MACHINE_KEY = "machine.id"  # in a device's calibration (a rig file's [device.calibration]); else the serial
+COEFFICIENTS_KEY = "active_coefficients_sha256"  # in a device's identity: the coefficient file it runs
+PARTITION = "machine"
+
+
+def _machine(meta: dict[str, dict[str, str]]) -> str:
+    """Machine id: a device's ``machine.id`` calibration, else the controller's serial, else the host."""
+    for name, m in meta.items():
+        if name.startswith("ambdaq.calibration.") and m.get(MACHINE_KEY):
+            return m[MACHINE_KEY]
+    for name, m in meta.items():
+        if name.startswith("ambdaq.device.") and m.get("serial"):
+            return f"serial-{m['serial']}"
+    return meta.get("ambdaq.session", {}).get("host") or "unknown"
+
+
+def _counts(meta: dict[str, dict[str, str]]) -> tuple[int, int]:
+    """Drops and duplicates summed over the recording's devices (each device's are on all its topics)."""
+    per_device: dict[str, tuple[int, int]] = {}
+    for stats in meta.get("ambdaq.statistics", {}).values():
+        s = json.loads(stats)
+        per_device[s["device"]] = (int(s.get("drops", 0)), int(s.get("duplicates", 0)))
+    return sum(d for d, _ in per_device.values()), sum(u for _, u in per_device.values())
+
+
+def empty_row(path: Path) -> dict:
+    """A row with only the file's identity: what an unreadable file gets, beside its error."""
+    st = path.stat()
+    row = {c: None if c in TEXT or c.startswith("zone_") or c == "start" else 0 if c in INTEGER else math.nan
+           for c in empty_row_columns()}
+    row.update({"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns, PARTITION: "unknown"})
+    return row
+
+
+def scan_recording(path: str | Path) -> dict:
+    """One recording's row (what ``fleet scan`` stores; the columns are in docs/fleet.md).
+
+    Parameters
+    ----------
+    path : str or Path
+        An ambdaq MCAP recording (or split part).
+
+    Returns
+    -------
+    dict
+        The row. A file that cannot be read has its identity and ``error``; what one recording
+        cannot give (runout of a run-up, zones without a clearance) is NaN or None with a ``note``.
+    """
+    path = Path(path)
+    row = empty_row(path)
+    notes = []
+    try:
+        row["sha256"] = file_sha256(path)
+        meta = McapFile(path).metadata()
+        row[PARTITION] = _machine(meta)
+        session = meta.get("ambdaq.session", {})
+        row["start"] = session.get("start_time") or None
+        row["part"] = session.get("part") or None
+        row["drops"], row["duplicates"] = _counts(meta)
+        row["coefficients_sha256"] = next((m[COEFFICIENTS_KEY] for n, m in meta.items()
+                                           if n.startswith("ambdaq.device.") and m.get(COEFFICIENTS_KEY)), None)
+        rec = load(path, topics=["/amb/gap", "/amb/rotor"])
+        gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+        n = min(len(gap), len(rot))
+        row["samples"] = len(gap)
+        row["duration_s"] = len(gap) / gap.nominal_rate
+        rpm = rot["speed"][:n] * RAD_S_TO_RPM
+        row["rpm_min"], row["rpm_max"] = float(rpm.min()), float(rpm.max())
+        one_x = harmonic_fit(np.column_stack([gap[a][:n] for a in AXES]), rot["angle"][:n], (1,))[0] * 1e6
+        for axis, v in zip(AXES, one_x):
+            row[f"onex_{axis}_um"], row[f"onex_{axis}_deg"] = float(abs(v)), float(np.degrees(np.angle(v)))
+        try:  # what `ambdaq runout identify FILE` writes
+            ident = identify_recordings([path], list(HARMONICS), "fit")
+            for axis in AXES:
+                for k, (a, b) in zip(HARMONICS, ident.coef.weights[axis]):
+                    v = complex(a, b) * 1e6
+                    row[f"runout_{axis}_{k}x_um"], row[f"runout_{axis}_{k}x_deg"] = abs(v), float(np.degrees(np.angle(v)))
+            notes += ident.warnings
+        except BadInputError as err:
+            notes.append(f"runout: {err}")
+        try:  # what `ambdaq iso vibration FILE` grades
+            grades, info = evaluate([path], cmin_m=None, band_rpm=BAND_RPM)
+            row["cmin_um"] = info["cmin_um"]
+            for bearing in BEARINGS:
+                worst = max((g for g in grades if g.bearing == bearing), key=lambda g: g.ratio)
+                row[f"vibration_{bearing}_um"], row[f"ratio_{bearing}"] = worst.max_um, worst.ratio
+                row[f"zone_{bearing}"] = worst.zone
+            row["zone"] = max(row[f"zone_{b}"] for b in BEARINGS)
+        except BadInputError as err:
+            notes.append(f"zone: {err}")
+    except AmbdaqError as err:
+        row["error"] = str(err)
+    except Exception as err:  # a damaged file must not stop the fleet: its row says what broke
+        row["error"] = f"{type(err).__name__}: {err}"
+    row["note"] = "; ".join(notes) or None
+    return row
+
+
+TEXT = ("path", "sha256", "part", "coefficients_sha256", "zone", "error", "note")  # string columns
+INTEGER = ("size", "mtime_ns", "samples", "drops", "duplicates")
+
+
+def schema():
+    """The dataset's columns and types (every part file has all of them, whatever its row holds)."""
+    import pyarrow as pa
+
+    fields = []
+    for name in empty_row_columns():
+        if name == PARTITION:
+            continue  # the partition is the folder
+        if name == "start":
+            kind = pa.timestamp("us", tz="UTC")
+        elif name in TEXT or name.startswith("zone_"):
+            kind = pa.string()
+        elif name in INTEGER:
+            kind = pa.int64()
+        else:
+            kind = pa.float64()
+        fields.append(pa.field(name, kind))
+    return pa.schema(fields)
+
+
+def empty_row_columns() -> list[str]:
+    """The row's columns, in order."""
+    return list(_columns())
+
+
+def _columns():
+    yield from ("path", "size", "mtime_ns", "sha256", PARTITION, "start", "duration_s", "part", "rpm_min", "rpm_max",
+                "samples", "drops", "duplicates", "coefficients_sha256", "cmin_um", "zone", "error", "note")
+    for axis in AXES:
+        for k in HARMONICS:
+            yield from (f"runout_{axis}_{k}x_um", f"runout_{axis}_{k}x_deg")
+        yield from (f"onex_{axis}_um", f"onex_{axis}_deg")
+    for bearing in BEARINGS:
+        yield from (f"vibration_{bearing}_um", f"ratio_{bearing}", f"zone_{bearing}")
+
+
+def _key(path: str) -> str:
+    """A recording's file name in the dataset, from its path."""
+    return hashlib.blake2b(path.encode(), digest_size=10).hexdigest()
+
+
+def has_footer(path: Path) -> bool:
+    """The file ends with the MCAP magic: its writer finished it."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        if fh.tell() < len(MAGIC):
+            return False
+        fh.seek(-len(MAGIC), os.SEEK_END)
+        return fh.read() == MAGIC
+
+
+@dataclass
+class ScanReport:
+    """What a scan did."""
+
+    scanned: list[str] = field(default_factory=list)  # paths whose rows were written
+    unchanged: int = 0  # skipped: the dataset has their row and they did not change
+    writing: list[str] = field(default_factory=list)  # skipped: no footer yet and recently modified
+    errors: list[tuple[str, str]] = field(default_factory=list)  # (path, error), rows written
+    interrupted: bool = False
+    seconds: float = 0.0
+    bytes_read: int = 0
+
+
+def recordings(inputs: Iterable[str]) -> list[Path]:
+    """The MCAP files named by folders (searched recursively) and globs, in order, each once."""
+    import glob
+
+    out: dict[Path, None] = {}
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(p.rglob("*.mcap"))
+        else:
+            found = sorted(Path(g) for g in glob.glob(item, recursive=True))
+        if not found:
+            raise BadInputError(f"{item}: no recordings (.mcap) there")
+        out.update((f.resolve(), None) for f in found if f.is_file())
+    return list(out)
+
+
+def index(dataset: Path) -> dict[str, dict]:
+    """The rows a dataset holds, by path: their size, time, hash, machine and part file."""
+    out = {}
+    if not dataset.exists():
+        return out
+    import pyarrow.parquet as pq
+
+    for part in dataset.glob(f"{PARTITION}=*/*.parquet"):
+        t = pq.read_table(part, columns=["path", "size", "mtime_ns", "sha256"]).to_pylist()
+        for r in t:
+            out[r["path"]] = {**r, "file": part}
+    return out
+
+
+def _write_row(dataset: Path, row: dict, old: dict | None) -> None:
+    """The row as its own Parquet file under its machine's partition; written to a temporary name and
+    renamed, so a reader (or a crash) never sees half of it.  The row it replaces goes."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    folder = dataset / f"{PARTITION}={row[PARTITION]}"
+    folder.mkdir(parents=True, exist_ok=True)
+    target = folder / f"{_key(row['path'])}.parquet"
+    tmp = target.with_suffix(".parquet.tmp")
+    data = dict(row, start=None if row["start"] is None else datetime.fromisoformat(row["start"]))
+    table = pa.Table.from_pylist([data], schema=schema())
+    pq.write_table(table, tmp)
+    os.replace(tmp, target)
+    if old is not None and Path(old["file"]) != target:
+        Path(old["file"]).unlink(missing_ok=True)
+
+
+def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, int, int], None] | None = None,
+         now: float | None = None) -> ScanReport:
+    """Scan ``paths`` into ``dataset`` on the Dask cluster of ``client`` (one task per file).
+
+    Parameters
+    ----------
+    paths : list of Path
+        Recordings.
+    dataset : Path
+        The Parquet dataset (a folder), created or added to.
+    client : distributed.Client
+        Where the tasks run (a LocalCluster's or a scheduler's).
+    on_row : callable, optional
+        Called with (row, done, total) as each row is written (a progress bar).
+    now : float, optional
+        The time (s since the epoch) against which "recently modified" is judged; default: now.
+
+    Returns
+    -------
+    ScanReport
+        Interrupted (Ctrl-C) scans return what was written, with ``interrupted`` set.
+    """
+    from distributed import as_completed
+
+    t0 = time.monotonic()
+    now = time.time() if now is None else now
+    report = ScanReport()
+    known = index(dataset)
+    todo = []
+    for p in paths:
+        st = p.stat()
+        old = known.get(str(p))
+        if old is not None and old["size"] == st.st_size and old["mtime_ns"] == st.st_mtime_ns:
+            report.unchanged += 1
+            continue
+        if not has_footer(p) and now - st.st_mtime < WRITING_S:
+            report.writing.append(str(p))
+            continue
+        if old is not None and old["size"] == st.st_size and old["sha256"] == file_sha256(p):
+            _touch(dataset, old, st.st_mtime_ns)  # only its time moved: same content, same row
+            report.unchanged += 1
+            continue
+        todo.append(p)
+    futures = client.map(scan_recording, [str(p) for p in todo], pure=False)
+    # Ctrl-C (or SIGTERM) only raises a flag: the row being written is finished, then the scan stops
+    stop = [False]
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            handlers[sig] = signal.signal(sig, lambda signum, frame: stop.__setitem__(0, True))
+    try:
+        pending = as_completed(futures)
+        while not stop[0] and not pending.is_empty():
+            batch = pending.next_batch(block=False)
+            if not batch:
+                time.sleep(0.05)
+                continue
+            for fut in batch:
+                row = fut.result()
+                _write_row(dataset, row, known.get(row["path"]))
+                report.scanned.append(row["path"])
+                report.bytes_read += row["size"]
+                if row["error"]:
+                    report.errors.append((row["path"], row["error"]))
+                if on_row is not None:
+                    on_row(row, len(report.scanned), len(todo))
+                if stop[0]:
+                    break
+    finally:
+        for sig, old in handlers.items():
+            signal.signal(sig, old)
+    if stop[0]:
+        report.interrupted = True
+        client.cancel(futures)
+    report.seconds = time.monotonic() - t0
+    return report
+
+
+def _touch(dataset: Path, old: dict, mtime_ns: int) -> None:
+    """Record a file's new modification time in its row (its content, by hash, is unchanged)."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(old["file"])
+    row = table.to_pylist()[0]
+    row["mtime_ns"] = mtime_ns
+    import pyarrow as pa
+
+    tmp = Path(str(old["file"]) + ".tmp")
+    pq.write_table(pa.Table.from_pylist([row], schema=table.schema), tmp)
+    os.replace(tmp, old["file"])
+
+
+def read(dataset: Path, machine: str | None = None):
+    """The dataset as a pandas DataFrame (the machine column from the partition), sorted by machine and
+    start; only ``machine``'s rows if given."""
+    import pyarrow.dataset as ds
+
+    if not dataset.exists():
+        raise BadInputError(f"{dataset}: no such dataset (ambdaq fleet scan writes it)")
+    d = ds.dataset(dataset, format="parquet", partitioning="hive", exclude_invalid_files=True)
+    table = d.to_table(filter=None if machine is None else ds.field(PARTITION) == machine)
+    df = table.to_pandas()
+    if machine is not None and df.empty:
+        known = sorted(set(d.to_table(columns=[PARTITION]).column(PARTITION).to_pylist()))
+        raise BadInputError(f"{dataset}: no machine {machine!r} (machines: {', '.join(known)})")
+    df[PARTITION] = df[PARTITION].astype(str)
+    return df.sort_values([PARTITION, "start", "path"]).reset_index(drop=True)
+
+
+@dataclass(frozen=True)
+class Movement:
+    """A machine whose figure moved between its first and its last recordings."""
+
+    machine: str
+    figure: str
+    first: float
+    last: float
+    first_start: str
+    last_start: str
+
+    @property
+    def change(self) -> float:
+        return self.last - self.first
+
+
+def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
+    """Machines whose figures (columns in um) changed by more than ``threshold_um`` from their first
+    readable recording to their last."""
+    out = []
+    good = df[df["error"].isna()]
+    for machine, rows in good.groupby(PARTITION):
+        rows = rows.sort_values("start")
+        for fig in figures:
+            vals = rows[fig].dropna()
+            if len(vals) < 2:
+                continue
+            first, last = float(vals.iloc[0]), float(vals.iloc[-1])
+            if abs(last - first) > threshold_um:
+                out.append(Movement(str(machine), fig, first, last, str(rows.loc[vals.index[0], "start"]),
+                                    str(rows.loc[vals.index[-1], "start"])))
+    return out
+
+
+__all__ = ["HARMONICS", "ScanReport", "Movement", "scan", "scan_recording", "recordings", "read", "moved", "index",
+           "has_footer"]

@@ -1,0 +1,158 @@
+"""Fleet analysis on Dask (issue 17): ``ambdaq sim fleet`` records 40 simulated spindles' days,
+``ambdaq fleet scan`` turns them into a Parquet dataset on a LocalCluster of 2 worker processes, and
+every row equals what the single-file commands say of its file (``runout identify``, ``iso vibration``,
+``info``).  Damaged files are rows with their error; a file still being written is skipped; a second
+scan is incremental; Ctrl-C leaves a dataset that the next scan completes."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from click.testing import CliRunner
+
+from ambdaq.cli.main import cli
+
+AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
+
+
+def run(*args):
+    res = CliRunner().invoke(cli, list(args))
+    assert res.exit_code == 0, res.output
+    return res
+
+
+def ambdaq(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "ambdaq", *args], capture_output=True, text=True, timeout=300, **kw)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """40 recordings (10 machines, 4 days, 0.5 s at 30,000 rpm), plus a truncated file, a file that is
+    not MCAP, and one being written (no footer, modified just now)."""
+    root = tmp_path_factory.mktemp("fleet")
+    run("sim", "fleet", "--machines", "10", "--days", "4", "--duration", "0.5", "-o", str(root / "plant"))
+    good = sorted((root / "plant").rglob("*.mcap"))
+    assert len(good) == 40
+    bad = root / "plant" / "damaged"
+    bad.mkdir()
+    data = good[0].read_bytes()
+    (bad / "truncated.mcap").write_bytes(data[: len(data) // 2])
+    os.utime(bad / "truncated.mcap", (time.time() - 3600, time.time() - 3600))  # an hour old: a crash, not a writer
+    (bad / "garbage.mcap").write_bytes(b"not an mcap file at all" * 100)
+    os.utime(bad / "garbage.mcap", (time.time() - 3600, time.time() - 3600))
+    (bad / "writing.mcap").write_bytes(data[: len(data) // 3])  # fresh: its recorder is still at it
+    return root, good
+
+
+@pytest.fixture(scope="module")
+def scanned(fleet):
+    root, good = fleet
+    ds = root / "fleet.parquet"
+    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "2", "--json")
+    assert res.returncode == 0, res.stderr
+    return ds, json.loads(res.stdout)
+
+
+def test_scan_on_two_workers_matches_the_single_file_commands(fleet, scanned, tmp_path):
+    import pandas as pd
+
+    root, good = fleet
+    ds, report = scanned
+    assert report["scanned"] == 42 and report["unchanged"] == 0  # 40 recordings and the two damaged files
+    assert report["writing"] == [str((root / "plant" / "damaged" / "writing.mcap").resolve())]
+    df = pd.read_parquet(ds)  # pandas reads the dataset directly, the machine from the partition
+    assert len(df) == 42 and df["path"].is_unique
+    rows = {r["path"]: r for r in df.to_dict("records")}
+    for path in good:
+        row = rows[str(path.resolve())]
+        assert pd.isna(row["error"]) and str(row["machine"]) == path.parent.name
+        # runout identify FILE: the coefficient file's weights, per axis and harmonic (the same
+        # function on the same bits: equal to the last digit, 1e-9 um only for the um conversion)
+        coef = tmp_path / f"{path.stem}.json"
+        run("runout", "identify", str(path), "-o", str(coef), "--harmonics", "4", "--overwrite")
+        weights = json.loads(coef.read_text())["runout"]["weights"]
+        for axis in AXES:
+            for k, (a, b) in enumerate(weights[axis], 1):
+                assert row[f"runout_{axis}_{k}x_um"] == pytest.approx(abs(complex(a, b)) * 1e6, abs=1e-9)
+        # iso vibration FILE --json: its worst band per bearing and zone (printed to 0.001 um)
+        iso = json.loads(run("iso", "vibration", str(path), "--json").stdout)
+        for bearing in ("front", "rear"):
+            worst = max((b for b in iso["bands"] if b["bearing"] == bearing), key=lambda b: b["ratio_cmin"])
+            assert row[f"vibration_{bearing}_um"] == pytest.approx(worst["max_um"], abs=5e-4)
+            assert row[f"zone_{bearing}"] == worst["zone"]
+        assert row["cmin_um"] == iso["cmin_um"] == 150.0
+        # info FILE --json: the drops
+        info = json.loads(run("info", "--json", str(path)).stdout)
+        gap = next(t for t in info["topics"] if t["topic"] == "/amb/gap")
+        assert (row["drops"], row["samples"]) == (gap["drops"], gap["messages"])
+        assert abs(row["rpm_min"] - 30000) < 1 and abs(row["rpm_max"] - 30000) < 1
+    assert df["drops"].gt(0).sum() >= 1  # the generator's occasional losses are there
+    # one machine in four runs a pushed coefficient file, named in its recordings' identity
+    assert set(df.loc[df["coefficients_sha256"].notna(), "machine"].astype(str)) == {"AMB-04", "AMB-08"}
+
+
+def test_damaged_files_are_rows_with_their_error(fleet, scanned):
+    import pandas as pd
+
+    root, _ = fleet
+    ds, report = scanned
+    errors = {os.path.basename(e["path"]): e["error"] for e in report["errors"]}
+    assert set(errors) == {"truncated.mcap", "garbage.mcap"}
+    assert "not an MCAP file" in errors["garbage.mcap"]
+    df = pd.read_parquet(ds)
+    bad = df[df["error"].notna()]
+    assert sorted(os.path.basename(p) for p in bad["path"]) == ["garbage.mcap", "truncated.mcap"]
+    assert set(bad["machine"].astype(str)) == {"unknown"}
+
+
+def test_dask_reads_the_dataset_and_a_second_scan_is_incremental(fleet, scanned, tmp_path):
+    import dask.dataframe as dd
+
+    root, good = fleet
+    ds, _ = scanned
+    assert len(dd.read_parquet(ds).compute()) == 42
+    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json")
+    again = json.loads(res.stdout)
+    assert (again["scanned"], again["unchanged"], len(again["writing"])) == (0, 42, 1)
+
+
+def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
+    ds, _ = scanned
+    out = json.loads(run("fleet", "trend", str(ds), "--threshold", "3", "--json").stdout)
+    assert len(out["rows"]) == 42
+    moved = {m["machine"] for m in out["moved"]}
+    assert moved and all(abs(m["last_um"] - m["first_um"]) > 3 for m in out["moved"])
+    text = run("fleet", "trend", str(ds), "--threshold", "3").stdout
+    assert "moved more than 3 um" in text and all(m in text for m in moved)
+    run("fleet", "trend", str(ds), "--machine", "AMB-01", "--plot", str(tmp_path / "amb01.png"))
+    assert (tmp_path / "amb01.png").stat().st_size > 10_000
+    res = CliRunner().invoke(cli, ["fleet", "trend", str(ds), "--machine", "AMB-99"])
+    assert res.exit_code == 2 and "no machine 'AMB-99' (machines: AMB-01" in res.stderr
+
+
+def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, tmp_path):
+    root, good = fleet
+    ds = tmp_path / "interrupted.parquet"
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "fleet", "scan", str(root / "plant"), "-o", str(ds),
+                             "--workers", "1", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(ds.glob("machine=*/*.parquet")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    written = list(ds.glob("machine=*/*.parquet"))
+    if proc.returncode == 0:  # the scan finished before the signal came: nothing to resume
+        pytest.skip("the scan ended before Ctrl-C")
+    assert proc.returncode == 1 and "interrupted:" in err and "run the same scan again to go on" in err, err
+    assert 1 <= len(written) < 42 and not list(ds.rglob("*.tmp"))
+    import pandas as pd
+
+    assert len(pd.read_parquet(ds)) == len(written)  # every row written is whole
+    res = json.loads(ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json").stdout)
+    assert res["scanned"] == 42 - len(written) and res["unchanged"] == len(written)
+    df = pd.read_parquet(ds)
+    assert len(df) == 42 and df["path"].is_unique
