@@ -26,6 +26,19 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
+def pytest_collection_finish(session):
+    """On an xdist worker with ``--dist loadgroup``, a grouped test's id ends with ``@GROUP``: that is
+    how pytest-xdist keeps a group on one worker.  pytest 9.2 computes ids in a way xdist 3.8 cannot
+    amend, so the groups were silently ignored and the real-time tests ran two at a time: refuse to
+    run rather than time them against each other (pyproject.toml pins pytest below 9.2)."""
+    if not getattr(session.config.option, "loadgroup", False):
+        return
+    lost = [i.nodeid for i in session.items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
+    if lost:
+        raise pytest.UsageError(f"xdist_group is not applied (pytest {pytest.__version__}): {lost[0]} would not run "
+                                "in its group; install the pinned test extra (pip install -e '.[test]')")
+
+
 @pytest.fixture
 def run_cli():
     """Invoke ``ambdaq ARGS...`` through click's runner; returns the result (exit_code, output)."""

@@ -16,6 +16,9 @@ from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
 
+# one worker builds the fleet once and runs these in order (the last two rewrite a recording)
+pytestmark = pytest.mark.xdist_group("fleet")
+
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
 
@@ -31,10 +34,11 @@ def ambdaq(*args, **kw):
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
-    """40 recordings (10 machines, 4 days, 0.5 s at 30,000 rpm), plus a truncated file, a file that is
-    not MCAP, and one being written (no footer, modified just now)."""
+    """40 recordings (10 machines, 4 days, 0.3 s at 30,000 rpm: 150 revolutions, 3 of iso vibration's
+    windows), plus a truncated file, a file that is not MCAP, and one being written (no footer,
+    modified just now)."""
     root = tmp_path_factory.mktemp("fleet")
-    run("sim", "fleet", "--machines", "10", "--days", "4", "--duration", "0.5", "-o", str(root / "plant"))
+    run("sim", "fleet", "--machines", "10", "--days", "4", "--duration", "0.3", "-o", str(root / "plant"))
     good = sorted((root / "plant").rglob("*.mcap"))
     assert len(good) == 40
     bad = root / "plant" / "damaged"
@@ -118,6 +122,18 @@ def test_dask_reads_the_dataset_and_a_second_scan_is_incremental(fleet, scanned,
     res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json")
     again = json.loads(res.stdout)
     assert (again["scanned"], again["unchanged"], len(again["writing"])) == (0, 42, 1)
+    # touched (same bytes, new time): kept by its hash; rewritten (another day's bytes): scanned again
+    os.utime(good[1], (time.time() - 7200, time.time() - 7200))
+    good[2].write_bytes(good[3].read_bytes())
+    again = json.loads(ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json").stdout)
+    assert (again["scanned"], again["unchanged"]) == (1, 41)
+    import pandas as pd
+
+    df = pd.read_parquet(ds)
+    assert len(df) == 42 and df["path"].is_unique
+    row = df[df["path"] == str(good[2].resolve())].iloc[0]
+    assert row["sha256"] == df[df["path"] == str(good[3].resolve())].iloc[0]["sha256"]
+    assert row["mtime_ns"] == good[2].stat().st_mtime_ns
 
 
 def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
@@ -135,9 +151,11 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
 
 
 def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, tmp_path):
+    """Over three machines' 12 recordings, one worker: SIGINT once the first row is written."""
     root, good = fleet
     ds = tmp_path / "interrupted.parquet"
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "fleet", "scan", str(root / "plant"), "-o", str(ds),
+    plant = [str(root / "plant" / f"AMB-0{m}") for m in (1, 2, 3)]
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "fleet", "scan", *plant, "-o", str(ds),
                              "--workers", "1", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not list(ds.glob("machine=*/*.parquet")) and time.monotonic() < deadline:
@@ -148,11 +166,11 @@ def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, tmp_path):
     if proc.returncode == 0:  # the scan finished before the signal came: nothing to resume
         pytest.skip("the scan ended before Ctrl-C")
     assert proc.returncode == 1 and "interrupted:" in err and "run the same scan again to go on" in err, err
-    assert 1 <= len(written) < 42 and not list(ds.rglob("*.tmp"))
+    assert 1 <= len(written) < 12 and not list(ds.rglob("*.tmp"))
     import pandas as pd
 
     assert len(pd.read_parquet(ds)) == len(written)  # every row written is whole
-    res = json.loads(ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json").stdout)
-    assert res["scanned"] == 42 - len(written) and res["unchanged"] == len(written)
+    res = json.loads(ambdaq("fleet", "scan", *plant, "-o", str(ds), "--workers", "1", "--json").stdout)
+    assert res["scanned"] == 12 - len(written) and res["unchanged"] == len(written)
     df = pd.read_parquet(ds)
-    assert len(df) == 42 and df["path"].is_unique
+    assert len(df) == 12 and df["path"].is_unique

@@ -20,8 +20,11 @@ to cancel the runout they equal its phasors.  The checksum is the CRC-32 of the 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
+import os
+import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,11 +34,25 @@ import numpy as np
 from ..errors import BadInputError
 from .sealed import read_sealed, seal, write_sealed
 
+RECENT_NS = 1_000_000_000  # a file modified this recently is hashed anew, never taken from memory
 FORMAT = "ambdaq-coefficients"
 VERSION = 1
 
 
 def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, hex.  Remembered per path, size and modification time (ns), so the
+    steps of one job that each name their sources (a fleet row: runout, vibration, its own index)
+    read a file once; a file that changes gets a new time, and is read again.  A file changed in the
+    last second is always read (a file system's clock may step only every few ms, so two writes in
+    a row can share a time)."""
+    st = os.stat(path)
+    if time.time_ns() - st.st_mtime_ns < RECENT_NS:
+        return _sha256.__wrapped__(path, st.st_size, st.st_mtime_ns)
+    return _sha256(str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=256)
+def _sha256(path: str, size: int, mtime_ns: int) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
