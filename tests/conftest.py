@@ -17,20 +17,11 @@ def pytest_configure(config):
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
 
 
-def pytest_collection_modifyitems(config, items):
-    """Tests marked ``realtime`` run their devices against the wall clock; they share one xdist
-    group, so they run one at a time on one worker, and at most one other worker's compute load
-    (the one busy process the recorder is built and tested to stand beside) runs next to them."""
-    for item in items:
-        if item.get_closest_marker("realtime") is not None:
-            item.add_marker(pytest.mark.xdist_group("realtime"))
-
-
 def pytest_collection_finish(session):
     """On an xdist worker with ``--dist loadgroup``, a grouped test's id ends with ``@GROUP``: that is
-    how pytest-xdist keeps a group on one worker.  pytest 9.2 computes ids in a way xdist 3.8 cannot
-    amend, so the groups were silently ignored and the real-time tests ran two at a time: refuse to
-    run rather than time them against each other (pyproject.toml pins pytest below 9.2)."""
+    how pytest-xdist keeps a group (the fleet tests' one fixture) on one worker.  pytest 9.2 computes
+    ids in a way xdist 3.8 cannot amend, and groups were then silently ignored: refuse to run
+    instead (pyproject.toml pins pytest below 9.2)."""
     if not getattr(session.config.option, "loadgroup", False):
         return
     lost = [i.nodeid for i in session.items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
