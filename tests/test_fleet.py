@@ -53,6 +53,17 @@ def fleet(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def scheduler():
+    """A cluster the later scans reach by address (``--scheduler``, and DASK_SCHEDULER_ADDRESS),
+    as a plant's would be: a LocalCluster of 2 worker processes on 127.0.0.1."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+@pytest.fixture(scope="module")
 def scanned(fleet):
     root, good = fleet
     ds = root / "fleet.parquet"
@@ -113,19 +124,21 @@ def test_damaged_files_are_rows_with_their_error(fleet, scanned):
     assert set(bad["machine"].astype(str)) == {"unknown"}
 
 
-def test_dask_reads_the_dataset_and_a_second_scan_is_incremental(fleet, scanned, tmp_path):
+def test_dask_reads_the_dataset_and_a_second_scan_is_incremental(fleet, scanned, scheduler, tmp_path):
     import dask.dataframe as dd
 
     root, good = fleet
     ds, _ = scanned
     assert len(dd.read_parquet(ds).compute()) == 42
-    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json")
+    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--json",
+                 env={**os.environ, "DASK_SCHEDULER_ADDRESS": scheduler})  # Dask's own convention
     again = json.loads(res.stdout)
     assert (again["scanned"], again["unchanged"], len(again["writing"])) == (0, 42, 1)
     # touched (same bytes, new time): kept by its hash; rewritten (another day's bytes): scanned again
     os.utime(good[1], (time.time() - 7200, time.time() - 7200))
     good[2].write_bytes(good[3].read_bytes())
-    again = json.loads(ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "1", "--json").stdout)
+    again = json.loads(ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--scheduler", scheduler,
+                              "--json").stdout)
     assert (again["scanned"], again["unchanged"]) == (1, 41)
     import pandas as pd
 
@@ -150,13 +163,13 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
     assert res.exit_code == 2 and "no machine 'AMB-99' (machines: AMB-01" in res.stderr
 
 
-def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, tmp_path):
-    """Over three machines' 12 recordings, one worker: SIGINT once the first row is written."""
+def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, scheduler, tmp_path):
+    """Over three machines' 12 recordings on the cluster: SIGINT once the first row is written."""
     root, good = fleet
     ds = tmp_path / "interrupted.parquet"
     plant = [str(root / "plant" / f"AMB-0{m}") for m in (1, 2, 3)]
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "fleet", "scan", *plant, "-o", str(ds),
-                             "--workers", "1", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--scheduler", scheduler, "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not list(ds.glob("machine=*/*.parquet")) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -170,7 +183,7 @@ def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, tmp_path):
     import pandas as pd
 
     assert len(pd.read_parquet(ds)) == len(written)  # every row written is whole
-    res = json.loads(ambdaq("fleet", "scan", *plant, "-o", str(ds), "--workers", "1", "--json").stdout)
+    res = json.loads(ambdaq("fleet", "scan", *plant, "-o", str(ds), "--scheduler", scheduler, "--json").stdout)
     assert res["scanned"] == 12 - len(written) and res["unchanged"] == len(written)
     df = pd.read_parquet(ds)
     assert len(df) == 12 and df["path"].is_unique

@@ -1,6 +1,7 @@
 """Issue 4's headline workflow, as an engineer runs it: the simulated spindle served in its own
 process, every step a separate ``ambdaq`` process (record, identify, push, record again)."""
 
+import hashlib
 import json
 import os
 import subprocess
@@ -86,6 +87,9 @@ def test_identify_push_and_the_command_error_is_gone(served, tmp_path):
     r = ambdaq("push", coef, "--device", served, "--yes", env=env)
     assert "committed" in r.stdout and "device-verified" in r.stdout
     ambdaq("record", "--device", served, "--duration", 2.5, "-o", after, "-q")
+    # the controller names the coefficient file it runs; the recording keeps it (fleet scan reads it)
+    device = load(after, topics=["/amb/gap"]).metadata["ambdaq.device.controller"]
+    assert device["active_coefficients_sha256"] == hashlib.sha256(coef.read_bytes()).hexdigest()
     h0, h1 = harmonics(before), harmonics(after)
     report = {}
     for a in RADIAL:

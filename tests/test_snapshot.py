@@ -236,27 +236,28 @@ def test_triggers_need_a_snapshot_and_a_clearance(tmp_path):
 @pytest.mark.realtime
 def test_fault_and_sigusr1_on_the_served_spindle(tmp_path):
     """``ambdaq record`` of the spindle served in this process, its controller reporting an injected
-    fault 5.5 s after it starts; SIGUSR1 2.5 s after the recording says it is armed (so the second before
-    it is recorded: the window never reaches back before the recording's start).  Two files, each
-    with every device's samples over [T - 1 s, T + 0.5 s) and the fault event in the fault's."""
+    fault 3.5 s after it starts; SIGUSR1 1.5 s after the recording says it is armed (so the 0.5 s
+    before it is recorded: the window never reaches back before the recording's start).  Two files,
+    each with every device's samples over [T - 0.5 s, T + 0.3 s) and the fault event in the fault's."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle?fault=5.5", "--rpm", "12000",
-         "--duration", "7", "--snapshot", "1s", "--post", "0.5s", "--trigger", "fault", "--json",
+        [sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle?fault=3.5", "--rpm", "12000",
+         "--duration", "4.5", "--snapshot", "0.5s", "--post", "0.3s", "--trigger", "fault", "--json",
          "-o", str(tmp_path / "rt.mcap")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
-    assert "snapshot: the last 1 s in memory (at most" in line and "SIGUSR1 fires one" in line, line
-    time.sleep(2.5)
+    assert "snapshot: the last 0.5 s in memory (at most" in line and "SIGUSR1 fires one" in line, line
+    time.sleep(1.5)
     os.kill(proc.pid, signal.SIGUSR1)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
     result = json.loads(stdout)
     files = {re.sub(r"rt_\d{8}T[\d.]+Z_", "", f.name): f for f in snapshots(tmp_path, "rt")}
     assert sorted(files) == ["fault.mcap", "manual.mcap"] and result["snapshot"]["files"] == 2, (stderr, files)
+    pre, post = 500_000_000, 300_000_000  # ns
     for name, f in files.items():
         rec = load(f)
         meta = snap_meta(rec)
         t = int(meta["trigger_ns"])
-        assert meta["cause"] == name.removesuffix(".mcap") and int(meta["end_ns"]) == t + 500_000_000
+        assert meta["cause"] == name.removesuffix(".mcap") and int(meta["end_ns"]) == t + post
         # each device's samples reach the window's edges within its own largest spacing in the file:
         # 0.1 ms for the controller (stamped by its clock); for the CAN gap sensor, stamped by the
         # host when its SYNC goes out, up to tens of ms on a loaded host (the SYNC thread waits for
@@ -264,9 +265,13 @@ def test_fault_and_sigusr1_on_the_served_spindle(tmp_path):
         for topic in ("/amb/gap", "/can/amb/gap"):
             d = rec[topic]
             slack = np.diff(d.log_time).max() + 2e6
-            assert t - 1e9 <= d.log_time[0] <= t - 1e9 + slack, (topic, d.log_time[0] - t)
-            assert t + 0.5e9 - slack <= d.log_time[-1] < t + 0.5e9, (topic, d.log_time[-1] - t)
-            assert np.all(np.diff(d.seq.astype(np.int64)) == 1)  # every sample of the span, once
+            assert t - pre <= d.log_time[0] <= t - pre + slack, (topic, d.log_time[0] - t)
+            assert t + post - slack <= d.log_time[-1] < t + post, (topic, d.log_time[-1] - t)
+            # every sample of the span once, or counted lost in the file (the CAN devices in this
+            # process may lose a few beside another test's load; the serial line loses none)
+            drops = json.loads(rec.metadata["ambdaq.statistics"][topic])["drops"]
+            assert len(d) + drops == int(d.seq[-1]) - int(d.seq[0]) + 1, topic
+            assert topic != "/amb/gap" or drops == 0
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 

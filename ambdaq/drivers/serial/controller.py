@@ -58,9 +58,12 @@ class ControllerDriver(Controller):
         return list(self._groups)
 
     def identity(self) -> dict[str, str]:
-        return {"url": self.url, "kind": self.info["device_type"], "model": self.info["model"],
-                "serial": self.info["serial"], "firmware": self.info["firmware"],
-                "sample_rate_hz": f"{self.sample_rate:g}"}
+        out = {"url": self.url, "kind": self.info["device_type"], "model": self.info["model"],
+               "serial": self.info["serial"], "firmware": self.info["firmware"],
+               "sample_rate_hz": f"{self.sample_rate:g}"}
+        if self.info.get("active_coefficients_sha256"):  # the coefficient file it runs (fleet scan reads it)
+            out["active_coefficients_sha256"] = str(self.info["active_coefficients_sha256"])
+        return out
 
     def device_calibration(self) -> dict[str, str]:
         return {"units": "SI: m, A, rad, rad/s (device sends float32)", **self.info.get("calibration", {})}

@@ -217,6 +217,9 @@ class SimController:
             "parameters": sorted(self.firmware.parameters),
             "capabilities": self.firmware.capabilities(self.rig).as_dict(),
             "calibration": self.rig.calibration(),
+            # the coefficient file the running bank came from, as the host's push named it
+            **({"active_coefficients_sha256": self.banks.log[-1]["file_sha256"]}
+               if self.banks.log and self.banks.log[-1].get("file_sha256") else {}),
         }
 
     def _handle(self, frame: proto.Frame, received_ns: int) -> None:
