@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -12,9 +14,29 @@ from click.testing import CliRunner
 from ambdaq.cli.main import cli
 
 
+WARM = "import sys\nfrom ambdaq.sim.source import SimSource\nfor p in sys.argv[1:]:\n    s = SimSource(p); s.start(10); s.read()"
+
+
+def _warm_rigs() -> None:
+    """Compile the rigs' numba kernels once, two at a time, before the workers start.  In a fresh
+    clone every process that needs a kernel before its cache file exists compiles it again (5 s for
+    the spindle's): the two workers and the servers and recorders the first tests start."""
+    import ambdaq
+
+    if any((Path(ambdaq.__file__).parent / "sim" / "rigs" / "__pycache__").glob("spindle._simulate-*.nbi")):
+        return
+    procs = [subprocess.Popen([sys.executable, "-c", WARM, *profiles])
+             for profiles in (("spindle", "lorentz"), ("cone", "base-motion"))]
+    for p in procs:
+        p.wait()
+
+
 def pytest_configure(config):
-    """Caches (the parsed A2L files) go to a folder of this run, not the user's ~/.cache."""
+    """Caches (the parsed A2L files) go to a folder of this run, not the user's ~/.cache; the rigs'
+    kernels are compiled once by the controlling process (not on an xdist worker)."""
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
+    if not hasattr(config, "workerinput"):
+        _warm_rigs()
 
 
 def pytest_collection_finish(session):
