@@ -1,5 +1,6 @@
 """Fleet analysis on Dask (issue 17): ``ambdaq sim fleet`` records 40 simulated spindles' days,
-``ambdaq fleet scan`` turns them into a Parquet dataset on a LocalCluster of 2 worker processes, and
+``ambdaq fleet scan`` turns them into a Parquet dataset on a LocalCluster of 2 worker processes (reached
+by address, as a plant's cluster is), and
 every row equals what the single-file commands say of its file (``runout identify``, ``iso vibration``,
 ``info``).  Damaged files are rows with their error; a file still being written is skipped; a second
 scan is incremental; Ctrl-C leaves a dataset that the next scan completes."""
@@ -54,8 +55,8 @@ def fleet(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def scheduler():
-    """A cluster the later scans reach by address (``--scheduler``, and DASK_SCHEDULER_ADDRESS),
-    as a plant's would be: a LocalCluster of 2 worker processes on 127.0.0.1."""
+    """The cluster every scan reaches by address (``--scheduler``, and DASK_SCHEDULER_ADDRESS), as a
+    plant's would be: a LocalCluster of 2 worker processes on 127.0.0.1, started once."""
     from distributed import LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -64,10 +65,10 @@ def scheduler():
 
 
 @pytest.fixture(scope="module")
-def scanned(fleet):
+def scanned(fleet, scheduler):
     root, good = fleet
     ds = root / "fleet.parquet"
-    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--workers", "2", "--json")
+    res = ambdaq("fleet", "scan", str(root / "plant"), "-o", str(ds), "--scheduler", scheduler, "--json")
     assert res.returncode == 0, res.stderr
     return ds, json.loads(res.stdout)
 

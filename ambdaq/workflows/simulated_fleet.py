@@ -133,7 +133,9 @@ def generate_fleet(folder: Path, *, n_machines: int, days: int, duration_s: floa
             if rng.random() < drop_chance:
                 source = _Losing(source, int(rng.integers(n // 4, n // 2)), int(rng.integers(1, 201)))
             path = out / f"{machine.machine_id}_{start:%Y%m%dT%H%M}.mcap"
-            Recorder([source], path, RecordOptions(duration_s=duration_s, start_ns=int(start.timestamp() * 1e9)),
+            # no fsync: a generated fleet is made again from its seed, it needs no power-cut safety
+            Recorder([source], path, RecordOptions(duration_s=duration_s, start_ns=int(start.timestamp() * 1e9),
+                                                   fsync=False),
                      command=f"ambdaq sim fleet (machine {machine.machine_id}, day {day})", overwrite=True).run()
             paths.append(path)
     return paths
