@@ -14,19 +14,33 @@ from click.testing import CliRunner
 from ambdaq.cli.main import cli
 
 
-WARM = "import sys\nfrom ambdaq.sim.source import SimSource\nfor p in sys.argv[1:]:\n    s = SimSource(p); s.start(10); s.read()"
+WARM = """import sys
+import numpy as np
+from ambdaq.analysis.runout import harmonic_fit, lms_offline
+from ambdaq.sim.source import SimSource
+for p in sys.argv[1:]:
+    if p == "runout":  # the harmonic fit and the offline LMS every runout, live and iso command uses
+        x, th = np.zeros(200), np.linspace(0.0, 20.0, 200)
+        harmonic_fit(x, th, (1, 2))
+        lms_offline(x, th, harmonics=(1, 2))
+    else:
+        s = SimSource(p)
+        s.start(10)
+        s.read()
+"""
 
 
 def _warm_rigs() -> None:
-    """Compile the rigs' numba kernels once, two at a time, before the workers start.  In a fresh
-    clone every process that needs a kernel before its cache file exists compiles it again (5 s for
-    the spindle's): the two workers and the servers and recorders the first tests start."""
+    """Compile the rigs' numba kernels (and the runout fit's) once, two at a time, before the workers
+    start.  In a fresh clone every process that needs a kernel before its cache file exists compiles
+    it again (5 s for the spindle's): the two workers and the servers and recorders the first tests
+    start."""
     import ambdaq
 
     if any((Path(ambdaq.__file__).parent / "sim" / "rigs" / "__pycache__").glob("spindle._simulate-*.nbi")):
         return
-    procs = [subprocess.Popen([sys.executable, "-c", WARM, *profiles])
-             for profiles in (("spindle", "lorentz"), ("cone", "base-motion"))]
+    procs = [subprocess.Popen([sys.executable, "-c", WARM, *kernels])
+             for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz"))]
     for p in procs:
         p.wait()
 
