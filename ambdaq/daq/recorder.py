@@ -31,7 +31,7 @@ from ..drivers.signals import Event, SampleBlock
 from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
 from .mcapfile import CHUNK_SIZE
-from .sequence import SampleCounts, SequenceTracker
+from .sequence import SampleCounts, SequenceTracker, Verdict
 from .snapshot import SnapshotOptions, Snapshots, check_memory, memory_bound, snapshot_name
 from .triggers import Device, Firing
 from .writer import RecordingWriter
@@ -294,9 +294,9 @@ class Recorder:
             armed = [Device(s.name, s.signal_groups(), s.calibration()) for s in sources]
             for trigger in snap.triggers:
                 trigger.arm(armed, snap.cmin_m)
-            self.snapshot_bound = memory_bound([(s.sample_rate, s.signal_groups()) for s in sources if s.sample_rate],
-                                               snap)
-            if any(not s.sample_rate for s in sources):  # frames as they come: only the byte limit holds them
+            if all(s.sample_rate for s in sources):
+                self.snapshot_bound = memory_bound([(s.sample_rate, s.signal_groups()) for s in sources], snap)
+            else:  # frames as they come: only the byte limit holds them
                 self.snapshot_bound = snap.max_bytes
             check_memory(self.snapshot_bound, snap)
         elif not overwrite and self._name(0).exists():
@@ -566,7 +566,10 @@ class Recorder:
         self._manual.put(cause)
 
     def _take_manual(self) -> None:
-        while self._snapshots is not None:
+        """Fire what :meth:`trigger` was asked for since the last look (a snapshot recording's)."""
+        if self._snapshots is None:
+            return
+        while True:
             try:
                 how = self._manual.get_nowait()
             except queue.Empty:
@@ -670,10 +673,16 @@ class Recorder:
         if self._snapshots is not None:
             self._totals[device].add(verdict.counts(device, slice(0, n), block.seq, t))
             self._snapshots.write(device, block, verdict)
-            kept = np.flatnonzero(verdict.keep)
-            if kept.size:
-                self._last_time[device] = int(t[kept[-1]])
-            return
+        else:
+            self._write_parts(device, block, verdict)
+        kept = np.flatnonzero(verdict.keep)
+        if kept.size:
+            self._last_time[device] = int(t[kept[-1]])
+        self._close_finished_parts()
+
+    def _write_parts(self, device: str, block: SampleBlock, verdict: Verdict) -> None:
+        """The judged block's kept samples, each into the part its time falls in."""
+        n, t = len(block), block.host_time_ns
         pos = 0
         while pos < n:
             part = self._part_for(int(t[pos]))
@@ -690,10 +699,6 @@ class Recorder:
                     and part.writer.bytes_written >= self.options.split_size):
                 part.end_ns = int(t[end - 1]) + 1
             pos = end
-        kept = np.flatnonzero(verdict.keep)
-        if kept.size:
-            self._last_time[device] = int(t[kept[-1]])
-        self._close_finished_parts()
 
     def _write_events(self, source: Source) -> None:
         for ev in source.events():

@@ -31,7 +31,7 @@ from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 
-CMIN_KEY = "machine.min_clearance_m"  # ISO 14839-2's Cmin, in a device's calibration
+CMIN_KEY = "machine.min_clearance_m"  # ISO 14839-2's Cmin, in a device's calibration (its one home)
 CURRENT_LIMIT_KEY = "machine.current_limit_a"  # control current at which the amplifier saturates
 VOLTAGE_LIMIT_KEY = "machine.voltage_limit_v"  # amplifier supply: the coil voltage's limit
 GAP, CURRENT, VOLTAGE, ROTOR = "/amb/gap", "/amb/current", "/amb/voltage", "/amb/rotor"

@@ -69,7 +69,7 @@ def empty_row(path: Path) -> dict:
     """A row with only the file's identity: what an unreadable file gets, beside its error."""
     st = path.stat()
     row = {c: None if c in TEXT or c.startswith("zone_") or c == "start" else 0 if c in INTEGER else math.nan
-           for c in empty_row_columns()}
+           for c in columns()}
     row.update({"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns, PARTITION: "unknown"})
     return row
 
@@ -147,7 +147,7 @@ def schema():
     import pyarrow as pa
 
     fields = []
-    for name in empty_row_columns():
+    for name in columns():
         if name == PARTITION:
             continue  # the partition is the folder
         if name == "start":
@@ -162,12 +162,8 @@ def schema():
     return pa.schema(fields)
 
 
-def empty_row_columns() -> list[str]:
+def columns():
     """The row's columns, in order."""
-    return list(_columns())
-
-
-def _columns():
     yield from ("path", "size", "mtime_ns", "sha256", PARTITION, "start", "duration_s", "part", "rpm_min", "rpm_max",
                 "samples", "drops", "duplicates", "coefficients_sha256", "cmin_um", "zone", "error", "note")
     for axis in AXES:
@@ -223,34 +219,40 @@ def recordings(inputs: Iterable[str]) -> list[Path]:
     return list(out)
 
 
+def _part_file(dataset: Path, machine: str, path: str) -> Path:
+    """Where a recording's row lives: its machine's partition, a name from its path."""
+    return dataset / f"{PARTITION}={machine}" / f"{_key(path)}.parquet"
+
+
 def index(dataset: Path) -> dict[str, dict]:
-    """The rows a dataset holds, by path: their size, time, hash, machine and part file."""
-    out = {}
+    """The rows a dataset holds, by path: their size, time, hash, and the file that holds each."""
     if not dataset.exists():
-        return out
+        return {}
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(dataset, format="parquet", partitioning="hive").to_table(
+        columns=["path", "size", "mtime_ns", "sha256", PARTITION])
+    return {r["path"]: {**r, "file": _part_file(dataset, str(r[PARTITION]), r["path"])} for r in table.to_pylist()}
+
+
+def _replace(table, target: Path) -> None:
+    """Write ``table`` to ``target`` under a temporary name and rename it: a reader (or a crash)
+    never sees half of it (readers of the dataset skip names that start with a dot)."""
     import pyarrow.parquet as pq
 
-    for part in dataset.glob(f"{PARTITION}=*/*.parquet"):
-        t = pq.read_table(part, columns=["path", "size", "mtime_ns", "sha256"]).to_pylist()
-        for r in t:
-            out[r["path"]] = {**r, "file": part}
-    return out
+    tmp = target.parent / f".{target.name}.tmp"
+    pq.write_table(table, tmp)
+    os.replace(tmp, target)
 
 
 def _write_row(dataset: Path, row: dict, old: dict | None) -> None:
-    """The row as its own Parquet file under its machine's partition; written to a temporary name and
-    renamed, so a reader (or a crash) never sees half of it.  The row it replaces goes."""
+    """The row as its own Parquet file under its machine's partition; the row it replaces goes."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
-    folder = dataset / f"{PARTITION}={row[PARTITION]}"
-    folder.mkdir(parents=True, exist_ok=True)
-    target = folder / f"{_key(row['path'])}.parquet"
-    tmp = target.with_suffix(".parquet.tmp")
+    target = _part_file(dataset, row[PARTITION], row["path"])
+    target.parent.mkdir(parents=True, exist_ok=True)
     data = dict(row, start=None if row["start"] is None else datetime.fromisoformat(row["start"]))
-    table = pa.Table.from_pylist([data], schema=schema())
-    pq.write_table(table, tmp)
-    os.replace(tmp, target)
+    _replace(pa.Table.from_pylist([data], schema=schema()), target)
     if old is not None and Path(old["file"]) != target:
         Path(old["file"]).unlink(missing_ok=True)
 
@@ -294,7 +296,7 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
             report.writing.append(str(p))
             continue
         if old is not None and old["size"] == st.st_size and old["sha256"] == file_sha256(p):
-            _touch(dataset, old, st.st_mtime_ns)  # only its time moved: same content, same row
+            _touch(old, st.st_mtime_ns)  # only its time moved: same content, same row
             report.unchanged += 1
             continue
         todo.append(p)
@@ -333,18 +335,14 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
     return report
 
 
-def _touch(dataset: Path, old: dict, mtime_ns: int) -> None:
+def _touch(old: dict, mtime_ns: int) -> None:
     """Record a file's new modification time in its row (its content, by hash, is unchanged)."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pq.read_table(old["file"])
-    row = table.to_pylist()[0]
-    row["mtime_ns"] = mtime_ns
-    import pyarrow as pa
-
-    tmp = Path(str(old["file"]) + ".tmp")
-    pq.write_table(pa.Table.from_pylist([row], schema=table.schema), tmp)
-    os.replace(tmp, old["file"])
+    row = dict(table.to_pylist()[0], mtime_ns=mtime_ns)
+    _replace(pa.Table.from_pylist([row], schema=table.schema), old["file"])
 
 
 def read(dataset: Path, machine: str | None = None):

@@ -24,13 +24,13 @@ import numpy as np
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
+from ..daq.triggers import CMIN_KEY  # in a device's calibration (ambdaq.calibration.<device>)
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 from .runout import gap_and_rotor, runout_at
 
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
 BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
-CMIN_KEY = "machine.min_clearance_m"  # in a device's calibration (ambdaq.calibration.<device>)
 
 
 def recorded_cmin(path: Path) -> float | None:
