@@ -42,9 +42,17 @@ def test_truncated_file(truncated, run_cli):
     assert not truncated.with_suffix(".npz").exists() and not truncated.with_suffix(".png").exists()
 
 
+def _second_chunk(path):
+    from ambdaq.daq.mcapfile import McapFile
+
+    f = McapFile(path)
+    return sorted(f.summary.chunk_indexes, key=lambda ci: ci.chunk_start_offset)[1], f
+
+
 def test_corrupted_chunk(spindle_file, tmp_path, run_cli):
+    ci, _ = _second_chunk(spindle_file)
     data = bytearray(spindle_file.read_bytes())
-    mid = len(data) // 2
+    mid = ci.chunk_start_offset + ci.chunk_length // 2
     data[mid : mid + 64] = bytes(64)  # zero a run of bytes inside a compressed chunk
     p = tmp_path / "corrupt.mcap"
     p.write_bytes(bytes(data))
@@ -55,6 +63,28 @@ def test_corrupted_chunk(spindle_file, tmp_path, run_cli):
     assert r.exit_code == 0, r.output
     gap = load(tmp_path / "fixed.mcap")["/amb/gap"]
     assert 0 < len(gap) < 20000
+
+
+@pytest.mark.parametrize("where", ["first entry", "middle entry"])
+def test_a_damaged_message_index_is_an_error_not_wrong_samples(spindle_file, tmp_path, run_cli, where):
+    """A Message Index has no checksum: zeroed entries (log time and offset 0) at its start (the
+    offsets keep a constant stride from the second on) or in its middle must not load another
+    record's bytes as samples.  The records are intact, so recover keeps every sample."""
+    ci, f = _second_chunk(spindle_file)
+    gap_channel = next(cid for cid, ch in f.summary.channels.items() if ch.topic == "/amb/gap")
+    entries = ci.message_index_offsets[gap_channel] + 15  # opcode, length, channel id, byte count
+    at = entries + (0 if where == "first entry" else 16 * (f.message_index(ci, gap_channel).shape[0] // 2))
+    data = bytearray(spindle_file.read_bytes())
+    data[at : at + 64] = bytes(64)  # four entries
+    p = tmp_path / "bad_index.mcap"
+    p.write_bytes(bytes(data))
+    one_line_error(run_cli("export", p, "--format", "npz", "-o", tmp_path / "c.npz"),
+                   "does not point at channel", "/amb/gap", "ambdaq recover")
+    assert not (tmp_path / "c.npz").exists()
+    r = run_cli("recover", p, "-o", tmp_path / "fixed.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    fixed, original = load(tmp_path / "fixed.mcap")["/amb/gap"], load(spindle_file)["/amb/gap"]
+    assert len(fixed) == 20000 and (fixed["front_x"] == original["front_x"]).all()
 
 
 def test_foreign_files(tmp_path, run_cli):

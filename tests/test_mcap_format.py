@@ -71,3 +71,21 @@ def test_schemas_are_ros2msg_with_cdr(spindle_file):
         assert b"int64 device_time" in schema.data
     assert summary.statistics.message_count == 20000 * len(SPINDLE_TOPICS)
     assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+
+
+def test_chunks_are_cut_at_the_chunk_size_between_sample_instants(spindle_file):
+    """The generator hands the writer one 7 MB block per simulated second; the writer cuts it so
+    no chunk passes CHUNK_SIZE by more than one instant's records (712 bytes: the reader's speed
+    and a damaged chunk's loss depend on it), and each chunk starts on a whole instant."""
+    from ambdaq.daq.mcapfile import CHUNK_SIZE
+
+    f = McapFile(spindle_file)
+    chunks = f.summary.chunk_indexes
+    sizes = [ci.uncompressed_size for ci in chunks]
+    row = 7 * (31 + 60) + (31 + 44)  # seven 5-field topics and /amb/rotor's 3 fields, per instant
+    assert sum(sizes) == 20000 * row
+    assert max(sizes) <= CHUNK_SIZE + row and len(chunks) >= -(-sum(sizes) // (CHUNK_SIZE + row))
+    gap_channel = next(cid for cid, ch in f.summary.channels.items() if ch.topic == "/amb/gap")
+    for ci in chunks:  # every chunk holds each topic's messages of the same instants
+        assert ci.uncompressed_size % row == 0
+        assert f.message_index(ci, gap_channel).shape[0] == ci.uncompressed_size // row

@@ -5,6 +5,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
 from ambdaq.errors import BadInputError
 
 
@@ -75,3 +76,55 @@ def test_to_pandas_has_the_time_as_index_and_the_units(spindle_file):
     np.testing.assert_array_equal(df.index.to_numpy(), gap.time)
     np.testing.assert_array_equal(df["rear_y"].to_numpy(), gap["rear_y"])
     assert df.attrs["units"]["front_x"] == "m" and df.attrs["time_unit"] == "s" and df.attrs["topic"] == "/amb/gap"
+
+
+def _write_gap(path, order, official_chunk_size=None):
+    """A /amb/gap file holding instants ``order`` (0..199, 100 us apart): written by the official
+    writer (chunks cut where it likes), or by ours in blocks of 25 instants, one chunk each."""
+    from ambdaq.daq.schema import TopicLayout
+    from ambdaq.daq.writer import RecordingWriter
+    from ambdaq.drivers.signals import SampleBlock, SignalGroup
+
+    group = SignalGroup("/amb/gap", "Gap", ("front_x", "front_y"), ("m", "m"))
+    log_time, values = (1_000_000_000 + order * 100_000).astype(np.int64), np.stack([order * 1e-6, -order * 1e-6], 1)
+    if official_chunk_size:
+        from mcap.writer import CompressionType, Writer
+
+        layout = TopicLayout(group)
+        with open(path, "wb") as fh:
+            w = Writer(fh, chunk_size=official_chunk_size, compression=CompressionType.ZSTD)
+            w.start()
+            cid = w.register_channel("/amb/gap", "cdr", w.register_schema(layout.schema_name, "ros2msg",
+                                                                          layout.schema_text.encode()))
+            for i, t, v in zip(order, log_time, values):
+                payload = np.zeros(1, dtype=layout.payload_dtype)
+                payload["cdr_header"], payload["device_time"], payload["seq"], payload["values"] = 0x100, i * 100_000, i, v
+                w.add_message(cid, log_time=int(t), data=payload.tobytes(), publish_time=0)
+            w.finish()
+        return
+    w = RecordingWriter(path, chunk_size=25 * (31 + 36), fsync=False)
+    w.add_device("rig", [group], {}, {})
+    for a in range(0, len(order), 25):
+        b = slice(a, a + 25)
+        w.write("rig", SampleBlock(order[b] * 100_000, order[b].astype(np.uint32), {"/amb/gap": values[b]}, log_time[b]))
+    w.close()
+
+
+@pytest.mark.parametrize("order, official", [
+    (np.arange(199, -1, -1), True),  # the official writer: one chunk, backwards
+    (np.r_[np.arange(0, 200, 2), np.arange(1, 200, 2)], False),  # chunks in order inside, overlapping in time
+])
+def test_messages_written_out_of_time_order_are_loaded_in_time_order(tmp_path, order, official):
+    """Messages out of log-time order within a chunk (a file in ambdaq's layout from another
+    tool), or from one chunk to the next: every column comes back sorted by log time, each
+    sample's fields still with its own seq."""
+    path = tmp_path / "shuffled.mcap"
+    _write_gap(path, order, 1 << 20 if official else None)
+    assert len(McapFile(path).summary.chunk_indexes) == (1 if official else 8)
+    gap = load(path)["/amb/gap"]
+    np.testing.assert_array_equal(gap.log_time, 1e9 + np.arange(200) * 100_000)
+    np.testing.assert_array_equal(gap.seq, np.arange(200))
+    np.testing.assert_array_equal(gap.device_time, np.arange(200) * 100_000)
+    np.testing.assert_array_equal(gap["front_x"], np.arange(200) * 1e-6)
+    np.testing.assert_array_equal(gap["front_y"], -np.arange(200) * 1e-6)
+    np.testing.assert_allclose(gap.time, np.arange(200) * 1e-4, atol=1e-12)

@@ -126,6 +126,11 @@ is 2e-8 inside the circle, 20 times this tolerance.  At 10 kHz a radius 1e-9 fro
 error by 1/e in 10^9 samples, 28 hours: nothing a run can show."""
 
 
+def _radius_text(r: float) -> str:
+    """A spectral radius printed so that its side of 1 shows: ``1 + 3.0e-08``, not ``1.0000``."""
+    return f"1 {'+' if r > 1 else '-'} {abs(r - 1):.1e}" if abs(r - 1) < 1e-3 else f"{r:.4f}"
+
+
 def converges(radius: np.ndarray) -> np.ndarray:
     """+1 where the LMS converges (radius < 1 - HOLD_TOL), 0 where the weights hold (within
     HOLD_TOL of 1), -1 where it diverges."""
@@ -403,5 +408,5 @@ def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: i
                 bad = np.flatnonzero(converges(r) < 1)
                 if bad.size:
                     return (f"step size {mu:g} on {kk}X diverges on the {name} loop at {rpm[bad[0]]:.0f} rpm "
-                            f"(radius {r[bad[0]]:.4f} on the convergence map)")
+                            f"(radius {_radius_text(r[bad[0]])} on the convergence map)")
     return ""

@@ -94,9 +94,10 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
         click.echo(json.dumps(report, indent=2))
     else:
         for name, rep in report["loops"].items():
-            flips = ", ".join(f"{f:,.0f}" for f in rep["sign_flips_rpm"]) or "none"
+            flips = ", ".join(f"{f:,.0f}" for f in rep["sign_flips_rpm"])
+            where = f"flips at {flips} rpm" if flips else f"never flips ({rpm[0]:,.0f}-{rpm[-1]:,.0f} rpm)"
             click.echo(f"{name}: {harmonic}X, {'phase-compensated' if compensated else 'seed 000 update'}: "
-                       f"sign of mu flips at {flips} rpm")
+                       f"sign of mu {where}")
             if rep["no_sign_converges_rpm"]:
                 lo, hi = rep["no_sign_converges_rpm"]
                 click.echo(f"  no sign of |mu| = {mu_max / 10:g} converges between {lo:,.0f} and {hi:,.0f} rpm")

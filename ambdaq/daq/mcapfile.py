@@ -46,7 +46,7 @@ from mcap.records import (
 
 from .. import __version__
 from ..errors import BadInputError
-from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE
+from .schema import MESSAGE_OPCODE
 
 MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = f"ambdaq/{__version__}"
@@ -104,7 +104,7 @@ def compress(data: bytes | memoryview, method: str) -> bytes:
     return bytes(data)
 
 
-def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray | None = None) -> bytes | memoryview:
+def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray | np.ndarray | None = None) -> bytes | memoryview:
     """Decompress chunk records; ``size`` is the uncompressed size in bytes.
 
     With ``into`` (a buffer of at least ``size`` bytes) a zstd chunk is decompressed into it and a
@@ -132,10 +132,13 @@ def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray
     raise BadInputError(f"unsupported chunk compression {method!r}")
 
 
-CHUNK_SIZE = 1 << 20
-"""Uncompressed chunk size limit, bytes: a 1 MiB chunk's records stay in a core's cache while the
-reader copies its fields out (15% faster than 4 MiB, the same file size; bench_read.py).  A
-paced recording closes its chunks at the flush interval anyway (0.5 s of the spindle: 1.8 MB)."""
+CHUNK_SIZE = 4 << 20
+"""Uncompressed chunk size limit, bytes (a block larger than a chunk's room is split at a sample
+instant).  ``load`` pays a fixed cost per chunk and topic under the GIL, so smaller chunks read
+slower on two cores (1 MiB: 1.2x, 2 MiB: 1.0x, 4 MiB: 0.9x Parquet's time; 8 MiB no faster and
+outgrowing the cache), while the file size does not change (bench_read.py).  A damaged chunk
+costs 0.6 s of the spindle with ground truth.  A paced recording closes its chunks at the flush
+interval anyway (0.5 s of the spindle: 2.7 MB, with ground truth 3.6 MB)."""
 ZSTD_LEVEL = -1
 """zstd's fastest level that still compresses our records as well as level 1 (ratio 0.305 against
 0.309 on the spindle): the negative levels store literals without Huffman coding, which buys
@@ -261,8 +264,17 @@ class BlockWriter:
             Log time of each row, in ns (non-decreasing).
         """
         n, row = records.shape
-        if n == 0:
-            return
+        # a block larger than a chunk's room is split at an instant: chunks stay near chunk_size
+        while n > 0 and self._chunk.size + n * row > self._chunk_size:
+            take = max(1, -(-(self._chunk_size - self._chunk.size) // row))
+            self._add_rows(records[:take], layout, log_time[:take])
+            records, log_time, n = records[take:], log_time[take:], n - take
+        if n:
+            self._add_rows(records, layout, log_time)
+
+    def _add_rows(self, records: np.ndarray, layout: list[tuple[int, int, int]], log_time: np.ndarray) -> None:
+        """Append rows to the open chunk; close it once it reaches chunk_size."""
+        n, row = records.shape
         chunk = self._chunk
         base = chunk.size
         rows = base + np.arange(n, dtype=np.uint64) * np.uint64(row)
@@ -520,7 +532,7 @@ class McapFile:
             out[idx.name] = self._indexed(Attachment, idx.offset, idx.name).data
         return out
 
-    def chunk_records(self, ci: ChunkIndex, into: bytearray | None = None) -> bytes | memoryview:
+    def chunk_records(self, ci: ChunkIndex, into: bytearray | np.ndarray | None = None) -> bytes | memoryview:
         """The decompressed records of one chunk (into ``into`` where it can: see :func:`decompress`)."""
         pos = ci.chunk_start_offset
         h = chunk_header(self._data, pos)
@@ -543,24 +555,44 @@ class McapFile:
         return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
 
 
-def payload_view(records: bytes, offsets: np.ndarray, payload_dtype: np.dtype) -> np.ndarray:
-    """The payloads of the Message records at ``offsets`` in ``records``, as a structured array
-    whose fields are named as ``payload_dtype``'s.
+def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, message_dtype: np.dtype,
+                 channel_id: int) -> np.ndarray:
+    """The Message records of channel ``channel_id`` that the Message Index entries ``index``
+    (:meth:`McapFile.message_index`: log time and offset) point at in ``records``, header and
+    payload, as a structured array of ``message_dtype`` (:meth:`TopicLayout.message_dtype`).
 
     Where the records sit at a constant stride (every file ambdaq writes: one row of records per
     sample instant) this is a strided view into ``records``, no copy: a caller copying each field
-    out touches every byte once.  Otherwise each payload is gathered by index (one copy).
+    out touches every byte once.  Otherwise each record is gathered by index (one copy).
+
+    A Message Index has no checksum, so its entries are checked against the records (opcode,
+    length, channel, log time): at a constant stride the first and last record (a damaged offset
+    breaks the stride, and the records are covered by the chunk's checksum: a caller takes the
+    log times from the records), otherwise every record.  BadInputError if one is not the
+    message its entry names.
     """
+    offsets = index["offset"]
     n = offsets.shape[0]
-    size = payload_dtype.itemsize
+    size = message_dtype.itemsize
     if n == 0:
-        return np.empty(0, dtype=payload_dtype)
-    starts = offsets.astype(np.int64) + MESSAGE_HEADER_SIZE
+        return np.empty(0, dtype=message_dtype)
     buf = np.frombuffer(records, dtype=np.uint8)
-    if starts.min() < 0 or starts.max() + size > buf.shape[0]:
-        raise BadInputError("message index points past the end of its chunk")
-    stride = int(starts[1] - starts[0]) if n > 1 else size
-    if stride >= size and (n == 1 or np.all(np.diff(starts) == stride)):
-        return np.ndarray(shape=(n,), dtype=payload_dtype, buffer=buf, offset=int(starts[0]), strides=(stride,))
-    rows = buf[starts[:, None] + np.arange(size)]
-    return np.ascontiguousarray(rows).view(payload_dtype).ravel()
+    first = int(offsets[0])
+    stride = int(offsets[1]) - first if n > 1 else size
+    # the constant-stride case is checked with one pass over the offsets (a decreasing pair wraps
+    # in uint64 and fails the comparison); its ends bound every record in between
+    if (stride >= size and first + (n - 1) * stride + size <= buf.shape[0]
+            and (n == 1 or np.all(np.diff(offsets) == stride))):
+        view = np.ndarray(shape=(n,), dtype=message_dtype, buffer=buf, offset=first, strides=(stride,))
+        checked, times = view[[0, -1]], index["log_time"][[0, -1]]
+    else:
+        if int(offsets.max()) + size > buf.shape[0]:
+            raise BadInputError("message index points past the end of its chunk")
+        rows = buf[offsets.astype(np.int64)[:, None] + np.arange(size)]
+        view = checked = np.ascontiguousarray(rows).view(message_dtype).ravel()
+        times = index["log_time"]
+    # a record's length field counts what follows it: the record less its opcode and length
+    if not (np.all(checked["opcode"] == MESSAGE_OPCODE) and np.all(checked["length"] == size - 9)
+            and np.all(checked["channel"] == channel_id) and np.array_equal(checked["log_time"], times)):
+        raise BadInputError(f"message index does not point at channel {channel_id}'s messages")
+    return view

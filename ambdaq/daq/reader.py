@@ -22,16 +22,18 @@ import threading
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from ..drivers.signals import SignalGroup
 from ..errors import BadInputError
-from .mcapfile import McapFile, payload_view
+from .mcapfile import McapFile, message_view
 from .schema import HEADER_FIELDS, TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
+HUGE_PAGE = 2 << 20  # x86-64 and arm64 Linux transparent huge pages, bytes
 
 
 @dataclass
@@ -47,8 +49,8 @@ class TopicData:
         the measured :attr:`sample_rate` when the recording does not say.
     log_time : ndarray of int64
         Host time of each sample, in ns (MCAP log_time).
-    time : ndarray of float64
-        Seconds since the first sample of the recording.
+    start_ns : int
+        Host time of the recording's first message (of any topic), in ns: where :attr:`time` starts.
     device_time : ndarray of int64
         Device clock, in ns.
     seq : ndarray of uint32
@@ -62,7 +64,7 @@ class TopicData:
     topic: str
     nominal_rate: float
     log_time: np.ndarray
-    time: np.ndarray
+    start_ns: int
     device_time: np.ndarray
     seq: np.ndarray
     status: np.ndarray
@@ -78,6 +80,12 @@ class TopicData:
     def __len__(self) -> int:
         return int(self.log_time.shape[0])
 
+    @cached_property
+    def time(self) -> np.ndarray:
+        """Seconds since the first message of the recording (float64), computed when first asked:
+        a caller that plots one topic does not pay for the others'."""
+        return (self.log_time - self.start_ns) * 1e-9
+
     @property
     def sample_rate(self) -> float:
         """Mean sample rate, in Hz."""
@@ -88,7 +96,10 @@ class TopicData:
     @property
     def duration(self) -> float:
         """From the first sample to the last, in s."""
-        return float(self.time[-1] - self.time[0]) if len(self) else 0.0
+        if not len(self):
+            return 0.0
+        first, last = (float(self.log_time[i] - self.start_ns) * 1e-9 for i in (0, -1))
+        return last - first  # as self.time[-1] - self.time[0], without computing self.time
 
     def __repr__(self) -> str:
         fields = ", ".join(f"{k} [{u}]" for k, u in self.units.items())
@@ -159,6 +170,24 @@ def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
     return out
 
 
+def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
+    """One topic's output arrays for ``n`` samples: the header columns and one (fields, samples)
+    array whose rows are the fields, all carved from one allocation.  numpy asks the kernel for
+    huge pages on allocations of 4 MiB and more, so the first write faults 2 MiB pages in rather
+    than 4 KiB ones: separate 2.4 MB header arrays cost a page fault per 4 KiB, 25% of a whole
+    load's time (benchmarks/bench_read.py)."""
+    size = 8 * n * (2 + fields) + 4 * n * 2
+    block = np.empty(size + HUGE_PAGE, dtype=np.uint8)  # starts on a huge page, so all of it can be one
+    block = block[-block.ctypes.data % HUGE_PAGE :][:size]
+    parts, at = {}, 0
+    for name, dtype, shape in (("log_time", np.int64, (n,)), ("device_time", np.int64, (n,)),
+                               ("values", np.float64, (fields, n)), ("seq", np.uint32, (n,)), ("status", np.uint32, (n,))):
+        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        parts[name] = block[at : at + size].view(dtype).reshape(shape)
+        at += size
+    return parts
+
+
 def load(
     path: str | Path,
     topics: list[str] | tuple[str, ...] | None = None,
@@ -219,32 +248,36 @@ def load(
             plan.append((ci, here))
             for cid, idx in here.items():
                 counts[cid] += idx.shape[0]
-    # per channel: the header columns and one (fields, samples) array whose rows are the fields
-    out = {cid: {"log_time": np.empty(counts[cid], dtype=np.int64), "device_time": np.empty(counts[cid], dtype=np.int64),
-                 "seq": np.empty(counts[cid], dtype=np.uint32), "status": np.empty(counts[cid], dtype=np.uint32),
-                 "values": np.empty((len(layout.group.fields), counts[cid]))}
-           for cid, (_topic, layout) in by_id.items()}
+    out = {cid: _topic_arrays(counts[cid], len(layout.group.fields)) for cid, (_topic, layout) in by_id.items()}
     jobs, pos = [], {cid: 0 for cid in by_id}
     for ci, here in plan:  # where each chunk's messages go in the output, known before any is read
         jobs.append((ci, {cid: (idx, pos[cid]) for cid, idx in here.items()}))
         for cid, idx in here.items():
             pos[cid] += idx.shape[0]
 
+    dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
     largest = max((ci.uncompressed_size for ci, _ in jobs), default=0)
     local = threading.local()
+    unordered: set[int] = set()  # channels with a message logged before the one in front of it
 
     def read_chunk(job) -> None:
         """Decompress one chunk (into this thread's buffer) and copy its fields into place: both
         release the GIL, so chunks are read on every core at once."""
         ci, places = job
         if not hasattr(local, "buffer"):
-            local.buffer = bytearray(largest)
+            local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
         records = f.chunk_records(ci, local.buffer)
         for cid, (idx, p) in places.items():
-            view = payload_view(records, idx["offset"], by_id[cid][1].payload_dtype)
+            try:
+                view = message_view(records, idx, dtypes[cid], cid)
+            except BadInputError as err:
+                raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
+                                    f"try: ambdaq recover") from None
             n = view.shape[0]
             cols = out[cid]
-            cols["log_time"][p : p + n] = idx["log_time"]
+            cols["log_time"][p : p + n] = times = view["log_time"]  # the record's, which the index repeats
+            if n > 1 and np.any(times[1:] < times[:-1]):
+                unordered.add(cid)
             for name in HEADER_FIELDS:
                 cols[name][p : p + n] = view[name]
             # one call for every field: numpy walks the records once, writing each field's row
@@ -253,12 +286,16 @@ def load(
     with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
             pass
+    for cid in by_id:  # where one chunk's messages meet the next's
+        starts = np.array([places[cid][1] for _, places in jobs if cid in places and places[cid][1] > 0], dtype=np.int64)
+        if starts.size and np.any(out[cid]["log_time"][starts] < out[cid]["log_time"][starts - 1]):
+            unordered.add(cid)
     result = {}
     metadata = f.metadata()
     for cid, (topic, layout) in by_id.items():
         cols = out[cid]
         lt = cols["log_time"]
-        if lt.shape[0] > 1 and np.any(np.diff(lt) < 0):
+        if cid in unordered:
             order = np.argsort(lt, kind="stable")
             cols = {k: v[..., order] for k, v in cols.items()}
             lt = cols["log_time"]
@@ -272,7 +309,7 @@ def load(
             topic=topic,
             nominal_rate=0.0,
             log_time=lt,
-            time=(lt - t0) * 1e-9,
+            start_ns=t0,
             device_time=cols["device_time"],
             seq=cols["seq"],
             status=cols["status"],

@@ -69,6 +69,11 @@ class TopicLayout:
     def payload_size(self) -> int:
         return 20 + 8 * len(self.group.fields)
 
+    @property
+    def message_dtype(self) -> np.dtype:
+        """Packed structured dtype of one whole MCAP Message record (header and payload)."""
+        return np.dtype(self.record_dtype())
+
     def record_dtype(self, prefix: str = "") -> list[tuple[str, str]]:
         """Fields of one whole MCAP Message record (header + payload), names prefixed."""
         return [
