@@ -142,3 +142,42 @@ def test_frequency_response_and_points_files_name_the_offending_key(tmp_path, ru
     (tmp_path / "p.json").write_text(sealed(points))
     one_line_exit_2(run_cli("fx", "fit", tmp_path / "p.json", "-o", tmp_path / "fir.json"),
                     "planes.vertical.W12 has 2 re and 1 im values for 2 frequencies")
+
+
+def _plant_files(folder):
+    """Plant files (``--plant ss:FILE``) built to hang or exhaust the analysis, with what the
+    line must say."""
+    import numpy as np
+
+    big = folder / "zeros_3000.npz"  # 72 MB of zeros in 70 KB: eigenproblems of order 3,000 at 600 speeds
+    np.savez_compressed(big, M=np.zeros((1, 3000, 3000)), B=np.zeros((1, 3000, 1)), C=np.zeros((1, 1, 3000)),
+                        h=np.array(1e-4))
+    order = folder / "order_65.npz"
+    np.savez(order, A=np.zeros((65, 65)), B=np.zeros((65, 1)), C=np.zeros((1, 65)))
+    broken = folder / "broken.npz"
+    broken.write_bytes(order.read_bytes()[:300])
+    no_b = folder / "no_b.npz"
+    np.savez(no_b, M=np.eye(3), C=np.ones((1, 3)), h=np.array(1e-4))
+    fifo = folder / "fifo.npz"
+    os.mkfifo(fifo)
+    return {big: "9,006,001 values; a plant file holds at most", order: "a plant of order 65; at most 64",
+            broken: "File is not a zip file", no_b: "B is missing", fifo: "not a regular file"}
+
+
+def test_plant_files_that_would_hang_or_exhaust_memory_are_one_line(tmp_path):
+    """In a process of its own with a time limit: before the bounds, the first file read 72 MB
+    and began 600 eigenproblems of order 3,000 (hours), the FIFO blocked forever."""
+    import subprocess
+    import sys
+
+    files = _plant_files(tmp_path)
+    script = ("import json, sys\nfrom click.testing import CliRunner\nfrom ambdaq.cli.main import cli\n"
+              "for path in sys.argv[1:]:\n"
+              "    r = CliRunner().invoke(cli, ['lms', 'map', '--plant', 'ss:' + path])\n"
+              "    print(json.dumps([path, r.exit_code, r.output]), flush=True)\n")
+    r = subprocess.run([sys.executable, "-c", script, *map(str, files)], capture_output=True, text=True, timeout=120)
+    results = [json.loads(line) for line in r.stdout.splitlines()]
+    assert len(results) == len(files), r.stderr
+    for (path, needle), (_, code, output) in zip(files.items(), results):
+        lines = output.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and needle in lines[0], (path.name, output)

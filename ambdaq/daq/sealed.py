@@ -58,8 +58,9 @@ def read_sealed(path: str | Path, fmt: str, version: int, what: str) -> dict:
     return doc
 
 
-def read_json(path: Path, what: str):
-    """The JSON value in the regular file ``path`` of at most MAX_BYTES; one line otherwise."""
+def check_regular_file(path: Path, what: str) -> None:
+    """BadInputError unless ``path`` is a regular file of at most MAX_BYTES (a FIFO would block
+    the read forever, a device or a huge file would not end)."""
     try:
         info = path.stat()
     except FileNotFoundError:
@@ -70,6 +71,11 @@ def read_json(path: Path, what: str):
         raise BadInputError(f"{path}: not a regular file; a {what} is a file")
     if info.st_size > MAX_BYTES:
         raise BadInputError(f"{path}: {info.st_size:,} bytes; a {what} is at most {MAX_BYTES:,}")
+
+
+def read_json(path: Path, what: str):
+    """The JSON value in the regular file ``path`` of at most MAX_BYTES; one line otherwise."""
+    check_regular_file(path, what)
     try:
         return json.loads(path.read_text())
     except RecursionError:

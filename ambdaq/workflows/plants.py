@@ -19,6 +19,7 @@ ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms
 from __future__ import annotations
 
 import warnings
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -28,7 +29,7 @@ from scipy.signal import ss2tf
 from ..analysis.lms import BEARINGS, PlantLoop, StateSpaceLoop
 from ..machines.spindle import N_AXES  # the controller's axes a plant's inputs stand for, in order
 from ..sim.rigs.spindle import SpindleRig
-from ..daq.sealed import read_json
+from ..daq.sealed import check_regular_file, read_json
 from ..errors import BadInputError
 
 PLANT_NAMES = ("front", "rear", "bearings", "rig", "tf:NUM/DEN", "ss:FILE")
@@ -42,7 +43,7 @@ def rig_loop() -> StateSpaceLoop:
     return _RIG["spindle"]
 
 
-MAX_ORDER = 64  # a plant model's order: the rig's linearisation is 20
+MAX_ORDER = 64  # a plant model's order: the simulated spindle's discrete loop has 35 states
 
 
 @contextmanager
@@ -88,15 +89,48 @@ def resolve_plant(spec: str) -> dict:
     raise BadInputError(f"unknown plant {spec!r}: expected one of {', '.join(PLANT_NAMES)}")
 
 
+MAX_SPEEDS = 1_000  # linearisations per discrete loop (the rig every 100 rpm to 60,000 would be 601)
+# values a plant file may hold: MAX_SPEEDS sets of M (n, n), B and C at the largest order
+MAX_PLANT_VALUES = MAX_SPEEDS * (MAX_ORDER**2 + 2 * MAX_ORDER * N_AXES)
+
+
+def _npz_shapes(path: Path) -> dict[str, tuple[int, ...]]:
+    """The shape of each array in a ``.npz``, from the headers of its members, before any is
+    inflated: a few kilobytes of zip can hold gigabytes of zeros."""
+    shapes = {}
+    with zipfile.ZipFile(path) as z:
+        for member in z.infolist():
+            with z.open(member) as fh:
+                version = np.lib.format.read_magic(fh)
+                shape, _fortran, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
+                                          else np.lib.format.read_array_header_2_0(fh))
+            if dtype.kind not in "biuf":
+                raise ValueError(f"{member.filename} holds {dtype}, not numbers")
+            shapes[member.filename.removesuffix(".npy")] = shape
+    return shapes
+
+
 def _arrays(path: Path) -> dict[str, np.ndarray]:
-    """The named arrays of a ``.npz`` or ``.json`` plant file."""
+    """The named arrays of a ``.npz`` or ``.json`` plant file, of at most MAX_PLANT_VALUES numbers."""
+    where = f"plant ss:{path}"
+    check_regular_file(path, "plant file")
     try:
         if path.suffix == ".npz":
+            shapes = _npz_shapes(path)
+            total = sum(int(np.prod(shape, dtype=float)) for shape in shapes.values())
+            if total > MAX_PLANT_VALUES:
+                raise BadInputError(f"{where}: {total:,} values; a plant file holds at most {MAX_PLANT_VALUES:,} "
+                                    f"(order {MAX_ORDER}, {MAX_SPEEDS} speeds)")
             with np.load(path, allow_pickle=False) as z:
                 return {k: np.asarray(z[k], dtype=float) for k in z.files}
-        return {k: np.asarray(v, dtype=float) for k, v in read_json(path, "plant file").items()}
-    except (OSError, ValueError, TypeError, AttributeError) as err:
-        raise BadInputError(f"plant ss:{path}: cannot read a .npz or .json of named arrays ({err})") from None
+        doc = read_json(path, "plant file")
+        if not isinstance(doc, dict):
+            raise ValueError("the file is not a table of named arrays")
+        return {k: np.asarray(v, dtype=float) for k, v in doc.items()}
+    except BadInputError:
+        raise
+    except (OSError, ValueError, TypeError, AttributeError, zipfile.BadZipFile, EOFError) as err:
+        raise BadInputError(f"{where}: cannot read a .npz or .json of named arrays ({err})") from None
 
 
 def state_space_plant(path: Path) -> dict:
@@ -121,7 +155,13 @@ def state_space_plant(path: Path) -> dict:
     bad = [k for k, v in a.items() if not np.all(np.isfinite(v))]
     if bad:
         raise BadInputError(f"{where}: {bad[0]} holds NaN or infinite values")
+    order = max((a[k].shape[-1] for k in ("A", "M") if k in a and a[k].ndim), default=0)
+    if order > MAX_ORDER:
+        raise BadInputError(f"{where}: a plant of order {order}; at most {MAX_ORDER}")
     if "M" in a:
+        missing = [k for k in "BC" if k not in a]
+        if missing:
+            raise BadInputError(f"{where}: a discrete loop needs M, B, C and h; {missing[0]} is missing")
         return {"ss": (_discrete_loop(a, where), tuple(range(a["B"].shape[-1])))}
     if "A" not in a:
         raise BadInputError(f"{where}: expected arrays A, B, C[, D] (continuous plant) or M, B, C, h[, rpm] (loop)")
@@ -141,6 +181,8 @@ def _discrete_loop(a: dict[str, np.ndarray], where: str) -> StateSpaceLoop:
         raise BadInputError(f"{where}: a discrete loop needs h, its sample period in s (> 0)")
     rpm = np.atleast_1d(a.get("rpm", np.zeros(1)))
     k = rpm.size
+    if k > MAX_SPEEDS:
+        raise BadInputError(f"{where}: {k:,} speeds; a discrete loop is given at {MAX_SPEEDS:,} speeds at most")
     M, B, C = (a[name] if a[name].ndim == 3 else np.broadcast_to(a[name], (k, *a[name].shape)) for name in "MBC")
     n, p = M.shape[-1], B.shape[-1]
     if (M.shape != (k, n, n) or B.shape != (k, n, p) or C.shape != (k, p, n) or not 1 <= p <= N_AXES
