@@ -53,6 +53,7 @@ LIBRARY = f"ambdaq/{__version__}"
 COMPRESSIONS = ("zstd", "lz4", "none")
 FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+_MESSAGE_HEAD = struct.Struct("<BQHIQ")  # opcode, length, channel id, sequence, log time
 
 
 CHUNK_HEAD = struct.Struct("<QQQII")  # message start, end, uncompressed size, CRC-32, compression name length
@@ -581,18 +582,21 @@ def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, me
     stride = int(offsets[1]) - first if n > 1 else size
     # the constant-stride case is checked with one pass over the offsets (a decreasing pair wraps
     # in uint64 and fails the comparison); its ends bound every record in between
+    wrong = BadInputError(f"message index does not point at channel {channel_id}'s messages")
+    # a record's length field counts what follows it: the record less its opcode and length
+    expected = (MESSAGE_OPCODE, size - 9, channel_id)
     if (stride >= size and first + (n - 1) * stride + size <= buf.shape[0]
             and (n == 1 or np.all(np.diff(offsets) == stride))):
-        view = np.ndarray(shape=(n,), dtype=message_dtype, buffer=buf, offset=first, strides=(stride,))
-        checked, times = view[[0, -1]], index["log_time"][[0, -1]]
-    else:
-        if int(offsets.max()) + size > buf.shape[0]:
-            raise BadInputError("message index points past the end of its chunk")
-        rows = buf[offsets.astype(np.int64)[:, None] + np.arange(size)]
-        view = checked = np.ascontiguousarray(rows).view(message_dtype).ravel()
-        times = index["log_time"]
-    # a record's length field counts what follows it: the record less its opcode and length
-    if not (np.all(checked["opcode"] == MESSAGE_OPCODE) and np.all(checked["length"] == size - 9)
-            and np.all(checked["channel"] == channel_id) and np.array_equal(checked["log_time"], times)):
-        raise BadInputError(f"message index does not point at channel {channel_id}'s messages")
+        for i in (0, n - 1):  # two records: struct, not numpy, for the fixed cost per chunk and topic
+            opcode, length, channel, _sequence, log_time = _MESSAGE_HEAD.unpack_from(buf, first + i * stride)
+            if (opcode, length, channel) != expected or log_time != index["log_time"][i]:
+                raise wrong
+        return np.ndarray(shape=(n,), dtype=message_dtype, buffer=buf, offset=first, strides=(stride,))
+    if int(offsets.max()) + size > buf.shape[0]:
+        raise BadInputError("message index points past the end of its chunk")
+    rows = buf[offsets.astype(np.int64)[:, None] + np.arange(size)]
+    view = np.ascontiguousarray(rows).view(message_dtype).ravel()
+    if not (np.all(view["opcode"] == expected[0]) and np.all(view["length"] == expected[1])
+            and np.all(view["channel"] == channel_id) and np.array_equal(view["log_time"], index["log_time"])):
+        raise wrong
     return view
