@@ -128,3 +128,18 @@ def test_messages_written_out_of_time_order_are_loaded_in_time_order(tmp_path, o
     np.testing.assert_array_equal(gap["front_x"], np.arange(200) * 1e-6)
     np.testing.assert_array_equal(gap["front_y"], -np.arange(200) * 1e-6)
     np.testing.assert_allclose(gap.time, np.arange(200) * 1e-4, atol=1e-12)
+
+
+def test_a_workflow_takes_a_recording_already_loaded(spindle_file):
+    """What the fleet does: load once, hand the recording to several workflows. One that lacks a
+    topic the workflow needs is one clear error, not a second read of the file."""
+    from ambdaq.daq.reader import loaded
+    from ambdaq.workflows.runout import identify_recordings
+
+    rec = load(spindle_file, topics=["/amb/gap", "/amb/rotor"])
+    assert loaded(rec, ["/amb/gap"]) is rec
+    with pytest.raises(BadInputError, match="no ambdaq topic /amb/current loaded"):
+        identify_recordings([rec], [1, 2], "fit")
+    by_path = identify_recordings([spindle_file], [1, 2], "fit")
+    by_rec = identify_recordings([load(spindle_file, topics=["/amb/gap", "/amb/current", "/amb/rotor"])], [1, 2], "fit")
+    assert by_rec.coef.weights == by_path.coef.weights and by_rec.paths == by_path.paths

@@ -321,4 +321,28 @@ def load(
     return Recording(Path(path), result, metadata)
 
 
-__all__ = ["Recording", "TopicData", "load"]
+def loaded(source: str | Path | Recording, topics: list[str]) -> Recording:
+    """``source`` itself if it is a :class:`Recording` that holds ``topics``, else ``load(source,
+    topics)``: a workflow takes either, so a caller running several on one file reads it once.
+
+    Parameters
+    ----------
+    source : str, Path or Recording
+        A recording's path, or one already loaded.
+    topics : list of str
+        Topics the caller needs.
+
+    Raises
+    ------
+    BadInputError
+        A topic is missing (from the file, or from what was loaded).
+    """
+    if not isinstance(source, Recording):
+        return load(source, topics=topics)
+    missing = [t for t in topics if t not in source]
+    if missing:
+        raise BadInputError(f"{source.path}: no ambdaq topic {missing[0]} loaded; topics: {', '.join(source) or 'none'}")
+    return source
+
+
+__all__ = ["Recording", "TopicData", "load", "loaded"]

@@ -30,7 +30,7 @@ import numpy as np
 from ..analysis.runout import harmonic_fit
 from ..daq.coefficients import file_sha256
 from ..daq.mcapfile import MAGIC, McapFile
-from ..daq.reader import load
+from ..daq.reader import ambdaq_channels, load
 from ..errors import AmbdaqError, BadInputError
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
@@ -93,7 +93,8 @@ def scan_recording(path: str | Path) -> dict:
     notes = []
     try:
         row["sha256"] = file_sha256(path)
-        meta = McapFile(path).metadata()
+        f = McapFile(path)
+        meta = f.metadata()
         row[PARTITION] = _machine(meta)
         session = meta.get("ambdaq.session", {})
         row["start"] = session.get("start_time") or None
@@ -101,7 +102,9 @@ def scan_recording(path: str | Path) -> dict:
         row["drops"], row["duplicates"] = _counts(meta)
         row["coefficients_sha256"] = next((m[COEFFICIENTS_KEY] for n, m in meta.items()
                                            if n.startswith("ambdaq.device.") and m.get(COEFFICIENTS_KEY)), None)
-        rec = load(path, topics=["/amb/gap", "/amb/rotor"])
+        # read once, for the 1X here and the runout and zones below (without current: no runout)
+        current = ["/amb/current"] if "/amb/current" in ambdaq_channels(f) else []
+        rec = load(path, topics=["/amb/gap", "/amb/rotor", *current])
         gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
         n = min(len(gap), len(rot))
         row["samples"] = len(gap)
@@ -112,7 +115,9 @@ def scan_recording(path: str | Path) -> dict:
         for axis, v in zip(AXES, one_x):
             row[f"onex_{axis}_um"], row[f"onex_{axis}_deg"] = float(abs(v)), float(np.degrees(np.angle(v)))
         try:  # what `ambdaq runout identify FILE` writes
-            ident = identify_recordings([path], list(HARMONICS), "fit")
+            if not current:
+                raise BadInputError(f"{path}: no coil currents (/amb/current) in the recording")
+            ident = identify_recordings([rec], list(HARMONICS), "fit")
             for axis in AXES:
                 for k, (a, b) in zip(HARMONICS, ident.coef.weights[axis]):
                     v = complex(a, b) * 1e6
@@ -121,7 +126,7 @@ def scan_recording(path: str | Path) -> dict:
         except BadInputError as err:
             notes.append(f"runout: {err}")
         try:  # what `ambdaq iso vibration FILE` grades
-            grades, info = evaluate([path], cmin_m=None, band_rpm=BAND_RPM)
+            grades, info = evaluate([rec], cmin_m=None, band_rpm=BAND_RPM)
             row["cmin_um"] = info["cmin_um"]
             for bearing in BEARINGS:
                 worst = max((g for g in grades if g.bearing == bearing), key=lambda g: g.ratio)

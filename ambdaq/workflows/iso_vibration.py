@@ -24,6 +24,7 @@ import numpy as np
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
+from ..daq.reader import Recording
 from ..daq.triggers import CMIN_KEY  # in a device's calibration (ambdaq.calibration.<device>)
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
@@ -33,9 +34,11 @@ WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,
 BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
 
 
-def recorded_cmin(path: Path) -> float | None:
-    """Cmin (m) a recording's controller reports in its calibration, if any."""
-    for name, meta in McapFile(path).metadata().items():
+def recorded_cmin(source: Path | Recording) -> float | None:
+    """Cmin (m) a recording's controller reports in its calibration, if any (from its path, or
+    the recording loaded)."""
+    metadata = source.metadata if isinstance(source, Recording) else McapFile(source).metadata()
+    for name, meta in metadata.items():
         if name.startswith("ambdaq.calibration.") and CMIN_KEY in meta:
             return float(meta[CMIN_KEY])
     return None
@@ -91,14 +94,15 @@ def orbit_windows(x: np.ndarray, y: np.ndarray, speed_rpm: np.ndarray, n: int) -
             np.sqrt(xs * xs + ys * ys).max(axis=1))
 
 
-def evaluate(paths: list[Path], *, cmin_m: float | None, band_rpm: float = 1000.0,
+def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: float = 1000.0,
              coefficients: Path | None = None, limits: ZoneLimits = VIBRATION_LIMITS) -> tuple[list[BandGrade], dict]:
     """ISO 14839-2 zones per bearing and speed band over ``paths``.
 
     Parameters
     ----------
-    paths : list of Path
-        Recordings with the gap sensors (``/amb/gap``) and the rotor angle and speed (``/amb/rotor``).
+    paths : list of Path or Recording
+        Recordings with the gap sensors (``/amb/gap``) and the rotor angle and speed (``/amb/rotor``),
+        as paths or loaded.
     cmin_m : float or None
         Minimum clearance, in m; None: the one the recordings' controller reports.
     band_rpm : float
@@ -127,8 +131,9 @@ def evaluate(paths: list[Path], *, cmin_m: float | None, band_rpm: float = 1000.
     coef = Coefficients.load(coefficients) if coefficients is not None else None
     rows: dict[str, list[np.ndarray]] = {b: [] for b in BEARINGS}
     sources = []
-    for path in paths:
-        gap, rot, m = gap_and_rotor(path, "grading vibration per speed")
+    for source in paths:
+        path = source.path if isinstance(source, Recording) else source
+        gap, rot, m = gap_and_rotor(source, "grading vibration per speed")
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:
             raise BadInputError(f"{path}: {m} samples, fewer than one {WINDOW_S:g} s window")

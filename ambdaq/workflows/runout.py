@@ -12,7 +12,7 @@ from ..analysis.rotor import RigidRotor
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average,
                                synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.reader import Recording, load
+from ..daq.reader import Recording, loaded
 from ..errors import BadInputError
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
@@ -26,9 +26,10 @@ METHODS = {
 }
 
 
-def gap_and_rotor(path: Path, purpose: str):
-    """The gap sensors and the rotor angle and speed of a recording, cut to the same length; one
-    line, exit 2, if it has no rotor topic (``purpose`` says what needed it).
+def gap_and_rotor(source: Path | Recording, purpose: str):
+    """The gap sensors and the rotor angle and speed of a recording (its path, or the recording
+    loaded), cut to the same length; one line, exit 2, if it has no rotor topic (``purpose`` says
+    what needed it).
 
     Returns
     -------
@@ -40,10 +41,12 @@ def gap_and_rotor(path: Path, purpose: str):
     from ..daq.mcapfile import McapFile
     from ..daq.reader import ambdaq_channels
 
-    if "/amb/rotor" not in ambdaq_channels(McapFile(path)):
+    has_rotor = "/amb/rotor" in (source if isinstance(source, Recording) else ambdaq_channels(McapFile(source)))
+    if not has_rotor:
+        path = source.path if isinstance(source, Recording) else source
         raise BadInputError(f"{path}: no rotor angle and speed (/amb/rotor): {purpose} needs the key-phasor; "
                             "record with the controller's rotor angle")
-    rec = load(path, topics=["/amb/gap", "/amb/rotor"])
+    rec = loaded(source, ["/amb/gap", "/amb/rotor"])
     gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
     return gap, rot, min(len(gap), len(rot))
 
@@ -78,8 +81,9 @@ class Identification:
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
 
 
-def identify_recordings(paths: list[Path], harmonics: list[int], method: str) -> Identification:
-    """Runout per axis and harmonic from recordings at constant speed (one speed per file).
+def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str) -> Identification:
+    """Runout per axis and harmonic from recordings at constant speed (one speed per file), given
+    as paths or loaded (with ``/amb/gap``, ``/amb/current`` and ``/amb/rotor``).
 
     Harmonics above 1X come from every file (averaged); 1X comes from a slow roll if there is
     one, else from separating runout and unbalance over the speeds, else (one fast recording)
@@ -87,8 +91,9 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
     """
     per_file, warnings, sources, recs = [], [], [], []
     rotor = device = identity = None
-    for path in paths:
-        rec = load(path, topics=["/amb/gap", "/amb/current", "/amb/rotor"])
+    for source in paths:
+        rec = loaded(source, ["/amb/gap", "/amb/current", "/amb/rotor"])
+        path = rec.path
         recs.append(rec)
         rotor, device, identity = _rotor(rec, path)
         gap, cur, rot = rec["/amb/gap"], rec["/amb/current"], rec["/amb/rotor"]
@@ -127,7 +132,7 @@ def identify_recordings(paths: list[Path], harmonics: list[int], method: str) ->
         harmonics=list(harmonics),
         weights=weights,
     )
-    return Identification(coef, warnings, list(paths), recs[0], spins, np.array([r for _, r in per_file]))
+    return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]))
 
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
