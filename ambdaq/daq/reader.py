@@ -345,4 +345,9 @@ def loaded(source: str | Path | Recording, topics: list[str]) -> Recording:
     return source
 
 
-__all__ = ["Recording", "TopicData", "load", "loaded"]
+def source_path(source: str | Path | Recording) -> Path:
+    """The file a recording's path or a loaded :class:`Recording` came from (for messages)."""
+    return source.path if isinstance(source, Recording) else Path(source)
+
+
+__all__ = ["Recording", "TopicData", "load", "loaded", "source_path"]

@@ -16,7 +16,7 @@ from ..daq.reader import load
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .push import local_log_path
-from .runout import check_recordings
+from .runout import check_recordings, with_rotor
 
 IDENTITY_KEYS = ("kind", "model", "serial", "firmware", "software_version", "url", "sample_rate_hz")
 
@@ -120,12 +120,13 @@ def gather(files: SessionFiles) -> Commissioning:
         "rows": [{"speed_rpm": r.speed_rpm, "axis": r.axis, "peak": r.peak, "peak_db": r.peak_db, "peak_hz": r.peak_hz,
                   "coherence_at_peak": r.coherence_at_peak, "zone": r.zone, "reason": r.reason} for r in doc.runs]}
     if files.runup:
-        grades, info = iso_vibration.evaluate([files.runup], cmin_m=files.cmin_m, band_rpm=5000.0,
+        runup = with_rotor(files.runup, "a run-up's vibration zones and order tracking")  # read once for both
+        grades, info = iso_vibration.evaluate([runup], cmin_m=files.cmin_m, band_rpm=5000.0,
                                               coefficients=files.coefficients)
         out["vibration"] = {**{k: info[k] for k in ("cmin_um", "cmin_from", "limits_ratio_cmin", "band_rpm",
                                                     "runout_removed")},
                             "bands": [g.as_dict() for g in grades]}
-        diag = runup_diagnostics.analyse(files.runup, coefficients=files.coefficients, orders=(1, 2))
+        diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2))
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
                         "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),

@@ -24,7 +24,7 @@ import numpy as np
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
-from ..daq.reader import Recording
+from ..daq.reader import Recording, source_path
 from ..daq.triggers import CMIN_KEY  # in a device's calibration (ambdaq.calibration.<device>)
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
@@ -132,7 +132,7 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
     rows: dict[str, list[np.ndarray]] = {b: [] for b in BEARINGS}
     sources = []
     for source in paths:
-        path = source.path if isinstance(source, Recording) else source
+        path = source_path(source)
         gap, rot, m = gap_and_rotor(source, "grading vibration per speed")
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:

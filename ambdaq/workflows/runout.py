@@ -12,7 +12,7 @@ from ..analysis.rotor import RigidRotor
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average,
                                synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.reader import Recording, loaded
+from ..daq.reader import Recording, loaded, source_path
 from ..errors import BadInputError
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
@@ -26,10 +26,22 @@ METHODS = {
 }
 
 
+def with_rotor(source: Path | Recording, purpose: str) -> Recording:
+    """A recording's gap sensors and rotor angle and speed, loaded (or ``source`` itself if it is
+    loaded); one line, exit 2, if it has no rotor topic (``purpose`` says what needed it)."""
+    from ..daq.mcapfile import McapFile
+    from ..daq.reader import ambdaq_channels
+
+    has_rotor = "/amb/rotor" in (source if isinstance(source, Recording) else ambdaq_channels(McapFile(source)))
+    if not has_rotor:
+        raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
+                            "key-phasor; record with the controller's rotor angle")
+    return loaded(source, ["/amb/gap", "/amb/rotor"])
+
+
 def gap_and_rotor(source: Path | Recording, purpose: str):
-    """The gap sensors and the rotor angle and speed of a recording (its path, or the recording
-    loaded), cut to the same length; one line, exit 2, if it has no rotor topic (``purpose`` says
-    what needed it).
+    """The gap sensors and the rotor angle and speed of a recording (see :func:`with_rotor`), cut
+    to the same length.
 
     Returns
     -------
@@ -38,15 +50,7 @@ def gap_and_rotor(source: Path | Recording, purpose: str):
     n : int
         Samples both have.
     """
-    from ..daq.mcapfile import McapFile
-    from ..daq.reader import ambdaq_channels
-
-    has_rotor = "/amb/rotor" in (source if isinstance(source, Recording) else ambdaq_channels(McapFile(source)))
-    if not has_rotor:
-        path = source.path if isinstance(source, Recording) else source
-        raise BadInputError(f"{path}: no rotor angle and speed (/amb/rotor): {purpose} needs the key-phasor; "
-                            "record with the controller's rotor angle")
-    rec = loaded(source, ["/amb/gap", "/amb/rotor"])
+    rec = with_rotor(source, purpose)
     gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
     return gap, rot, min(len(gap), len(rot))
 

@@ -24,6 +24,7 @@ from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, ord
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.coefficients import Coefficients
+from ..daq.reader import Recording, source_path
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
 from .runout import gap_and_rotor, runout_at
@@ -64,11 +65,11 @@ class RunupDiagnostics:
     modes: tuple[np.ndarray, np.ndarray] | None
 
 
-def _gap_and_angle(path: Path):
-    gap, rot, n = gap_and_rotor(path, "order tracking")
+def _gap_and_angle(source: Path | Recording):
+    gap, rot, n = gap_and_rotor(source, "order tracking")
     axes = [a for a in gap.fields if a not in AXIAL]
     if not axes:
-        raise BadInputError(f"{path}: /amb/gap has no radial axes")
+        raise BadInputError(f"{source_path(source)}: /amb/gap has no radial axes")
     x = np.column_stack([gap[a][:n] for a in axes])
     return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate
 
@@ -110,15 +111,15 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
     return speeds, table
 
 
-def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
+def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
             revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
             model: str | None = None) -> RunupDiagnostics:
     """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
 
     Parameters
     ----------
-    path : Path
-        The recording (gap sensors and the rotor angle).
+    source : Path or Recording
+        The recording (gap sensors and the rotor angle), as a path or loaded.
     coefficients : Path, optional
         Runout coefficient file: its runout is taken out sample by sample.
     slow_roll : Path, optional
@@ -136,7 +137,8 @@ def analyse(path: Path, *, coefficients: Path | None = None, slow_roll: Path | N
     """
     if coefficients is not None and slow_roll is not None:
         raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
-    axes, x, theta, rpm, fs = _gap_and_angle(path)
+    path = source_path(source)
+    axes, x, theta, rpm, fs = _gap_and_angle(source)
     if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
         raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
