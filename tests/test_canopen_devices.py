@@ -272,6 +272,43 @@ def test_emcy_error_frames_and_heartbeat_loss(can_rig, tmp_path):
     assert len(cur) > 500 and np.all(cur.status & 0x1)  # over-current bit in every status word
 
 
+def test_an_emcy_fires_a_snapshot_fault_trigger(can_rig, tmp_path):
+    """A snapshot recording of the amplifier over CAN whose current limit is lowered 1 s in: its
+    over-current EMCY is a ``fault`` trigger, and the one file written holds the EMCY event and the
+    current samples of [T - 0.4 s, T + 0.3 s), every one of them or counted lost."""
+    import json
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from ambdaq.daq.snapshot import SnapshotOptions
+    from ambdaq.daq.triggers import parse_trigger
+
+    channel, *_ = can_rig
+    amp = open_device(f"can://virtual/{channel}?kind=amplifier&sync=500", name="amp")
+    threading.Timer(1.0, amp.write_param, ("current_limit", 0.05)).start()  # far below the running currents
+    snap = SnapshotOptions(pre_s=0.4, post_s=0.3, max_bytes=64 << 20, triggers=[parse_trigger("fault")])
+    Recorder([amp], tmp_path / "emcy.mcap", RecordOptions(duration_s=2.5, snapshot=snap)).run()
+    (f,) = sorted(tmp_path.glob("emcy_*.mcap"))
+    assert f.name.endswith("_fault.mcap")
+    rec = load(f)
+    meta = rec.metadata["ambdaq.snapshot"]
+    t, pre, post = int(meta["trigger_ns"]), 400_000_000, 300_000_000
+    assert meta["cause"] == "fault" and int(meta["end_ns"]) == t + post
+    with open(f, "rb") as fh:
+        events = [d for _s, _c, _m, d in make_reader(fh, decoder_factories=[DecoderFactory()])
+                  .iter_decoded_messages(topics=["/amb/events"])]
+    assert [(e.kind, e.code) for e in events] == [("fault", 0x2310)], [(e.kind, e.code, e.text) for e in events]
+    cur = rec["/amb/current"]
+    # the samples reach the window's edges within their own largest spacing (SYNC stamps on the host
+    # clock: a loaded host delays some) plus 2 ms for the clock map
+    slack = np.diff(cur.log_time).max() + 2e6
+    assert t - pre <= cur.log_time[0] <= t - pre + slack and t + post - slack <= cur.log_time[-1] < t + post
+    drops = json.loads(rec.metadata["ambdaq.statistics"]["/amb/current"])["drops"]
+    assert len(cur) + drops == int(cur.seq[-1]) - int(cur.seq[0]) + 1
+    assert np.all(cur.status[cur.log_time >= t + 20_000_000] & 0x1)  # over-current bit once it is raised
+
+
 def test_bus_off_is_reported(can_rig, tmp_path):
     channel, *_ = can_rig
     dev = open_device(f"can://virtual/{channel}?kind=accelerometer&sync=200")

@@ -280,3 +280,30 @@ def test_fault_and_sigusr1_on_the_served_spindle(tmp_path):
                   .iter_decoded_messages(topics=["/amb/events"])]
     assert [(e.kind, e.code) for e in events] == [("fault", 0x2310)] and "injected fault" in events[0].text
     assert "manual: manual trigger (SIGUSR1) ->" in stderr and "fault: rig: severity 2: injected fault" in stderr
+
+
+def test_enter_on_the_terminal_fires_a_snapshot(tmp_path):
+    """``ambdaq record`` with a terminal (a pseudo-terminal) as its stdin: the armed line offers
+    Enter, and a key press writes one file around its moment, its cause "manual (Enter)"."""
+    import pty
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--rpm", "12000", "--duration", "3",
+         "--snapshot", "0.5s", "--post", "0.3s", "--trigger", "manual", "--json", "-o", str(tmp_path / "key.mcap")],
+        stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    os.close(slave)
+    try:
+        line = proc.stderr.readline()
+        assert "SIGUSR1 or Enter fires one" in line, line
+        time.sleep(1.0)
+        os.write(master, b"\n")
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        os.close(master)
+    assert proc.returncode == 0, stderr
+    files = snapshots(tmp_path, "key")
+    assert len(files) == 1 and files[0].name.endswith("_manual.mcap") and json.loads(stdout)["snapshot"]["files"] == 1
+    meta = snap_meta(load(files[0]))
+    assert meta["cause"] == "manual" and "manual trigger (Enter)" in stderr
+    assert int(meta["end_ns"]) - int(meta["trigger_ns"]) == 300_000_000
