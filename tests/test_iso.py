@@ -139,3 +139,32 @@ def test_what_cannot_be_graded_is_one_line_exit_2(run_cli, tmp_path):
     assert run_cli("sim", "generate", "--excite", "front_x:2", "--duration", "1", "-q", "-o", steady).exit_code == 0
     r = run_cli("iso", "stability", steady, "--rpm", "20000", "-o", tmp_path / "s.json")
     assert r.exit_code == 2 and "no run at 20,000 rpm (the recordings ran at 0 rpm)" in r.output
+
+
+def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp_path):
+    """``iso stability`` by URL, interrupted 1 s into its second run: one line, exit 1, no results
+    file; both recordings are finished and readable, the interrupted one shorter than asked, and grading
+    the runs folder afterwards, as the line says, grades both."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "iso", "stability", "--device", "sim://spindle",
+                             "--axes", "front_x,front_y", "--duration", "3", "-o", str(tmp_path / "s.json")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = [proc.stderr.readline(), proc.stderr.readline()]
+    assert "exciting front_y" in lines[1], lines
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _out, err = proc.communicate(timeout=60)
+    runs = tmp_path / "s_runs"
+    assert proc.returncode == 1 and err.strip().splitlines() == [
+        f"ambdaq: error: stopped by the user during {runs / 'gs_front_y.mcap'} (kept); the runs before it are in {runs}"]
+    assert not (tmp_path / "s.json").exists()
+    first, second = (load(runs / f"gs_{a}.mcap")["/amb/gap"] for a in ("front_x", "front_y"))
+    assert first.duration > 2.9 and 0.5 < second.duration < 2.9
+    r = run_cli("iso", "stability", *sorted(runs.glob("*.mcap")), "-o", tmp_path / "graded.json")
+    assert r.exit_code == 0, r.output
+    graded = json.loads((tmp_path / "graded.json").read_text())
+    assert sorted(row["axis"] for row in graded["runs"]) == ["front_x", "front_y"]
