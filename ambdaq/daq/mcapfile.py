@@ -136,8 +136,8 @@ def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray
 CHUNK_SIZE = 4 << 20
 """Uncompressed chunk size limit, bytes (a block larger than a chunk's room is split at a sample
 instant).  ``load`` pays a fixed cost per chunk and topic under the GIL, so smaller chunks read
-slower on two cores (1 MiB: 1.2x, 2 MiB: 1.0x, 4 MiB: 0.9x Parquet's time; 8 MiB no faster and
-outgrowing the cache), while the file size does not change (bench_read.py).  A damaged chunk
+slower on two cores (1 MiB: 1.3x, 2 MiB: 1.2x, 4 MiB: 0.9x Parquet's time; 8 MiB 1.0x, outgrowing
+the cache), while the file size does not change (bench_read.py).  A damaged chunk
 costs 0.6 s of the spindle with ground truth.  A paced recording closes its chunks at the flush
 interval anyway (0.5 s of the spindle: 2.7 MB, with ground truth 3.6 MB)."""
 ZSTD_LEVEL = -1
@@ -582,7 +582,6 @@ def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, me
     stride = int(offsets[1]) - first if n > 1 else size
     # the constant-stride case is checked with one pass over the offsets (a decreasing pair wraps
     # in uint64 and fails the comparison); its ends bound every record in between
-    wrong = BadInputError(f"message index does not point at channel {channel_id}'s messages")
     # a record's length field counts what follows it: the record less its opcode and length
     expected = (MESSAGE_OPCODE, size - 9, channel_id)
     if (stride >= size and first + (n - 1) * stride + size <= buf.shape[0]
@@ -590,7 +589,7 @@ def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, me
         for i in (0, n - 1):  # two records: struct, not numpy, for the fixed cost per chunk and topic
             opcode, length, channel, _sequence, log_time = _MESSAGE_HEAD.unpack_from(buf, first + i * stride)
             if (opcode, length, channel) != expected or log_time != index["log_time"][i]:
-                raise wrong
+                raise BadInputError(f"message index does not point at channel {channel_id}'s messages")
         return np.ndarray(shape=(n,), dtype=message_dtype, buffer=buf, offset=first, strides=(stride,))
     if int(offsets.max()) + size > buf.shape[0]:
         raise BadInputError("message index points past the end of its chunk")
@@ -598,5 +597,5 @@ def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, me
     view = np.ascontiguousarray(rows).view(message_dtype).ravel()
     if not (np.all(view["opcode"] == expected[0]) and np.all(view["length"] == expected[1])
             and np.all(view["channel"] == channel_id) and np.array_equal(view["log_time"], index["log_time"])):
-        raise wrong
+        raise BadInputError(f"message index does not point at channel {channel_id}'s messages")
     return view

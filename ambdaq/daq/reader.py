@@ -172,10 +172,10 @@ def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
 
 def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
     """One topic's output arrays for ``n`` samples: the header columns and one (fields, samples)
-    array whose rows are the fields, all carved from one allocation.  numpy asks the kernel for
-    huge pages on allocations of 4 MiB and more, so the first write faults 2 MiB pages in rather
-    than 4 KiB ones: separate 2.4 MB header arrays cost a page fault per 4 KiB, 25% of a whole
-    load's time (benchmarks/bench_read.py)."""
+    array whose rows are the fields, all carved from one allocation that starts on a huge page.
+    numpy asks the kernel for huge pages on allocations of 4 MiB and more, so the first write
+    faults 2 MiB in at a time rather than 4 KiB; separate 2.4 MB header arrays were under that
+    threshold (with no huge pages at all, bench_read.py's load took 1.4x as long)."""
     size = 8 * n * (2 + fields) + 4 * n * 2
     block = np.empty(size + HUGE_PAGE, dtype=np.uint8)  # starts on a huge page, so all of it can be one
     block = block[-block.ctypes.data % HUGE_PAGE :][:size]
