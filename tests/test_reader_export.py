@@ -81,7 +81,7 @@ def test_to_pandas_has_the_time_as_index_and_the_units(spindle_file):
 def _write_gap(path, order, official_chunk_size=None):
     """A /amb/gap file holding instants ``order`` (0..199, 100 us apart): written by the official
     writer (chunks cut where it likes), or by ours in blocks of 25 instants, one chunk each."""
-    from ambdaq.daq.schema import TopicLayout
+    from ambdaq.daq.schema import MESSAGE_HEADER_SIZE, TopicLayout
     from ambdaq.daq.writer import RecordingWriter
     from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
@@ -97,9 +97,9 @@ def _write_gap(path, order, official_chunk_size=None):
             cid = w.register_channel("/amb/gap", "cdr", w.register_schema(layout.schema_name, "ros2msg",
                                                                           layout.schema_text.encode()))
             for i, t, v in zip(order, log_time, values):
-                payload = np.zeros(1, dtype=layout.payload_dtype)
-                payload["cdr_header"], payload["device_time"], payload["seq"], payload["values"] = 0x100, i * 100_000, i, v
-                w.add_message(cid, log_time=int(t), data=payload.tobytes(), publish_time=0)
+                message = np.zeros(1, dtype=layout.message_dtype)  # the official writer adds the record header
+                message["cdr_header"], message["device_time"], message["seq"], message["values"] = 0x100, i * 100_000, i, v
+                w.add_message(cid, log_time=int(t), data=message.tobytes()[MESSAGE_HEADER_SIZE:], publish_time=0)
             w.finish()
         return
     w = RecordingWriter(path, chunk_size=25 * (31 + 36), fsync=False)

@@ -182,9 +182,9 @@ def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
     parts, at = {}, 0
     for name, dtype, shape in (("log_time", np.int64, (n,)), ("device_time", np.int64, (n,)),
                                ("values", np.float64, (fields, n)), ("seq", np.uint32, (n,)), ("status", np.uint32, (n,))):
-        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
-        parts[name] = block[at : at + size].view(dtype).reshape(shape)
-        at += size
+        nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        parts[name] = block[at : at + nbytes].view(dtype).reshape(shape)
+        at += nbytes
     return parts
 
 

@@ -58,14 +58,6 @@ class TopicLayout:
         return "\n".join(lines) + "\n"
 
     @property
-    def payload_dtype(self) -> np.dtype:
-        """Structured dtype of one CDR payload: the encapsulation header, ``device_time``, ``seq``,
-        ``status`` and ``values``, the fields as one float64 sub-array in the group's order."""
-        n = len(self.group.fields)
-        return np.dtype({"names": ["cdr_header", *HEADER_FIELDS, "values"],
-                         "formats": ["<u4", "<i8", "<u4", "<u4", ("<f8", (n,))], "offsets": [0, 4, 12, 16, 20]})
-
-    @property
     def payload_size(self) -> int:
         return 20 + 8 * len(self.group.fields)
 

@@ -127,8 +127,6 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
         if not isinstance(doc, dict):
             raise ValueError("the file is not a table of named arrays")
         return {k: np.asarray(v, dtype=float) for k, v in doc.items()}
-    except BadInputError:
-        raise
     except (OSError, ValueError, TypeError, AttributeError, zipfile.BadZipFile, EOFError) as err:
         raise BadInputError(f"{where}: cannot read a .npz or .json of named arrays ({err})") from None
 

@@ -12,7 +12,8 @@ from ..analysis.rotor import RigidRotor
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average,
                                synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.reader import Recording, loaded, source_path
+from ..daq.mcapfile import McapFile
+from ..daq.reader import Recording, ambdaq_channels, loaded, source_path
 from ..errors import BadInputError
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
@@ -29,9 +30,6 @@ METHODS = {
 def with_rotor(source: Path | Recording, purpose: str) -> Recording:
     """A recording's gap sensors and rotor angle and speed, loaded (or ``source`` itself if it is
     loaded); one line, exit 2, if it has no rotor topic (``purpose`` says what needed it)."""
-    from ..daq.mcapfile import McapFile
-    from ..daq.reader import ambdaq_channels
-
     has_rotor = "/amb/rotor" in (source if isinstance(source, Recording) else ambdaq_channels(McapFile(source)))
     if not has_rotor:
         raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
