@@ -102,6 +102,14 @@ def test_a_duration_that_is_not_a_finite_number(tmp_path, run_cli, value):
     assert not (tmp_path / "x.mcap").exists()
 
 
+@pytest.mark.parametrize("url", ["serial:socket://[::1:7001", "serial:rfc2217://[::1:7001", "serial:socket://host:port"])
+def test_a_pyserial_url_with_a_malformed_host_or_port_is_bad_input(tmp_path, run_cli, url):
+    """pyserial reports these as a port it could not open (exit 1); they are the URL's fault."""
+    one_line_exit_2(run_cli("record", "--device", url, "--duration", "0.1", "-o", tmp_path / "x.mcap"),
+                    "serial port", url.removeprefix("serial:"))
+    assert not (tmp_path / "x.mcap").exists()
+
+
 def test_a_rig_file_nested_too_deep(tmp_path, run_cli):
     rig = tmp_path / "deep.toml"
     rig.write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")

@@ -13,6 +13,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import serial
 
@@ -53,6 +54,8 @@ class SerialLink:
         self.port_name = port
         self.baudrate = baudrate
         try:  # exclusive: a second program on the same port is refused at once, not left to garble it
+            if "://" in port:  # a pyserial URL: a malformed host or port is the URL's fault, not the
+                urlsplit(port).port  # device's (pyserial reports it as a failure to open the port)
             self._port = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=1.0,
                                                exclusive=True)
         except ValueError as err:
