@@ -142,20 +142,25 @@ def test_what_cannot_be_graded_is_one_line_exit_2(run_cli, tmp_path):
 
 
 def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp_path):
-    """``iso stability`` by URL, interrupted 1 s into its second run: one line, exit 1, no results
-    file; both recordings are finished and readable, the interrupted one shorter than asked, and grading
-    the runs folder afterwards, as the line says, grades both."""
+    """``iso stability`` by URL, interrupted 2.5 s into its second 5 s run: one line, exit 1, no
+    results file; both recordings are finished and readable, the interrupted one shorter than asked,
+    and grading the runs folder afterwards, as the line says, grades both.
+
+    The interrupted run must stay long enough to be gradeable: at the default 10 Hz resolution a
+    white-noise run of 1.5-3 s was graded for 90 of 90 noise seeds, one of 0.7-1 s for 16 of 20 (the
+    10 Hz bin's coherence is too low to rule out a hidden peak). Hence 2.5 s, and the check that at
+    least 1.5 s was recorded leaves a second for the start-up of the run on a loaded machine."""
     import signal
     import subprocess
     import sys
     import time
 
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "iso", "stability", "--device", "sim://spindle",
-                             "--axes", "front_x,front_y", "--duration", "3", "-o", str(tmp_path / "s.json")],
+                             "--axes", "front_x,front_y", "--duration", "5", "-o", str(tmp_path / "s.json")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = [proc.stderr.readline(), proc.stderr.readline()]
     assert "exciting front_y" in lines[1], lines
-    time.sleep(1.0)
+    time.sleep(2.5)
     proc.send_signal(signal.SIGINT)
     _out, err = proc.communicate(timeout=60)
     runs = tmp_path / "s_runs"
@@ -163,7 +168,7 @@ def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp
         f"ambdaq: error: stopped by the user during {runs / 'gs_front_y.mcap'} (kept); the runs before it are in {runs}"]
     assert not (tmp_path / "s.json").exists()
     first, second = (load(runs / f"gs_{a}.mcap")["/amb/gap"] for a in ("front_x", "front_y"))
-    assert first.duration > 2.9 and 0.5 < second.duration < 2.9
+    assert first.duration > 4.9 and 1.5 < second.duration < 4.9, (first.duration, second.duration)
     r = run_cli("iso", "stability", *sorted(runs.glob("*.mcap")), "-o", tmp_path / "graded.json")
     assert r.exit_code == 0, r.output
     graded = json.loads((tmp_path / "graded.json").read_text())
