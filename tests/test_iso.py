@@ -83,6 +83,47 @@ def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, ru
     np.testing.assert_allclose(go, gc / gs, rtol=1e-9)
 
 
+@pytest.mark.realtime
+def test_stability_over_xcp_writes_the_gain_speed_and_test_signal_the_a2l_names(run_cli, tmp_path, monkeypatch):
+    """The detuned measurement above, over XCP against `sim serve --xcp` in its own process: the
+    A2L describes the controller's parameters and which are the speed set-point and the test
+    signal; the derivative gain (`controller param`), the speed (--rpm) and the test signal are
+    each a DOWNLOAD after seed & key.  The peak is the linearised loop's within 0.5 dB (the bound
+    and its reasons are the serial test's), the zone C, and the test signal is off afterwards."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("pyxcp")  # the xcp extra, in the test extras
+    a2l = tmp_path / "spindle.a2l"
+    assert run_cli("sim", "a2l", "-o", a2l).exit_code == 0
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "0", "--xcp", "tcp:0",
+                             "--duration", "120"], stdout=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while not line.startswith("xcp "):
+            line = proc.stdout.readline()
+            assert line, "sim serve printed no xcp URL"
+        url = f"{line.split()[1]}?a2l={a2l}"
+        monkeypatch.delenv("AMBDAQ_UNLOCK_KEY", raising=False)
+        r = run_cli("controller", "param", "--device", url, "pid.d", *map(str, DETUNED_D), "--yes")
+        assert r.exit_code == 1 and "writing pid.d over XCP needs calibration unlocked (seed & key)" in r.output
+        monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
+        r = run_cli("controller", "param", "--device", url, "pid.d", *map(str, DETUNED_D), "--yes")
+        assert r.exit_code == 0 and "pid.d = 0.001 0.001 0.002 0.002 0.002" in r.output, r.output
+        r = run_cli("iso", "stability", "--device", url, "--axes", "front_x", "--rpm", "12000", "--duration", "1.5",
+                    "-o", tmp_path / "detuned.json", "--json")
+        assert r.exit_code == 0, r.output
+        (got,) = json.loads(r.stdout)["runs"]
+        detuned = model_peak_db(12000.0, DETUNED_D)[0]
+        assert abs(got["speed_rpm"] - 12000) < 120 and abs(got["peak_db"] - detuned) < 0.5, (got, detuned)
+        assert got["zone"] == "C" and zones_within(detuned, 0.5) == {"C"}
+        r = run_cli("controller", "param", "--device", url, "exc.signal")
+        assert r.exit_code == 0 and "exc.signal = -1 0 0" in r.output
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
 def test_an_excitation_too_weak_is_not_graded(run_cli, tmp_path):
     rec = tmp_path / "weak.mcap"
     assert run_cli("sim", "generate", "--excite", "front_x:0.05", "--duration", "2", "-q", "-o", rec).exit_code == 0

@@ -189,6 +189,56 @@ def test_record_over_xcp_holds_what_the_controller_sent(served, a2l, tmp_path, r
     assert "xcp controller" in info and "AMBDAQ_SPINDLE" in info
 
 
+def test_pyxcp_calibrates_the_controllers_parameters_by_the_a2l(served, a2l):
+    """pyxcp's own Master, by the A2L's CHARACTERISTICs: the parameters read as the rig runs them;
+    after seed & key a DOWNLOAD changes them, never by half a value; one the controller refuses
+    (an amplitude above its test signal's maximum) is ERR_OUT_OF_RANGE and changes nothing."""
+    from pya2l import import_a2l, model
+    from pyxcp.master.errorhandler import SystemExit as XcpError
+    from pyxcp.master.errorhandler import set_suppress_xcp_error_log
+
+    from ambdaq.drivers.xcp.keys import sim_key
+
+    session = import_a2l(str(a2l), in_memory=True, loglevel="ERROR", progress_bar=False)
+    found = {c.name: (c.address, c.number.number if c.number else 1, c.lowerLimit, c.upperLimit)
+             for c in session.query(model.Characteristic) if not c.read_only and c.deposit == "RL_FLOAT64"}
+    assert list(found) == ["pid.p", "pid.i", "pid.d", "speed.rpm", "exc.signal"]
+    assert found["pid.d"][1:] == (5, 1e-6, 1.0) and found["exc.signal"][1] == 3
+    rig = served.rig.server.rig
+    address, before = found["pid.p"][0], rig.pid_gains[0].copy()
+    new = before * 1.02
+    raw = struct.pack("<5d", *new)
+    set_suppress_xcp_error_log(True)  # the refusal below is expected: no frame dump of pyxcp's
+    try:
+        with master(served.port) as x:
+            x.connect()
+            x.setMta(address)
+            assert struct.unpack("<5d", x.fetch(40)) == tuple(before)
+            assert x.getStatus().resourceProtectionStatus.calpag  # locked until seed & key
+            seed = bytes(x.getSeed(0, 0x01).seed)
+            key = sim_key(0x01, seed, "ambdaq-sim")
+            x.unlock(len(key), key)
+            try:
+                x.setMta(address)
+                x.download(raw[:12])  # the first value and half of the second: nothing taken
+                np.testing.assert_array_equal(rig.pid_gains[0], before)
+                x.download(raw[12:16])  # the second whole (the MTA moved on): both taken
+                np.testing.assert_array_equal(rig.pid_gains[0], [*new[:2], *before[2:]])
+                x.download(raw[16:])
+                np.testing.assert_array_equal(rig.pid_gains[0], new)
+                x.setMta(found["exc.signal"][0])
+                with pytest.raises(XcpError, match="ERR_OUT_OF_RANGE"):
+                    x.download(struct.pack("<3d", 0, 1e-3, 0))  # 1 mm RMS: the maximum is 20 um
+                assert rig.excitation is None
+            finally:
+                x.setMta(address)
+                x.download(struct.pack("<5d", *before))
+            np.testing.assert_array_equal(rig.pid_gains[0], before)
+            x.disconnect()
+    finally:
+        set_suppress_xcp_error_log(False)
+
+
 def test_push_over_xcp_refusals_leave_the_active_page(served, a2l):
     url = f"{served.url}?a2l={a2l}"
     with open_controller(url) as port:

@@ -136,6 +136,10 @@ class Parameters(ABC):
         """Write the parameter (a scalar or its values); the device refuses with DeviceError."""
 
 
+UNLOCK_KEY_ENV = "AMBDAQ_UNLOCK_KEY"
+"""Where a user may keep the controller's unlock key (``--key`` and the rig file are the others)."""
+
+
 class BankPort(ABC):
     """A controller's two coefficient banks (docs/push.md): what ``ambdaq push`` talks to."""
 

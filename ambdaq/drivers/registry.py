@@ -19,9 +19,9 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 
-from ..errors import BadInputError
+from ..errors import BadInputError, DeviceError
 from ..speed import SpeedProfile
-from .interfaces import BankPort, Source
+from .interfaces import BankPort, Controller, Source
 from .url import DeviceURL, Scheme
 
 BACKENDS = {
@@ -123,6 +123,22 @@ class Endpoints:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def opened_controller(dev: Controller, url: DeviceURL, request: OpenRequest) -> Opened:
+    """``dev``, a controller a back-end just opened, with ``request`` carried out: its speed
+    set-point written (``--rpm``) and the calibration notes added; closed if either fails."""
+    try:
+        if request.speed is not None:
+            param = dev.capabilities.speed_parameter
+            if param is None:
+                raise DeviceError(f"{url.text}: the device takes no speed command (--rpm)")
+            dev.write_param(param, [request.speed.rpm_end])
+        dev.add_calibration(request.calibration)
+    except BaseException:
+        dev.close()
+        raise
+    return Opened([dev])
 
 
 class Backend(ABC):

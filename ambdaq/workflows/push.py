@@ -28,9 +28,9 @@ import numpy as np
 
 from ..daq.coefficients import Coefficients, file_sha256, fir_array, now_iso
 from ..drivers.coefbank import BankImage, crc32
+from ..drivers.interfaces import UNLOCK_KEY_ENV
 from ..errors import BadInputError, DeviceError, DeviceTimeout
 
-KEY_ENV = "AMBDAQ_UNLOCK_KEY"
 MAX_MAP_POINTS = 20_000  # convergence-map points a schedule may check: 8 harmonics x 0..60,000 rpm x 2 bearings is 9,600
 STATE_ENV = "AMBDAQ_STATE_DIR"
 
@@ -259,8 +259,8 @@ def push(port, plan: PushPlan, key: str, *, target: str) -> PushResult:
 
 def resolve_key(key: str | None, rig_key: str | None) -> str:
     """The unlock key: ``--key``, else ``$AMBDAQ_UNLOCK_KEY``, else the rig file's ``unlock_key``."""
-    found = key or os.environ.get(KEY_ENV) or rig_key
+    found = key or os.environ.get(UNLOCK_KEY_ENV) or rig_key
     if not found:
-        raise BadInputError(f"no unlock key: pass --key, set {KEY_ENV}, or give unlock_key in the rig file "
+        raise BadInputError(f"no unlock key: pass --key, set {UNLOCK_KEY_ENV}, or give unlock_key in the rig file "
                             "(the simulated controller's default is in docs/push.md)")
     return found

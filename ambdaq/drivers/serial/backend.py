@@ -6,7 +6,7 @@ import importlib
 
 from ...errors import DeviceError
 from ..interfaces import BankPort, Controller
-from ..registry import Backend, Opened, OpenRequest
+from ..registry import Backend, Opened, OpenRequest, opened_controller
 from ..url import DeviceURL, Scheme
 
 
@@ -39,18 +39,7 @@ class SerialBackend(Backend):
             raise
 
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
-        dev = self._driver(url, request.name)
-        try:
-            if request.speed is not None:
-                param = dev.capabilities.speed_parameter
-                if param is None:
-                    raise DeviceError(f"{url.text}: the device takes no speed command (--rpm)")
-                dev.write_param(param, [request.speed.rpm_end])
-            dev.add_calibration(request.calibration)
-        except BaseException:
-            dev.close()
-            raise
-        return Opened([dev])
+        return opened_controller(self._driver(url, request.name), url, request)
 
     def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         dev = self._driver(url, None)

@@ -14,9 +14,15 @@ Blobs: the ``CHARACTERISTIC``s a controller that takes ``ambdaq push`` over XCP 
 What is read is cached by the file's SHA-256 (``$XDG_CACHE_HOME/ambdaq/a2l``, else
 ``~/.cache/ambdaq/a2l``): pya2ldb takes seconds to import and parse, and an A2L rarely changes.
 
-Constants: the ``CHARACTERISTIC``s of FLOAT64_IEEE values (a ``VALUE`` or a ``VAL_BLK``): the
-controller's calibration that is numbers (sensor gain, the rotor model ``rotor.*`` that
-``runout identify`` needs), read from the device when it is opened.
+Constants: the ``READ_ONLY`` ``CHARACTERISTIC``s of FLOAT64_IEEE values (a ``VALUE`` or a
+``VAL_BLK``): the controller's calibration that is numbers (sensor gain, the rotor model
+``rotor.*`` that ``runout identify`` needs), read from the device when it is opened.
+
+Parameters: the writable ones, with their limits; ``controller param`` reads and writes them.  An
+``ANNOTATION`` labelled ``ambdaq`` says what ambdaq may use one for: ``role=speed`` (a speed
+set-point in rpm that reads the present speed: ``--rpm``) or ``role=test-signal axes=A,B,...
+unit=m|V min_amplitude=X max_amplitude=Y`` (the test-signal input of ``frf measure`` and ``iso
+stability``: [axis index or -1, amplitude, frequency Hz]).
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ DATATYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULON
 SIZES = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
 """pyxcp's DAQ element type -> its size in bytes."""
 DEFAULT_TOPIC = "/xcp"
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: constants are the READ_ONLY characteristics; parameters
 
 
 @dataclass(frozen=True)
@@ -75,9 +81,35 @@ class A2lMeasurement:
 
 
 @dataclass(frozen=True)
+class A2lParameter:
+    """A writable FLOAT64 characteristic.
+
+    Parameters
+    ----------
+    name : str
+        A2L name.
+    address : int
+        ECU address of its first value.
+    count : int
+        Number of values (1 for a ``VALUE``).
+    lower, upper : float
+        Its limits (every value), in its unit.
+    role : dict of str to str
+        The words of its ``ambdaq`` annotation (``role``, ``unit``, ``axes`` ...); empty if none.
+    """
+
+    name: str
+    address: int
+    count: int
+    lower: float
+    upper: float
+    role: dict[str, str]
+
+
+@dataclass(frozen=True)
 class A2lFile:
     """An A2L file's project name, measurements by name; blobs and FLOAT64 constants by name
-    (address, size in bytes / number of values)."""
+    (address, size in bytes / number of values); writable FLOAT64 parameters by name."""
 
     path: Path
     sha256: str
@@ -85,6 +117,7 @@ class A2lFile:
     measurements: dict[str, A2lMeasurement]
     blobs: dict[str, tuple[int, int]]
     constants: dict[str, tuple[int, int]]
+    parameters: dict[str, A2lParameter]
 
 
 def read_a2l(path: str | Path) -> A2lFile:
@@ -114,7 +147,8 @@ def _cached(path: Path, sha: str) -> A2lFile | None:
         if d.pop("version") != CACHE_VERSION:
             return None
         return A2lFile(path, sha, d["project"], {k: A2lMeasurement(**m) for k, m in d["measurements"].items()},
-                       {k: tuple(v) for k, v in d["blobs"].items()}, {k: tuple(v) for k, v in d["constants"].items()})
+                       {k: tuple(v) for k, v in d["blobs"].items()}, {k: tuple(v) for k, v in d["constants"].items()},
+                       {k: A2lParameter(**v) for k, v in d["parameters"].items()})
     except (OSError, ValueError, KeyError, TypeError):
         return None  # none, or one this version cannot read: parse again
 
@@ -122,7 +156,8 @@ def _cached(path: Path, sha: str) -> A2lFile | None:
 def _cache(found: A2lFile) -> None:
     folder = _cache_dir()
     body = {"version": CACHE_VERSION, "project": found.project, "blobs": found.blobs, "constants": found.constants,
-            "measurements": {k: asdict(m) for k, m in found.measurements.items()}}
+            "measurements": {k: asdict(m) for k, m in found.measurements.items()},
+            "parameters": {k: asdict(v) for k, v in found.parameters.items()}}
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / f"{found.sha256}.{os.getpid()}.tmp"
@@ -148,12 +183,16 @@ def _parse(path: Path, sha: str) -> A2lFile:
         for m in session.query(model.Measurement):
             measurements[m.name] = _measurement(m, methods, path)
         layouts = {r.name: r.fnc_values.datatype if r.fnc_values else "" for r in session.query(model.RecordLayout)}
-        blobs, constants = {}, {}
+        blobs, constants, parameters = {}, {}, {}
         for c in session.query(model.Characteristic):
             count = int(c.number.number) if c.number is not None else 1
             blobs[c.name] = (int(c.address), count)
             if c.type in ("VALUE", "VAL_BLK") and layouts.get(c.deposit) == "FLOAT64_IEEE":
-                constants[c.name] = (int(c.address), count)
+                if c.read_only:
+                    constants[c.name] = (int(c.address), count)
+                else:
+                    parameters[c.name] = A2lParameter(c.name, int(c.address), count, float(c.lowerLimit),
+                                                      float(c.upperLimit), _ambdaq_note(c))
     except BadInputError:
         raise
     except Exception as err:  # the parser's own errors, whatever their class
@@ -162,7 +201,7 @@ def _parse(path: Path, sha: str) -> A2lFile:
         logging.disable(logging.NOTSET)
     if not measurements:
         raise BadInputError(f"A2L file {path}: no MEASUREMENT (is it an A2L file?)")
-    return A2lFile(path, sha, project.name if project else "", measurements, blobs, constants)
+    return A2lFile(path, sha, project.name if project else "", measurements, blobs, constants, parameters)
 
 
 def _with_output(call):
@@ -224,12 +263,18 @@ def _measurement(m, methods: dict, path: Path) -> A2lMeasurement:
     return A2lMeasurement(m.name, int(m.ecu_address.address), datatype, unit, factor, offset, topic, type_name, field)
 
 
-def _placement(m) -> tuple[str, str, str]:
-    for note in m.annotation or ():
+def _ambdaq_note(item) -> dict[str, str]:
+    """The ``word=value`` pairs of an item's ANNOTATION labelled ``ambdaq`` (empty if none)."""
+    for note in item.annotation or ():
         if note.annotation_label is not None and note.annotation_label.label == "ambdaq" and note.annotation_text:
-            parts = dict(p.split("=", 1) for p in " ".join(note.annotation_text.text).split() if "=" in p)
-            if {"topic", "type", "field"} <= set(parts):
-                return parts["topic"], parts["type"], parts["field"]
+            return dict(p.split("=", 1) for p in " ".join(note.annotation_text.text).split() if "=" in p)
+    return {}
+
+
+def _placement(m) -> tuple[str, str, str]:
+    parts = _ambdaq_note(m)
+    if {"topic", "type", "field"} <= set(parts):
+        return parts["topic"], parts["type"], parts["field"]
     *path, field = m.name.split(".")
     topic = "/" + "/".join(path) if path else DEFAULT_TOPIC
     type_name = "".join(p[:1].upper() + p[1:] for p in re.split(r"[^A-Za-z0-9]+", topic) if p) or "Xcp"

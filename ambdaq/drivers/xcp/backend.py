@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ...errors import BadInputError
 from ..interfaces import BankPort
-from ..registry import Backend, Opened, OpenRequest
+from ..registry import Backend, Opened, OpenRequest, opened_controller
 from ..url import DeviceURL, Scheme
 from .keys import algorithm
 
@@ -44,12 +44,7 @@ class _XcpBackend(Backend):
                              prescaler=url.integer("prescaler", 1), bus_bitrate=self.bus_bitrate(url))
 
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
-        if request.speed is not None:
-            raise BadInputError(f"{url.text}: ambdaq sets no speed over XCP (--rpm); the controller's own "
-                                "speed command is a calibration object of its A2L")
-        dev = self._open(url, request.name, request.description)
-        dev.add_calibration(request.calibration)
-        return Opened([dev])
+        return opened_controller(self._open(url, request.name, request.description), url, request)
 
     def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         return self._open(url, None, description or {})

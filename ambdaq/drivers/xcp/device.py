@@ -14,12 +14,20 @@ it comes from BUILD_CHECKSUM (XCP_CRC_32); the host's CRC-32 and its push record
 ``push_record``; SET_CAL_PAGE (ECU) to that page is the commit, which the controller does at a
 control-period boundary or refuses (its reason in ``bank_status``); the push log and layout are
 read from ``bank_status``; ``store=1`` then asks STORE_CAL_REQ (non-volatile memory).
+
+Parameters (:class:`~ambdaq.drivers.interfaces.Parameters`): the A2L's writable FLOAT64
+characteristics, uploaded and downloaded as they are (Intel byte order), checked against their
+limits first.  A download needs CAL/PAG unlocked: with the key of a push in the same session, else
+``$AMBDAQ_UNLOCK_KEY``.  What the controller can do (:class:`~ambdaq.drivers.interfaces.Capabilities`)
+is what its A2L says: coefficient banks if it describes ``coefficient_bank``, a speed set-point
+and a test-signal input if a parameter's ``ambdaq`` annotation names that role (:mod:`.a2l`).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import struct
 import time
 from contextlib import contextmanager
@@ -28,10 +36,10 @@ import numpy as np
 
 from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
-from ..interfaces import BankPort, Source
+from ..interfaces import UNLOCK_KEY_ENV, Capabilities, Controller, ExcitationSpec
 from ..rows import RowQueue
 from ..signals import SampleBlock, SignalGroup
-from .a2l import SIZES, A2lFile
+from .a2l import SIZES, A2lFile, A2lParameter
 from .keys import KeyAlgorithm
 
 COUNTER = "control_period"
@@ -133,6 +141,28 @@ def xcp_errors(url: str, what: str):
         set_suppress_xcp_error_log(False)
 
 
+def _capabilities(url: str, a2l: A2lFile, control_rate_hz: float) -> Capabilities:
+    """What the A2L says the controller can do (its parameters' ``ambdaq`` roles, :mod:`.a2l`);
+    a role that cannot be read is a BadInputError naming the parameter."""
+    speed, excitation = None, None
+    for param in a2l.parameters.values():
+        role = param.role.get("role")
+        if role == "speed" and param.count == 1:
+            speed = param.name
+        elif role == "test-signal":
+            try:
+                if param.count != 3 or param.role["unit"] not in ("m", "V"):
+                    raise ValueError("3 values and unit m or V")
+                excitation = ExcitationSpec(param.name, tuple(param.role["axes"].split(",")), param.role["unit"],
+                                            float(param.role["min_amplitude"]), float(param.role["max_amplitude"]),
+                                            control_rate_hz)
+            except (KeyError, ValueError) as err:
+                raise BadInputError(f"A2L file {a2l.path}: {param.name}: a test-signal parameter needs 3 values and "
+                                    f"axes=, unit=m|V, min_amplitude=, max_amplitude= in its ambdaq annotation "
+                                    f"({type(err).__name__}: {err})") from None
+    return Capabilities(banks="coefficient_bank" in a2l.blobs, excitation=excitation, speed_parameter=speed)
+
+
 def ask_slave(url: str, transport: tuple[str, dict]) -> dict[str, str]:
     """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS and the first
     event channel; DeviceError if nothing does."""
@@ -155,7 +185,7 @@ def ask_slave(url: str, transport: tuple[str, dict]) -> dict[str, str]:
     return out
 
 
-class XcpController(Source, BankPort):
+class XcpController(Controller):
     """The controller reached through ``transport``, described by ``a2l``.
 
     Parameters
@@ -254,11 +284,13 @@ class XcpController(Source, BankPort):
                 raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
             if bus_bitrate is not None:
                 self._check_bus_load(1e9 / period_ns, bus_bitrate)
+            self._capabilities = _capabilities(url, a2l, 1e9 / period_ns)
         except (DeviceError, BadInputError):
             if self._xcp is not None:
                 self._xcp.close()
             raise
         self.sample_rate = 1e9 / period_ns / prescaler
+        self._key: str | None = None
         self._streaming = False
         self._session_over = False
         self._last_stamp: int | None = None
@@ -317,6 +349,46 @@ class XcpController(Source, BankPort):
         return SampleBlock(device, (seq & 0xFFFFFFFF).astype(np.uint32),
                            {g.topic: values[:, cols] for g, cols in zip(self._groups, self._columns)},
                            received_ns=int(rows[-1][1]))
+
+    # --- Controller -----------------------------------------------------------------------------
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return self._capabilities
+
+    def _parameter(self, name: str) -> A2lParameter:
+        found = self.a2l.parameters.get(name)
+        if found is None:
+            known = ", ".join(self.a2l.parameters) or "none"
+            raise DeviceError(f"{self.url}: the A2L describes no writable FLOAT64 parameter {name!r} (it has: {known})")
+        return found
+
+    def read_param(self, name: str) -> np.ndarray:
+        param = self._parameter(name)
+        with self._errors(f"read {name}"):
+            raw = self._fetch(param.address, 8 * param.count)
+        return np.array(struct.unpack(f"<{param.count}d", raw))
+
+    def write_param(self, name: str, values) -> None:
+        """Download ``values`` to parameter ``name`` after checking their number and its limits;
+        unlocks CAL/PAG first if it is protected (the push's key, else $AMBDAQ_UNLOCK_KEY)."""
+        param = self._parameter(name)
+        values = np.atleast_1d(np.asarray(values, dtype=float))
+        if values.shape != (param.count,):
+            raise DeviceError(f"{self.url}: {name} takes {param.count} value(s), not {values.size}")
+        if not np.all(np.isfinite(values)) or np.any(values < param.lower) or np.any(values > param.upper):
+            raise DeviceError(f"{self.url}: {name}: values must be finite and within {param.lower:g} .. {param.upper:g} "
+                              "(the A2L's limits)")
+        with self._errors(f"write {name}"):
+            locked = self._xcp.getStatus().resourceProtectionStatus.calpag
+        if locked:
+            key = self._key or os.environ.get(UNLOCK_KEY_ENV)
+            if not key:
+                raise DeviceError(f"{self.url}: writing {name} over XCP needs calibration unlocked (seed & key): "
+                                  f"set {UNLOCK_KEY_ENV}")
+            self.unlock(key)
+        with self._errors(f"write {name}"):
+            self._download(param.address, struct.pack(f"<{param.count}d", *values))
 
     # --- BankPort -------------------------------------------------------------------------------
 

@@ -46,10 +46,11 @@ import numpy as np
 from ...drivers.coefbank import crc32
 from ...drivers.signals import SampleBlock
 from ...drivers.xcp.keys import sim_key
+from ..profiles import profile
 from .banks import CoefficientBanks
 from .rig_server import DeviceClock, RigServer
 from .xcp_memory import (ASAP2_NAME, ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, MEASUREMENT_BASE, STATUS_BASE,
-                         CalibrationConstants, CalibrationPages, MeasurementMap, Refused)
+                         CalibrationConstants, CalibrationPages, ControllerParameters, MeasurementMap, Refused)
 from .xcp_transport import (HEADER, MAX_CTO, MAX_DTO, READ_WAIT_S, CanTransport, PtyLink, StreamTransport,
                             TcpLink)
 
@@ -106,6 +107,7 @@ class XcpSlave:
         self.memory = MeasurementMap(server)
         self.pages = CalibrationPages(banks)
         self.constants = CalibrationConstants(server.rig.calibration())
+        self.parameters = ControllerParameters(server.rig, profile(server.rig.profile).firmware.parameters)
         self.banks = banks
         self.clock = clock
         self.url = ""
@@ -130,6 +132,7 @@ class XcpSlave:
         self._daq: list[DaqList] = []
         self._ptr: tuple[int, int, int] | None = None
         self._plan: list | None = None  # the running lists' DTO layout
+        self.parameters.forget()
 
     def serve_tcp(self, port: int) -> None:
         """XCP on TCP on 127.0.0.1:``port`` (0: a free one); :attr:`url` says where."""
@@ -351,6 +354,8 @@ class XcpSlave:
             return self.pages.read(address, n)
         if self.constants.owns(address):
             return self.constants.read(address, n)
+        if self.parameters.owns(address):
+            return self.parameters.read(address, n)
         return self.memory.read(address, n)
 
     def _upload(self, p: bytes) -> bytes:
@@ -378,18 +383,25 @@ class XcpSlave:
         self._mta += size
         return struct.pack("<BBHI", PID_RES, CHECKSUM_CRC_32, 0, crc)
 
+    def _write(self, address: int, data: bytes) -> None:
+        unlocked = not self._protected & RES_CALPAG
+        if self.parameters.owns(address):
+            self.parameters.write(address, data, unlocked)
+        else:
+            self.pages.write(address, data, unlocked)
+
     def _download(self, p: bytes) -> bytes:
         n = p[1]
         data = p[2 : 2 + n]
         if len(data) != n:
             raise Refused(ERR_CMD_SYNTAX, "download shorter than its count")
-        self.pages.write(self._mta, data, not self._protected & RES_CALPAG)
+        self._write(self._mta, data)
         self._mta += n
         return bytes([PID_RES])
 
     def _short_download(self, p: bytes) -> bytes:
         n, _res, _ext, address = struct.unpack_from("<BBBI", p, 1)
-        self.pages.write(address, p[8 : 8 + n], not self._protected & RES_CALPAG)
+        self._write(address, p[8 : 8 + n])
         return bytes([PID_RES])
 
     def _set_cal_page(self, p: bytes) -> bytes:

@@ -16,10 +16,15 @@ Addresses (byte granularity, Intel byte order)::
     0x0004_0000  rotor.mass_kg    FLOAT64_IEEE  the controller's calibration constants (its rig's
     ...                                         calibration that is numbers: sensor gain, rotor
                                                 model), a VALUE or VAL_BLK each (read-only)
+    0x0005_0000  pid.p            FLOAT64_IEEE  the controller's writable parameters (the serial
+    ...                                         port's PARAM_WRITE ones of fixed size: gains,
+                                                speed.rpm, exc.signal), a VALUE or VAL_BLK each
 
 A read of measurement RAM returns the rig's newest sample, as a read of a controller's RAM
 returns the values of its last control period; a DAQ list samples the same image at every
-control period (:meth:`MeasurementMap.images`).
+control period (:meth:`MeasurementMap.images`).  A read of a parameter returns what it reads now
+(``speed.rpm``: the present speed), and a write is checked and taken as the serial port's
+PARAM_WRITE takes it (:class:`ControllerParameters`).
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ import numpy as np
 
 from ...drivers.coefbank import crc32
 from .banks import BankRefused, CoefficientBanks
+from ..profiles import profile
+from .firmware import Param
 from .rig_server import RigServer
 
 MEASUREMENT_BASE = 0x0001_0000
@@ -40,6 +47,7 @@ CAL_BASE, CAL_SIZE = 0x0002_0000, 0x8000
 RECORD_BASE, RECORD_SIZE = 0x0003_0000, 0x400
 STATUS_BASE, STATUS_SIZE = 0x0003_1000, 0x4000
 CONSTANTS_BASE = 0x0004_0000
+PARAMETERS_BASE = 0x0005_0000
 ASAP2_NAME = "AMBDAQ_SPINDLE"
 COUNTER = "control_period"
 LENGTH = struct.Struct("<I")
@@ -123,6 +131,70 @@ class CalibrationConstants:
         if off < 0 or off + length > len(self.image):
             raise IndexError(address)
         return self.image[off : off + length]
+
+
+class ControllerParameters:
+    """The controller's writable parameters of fixed size, FLOAT64 each from PARAMETERS_BASE.
+
+    A read returns what each parameter reads now.  A write is taken as the serial port's
+    PARAM_WRITE takes it: checked first (ERR_OUT_OF_RANGE, nothing changed, if the firmware
+    refuses it), then written to the rig.  Never half a value: a parameter takes its new values
+    once the bytes written to it since it last changed make whole values, and keeps what it reads
+    now for the rest.  A block written in one DOWNLOAD (TCP, SxI) changes at once; on CAN, whose
+    DOWNLOAD carries 6 bytes, a block of three values (``exc.signal``: axis, amplitude,
+    frequency) changes when its last piece arrives, a longer one by whole values as they come.
+    """
+
+    def __init__(self, rig, parameters: dict[str, Param]) -> None:
+        self.rig = rig
+        self.entries: list[tuple[str, int, Param]] = []  # (name, address, parameter)
+        address = PARAMETERS_BASE
+        for name, param in parameters.items():
+            if param.write is not None and param.size > 0:
+                self.entries.append((name, address, param))
+                address += 8 * param.size
+        self.end = address
+        self._pending: dict[str, dict[int, int]] = {}  # name -> {byte offset: byte} written, not yet taken
+
+    def owns(self, address: int) -> bool:
+        return PARAMETERS_BASE <= address < self.end
+
+    def forget(self) -> None:
+        """Drop what a session left half-written (a new session starts from whole values)."""
+        self._pending.clear()
+
+    def _image(self, param: Param) -> bytes:
+        return struct.pack(f"<{param.size}d", *param.read(self.rig))
+
+    def read(self, address: int, length: int) -> bytes:
+        if not (PARAMETERS_BASE <= address and address + length <= self.end):
+            raise IndexError(address)
+        image = b"".join(self._image(param) for _name, _base, param in self.entries)
+        off = address - PARAMETERS_BASE
+        return image[off : off + length]
+
+    def write(self, address: int, data: bytes, unlocked: bool) -> None:
+        if not unlocked:
+            raise Refused(ERR_ACCESS_LOCKED, "calibration is locked: unlock (seed & key) first")
+        end = address + len(data)
+        if not (PARAMETERS_BASE <= address and end <= self.end):
+            raise Refused(ERR_OUT_OF_RANGE, f"no parameter memory at 0x{address:08X}..0x{end:08X}")
+        for name, base, param in self.entries:
+            lo, hi = max(address, base), min(end, base + 8 * param.size)
+            if lo >= hi:
+                continue
+            pending = self._pending.setdefault(name, {})
+            pending.update({i - base: data[i - address] for i in range(lo, hi)})
+            if any(sum(8 * k + j in pending for j in range(8)) < 8 for k in {off // 8 for off in pending}):
+                continue  # a value is still half-written
+            image = bytearray(self._image(param))
+            for off, byte in self._pending.pop(name).items():
+                image[off] = byte
+            values = np.array(struct.unpack(f"<{param.size}d", image))
+            problem = param.check(self.rig, values)
+            if problem:
+                raise Refused(ERR_OUT_OF_RANGE, f"{name}: {problem}")
+            param.write(self.rig, values)
 
 
 class Refused(Exception):
@@ -294,6 +366,13 @@ def a2l_text(rig) -> str:
       "" if len(values) == 1 else f"{chr(10)}      NUMBER {len(values)}"}
       READ_ONLY
     /end CHARACTERISTIC""" for name, address, values in CalibrationConstants(rig.calibration()).entries)
+    firmware = profile(rig.profile).firmware
+    table = ControllerParameters(rig, firmware.parameters if firmware is not None else {})
+    parameters = "\n".join(_parameter_block(name, address, param, _role(name, firmware.capabilities(rig)))
+                            for name, address, param in table.entries)
+    parameter_segment = f"""
+      /begin MEMORY_SEGMENT PARAMETERS "the controller's parameters" DATA RAM INTERN 0x{PARAMETERS_BASE:08X} 0x{table.end - PARAMETERS_BASE:X} -1 -1 -1 -1 -1
+      /end MEMORY_SEGMENT""" if table.entries else ""
     return f"""ASAP2_VERSION 1 71
 /begin PROJECT {ASAP2_NAME} "ambdaq simulated spindle AMB controller"
   /begin MODULE CONTROLLER "the XCP slave's memory (ambdaq/sim/devices/xcp_memory.py)"
@@ -306,7 +385,7 @@ def a2l_text(rig) -> str:
       /begin MEMORY_SEGMENT MEASUREMENT_RAM "" DATA RAM INTERN 0x{MEASUREMENT_BASE:08X} 0x{len(measurements) * 4:X} -1 -1 -1 -1 -1
       /end MEMORY_SEGMENT
       /begin MEMORY_SEGMENT COEFFICIENTS "two pages: the coefficient banks" DATA FLASH INTERN 0x{CAL_BASE:08X} 0x{CAL_SIZE:X} -1 -1 -1 -1 -1
-      /end MEMORY_SEGMENT
+      /end MEMORY_SEGMENT{parameter_segment}
     /end MOD_PAR
     /begin MOD_COMMON ""
       BYTE_ORDER MSB_LAST
@@ -322,9 +401,35 @@ def a2l_text(rig) -> str:
 {chr(10).join(blocks)}
 {blobs}
 {constants}
+{parameters}
   /end MODULE
 /end PROJECT
 """
+
+
+def _role(name: str, caps) -> str:
+    """What ambdaq's drivers take a parameter for (docs/hardware.md, "XCP"): the text of its
+    ``ambdaq`` ANNOTATION, or ''."""
+    spec = caps.excitation
+    if spec is not None and name == spec.parameter:
+        return (f"role=test-signal axes={','.join(spec.axes)} unit={spec.unit} min_amplitude={spec.min_amplitude!r} "
+                f"max_amplitude={spec.max_amplitude!r}")
+    return "role=speed unit=rpm" if name == caps.speed_parameter else ""
+
+
+def _parameter_block(name: str, address: int, param: Param, role: str) -> str:
+    lo, hi = (f"{max(v, -1e300) if v < 0 else min(v, 1e300):g}" for v in (param.lo, param.hi))
+    note = f"""
+      /begin ANNOTATION
+        ANNOTATION_LABEL "ambdaq"
+        /begin ANNOTATION_TEXT
+          "{role}"
+        /end ANNOTATION_TEXT
+      /end ANNOTATION""" if role else ""
+    return f"""    /begin CHARACTERISTIC {name} "{param.doc.replace('"', "'")}"
+      {"VALUE" if param.size == 1 else "VAL_BLK"} 0x{address:08X} RL_FLOAT64 0 NO_COMPU_METHOD {lo} {hi}{
+      "" if param.size == 1 else f"{chr(10)}      NUMBER {param.size}"}{note}
+    /end CHARACTERISTIC"""
 
 
 def _unit_id(unit: str) -> str:
