@@ -239,6 +239,16 @@ def test_pyxcp_calibrates_the_controllers_parameters_by_the_a2l(served, a2l):
         set_suppress_xcp_error_log(False)
 
 
+def test_a_test_signal_the_a2l_describes_badly_is_one_line_exit_2(served, a2l, tmp_path, run_cli):
+    bad = tmp_path / "bad.a2l"
+    text = a2l.read_text()
+    assert "role=test-signal axes=" in text
+    bad.write_text(text.replace("role=test-signal axes=", "role=test-signal axis="))
+    r = run_cli("controller", "param", "--device", f"{served.url}?a2l={bad}", "pid.d")
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"A2L file {bad}: exc.signal: a test-signal parameter needs 3 values and axes=" in r.output
+
+
 def test_push_over_xcp_refusals_leave_the_active_page(served, a2l):
     url = f"{served.url}?a2l={a2l}"
     with open_controller(url) as port:
