@@ -125,6 +125,36 @@ def test_damaged_files_are_rows_with_their_error(fleet, scanned):
     assert set(bad["machine"].astype(str)) == {"unknown"}
 
 
+def test_the_commands_own_cluster_and_duckdb_agree_with_the_scan(fleet, scanned, tmp_path):
+    """Without a scheduler `fleet scan` starts its own LocalCluster (``--workers``, what a user
+    without a cluster runs): one machine's four rows equal the cluster scan's, column for column.
+    DuckDB, a reader that shares no code with pyarrow, reads the whole dataset with its machine
+    partitions: per machine the same recordings, samples and drops as pandas."""
+    import duckdb
+    import pandas as pd
+
+    root, _ = fleet
+    ds, _ = scanned
+    own = tmp_path / "own.parquet"
+    env = {k: v for k, v in os.environ.items() if k != "DASK_SCHEDULER_ADDRESS"}
+    res = ambdaq("fleet", "scan", str(root / "plant" / "AMB-05"), "-o", str(own), "--workers", "1", "--json", env=env)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["scanned"] == 4
+    mine = pd.read_parquet(own).set_index("path").sort_index()
+    theirs = pd.read_parquet(ds).set_index("path").loc[mine.index]
+    assert list(mine.columns) == list(theirs.columns)
+    for column in mine.columns:  # the same function on the same bytes: equal, not close
+        assert mine[column].astype(object).equals(theirs[column].astype(object)), column
+    query = (f"SELECT machine, count(*) AS n, sum(samples) AS samples, sum(drops) AS drops "
+             f"FROM read_parquet('{ds}/*/*.parquet', hive_partitioning = true) GROUP BY machine ORDER BY machine")
+    got = duckdb.sql(query).df().set_index("machine")
+    want = pd.read_parquet(ds).groupby("machine", observed=True).agg(
+        n=("path", "size"), samples=("samples", "sum"), drops=("drops", "sum"))
+    assert len(got) == 11  # 10 machines and "unknown", the damaged files'
+    for machine, row in want.iterrows():
+        assert tuple(got.loc[str(machine)]) == (row["n"], row["samples"], row["drops"]), machine
+
+
 def test_dask_reads_the_dataset_and_a_second_scan_is_incremental(fleet, scanned, scheduler, tmp_path):
     import dask.dataframe as dd
 

@@ -96,7 +96,8 @@ def test_stability_over_xcp_writes_the_gain_speed_and_test_signal_the_a2l_names(
     pytest.importorskip("pyxcp")  # the xcp extra, in the test extras
     a2l = tmp_path / "spindle.a2l"
     assert run_cli("sim", "a2l", "-o", a2l).exit_code == 0
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "0", "--xcp", "tcp:0",
+    # served at 10,000 rpm: --rpm 12000 is a set-point written and waited for, in 0.4 s of ramp
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "10000", "--xcp", "tcp:0",
                              "--duration", "120"], stdout=subprocess.PIPE, text=True)
     try:
         line = ""
