@@ -83,7 +83,10 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
                 "-q", "-o", out)
     assert r.exit_code == 0, r.output
     parts = sorted(tmp_path.glob("live_*.mcap"))
-    assert len(parts) == 4
+    # parts are 1 s of the recording's clock from its start, and 3.5 s of samples fill 4 of them,
+    # or 5 when the controller's first sample comes more than 0.5 s after the start (it came 0.54 s
+    # late with a CPU-burning process beside the suite's two workers)
+    assert len(parts) in (4, 5)
     seqs: dict[str, list] = {}
     for k, p in enumerate(parts):
         meta = McapFile(p).metadata()
@@ -93,7 +96,7 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
         for topic, data in rec.topics.items():
             assert data.log_time.min() >= lo and (hi is None or data.log_time.max() < hi), (p.name, topic)
             device = json.loads(meta["ambdaq.statistics"][topic])["device"]
-            if k in (1, 2) and "host_clock" not in meta[f"ambdaq.clock.{device}"]:
+            if 0 < k < len(parts) - 1 and "host_clock" not in meta[f"ambdaq.clock.{device}"]:  # a full part
                 rate = rec[topic].nominal_rate
                 assert abs(len(data) - rate) <= rate * 1e-3, (p.name, topic, len(data))
             seqs.setdefault(topic, []).append(data.seq.astype(np.int64))
