@@ -14,11 +14,12 @@ Blobs: the ``CHARACTERISTIC``s a controller that takes ``ambdaq push`` over XCP 
 What is read is cached by the file's SHA-256 (``$XDG_CACHE_HOME/ambdaq/a2l``, else
 ``~/.cache/ambdaq/a2l``): pya2ldb takes seconds to import and parse, and an A2L rarely changes.
 
-Constants: the ``READ_ONLY`` ``CHARACTERISTIC``s of FLOAT64_IEEE values (a ``VALUE`` or a
-``VAL_BLK``): the controller's calibration that is numbers (sensor gain, the rotor model
-``rotor.*`` that ``runout identify`` needs), read from the device when it is opened.
+Constants: the ``CHARACTERISTIC``s of FLOAT64_IEEE values (a ``VALUE`` or a ``VAL_BLK``): the
+controller's calibration that is numbers (sensor gain, the rotor model ``rotor.*`` that
+``runout identify`` needs, its gains), read from the device when it is opened.
 
-Parameters: the writable ones, with their limits; ``controller param`` reads and writes them.  An
+Parameters: those of them that are not ``READ_ONLY``, with their limits; ``controller param``
+reads and writes them.  An
 ``ANNOTATION`` labelled ``ambdaq`` says what ambdaq may use one for: ``role=speed`` (a speed
 set-point in rpm that reads the present speed: ``--rpm``) or ``role=test-signal axes=A,B,...
 unit=m|V min_amplitude=X max_amplitude=Y`` (the test-signal input of ``frf measure`` and ``iso
@@ -46,7 +47,7 @@ DATATYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULON
 SIZES = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
 """pyxcp's DAQ element type -> its size in bytes."""
 DEFAULT_TOPIC = "/xcp"
-CACHE_VERSION = 2  # 2: constants are the READ_ONLY characteristics; parameters
+CACHE_VERSION = 2  # 2: the parameters
 
 
 @dataclass(frozen=True)
@@ -188,9 +189,8 @@ def _parse(path: Path, sha: str) -> A2lFile:
             count = int(c.number.number) if c.number is not None else 1
             blobs[c.name] = (int(c.address), count)
             if c.type in ("VALUE", "VAL_BLK") and layouts.get(c.deposit) == "FLOAT64_IEEE":
-                if c.read_only:
-                    constants[c.name] = (int(c.address), count)
-                else:
+                constants[c.name] = (int(c.address), count)
+                if not c.read_only:
                     parameters[c.name] = A2lParameter(c.name, int(c.address), count, float(c.lowerLimit),
                                                       float(c.upperLimit), _ambdaq_note(c))
     except BadInputError:
