@@ -18,6 +18,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
 from ambdaq.drivers.coefbank import BankImage, crc32
 from ambdaq.drivers.registry import open_controller
 from ambdaq.errors import DeviceError
@@ -187,6 +188,11 @@ def test_record_over_xcp_holds_what_the_controller_sent(served, a2l, tmp_path, r
     np.testing.assert_array_equal([m.front_x for m in decoded[:500]], gap["front_x"][:500])
     info = run_cli("info", out).output
     assert "xcp controller" in info and "AMBDAQ_SPINDLE" in info
+    # the calibration read at open: the constants and the parameters as they were (the gains)
+    calibration = McapFile(out).metadata()["ambdaq.calibration.controller"]
+    rig = served.rig.server.rig
+    assert float(calibration["rotor.mass_kg"]) == float(rig.calibration()["rotor.mass_kg"])
+    assert [float(v) for v in calibration["pid.d"].split(",")] == list(rig.pid_gains[2])  # FLOAT64: exact
 
 
 def test_pyxcp_calibrates_the_controllers_parameters_by_the_a2l(served, a2l):

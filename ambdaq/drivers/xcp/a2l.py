@@ -47,7 +47,7 @@ DATATYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULON
 SIZES = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
 """pyxcp's DAQ element type -> its size in bytes."""
 DEFAULT_TOPIC = "/xcp"
-CACHE_VERSION = 2  # 2: the parameters
+CACHE_VERSION = 3  # 3: the parameters (2, at df99feb only, left writable FLOAT64s out of the constants)
 
 
 @dataclass(frozen=True)
