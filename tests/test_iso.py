@@ -104,21 +104,21 @@ def test_stability_over_xcp_writes_the_gain_speed_and_test_signal_the_a2l_names(
         while not line.startswith("xcp "):
             line = proc.stdout.readline()
             assert line, "sim serve printed no xcp URL"
-        url = f"{line.split()[1]}?a2l={a2l}"
+        plain, url = line.split()[1], f"{line.split()[1]}?a2l={a2l}"  # the A2L by --a2l, or in the URL
         monkeypatch.delenv("AMBDAQ_UNLOCK_KEY", raising=False)
         r = run_cli("controller", "param", "--device", url, "pid.d", *map(str, DETUNED_D), "--yes")
         assert r.exit_code == 1 and "writing pid.d over XCP needs calibration unlocked (seed & key)" in r.output
         monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
         r = run_cli("controller", "param", "--device", url, "pid.d", *map(str, DETUNED_D), "--yes")
         assert r.exit_code == 0 and "pid.d = 0.001 0.001 0.002 0.002 0.002" in r.output, r.output
-        r = run_cli("iso", "stability", "--device", url, "--axes", "front_x", "--rpm", "12000", "--duration", "1.5",
-                    "-o", tmp_path / "detuned.json", "--json")
+        r = run_cli("iso", "stability", "--device", plain, "--a2l", a2l, "--axes", "front_x", "--rpm", "12000",
+                    "--duration", "1.5", "-o", tmp_path / "detuned.json", "--json")
         assert r.exit_code == 0, r.output
         (got,) = json.loads(r.stdout)["runs"]
         detuned = model_peak_db(12000.0, DETUNED_D)[0]
         assert abs(got["speed_rpm"] - 12000) < 120 and abs(got["peak_db"] - detuned) < 0.5, (got, detuned)
         assert got["zone"] == "C" and zones_within(detuned, 0.5) == {"C"}
-        r = run_cli("controller", "param", "--device", url, "exc.signal")
+        r = run_cli("controller", "param", "--device", plain, "--a2l", a2l, "exc.signal")
         assert r.exit_code == 0 and "exc.signal = -1 0 0" in r.output
     finally:
         proc.terminate()

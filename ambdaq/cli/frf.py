@@ -13,7 +13,7 @@ from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError
 from ..workflows.frf import COHERENT, estimate_responses, excite, summarize
 from .figures import plot_option, pyplot
-from .options import excitation_option, output_options, report_options, speed_option
+from .options import a2l_option, excitation_option, output_options, report_options, speed_option
 from .record import run_recording
 
 
@@ -27,9 +27,10 @@ def command() -> None:
 @excitation_option
 @click.option("--duration", type=click.FloatRange(min=1), default=20.0, show_default=True, metavar="SECONDS")
 @speed_option
+@a2l_option
 @output_options
 @report_options
-def measure(device, excitation, duration, speed, out, quiet, as_json):
+def measure(device, excitation, duration, speed, description, out, quiet, as_json):
     """Record with the controller's test signal on (one axis), then switch it off.
 
     \b
@@ -40,7 +41,7 @@ def measure(device, excitation, duration, speed, out, quiet, as_json):
     if excitation is None:
         raise BadInputError("frf measure needs --excite AXIS:AMPLITUDE[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
     with Opened() as opened:
-        opened.add(open_url(device, speed=speed))
+        opened.add(open_url(device, speed=speed, description=description))
         excited = excite(opened.sources, excitation)
         run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
     if excited.switch_off_problem:

@@ -12,7 +12,7 @@ import numpy as np
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
-from .options import POSITIVE
+from .options import POSITIVE, a2l_option
 
 
 class LimitsArg(click.ParamType):
@@ -60,6 +60,7 @@ def command() -> None:
 @command.command("stability")
 @click.argument("recordings", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("--device", metavar="URL", help="Measure on this controller (sim://spindle, serial://..., xcp+...).")
+@a2l_option
 @click.option("--rpm", "speeds", type=click.FloatRange(min=0, max=200_000), multiple=True, metavar="RPM",
               help="A speed to measure at (repeatable; 0: standstill); set through the controller's speed parameter.")
 @click.option("--axes", help="Comma-separated axes to excite; default: every axis of the test-signal input.")
@@ -81,7 +82,7 @@ def command() -> None:
 @plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the results (without curves) as JSON.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
-def stability(recordings, device, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
+def stability(recordings, device, description, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
               min_coherence, output, overwrite, plot_path, as_json, quiet):
     """ISO 14839-3: peak of the sensitivity function per axis and speed, and its zone.
 
@@ -110,7 +111,8 @@ def stability(recordings, device, speeds, axes, amplitude, duration, settle, run
                 click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
 
         paths = iso.measure(device, list(speeds) or None, [a.strip() for a in axes.split(",")] if axes else None,
-                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce)
+                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
+                            description=description)
     else:
         paths = [Path(p) for p in recordings]
     runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence)

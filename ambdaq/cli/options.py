@@ -95,6 +95,16 @@ def speed_option(f):
     )(f)
 
 
+def a2l_option(f):
+    """--a2l FILE, given to the command as the device description ``{"a2l": absolute path}``
+    (None without it), as a rig file's ``a2l`` is."""
+    return click.option(
+        "--a2l", "description", type=click.Path(dir_okay=False), metavar="FILE",
+        callback=lambda _ctx, _param, value: {"a2l": str(Path(value).resolve())} if value else None,
+        help="The A2L file of an XCP controller (xcp+tcp://...); else a2l=FILE in its URL or the rig file.",
+    )(f)
+
+
 def window_options(f):
     f = click.option("--end", type=float, metavar="SECONDS", help="End of the time window (s from the start).")(f)
     f = click.option("--start", type=float, metavar="SECONDS", help="Start of the time window (s from the start).")(f)

@@ -14,13 +14,14 @@ from ..drivers.coefbank import BankImage
 from ..drivers.registry import open_controller
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
+from .options import a2l_option
 
 
-def _target(device: str | None, rig: str | None, a2l: str | None) -> tuple[str, str | None, dict]:
+def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[str, str | None, dict]:
     """The device URL, the rig file's unlock key for it and its description (an XCP controller's
     A2L, from the rig file or ``--a2l``): ``--device`` is a URL or, with ``--rig``, a device name
     in the rig file."""
-    given = {"a2l": str(Path(a2l).resolve())} if a2l else {}
+    given = given or {}
     if rig is None:
         if device is None:
             raise BadInputError("name the controller: --device URL (or --rig FILE with its unlock_key)")
@@ -38,11 +39,10 @@ def _target(device: str | None, rig: str | None, a2l: str | None) -> tuple[str, 
 @click.option("--device", metavar="URL", help="The controller: serial:PORT or can://IF/CH?node=N (or a name in --rig).")
 @click.option("--rig", type=click.Path(dir_okay=False), help="Rig file: the controller's URL and unlock_key.")
 @click.option("--key", help="Unlock key (else $AMBDAQ_UNLOCK_KEY, else the rig file's unlock_key).")
-@click.option("--a2l", type=click.Path(dir_okay=False), metavar="FILE",
-              help="The A2L file of an XCP controller (xcp+tcp://, xcp+sxi:, xcp+can://).")
+@a2l_option
 @click.option("--dry-run", is_flag=True, help="Validate and print the difference from the active bank; write nothing.")
 @click.option("--yes", is_flag=True, help="Do not ask before committing.")
-def push_command(file, device, rig, key, a2l, dry_run, yes):
+def push_command(file, device, rig, key, description, dry_run, yes):
     """Download coefficient FILE into the controller: validate, write the inactive bank, check the
     device's CRC-32, commit at a control-period boundary, log.
 
@@ -53,7 +53,7 @@ def push_command(file, device, rig, key, a2l, dry_run, yes):
       ambdaq push coef.json --device "can://socketcan/can0?node=0x50" --key "$KEY" --yes
       ambdaq push coef.json --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --yes
     """
-    url, rig_key, description = _target(device, rig, a2l)
+    url, rig_key, description = _target(device, rig, description)
     coef = Coefficients.load(file)  # a broken file fails before any device is opened
     unlock_key = None if dry_run else resolve_key(key, rig_key)
     port = open_controller(url, description)
@@ -90,11 +90,11 @@ def controller_group() -> None:
 
 @controller_group.command("status")
 @click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT or can://IF/CH?node=N.")
-@click.option("--a2l", type=click.Path(dir_okay=False), metavar="FILE", help="The A2L file of an XCP controller.")
+@a2l_option
 @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
-def status_command(device, a2l, as_json):
+def status_command(device, description, as_json):
     """Active coefficient bank, its CRC-32 and source file hash, and the controller's push log."""
-    port = open_controller(device, {"a2l": str(Path(a2l).resolve())} if a2l else None)
+    port = open_controller(device, description)
     try:
         st = port.bank_status()
     finally:
@@ -119,8 +119,9 @@ def status_command(device, a2l, as_json):
 @click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT, sim://spindle ...")
 @click.argument("name")
 @click.argument("values", nargs=-1, type=float)
+@a2l_option
 @click.option("--yes", is_flag=True, help="Write without asking (changing a gain on a levitated rotor changes the loop).")
-def param_command(device, name, values, yes):
+def param_command(device, name, values, description, yes):
     """Read a controller parameter, or write VALUES to it (e.g. pid.d, speed.rpm; docs/protocol.md).
 
     \b
@@ -133,7 +134,7 @@ def param_command(device, name, values, yes):
 
     if any(not math.isfinite(v) for v in values):
         raise BadInputError(f"{name}: values must be finite numbers")
-    dev = open_device(device)
+    dev = open_device(device, description=description)
     try:
         if not isinstance(dev, Controller):
             raise BadInputError(f"{device}: not a controller with parameters")

@@ -16,7 +16,8 @@ from ..daq.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import POSITIVE, Output, output_options, report_options, snapshot_options, speed_option
+from .options import (POSITIVE, Output, a2l_option, output_options, report_options, snapshot_options,
+                      speed_option)
 
 
 def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
@@ -150,8 +151,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 @click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")
 @click.option("--reconnect", is_flag=True,
               help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
-@click.option("--a2l", "a2l", type=click.Path(dir_okay=False), metavar="FILE",
-              help="A2L file of the --device XCP controllers (xcp+tcp://...).")
+@a2l_option
 @click.option("--live", "live_port", type=click.IntRange(0, 65535), is_flag=False, flag_value=8765, metavar="[PORT]",
               help="Serve the topics to Foxglove over its WebSocket protocol while recording (default port 8765; "
                    "0: any free one); the file keeps every sample (docs/live.md).")
@@ -162,7 +162,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 @snapshot_options
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port, live_host, live_rate, snapshot, out,
+def command(devices, rig_path, duration, speed, truth, reconnect, description, live_port, live_host, live_rate, snapshot, out,
             quiet, as_json):
     """Record devices in real time into an MCAP file.
 
@@ -179,7 +179,7 @@ def command(devices, rig_path, duration, speed, truth, reconnect, a2l, live_port
     with Opened() as opened:  # however the recording ends, every device and simulated rig is closed
         for i, url in enumerate(devices):
             opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None,
-                                description={"a2l": str(Path(a2l).resolve())} if a2l else None))
+                                description=description))
         for d in rig.devices if rig is not None else ():
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
                                 calibration=d.calibration, description=d.description))

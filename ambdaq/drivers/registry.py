@@ -214,10 +214,10 @@ def open_url(url: str | DeviceURL, *, name: str | None = None, speed: str | Spee
 
 
 def open_device(url: str | DeviceURL, *, name: str | None = None, speed: str | SpeedProfile | None = None,
-                calibration: dict[str, str] | None = None) -> Source:
+                calibration: dict[str, str] | None = None, description: dict | None = None) -> Source:
     """The one device at ``url`` (a URL that opens several, such as a simulated rig, is refused:
     :func:`open_url` takes those)."""
-    opened = open_url(url, name=name, speed=speed, calibration=calibration)
+    opened = open_url(url, name=name, speed=speed, calibration=calibration, description=description)
     if len(opened.sources) != 1 or opened.keep:
         opened.close()
         raise BadInputError(f"{url}: opens {len(opened.sources)} devices; open it with open_url")

@@ -85,7 +85,7 @@ def wait_for_speed(controller: Controller, target_rpm: float, timeout_s: float, 
 
 def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None, amplitude: float,
             duration_s: float, out_dir: Path, *, settle_s: float = 60.0, overwrite: bool = False,
-            on_run=None) -> list[Path]:
+            on_run=None, description: dict | None = None) -> list[Path]:
     """Record one excited run per axis at each speed; returns the recordings.
 
     Parameters
@@ -106,6 +106,8 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
         Longest wait for each speed, in s.
     on_run : callable, optional
         Called with (axis, rpm or None, path) before each run.
+    description : dict, optional
+        What the device's back-end reads beyond its URL (an XCP controller's A2L: ``{"a2l": path}``).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -114,7 +116,7 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
         i = 0
         while names is None or i < len(names):
             with Opened() as opened:
-                opened.add(open_url(device, speed=None if rpm is None else f"{rpm:g}"))
+                opened.add(open_url(device, speed=None if rpm is None else f"{rpm:g}", description=description))
                 controller = _controller(opened.sources)
                 names = names or list(controller.capabilities.excitation.axes)
                 axis = names[i]
