@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...drivers.coefbank import crc32
-from .banks import BankRefused, CoefficientBanks
 from ..profiles import profile
+from .banks import BankRefused, CoefficientBanks
 from .firmware import Param
 from .rig_server import RigServer
 
