@@ -41,6 +41,8 @@ def test_zones_and_their_boundaries(run_cli, tmp_path):
     assert r.exit_code == 2 and "increasing" in r.output and len(r.output.strip().splitlines()) == 1
     r = run_cli("iso", "stability", "-o", tmp_path / "s.json")
     assert r.exit_code == 2 and "either --device URL (measure) or recordings" in r.output
+    r = run_cli("iso", "stability", "x.mcap", "--a2l", "spindle.a2l", "-o", tmp_path / "s.json")
+    assert r.exit_code == 2 and "--a2l names the A2L of the controller measured with --device" in r.output
 
 
 @pytest.mark.realtime

@@ -99,6 +99,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
 
     if bool(recordings) == bool(device):
         raise BadInputError("iso stability takes either --device URL (measure) or recordings to grade, not both or neither")
+    if description and not device:
+        raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
     out = Path(output)
     if out.exists() and not overwrite:
         raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
