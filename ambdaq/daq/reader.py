@@ -189,7 +189,7 @@ def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
 
 
 def load(
-    path: str | Path,
+    path: str | Path | McapFile,
     topics: list[str] | tuple[str, ...] | None = None,
     *,
     start: float | None = None,
@@ -199,8 +199,9 @@ def load(
 
     Parameters
     ----------
-    path : str or Path
-        MCAP file written by ambdaq (or any file using its fixed-layout schemas).
+    path : str, Path or McapFile
+        MCAP file written by ambdaq (or any file using its fixed-layout schemas), or one already
+        opened (whose summary a caller has read: it is not read again).
     topics : list of str, optional
         Topics to load; default all ambdaq topics in the file.
     start, end : float, optional
@@ -217,7 +218,7 @@ def load(
         Not an MCAP file, truncated (``ambdaq recover`` rebuilds it), corrupted, or a topic
         that is missing or not in ambdaq's layout.
     """
-    f = McapFile(path)
+    f = path if isinstance(path, McapFile) else McapFile(path)
     available = ambdaq_channels(f)
     if topics is None:
         wanted = dict(available)
@@ -318,17 +319,17 @@ def load(
         )
         declared = _nominal_rate(metadata, topic)
         result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
-    return Recording(Path(path), result, metadata)
+    return Recording(f.path, result, metadata)
 
 
-def loaded(source: str | Path | Recording, topics: list[str]) -> Recording:
+def loaded(source: str | Path | McapFile | Recording, topics: list[str]) -> Recording:
     """``source`` itself if it is a :class:`Recording` that holds ``topics``, else ``load(source,
     topics)``: a workflow takes either, so a caller running several on one file reads it once.
 
     Parameters
     ----------
-    source : str, Path or Recording
-        A recording's path, or one already loaded.
+    source : str, Path, McapFile or Recording
+        A recording's path, the file opened, or the recording already loaded.
     topics : list of str
         Topics the caller needs.
 

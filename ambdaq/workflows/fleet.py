@@ -104,7 +104,7 @@ def scan_recording(path: str | Path) -> dict:
                                            if n.startswith("ambdaq.device.") and m.get(COEFFICIENTS_KEY)), None)
         # read once, for the 1X here and the runout and zones below (without current: no runout)
         current = ["/amb/current"] if "/amb/current" in ambdaq_channels(f) else []
-        rec = load(path, topics=["/amb/gap", "/amb/rotor", *current])
+        rec = load(f, topics=["/amb/gap", "/amb/rotor", *current])
         gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
         n = min(len(gap), len(rot))
         row["samples"] = len(gap)

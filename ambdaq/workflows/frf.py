@@ -94,8 +94,9 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
     """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
     freq, columns = None, {}
     for path in paths:
-        spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))  # base-motion rigs have no rotor topic
-        rec = load(path, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
+        f = McapFile(path)
+        spinning = "/amb/rotor" in ambdaq_channels(f)  # base-motion rigs have no rotor topic
+        rec = load(f, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
         x_data, y_data = rec[input_topic], rec[output_topic]
         n = min(len(x_data), len(y_data))
         axis = excited_axis(x_data, path, input_axis)

@@ -30,11 +30,11 @@ METHODS = {
 def with_rotor(source: Path | Recording, purpose: str) -> Recording:
     """A recording's gap sensors and rotor angle and speed, loaded (or ``source`` itself if it is
     loaded); one line, exit 2, if it has no rotor topic (``purpose`` says what needed it)."""
-    has_rotor = "/amb/rotor" in (source if isinstance(source, Recording) else ambdaq_channels(McapFile(source)))
-    if not has_rotor:
+    opened = source if isinstance(source, Recording) else McapFile(source)  # its summary, read once
+    if "/amb/rotor" not in (opened if isinstance(opened, Recording) else ambdaq_channels(opened)):
         raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
                             "key-phasor; record with the controller's rotor angle")
-    return loaded(source, ["/amb/gap", "/amb/rotor"])
+    return loaded(opened, ["/amb/gap", "/amb/rotor"])
 
 
 def gap_and_rotor(source: Path | Recording, purpose: str):

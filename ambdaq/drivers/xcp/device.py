@@ -379,14 +379,13 @@ class XcpController(Controller):
         if not np.all(np.isfinite(values)) or np.any(values < param.lower) or np.any(values > param.upper):
             raise DeviceError(f"{self.url}: {name}: values must be finite and within {param.lower:g} .. {param.upper:g} "
                               "(the A2L's limits)")
-        with self._errors(f"write {name}"):
-            locked = self._xcp.getStatus().resourceProtectionStatus.calpag
-        if locked:
+        if self._calibration_locked(f"write {name}"):
             key = self._key or os.environ.get(UNLOCK_KEY_ENV)
             if not key:
                 raise DeviceError(f"{self.url}: writing {name} over XCP needs calibration unlocked (seed & key): "
                                   f"set {UNLOCK_KEY_ENV}")
-            self.unlock(key)
+            self._key = key
+            self._answer_seed(key)
         with self._errors(f"write {name}"):
             self._download(param.address, struct.pack(f"<{param.count}d", *values))
 
@@ -428,11 +427,18 @@ class XcpController(Controller):
             raise DeviceError(f"{self.url}: BUILD_CHECKSUM answers {got.checksumType}, not XCP_CRC_32")
         return length, int(got.checksum)
 
+    def _calibration_locked(self, what: str) -> bool:
+        with self._errors(what):
+            return bool(self._xcp.getStatus().resourceProtectionStatus.calpag)
+
     def unlock(self, key: str) -> None:
         self._key = key
+        if self._calibration_locked("unlock"):
+            self._answer_seed(key)
+
+    def _answer_seed(self, key: str) -> None:
+        """GET_SEED and UNLOCK for CAL/PAG with ``key`` (calibration is locked)."""
         with self._errors("unlock"):
-            if not self._xcp.getStatus().resourceProtectionStatus.calpag:
-                return
             seed = self._xcp.getSeed(0, RES_CALPAG)
             answer = self.key_algorithm(RES_CALPAG, bytes(seed.seed or b""), key)
         try:
