@@ -321,19 +321,6 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
         assert axis["rms_after_um"] < 5.0, check  # (and `runout check` exited 0 on the same limits)
 
 
-def test_a2l_is_read_once_and_a_damaged_cache_is_read_again(a2l):
-    """The parsed A2L is kept by its SHA-256; a cache entry that is not JSON is parsed again."""
-    import hashlib
-
-    from ambdaq.drivers.xcp.a2l import _cache_dir, read_a2l
-
-    first = read_a2l(a2l)
-    entry = _cache_dir() / f"{hashlib.sha256(a2l.read_bytes()).hexdigest()}.json"
-    assert entry.exists() and read_a2l(a2l) == first
-    entry.write_text("{not json")
-    assert read_a2l(a2l) == first and json.loads(entry.read_text())["project"] == "AMBDAQ_SPINDLE"
-
-
 def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
     """The same slave on a serial line (a pseudo-terminal; SxI framed with LEN and CTR words):
     pyxcp's SxI transport reads a measurement, ambdaq records every period, pushes and has the
@@ -344,10 +331,13 @@ def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):
         assert url.startswith("xcp+sxi:///dev/pts/")
         from pyxcp.master import Master
 
-        from ambdaq.drivers.xcp.device import _application, sxi_transport
+        from pyxcp.config import create_application_from_config
 
-        layer, settings = sxi_transport(url[len("xcp+sxi://"):], 3_000_000)
-        with Master("sxi", config=_application(layer, settings)) as x:
+        app = create_application_from_config({"Transport": {"SxI": {
+            "port": url[len("xcp+sxi://"):], "bitrate": 3_000_000, "header_format": "HEADER_LEN_CTR_WORD",
+            "tail_format": "NO_CHECKSUM"}}}, log_level=logging.ERROR)
+        app.transport.layer = "SXI"
+        with Master("sxi", config=app) as x:
             x.connect()
             address = described(a2l)["amb.rotor.speed"][0]
             assert struct.unpack("<f", x.shortUpload(4, address))[0] == pytest.approx(30000 * np.pi / 30, abs=1e-3)
@@ -373,7 +363,8 @@ def test_devices_asks_an_address_for_an_xcp_slave(served, a2l, tmp_path, run_cli
     assert r.exit_code == 0, r.output
     (slave,) = json.loads(r.stdout)["xcp"]
     assert slave == {"url": served.url, "asap2_name": "AMBDAQ_SPINDLE", "max_cto": "255", "max_dto": "1024",
-                     "byte_order": "INTEL", "resources": "calpag,daq", "protected": "calpag", "event_0_period_us": "100"}
+                     "byte_order": "INTEL", "resources": "calpag,daq", "protected": "calpag",
+                     "event_0": "control (every 100 us)"}
     # nothing listening there: one line, exit 1, for asking and for recording alike
     for args in (("devices", "--ask-xcp", "xcp+tcp://127.0.0.1:9"),
                  ("record", "--device", "xcp+tcp://127.0.0.1:9", "--a2l", a2l, "--duration", "1", "-o", tmp_path / "x.mcap")):
@@ -475,15 +466,20 @@ def test_a_slave_that_never_answers_is_one_line_exit_1(a2l, tmp_path, run_cli):
 
 
 def test_an_xcp_error_response_is_named_with_its_meaning(served):
-    """A command out of sequence (WRITE_DAQ before SET_DAQ_PTR, sent by pyxcp itself): the slave
-    answers ERR_SEQUENCE, which ambdaq reports as one line with its meaning."""
+    """A command out of sequence (WRITE_DAQ before SET_DAQ_PTR): the slave answers ERR_SEQUENCE,
+    which ambdaq reports as one line with its meaning."""
     from ambdaq.drivers.xcp.device import xcp_errors
+    from ambdaq.drivers.xcp.master import XcpMaster
+    from ambdaq.drivers.xcp.transport import TcpLink
 
-    with master(served.port) as x:
+    x = XcpMaster(TcpLink(served.url, "127.0.0.1", served.port, 2.0), served.url)
+    try:
         x.connect()
-        x.freeDaq()
+        x.free_daq()
         with pytest.raises(DeviceError) as err:
             with xcp_errors(served.url, "write a DAQ entry"):
-                x.writeDaq(0xFF, 4, 0, 0x0001_0000)
+                x.write_daq(4, 0, 0x0001_0000)
         x.disconnect()
+    finally:
+        x.close()
     assert str(err.value) == f"{served.url}: write a DAQ entry: the controller answered ERR_SEQUENCE (commands out of sequence)"

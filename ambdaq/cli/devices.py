@@ -15,8 +15,9 @@ from ..errors import BadInputError
               help="Ask the serial port PORT whether an SLCAN adapter is there (its version and serial number); "
                    "repeatable. Ports are never written to unless named here.")
 @click.option("--ask-xcp", "ask_xcp", metavar="URL", multiple=True,
-              help="Ask whether an XCP slave answers at URL (xcp+tcp://HOST:PORT or xcp+sxi:PORT): its A2L "
-                   "project, resources, first event; repeatable.")
+              help="Ask whether an XCP slave answers at URL (xcp+tcp://HOST:PORT, xcp+udp://HOST:PORT, "
+                   "xcp+sxi:PORT or xcp+can://...): its A2L project, resources, every DAQ event with its cycle or "
+                   "'sporadic'; repeatable.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def command(ask, ask_xcp, as_json):
     """List CAN channels (python-can's detection), SLCAN adapters (by their USB ids), serial
@@ -38,8 +39,9 @@ def command(ask, ask_xcp, as_json):
         click.echo(f"  {p['port']:<20} {p['description']:<30} {p['url']}")
     for x in found["xcp"]:
         click.echo(f"XCP slave {x['url']}: {x['asap2_name']}, resources {x['resources']} (locked: "
-                   f"{x['protected'] or 'none'}), MAX_CTO {x['max_cto']}, MAX_DTO {x['max_dto']}"
-                   + (f", event 0 every {x['event_0_period_us']} us" if "event_0_period_us" in x else ""))
+                   f"{x['protected'] or 'none'}), MAX_CTO {x['max_cto']}, MAX_DTO {x['max_dto']}")
+        for key in sorted((k for k in x if k.startswith("event_")), key=lambda k: int(k[6:])):
+            click.echo(f"  event {key[6:]}: {x[key]}")
     click.echo("not searched: " + "; ".join(f"{k} ({why})" for k, why in NOT_SEARCHED.items()))
     click.echo("simulated rigs: sim://spindle (in process); ambdaq sim serve (on a pseudo-terminal)")
 
@@ -49,5 +51,5 @@ def _ask_xcp(text: str) -> dict[str, str]:
 
     url = parse_device_url(text)
     if not url.scheme.startswith("xcp+"):
-        raise BadInputError(f"--ask-xcp {text!r}: expected xcp+tcp://HOST:PORT or xcp+sxi:PORT")
+        raise BadInputError(f"--ask-xcp {text!r}: expected xcp+tcp://HOST:PORT, xcp+udp://HOST:PORT or xcp+sxi:PORT")
     return backend(url.scheme).ask(url)

@@ -29,6 +29,7 @@ BACKENDS = {
     "can": "ambdaq.drivers.can.backend:CanBackend",
     "serial": "ambdaq.drivers.serial.backend:SerialBackend",
     "xcp+tcp": "ambdaq.drivers.xcp.backend:XcpTcpBackend",
+    "xcp+udp": "ambdaq.drivers.xcp.backend:XcpUdpBackend",
     "xcp+sxi": "ambdaq.drivers.xcp.backend:XcpSxiBackend",
     "xcp+can": "ambdaq.drivers.xcp.backend:XcpCanBackend",
 }

@@ -1,2 +1,3 @@
-"""ASAM XCP: a controller's measurement and calibration door, with pyxcp as the master
-(the ``xcp`` extra) and its A2L file read by pya2ldb (docs/hardware.md, "XCP")."""
+"""ASAM XCP: a controller's measurement and calibration door.  ambdaq is the master itself
+(:mod:`.master`, :mod:`.transport`, :mod:`.daq`) and reads the A2L file itself (:mod:`.a2l`):
+docs/hardware.md, "XCP", says why."""

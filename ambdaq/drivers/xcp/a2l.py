@@ -1,89 +1,144 @@
-"""What ambdaq needs of an A2L file (ASAM MCD-2 MC), read by pya2ldb, not by hand.
+"""What ambdaq needs of an A2L file (ASAM MCD-2 MC 1.7), read from its block tree
+(:mod:`.a2l_syntax`).
 
-Measurements: name, address, data type and the linear conversion to physical units, and where
-ambdaq records each one (docs/hardware.md, "XCP"):
+Measurements: address and address extension, data type, byte order, bit mask, array size, the
+conversion to physical units and the DAQ events the file allows (``IF_DATA XCP`` ``DAQ_EVENT``
+``FIXED_EVENT_LIST`` / ``DEFAULT_EVENT_LIST``).  A conversion ambdaq computes (``IDENTICAL``,
+``LINEAR``, a linear ``RAT_FUNC``, ``TAB_INTP``) gives physical values; any other (``TAB_VERB``,
+whose verbal table is kept for the recording's metadata, ``TAB_NOINTP``, ``FORM``, a non-linear
+``RAT_FUNC``) is recorded as the raw value with the conversion named.  Nothing about a
+measurement that is not selected can refuse the file: what ambdaq cannot record is refused when
+it is selected (:meth:`A2lMeasurement.problem`).
 
-- an ``ANNOTATION`` labelled ``ambdaq`` with the text ``topic=/amb/gap type=Gap field=front_x``
-  (what ``ambdaq sim a2l`` writes);
-- else a dotted name ``a.b.c``: field ``c`` of topic ``/a/b``;
-- else field NAME of topic ``/xcp``.
+Where ambdaq records a measurement: an ``ANNOTATION`` labelled ``ambdaq`` with the text
+``topic=/amb/gap type=Gap field=front_x`` (what ``ambdaq sim a2l`` writes) places it; else it
+goes to the topic of its event (:mod:`.device`).  ``role=counter`` marks a counter of control
+periods (each sample's ``seq``).
 
-Blobs: the ``CHARACTERISTIC``s a controller that takes ``ambdaq push`` over XCP describes
-(``coefficient_bank``, ``push_record``, ``bank_status``), by address and size.
+Characteristics: a ``VALUE`` or ``VAL_BLK`` of a numeric record layout is a parameter (read and,
+unless ``READ_ONLY``, written by ``controller param``); those of FLOAT64 values are also the
+controller's calibration constants, read when it is opened.  Blobs are every characteristic by
+address and size (the coefficient bank of a controller that takes ``ambdaq push`` over XCP).
+An ``ambdaq`` annotation on a parameter names its role: ``role=speed`` (``--rpm``) or
+``role=test-signal axes=A,B unit=m|V min_amplitude=X max_amplitude=Y``.
 
-What is read is cached by the file's SHA-256 (``$XDG_CACHE_HOME/ambdaq/a2l``, else
-``~/.cache/ambdaq/a2l``): pya2ldb takes seconds to import and parse, and an A2L rarely changes.
+Events: the ``IF_DATA XCP`` ``DAQ`` block's ``EVENT``s (name, number, cycle), for listing; what
+the slave answers (GET_DAQ_EVENT_INFO) is what a recording uses.
 
-Constants: the ``CHARACTERISTIC``s of FLOAT64_IEEE values (a ``VALUE`` or a ``VAL_BLK``): the
-controller's calibration that is numbers (sensor gain, the rotor model ``rotor.*`` that
-``runout identify`` needs, its gains), read from the device when it is opened.
-
-Parameters: those of them that are not ``READ_ONLY``, with their limits; ``controller param``
-reads and writes them.  An
-``ANNOTATION`` labelled ``ambdaq`` says what ambdaq may use one for: ``role=speed`` (a speed
-set-point in rpm that reads the present speed: ``--rpm``) or ``role=test-signal axes=A,B,...
-unit=m|V min_amplitude=X max_amplitude=Y`` (the test-signal input of ``frf measure`` and ``iso
-stability``: [axis index or -1, amplitude, frequency Hz]).
+Reading the largest vendor file here (3.9 MB, 3,005 measurements) takes about a second, so
+nothing is cached (docs/performance.md, "A2L files").
 """
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
-import json
-import logging
-import os
+import math
 import re
-import sys
-import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...errors import BadInputError
+from .a2l_syntax import Block, Text, read_tree
 
-DATATYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULONG": "U32", "SLONG": "I32",
-             "A_UINT64": "U64", "A_INT64": "I64", "FLOAT32_IEEE": "F32", "FLOAT64_IEEE": "F64"}
-"""A2L data type -> pyxcp's DAQ element type."""
-SIZES = {"U8": 1, "I8": 1, "U16": 2, "I16": 2, "U32": 4, "I32": 4, "U64": 8, "I64": 8, "F32": 4, "F64": 8}
-"""pyxcp's DAQ element type -> its size in bytes."""
-DEFAULT_TOPIC = "/xcp"
-CACHE_VERSION = 3  # 3: the parameters (2, at df99feb only, left writable FLOAT64s out of the constants)
+TYPES = {"UBYTE": ("u", 1), "SBYTE": ("i", 1), "UWORD": ("u", 2), "SWORD": ("i", 2), "ULONG": ("u", 4),
+         "SLONG": ("i", 4), "A_UINT64": ("u", 8), "A_INT64": ("i", 8), "FLOAT16_IEEE": ("f", 2),
+         "FLOAT32_IEEE": ("f", 4), "FLOAT64_IEEE": ("f", 8)}
+"""A2L data type -> numpy kind and size in bytes."""
+BYTE_ORDERS = {"MSB_LAST": "<", "LITTLE_ENDIAN": "<", "MSB_FIRST": ">", "BIG_ENDIAN": ">"}
+"""A2L BYTE_ORDER -> numpy byte order (MSB_FIRST_MSW_LAST and MSB_LAST_MSW_FIRST are not read)."""
+KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERISTIC", "COMPU_METHOD", "COMPU_TAB",
+                  "COMPU_VTAB", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
+                  "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
+COMPUTED = ("IDENTICAL", "LINEAR", "RAT_FUNC", "TAB_INTP")
+
+
+@dataclass(frozen=True)
+class Conversion:
+    """A COMPU_METHOD as ambdaq applies it: ``kind``; physical = factor * raw + offset where
+    ``linear``; ``table`` (raw -> physical, ascending raw) for TAB_INTP; ``verbal`` (raw -> text)
+    for TAB_VERB; ``unit``."""
+
+    kind: str = "IDENTICAL"
+    linear: bool = True
+    factor: float = 1.0
+    offset: float = 0.0
+    unit: str = ""
+    table: tuple[tuple[float, float], ...] = ()
+    verbal: tuple[tuple[float, str], ...] = ()
+
+    @property
+    def computed(self) -> bool:
+        """Whether ambdaq turns raw values into physical ones (else they are recorded raw)."""
+        return self.linear or self.kind == "TAB_INTP"
 
 
 @dataclass(frozen=True)
 class A2lMeasurement:
-    """One measurement: physical value = ``factor`` * raw + ``offset``, in ``unit``.
+    """One measurement.
 
     Parameters
     ----------
     name : str
         A2L name.
     address : int
-        ECU address.
+        ECU address of its first element.
+    extension : int
+        Address extension (ECU_ADDRESS_EXTENSION, 0 if none).
     datatype : str
-        pyxcp element type (``U32``, ``F32`` ...).
+        A2L data type (``UBYTE`` ... ``FLOAT64_IEEE``).
+    byte_order : str
+        ``<`` (MSB_LAST) or ``>`` (MSB_FIRST); "" where the file's order cannot be read.
+    count : int
+        Elements (ARRAY_SIZE or the product of MATRIX_DIM), 1 for a scalar.
+    bit_mask : int or None
+        BIT_MASK: the raw value is ``(raw & mask) >> (trailing zeros of mask)``.
+    conversion : Conversion
+        Raw to physical.
     unit : str
-        Physical unit ("" for counts).
-    factor, offset : float
-        The linear conversion (A2L ``COMPU_METHOD``).
-    topic, type_name, field : str
-        Where it is recorded: MCAP topic, message type, field.
+        Physical unit ("" for counts or a raw value).
+    fixed_events, default_events : tuple of int
+        The DAQ events its IF_DATA XCP allows (FIXED_EVENT_LIST) or proposes (DEFAULT_EVENT_LIST).
+    note : dict of str to str
+        The words of its ``ambdaq`` annotation (``topic``, ``type``, ``field``, ``role``).
+    line : str
+        Where it stands (file and line), for messages.
     """
 
     name: str
     address: int
+    extension: int
     datatype: str
+    byte_order: str
+    count: int
+    bit_mask: int | None
+    conversion: Conversion
     unit: str
-    factor: float
-    offset: float
-    topic: str
-    type_name: str
-    field: str
+    fixed_events: tuple[int, ...] = ()
+    default_events: tuple[int, ...] = ()
+    note: dict[str, str] = field(default_factory=dict)
+    line: str = ""
+
+    @property
+    def size(self) -> int:
+        """Bytes of one element."""
+        return TYPES[self.datatype][1] if self.datatype in TYPES else 0
+
+    def problem(self) -> str | None:
+        """Why ambdaq cannot record it, or None."""
+        if self.datatype not in TYPES:
+            return f"data type {self.datatype} is not a number ambdaq records"
+        if not self.byte_order:
+            return "its BYTE_ORDER mixes word and byte orders, which ambdaq does not read"
+        if self.count < 1 or self.count > 4096:
+            return f"{self.count} elements (1 to 4096 are recorded)"
+        if self.bit_mask is not None and (self.bit_mask == 0 or TYPES[self.datatype][0] == "f"):
+            return f"BIT_MASK 0x{self.bit_mask:X} on a {self.datatype}"
+        return None
 
 
 @dataclass(frozen=True)
 class A2lParameter:
-    """A writable FLOAT64 characteristic.
+    """A numeric characteristic (``VALUE`` or ``VAL_BLK``).
 
     Parameters
     ----------
@@ -91,191 +146,296 @@ class A2lParameter:
         A2L name.
     address : int
         ECU address of its first value.
+    extension : int
+        Address extension.
+    datatype : str
+        A2L data type of its values (its record layout's FNC_VALUES).
+    byte_order : str
+        ``<`` or ``>``.
     count : int
         Number of values (1 for a ``VALUE``).
     lower, upper : float
-        Its limits (every value), in its unit.
+        Its limits (every value), physical.
+    conversion : Conversion
+        Raw to physical (a write needs it linear).
+    read_only : bool
+        READ_ONLY: read, never written.
     role : dict of str to str
         The words of its ``ambdaq`` annotation (``role``, ``unit``, ``axes`` ...); empty if none.
     """
 
     name: str
     address: int
+    extension: int
+    datatype: str
+    byte_order: str
     count: int
     lower: float
     upper: float
+    conversion: Conversion
+    read_only: bool
     role: dict[str, str]
+
+    @property
+    def size(self) -> int:
+        return TYPES[self.datatype][1]
+
+
+@dataclass(frozen=True)
+class A2lEvent:
+    """An EVENT of the A2L's IF_DATA XCP DAQ block: name, number, cycle in ns (0: sporadic)."""
+
+    name: str
+    number: int
+    cycle_ns: int
 
 
 @dataclass(frozen=True)
 class A2lFile:
-    """An A2L file's project name, measurements by name; blobs and FLOAT64 constants by name
-    (address, size in bytes / number of values); writable FLOAT64 parameters by name."""
+    """An A2L file's project name and what ambdaq reads of it."""
 
     path: Path
     sha256: str
     project: str
     measurements: dict[str, A2lMeasurement]
     blobs: dict[str, tuple[int, int]]
-    constants: dict[str, tuple[int, int]]
     parameters: dict[str, A2lParameter]
+    events: tuple[A2lEvent, ...] = ()
+
+    @property
+    def constants(self) -> dict[str, A2lParameter]:
+        """The FLOAT64 characteristics: the controller's calibration, read at open."""
+        return {k: p for k, p in self.parameters.items() if p.datatype == "FLOAT64_IEEE"}
+
+    @property
+    def writable(self) -> dict[str, A2lParameter]:
+        return {k: p for k, p in self.parameters.items() if not p.read_only}
 
 
 def read_a2l(path: str | Path) -> A2lFile:
-    """Read ``path`` (from the cache when its SHA-256 was read before); a file pya2ldb cannot read,
-    or with no measurement, is a BadInputError."""
+    """Read the A2L file ``path`` (and its includes); a file that is not one, or is beyond the
+    bounds of :mod:`.a2l_syntax`, is one BadInputError line naming the file and line."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        sha = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
     except OSError as err:
         raise BadInputError(f"A2L file {path}: {err.strerror or err}") from None
-    sha = hashlib.sha256(data).hexdigest()
-    cached = _cached(path, sha)
-    if cached is not None:
-        return cached
-    found = _parse(path, sha)
-    _cache(found)
-    return found
+    root = read_tree(path, KEEP)
+    project = next(iter(root.children("PROJECT")), None)
+    if project is None:
+        raise BadInputError(f"A2L file {path}: no /begin PROJECT (is it an A2L file?)")
+    modules = project.children("MODULE")
+    if not modules:
+        raise BadInputError(f"A2L file {path}: {project.where()}: the PROJECT has no MODULE")
+    reader = _ModuleReader(path, modules[0])
+    return A2lFile(path, sha, _word(project, 0, ""), reader.measurements(), reader.blobs(), reader.parameters(),
+                   reader.events())
 
 
-def _cache_dir() -> Path:
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ambdaq" / "a2l"
+def _word(block: Block, index: int, default: str | None = None) -> str:
+    if index < len(block.items):
+        return block.items[index]
+    if default is not None:
+        return default
+    raise BadInputError(f"A2L file {block.where()}: {block.keyword} has {len(block.items)} values, "
+                        f"where at least {index + 1} are due")
 
 
-def _cached(path: Path, sha: str) -> A2lFile | None:
+def _number(block: Block, token: str, what: str) -> float:
     try:
-        d = json.loads((_cache_dir() / f"{sha}.json").read_text())
-        if d.pop("version") != CACHE_VERSION:
-            return None
-        return A2lFile(path, sha, d["project"], {k: A2lMeasurement(**m) for k, m in d["measurements"].items()},
-                       {k: tuple(v) for k, v in d["blobs"].items()}, {k: tuple(v) for k, v in d["constants"].items()},
-                       {k: A2lParameter(**v) for k, v in d["parameters"].items()})
-    except (OSError, ValueError, KeyError, TypeError):
-        return None  # none, or one this version cannot read: parse again
+        value = float(int(token, 0)) if re.fullmatch(r"[+-]?0[xX][0-9a-fA-F]+|[+-]?\d+", token) else float(token)
+    except ValueError:
+        raise BadInputError(f"A2L file {block.where()}: {block.keyword} {_word(block, 0, '')}: {what} {token!r} "
+                            "is not a number") from None
+    if not math.isfinite(value):
+        raise BadInputError(f"A2L file {block.where()}: {block.keyword} {_word(block, 0, '')}: {what} is {token}")
+    return value
 
 
-def _cache(found: A2lFile) -> None:
-    folder = _cache_dir()
-    body = {"version": CACHE_VERSION, "project": found.project, "blobs": found.blobs, "constants": found.constants,
-            "measurements": {k: asdict(m) for k, m in found.measurements.items()},
-            "parameters": {k: asdict(v) for k, v in found.parameters.items()}}
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / f"{found.sha256}.{os.getpid()}.tmp"
-        tmp.write_text(json.dumps(body))
-        tmp.replace(folder / f"{found.sha256}.json")
-    except OSError:
-        pass  # a cache that cannot be written costs only time
+def _integer(block: Block, token: str, what: str) -> int:
+    value = _number(block, token, what)
+    if value != int(value):
+        raise BadInputError(f"A2L file {block.where()}: {block.keyword} {_word(block, 0, '')}: {what} {token!r} "
+                            "is not an integer")
+    return int(value)
 
 
-def _parse(path: Path, sha: str) -> A2lFile:
-    try:
-        from pya2l import import_a2l, model
-    except ImportError:
-        raise BadInputError("A2L files need the xcp extra: pip install 'ambdaq[xcp]'") from None
-    logging.disable(logging.WARNING)  # pya2ldb logs its progress at INFO (to stdout, through rich)
-    try:
-        session, complaints = _with_output(lambda: import_a2l(str(path), in_memory=True, loglevel="ERROR",
-                                                               progress_bar=False))
-        _refuse_errors(path, complaints)
-        project = session.query(model.Project).first()
-        methods = {m.name: m for m in session.query(model.CompuMethod)}
-        measurements = {}
-        for m in session.query(model.Measurement):
-            measurements[m.name] = _measurement(m, methods, path)
-        layouts = {r.name: r.fnc_values.datatype if r.fnc_values else "" for r in session.query(model.RecordLayout)}
-        blobs, constants, parameters = {}, {}, {}
-        for c in session.query(model.Characteristic):
-            count = int(c.number.number) if c.number is not None else 1
-            blobs[c.name] = (int(c.address), count)
-            if c.type in ("VALUE", "VAL_BLK") and layouts.get(c.deposit) == "FLOAT64_IEEE":
-                constants[c.name] = (int(c.address), count)
-                if not c.read_only:
-                    parameters[c.name] = A2lParameter(c.name, int(c.address), count, float(c.lowerLimit),
-                                                      float(c.upperLimit), _ambdaq_note(c))
-    except BadInputError:
-        raise
-    except Exception as err:  # the parser's own errors, whatever their class
-        raise BadInputError(f"A2L file {path}: cannot be read ({type(err).__name__}: {err})") from None
-    finally:
-        logging.disable(logging.NOTSET)
-    if not measurements:
-        raise BadInputError(f"A2L file {path}: no MEASUREMENT (is it an A2L file?)")
-    return A2lFile(path, sha, project.name if project else "", measurements, blobs, constants, parameters)
+ARITY = {"ECU_ADDRESS": 1, "ECU_ADDRESS_EXTENSION": 1, "BYTE_ORDER": 1, "BIT_MASK": 1, "ARRAY_SIZE": 1,
+         "MATRIX_DIM": 3, "PHYS_UNIT": 1, "NUMBER": 1, "COEFFS": 6, "COEFFS_LINEAR": 2, "COMPU_TAB_REF": 1,
+         "FNC_VALUES": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1}
+"""The optional keywords ambdaq reads and how many words follow each (MATRIX_DIM: up to 3 numbers)."""
 
 
-def _with_output(call):
-    """``call()`` and what it wrote to file descriptors 1 and 2: pya2ldb's parser (C++) reports
-    syntax errors on its standard output, with their line, and goes on."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    with tempfile.TemporaryFile() as sink:
-        saved = [os.dup(1), os.dup(2)]
-        os.dup2(sink.fileno(), 1)
-        os.dup2(sink.fileno(), 2)
-        try:
-            result = call()
-        finally:
-            ctypes.CDLL(None).fflush(None)  # the C library's buffers, before the descriptors are given back
-            os.dup2(saved[0], 1)
-            os.dup2(saved[1], 2)
-            for fd in saved:
-                os.close(fd)
-        sink.seek(0)
-        return result, sink.read().decode("utf-8", "replace")
+def _options(block: Block, start: int) -> dict[str, list[str]]:
+    """The optional keywords of :data:`ARITY` in a block's body from ``start`` on, with their words."""
+    out: dict[str, list[str]] = {}
+    items = block.items
+    i = start
+    while i < len(items):
+        token = items[i]
+        n = ARITY.get(token) if not isinstance(token, Text) else None
+        if n is None:
+            i += 1
+            continue
+        words = items[i + 1 : i + 1 + n]
+        if token == "MATRIX_DIM":  # 1.70 takes one to three dimensions
+            k = 0
+            while k < len(words) and re.fullmatch(r"\d+", words[k]):
+                k += 1
+            words = words[:k]
+        out[token] = words
+        i += 1 + len(words)
+    return out
 
 
-def _refuse_errors(path: Path, complaints: str) -> None:
-    """The parser's first error, as one line naming the file and the line."""
-    for line in complaints.splitlines():
-        if "[error]" in line:
-            what = line.split("[error]", 1)[1].strip()
-            at = re.search(r",(\d+):(\d+)\]", what)
-            where = f"line {at.group(1)}: " if at else ""
-            token = re.search(r"\[@\d+='(.*?)',", what)
-            message = re.sub(r" *:? *\[@.*", "", what) + (f" {token.group(1)!r}" if token else "")
-            raise BadInputError(f"A2L file {path}: {where}{message}")
-
-
-def _measurement(m, methods: dict, path: Path) -> A2lMeasurement:
-    datatype = DATATYPES.get(m.datatype)
-    if datatype is None:
-        raise BadInputError(f"A2L file {path}: measurement {m.name} has data type {m.datatype}, which ambdaq cannot record")
-    factor, offset, unit = 1.0, 0.0, ""
-    method = methods.get(m.conversion)
-    if method is not None:
-        unit = method.unit or ""
-        kind = method.conversionType
-        if kind == "LINEAR":
-            factor, offset = float(method.coeffs_linear.a), float(method.coeffs_linear.b)
-        elif kind == "RAT_FUNC":
-            # raw = (a p^2 + b p + c) / (d p^2 + e p + f); linear when a = d = e = 0: p = (f raw - c) / b
-            c = method.coeffs
-            if c.a or c.d or c.e or not c.b:
-                raise BadInputError(f"A2L file {path}: measurement {m.name}: a RAT_FUNC that is not linear")
-            factor, offset = float(c.f) / float(c.b), -float(c.c) / float(c.b)
-        elif kind != "IDENTICAL":
-            raise BadInputError(f"A2L file {path}: measurement {m.name}: conversion {kind} is not supported "
-                                "(IDENTICAL, LINEAR and linear RAT_FUNC are)")
-    if m.phys_unit is not None and m.phys_unit.unit:
-        unit = m.phys_unit.unit
-    topic, type_name, field = _placement(m)
-    return A2lMeasurement(m.name, int(m.ecu_address.address), datatype, unit, factor, offset, topic, type_name, field)
-
-
-def _ambdaq_note(item) -> dict[str, str]:
-    """The ``word=value`` pairs of an item's ANNOTATION labelled ``ambdaq`` (empty if none)."""
-    for note in item.annotation or ():
-        if note.annotation_label is not None and note.annotation_label.label == "ambdaq" and note.annotation_text:
-            return dict(p.split("=", 1) for p in " ".join(note.annotation_text.text).split() if "=" in p)
+def ambdaq_note(block: Block) -> dict[str, str]:
+    """The ``word=value`` pairs of a block's ANNOTATION labelled ``ambdaq`` (empty if none)."""
+    for note in block.children("ANNOTATION"):
+        label = _options(note, 0).get("ANNOTATION_LABEL", [])
+        text = note.child("ANNOTATION_TEXT")
+        if label == ["ambdaq"] and text is not None:
+            return dict(p.split("=", 1) for p in " ".join(text.items).split() if "=" in p)
     return {}
 
 
-def _placement(m) -> tuple[str, str, str]:
-    parts = _ambdaq_note(m)
-    if {"topic", "type", "field"} <= set(parts):
-        return parts["topic"], parts["type"], parts["field"]
-    *path, field = m.name.split(".")
-    topic = "/" + "/".join(path) if path else DEFAULT_TOPIC
-    type_name = "".join(p[:1].upper() + p[1:] for p in re.split(r"[^A-Za-z0-9]+", topic) if p) or "Xcp"
-    return topic, type_name, re.sub(r"[^A-Za-z0-9_]", "_", field)
+class _ModuleReader:
+    def __init__(self, path: Path, module: Block) -> None:
+        self.path, self.module = path, module
+        common = module.child("MOD_COMMON")
+        order = _options(common, 1).get("BYTE_ORDER", ["MSB_LAST"]) if common is not None else ["MSB_LAST"]
+        self.byte_order = BYTE_ORDERS.get(order[0] if order else "MSB_LAST", "")
+        self.methods = {_word(b, 0): b for b in module.children("COMPU_METHOD")}
+        self.tables = {_word(b, 0): b for b in module.children("COMPU_TAB") + module.children("COMPU_VTAB")}
+        self.layouts = {}
+        for layout in module.children("RECORD_LAYOUT"):
+            values = _options(layout, 1).get("FNC_VALUES", [])
+            self.layouts[_word(layout, 0)] = values[1] if len(values) > 1 else ""
+        self._conversions: dict[str, Conversion] = {}
+
+    def _order(self, options: dict[str, list[str]]) -> str:
+        given = options.get("BYTE_ORDER")
+        return BYTE_ORDERS.get(given[0], "") if given else self.byte_order
+
+    def conversion(self, name: str) -> Conversion:
+        """The COMPU_METHOD ``name`` as ambdaq applies it (NO_COMPU_METHOD: identity)."""
+        if name in self._conversions:
+            return self._conversions[name]
+        method = self.methods.get(name)
+        found = Conversion() if method is None else self._method(method)
+        self._conversions[name] = found
+        return found
+
+    def _method(self, b: Block) -> Conversion:
+        kind, unit = _word(b, 2, "IDENTICAL"), _word(b, 4, "")
+        options = _options(b, 5)
+        if kind == "LINEAR":
+            a, c = (options.get("COEFFS_LINEAR") or ["1", "0"])[:2]
+            return Conversion(kind, True, _number(b, a, "COEFFS_LINEAR a"), _number(b, c, "COEFFS_LINEAR b"), unit)
+        if kind == "RAT_FUNC":
+            # raw = (a p^2 + b p + c) / (d p^2 + e p + f) (ASAM MCD-2 MC, COMPU_METHOD); linear when
+            # a = d = e = 0: p = (f raw - c) / b
+            coeffs = options.get("COEFFS", [])
+            if len(coeffs) == 6:
+                a, bb, c, d, e, f = (_number(b, x, "COEFFS") for x in coeffs)
+                if a == d == e == 0 and bb != 0:
+                    return Conversion(kind, True, f / bb, -c / bb, unit)
+            return Conversion(kind, False, unit="")
+        if kind in ("TAB_INTP", "TAB_VERB", "TAB_NOINTP"):
+            ref = (options.get("COMPU_TAB_REF") or [""])[0]
+            table = self.tables.get(ref)
+            if table is None:
+                return Conversion(kind, False)
+            n = _integer(table, _word(table, 3, "0"), "number of pairs")
+            pairs = table.items[4 : 4 + 2 * n]
+            if kind == "TAB_VERB":
+                return Conversion(kind, False, verbal=tuple((_number(table, pairs[i], "value"), str(pairs[i + 1]))
+                                                            for i in range(0, len(pairs) - 1, 2)))
+            points = sorted((_number(table, pairs[i], "value"), _number(table, pairs[i + 1], "value"))
+                            for i in range(0, len(pairs) - 1, 2))
+            return Conversion(kind, False, unit=unit if kind == "TAB_INTP" else "", table=tuple(points))
+        if kind == "IDENTICAL":
+            return Conversion(kind, True, unit=unit)
+        return Conversion(kind, False)  # FORM and what else a vendor writes: recorded raw, named
+
+    def measurements(self) -> dict[str, A2lMeasurement]:
+        out = {}
+        for b in self.module.children("MEASUREMENT"):
+            name = _word(b, 0)
+            datatype, method = _word(b, 2, ""), _word(b, 3, "NO_COMPU_METHOD")
+            options = _options(b, 8)
+            address = _integer(b, (options.get("ECU_ADDRESS") or ["0"])[0], "ECU_ADDRESS") if "ECU_ADDRESS" in options else -1
+            ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
+            count = 1
+            for key in ("ARRAY_SIZE", "MATRIX_DIM"):
+                for token in options.get(key, [])[:3]:
+                    count *= max(_integer(b, token, key), 1)
+            mask = _integer(b, options["BIT_MASK"][0], "BIT_MASK") if options.get("BIT_MASK") else None
+            conversion = self.conversion(method)
+            unit = (options.get("PHYS_UNIT") or [conversion.unit])[0] if conversion.computed else ""
+            fixed, default = _daq_events(b)
+            out[name] = A2lMeasurement(name, address, ext, datatype, self._order(options), count, mask, conversion,
+                                       unit, fixed, default, ambdaq_note(b), b.where())
+        return out
+
+    def _characteristics(self):
+        for b in self.module.children("CHARACTERISTIC"):
+            options = _options(b, 9)
+            count = 1
+            for key in ("NUMBER", "MATRIX_DIM"):
+                for token in options.get(key, [])[:3]:
+                    count *= max(_integer(b, token, key), 1)
+            yield b, options, count
+
+    def blobs(self) -> dict[str, tuple[int, int]]:
+        return {_word(b, 0): (_integer(b, _word(b, 3), "address"), count) for b, _o, count in self._characteristics()}
+
+    def parameters(self) -> dict[str, A2lParameter]:
+        out = {}
+        for b, options, count in self._characteristics():
+            if _word(b, 2) not in ("VALUE", "VAL_BLK"):
+                continue
+            datatype = self.layouts.get(_word(b, 4), "")
+            order = self._order(options)
+            if datatype not in TYPES or not order:
+                continue
+            ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
+            lower, upper = _number(b, _word(b, 7), "lower limit"), _number(b, _word(b, 8), "upper limit")
+            name = _word(b, 0)
+            out[name] = A2lParameter(name, _integer(b, _word(b, 3), "address"), ext, datatype, order, count, lower,
+                                     upper, self.conversion(_word(b, 6)), "READ_ONLY" in options, ambdaq_note(b))
+        return out
+
+    def events(self) -> tuple[A2lEvent, ...]:
+        out = []
+        for data in self.module.children("IF_DATA"):
+            if data.items[:1] != ["XCP"]:
+                continue
+            for daq in data.children("DAQ"):
+                for e in daq.children("EVENT"):
+                    # EVENT "name" "short name" number DAQ|STIM|DAQ_STIM max_lists cycle unit priority
+                    if len(e.items) >= 7:
+                        cycle, unit = _integer(e, e.items[5], "cycle"), _integer(e, e.items[6], "time unit")
+                        out.append(A2lEvent(str(e.items[0]), _integer(e, e.items[2], "event number"),
+                                            cycle * 10 ** unit if 0 <= unit <= 9 else 0))
+        return tuple(out)
+
+
+def _daq_events(b: Block) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """A measurement's IF_DATA XCP DAQ_EVENT lists: (fixed, default) event numbers."""
+    fixed: list[int] = []
+    default: list[int] = []
+    for data in b.children("IF_DATA"):
+        if data.items[:1] != ["XCP"]:
+            continue
+        for lists in data.children("DAQ_EVENT"):
+            target = None
+            for token in lists.items:
+                if token in ("FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "VARIABLE"):
+                    target = {"FIXED_EVENT_LIST": fixed, "DEFAULT_EVENT_LIST": default}.get(token)
+                elif token != "EVENT" and target is not None:
+                    target.append(_integer(lists, token, "event number"))
+            for sub in lists.blocks:  # the 1.7 form: /begin FIXED_EVENT_LIST EVENT n ... /end
+                target = {"FIXED_EVENT_LIST": fixed, "DEFAULT_EVENT_LIST": default}.get(sub.keyword)
+                if target is not None:
+                    target.extend(_integer(sub, t, "event number") for t in sub.items if t != "EVENT")
+    return tuple(fixed), tuple(default)

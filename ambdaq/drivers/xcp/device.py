@@ -1,11 +1,16 @@
-"""An AMB controller over ASAM XCP, with pyxcp as the master: measurements from its A2L file
-recorded through a DAQ list on the controller's event, and ``ambdaq push`` into a calibration
-page (docs/hardware.md, "XCP").
+"""An AMB controller, or any ECU, over ASAM XCP with ambdaq as the master (:mod:`.master`):
+measurements from its A2L file recorded through DAQ lists, parameters read and written by
+UPLOAD/DOWNLOAD, and ``ambdaq push`` into a calibration page (docs/hardware.md, "XCP").
 
-Recording: one dynamic DAQ list on event ``event`` (default 0) with the first-ODT timestamp,
-holding the counter (``counter``, default ``control_period``) and the measurements asked for.
-The counter is each sample's ``seq`` (gaps are drops, counted as for any device); the DAQ
-timestamp is its device time; its arrival is what the recorder's clock map learns from.
+Recording: the measurements asked for (``--measure``, a rig file's ``measurements``; by default
+those an ``ambdaq`` annotation places) go on the DAQ event their A2L names (FIXED_EVENT_LIST,
+else the URL's ``event=N``, else DEFAULT_EVENT_LIST, else the slave's only event), one DAQ list
+per event (:mod:`.daq`), sporadic and cyclic events alike.  Each event is one source of the
+recording; a measurement without an annotation goes to the topic ``/xcp/<event name>``.  A
+sample's time is its DTO timestamp; its ``seq`` is a control-period counter where one is named
+(``counter=NAME`` or ``role=counter``), else its arrival index.  Loss is counted from the
+transport's counter (Ethernet, SxI) and the slave's overload indication, and the device's
+metadata says where neither exists (CAN).
 
 Pushing (:class:`~ambdaq.drivers.interfaces.BankPort`, the same rules as every controller):
 seed & key for CAL/PAG (the algorithm by name, :mod:`.keys`); the image is downloaded into the
@@ -15,9 +20,10 @@ it comes from BUILD_CHECKSUM (XCP_CRC_32); the host's CRC-32 and its push record
 control-period boundary or refuses (its reason in ``bank_status``); the push log and layout are
 read from ``bank_status``; ``store=1`` then asks STORE_CAL_REQ (non-volatile memory).
 
-Parameters (:class:`~ambdaq.drivers.interfaces.Parameters`): the A2L's writable FLOAT64
-characteristics, uploaded and downloaded as they are (Intel byte order), checked against their
-limits first.  A download needs CAL/PAG unlocked: with the key of a push in the same session, else
+Parameters (:class:`~ambdaq.drivers.interfaces.Parameters`): the A2L's numeric ``VALUE`` and
+``VAL_BLK`` characteristics of every type, physical values through their linear conversion,
+checked against their limits and the type's range first.  A download needs CAL/PAG unlocked
+where the slave protects it: with the key of a push in the same session, else
 ``$AMBDAQ_UNLOCK_KEY``.  What the controller can do (:class:`~ambdaq.drivers.interfaces.Capabilities`)
 is what its A2L says: coefficient banks if it describes ``coefficient_bank``, a speed set-point
 and a test-signal input if a parameter's ``ambdaq`` annotation names that role (:mod:`.a2l`).
@@ -25,127 +31,52 @@ and a test-signal input if a parameter's ``ambdaq`` annotation names that role (
 
 from __future__ import annotations
 
+import fnmatch
 import json
-import logging
 import os
+import re
 import struct
-import time
-from contextlib import contextmanager
+from collections.abc import Callable
 
 import numpy as np
 
 from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
-from ..interfaces import UNLOCK_KEY_ENV, Capabilities, Controller, ExcitationSpec
+from ..interfaces import UNLOCK_KEY_ENV, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
 from ..signals import SampleBlock, SignalGroup
-from .a2l import SIZES, A2lFile, A2lParameter
+from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
+from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
 from .keys import KeyAlgorithm
+from .master import RES_CALPAG, RES_DAQ, RESOURCES, EventChannel, XcpMaster, XcpRefused
+from .transport import Link
 
-COUNTER = "control_period"
-RES_CALPAG = 0x01
 LENGTH = struct.Struct("<I")
-TIMESTAMP_WRAP_NS = (1 << 32) * 1000  # a 4-byte timestamp in 1 us ticks turns every 71.6 min
-SILENT_S = 2.0
-TIMEOUT_S = 0.5  # a command unanswered this long is a timeout (pyxcp's default is 2 s)
+SILENT_S = 2.0  # a cyclic event silent this long: the device is lost
+UNWRAP_MIN_S = 0.1  # a timestamp that wraps faster than this cannot be unwrapped by arrival times
+EVENT_TOPIC = "/xcp"
+
+LinkFactory = Callable[[], Link]
 
 
-def tcp_transport(host: str, port: int) -> tuple[str, dict]:
-    """pyxcp's transport settings for XCP on TCP to ``host``:``port``."""
-    return "ETH", {"Eth": {"host": host, "port": port, "protocol": "TCP"}}
+def ros_name(name: str) -> str:
+    """A field name ROS 2 and Foxglove accept (``[a-z][a-z0-9_]*``, no double or trailing
+    underscore) for an A2L name."""
+    text = re.sub(r"[^a-z0-9]+", "_", re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name).lower()).strip("_")
+    return ("m_" + text if not text or not text[0].isalpha() else text) or "m"
 
 
-def sxi_transport(port: str, baud: int) -> tuple[str, dict]:
-    """pyxcp's transport settings for XCP on SxI on serial ``port``: LEN and CTR words, no checksum."""
-    return "SXI", {"SxI": {"port": port, "bitrate": baud, "header_format": "HEADER_LEN_CTR_WORD",
-                           "tail_format": "NO_CHECKSUM"}}
+def _event_topic(event: EventChannel) -> tuple[str, str]:
+    """Topic and message type of an event's measurements that no annotation places."""
+    word = ros_name(event.name or f"event_{event.number}")
+    return f"{EVENT_TOPIC}/{word}", "Xcp" + "".join(p.capitalize() for p in word.split("_"))
 
 
-def can_transport(interface: str, channel: str, id_master: int, id_slave: int, bitrate: int,
-                  open_delay: float | None) -> tuple[str, dict]:
-    """pyxcp's transport settings for XCP on CAN on python-can's ``interface`` and ``channel``."""
-    settings: dict = {"CAN": {"interface": interface, "channel": channel, "can_id_master": id_master,
-                              "can_id_slave": id_slave, "bitrate": bitrate}}
-    if open_delay is not None:
-        settings["SlCan"] = {"sleep_after_open": open_delay}
-    return "CAN", settings
-
-
-def _application(layer: str, settings: dict):
-    """pyxcp's configuration for the transport ``layer`` with ``settings``.  Made before anything
-    of pyxcp asks for one: its DAQ classes otherwise make their own from ``sys.argv``."""
-    from pyxcp.config import create_application_from_config, set_application
-
-    app = create_application_from_config({"Transport": {k: v for k, v in settings.items() if k != "SlCan"}},
-                                         log_level=logging.CRITICAL)
-    for key, value in settings.get("SlCan", {}).items():
-        setattr(app.transport.can.slcan, key, value)
-    app.transport.layer = layer
-    app.transport.timeout = TIMEOUT_S
-    set_application(app)  # pyxcp's DAQ classes take their settings from the global one
-    return app
-
-
-XCP_ERRORS = {
-    # ASAM MCD-1 XCP Part 2, the error codes of a negative response, and what each means
-    0x00: ("ERR_CMD_SYNCH", "command processor synchronisation"),
-    0x10: ("ERR_CMD_BUSY", "command not executed: the slave is busy"),
-    0x11: ("ERR_DAQ_ACTIVE", "command rejected while DAQ is running"),
-    0x12: ("ERR_PGM_ACTIVE", "command rejected while programming is running"),
-    0x20: ("ERR_CMD_UNKNOWN", "unknown command, or an optional one the slave lacks"),
-    0x21: ("ERR_CMD_SYNTAX", "command syntax invalid"),
-    0x22: ("ERR_OUT_OF_RANGE", "a command parameter is out of range"),
-    0x23: ("ERR_WRITE_PROTECTED", "the memory location is write protected"),
-    0x24: ("ERR_ACCESS_DENIED", "the memory location is not accessible"),
-    0x25: ("ERR_ACCESS_LOCKED", "access denied: seed & key is required"),
-    0x26: ("ERR_PAGE_NOT_VALID", "the page is not available"),
-    0x27: ("ERR_MODE_NOT_VALID", "the page mode is not available"),
-    0x28: ("ERR_SEGMENT_NOT_VALID", "the segment is not valid"),
-    0x29: ("ERR_SEQUENCE", "commands out of sequence"),
-    0x2A: ("ERR_DAQ_CONFIG", "the DAQ configuration is not valid"),
-    0x30: ("ERR_MEMORY_OVERFLOW", "memory overflow"),
-    0x31: ("ERR_GENERIC", "generic error"),
-    0x32: ("ERR_VERIFY", "the slave's verification found an error"),
-}
-
-
-def _xcp_error_text(err) -> str:
-    """``ERR_NAME (meaning)`` of a pyxcp error, else its own text."""
-    code = getattr(err, "error_code", None)
-    try:
-        name, meaning = XCP_ERRORS[int(code)]
-    except (TypeError, ValueError, KeyError):
-        return str(err)
-    return f"{name} ({meaning})"
-
-
-@contextmanager
-def xcp_errors(url: str, what: str):
-    """pyxcp's errors (XCP error responses, timeouts, a refused or lost connection) while doing
-    ``what`` with the slave at ``url``, as one DeviceError."""
-    from pyxcp.master.errorhandler import SystemExit as XcpError
-    from pyxcp.master.errorhandler import UnrecoverableError, set_suppress_xcp_error_log
-    from pyxcp.types import XcpTimeoutError
-    from serial import SerialException
-
-    set_suppress_xcp_error_log(True)  # no log or frame dump of pyxcp's own: the one line below says it
-    try:
-        yield
-    except (XcpError, UnrecoverableError) as err:
-        raise DeviceError(f"{url}: {what}: the controller answered {_xcp_error_text(err)}") from None
-    except XcpTimeoutError:
-        raise DeviceError(f"{url}: {what}: no answer (timeout)") from None
-    except (OSError, SerialException) as err:
-        raise DeviceError(f"{url}: {what}: {err}") from None
-    finally:
-        set_suppress_xcp_error_log(False)
-
-
-def _capabilities(url: str, a2l: A2lFile, control_rate_hz: float) -> Capabilities:
+def _capabilities(a2l: A2lFile, control_rate_hz: Callable[[], float]) -> Capabilities:
     """What the A2L says the controller can do (its parameters' ``ambdaq`` roles, :mod:`.a2l`);
     a role that cannot be read is a BadInputError naming the parameter."""
     speed, excitation = None, None
-    for param in a2l.parameters.values():
+    for param in a2l.writable.values():
         role = param.role.get("role")
         if role == "speed" and param.count == 1:
             speed = param.name
@@ -155,7 +86,7 @@ def _capabilities(url: str, a2l: A2lFile, control_rate_hz: float) -> Capabilitie
                     raise ValueError("3 values and unit m or V")
                 excitation = ExcitationSpec(param.name, tuple(param.role["axes"].split(",")), param.role["unit"],
                                             float(param.role["min_amplitude"]), float(param.role["max_amplitude"]),
-                                            control_rate_hz)
+                                            control_rate_hz())
             except (KeyError, ValueError) as err:
                 raise BadInputError(f"A2L file {a2l.path}: {param.name}: a test-signal parameter needs 3 values and "
                                     f"axes=, unit=m|V, min_amplitude=, max_amplitude= in its ambdaq annotation "
@@ -163,192 +94,423 @@ def _capabilities(url: str, a2l: A2lFile, control_rate_hz: float) -> Capabilitie
     return Capabilities(banks="coefficient_bank" in a2l.blobs, excitation=excitation, speed_parameter=speed)
 
 
-def ask_slave(url: str, transport: tuple[str, dict]) -> dict[str, str]:
-    """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS and the first
-    event channel; DeviceError if nothing does."""
-    from pyxcp.master import Master
-
-    with xcp_errors(url, "ask"):
-        with Master(transport[0].lower(), config=_application(*transport)) as x:
-            got = x.connect()
-            out = {"url": url, "asap2_name": x.identifier(1), "max_cto": str(got.maxCto), "max_dto": str(got.maxDto),
-                   "byte_order": str(got.commModeBasic.byteOrder),
-                   "resources": ",".join(r for r in ("calpag", "daq", "stim", "pgm") if getattr(got.resource, r)),
-                   "protected": ",".join(r for r in ("calpag", "daq", "stim", "pgm")
-                                         if getattr(x.getStatus().resourceProtectionStatus, r))}
-            if got.resource.daq:
-                from pyxcp.daq_stim import event_channel_cycle_to_ns
-
-                info = x.getDaqEventInfo(0)
-                out["event_0_period_us"] = f"{event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit) / 1e3:g}"
-            x.disconnect()
+def ask_slave(url: str, link: LinkFactory) -> dict[str, str]:
+    """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS and every DAQ
+    event with its name and cycle; DeviceError if nothing does."""
+    master = XcpMaster(link(), url)
+    try:
+        got = master.connect()
+        out = {"url": url, "asap2_name": _identifier(master), "max_cto": str(got.max_cto), "max_dto": str(got.max_dto),
+               "byte_order": "INTEL" if got.byte_order == "<" else "MOTOROLA",
+               "resources": ",".join(k for k, bit in RESOURCES.items() if got.resources & bit),
+               "protected": ",".join(k for k, bit in RESOURCES.items() if master.get_status()[1] & bit)}
+        if got.resources & RES_DAQ:
+            processor = master.daq_processor()
+            for n in range(min(processor.max_event, 256)):
+                e = master.event_channel(n)
+                out[f"event_{n}"] = f"{e.name} ({_cycle_text(e)})"
+        master.disconnect()
+    finally:
+        master.close()
     return out
 
 
+def _cycle_text(event: EventChannel) -> str:
+    return f"every {event.cycle_ns / 1e3:g} us" if event.cycle_ns else "sporadic"
+
+
+def _identifier(master: XcpMaster) -> str:
+    try:
+        return master.get_id(1).decode("latin-1").rstrip("\0")
+    except XcpRefused:
+        return ""
+
+
+class _Stream:
+    """One DAQ list's samples: the rows the receive thread assembled, decoded to topics."""
+
+    def __init__(self, plan: DaqListPlan, groups: list[SignalGroup], columns: list[np.ndarray],
+                 fields: list[Element], tick_ns: int, url: str) -> None:
+        self.plan, self.groups, self.columns, self.fields = plan, groups, columns, fields
+        cyclic = plan.event.cycle_ns > 0
+        self.rows = RowQueue(SILENT_S if cyclic else float("inf"))
+        self.sample_rate = 1e9 / plan.event.cycle_ns / plan.prescaler if cyclic else None
+        self.tick_ns, self.url = tick_ns, url
+        wrap_s = (1 << (8 * plan.timestamp)) * tick_ns / 1e9 if plan.timestamp else 0.0
+        self.timed = wrap_s >= UNWRAP_MIN_S
+        self._last: tuple[int, int, int] | None = None
+        self._pairs: list[tuple[int, int]] = []
+        self._dtype = plan.dtype()
+        index = {e: k for k, e in enumerate(plan.elements)}
+        self._cols = [f"e{index[e]}" for e in fields]
+        self.rounded = 0  # 64-bit integer values beyond 2**53, which float64 cannot hold exactly
+
+    def read(self, failure: Callable[[], str | None]) -> SampleBlock | None:
+        taken = self.rows.take(failure, lambda s: f"{self.url}: no DAQ data on event {self.plan.event.name!r} "
+                                                  f"for {s:.1f} s")
+        if taken is None:
+            return None
+        rows, seq = taken
+        arrival = np.array([r[1] for r in rows], dtype=np.int64)
+        if self.timed:
+            raw = np.array([r[2] for r in rows], dtype=np.int64)
+            device, self._last = unwrap_timestamps(raw, arrival, self.tick_ns, self.plan.timestamp, self._last)
+        else:
+            device = arrival.copy()
+        k = int(np.argmin(arrival - device))
+        self._pairs.append((int(device[k]), int(arrival[k])))
+        payload = np.frombuffer(b"".join(r[3] for r in rows), dtype=self._dtype)
+        values = np.empty((len(rows), len(self.fields)), dtype=np.float64)
+        for j, (e, col) in enumerate(zip(self.fields, self._cols)):
+            values[:, j] = self._physical(e.measurement, payload[col])
+        return SampleBlock(device, (seq & 0xFFFFFFFF).astype(np.uint32),
+                           {g.topic: values[:, cols] for g, cols in zip(self.groups, self.columns)},
+                           received_ns=int(arrival[-1]))
+
+    def _physical(self, m: A2lMeasurement, raw: np.ndarray) -> np.ndarray:
+        if m.bit_mask is not None:
+            shift = (m.bit_mask & -m.bit_mask).bit_length() - 1
+            raw = (raw.astype(np.uint64) & np.uint64(m.bit_mask)) >> np.uint64(shift)
+        if raw.dtype.kind in "iu" and raw.dtype.itemsize == 8:
+            self.rounded += int(np.count_nonzero(np.abs(raw.astype(np.float64)) > 2.0 ** 53))
+        x = raw.astype(np.float64)
+        c = m.conversion
+        if c.linear:
+            return x * c.factor + c.offset
+        if c.kind == "TAB_INTP" and c.table:
+            inputs, outputs = zip(*c.table)
+            return np.interp(x, inputs, outputs)  # clamped at the table's ends (ASAM MCD-2 MC, TAB_INTP)
+        return x  # recorded raw; the conversion is named in the device's metadata
+
+    def clock_pairs(self) -> list[tuple[int, int]]:
+        pairs, self._pairs = self._pairs, []
+        return pairs
+
+    def identity(self) -> dict[str, str]:
+        raw = {e.field: f"{e.measurement.name} ({e.measurement.conversion.kind})" for e in self.fields
+               if not e.measurement.conversion.computed}
+        verbal = {e.field: {f"{k:g}": v for k, v in e.measurement.conversion.verbal} for e in self.fields
+                  if e.measurement.conversion.verbal}
+        out = {"event": self.plan.event.name, "event_number": str(self.plan.event.number),
+               "event_cycle": _cycle_text(self.plan.event),
+               "measurements": json.dumps({e.field: e.measurement.name for e in self.fields}),
+               "seq": f"counter {self.plan.counter.measurement.name}" if self.plan.counter else "arrival index",
+               "time": "DTO timestamp" if self.timed else "host arrival"}
+        if self.sample_rate:
+            out["sample_rate_hz"] = f"{self.sample_rate:g}"
+        if raw:
+            out["raw_fields"] = json.dumps(raw)
+        if verbal:
+            out["value_tables"] = json.dumps(verbal)
+        return out
+
+
 class XcpController(Controller):
-    """The controller reached through ``transport``, described by ``a2l``.
+    """The controller reached through ``link``, described by ``a2l``.
 
     Parameters
     ----------
     url : str
         Its device URL (for messages and metadata).
-    transport : (str, dict)
-        pyxcp's transport layer and its settings (:func:`tcp_transport`, :func:`sxi_transport`).
+    link : callable
+        Opens the transport (:mod:`.transport`).
     a2l : A2lFile
         Its A2L file.
     name : str
         Device name in the recording.
-    measurements : list of str, optional
-        A2L measurements to record (default: every one the A2L places in a topic, but the counter).
-    counter : str
-        The measurement that counts control periods (each sample's seq).
-    event : int
-        DAQ event channel to sample on.
+    record : bool
+        Whether DAQ lists are planned (False for ``controller`` and ``push``, which need none).
+    measure : list of str, optional
+        A2L names or globs to record (default: those an ``ambdaq`` annotation places).
+    counter : str, optional
+        The measurement that counts control periods (each sample's seq); default: the one
+        annotated ``role=counter``, if any.
+    event : int, optional
+        The DAQ event for measurements whose A2L fixes none.
     key_algorithm : callable
         The seed & key algorithm (:mod:`.keys`).
     store : bool
         After a push, ask the controller to store the page in non-volatile memory.
     prescaler : int
-        Sample every this many events (the DAQ list's prescaler); each sample's seq is then the
-        counter divided by it.
+        Sample every this many events (where the slave has a prescaler).
     bus_bitrate : int, optional
-        On CAN: the bus's bit rate, to refuse a DAQ list the bus cannot carry (above 80 % load).
+        On CAN: the bus's bit rate, to refuse DAQ lists the bus cannot carry (above 80 % load).
     """
 
-    def __init__(self, url: str, transport: tuple[str, dict], a2l: A2lFile, *, name: str = "controller",
-                 measurements: list[str] | None = None, counter: str = COUNTER, event: int = 0,
+    def __init__(self, url: str, link: LinkFactory, a2l: A2lFile, *, name: str = "controller", record: bool = True,
+                 measure: list[str] | None = None, counter: str | None = None, event: int | None = None,
                  key_algorithm: KeyAlgorithm, store: bool = False, prescaler: int = 1,
                  bus_bitrate: int | None = None) -> None:
-        from pyxcp.daq_stim import DaqList, DaqOnlinePolicy, event_channel_cycle_to_ns
-        from pyxcp.master import Master
-
-        app = _application(*transport)
-        self.url, self.a2l, self.name, self.event, self.store = url, a2l, name, event, store
+        self.url, self.a2l, self.name, self.store = url, a2l, name, store
+        self.key_algorithm = key_algorithm
         if not 1 <= prescaler <= 255:
             raise BadInputError(f"{url}: prescaler must be 1..255, not {prescaler}")
-        self.prescaler = prescaler
-        self.key_algorithm = key_algorithm
-        if counter not in a2l.measurements:
-            raise DeviceError(f"{url}: the A2L has no counter measurement {counter!r} (counter=NAME names it)")
-        self.counter = a2l.measurements[counter]
-        chosen = measurements or [n for n in a2l.measurements if n != counter]
-        missing = [n for n in chosen if n not in a2l.measurements]
-        if missing:
-            raise DeviceError(f"{url}: the A2L has no measurement {missing[0]!r}")
-        by_topic: dict[str, list] = {}
-        for n in chosen:  # grouped by topic, in the order topics first appear
-            by_topic.setdefault(a2l.measurements[n].topic, []).append(a2l.measurements[n])
-        self.fields = [m for group in by_topic.values() for m in group]
-        self._groups = [SignalGroup(topic, ms[0].type_name, tuple(m.field for m in ms), tuple(m.unit for m in ms))
-                        for topic, ms in by_topic.items()]
-        self._columns, k = [], 1  # payload columns of each group (column 0: the counter)
-        for ms in by_topic.values():
-            self._columns.append(np.arange(k, k + len(ms)))
-            k += len(ms)
-        self._factor = np.array([1.0] + [m.factor for m in self.fields])
-        self._offset = np.array([0.0] + [m.offset for m in self.fields])
-        self._rows = RowQueue(SILENT_S)
-        self._failure: str | None = None
-        owner = self
-
-        class Sink(DaqOnlinePolicy):
-            """Every DAQ list sample as a row (seq, arrival ns, device ns, raw values)."""
-
-            def initialize(self) -> None:
-                pass
-
-            def finalize(self) -> None:
-                pass
-
-            def on_daq_list(self, _daq_list: int, _ts0: int, ts1: int, payload: list) -> None:
-                # the counter steps by the prescaler from one sample to the next
-                owner._rows.rows.append((payload[0] // owner.prescaler, time.time_ns(), ts1, payload))
-
-        self._sink = Sink([DaqList(name="ambdaq", event_num=event, stim=False, enable_timestamps=True,
-                                   measurements=[(m.name, m.address, 0, m.datatype) for m in [self.counter, *self.fields]],
-                                   priority=0, prescaler=prescaler)])
-        self._xcp = None
-        try:
-            with self._errors("connect"):
-                self._xcp = Master(transport[0].lower(), config=app, policy=self._sink)
-                self._xcp.__enter__()
-                self._xcp.connect()
-                if self._xcp.slaveProperties.optionalCommMode:
-                    self._xcp.getCommModeInfo()
-                self.project = self._xcp.identifier(1)
-                info = self._xcp.getDaqEventInfo(event)
-                self._constants = {name: ",".join(repr(v) for v in struct.unpack(f"<{n}d", self._fetch(address, 8 * n)))
-                                   for name, (address, n) in a2l.constants.items()}
-            period_ns = event_channel_cycle_to_ns(info.eventChannelTimeCycle, info.eventChannelTimeUnit)
-            if period_ns <= 0:
-                raise DeviceError(f"{url}: event {event} is not cyclic; ambdaq records cyclic events only")
-            if bus_bitrate is not None:
-                self._check_bus_load(1e9 / period_ns, bus_bitrate)
-            self._capabilities = _capabilities(url, a2l, 1e9 / period_ns)
-        except (DeviceError, BadInputError):
-            if self._xcp is not None:
-                self._xcp.close()
-            raise
-        self.sample_rate = 1e9 / period_ns / prescaler
+        chosen = self._select(measure, counter) if record else []
         self._key: str | None = None
         self._streaming = False
         self._session_over = False
-        self._last_stamp: int | None = None
-        self._wraps = 0
+        self._streams: list[_Stream] = []
+        self._sources: list[XcpEventSource] = []
+        self._master = XcpMaster(link(), url)
+        try:
+            with self._errors("connect"):
+                self.info = self._master.connect()
+                if self.info.optional_comm_mode:
+                    self._master.get_comm_mode_info()
+                self.project = _identifier(self._master)
+            self._constants = {n: ",".join(repr(float(v)) for v in self._read_values(p))
+                               for n, p in a2l.constants.items()}
+            if record:
+                self._plan(chosen, counter, event, prescaler, bus_bitrate)
+            self._capabilities = _capabilities(a2l, self._control_rate)
+        except BaseException:
+            self._master.close()
+            raise
+        self.sample_rate = self._streams[0].sample_rate if self._streams else None
+
+    # --- choosing and planning --------------------------------------------------------------------
+
+    def _select(self, measure: list[str] | None, counter: str | None) -> list[A2lMeasurement]:
+        a2l = self.a2l
+        if measure:
+            names: list[str] = []
+            for pattern in measure:
+                found = [n for n in a2l.measurements if fnmatch.fnmatchcase(n, pattern)]
+                if not found:
+                    raise BadInputError(f"{self.url}: no measurement of {a2l.path.name} matches {pattern!r} "
+                                        f"(ambdaq xcp list {a2l.path} lists them)")
+                names += [n for n in found if n not in names]
+        else:
+            names = [n for n, m in a2l.measurements.items() if {"topic", "field"} <= set(m.note)]
+            if not names:
+                raise BadInputError(f"{self.url}: say what to record of {a2l.path.name}'s {len(a2l.measurements)} "
+                                    "measurements: --measure NAME_OR_GLOB (or measurements in the rig file); "
+                                    f"ambdaq xcp list {a2l.path} lists them")
+        chosen = []
+        for n in names:
+            m = a2l.measurements[n]
+            why = m.problem() or (None if m.address >= 0 else "it has no ECU_ADDRESS")
+            if why:
+                raise BadInputError(f"{self.url}: measurement {n} ({m.line}): {why}")
+            if n != counter and m.note.get("role") != "counter":
+                chosen.append(m)
+        return chosen
+
+    def _counter(self, name: str | None, event: int, on_event: Callable[[A2lMeasurement], int]) -> Element | None:
+        if name is None:
+            annotated = [m for m in self.a2l.measurements.values() if m.note.get("role") == "counter"]
+            found = next((m for m in annotated if on_event(m) == event), None)
+        else:
+            found = self.a2l.measurements.get(name)
+            if found is None:
+                raise BadInputError(f"{self.url}: the A2L has no counter measurement {name!r}")
+            if on_event(found) != event:
+                return None
+        if found is None:
+            return None
+        if TYPES.get(found.datatype, ("f", 0))[0] not in "iu" or found.count != 1 or found.bit_mask is not None:
+            raise BadInputError(f"{self.url}: counter {found.name} is a {found.datatype}; a counter is one unsigned "
+                                "or signed integer")
+        return Element(found, 0, "")
+
+    def _plan(self, chosen: list[A2lMeasurement], counter: str | None, event: int | None, prescaler: int,
+              bus_bitrate: int | None) -> None:
+        master, url = self._master, self.url
+        if not self.info.resources & RES_DAQ:
+            raise DeviceError(f"{url}: the slave offers no DAQ (CONNECT's resources)")
+        processor = master.daq_processor()
+        if prescaler > 1 and not processor.prescaler:
+            raise BadInputError(f"{url}: the slave has no DAQ prescaler (GET_DAQ_PROCESSOR_INFO): drop prescaler=")
+        channels: dict[int, EventChannel] = {}
+
+        def channel(n: int) -> EventChannel:
+            if n not in channels:
+                try:
+                    channels[n] = master.event_channel(n)
+                except XcpRefused as err:
+                    raise DeviceError(f"{url}: event {n}: the slave answered {err}") from None
+            return channels[n]
+
+        def on_event(m: A2lMeasurement) -> int:
+            if m.fixed_events:
+                if event is not None and event not in m.fixed_events:
+                    raise BadInputError(f"{url}: {m.name} is fixed to event(s) {list(m.fixed_events)} by its A2L, "
+                                        f"not event {event}")
+                return m.fixed_events[0]
+            if event is not None:
+                return event
+            if m.default_events:
+                return m.default_events[0]
+            if processor.max_event == 1:
+                return 0
+            raise BadInputError(f"{url}: {m.name} names no DAQ event in its A2L and the slave has "
+                                f"{processor.max_event or 'several'}: give event=N (ambdaq devices --ask-xcp URL "
+                                "lists them)")
+
+        by_event: dict[int, list[A2lMeasurement]] = {}
+        for m in chosen:
+            by_event.setdefault(on_event(m), []).append(m)
+        counters = {e: self._counter(counter, e, on_event) for e in by_event}
+        if counter is not None and not any(counters.values()):
+            raise BadInputError(f"{url}: counter {counter} is on no event of the measurements recorded")
+        layout: dict[int, list[Element]] = {}
+        streams: dict[int, tuple[list[SignalGroup], list[np.ndarray], list[Element]]] = {}
+        taken: dict[str, dict[str, str]] = {}  # topic -> field -> measurement
+        for e, ms in by_event.items():
+            ch = channel(e)
+            if not ch.daq:
+                raise BadInputError(f"{url}: event {ch.name!r} takes no DAQ lists")
+            by_topic: dict[tuple[str, str], list[Element]] = {}
+            for m in ms:
+                if {"topic", "field"} <= set(m.note) and m.count == 1:
+                    key, fields = (m.note["topic"], m.note.get("type") or _event_topic(ch)[1]), [m.note["field"]]
+                else:
+                    key = _event_topic(ch)
+                    base = m.note.get("field") or ros_name(m.name)
+                    fields = [base] if m.count == 1 else [f"{base}_{i}" for i in range(m.count)]
+                for i, f in enumerate(fields):
+                    held = taken.setdefault(key[0], {})
+                    if f in held:
+                        raise BadInputError(f"{url}: {m.name} and {held[f]} would both be field {f} of {key[0]}: "
+                                            "record one of them, or annotate another field")
+                    held[f] = m.name
+                    by_topic.setdefault(key, []).append(Element(m, i, f))
+            for topic in by_topic:
+                for other, (groups, _c, _f) in streams.items():
+                    if any(g.topic == topic[0] for g in groups):
+                        raise BadInputError(f"{url}: topic {topic[0]} gets measurements of events "
+                                            f"{channels[other].name!r} and {ch.name!r}; a topic is one event's")
+            groups, columns, fields_in_order, k = [], [], [], 0
+            for (topic, type_name), elements in by_topic.items():
+                groups.append(SignalGroup(topic, type_name, tuple(x.field for x in elements),
+                                          tuple(x.measurement.unit for x in elements)))
+                columns.append(np.arange(k, k + len(elements)))
+                fields_in_order += elements
+                k += len(elements)
+            counter_element = counters[e]
+            layout[e] = ([counter_element] if counter_element else []) + fields_in_order
+            streams[e] = (groups, columns, fields_in_order)
+        plans = plan_lists(layout, channels, processor, self.info.max_dto, prescaler=prescaler, counters=counters,
+                           url=url)
+        if bus_bitrate is not None:
+            for plan in plans:
+                self._check_bus_load(plan, bus_bitrate)
+        self._processor = processor
+        self._plans = plans
+        self._streams = [_Stream(p, *streams[p.event.number], processor.timestamp_ns, url) for p in plans]
+        self._assembler = DtoAssembler(plans, processor, self.info.byte_order, lambda: self._master.link.lost_packets,
+                                       8 if not self._master.link.has_counter else 0)
+        for plan, stream in zip(plans, self._streams):
+            self._assembler.states[plan.number].rows = stream.rows.rows
+        self._sources = [XcpEventSource(self, s) for s in self._streams[1:]]
+
+    def _check_bus_load(self, plan: DaqListPlan, bitrate: int) -> None:
+        """Refuse a DAQ list whose DTOs would load the CAN bus above MAX_LOAD (ASAM XCP Part 3,
+        CAN: one frame per ODT)."""
+        if not plan.event.cycle_ns:
+            return
+        frames = [min(8, n) for n in plan.lengths]
+        event_hz = 1e9 / plan.event.cycle_ns
+        load = bus_load(frames, event_hz / plan.prescaler, bitrate)
+        if load > MAX_LOAD:
+            fits = int(np.ceil(bus_load(frames, event_hz, bitrate) / MAX_LOAD))
+            raise BadInputError(f"{self.url}: {len(plan.elements)} measurements every {plan.prescaler} event(s) "
+                                f"are {len(frames)} frames per sample, {load:.0%} of the {bitrate:,} bit/s bus; "
+                                f"give prescaler={fits} or more, or fewer measurements")
+
+    def _control_rate(self) -> float:
+        """The rate of event 0, the controller's control period (the test signal's rate)."""
+        if self._streams and self._streams[0].sample_rate:
+            return self._streams[0].sample_rate * self._plans[0].prescaler
+        with self._errors("read event 0"):
+            e = self._master.event_channel(0)
+        return 1e9 / e.cycle_ns if e.cycle_ns else 0.0
+
+    def event_sources(self) -> list["XcpEventSource"]:
+        """The sources of the DAQ lists on the other events (the controller itself records the first)."""
+        return list(self._sources)
 
     # --- errors -----------------------------------------------------------------------------------
 
-    def _errors(self, what: str):
+    def _errors(self, what: str) -> "_Errors":
         return xcp_errors(self.url, what)
-
-    def _check_bus_load(self, event_hz: float, bitrate: int) -> None:
-        """Refuse a DAQ list whose DTOs would load the CAN bus above MAX_LOAD: every sample
-        is ceil((4-byte timestamp + entries) / 7) frames of PID + 7 bytes (ASAM XCP Part 3, CAN)."""
-        frames = -(-(4 + sum(SIZES[m.datatype] for m in [self.counter, *self.fields])) // 7)
-        load = bus_load([8] * frames, event_hz / self.prescaler, bitrate)
-        if load > MAX_LOAD:
-            fits = int(np.ceil(bus_load([8] * frames, event_hz, bitrate) / MAX_LOAD))
-            raise BadInputError(f"{self.url}: {len(self.fields) + 1} measurements every {self.prescaler} event(s) "
-                                f"are {frames} frames per sample, {load:.0%} of the {bitrate:,} bit/s bus; "
-                                f"give prescaler={fits} or more, or fewer measurements")
 
     # --- Source -----------------------------------------------------------------------------------
 
     def signal_groups(self) -> list[SignalGroup]:
-        return list(self._groups)
+        return list(self._streams[0].groups) if self._streams else []
 
     def identity(self) -> dict[str, str]:
-        return {"url": self.url, "kind": "xcp controller", "model": self.project, "a2l": self.a2l.path.name,
-                "a2l_sha256": self.a2l.sha256, "sample_rate_hz": f"{self.sample_rate:g}", "event": str(self.event),
-                "counter": self.counter.name}
+        base = {"url": self.url, "kind": "xcp controller", "model": self.project, "a2l": self.a2l.path.name,
+                "a2l_sha256": self.a2l.sha256, "loss_detection": self._loss_detection()}
+        return {**base, **(self._streams[0].identity() if self._streams else {})}
+
+    def _loss_detection(self) -> str:
+        ways = []
+        if self._master.link.has_counter:
+            ways.append("transport counter (CTR)")
+        if self._streams and self._processor.overload != "none":
+            ways.append(f"overload indication ({self._processor.overload})")
+        if any(p.counter for p in getattr(self, "_plans", [])):
+            ways.append("control-period counter")
+        return ", ".join(ways) or "none: XCP on CAN has no transport counter and no counter measurement was named"
 
     def device_calibration(self) -> dict[str, str]:
         """The controller's calibration constants (A2L FLOAT64 characteristics, read at open)."""
         return dict(self._constants)
 
+    def link_statistics(self) -> dict[str, str]:
+        link, master = self._master.link, self._master
+        out = {"transport_packets": str(link.received), "transport_lost_packets": str(link.lost_packets),
+               "transport_malformed": str(link.malformed), "overload_events": str(master.overload_events)}
+        if self._streams:
+            out["dto_unknown"] = str(self._assembler.unknown)
+            for s in self._streams:
+                state = self._assembler.states[s.plan.number]
+                key = ros_name(s.plan.event.name or str(s.plan.event.number))
+                out[f"{key}_samples_discarded"] = str(state.incomplete)
+                out[f"{key}_dto_wrong_length"] = str(state.malformed)
+                out[f"{key}_dto_overload"] = str(state.overloads)
+                if s.rounded:
+                    out[f"{key}_int64_values_rounded"] = str(s.rounded)
+        return out
+
     def start(self, n_samples: int | None) -> None:
+        self._streams[0].rows.start(n_samples)
+        self._start_daq()
+
+    def _start_daq(self) -> None:
+        """Configure every DAQ list (ASAM XCP Part 2, dynamic DAQ configuration) and start them."""
+        if self._streaming:
+            return
+        m = self._master
         with self._errors("DAQ setup"):
-            self._sink.setup()
-            self._rows.start(n_samples)
-            self._sink.start()
+            m.free_daq()
+            m.alloc_daq(len(self._plans))
+            for p in self._plans:
+                m.alloc_odt(p.number, len(p.odts))
+            for p in self._plans:
+                for j, odt in enumerate(p.odts):
+                    m.alloc_odt_entry(p.number, j, len(odt))
+            for p in self._plans:
+                for j, odt in enumerate(p.odts):
+                    if odt:  # an ODT of the timestamp alone has no entry to point at
+                        m.set_daq_ptr(p.number, j, 0)
+                    for e in odt:
+                        m.write_daq(e.measurement.size, e.measurement.extension, e.address)
+                m.set_daq_list_mode(p.number, p.event.number, timestamp=self._processor.timestamps,
+                                    prescaler=p.prescaler)
+                p.first_pid = m.select_daq_list(p.number)
+            self._assembler.selected()
+            m.on_dto = self._assembler.on_dto
+            m.start_stop_synch(1)
         self._streaming = True
 
     def read(self) -> SampleBlock | None:
-        taken = self._rows.take(lambda: self._failure, lambda s: f"{self.url}: no DAQ data for {s:.1f} s")
-        if taken is None:
-            return None
-        rows, seq = taken
-        stamp = np.array([r[2] for r in rows], dtype=np.int64)
-        # the 1 us timestamp turns every 71.6 min: unwrap it (pyxcp counts it from the first DTO)
-        wraps = np.cumsum(np.diff(stamp, prepend=stamp[0] if self._last_stamp is None else self._last_stamp) < 0)
-        device = stamp + (self._wraps + wraps) * TIMESTAMP_WRAP_NS
-        self._wraps += int(wraps[-1])
-        self._last_stamp = int(stamp[-1])
-        raw = np.array([r[3] for r in rows], dtype=np.float64)
-        values = raw * self._factor + self._offset
-        return SampleBlock(device, (seq & 0xFFFFFFFF).astype(np.uint32),
-                           {g.topic: values[:, cols] for g, cols in zip(self._groups, self._columns)},
-                           received_ns=int(rows[-1][1]))
+        return self._streams[0].read(lambda: self._master.failure)
+
+    def clock_pairs(self) -> list[tuple[int, int]] | None:
+        return self._streams[0].clock_pairs()
 
     # --- Controller -----------------------------------------------------------------------------
 
@@ -356,29 +518,51 @@ class XcpController(Controller):
     def capabilities(self) -> Capabilities:
         return self._capabilities
 
-    def _parameter(self, name: str) -> A2lParameter:
-        found = self.a2l.parameters.get(name)
+    def parameter_names(self) -> list[str]:
+        return list(self.a2l.parameters)
+
+    def _parameter(self, name: str, *, write: bool = False) -> A2lParameter:
+        found = (self.a2l.writable if write else self.a2l.parameters).get(name)
         if found is None:
-            known = ", ".join(self.a2l.parameters) or "none"
-            raise DeviceError(f"{self.url}: the A2L describes no writable FLOAT64 parameter {name!r} (it has: {known})")
+            known = ", ".join((self.a2l.writable if write else self.a2l.parameters)) or "none"
+            what = "writable numeric parameter" if write else "numeric parameter (VALUE or VAL_BLK)"
+            raise DeviceError(f"{self.url}: the A2L describes no {what} {name!r} (it has: {known})")
         return found
 
+    def _read_values(self, param: A2lParameter) -> np.ndarray:
+        kind, size = TYPES[param.datatype]
+        with self._errors(f"read {param.name}"):
+            raw = self._master.read(param.extension, param.address, size * param.count)
+        x = np.frombuffer(raw, dtype=f"{param.byte_order}{kind}{size}").astype(np.float64)
+        c = param.conversion
+        return x * c.factor + c.offset if c.linear else x
+
     def read_param(self, name: str) -> np.ndarray:
-        param = self._parameter(name)
-        with self._errors(f"read {name}"):
-            raw = self._fetch(param.address, 8 * param.count)
-        return np.array(struct.unpack(f"<{param.count}d", raw))
+        return self._read_values(self._parameter(name))
 
     def write_param(self, name: str, values) -> None:
-        """Download ``values`` to parameter ``name`` after checking their number and its limits;
-        unlocks CAL/PAG first if it is protected (the push's key, else $AMBDAQ_UNLOCK_KEY)."""
-        param = self._parameter(name)
+        """Download ``values`` (physical) to parameter ``name`` after checking their number, the
+        A2L's limits and the type's range; unlocks CAL/PAG first if it is protected (the push's
+        key, else $AMBDAQ_UNLOCK_KEY)."""
+        param = self._parameter(name, write=True)
         values = np.atleast_1d(np.asarray(values, dtype=float))
         if values.shape != (param.count,):
             raise DeviceError(f"{self.url}: {name} takes {param.count} value(s), not {values.size}")
         if not np.all(np.isfinite(values)) or np.any(values < param.lower) or np.any(values > param.upper):
             raise DeviceError(f"{self.url}: {name}: values must be finite and within {param.lower:g} .. {param.upper:g} "
                               "(the A2L's limits)")
+        c = param.conversion
+        if not c.linear or c.factor == 0:
+            raise DeviceError(f"{self.url}: {name}: its conversion {c.kind} cannot be inverted; ambdaq writes "
+                              "parameters with linear conversions")
+        raw = (values - c.offset) / c.factor
+        kind, size = TYPES[param.datatype]
+        if kind in "iu":
+            raw = np.round(raw)
+            info = np.iinfo(f"{kind}{size}")
+            if np.any(raw < info.min) or np.any(raw > info.max):
+                raise DeviceError(f"{self.url}: {name}: a {param.datatype} holds {info.min} .. {info.max} raw")
+        data = raw.astype(f"{param.byte_order}{kind}{size}").tobytes()
         if self._calibration_locked(f"write {name}"):
             key = self._key or os.environ.get(UNLOCK_KEY_ENV)
             if not key:
@@ -387,49 +571,36 @@ class XcpController(Controller):
             self._key = key
             self._answer_seed(key)
         with self._errors(f"write {name}"):
-            self._download(param.address, struct.pack(f"<{param.count}d", *values))
+            self._master.write(param.extension, param.address, data)
 
     # --- BankPort -------------------------------------------------------------------------------
 
     def _blob(self, name: str) -> tuple[int, int]:
         if name not in self.a2l.blobs:
-            raise DeviceError(f"{self.url}: the A2L describes no {name!r}, so this controller takes no push over XCP")
+            raise DeviceError(f"{self.url}: the A2L describes no {name!r}, so this controller takes no push over XCP "
+                              "(ambdaq's coefficient-bank convention, docs/hardware.md)")
         return self.a2l.blobs[name]
-
-    def _download(self, address: int, data: bytes) -> None:
-        """DOWNLOAD ``data`` at ``address``, one command and its response at a time (pyxcp's own
-        ``push`` sends full chunks without waiting for their responses, as in block mode, which
-        this slave does not offer)."""
-        self._xcp.setMta(address)
-        step = self._xcp.slaveProperties.maxCto - 2
-        for i in range(0, len(data), step):
-            self._xcp.download(data[i : i + step])
-
-    def _fetch(self, address: int, length: int) -> bytes:
-        self._xcp.setMta(address)
-        return bytes(self._xcp.fetch(length)) if length else b""
 
     def _pages(self) -> tuple[int, int]:
         """(active, inactive) page of segment 0: the ECU's page runs."""
-        active = int(self._xcp.getCalPage(0x01, 0))
+        active = int(self._master.get_cal_page(0x01, 0))
         return active, 1 - active
 
     def _page_image(self, page: int) -> tuple[int, int]:
         """Length and device-computed CRC-32 (BUILD_CHECKSUM, XCP_CRC_32) of the image on ``page``."""
         base, size = self._blob("coefficient_bank")
-        self._xcp.setCalPage(0x02, 0, page)
-        (length,) = LENGTH.unpack(self._fetch(base, 4))
+        self._master.set_cal_page(0x02, 0, page)
+        (length,) = LENGTH.unpack(self._master.read(0, base, 4))
         if not 0 < length <= size - 4:
             return 0, 0
-        self._xcp.setMta(base + 4)
-        got = self._xcp.buildChecksum(length)
-        if got.checksumType != "XCP_CRC_32":
-            raise DeviceError(f"{self.url}: BUILD_CHECKSUM answers {got.checksumType}, not XCP_CRC_32")
-        return length, int(got.checksum)
+        kind, value = self._master.build_checksum(0, base + 4, length)
+        if kind != "XCP_CRC_32":
+            raise DeviceError(f"{self.url}: BUILD_CHECKSUM answers {kind}, not XCP_CRC_32")
+        return length, value
 
     def _calibration_locked(self, what: str) -> bool:
         with self._errors(what):
-            return bool(self._xcp.getStatus().resourceProtectionStatus.calpag)
+            return bool(self._master.get_status()[1] & RES_CALPAG)
 
     def unlock(self, key: str) -> None:
         self._key = key
@@ -439,11 +610,11 @@ class XcpController(Controller):
     def _answer_seed(self, key: str) -> None:
         """GET_SEED and UNLOCK for CAL/PAG with ``key`` (calibration is locked)."""
         with self._errors("unlock"):
-            seed = self._xcp.getSeed(0, RES_CALPAG)
-            answer = self.key_algorithm(RES_CALPAG, bytes(seed.seed or b""), key)
+            seed = self._master.get_seed(RES_CALPAG)
+            answer = self.key_algorithm(RES_CALPAG, seed, key)
         try:
             with self._errors("unlock"):
-                self._xcp.unlock(len(answer), answer)
+                self._master.unlock(answer)
         except DeviceError:
             self._session_over = True  # a slave refusing a key ends the session (ASAM XCP Part 2, UNLOCK)
             raise DeviceError(f"{self.url}: unlock refused: wrong key for calibration (seed & key)") from None
@@ -454,16 +625,19 @@ class XcpController(Controller):
             raise DeviceError(f"{self.url}: a {len(image)}-byte image does not fit the {size}-byte calibration page")
         with self._errors("write the inactive page"):
             _active, inactive = self._pages()
-            self._xcp.setCalPage(0x02, 0, inactive)
-            self._download(base, LENGTH.pack(len(image)) + image)
+            self._master.set_cal_page(0x02, 0, inactive)
+            self._master.write(0, base, LENGTH.pack(len(image)) + image)
 
     def bank_status(self) -> dict:
         base, size = self._blob("bank_status")
         with self._errors("read the bank status"):
-            (length,) = LENGTH.unpack(self._fetch(base, 4))  # SET_MTA at its start takes the snapshot
+            (length,) = LENGTH.unpack(self._master.read(0, base, 4))  # SET_MTA at its start takes the snapshot
             if not 0 < length <= size - 4:
                 raise DeviceError(f"{self.url}: bank_status holds no status (length {length})")
-            status = json.loads(self._fetch(base + 4, length))
+            try:
+                status = json.loads(self._master.read(0, base + 4, length))
+            except ValueError:
+                raise DeviceError(f"{self.url}: bank_status is not JSON") from None
             active, inactive = self._pages()
             a_len, a_crc = self._page_image(active)
             i_len, i_crc = self._page_image(inactive)
@@ -478,10 +652,10 @@ class XcpController(Controller):
             raise DeviceError(f"{self.url}: the push record ({len(body)} bytes) does not fit push_record")
         with self._errors("write the push record"):
             _active, inactive = self._pages()
-            self._download(base, LENGTH.pack(len(body)) + body)
+            self._master.write(0, base, LENGTH.pack(len(body)) + body)
         try:
             with self._errors("switch the page"):
-                self._xcp.setCalPage(0x01, 0, inactive)
+                self._master.set_cal_page(0x01, 0, inactive)
         except DeviceError as err:
             reason = self.bank_status().get("last_refusal") or str(err)
             raise DeviceError(f"{self.url}: the controller refused the page switch: {reason}") from None
@@ -489,30 +663,84 @@ class XcpController(Controller):
         if self.store:  # the switch locked calibration again: storing needs it unlocked
             self.unlock(self._key)
             with self._errors("store the page (STORE_CAL_REQ)"):
-                self._xcp.setRequest(0x01, 0)
+                self._master.set_request(0x01, 0)
         return int(status.get("last_effective_sample", -1))
 
     def read_bank(self, which: str, length: int) -> bytes:
         base, _size = self._blob("coefficient_bank")
         with self._errors(f"read the {which} page"):
             active, inactive = self._pages()
-            self._xcp.setCalPage(0x02, 0, active if which == "active" else inactive)
-            return self._fetch(base + 4, length)
+            self._master.set_cal_page(0x02, 0, active if which == "active" else inactive)
+            return self._master.read(0, base + 4, length)
 
     def _close(self) -> None:
-        self._rows.closed.set()
+        for s in self._streams:
+            s.rows.closed.set()
         try:
-            if self._session_over:
-                return
-            if self._streaming:
-                with self._errors("DAQ stop"):
-                    self._sink.stop()
-            with self._errors("disconnect"):
-                self._xcp.disconnect()
+            if not self._session_over and not self._master.failure:
+                if self._streaming:
+                    with self._errors("DAQ stop"):
+                        self._master.start_stop_synch(0)
+                with self._errors("disconnect"):
+                    self._master.disconnect()
         except DeviceError:
             pass
         finally:
-            try:
-                self._xcp.close()
-            except Exception:  # a socket already gone
-                pass
+            self._master.close()
+
+
+def xcp_errors(url: str, what: str) -> "_Errors":
+    """A context in which a negative response, a timeout or a lost link while doing ``what``
+    with the slave at ``url`` is one DeviceError line naming both."""
+    return _Errors(url, what)
+
+
+class _Errors:
+
+    def __init__(self, url: str, what: str) -> None:
+        self.url, self.what = url, what
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind, err, tb) -> bool:
+        if isinstance(err, XcpRefused):
+            raise DeviceError(f"{self.url}: {self.what}: the controller answered {err}") from None
+        if isinstance(err, DeviceError) and f": {self.what}: " not in str(err):
+            text = str(err)
+            text = text[len(self.url) + 2:] if text.startswith(f"{self.url}: ") else text
+            raise DeviceError(f"{self.url}: {self.what}: {text}") from None
+        return False
+
+
+class XcpEventSource(Source):
+    """The DAQ list of one more event of an :class:`XcpController`: its own source (its own
+    times and samples), on the controller's session."""
+
+    def __init__(self, controller: XcpController, stream: _Stream) -> None:
+        self._controller, self._stream = controller, stream
+        self.name = f"{controller.name}.{ros_name(stream.plan.event.name or str(stream.plan.event.number))}"
+        self.sample_rate = stream.sample_rate
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return list(self._stream.groups)
+
+    def identity(self) -> dict[str, str]:
+        return {"url": self._controller.url, "kind": "xcp event", "model": self._controller.project,
+                "loss_detection": self._controller._loss_detection(), **self._stream.identity()}
+
+    def device_calibration(self) -> dict[str, str]:
+        return {}
+
+    def start(self, n_samples: int | None) -> None:
+        self._stream.rows.start(n_samples)
+        self._controller._start_daq()
+
+    def read(self) -> SampleBlock | None:
+        return self._stream.read(lambda: self._controller._master.failure)
+
+    def clock_pairs(self) -> list[tuple[int, int]] | None:
+        return self._stream.clock_pairs()
+
+    def _close(self) -> None:
+        self._stream.rows.closed.set()

@@ -335,13 +335,14 @@ def a2l_text(rig) -> str:
         what = f"{m.topic} {m.field}" if m.topic else "index of the control period (a sample's seq)"
         limits = "-1e12 1e12" if m.datatype.startswith("FLOAT") else "0 4294967295"
         # where ambdaq records it (docs/hardware.md, "XCP"): an ANNOTATION, which A2L keeps for such notes
+        words = f"topic={m.topic} type={m.type_name} field={m.field}" if m.topic else "role=counter"
         note = f"""
       /begin ANNOTATION
         ANNOTATION_LABEL "ambdaq"
         /begin ANNOTATION_TEXT
-          "topic={m.topic} type={m.type_name} field={m.field}"
+          "{words}"
         /end ANNOTATION_TEXT
-      /end ANNOTATION""" if m.topic else ""
+      /end ANNOTATION"""
         blocks.append(f"""    /begin MEASUREMENT {m.name} "{what}"
       {m.datatype} CM_IDENTITY_{_unit_id(m.unit)} 0 0 {limits}
       ECU_ADDRESS 0x{m.address:08X}

@@ -1,0 +1,419 @@
+"""The XCP master's protocol layer (ASAM MCD-1 XCP Part 2): commands and their responses, in the
+slave's byte order, over a :mod:`.transport` link.
+
+ambdaq speaks XCP itself rather than through pyxcp, whose compiled response and DAQ handling
+a slave's bytes reach: with 1 MB of garbage after CONNECT it ended the process with SIGSEGV,
+and a one-byte DTO with SIGABRT (docs/hardware.md, "XCP").  Here every response is length-checked
+before it is unpacked, and what does not parse is one :class:`~ambdaq.errors.DeviceError` line.
+pyxcp stays the independent master the tests read the same slaves with.
+
+One receive thread reads the link: responses (PID 0xFF, 0xFE) go to the waiting command, events
+(0xFD) and service requests (0xFC) are counted and kept, every other packet is a DTO handed to
+the DAQ sink (:mod:`.daq`).  One command is outstanding at a time.
+"""
+
+from __future__ import annotations
+
+import queue
+import struct
+import threading
+from dataclasses import dataclass
+
+from ...errors import DeviceError
+from .transport import Link
+
+PID_RES, PID_ERR, PID_EV, PID_SERV = 0xFF, 0xFE, 0xFD, 0xFC
+EV_CMD_PENDING, EV_DAQ_OVERLOAD, EV_SESSION_TERMINATED = 0x05, 0x06, 0x07
+SERV_TEXT = 0x01
+TIMEOUT_S = 0.5  # a command unanswered this long is a timeout (ASAM's T1 is often 1 s; a slave on loopback answers in us)
+PENDING_S = 5.0  # how long EV_CMD_PENDING may extend it, in all
+
+# resources (CONNECT, GET_STATUS, GET_SEED)
+RES_CALPAG, RES_DAQ, RES_STIM, RES_PGM = 0x01, 0x04, 0x08, 0x10
+RESOURCES = {"calpag": RES_CALPAG, "daq": RES_DAQ, "stim": RES_STIM, "pgm": RES_PGM}
+
+# command codes (Part 2, table of commands)
+CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
+SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF9, 0xF8, 0xF7, 0xF6, 0xF5, 0xF4, 0xF3
+DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO, COPY_CAL_PAGE = 0xF0, 0xEB, 0xEA, 0xE9, 0xE4
+SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
+GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDA, 0xD9, 0xD7
+FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
+
+XCP_ERRORS = {
+    # ASAM MCD-1 XCP Part 2, the error codes of a negative response, and what each means
+    0x00: ("ERR_CMD_SYNCH", "command processor synchronisation"),
+    0x10: ("ERR_CMD_BUSY", "command not executed: the slave is busy"),
+    0x11: ("ERR_DAQ_ACTIVE", "command rejected while DAQ is running"),
+    0x12: ("ERR_PGM_ACTIVE", "command rejected while programming is running"),
+    0x20: ("ERR_CMD_UNKNOWN", "unknown command, or an optional one the slave lacks"),
+    0x21: ("ERR_CMD_SYNTAX", "command syntax invalid"),
+    0x22: ("ERR_OUT_OF_RANGE", "a command parameter is out of range"),
+    0x23: ("ERR_WRITE_PROTECTED", "the memory location is write protected"),
+    0x24: ("ERR_ACCESS_DENIED", "the memory location is not accessible"),
+    0x25: ("ERR_ACCESS_LOCKED", "access denied: seed & key is required"),
+    0x26: ("ERR_PAGE_NOT_VALID", "the page is not available"),
+    0x27: ("ERR_MODE_NOT_VALID", "the page mode is not available"),
+    0x28: ("ERR_SEGMENT_NOT_VALID", "the segment is not valid"),
+    0x29: ("ERR_SEQUENCE", "commands out of sequence"),
+    0x2A: ("ERR_DAQ_CONFIG", "the DAQ configuration is not valid"),
+    0x30: ("ERR_MEMORY_OVERFLOW", "memory overflow"),
+    0x31: ("ERR_GENERIC", "generic error"),
+    0x32: ("ERR_VERIFY", "the slave's verification found an error"),
+}
+
+CHECKSUM_TYPES = {0x01: "XCP_ADD_11", 0x02: "XCP_ADD_12", 0x03: "XCP_ADD_14", 0x04: "XCP_ADD_22",
+                  0x05: "XCP_ADD_24", 0x06: "XCP_ADD_44", 0x07: "XCP_CRC_16", 0x08: "XCP_CRC_16_CITT",
+                  0x09: "XCP_CRC_32", 0xFF: "XCP_USER_DEFINED"}
+"""BUILD_CHECKSUM's checksum type codes (Part 2)."""
+
+TIME_UNITS_NS = {0: 1, 1: 10, 2: 100, 3: 1_000, 4: 10_000, 5: 100_000, 6: 1_000_000, 7: 10_000_000,
+                 8: 100_000_000, 9: 1_000_000_000}
+"""DAQ timestamp and event cycle units (Part 2: DAQ_TIMESTAMP_UNIT_1NS ... _1S) in ns."""
+
+
+class XcpRefused(DeviceError):
+    """A negative response: ``code`` and its name (:data:`XCP_ERRORS`)."""
+
+    def __init__(self, code: int) -> None:
+        self.code = code
+        name, meaning = XCP_ERRORS.get(code, (f"error 0x{code:02X}", "not an error code of ASAM XCP"))
+        self.error_name = name
+        super().__init__(f"{name} ({meaning})")
+
+
+@dataclass(frozen=True)
+class SlaveInfo:
+    """What CONNECT answered (Part 2, CONNECT)."""
+
+    resources: int
+    byte_order: str  # "<" Intel, ">" Motorola
+    address_granularity: int  # bytes per address unit
+    max_cto: int
+    max_dto: int
+    protocol_version: int
+    transport_version: int
+    optional_comm_mode: bool
+
+
+@dataclass(frozen=True)
+class DaqProcessor:
+    """GET_DAQ_PROCESSOR_INFO and GET_DAQ_RESOLUTION_INFO (Part 2)."""
+
+    dynamic: bool
+    prescaler: bool
+    timestamps: bool
+    overload: str  # "none", "pid" (the PID's most significant bit), "event" (EV_DAQ_OVERLOAD)
+    max_daq: int
+    max_event: int
+    min_daq: int
+    address_extension: str  # "free", "odt" (one per ODT), "daq" (one per DAQ list)
+    identification: int  # 0 absolute PID, 1 relative ODT + DAQ byte, 2 + DAQ word, 3 + fill + DAQ word
+    granularity: int  # bytes: an ODT entry's size is a multiple of it
+    max_entry_size: int  # in granules
+    timestamp_size: int  # bytes, 0 for none
+    timestamp_fixed: bool
+    timestamp_ns: int  # one tick, in ns
+
+
+@dataclass(frozen=True)
+class EventChannel:
+    """GET_DAQ_EVENT_INFO (Part 2): a DAQ event channel's name, cycle (0 ns: sporadic) and lists."""
+
+    number: int
+    name: str
+    cycle_ns: int
+    max_lists: int
+    daq: bool
+
+
+class XcpMaster:
+    """One session with the slave on ``link``.
+
+    Parameters
+    ----------
+    link : Link
+        The transport (:mod:`.transport`), opened.
+    url : str
+        The device URL, for messages.
+    on_dto : callable, optional
+        ``on_dto(arrival_ns, packet)`` for every DTO, on the receive thread.
+    """
+
+    def __init__(self, link: Link, url: str, on_dto=None) -> None:
+        self.link, self.url = link, url
+        self.on_dto = on_dto
+        self.info: SlaveInfo | None = None
+        self.order = "<"
+        self.failure: str | None = None
+        self.overload_events = 0
+        self.service_texts: list[str] = []
+        self.unexpected = 0  # packets that were neither an awaited response nor a DTO of a list
+        self._responses: queue.Queue[bytes] = queue.Queue()
+        self._pending = threading.Event()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._receive, name="xcp-rx", daemon=True)
+        self._thread.start()
+
+    # --- the receive thread ---------------------------------------------------------------------
+
+    def _receive(self) -> None:
+        try:
+            while not self._stop.is_set():
+                got = self.link.receive()
+                if got is None:
+                    if not self._stop.is_set():
+                        self.failure = f"{self.url}: the slave closed the connection"
+                    return
+                for arrival, packet in got:
+                    self._dispatch(arrival, packet)
+        except DeviceError as err:
+            self.failure = str(err)
+        except Exception as err:  # a bug here must end the session with a line, not hang it
+            self.failure = f"{self.url}: receive failed ({type(err).__name__}: {err})"
+        finally:
+            self._responses.put(b"")  # wake a waiting command
+
+    def _dispatch(self, arrival: int, packet: bytes) -> None:
+        pid = packet[0]
+        if pid >= PID_ERR:
+            self._responses.put(packet)
+        elif pid == PID_EV:
+            code = packet[1] if len(packet) > 1 else -1
+            if code == EV_CMD_PENDING:
+                self._pending.set()
+            elif code == EV_DAQ_OVERLOAD:
+                self.overload_events += 1
+            elif code == EV_SESSION_TERMINATED:
+                self.failure = f"{self.url}: the slave terminated the session (EV_SESSION_TERMINATED)"
+        elif pid == PID_SERV:
+            if len(packet) > 2 and packet[1] == SERV_TEXT and len(self.service_texts) < 100:
+                self.service_texts.append(packet[2:].split(b"\0")[0].decode("latin-1")[:200])
+        elif self.on_dto is not None:
+            self.on_dto(arrival, packet)
+        else:
+            self.unexpected += 1
+
+    # --- commands -------------------------------------------------------------------------------
+
+    def command(self, *body: int | bytes, expect: int = 1, timeout_s: float = TIMEOUT_S) -> bytes:
+        """Send one command (bytes and byte values), return its positive response of at least
+        ``expect`` bytes; :class:`XcpRefused` for a negative one, DeviceError for none."""
+        packet = b"".join(bytes([b]) if isinstance(b, int) else b for b in body)
+        if self.info is not None and len(packet) > self.info.max_cto:
+            raise DeviceError(f"{self.url}: a {len(packet)}-byte command exceeds the slave's MAX_CTO {self.info.max_cto}")
+        with self._lock:
+            if self.failure:
+                raise DeviceError(self.failure)
+            while not self._responses.empty():  # a late answer to a command that timed out
+                self._responses.get_nowait()
+            self._pending.clear()
+            self.link.send(packet)
+            waited = 0.0
+            while True:
+                try:
+                    response = self._responses.get(timeout=timeout_s)
+                    break
+                except queue.Empty:
+                    waited += timeout_s
+                    if self._pending.is_set() and waited < PENDING_S:
+                        self._pending.clear()
+                        continue
+                    raise DeviceError(f"{self.url}: no answer to command 0x{packet[0]:02X} (timeout)") from None
+        if not response:
+            raise DeviceError(self.failure or f"{self.url}: the link closed")
+        if response[0] == PID_ERR:
+            raise XcpRefused(response[1] if len(response) > 1 else 0x31)
+        if len(response) < expect:
+            raise DeviceError(f"{self.url}: a {len(response)}-byte response to command 0x{packet[0]:02X}, "
+                              f"where at least {expect} are due")
+        return response
+
+    def _u16(self, value: int) -> bytes:
+        return struct.pack(self.order + "H", value)
+
+    def _u32(self, value: int) -> bytes:
+        return struct.pack(self.order + "I", value)
+
+    def unpack(self, fmt: str, data: bytes, offset: int = 0) -> tuple:
+        return struct.unpack_from(self.order + fmt, data, offset)
+
+    def connect(self) -> SlaveInfo:
+        r = self.command(CONNECT, 0x00, expect=8)
+        basic = r[2]
+        order = ">" if basic & 0x01 else "<"
+        (max_dto,) = struct.unpack_from(order + "H", r, 4)
+        info = SlaveInfo(r[1], order, 1 << ((basic >> 1) & 0x03), r[3], max_dto, r[6], r[7], bool(basic & 0x80))
+        if info.max_cto < 8 or info.max_dto < 8:
+            raise DeviceError(f"{self.url}: the slave answered CONNECT with MAX_CTO {info.max_cto}, MAX_DTO "
+                              f"{info.max_dto} (at least 8 each)")
+        if info.address_granularity != 1:
+            raise DeviceError(f"{self.url}: the slave's address granularity is {info.address_granularity} bytes; "
+                              "ambdaq speaks to byte-addressed slaves (ADDRESS_GRANULARITY_BYTE)")
+        self.info, self.order = info, order
+        self.link.max_packet = max(info.max_cto, info.max_dto)
+        return info
+
+    def disconnect(self) -> None:
+        self.command(DISCONNECT)
+
+    def get_status(self) -> tuple[int, int]:
+        """Session status and resource protection bits."""
+        r = self.command(GET_STATUS, expect=3)
+        return r[1], r[2]
+
+    def get_comm_mode_info(self) -> None:
+        self.command(GET_COMM_MODE_INFO, expect=1)
+
+    def get_id(self, kind: int) -> bytes:
+        """GET_ID of ``kind`` (1: the ASAM MC 2 file name without extension, 4: the A2L file):
+        in the response, or uploaded."""
+        r = self.command(GET_ID, kind, expect=8)
+        (length,) = self.unpack("I", r, 4)
+        if r[1] & 0x01:
+            return bytes(r[8 : 8 + length])
+        return self.upload(length)
+
+    def upload(self, length: int) -> bytes:
+        """UPLOAD ``length`` bytes from the MTA, MAX_CTO - 1 per command."""
+        out = bytearray()
+        step = self.info.max_cto - 1
+        while len(out) < length:
+            n = min(step, length - len(out))
+            r = self.command(UPLOAD, n, expect=1 + n)
+            out += r[1 : 1 + n]
+        return bytes(out)
+
+    def set_mta(self, extension: int, address: int) -> None:
+        self.command(SET_MTA, 0, 0, extension, self._u32(address))
+
+    def read(self, extension: int, address: int, length: int) -> bytes:
+        """``length`` bytes at ``address`` in address space ``extension``."""
+        if length <= 0:
+            return b""
+        self.set_mta(extension, address)
+        return self.upload(length)
+
+    def write(self, extension: int, address: int, data: bytes) -> None:
+        """DOWNLOAD ``data`` at ``address``, MAX_CTO - 2 bytes per command, each answered before
+        the next (no block mode)."""
+        self.set_mta(extension, address)
+        step = self.info.max_cto - 2
+        for i in range(0, len(data), step):
+            chunk = data[i : i + step]
+            self.command(DOWNLOAD, len(chunk), chunk)
+
+    def build_checksum(self, extension: int, address: int, length: int) -> tuple[str, int]:
+        """The slave's checksum of ``length`` bytes at ``address``: its type's name and value."""
+        self.set_mta(extension, address)
+        r = self.command(BUILD_CHECKSUM, 0, 0, 0, self._u32(length), expect=8)
+        (value,) = self.unpack("I", r, 4)
+        return CHECKSUM_TYPES.get(r[1], f"type 0x{r[1]:02X}"), value
+
+    def get_seed(self, resource: int) -> bytes:
+        """The slave's seed for ``resource``, all its parts."""
+        r = self.command(GET_SEED, 0, resource, expect=2)
+        remaining, seed = r[1], bytearray(r[2:])
+        if remaining == 0:
+            return b""  # the resource is not protected
+        seed = seed[:remaining]
+        while len(seed) < remaining:
+            r = self.command(GET_SEED, 1, resource, expect=2)
+            seed += r[2 : 2 + r[1]]
+        return bytes(seed[:remaining])
+
+    def unlock(self, key: bytes) -> int:
+        """UNLOCK with ``key`` (in parts of MAX_CTO - 2); the protection status left."""
+        step, left, r = self.info.max_cto - 2, len(key), b""
+        for i in range(0, len(key), step):
+            r = self.command(UNLOCK, left, key[i : i + step], expect=2)
+            left -= len(key[i : i + step])
+        return r[1]
+
+    def set_request(self, mode: int, session_id: int = 0) -> None:
+        self.command(SET_REQUEST, mode, self._u16(session_id))
+
+    def set_cal_page(self, mode: int, segment: int, page: int) -> None:
+        self.command(SET_CAL_PAGE, mode, segment, page)
+
+    def get_cal_page(self, mode: int, segment: int) -> int:
+        return self.command(GET_CAL_PAGE, mode, segment, expect=4)[3]
+
+    def copy_cal_page(self, src: tuple[int, int], dst: tuple[int, int]) -> None:
+        self.command(COPY_CAL_PAGE, src[0], src[1], dst[0], dst[1])
+
+    def get_pag_processor_info(self) -> int:
+        """The number of segments."""
+        return self.command(GET_PAG_PROCESSOR_INFO, expect=2)[1]
+
+    # --- DAQ --------------------------------------------------------------------------------------
+
+    def daq_processor(self) -> DaqProcessor:
+        r = self.command(GET_DAQ_PROCESSOR_INFO, expect=8)
+        props = r[1]
+        max_daq, max_event = self.unpack("HH", r, 2)
+        key = r[7]
+        res = self.command(GET_DAQ_RESOLUTION_INFO, expect=8)
+        mode = res[5]
+        (ticks,) = self.unpack("H", res, 6)
+        unit = mode >> 4
+        if unit not in TIME_UNITS_NS:
+            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names timestamp unit {unit}, which ASAM XCP 1.x "
+                              "does not define")
+        size = mode & 0x07
+        if size not in (0, 1, 2, 4):
+            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names a {size}-byte timestamp (0, 1, 2 or 4)")
+        granularity = res[1]
+        if granularity not in (1, 2, 4, 8):
+            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names ODT entry granularity {granularity}")
+        return DaqProcessor(
+            dynamic=bool(props & 0x01), prescaler=bool(props & 0x02), timestamps=bool(props & 0x10),
+            overload={0: "none", 1: "pid", 2: "event"}.get(props >> 6, "none"),
+            max_daq=max_daq, max_event=max_event, min_daq=r[6],
+            address_extension={0: "free", 1: "odt", 3: "daq"}.get((key >> 4) & 0x03, "daq"),
+            identification=key >> 6, granularity=granularity, max_entry_size=res[2],
+            timestamp_size=size, timestamp_fixed=bool(mode & 0x08), timestamp_ns=TIME_UNITS_NS[unit] * max(ticks, 1))
+
+    def event_channel(self, number: int) -> EventChannel:
+        r = self.command(GET_DAQ_EVENT_INFO, 0, self._u16(number), expect=7)
+        props, max_lists, name_length, cycle, unit = r[1], r[2], r[3], r[4], r[5]
+        name = self.upload(name_length).decode("latin-1") if name_length else ""
+        if cycle and unit not in TIME_UNITS_NS:
+            raise DeviceError(f"{self.url}: event {number} names time unit {unit}, which ASAM XCP 1.x does not define")
+        return EventChannel(number, name.rstrip("\0"), cycle * TIME_UNITS_NS.get(unit, 0), max_lists, bool(props & 0x04))
+
+    def free_daq(self) -> None:
+        self.command(FREE_DAQ)
+
+    def alloc_daq(self, count: int) -> None:
+        self.command(ALLOC_DAQ, 0, self._u16(count))
+
+    def alloc_odt(self, daq: int, count: int) -> None:
+        self.command(ALLOC_ODT, 0, self._u16(daq), count)
+
+    def alloc_odt_entry(self, daq: int, odt: int, count: int) -> None:
+        self.command(ALLOC_ODT_ENTRY, 0, self._u16(daq), odt, count)
+
+    def set_daq_ptr(self, daq: int, odt: int, entry: int) -> None:
+        self.command(SET_DAQ_PTR, 0, self._u16(daq), odt, entry)
+
+    def write_daq(self, size: int, extension: int, address: int) -> None:
+        self.command(WRITE_DAQ, 0xFF, size, extension, self._u32(address))
+
+    def set_daq_list_mode(self, daq: int, event: int, *, timestamp: bool, prescaler: int) -> None:
+        self.command(SET_DAQ_LIST_MODE, 0x10 if timestamp else 0x00, self._u16(daq), self._u16(event), prescaler, 0)
+
+    def select_daq_list(self, daq: int) -> int:
+        """START_STOP_DAQ_LIST (select): the list's first PID."""
+        return self.command(START_STOP_DAQ_LIST, 0x02, self._u16(daq), expect=2)[1]
+
+    def start_stop_synch(self, mode: int) -> None:
+        """0: stop all, 1: start the selected lists, 2: stop them."""
+        self.command(START_STOP_SYNCH, mode)
+
+    def close(self) -> None:
+        """Stop the receive thread and release the link."""
+        self._stop.set()
+        self.link.close()
+        self._thread.join(timeout=2)
