@@ -105,6 +105,16 @@ def a2l_option(f):
     )(f)
 
 
+def measure_option(f):
+    """--measure NAME_OR_GLOB (repeatable): what to record of an XCP controller's A2L, given to
+    the command as ``measure`` (a list, empty without it)."""
+    return click.option(
+        "--measure", "measure", multiple=True, metavar="NAME_OR_GLOB",
+        help="An A2L measurement (or a glob of them) to record from an XCP device (repeatable); default: the ones "
+             "an ambdaq annotation places. ambdaq xcp list FILE lists them.",
+    )(f)
+
+
 def window_options(f):
     f = click.option("--end", type=float, metavar="SECONDS", help="End of the time window (s from the start).")(f)
     f = click.option("--start", type=float, metavar="SECONDS", help="Start of the time window (s from the start).")(f)

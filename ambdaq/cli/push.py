@@ -130,11 +130,11 @@ def param_command(device, name, values, description, yes):
       ambdaq controller param --device serial:///dev/pts/5 pid.d 0.001 0.001 0.002 0.002 0.002 --yes
     """
     from ..drivers.interfaces import Controller
-    from ..drivers.registry import open_device
+    from ..drivers.registry import open_parameters
 
     if any(not math.isfinite(v) for v in values):
         raise BadInputError(f"{name}: values must be finite numbers")
-    dev = open_device(device, description=description)
+    dev = open_parameters(device, description)
     try:
         if not isinstance(dev, Controller):
             raise BadInputError(f"{device}: not a controller with parameters")

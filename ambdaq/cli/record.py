@@ -16,7 +16,7 @@ from ..daq.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import (POSITIVE, Output, a2l_option, output_options, report_options, snapshot_options,
+from .options import (POSITIVE, Output, a2l_option, measure_option, output_options, report_options, snapshot_options,
                       speed_option)
 
 
@@ -152,6 +152,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 @click.option("--reconnect", is_flag=True,
               help="Reopen a device that is lost and go on recording; the gap is marked in the file.")
 @a2l_option
+@measure_option
 @click.option("--live", "live_port", type=click.IntRange(0, 65535), is_flag=False, flag_value=8765, metavar="[PORT]",
               help="Serve the topics to Foxglove over its WebSocket protocol while recording (default port 8765; "
                    "0: any free one); the file keeps every sample (docs/live.md).")
@@ -162,8 +163,8 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 @snapshot_options
 @output_options
 @report_options
-def command(devices, rig_path, duration, speed, truth, reconnect, description, live_port, live_host, live_rate, snapshot, out,
-            quiet, as_json):
+def command(devices, rig_path, duration, speed, truth, reconnect, description, measure, live_port, live_host, live_rate,
+            snapshot, out, quiet, as_json):
     """Record devices in real time into an MCAP file.
 
     \b
@@ -171,11 +172,14 @@ def command(devices, rig_path, duration, speed, truth, reconnect, description, l
       ambdaq record --device sim://spindle --duration 10 --rpm 30000 -o run.mcap
       ambdaq record --rig lab.toml --split-duration 60 -o long.mcap
       ambdaq record --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --duration 10 -o run.mcap
+      ambdaq record --device xcp+udp://127.0.0.1:5555 --a2l ecu.a2l --measure 'Motor*' --duration 10 -o ecu.mcap
       ambdaq record --device sim://spindle --snapshot 30s --trigger fault --trigger 'excursion>0.5' -o event.mcap
     """
     if not devices and not rig_path:
         raise BadInputError("nothing to record: give --device URL or --rig FILE")
     rig = load_rig(rig_path) if rig_path else None
+    if measure:
+        description = {**(description or {}), "measurements": list(measure)}
     with Opened() as opened:  # however the recording ends, every device and simulated rig is closed
         for i, url in enumerate(devices):
             opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None,

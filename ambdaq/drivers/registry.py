@@ -155,6 +155,16 @@ class Backend(ABC):
         """Where the devices behind ``url`` are reached (hardware: the URL itself)."""
         return Endpoints({"device": url.text})
 
+    def parameters(self, url: DeviceURL, description: dict | None = None) -> Source:
+        """The device at ``url`` for reading and writing its parameters (``controller param``):
+        by default the one device :meth:`open` opens; a back-end whose streaming needs more than its
+        parameters do (an XCP controller's DAQ lists) opens it without."""
+        opened = self.open(url, _request(None, description=description))
+        if len(opened.sources) != 1 or opened.keep:
+            opened.close()
+            raise BadInputError(f"{url.text}: opens {len(opened.sources)} devices; open it with open_url")
+        return opened.sources[0]
+
     def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         """The controller's coefficient banks at ``url`` (``ambdaq push``); ``description``: what a
         rig file or an option says of it beyond its URL (an XCP controller's A2L)."""
@@ -223,6 +233,12 @@ def open_device(url: str | DeviceURL, *, name: str | None = None, speed: str | S
         opened.close()
         raise BadInputError(f"{url}: opens {len(opened.sources)} devices; open it with open_url")
     return opened.sources[0]
+
+
+def open_parameters(url: str | DeviceURL, description: dict | None = None) -> Source:
+    """The device at ``url`` for its parameters (``controller param``; see :meth:`Backend.parameters`)."""
+    parsed = parse_device_url(url)
+    return backend(parsed.scheme).parameters(parsed, description)
 
 
 def endpoints(url: str | DeviceURL, *, speed: str | SpeedProfile | None = None) -> Endpoints:

@@ -57,6 +57,9 @@ class _XcpBackend(Backend):
     def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         return self._open(url, None, description or {}, False)
 
+    def parameters(self, url: DeviceURL, description: dict | None = None):
+        return self._open(url, None, description or {}, False)
+
     def ask(self, url: DeviceURL) -> dict[str, str]:
         """Who answers XCP at ``url`` (``ambdaq devices --ask-xcp``); no A2L needed."""
         from .device import ask_slave

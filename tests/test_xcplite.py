@@ -1,0 +1,205 @@
+"""ambdaq as the XCP master of a slave no one here wrote: Vector's XCPlite (``hello_xcp``), built by
+the test from ``../shared/thirdparty/`` as shipped but for its ``#define``s (bound to 127.0.0.1,
+a free port, TCP or UDP, quiet), with the A2L it writes itself.  Every recorded value is checked
+against what pyxcp reads from the same slave or against the relations the slave's code keeps
+between its variables in one loop (hello_xcp's ``main.c``):
+
+- ``global_counter`` counts loops; ``counter`` counts them modulo ``params.counter_max + 1``;
+- ``heat_energy`` (FLOAT64) is the sum of ``heat_power / 3.6e9`` over the loops, and ``heat_power``
+  = (inside - outside temperature) * ``params.flow_rate`` * 1000 * 1.16;
+- the temperatures (UBYTE, offset -55 degC) stay at -5 and 20 degC.
+
+A value under the wrong name, or from another sample, breaks one of these.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import shutil
+import socket
+import struct
+import subprocess
+import tarfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
+
+pytestmark = pytest.mark.realtime  # the slave runs against the wall clock
+
+ARCHIVE = Path(__file__).resolve().parents[2] / "shared" / "thirdparty" / "xcplite-917877cf.tar.gz"
+MIXED = ["counter", "heat_energy", "inside_temperature", "global_counter", "outside_temperature"]  # any order
+CALC = ["*heat_power", "*t2", "*diff_temp", "*t1"]  # calc_power.t1 where registered as instances
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _build(out: Path, *, tcp: bool, variadic: bool) -> None:
+    """hello_xcp from the archive, its #defines set: 127.0.0.1, a free port, TCP or UDP, log errors only;
+    without OPTION_USE_VARIADIC_MACROS it registers its globals with A2lSetAbsoluteAddrMode."""
+    src = out / "xcplite"
+    with tarfile.open(ARCHIVE) as tar:
+        tar.extractall(src, filter="data")
+    main = src / "examples" / "hello_xcp" / "src" / "main.c"
+    port = _free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
+    text = main.read_text(encoding="utf-8-sig")
+    for pattern, value in ((r"#define OPTION_SERVER_ADDR \{0, 0, 0, 0\}", "#define OPTION_SERVER_ADDR {127, 0, 0, 1}"),
+                           (r"#define OPTION_USE_TCP false", f"#define OPTION_USE_TCP {'true' if tcp else 'false'}"),
+                           (r"#define OPTION_SERVER_PORT 5555", f"#define OPTION_SERVER_PORT {port}"),
+                           (r"#define OPTION_LOG_LEVEL 4", "#define OPTION_LOG_LEVEL 1")):
+        text, n = re.subn(pattern, value, text)
+        assert n == 1, pattern  # the archive is as shipped: each #define is where its README says
+    if not variadic:
+        text = text.replace("#define OPTION_USE_VARIADIC_MACROS", "// #define OPTION_USE_VARIADIC_MACROS")
+    main.write_text(text)
+    build = out / "build"
+    for cmd in (["cmake", "-S", str(src), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release"],
+                ["cmake", "--build", str(build), "--target", "hello_xcp", "-j2"]):
+        subprocess.run(cmd, check=True, capture_output=True, timeout=300)
+    (out / "url").write_text(f"xcp+{'tcp' if tcp else 'udp'}://127.0.0.1:{port}")
+
+
+@pytest.fixture(scope="module", params=[pytest.param((False, True), id="udp"),
+                                        pytest.param((True, False), id="tcp-absolute")])
+def xcplite(request, build_once, tmp_path_factory):
+    """A running hello_xcp (UDP as shipped, or TCP with absolute addressing) and its A2L file."""
+    if shutil.which("cmake") is None or shutil.which("cc") is None:
+        pytest.skip("building XCPlite needs cmake and a C compiler")
+    tcp, variadic = request.param
+    built = build_once(f"xcplite-{request.param_index}", lambda out: _build(out, tcp=tcp, variadic=variadic))
+    url = (built / "url").read_text()
+    run = tmp_path_factory.mktemp("xcplite")
+    proc = subprocess.Popen([str(built / "build" / "hello_xcp")], cwd=run, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    try:
+        a2l = run / "hello_xcp_200.a2l"
+        deadline = time.monotonic() + 20
+        while not a2l.exists():  # written when the first master connects (A2L_MODE_FINALIZE_ON_CONNECT)
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "hello_xcp wrote no A2L"
+            subprocess.run(["ambdaq", "devices", "--ask-xcp", url], capture_output=True, timeout=30)
+            time.sleep(0.2)
+        listening = subprocess.run(["ss", "-Htlnup"], capture_output=True, text=True).stdout
+        for line in listening.splitlines():  # bound to loopback only (the house rule)
+            if f"pid={proc.pid}," in line:
+                assert "127.0.0.1:" in line.split()[4], line
+        yield url, a2l
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def pyxcp_master(url: str):
+    """pyxcp's own master on the same slave: the independent reader of what the slave holds."""
+    from pyxcp.config import create_application_from_config, set_application
+    from pyxcp.master import Master
+
+    protocol, host_port = url.split("://")
+    host, port = host_port.rsplit(":", 1)
+    app = create_application_from_config({"Transport": {"Eth": {
+        "host": host, "port": int(port), "protocol": protocol.split("+")[1].upper()}}}, log_level=logging.ERROR)
+    app.transport.layer = "ETH"
+    set_application(app)
+    return Master("eth", config=app)
+
+
+def addresses(a2l: Path) -> dict[str, tuple[int, int]]:
+    """ECU_ADDRESS and ECU_ADDRESS_EXTENSION of each MEASUREMENT and CHARACTERISTIC, read off the
+    file's text (not through ambdaq's reader)."""
+    text = a2l.read_text(encoding="latin-1")
+    found = {}
+    for m in re.finditer(r"/begin MEASUREMENT (\S+) .*?ECU_ADDRESS (0x[0-9A-Fa-f]+) ECU_ADDRESS_EXTENSION (\d+)", text):
+        found[m.group(1)] = (int(m.group(2), 16), int(m.group(3)))
+    for m in re.finditer(r"/begin CHARACTERISTIC (\S+) \"[^\"]*\" VALUE (0x[0-9A-Fa-f]+)", text):
+        found[m.group(1)] = (int(m.group(2), 16), 0)
+    return found
+
+
+def test_mixed_types_in_any_order_hold_what_the_slave_holds(xcplite, tmp_path, run_cli):
+    url, a2l = xcplite
+    where = addresses(a2l)
+    with pyxcp_master(url) as x:
+        x.connect()
+        raw = {n: x.shortUpload(size, where[n][0], where[n][1])
+               for n, size in (("outside_temperature", 1), ("inside_temperature", 1), ("params.counter_max", 2),
+                               ("params.flow_rate", 4), ("global_counter", 4))}
+        x.disconnect()
+    counter_max = struct.unpack("<H", raw["params.counter_max"])[0]
+    flow_rate = struct.unpack("<f", raw["params.flow_rate"])[0]
+    before = struct.unpack("<I", raw["global_counter"])[0]
+    out = tmp_path / "hello.mcap"
+    args = [a for n in MIXED + CALC for a in ("--measure", n)]
+    r = run_cli("record", "--device", url, "--a2l", a2l, *args, "--duration", "1.5", "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    rec = load(out)
+    assert set(rec) == {"/xcp/mainloop", "/xcp/calc_power"}  # one topic per event, named after it
+    main, calc = rec["/xcp/mainloop"], rec["/xcp/calc_power"]
+    assert list(main.fields) == MIXED and len(main) > 100
+    named = {f.removeprefix("calc_power_"): f for f in calc.fields}  # A2L calc_power.t1: field calc_power_t1
+    assert list(named) == [n.lstrip("*") for n in CALC]
+    # UBYTE with the conversion C = raw - 55: what pyxcp reads, converted
+    assert set(main["outside_temperature"]) == {raw["outside_temperature"][0] - 55.0} == {-5.0}
+    assert set(main["inside_temperature"]) == {raw["inside_temperature"][0] - 55.0} == {20.0}
+    loops = main["global_counter"].astype(np.int64)
+    assert loops[0] > before  # a ULONG counted on from what pyxcp read before
+    np.testing.assert_array_equal(main["counter"], loops % (counter_max + 1))  # UWORD, same sample
+    heat_power = 25.0 * np.float64(flow_rate) * 1000.0 * 1.16  # in double, as calc_power computes it
+    # FLOAT64: the running sum of heat_power / 3.6e9 (main sums the float calc_power returns), each
+    # sample's own (1e-9: the sum's rounding over some 10^5 loops is ~1e-11 relative; the
+    # neighbouring sample is 1e-5 off)
+    np.testing.assert_allclose(main["heat_energy"], loops * (float(np.float32(heat_power)) / 3.6e9), rtol=1e-9)
+    np.testing.assert_allclose(calc[named["heat_power"]], heat_power, rtol=1e-12)
+    assert set(calc[named["diff_temp"]]) == {25.0}
+    assert {float(v) for v in calc[named["t2"]]} - {float(v) for v in calc[named["t1"]]}  # two bytes, not one twice
+    # time: the DTO timestamps (1 ns), increasing; loss counted from the transport counter
+    meta = McapFile(out).metadata()
+    stats = meta["ambdaq.link.controller"]
+    device = meta["ambdaq.device.controller"]
+    assert device["time"] == "DTO timestamp" and device["event_cycle"] == "sporadic"
+    assert np.all(np.diff(main.time) > 0)
+    missing = int(np.sum(np.diff(loops) - 1))
+    lost = int(stats.get("transport_lost_packets", "0"))
+    assert missing == 0 or lost > 0, (missing, stats)  # a gap in the loops is a loss the transport saw
+
+
+def test_controller_param_writes_what_pyxcp_reads_back(xcplite, run_cli):
+    url, a2l = xcplite
+    where = addresses(a2l)
+    for name, value, fmt in (("params.flow_rate", 0.25, "<f"), ("params.counter_max", 512, "<H")):
+        r = run_cli("controller", "param", "--device", url, "--a2l", a2l, name, str(value), "--yes")
+        assert r.exit_code == 0, r.output
+        with pyxcp_master(url) as x:
+            x.connect()
+            got = struct.unpack(fmt, x.shortUpload(struct.calcsize(fmt), *where[name]))[0]
+            x.disconnect()
+        assert got == pytest.approx(value, rel=1e-7)  # FLOAT32 holds 0.25 exactly; UWORD 512
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.counter_max", "70000", "--yes")
+    assert r.exit_code != 0 and "0 .. 65535" in r.output and len(r.output.strip().splitlines()) == 1
+    for name, value in (("params.flow_rate", 0.301), ("params.counter_max", 1024)):  # as it was
+        assert run_cli("controller", "param", "--device", url, "--a2l", a2l, name, str(value), "--yes").exit_code == 0
+
+
+def test_devices_lists_its_sporadic_events(xcplite, run_cli):
+    url, _a2l = xcplite
+    r = run_cli("devices", "--ask-xcp", url, "--json")
+    assert r.exit_code == 0, r.output
+    (slave,) = json.loads(r.stdout)["xcp"]
+    assert slave["asap2_name"] == "hello_xcp_200"
+    assert {slave["event_0"], slave["event_1"]} == {"calc_power (sporadic)", "mainloop (sporadic)"}
+
+
+def test_without_measure_it_says_how_to_choose(xcplite, tmp_path, run_cli):
+    url, a2l = xcplite
+    r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and "--measure NAME_OR_GLOB" in r.output and len(r.output.strip().splitlines()) == 1
+    assert not (tmp_path / "x.mcap").exists()
