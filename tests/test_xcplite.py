@@ -31,7 +31,8 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
 
-pytestmark = pytest.mark.realtime  # the slave runs against the wall clock
+# the slave runs against the wall clock; one worker runs the module: one slave per build and port
+pytestmark = [pytest.mark.realtime, pytest.mark.xdist_group("xcplite")]
 
 ARCHIVE = Path(__file__).resolve().parents[2] / "shared" / "thirdparty" / "xcplite-917877cf.tar.gz"
 MIXED = ["counter", "heat_energy", "inside_temperature", "global_counter", "outside_temperature"]  # any order

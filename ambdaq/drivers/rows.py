@@ -52,14 +52,14 @@ class RowQueue:
         while True:
             if self.closed.wait(BLOCK_S):
                 return None
-            reason = failure()
-            if reason is not None:
-                raise DeviceError(reason)
             n = len(self.rows)
-            if n:
+            if n:  # the rows that came before a failure are kept: it is reported on the next call
                 rows = [self.rows.popleft() for _ in range(n)]
                 self.last_row = time.monotonic()
                 break
+            reason = failure()
+            if reason is not None:
+                raise DeviceError(reason)
             silent = time.monotonic() - self.last_row
             if silent > self.silent_after_s:
                 raise DeviceError(silence(silent))

@@ -259,13 +259,20 @@ class DtoAssembler:
         return (state.counter_base + value) // state.plan.prescaler
 
 
+LATE_S = 1.0  # a DTO's timestamp may run ahead of its arrival by this much (a slave's queue, a burst)
+
+
 def unwrap_timestamps(raw: np.ndarray, arrival_ns: np.ndarray, tick_ns: int, size: int,
-                      last: tuple[int, int, int] | None) -> tuple[np.ndarray, tuple[int, int, int]]:
-    """Device times in ns from DTO timestamps of ``size`` bytes that count ``tick_ns`` each and wrap.
+                      last: tuple[int, int, int] | None) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int] | None]:
+    """Device times in ns from DTO timestamps of ``size`` bytes that count ``tick_ns`` each and wrap,
+    and which of them are plausible.
 
     Between two samples the timestamp advanced by its step modulo the wrap, plus as many whole
     wraps as the host's arrival times say passed (a sporadic event may be silent for longer than
-    one wrap: 4.3 s for a 32-bit timestamp in ns).
+    one wrap: 4.3 s for a 32-bit timestamp in ns).  A sample whose timestamp ran more than
+    ``LATE_S`` ahead of the time between the two arrivals cannot be the slave's clock (garbage
+    that framed as a DTO): it is marked implausible, and the next sample is timed from the last
+    plausible one.
 
     Parameters
     ----------
@@ -278,22 +285,31 @@ def unwrap_timestamps(raw: np.ndarray, arrival_ns: np.ndarray, tick_ns: int, siz
     size : int
         Timestamp bytes.
     last : (device ns, raw ticks, arrival ns) or None
-        The previous sample's, None for the first.
+        The last plausible sample's, None before the first.
 
     Returns
     -------
     device_ns : ndarray of int64
-        Unwrapped device times, ns.
-    last : tuple
-        The newest sample's (device ns, raw ticks, arrival ns).
+        Unwrapped device times, ns (meaningless where not plausible).
+    plausible : ndarray of bool
+    last : tuple or None
+        The newest plausible sample's (device ns, raw ticks, arrival ns).
     """
     wrap = (1 << (8 * size)) * tick_ns
-    raw_ns = raw.astype(np.int64) * tick_ns
-    if last is None:
-        last = (int(raw_ns[0]), int(raw[0]), int(arrival_ns[0]))
-    prev_raw = np.concatenate(([last[1] * tick_ns], raw_ns[:-1]))
-    prev_arrival = np.concatenate(([last[2]], arrival_ns[:-1]))
-    step = (raw_ns - prev_raw) % wrap
-    extra = np.maximum(0, np.round((arrival_ns - prev_arrival - step) / wrap)).astype(np.int64)
-    device = last[0] + np.cumsum(step + extra * wrap)
-    return device, (int(device[-1]), int(raw[-1]), int(arrival_ns[-1]))
+    device = np.zeros(raw.shape[0], dtype=np.int64)
+    plausible = np.ones(raw.shape[0], dtype=bool)
+    late = int(LATE_S * 1e9)
+    for k, (r, a) in enumerate(zip(raw.tolist(), arrival_ns.tolist())):
+        if last is None:
+            last = (r * tick_ns, r, a)
+            device[k] = r * tick_ns
+            continue
+        step = (r - last[1]) * tick_ns % wrap
+        host = a - last[2]
+        step += max(0, round((host - step) / wrap)) * wrap
+        if step - host > late:
+            plausible[k] = False
+            continue
+        device[k] = last[0] + step
+        last = (int(device[k]), r, a)
+    return device, plausible, last

@@ -144,6 +144,7 @@ class _Stream:
         index = {e: k for k, e in enumerate(plan.elements)}
         self._cols = [f"e{index[e]}" for e in fields]
         self.rounded = 0  # 64-bit integer values beyond 2**53, which float64 cannot hold exactly
+        self.implausible = 0  # samples dropped: their timestamp cannot be the slave's clock
 
     def read(self, failure: Callable[[], str | None]) -> SampleBlock | None:
         taken = self.rows.take(failure, lambda s: f"{self.url}: no DAQ data on event {self.plan.event.name!r} "
@@ -154,7 +155,14 @@ class _Stream:
         arrival = np.array([r[1] for r in rows], dtype=np.int64)
         if self.timed:
             raw = np.array([r[2] for r in rows], dtype=np.int64)
-            device, self._last = unwrap_timestamps(raw, arrival, self.tick_ns, self.plan.timestamp, self._last)
+            device, plausible, self._last = unwrap_timestamps(raw, arrival, self.tick_ns, self.plan.timestamp,
+                                                              self._last)
+            if not plausible.all():
+                self.implausible += int(np.count_nonzero(~plausible))
+                if not plausible.any():
+                    return self.read(failure)
+                rows = [r for r, ok in zip(rows, plausible) if ok]
+                seq, arrival, device = seq[plausible], arrival[plausible], device[plausible]
         else:
             device = arrival.copy()
         k = int(np.argmin(arrival - device))
@@ -471,6 +479,7 @@ class XcpController(Controller):
                 out[f"{key}_samples_discarded"] = str(state.incomplete)
                 out[f"{key}_dto_wrong_length"] = str(state.malformed)
                 out[f"{key}_dto_overload"] = str(state.overloads)
+                out[f"{key}_samples_implausible_time"] = str(s.implausible)
                 if s.rounded:
                     out[f"{key}_int64_values_rounded"] = str(s.rounded)
         return out

@@ -1,0 +1,153 @@
+"""Hostile XCP slaves: whatever a slave sends, ambdaq ends with one line and exit 1, or counts
+and skips the bad packet, and the file holds every good sample received before, finished.
+
+The slave here is a small XCP-on-TCP server written in the test: it answers the commands a
+recording needs (one cyclic event every 1 ms, absolute PIDs, a 4-byte timestamp in us), sends
+``GOOD`` well-formed DTOs whose value counts 0, 1, 2 ..., then misbehaves as the case says.
+"""
+
+from __future__ import annotations
+
+import random
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
+
+pytestmark = pytest.mark.realtime
+
+GOOD = 300
+A2L = """ASAP2_VERSION 1 71
+/begin PROJECT HOSTILE ""
+  /begin MODULE M ""
+    /begin MEASUREMENT ticks "counts DTOs" ULONG NO_COMPU_METHOD 0 0 0 4294967295
+      ECU_ADDRESS 0x1000
+    /end MEASUREMENT
+  /end MODULE
+/end PROJECT
+"""
+
+
+class HostileSlave:
+    """One master's session; after GOOD DTOs, ``case`` decides what comes."""
+
+    def __init__(self, case: str) -> None:
+        self.case = case
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.ctr = 0
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _send(self, conn: socket.socket, packet: bytes, length: int | None = None) -> None:
+        conn.sendall(struct.pack("<HH", len(packet) if length is None else length, self.ctr & 0xFFFF) + packet)
+        self.ctr += 1
+
+    def _serve(self) -> None:
+        conn, _ = self.listener.accept()
+        conn.settimeout(5)
+        buf = b""
+        try:
+            while True:
+                while len(buf) < 4 or len(buf) < 4 + struct.unpack_from("<H", buf)[0]:
+                    data = conn.recv(4096)
+                    if not data:
+                        return
+                    buf += data
+                n = struct.unpack_from("<H", buf)[0]
+                cmd, buf = buf[4 : 4 + n], buf[4 + n :]
+                reply = self._answer(cmd)
+                self._send(conn, reply)
+                if cmd[0] == 0xDD and cmd[1] == 1:  # START_STOP_SYNCH start: the DTOs and then the case
+                    self._stream(conn)
+                    return
+        except OSError:
+            return
+        finally:
+            time.sleep(0.2)
+            conn.close()
+
+    @staticmethod
+    def _answer(cmd: bytes) -> bytes:
+        code = cmd[0]
+        if code == 0xFF:  # CONNECT: DAQ only, Intel, byte granularity, MAX_CTO 255, MAX_DTO 1024
+            return struct.pack("<BBBBHBB", 0xFF, 0x04, 0x00, 255, 1024, 1, 1)
+        if code == 0xFD:  # GET_STATUS
+            return struct.pack("<BBBBH", 0xFF, 0, 0, 0, 0)
+        if code == 0xDA:  # GET_DAQ_PROCESSOR_INFO: dynamic, timestamps; 4 lists, 1 event; absolute PIDs
+            return struct.pack("<BBHHBB", 0xFF, 0x11, 4, 1, 0, 0x00)
+        if code == 0xD9:  # GET_DAQ_RESOLUTION_INFO: 4-byte timestamp in 1 us
+            return struct.pack("<BBBBBBH", 0xFF, 1, 255, 1, 255, 0x34, 1)
+        if code == 0xD7:  # GET_DAQ_EVENT_INFO: "tick" (4 characters, uploaded next), every 1 ms
+            return struct.pack("<BBBBBBB", 0xFF, 0x04, 1, 4, 1, 6, 0)
+        if code == 0xF5:  # UPLOAD: the event's name
+            return b"\xfftick"[: 1 + cmd[1]]
+        if code == 0xDE:  # START_STOP_DAQ_LIST: first PID 0
+            return struct.pack("<BB", 0xFF, 0)
+        if code == 0xFA:  # GET_ID: not offered
+            return bytes([0xFE, 0x20])
+        return bytes([0xFF])
+
+    def _stream(self, conn: socket.socket) -> None:
+        for k in range(GOOD):
+            self._send(conn, struct.pack("<BII", 0, 1000 * k, k))
+            time.sleep(0.001)
+        rng = random.Random(7)
+        if self.case == "garbage":
+            conn.sendall(bytes(rng.getrandbits(8) for _ in range(1 << 20)))
+        elif self.case == "len0":
+            self._send(conn, b"", length=0)
+        elif self.case == "oversized":
+            self._send(conn, b"\x00" * 64, length=60000)
+        elif self.case in ("short", "random"):
+            for k in range(GOOD, GOOD + 10000):  # a bad DTO after each good one, until the master leaves
+                if self.case == "short":
+                    self._send(conn, b"\x00")  # a DTO cut to its PID
+                else:
+                    self._send(conn, bytes(rng.getrandbits(8) for _ in range(rng.choice((1, 5, 9, 9, 9, 30)))))
+                self._send(conn, struct.pack("<BII", 0, 1000 * k, k))
+                time.sleep(0.001)
+        elif self.case == "stall":
+            time.sleep(30)
+        # "close": return, and the connection closes
+
+
+@pytest.mark.parametrize("case, exit_code, words", [
+    ("garbage", 1, "framing is lost"),
+    ("len0", 1, "length 0"),
+    ("oversized", 1, "length 60000"),
+    ("close", 1, "closed the connection"),
+    ("stall", 1, "no DAQ data"),
+    ("short", 0, ""),
+    ("random", 0, ""),
+])
+def test_a_hostile_slave_ends_in_one_line_and_keeps_the_good_samples(case, exit_code, words, tmp_path, run_cli):
+    a2l = tmp_path / "hostile.a2l"
+    a2l.write_text(A2L)
+    slave = HostileSlave(case)
+    out = tmp_path / "h.mcap"
+    r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l,
+                "--measure", "ticks", "--duration", "1.5", "-q", "-o", out)
+    assert r.exit_code == exit_code, r.output
+    if words:
+        assert words in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    rec = load(out)  # finished and readable
+    got = rec["/xcp/tick"]
+    ticks = got["ticks"].astype(np.int64)
+    assert np.array_equal(ticks, np.arange(len(ticks))), ticks  # every good sample in order, none of the bad
+    link = McapFile(out).metadata()["ambdaq.link.controller"]
+    dropped = int(link["tick_samples_implausible_time"])  # garbage that framed as a whole DTO, timed off
+    # 1.5 s of a 1 kHz event (samples numbered as they came, the dropped ones among them), or all before the end
+    assert len(ticks) + dropped == (1500 if exit_code == 0 else GOOD)
+    if case == "short":
+        assert int(link["tick_dto_wrong_length"]) >= 1000  # one after each of the last 1,200 good DTOs
+    if case == "random":
+        assert int(link["tick_dto_wrong_length"]) + int(link["dto_unknown"]) >= 1000
+    # device time is the timestamp (1 us per count): 1 ms per sample, never a jump
+    assert np.allclose(np.diff(got.device_time), 1e6)
