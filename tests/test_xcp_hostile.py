@@ -8,6 +8,7 @@ recording needs (one cyclic event every 1 ms, absolute PIDs, a 4-byte timestamp 
 
 from __future__ import annotations
 
+import json
 import random
 import socket
 import struct
@@ -39,6 +40,7 @@ class HostileSlave:
 
     def __init__(self, case: str) -> None:
         self.case = case
+        self.entries: list[tuple[int, int]] = []  # (size, address) as WRITE_DAQ gave them
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port = self.listener.getsockname()[1]
         self.ctr = 0
@@ -62,6 +64,8 @@ class HostileSlave:
                     buf += data
                 n = struct.unpack_from("<H", buf)[0]
                 cmd, buf = buf[4 : 4 + n], buf[4 + n :]
+                if cmd[0] == 0xE1:  # WRITE_DAQ: bit offset, size, extension, address
+                    self.entries.append((cmd[2], struct.unpack_from("<I", cmd, 4)[0]))
                 reply = self._answer(cmd)
                 self._send(conn, reply)
                 if cmd[0] == 0xDD and cmd[1] == 1:  # START_STOP_SYNCH start: the DTOs and then the case
@@ -94,9 +98,15 @@ class HostileSlave:
             return bytes([0xFE, 0x20])
         return bytes([0xFF])
 
+    def dto(self, k: int) -> bytes:
+        """The DTO of tick ``k``: PID 0, the timestamp (us) and the entries as configured, read from
+        a memory whose ULONG at 0x1000 holds ``k``."""
+        memory = {0x1000 + i: b for i, b in enumerate(struct.pack("<I", k))}
+        return struct.pack("<BI", 0, 1000 * k) + bytes(memory.get(a + i, 0) for s, a in self.entries for i in range(s))
+
     def _stream(self, conn: socket.socket) -> None:
         for k in range(GOOD):
-            self._send(conn, struct.pack("<BII", 0, 1000 * k, k))
+            self._send(conn, self.dto(k))
             time.sleep(0.001)
         rng = random.Random(7)
         if self.case == "garbage":
@@ -111,10 +121,14 @@ class HostileSlave:
                     self._send(conn, b"\x00")  # a DTO cut to its PID
                 else:
                     self._send(conn, bytes(rng.getrandbits(8) for _ in range(rng.choice((1, 5, 9, 9, 9, 30)))))
-                self._send(conn, struct.pack("<BII", 0, 1000 * k, k))
+                self._send(conn, self.dto(k))
                 time.sleep(0.001)
         elif self.case == "stall":
             time.sleep(30)
+        elif self.case == "good":
+            for k in range(GOOD, GOOD + 10000):
+                self._send(conn, self.dto(k))
+                time.sleep(0.001)
         # "close": return, and the connection closes
 
 
@@ -151,3 +165,67 @@ def test_a_hostile_slave_ends_in_one_line_and_keeps_the_good_samples(case, exit_
         assert int(link["tick_dto_wrong_length"]) + int(link["dto_unknown"]) >= 1000
     # device time is the timestamp (1 us per count): 1 ms per sample, never a jump
     assert np.allclose(np.diff(got.device_time), 1e6)
+
+
+CONVERSIONS = """ASAP2_VERSION 1 71
+/begin PROJECT CONVERSIONS ""
+  /begin MODULE M ""
+    /begin COMPU_METHOD CM.VERB "" TAB_VERB "%3.0" "" COMPU_TAB_REF CM.VERB.REF /end COMPU_METHOD
+    /begin COMPU_VTAB CM.VERB.REF "" TAB_VERB 2 0 "off" 1 "on" /end COMPU_VTAB
+    /begin COMPU_METHOD CM.INTP "" TAB_INTP "%8.4" "m" COMPU_TAB_REF CM.INTP.REF /end COMPU_METHOD
+    /begin COMPU_TAB CM.INTP.REF "" TAB_INTP 2 0 0.0 1000 1.0 DEFAULT_VALUE_NUMERIC -1 /end COMPU_TAB
+    /begin COMPU_METHOD CM.FORM "" FORM "%8.4" "s"
+      /begin FORMULA "X1*2+1" /end FORMULA
+    /end COMPU_METHOD
+    /begin COMPU_METHOD CM.LIN "" LINEAR "%8.4" "mm" COEFFS_LINEAR 0.5 -3 /end COMPU_METHOD
+    /begin MEASUREMENT ticks "" ULONG NO_COMPU_METHOD 0 0 0 4294967295 ECU_ADDRESS 0x1000 /end MEASUREMENT
+    /begin MEASUREMENT Ticks.Verbal "" ULONG CM.VERB 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
+    /begin MEASUREMENT ticks_table "" ULONG CM.INTP 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
+    /begin MEASUREMENT ticks_formula "" ULONG CM.FORM 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
+    /begin MEASUREMENT low_byte "" UBYTE CM.LIN 0 0 0 255 ECU_ADDRESS 0x1000 BYTE_ORDER MSB_LAST /end MEASUREMENT
+    /begin MEASUREMENT bits "" UWORD NO_COMPU_METHOD 0 0 0 255 ECU_ADDRESS 0x1000 BIT_MASK 0x0F0 /end MEASUREMENT
+    /begin MEASUREMENT word_be "" UWORD NO_COMPU_METHOD 0 0 0 65535 ECU_ADDRESS 0x1000 BYTE_ORDER MSB_FIRST /end MEASUREMENT
+    /begin MEASUREMENT pair "" UBYTE NO_COMPU_METHOD 0 0 0 255 ECU_ADDRESS 0x1000 MATRIX_DIM 2 /end MEASUREMENT
+    /begin MEASUREMENT text "" ASCII NO_COMPU_METHOD 0 0 0 255 ECU_ADDRESS 0x1000 /end MEASUREMENT
+  /end MODULE
+/end PROJECT
+"""
+
+
+def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_cli):
+    """Nine views of one ULONG that counts ticks: each recorded as its A2L says; the ones ambdaq does
+    not compute are recorded raw with their conversion named, a TAB_VERB's table kept; an ASCII
+    measurement refuses only when it is selected."""
+    a2l = tmp_path / "conv.a2l"
+    a2l.write_text(CONVERSIONS)
+    slave = HostileSlave("good")
+    out = tmp_path / "c.mcap"
+    names = ["word_be", "ticks", "Ticks.Verbal", "ticks_table", "ticks_formula", "low_byte", "bits", "pair"]
+    r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l,
+                *[a for n in names for a in ("--measure", n)], "--duration", "1", "-q", "-o", out)
+    assert r.exit_code == 0, r.output
+    got = load(out)["/xcp/tick"]
+    k = got["ticks"].astype(np.int64)
+    assert list(got.fields) == ["word_be", "ticks", "ticks_verbal", "ticks_table", "ticks_formula", "low_byte", "bits",
+                                "pair_0", "pair_1"]
+    np.testing.assert_array_equal(got["ticks_verbal"], k)  # TAB_VERB: the raw value, its table in the metadata
+    # TAB_INTP between (0, 0) and (1000, 1), its default beyond (to 1e-12: interpolation's own rounding, a few ulps)
+    np.testing.assert_allclose(got["ticks_table"], np.where(k <= 1000, k / 1000.0, -1.0), rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(got["ticks_formula"], k)  # FORM: raw, named
+    np.testing.assert_array_equal(got["low_byte"], 0.5 * (k & 0xFF) - 3)  # LINEAR on the first byte
+    np.testing.assert_array_equal(got["bits"], (k & 0x0F0) >> 4)  # BIT_MASK 0x0F0, shifted down
+    np.testing.assert_array_equal(got["word_be"], ((k & 0xFF) << 8) | ((k >> 8) & 0xFF))  # MSB_FIRST
+    np.testing.assert_array_equal(got["pair_0"], k & 0xFF)  # MATRIX_DIM 2: two UBYTEs
+    np.testing.assert_array_equal(got["pair_1"], (k >> 8) & 0xFF)
+    assert got.units["ticks_table"] == "m" and got.units["low_byte"] == "mm" and got.units["ticks_formula"] == ""
+    device = McapFile(out).metadata()["ambdaq.device.controller"]
+    assert json.loads(device["value_tables"]) == {"ticks_verbal": {"0": "off", "1": "on"}}
+    assert json.loads(device["raw_fields"]) == {"ticks_verbal": "Ticks.Verbal (TAB_VERB)",
+                                                "ticks_formula": "ticks_formula (FORM)"}
+    assert json.loads(device["measurements"])["ticks_verbal"] == "Ticks.Verbal"
+    # the ASCII measurement in the file stopped nothing above; selected, it is one line
+    slave = HostileSlave("good")
+    r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l, "--measure", "text",
+                "--duration", "1", "-o", tmp_path / "t.mcap")
+    assert r.exit_code == 2 and "measurement text" in r.output and "ASCII" in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "t.mcap").exists()

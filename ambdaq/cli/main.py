@@ -44,6 +44,7 @@ COMMANDS = {
     "runup": "runup:command",
     "selfsense": "selfsense:command",
     "sim": "sim:command",
+    "xcp": "xcp:command",
 }
 
 

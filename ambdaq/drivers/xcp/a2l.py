@@ -55,8 +55,9 @@ COMPUTED = ("IDENTICAL", "LINEAR", "RAT_FUNC", "TAB_INTP")
 @dataclass(frozen=True)
 class Conversion:
     """A COMPU_METHOD as ambdaq applies it: ``kind``; physical = factor * raw + offset where
-    ``linear``; ``table`` (raw -> physical, ascending raw) for TAB_INTP; ``verbal`` (raw -> text)
-    for TAB_VERB; ``unit``."""
+    ``linear``; ``table`` (raw -> physical, ascending raw) for TAB_INTP, linear between its
+    points, its ``default`` outside them or else its end values; ``verbal`` (raw -> text) for
+    TAB_VERB; ``unit``."""
 
     kind: str = "IDENTICAL"
     linear: bool = True
@@ -65,6 +66,7 @@ class Conversion:
     unit: str = ""
     table: tuple[tuple[float, float], ...] = ()
     verbal: tuple[tuple[float, str], ...] = ()
+    default: float | None = None  # TAB_INTP: the value outside the table (DEFAULT_VALUE_NUMERIC), else its ends
 
     @property
     def computed(self) -> bool:
@@ -212,6 +214,26 @@ class A2lFile:
         return {k: p for k, p in self.parameters.items() if not p.read_only}
 
 
+def catalogue(a2l: A2lFile) -> dict:
+    """What an A2L file offers, for a listing: measurements, parameters and events, each with its
+    type, unit and address (``ambdaq xcp list``)."""
+    def where(extension: int, address: int) -> str:
+        return f"{extension}:0x{address:X}" if address >= 0 else "-"
+
+    return {
+        "file": str(a2l.path), "project": a2l.project,
+        "measurements": [{"name": m.name, "type": m.datatype, "count": m.count, "unit": m.unit,
+                          "conversion": m.conversion.kind if m.conversion.computed else f"{m.conversion.kind} (raw)",
+                          "address": where(m.extension, m.address),
+                          "events": list(m.fixed_events or m.default_events), "problem": m.problem() or ""}
+                         for m in a2l.measurements.values()],
+        "parameters": [{"name": p.name, "type": p.datatype, "count": p.count, "unit": p.conversion.unit,
+                        "address": where(p.extension, p.address), "limits": [p.lower, p.upper],
+                        "writable": not p.read_only} for p in a2l.parameters.values()],
+        "events": [{"number": e.number, "name": e.name, "cycle_ns": e.cycle_ns} for e in a2l.events],
+    }
+
+
 def read_a2l(path: str | Path) -> A2lFile:
     """Read the A2L file ``path`` (and its includes); a file that is not one, or is beyond the
     bounds of :mod:`.a2l_syntax`, is one BadInputError line naming the file and line."""
@@ -262,7 +284,7 @@ def _integer(block: Block, token: str, what: str) -> int:
 
 ARITY = {"ECU_ADDRESS": 1, "ECU_ADDRESS_EXTENSION": 1, "BYTE_ORDER": 1, "BIT_MASK": 1, "ARRAY_SIZE": 1,
          "MATRIX_DIM": 3, "PHYS_UNIT": 1, "NUMBER": 1, "COEFFS": 6, "COEFFS_LINEAR": 2, "COMPU_TAB_REF": 1,
-         "FNC_VALUES": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1}
+         "FNC_VALUES": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1, "DEFAULT_VALUE_NUMERIC": 1}
 """The optional keywords ambdaq reads and how many words follow each (MATRIX_DIM: up to 3 numbers)."""
 
 
@@ -350,9 +372,13 @@ class _ModuleReader:
             if kind == "TAB_VERB":
                 return Conversion(kind, False, verbal=tuple((_number(table, pairs[i], "value"), str(pairs[i + 1]))
                                                             for i in range(0, len(pairs) - 1, 2)))
+            if kind == "TAB_NOINTP" or _word(table, 2, "") != "TAB_INTP":
+                return Conversion("TAB_NOINTP", False)  # the table's own type says it does not interpolate
             points = sorted((_number(table, pairs[i], "value"), _number(table, pairs[i + 1], "value"))
                             for i in range(0, len(pairs) - 1, 2))
-            return Conversion(kind, False, unit=unit if kind == "TAB_INTP" else "", table=tuple(points))
+            default = _options(table, 4 + 2 * n).get("DEFAULT_VALUE_NUMERIC")
+            return Conversion(kind, False, unit=unit, table=tuple(points),
+                              default=_number(table, default[0], "DEFAULT_VALUE_NUMERIC") if default else None)
         if kind == "IDENTICAL":
             return Conversion(kind, True, unit=unit)
         return Conversion(kind, False)  # FORM and what else a vendor writes: recorded raw, named

@@ -60,6 +60,12 @@ class _XcpBackend(Backend):
     def parameters(self, url: DeviceURL, description: dict | None = None):
         return self._open(url, None, description or {}, False)
 
+    def upload_a2l(self, url: DeviceURL) -> bytes:
+        """The A2L the slave at ``url`` holds (GET_ID, uploaded)."""
+        from .device import upload_a2l
+
+        return upload_a2l(url.text, self.link(url))
+
     def ask(self, url: DeviceURL) -> dict[str, str]:
         """Who answers XCP at ``url`` (``ambdaq devices --ask-xcp``); no A2L needed."""
         from .device import ask_slave

@@ -115,6 +115,28 @@ def ask_slave(url: str, link: LinkFactory) -> dict[str, str]:
     return out
 
 
+MAX_UPLOAD = 64 << 20  # an A2L uploaded by GET_ID larger than the files ambdaq reads is refused
+
+
+def upload_a2l(url: str, link: LinkFactory) -> bytes:
+    """The A2L file the slave at ``url`` holds (GET_ID type 4, uploaded), for a slave that writes
+    its own (XCPlite does); DeviceError where it offers none."""
+    master = XcpMaster(link(), url)
+    try:
+        with xcp_errors(url, "upload the A2L (GET_ID 4)"):
+            master.connect()
+            r = master.command(0xFA, 4, expect=8)  # GET_ID, type 4: the ASAM MC2 file to upload
+            (length,) = master.unpack("I", r, 4)
+            if not 0 < length <= MAX_UPLOAD:
+                raise DeviceError(f"{url}: the slave offers an A2L of {length} bytes by GET_ID (1 byte to "
+                                  f"{MAX_UPLOAD >> 20} MB are read)")
+            text = bytes(r[8 : 8 + length]) if r[1] & 0x01 else master.upload(length)
+            master.disconnect()
+    finally:
+        master.close()
+    return text
+
+
 def _cycle_text(event: EventChannel) -> str:
     return f"every {event.cycle_ns / 1e3:g} us" if event.cycle_ns else "sporadic"
 
@@ -187,7 +209,10 @@ class _Stream:
             return x * c.factor + c.offset
         if c.kind == "TAB_INTP" and c.table:
             inputs, outputs = zip(*c.table)
-            return np.interp(x, inputs, outputs)  # clamped at the table's ends (ASAM MCD-2 MC, TAB_INTP)
+            y = np.interp(x, inputs, outputs)  # ASAM MCD-2 MC, COMPU_TAB: linear between the points
+            if c.default is not None:
+                y[(x < inputs[0]) | (x > inputs[-1])] = c.default
+            return y
         return x  # recorded raw; the conversion is named in the device's metadata
 
     def clock_pairs(self) -> list[tuple[int, int]]:
