@@ -31,7 +31,6 @@ nothing is cached (docs/performance.md, "A2L files").
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 from dataclasses import dataclass, field
@@ -238,11 +237,7 @@ def read_a2l(path: str | Path) -> A2lFile:
     """Read the A2L file ``path`` (and its includes); a file that is not one, or is beyond the
     bounds of :mod:`.a2l_syntax`, is one BadInputError line naming the file and line."""
     path = Path(path)
-    try:
-        sha = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
-    except OSError as err:
-        raise BadInputError(f"A2L file {path}: {err.strerror or err}") from None
-    root = read_tree(path, KEEP)
+    root, sha = read_tree(path, KEEP)
     project = next(iter(root.children("PROJECT")), None)
     if project is None:
         raise BadInputError(f"A2L file {path}: no /begin PROJECT (is it an A2L file?)")

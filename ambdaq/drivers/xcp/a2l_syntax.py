@@ -15,6 +15,7 @@ regular file (not a device, a FIFO or a directory).  Anything else is one
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import stat
@@ -27,11 +28,14 @@ MAX_BYTES = 64 << 20  # the largest vendor A2L seen is 4 MB; 64 MB with its incl
 MAX_INCLUDE_DEPTH = 8
 MAX_DEPTH = 64
 
+MAX_TOKEN = 1 << 20  # a word or string longer than 1 MB is no A2L's (a string of 50 MB once cost a DBC parser 10 GB)
+
+# possessive runs: a long word or string is matched in one step, not one backtracking state per character
 _TOKEN = re.compile(r"""
-    (?P<space>\s+)
-  | (?P<comment>/\*.*?\*/|//[^\n]*)
-  | (?P<string>"(?:[^"\\]|\\.|"")*")
-  | (?P<word>(?:[^\s"/]|/(?![*/]))+)
+    (?P<space>\s++)
+  | (?P<comment>/\*.*?\*/|//[^\n]*+)
+  | (?P<string>"(?:[^"\\]++|\\.|"")*+")
+  | (?P<word>(?:[^\s"/]++|/(?![*/]))++)
   | (?P<bad>.)
 """, re.S | re.X)
 
@@ -76,18 +80,20 @@ def _unquote(text: str) -> Text:
     return Text(body.replace('""', '"').replace('\\"', '"').replace("\\\\", "\\"))
 
 
-def read_tree(path: Path, keep: frozenset[str]) -> Block:
-    """The block tree of the A2L file ``path`` (a root block holding its top-level blocks); only
-    blocks whose keyword is in ``keep`` (and their ancestors' structure) keep their words."""
+def read_tree(path: Path, keep: frozenset[str]) -> tuple[Block, str]:
+    """The block tree of the A2L file ``path`` (a root block holding its top-level blocks) and the
+    SHA-256 of the file's bytes; only blocks whose keyword is in ``keep`` keep their words."""
     root = Block("", 0, path)
-    _Reader(keep).read(path, root)
-    return root
+    reader = _Reader(keep)
+    reader.read(path, root)
+    return root, reader.sha256
 
 
 class _Reader:
     def __init__(self, keep: frozenset[str]) -> None:
         self.keep = keep
         self.total = 0
+        self.sha256 = ""  # of the top file
 
     def _text(self, path: Path, at: str) -> str:
         try:
@@ -101,9 +107,14 @@ class _Reader:
             raise BadInputError(f"{at}{path}: the A2L and its includes exceed {MAX_BYTES >> 20} MB, more than ambdaq "
                                 "reads (the largest vendor files are a few MB)")
         try:
-            data = path.read_bytes()[: st.st_size + 1]
+            with open(path, "rb") as fh:  # no more than the bound, whatever the file grew to since stat
+                data = fh.read(MAX_BYTES - self.total + st.st_size + 1)
         except OSError as err:
             raise BadInputError(f"{at}cannot read {path}: {err.strerror or err}") from None
+        if len(data) > st.st_size:
+            raise BadInputError(f"{at}{path}: it grew while being read")
+        if not self.sha256:
+            self.sha256 = hashlib.sha256(data).hexdigest()
         if data.startswith(b"\xef\xbb\xbf"):
             data = data[3:]
         try:
@@ -126,6 +137,9 @@ class _Reader:
             token = m.group()
             line += text.count("\n", last, m.start())
             last = m.start()
+            if len(token) > MAX_TOKEN:
+                raise BadInputError(f"A2L file {path}: line {line}: a {kind} of {len(token):,} characters "
+                                    f"(at most {MAX_TOKEN:,} are read)")
             if kind == "bad":
                 what = "an unterminated string" if token == '"' else ("an unterminated comment" if token == "/" else
                                                                       f"character {token!r}")
