@@ -5,8 +5,9 @@ pyxcp's own DAQ decoding of the same list, as a user of pyxcp alone would receiv
 Two phases, each in a fresh process of its own and for the same time, on the same DAQ list (the
 counter and the 28 measurements of ``ambdaq sim a2l``, one DTO of 117 bytes per control period):
 
-* ambdaq: ``Recorder`` over ``xcp+tcp://`` (pyxcp's DaqProcessor decodes, ambdaq's device turns
-  the samples into blocks, the recorder maps clocks, counts and writes MCAP);
+* ambdaq: ``Recorder`` over ``xcp+tcp://`` (ambdaq's own master reads the link, assembles and
+  decodes the DTOs by the ODT plan it configured, its device turns them into blocks, the recorder
+  maps clocks, counts and writes MCAP);
 * baseline: pyxcp's ``DaqOnlinePolicy`` with a callback that keeps each decoded sample in a list
   (the least a Python consumer of pyxcp does; no file).
 
@@ -27,6 +28,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+
+PYXCP_TYPES = {"ULONG": "U32", "FLOAT32_IEEE": "F32"}  # the A2L's types of the simulated controller, in pyxcp's names
 
 
 def cpu_s() -> float:
@@ -52,13 +56,13 @@ def phase_pyxcp(url: str, a2l: str, seconds: float) -> dict:
     from pyxcp.master import Master
 
     from ambdaq.drivers.xcp.a2l import read_a2l
-    from ambdaq.drivers.xcp.device import sxi_transport, tcp_transport
 
     if url.startswith("xcp+tcp://"):
         host, port = url.split("//")[1].rsplit(":", 1)
-        layer, settings = tcp_transport(host, int(port))
+        layer, settings = "ETH", {"Eth": {"host": host, "port": int(port), "protocol": "TCP"}}
     else:  # the same settings a user of pyxcp would give for this line
-        layer, settings = sxi_transport("/" + url.split(":", 1)[1].lstrip("/"), 3_000_000)
+        layer, settings = "SXI", {"SxI": {"port": "/" + url.split(":", 1)[1].lstrip("/"), "bitrate": 3_000_000,
+                                          "header_format": "HEADER_LEN_CTR_WORD", "tail_format": "NO_CHECKSUM"}}
     app = create_application_from_config({"Transport": settings}, log_level=logging.ERROR)
     app.transport.layer = layer
     set_application(app)
@@ -77,7 +81,7 @@ def phase_pyxcp(url: str, a2l: str, seconds: float) -> dict:
             kept.append((ts1, payload))
 
     policy = Keep([DaqList(name="amb", event_num=0, stim=False, enable_timestamps=True, priority=0, prescaler=1,
-                           measurements=[(n, ms[n].address, 0, ms[n].datatype) for n in names])])
+                           measurements=[(n, ms[n].address, 0, PYXCP_TYPES[ms[n].datatype]) for n in names])])
     with Master(layer.lower(), config=app, policy=policy) as x:
         x.connect()
         x.getCommModeInfo()

@@ -31,6 +31,7 @@ class RowQueue:
         self.silent_after_s = silent_after_s
         self._first: int | None = None
         self._remaining: int | None = None
+        self._failed: str | None = None  # a failure seen with rows still to hand over
         self.last_row = time.monotonic()
 
     def start(self, n_samples: int | None) -> None:
@@ -50,14 +51,17 @@ class RowQueue:
             The message for ``silent_after_s`` seconds (its argument) without a row.
         """
         while True:
+            if self._failed is not None:
+                raise DeviceError(self._failed)
             if self.closed.wait(BLOCK_S):
                 return None
+            reason = failure()
             n = len(self.rows)
             if n:  # the rows that came before a failure are kept: it is reported on the next call
                 rows = [self.rows.popleft() for _ in range(n)]
                 self.last_row = time.monotonic()
+                self._failed = reason
                 break
-            reason = failure()
             if reason is not None:
                 raise DeviceError(reason)
             silent = time.monotonic() - self.last_row
