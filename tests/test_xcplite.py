@@ -204,3 +204,33 @@ def test_without_measure_it_says_how_to_choose(xcplite, tmp_path, run_cli):
     r = run_cli("record", "--device", url, "--a2l", a2l, "--duration", "1", "-o", tmp_path / "x.mcap")
     assert r.exit_code == 2 and "--measure NAME_OR_GLOB" in r.output and len(r.output.strip().splitlines()) == 1
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_pages_of_a_calibration_segment(xcplite, run_cli):
+    """XCPlite's `params` segment has a working page 0 and a reference page 1 that XCP may not write
+    (its A2L): a write goes to the working page, read back and checked with the slave's
+    BUILD_CHECKSUM in the segment's XCP_CRC_16_CITT (ambdaq's CRC against XCPlite's); the reference
+    page keeps the default that main.c compiled in, as pyxcp reads it there too."""
+    url, a2l = xcplite
+    where = addresses(a2l)
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l)
+    assert r.exit_code == 0 and r.output.split() == ["params.counter_max", "params.delay_us", "params.flow_rate"]
+    assert run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.flow_rate", "0.5", "--yes").exit_code == 0
+    try:
+        for page, value in ((0, "0.5"), (1, "0.301")):
+            r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "--page", page, "params.flow_rate")
+            assert r.exit_code == 0 and r.output.strip() == f"params.flow_rate = {value} (page {page})", r.output
+        with pyxcp_master(url) as x:
+            x.connect()
+            x.setCalPage(0x02, 1, 1)  # XCP access to the reference page of segment 1
+            reference = struct.unpack("<f", x.shortUpload(4, *where["params.flow_rate"]))[0]
+            x.setCalPage(0x02, 1, 0)
+            x.disconnect()
+        assert reference == pytest.approx(0.301, rel=1e-7)
+        r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "--page", "1", "params.flow_rate", "0.7",
+                    "--yes")
+        assert r.exit_code == 1 and "XCP_WRITE_ACCESS_NOT_ALLOWED" in r.output and len(r.output.strip().splitlines()) == 1
+        r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "--page", "2", "params.flow_rate")
+        assert r.exit_code == 1 and "has pages [0, 1], not 2" in r.output
+    finally:
+        run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.flow_rate", "0.301", "--yes")

@@ -117,19 +117,26 @@ def status_command(device, description, as_json):
 
 @controller_group.command("param")
 @click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT, sim://spindle ...")
-@click.argument("name")
+@click.argument("name", required=False)
 @click.argument("values", nargs=-1, type=float)
 @a2l_option
+@click.option("--page", type=click.IntRange(0, 255), metavar="N",
+              help="The calibration page to read or write (XCP: its page number, e.g. 0 working, 1 reference); "
+                   "the page presented before is restored.")
 @click.option("--yes", is_flag=True, help="Write without asking (changing a gain on a levitated rotor changes the loop).")
-def param_command(device, name, values, description, yes):
-    """Read a controller parameter, or write VALUES to it (e.g. pid.d, speed.rpm; docs/protocol.md).
+def param_command(device, name, values, description, page, yes):
+    """Read a controller parameter, or write VALUES to it (e.g. pid.d, speed.rpm; docs/protocol.md);
+    without NAME, list the parameters.
 
     \b
     Example:
       ambdaq controller param --device serial:///dev/pts/5 pid.d
       ambdaq controller param --device serial:///dev/pts/5 pid.d 0.001 0.001 0.002 0.002 0.002 --yes
+      ambdaq controller param --device xcp+udp://127.0.0.1:5555 --a2l hello.a2l --page 1 params.flow_rate
     """
-    from ..drivers.interfaces import Controller
+    from contextlib import nullcontext
+
+    from ..drivers.interfaces import CalibrationPages, Controller
     from ..drivers.registry import open_parameters
 
     if any(not math.isfinite(v) for v in values):
@@ -138,12 +145,19 @@ def param_command(device, name, values, description, yes):
     try:
         if not isinstance(dev, Controller):
             raise BadInputError(f"{device}: not a controller with parameters")
-        if values:
-            old = dev.read_param(name)
-            if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
-                raise click.Abort()
-            dev.write_param(name, list(values))
-        click.echo(f"{name} = {_values(dev.read_param(name))}")
+        if name is None:
+            for known in dev.parameter_names():
+                click.echo(known)
+            return
+        if page is not None and not isinstance(dev, CalibrationPages):
+            raise BadInputError(f"{device}: --page is for controllers with calibration pages (XCP)")
+        with dev.on_page(page) if page is not None else nullcontext():
+            if values:
+                old = dev.read_param(name)
+                if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
+                    raise click.Abort()
+                dev.write_param(name, list(values))
+            click.echo(f"{name} = {_values(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
     finally:
         dev.close()
 

@@ -135,6 +135,21 @@ class Parameters(ABC):
     def write_param(self, name: str, values: ArrayLike) -> None:
         """Write the parameter (a scalar or its values); the device refuses with DeviceError."""
 
+    def parameter_names(self) -> list[str]:
+        """The parameters' names, where the device or its description lists them."""
+        raise DeviceError(f"{getattr(self, 'name', 'this device')} does not list its parameters: docs/protocol.md "
+                          "names the controller's")
+
+
+class CalibrationPages(ABC):
+    """Parameters that live on calibration pages (an XCP controller's working and reference page):
+    which page a read or write goes to."""
+
+    @abstractmethod
+    def on_page(self, page: int):
+        """A context in which :meth:`Parameters.read_param` and ``write_param`` use page ``page``
+        (the XCP page number); the page the device presented before is restored after."""
+
 
 UNLOCK_KEY_ENV = "AMBDAQ_UNLOCK_KEY"
 """Where a user may keep the controller's unlock key (``--key`` and the rig file are the others)."""

@@ -262,6 +262,9 @@ class CanopenDevice(Source, Parameters):
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             raise _sdo_error(self.node_id, f"writing {name}", err) from None
 
+    def parameter_names(self) -> list[str]:
+        return [p.name for p in self.profile.parameters]
+
     def _param(self, name: str):
         for prm in self.profile.parameters:
             if prm.name == name:

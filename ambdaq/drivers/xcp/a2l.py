@@ -183,6 +183,23 @@ class A2lParameter:
 
 
 @dataclass(frozen=True)
+class A2lSegment:
+    """A MEMORY_SEGMENT with its IF_DATA XCP SEGMENT: where it is, its XCP segment number, its
+    pages (number -> whether XCP may write them) and its CHECKSUM algorithm ("" if none)."""
+
+    name: str
+    address: int
+    size: int
+    extension: int
+    number: int
+    pages: dict[int, bool]
+    checksum: str
+
+    def holds(self, extension: int, address: int, length: int) -> bool:
+        return extension == self.extension and self.address <= address and address + length <= self.address + self.size
+
+
+@dataclass(frozen=True)
 class A2lEvent:
     """An EVENT of the A2L's IF_DATA XCP DAQ block: name, number, cycle in ns (0: sporadic)."""
 
@@ -202,6 +219,12 @@ class A2lFile:
     blobs: dict[str, tuple[int, int]]
     parameters: dict[str, A2lParameter]
     events: tuple[A2lEvent, ...] = ()
+    segments: tuple[A2lSegment, ...] = ()
+
+    def segment_of(self, param: A2lParameter) -> A2lSegment | None:
+        """The calibration segment that holds ``param``, if the A2L describes one."""
+        return next((g for g in self.segments if g.holds(param.extension, param.address, param.size * param.count)),
+                    None)
 
     @property
     def constants(self) -> dict[str, A2lParameter]:
@@ -246,7 +269,7 @@ def read_a2l(path: str | Path) -> A2lFile:
         raise BadInputError(f"A2L file {path}: {project.where()}: the PROJECT has no MODULE")
     reader = _ModuleReader(path, modules[0])
     return A2lFile(path, sha, _word(project, 0, ""), reader.measurements(), reader.blobs(), reader.parameters(),
-                   reader.events())
+                   reader.events(), reader.segments())
 
 
 def _word(block: Block, index: int, default: str | None = None) -> str:
@@ -425,6 +448,31 @@ class _ModuleReader:
             out[name] = A2lParameter(name, _integer(b, _word(b, 3), "address"), ext, datatype, order, count, lower,
                                      upper, self.conversion(_word(b, 6)), "READ_ONLY" in options, ambdaq_note(b))
         return out
+
+    def segments(self) -> tuple[A2lSegment, ...]:
+        """The calibration segments; one the file describes badly is left out (it is needed only to
+        choose a page, which is then refused for want of it)."""
+        out = []
+        for par in self.module.children("MOD_PAR"):
+            for seg in par.children("MEMORY_SEGMENT"):
+                # MEMORY_SEGMENT name "long" PrgType MemoryType Attribute Address Size offset x5
+                for data in seg.children("IF_DATA"):
+                    for xcp in data.children("SEGMENT") if data.items[:1] == ["XCP"] else ():
+                        # SEGMENT index pages address_extension compression encryption
+                        try:
+                            pages = {}
+                            for page in xcp.children("PAGE"):  # PAGE index ecu_access xcp_read xcp_write
+                                pages[_integer(page, _word(page, 0), "page")] = \
+                                    _word(page, 3) != "XCP_WRITE_ACCESS_NOT_ALLOWED"
+                            check = xcp.child("CHECKSUM")
+                            out.append(A2lSegment(_word(seg, 0), _integer(seg, _word(seg, 5), "address"),
+                                                  _integer(seg, _word(seg, 6), "size"),
+                                                  _integer(xcp, _word(xcp, 2), "address extension"),
+                                                  _integer(xcp, _word(xcp, 0), "segment"), pages,
+                                                  _word(check, 0, "") if check is not None else ""))
+                        except BadInputError:
+                            continue
+        return tuple(out)
 
     def events(self) -> tuple[A2lEvent, ...]:
         out = []

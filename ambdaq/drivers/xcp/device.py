@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import fnmatch
 import json
+from contextlib import contextmanager
 import os
 import re
 import struct
@@ -42,10 +43,11 @@ import numpy as np
 
 from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
-from ..interfaces import UNLOCK_KEY_ENV, Capabilities, Controller, ExcitationSpec, Source
+from ..interfaces import UNLOCK_KEY_ENV, CalibrationPages, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
 from ..signals import SampleBlock, SignalGroup
 from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
+from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
 from .keys import KeyAlgorithm
 from .master import RES_CALPAG, RES_DAQ, RESOURCES, EventChannel, XcpMaster, XcpRefused
@@ -238,7 +240,7 @@ class _Stream:
         return out
 
 
-class XcpController(Controller):
+class XcpController(Controller, CalibrationPages):
     """The controller reached through ``link``, described by ``a2l``.
 
     Parameters
@@ -280,6 +282,7 @@ class XcpController(Controller):
             raise BadInputError(f"{url}: prescaler must be 1..255, not {prescaler}")
         chosen = self._select(measure, counter) if record else []
         self._key: str | None = None
+        self._page: int | None = None  # the calibration page reads and writes go to (on_page)
         self._streaming = False
         self._session_over = False
         self._streams: list[_Stream] = []
@@ -563,9 +566,43 @@ class XcpController(Controller):
             raise DeviceError(f"{self.url}: the A2L describes no {what} {name!r} (it has: {known})")
         return found
 
+    @contextmanager
+    def on_page(self, page: int):
+        self._page = page
+        try:
+            yield
+        finally:
+            self._page = None
+
+    @contextmanager
+    def _paged(self, param: A2lParameter, write: bool):
+        """The page :meth:`on_page` chose presented for XCP access to ``param``'s segment while
+        ``param`` is read or written (GET_CAL_PAGE, SET_CAL_PAGE for XCP), then the one before."""
+        page = self._page
+        if page is None:
+            yield
+            return
+        segment = self.a2l.segment_of(param)
+        if segment is None:
+            raise DeviceError(f"{self.url}: no MEMORY_SEGMENT of the A2L holds {param.name}, so its page cannot "
+                              "be chosen")
+        if page not in segment.pages:
+            raise DeviceError(f"{self.url}: segment {segment.name} has pages {sorted(segment.pages)}, not {page}")
+        if write and not segment.pages[page]:
+            raise DeviceError(f"{self.url}: page {page} of segment {segment.name} is not writable over XCP "
+                              "(its A2L: XCP_WRITE_ACCESS_NOT_ALLOWED)")
+        with self._errors(f"choose page {page} of segment {segment.name}"):
+            before = self._master.get_cal_page(0x02, segment.number)
+            self._master.set_cal_page(0x02, segment.number, page)
+        try:
+            yield
+        finally:
+            with self._errors(f"give back page {before} of segment {segment.name}"):
+                self._master.set_cal_page(0x02, segment.number, before)
+
     def _read_values(self, param: A2lParameter) -> np.ndarray:
         kind, size = TYPES[param.datatype]
-        with self._errors(f"read {param.name}"):
+        with self._paged(param, False), self._errors(f"read {param.name}"):
             raw = self._master.read(param.extension, param.address, size * param.count)
         x = np.frombuffer(raw, dtype=f"{param.byte_order}{kind}{size}").astype(np.float64)
         c = param.conversion
@@ -604,8 +641,34 @@ class XcpController(Controller):
                                   f"set {UNLOCK_KEY_ENV}")
             self._key = key
             self._answer_seed(key)
-        with self._errors(f"write {name}"):
+        with self._paged(param, True), self._errors(f"write {name}"):
             self._master.write(param.extension, param.address, data)
+            self._verify(param, data)
+
+    def _verify(self, param: A2lParameter, data: bytes) -> None:
+        """What the slave holds after a write: the bytes read back, and where the A2L names its
+        segment's checksum, BUILD_CHECKSUM in that algorithm against the host's."""
+        held = self._master.read(param.extension, param.address, len(data))
+        if held != data:
+            raise DeviceError(f"{self.url}: {param.name}: wrote {data.hex()}, the slave holds {held.hex()}")
+        segment = self.a2l.segment_of(param)
+        if segment is None or not segment.checksum:
+            return
+        try:
+            kind, value = self._master.build_checksum(param.extension, param.address, len(data))
+        except XcpRefused as err:
+            if err.error_name == "ERR_CMD_UNKNOWN":
+                return  # the slave has no BUILD_CHECKSUM: the readback is the check
+            raise
+        if kind != segment.checksum:
+            raise DeviceError(f"{self.url}: BUILD_CHECKSUM answers {kind}, where the A2L declares {segment.checksum} "
+                              f"for segment {segment.name}")
+        try:
+            expected = checksum(kind, data, self.info.byte_order)
+        except ValueError:
+            return  # an algorithm ambdaq does not compute (XCP_USER_DEFINED): the readback is the check
+        if value != expected:
+            raise DeviceError(f"{self.url}: {param.name}: the slave's {kind} is {value:#x}, the host's {expected:#x}")
 
     # --- BankPort -------------------------------------------------------------------------------
 
