@@ -45,13 +45,14 @@ def _free_port(kind: int) -> int:
         return s.getsockname()[1]
 
 
-def _build(out: Path, *, tcp: bool, variadic: bool) -> None:
-    """hello_xcp from the archive, its #defines set: 127.0.0.1, a free port, TCP or UDP, log errors only;
-    without OPTION_USE_VARIADIC_MACROS it registers its globals with A2lSetAbsoluteAddrMode."""
+def _build(out: Path, *, tcp: bool, variadic: bool = True, example: str = "hello_xcp") -> None:
+    """An example from the archive (hello_xcp, c_demo), its #defines set: 127.0.0.1, a free port, TCP
+    or UDP, log errors only; without OPTION_USE_VARIADIC_MACROS hello_xcp registers its globals with
+    A2lSetAbsoluteAddrMode."""
     src = out / "xcplite"
     with tarfile.open(ARCHIVE) as tar:
         tar.extractall(src, filter="data")
-    main = src / "examples" / "hello_xcp" / "src" / "main.c"
+    main = src / "examples" / example / "src" / "main.c"
     port = _free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
     text = main.read_text(encoding="utf-8-sig")
     for pattern, value in ((r"#define OPTION_SERVER_ADDR \{0, 0, 0, 0\}", "#define OPTION_SERVER_ADDR {127, 0, 0, 1}"),
@@ -65,35 +66,73 @@ def _build(out: Path, *, tcp: bool, variadic: bool) -> None:
     main.write_text(text)
     build = out / "build"
     for cmd in (["cmake", "-S", str(src), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release"],
-                ["cmake", "--build", str(build), "--target", "hello_xcp", "-j2"]):
+                ["cmake", "--build", str(build), "--target", example, "-j2"]):
         subprocess.run(cmd, check=True, capture_output=True, timeout=300)
     (out / "url").write_text(f"xcp+{'tcp' if tcp else 'udp'}://127.0.0.1:{port}")
+
+
+def _started(binary: Path, url: str, run: Path):
+    """``binary`` running in ``run`` and the A2L it writes when the first master connects
+    (A2L_MODE_FINALIZE_ON_CONNECT); checked to listen on loopback only."""
+    for attempt in range(100):
+        here = run / f"start{attempt}"  # a folder of its own: nothing an earlier start wrote
+        here.mkdir()
+        proc = subprocess.Popen([str(binary)], cwd=here, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        time.sleep(0.2)
+        # c_demo's main loop asks XcpEthServerStatus() before its transmit thread says it runs, and then
+        # stops ("XCP Server failed", exit 0): an XCPlite start-up race (12, 17 and 10 of 20 starts in three
+        # counts here), started again; 100 tries leave a 0.85^100 = 9e-8 chance that none starts
+        if proc.poll() is None:
+            break
+    assert proc.poll() is None, f"{binary.name} stopped at each of 100 starts"
+    deadline = time.monotonic() + 20
+    while True:  # the A2L is named after the project GET_ID answers (it writes parts of it before)
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert time.monotonic() < deadline, f"{binary.name} answered no CONNECT"
+        asked = subprocess.run(["ambdaq", "devices", "--ask-xcp", url, "--json"], capture_output=True, text=True,
+                               timeout=30)
+        if asked.returncode == 0:
+            a2l = here / f"{json.loads(asked.stdout)['xcp'][0]['asap2_name']}.a2l"
+            if a2l.exists():
+                break
+        time.sleep(0.2)
+    listening = subprocess.run(["ss", "-Htlnup"], capture_output=True, text=True).stdout
+    for line in listening.splitlines():  # bound to loopback only (the house rule)
+        if f"pid={proc.pid}," in line:
+            assert "127.0.0.1:" in line.split()[4], line
+    return proc, a2l
+
+
+def _needs_a_compiler() -> None:
+    if shutil.which("cmake") is None or shutil.which("cc") is None:
+        pytest.skip("building XCPlite needs cmake and a C compiler")
 
 
 @pytest.fixture(scope="module", params=[pytest.param((False, True), id="udp"),
                                         pytest.param((True, False), id="tcp-absolute")])
 def xcplite(request, build_once, tmp_path_factory):
     """A running hello_xcp (UDP as shipped, or TCP with absolute addressing) and its A2L file."""
-    if shutil.which("cmake") is None or shutil.which("cc") is None:
-        pytest.skip("building XCPlite needs cmake and a C compiler")
+    _needs_a_compiler()
     tcp, variadic = request.param
     built = build_once(f"xcplite-{request.param_index}", lambda out: _build(out, tcp=tcp, variadic=variadic))
     url = (built / "url").read_text()
-    run = tmp_path_factory.mktemp("xcplite")
-    proc = subprocess.Popen([str(built / "build" / "hello_xcp")], cwd=run, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
+    proc, a2l = _started(built / "build" / "hello_xcp", url, tmp_path_factory.mktemp("xcplite"))
     try:
-        a2l = run / "hello_xcp_200.a2l"
-        deadline = time.monotonic() + 20
-        while not a2l.exists():  # written when the first master connects (A2L_MODE_FINALIZE_ON_CONNECT)
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "hello_xcp wrote no A2L"
-            subprocess.run(["ambdaq", "devices", "--ask-xcp", url], capture_output=True, timeout=30)
-            time.sleep(0.2)
-        listening = subprocess.run(["ss", "-Htlnup"], capture_output=True, text=True).stdout
-        for line in listening.splitlines():  # bound to loopback only (the house rule)
-            if f"pid={proc.pid}," in line:
-                assert "127.0.0.1:" in line.split()[4], line
+        yield url, a2l
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def c_demo(build_once, tmp_path_factory):
+    """XCPlite's c_demo on UDP: 8- to 64-bit counters, signed and unsigned, globals and on the stack,
+    a typedef instance, a map and a curve in a calibration segment."""
+    _needs_a_compiler()
+    built = build_once("xcplite-c-demo", lambda out: _build(out, tcp=False, example="c_demo"))
+    url = (built / "url").read_text()
+    proc, a2l = _started(built / "build" / "c_demo", url, tmp_path_factory.mktemp("c_demo"))
+    try:
         yield url, a2l
     finally:
         proc.terminate()
@@ -234,3 +273,51 @@ def test_pages_of_a_calibration_segment(xcplite, run_cli):
         assert r.exit_code == 1 and "has pages [0, 1], not 2" in r.output
     finally:
         run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.flow_rate", "0.301", "--yes")
+
+
+COUNTERS = ["counter64s", "g_counter8", "counter", "g_counter64", "counter8s", "g_counter16s", "counter32",
+            "g_counter32s", "counter16", "g_counter8s", "counter64", "g_counter16", "counter16s", "g_counter32",
+            "counter8", "g_counter64s", "counter32s", "g_param_sum", "params_copy.*"]
+
+
+def test_every_integer_type_and_a_typedef_instance(c_demo, tmp_path, run_cli):
+    """c_demo keeps one loop counter c (0 .. counter_max) in 17 variables of 8 to 64 bits, signed and
+    unsigned, at extensions 1 (globals) and 2 (its stack), and a copy of its calibration struct (an
+    INSTANCE of a TYPEDEF_STRUCTURE): each sample holds c in every one, truncated to its type as C
+    truncates (counter8s = (int8_t)(c & 0xFF): negative from 128), and the struct's defaults."""
+    url, a2l = c_demo
+    out = tmp_path / "c.mcap"
+    r = run_cli("record", "--device", url, "--a2l", a2l, *[a for n in COUNTERS for a in ("--measure", n)],
+                "--duration", "1.5", "-o", out)
+    assert r.exit_code == 0, r.output
+    got = load(out)["/xcp/mainloop"]
+    c = got["counter"].astype(np.int64)
+    assert len(c) > 100 and c.max() > 128  # the 8-bit ones wrap and the signed byte goes negative
+    # main.c triggers the event after counting `counter` and before copying it into the others: they
+    # hold the loop before's count in the same sample (counter_max 1024 where counter wrapped to 0)
+    before = np.where(c > 0, c - 1, 1024)
+    for name in ("counter8", "g_counter8"):
+        np.testing.assert_array_equal(got[name], before & 0xFF, err_msg=name)
+    for name in ("counter8s", "g_counter8s"):
+        np.testing.assert_array_equal(got[name], (before & 0xFF).astype(np.uint8).astype(np.int8), err_msg=name)
+    for name in ("counter16", "counter32", "counter64", "counter16s", "counter32s", "counter64s", "g_counter16",
+                 "g_counter32", "g_counter64", "g_counter16s", "g_counter32s", "g_counter64s"):
+        np.testing.assert_array_equal(got[name], before, err_msg=name)
+    assert set(got["g_param_sum"]) == {8 + 16 + 32 + 64}  # A_UINT64 g_param8 + ... + g_param64
+    copy = {f: set(got[f]) for f in got.fields if f.startswith("params_copy")}
+    assert copy == {"params_copy_test_byte1": {1.0}, "params_copy_test_byte2": {-1.0},
+                    "params_copy_counter_max": {1024.0}, "params_copy_delay_us": {1000.0}}
+
+
+def test_a_map_and_a_curve_read_as_main_c_compiled_them(c_demo, run_cli):
+    url, a2l = c_demo
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.curve")
+    assert r.exit_code == 0 and r.output.strip() == "params.curve = 0 1 2 3 4 3 2 1", r.output
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.map")
+    rows = np.array([float(v) for v in r.output.split("=")[1].split()]).reshape(8, 8)
+    expected = np.zeros((8, 8))
+    expected[1:6, 1:6] = 1
+    expected[2:5, 2:5] = 3
+    np.testing.assert_array_equal(rows, expected)  # int8 map[8][8], row by row as C lays it out
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "g_param64")
+    assert r.exit_code == 0 and r.output.strip() == "g_param64 = 64"

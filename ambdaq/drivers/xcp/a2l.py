@@ -45,10 +45,13 @@ TYPES = {"UBYTE": ("u", 1), "SBYTE": ("i", 1), "UWORD": ("u", 2), "SWORD": ("i",
 """A2L data type -> numpy kind and size in bytes."""
 BYTE_ORDERS = {"MSB_LAST": "<", "LITTLE_ENDIAN": "<", "MSB_FIRST": ">", "BIG_ENDIAN": ">"}
 """A2L BYTE_ORDER -> numpy byte order (MSB_FIRST_MSW_LAST and MSB_LAST_MSW_FIRST are not read)."""
-KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERISTIC", "COMPU_METHOD", "COMPU_TAB",
+KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERISTIC", "AXIS_PTS", "COMPU_METHOD", "COMPU_TAB",
                   "COMPU_VTAB", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
-                  "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
-COMPUTED = ("IDENTICAL", "LINEAR", "RAT_FUNC", "TAB_INTP")
+                  "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "INSTANCE", "TYPEDEF_STRUCTURE",
+                  "STRUCTURE_COMPONENT", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC", "AXIS_DESCR", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
+RECORD_ITEM = re.compile(r"FNC_VALUES|IDENTIFICATION|RESERVED|(NO_)?AXIS_PTS_[XYZ45]|(NO_)?RESCALE_[XYZ]|"
+                         r"(OFFSET|SHIFT_OP|DIST_OP|SRC_ADDR|AXIS_RESCALE)_[XYZ45]|RIP_ADDR_[WXYZ45]")
+"""The items a RECORD_LAYOUT places in memory (ASAM MCD-2 MC, RECORD_LAYOUT)."""
 
 
 @dataclass(frozen=True)
@@ -302,7 +305,7 @@ def _integer(block: Block, token: str, what: str) -> int:
 
 ARITY = {"ECU_ADDRESS": 1, "ECU_ADDRESS_EXTENSION": 1, "BYTE_ORDER": 1, "BIT_MASK": 1, "ARRAY_SIZE": 1,
          "MATRIX_DIM": 3, "PHYS_UNIT": 1, "NUMBER": 1, "COEFFS": 6, "COEFFS_LINEAR": 2, "COMPU_TAB_REF": 1,
-         "FNC_VALUES": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1, "DEFAULT_VALUE_NUMERIC": 1}
+         "FNC_VALUES": 4, "AXIS_PTS_X": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1, "DEFAULT_VALUE_NUMERIC": 1}
 """The optional keywords ambdaq reads and how many words follow each (MATRIX_DIM: up to 3 numbers)."""
 
 
@@ -346,10 +349,15 @@ class _ModuleReader:
         self.byte_order = BYTE_ORDERS.get(order[0] if order else "MSB_LAST", "")
         self.methods = {_word(b, 0): b for b in module.children("COMPU_METHOD")}
         self.tables = {_word(b, 0): b for b in module.children("COMPU_TAB") + module.children("COMPU_VTAB")}
-        self.layouts = {}
+        self.layouts: dict[str, tuple[str, bool]] = {}  # name -> FNC_VALUES type, whether it holds only them
+        self.axis_layouts: dict[str, str] = {}  # name -> AXIS_PTS_X type, for a record of axis points alone
         for layout in module.children("RECORD_LAYOUT"):
-            values = _options(layout, 1).get("FNC_VALUES", [])
-            self.layouts[_word(layout, 0)] = values[1] if len(values) > 1 else ""
+            items = {str(t) for t in layout.items if not isinstance(t, Text) and RECORD_ITEM.fullmatch(str(t))}
+            options = _options(layout, 1)
+            values, points = options.get("FNC_VALUES", []), options.get("AXIS_PTS_X", [])
+            self.layouts[_word(layout, 0)] = (values[1] if len(values) > 1 else "", items == {"FNC_VALUES"})
+            if items == {"AXIS_PTS_X"} and len(points) > 1:
+                self.axis_layouts[_word(layout, 0)] = points[1]
         self._conversions: dict[str, Conversion] = {}
 
     def _order(self, options: dict[str, list[str]]) -> str:
@@ -401,52 +409,114 @@ class _ModuleReader:
             return Conversion(kind, True, unit=unit)
         return Conversion(kind, False)  # FORM and what else a vendor writes: recorded raw, named
 
+    def _measurement(self, b: Block, name: str, where: tuple[int, int] | None, events: Block) -> A2lMeasurement:
+        """A MEASUREMENT, or a TYPEDEF_MEASUREMENT placed by an INSTANCE at ``where`` (extension,
+        address): both begin name, long name, type, conversion, resolution, accuracy, limits."""
+        datatype, method = _word(b, 2, ""), _word(b, 3, "NO_COMPU_METHOD")
+        options = _options(b, 8)
+        if where is None:
+            address = _integer(b, options["ECU_ADDRESS"][0], "ECU_ADDRESS") if options.get("ECU_ADDRESS") else -1
+            ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
+        else:
+            ext, address = where
+        count = 1
+        for key in ("ARRAY_SIZE", "MATRIX_DIM"):
+            for token in options.get(key, [])[:3]:
+                count *= max(_integer(b, token, key), 1)
+        mask = _integer(b, options["BIT_MASK"][0], "BIT_MASK") if options.get("BIT_MASK") else None
+        conversion = self.conversion(method)
+        unit = (options.get("PHYS_UNIT") or [conversion.unit])[0] if conversion.computed else ""
+        fixed, default = _daq_events(events)
+        return A2lMeasurement(name, address, ext, datatype, self._order(options), count, mask, conversion, unit,
+                              fixed, default, ambdaq_note(events), events.where())
+
+    def _instances(self):
+        """Each leaf of every INSTANCE (ASAM MCD-2 MC 1.7 typedefs): (name, the TYPEDEF_MEASUREMENT or
+        TYPEDEF_CHARACTERISTIC block, extension, address, the INSTANCE block), structures unfolded
+        (``instance.component``), at most 8 deep."""
+        typedefs = {_word(t, 0): t for kind in ("TYPEDEF_STRUCTURE", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC")
+                    for t in self.module.children(kind)}
+
+        def unfold(name: str, type_name: str, address: int, depth: int):
+            t = typedefs.get(type_name)
+            if t is None or depth > 8:
+                return
+            if t.keyword != "TYPEDEF_STRUCTURE":
+                yield name, t, address
+                return
+            for c in t.children("STRUCTURE_COMPONENT"):  # component name, type, offset
+                if len(c.items) >= 3:
+                    yield from unfold(f"{name}.{c.items[0]}", c.items[1], address + _integer(c, c.items[2], "offset"),
+                                      depth + 1)
+
+        for inst in self.module.children("INSTANCE"):  # INSTANCE name "long" typedef address [options]
+            options = _options(inst, 4)
+            ext = _integer(inst, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
+            for name, t, address in unfold(_word(inst, 0), _word(inst, 2), _integer(inst, _word(inst, 3), "address"), 0):
+                yield name, t, ext, address, inst
+
     def measurements(self) -> dict[str, A2lMeasurement]:
         out = {}
         for b in self.module.children("MEASUREMENT"):
-            name = _word(b, 0)
-            datatype, method = _word(b, 2, ""), _word(b, 3, "NO_COMPU_METHOD")
-            options = _options(b, 8)
-            address = _integer(b, (options.get("ECU_ADDRESS") or ["0"])[0], "ECU_ADDRESS") if "ECU_ADDRESS" in options else -1
-            ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
-            count = 1
-            for key in ("ARRAY_SIZE", "MATRIX_DIM"):
-                for token in options.get(key, [])[:3]:
-                    count *= max(_integer(b, token, key), 1)
-            mask = _integer(b, options["BIT_MASK"][0], "BIT_MASK") if options.get("BIT_MASK") else None
-            conversion = self.conversion(method)
-            unit = (options.get("PHYS_UNIT") or [conversion.unit])[0] if conversion.computed else ""
-            fixed, default = _daq_events(b)
-            out[name] = A2lMeasurement(name, address, ext, datatype, self._order(options), count, mask, conversion,
-                                       unit, fixed, default, ambdaq_note(b), b.where())
+            out[_word(b, 0)] = self._measurement(b, _word(b, 0), None, b)
+        for name, t, ext, address, inst in self._instances():
+            if t.keyword == "TYPEDEF_MEASUREMENT":
+                out[name] = self._measurement(t, name, (ext, address), inst)
         return out
 
     def _characteristics(self):
-        for b in self.module.children("CHARACTERISTIC"):
-            options = _options(b, 9)
+        """(name, block, address, extension, options, count, kind, record layout, conversion, lower,
+        upper) of every CHARACTERISTIC and every TYPEDEF_CHARACTERISTIC an INSTANCE places."""
+        def row(b: Block, name: str, address: int, ext: int | None, at: int):
+            # CHARACTERISTIC: name "long" type address layout maxdiff conversion lower upper;
+            # TYPEDEF_CHARACTERISTIC: the same without the address (``at`` says where the layout is)
+            options = _options(b, at + 5)
             count = 1
             for key in ("NUMBER", "MATRIX_DIM"):
                 for token in options.get(key, [])[:3]:
                     count *= max(_integer(b, token, key), 1)
-            yield b, options, count
+            if ext is None:
+                ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
+            return (name, b, address, ext, options, count, _word(b, 2), _word(b, at), _word(b, at + 2),
+                    _word(b, at + 3), _word(b, at + 4))
+
+        for b in self.module.children("CHARACTERISTIC"):
+            yield row(b, _word(b, 0), _integer(b, _word(b, 3), "address"), None, 4)
+        for name, t, ext, address, _inst in self._instances():
+            if t.keyword == "TYPEDEF_CHARACTERISTIC":
+                yield row(t, name, address, ext, 3)
 
     def blobs(self) -> dict[str, tuple[int, int]]:
-        return {_word(b, 0): (_integer(b, _word(b, 3), "address"), count) for b, _o, count in self._characteristics()}
+        return {name: (address, count) for name, _b, address, _e, _o, count, *_rest in self._characteristics()}
 
     def parameters(self) -> dict[str, A2lParameter]:
         out = {}
-        for b, options, count in self._characteristics():
-            if _word(b, 2) not in ("VALUE", "VAL_BLK"):
+        for name, b, address, ext, options, count, kind, layout, method, lower, upper in self._characteristics():
+            datatype, only_values = self.layouts.get(layout, ("", False))
+            if kind in ("CURVE", "MAP", "CUBOID", "CUBE_4", "CUBE_5") and only_values:
+                # its axes are not in its record (FIX_AXIS, COM_AXIS ...): MaxAxisPoints of each axis values
+                count = 1
+                for axis in b.children("AXIS_DESCR"):  # Attribute InputQuantity Conversion MaxAxisPoints ...
+                    count *= max(_integer(axis, _word(axis, 3), "MaxAxisPoints"), 1)
+            elif kind not in ("VALUE", "VAL_BLK"):
                 continue
-            datatype = self.layouts.get(_word(b, 4), "")
             order = self._order(options)
             if datatype not in TYPES or not order:
                 continue
+            out[name] = A2lParameter(name, address, ext, datatype, order, count, _number(b, lower, "lower limit"),
+                                     _number(b, upper, "upper limit"), self.conversion(method), "READ_ONLY" in options,
+                                     ambdaq_note(b))
+        for b in self.module.children("AXIS_PTS"):
+            # AXIS_PTS name "long" address InputQuantity layout MaxDiff conversion MaxAxisPoints lower upper
+            datatype = self.axis_layouts.get(_word(b, 4, ""), "")
+            options = _options(b, 10)
+            if datatype not in TYPES or not self._order(options) or len(b.items) < 10:
+                continue  # axis points with their count in the record: not read
             ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
-            lower, upper = _number(b, _word(b, 7), "lower limit"), _number(b, _word(b, 8), "upper limit")
-            name = _word(b, 0)
-            out[name] = A2lParameter(name, _integer(b, _word(b, 3), "address"), ext, datatype, order, count, lower,
-                                     upper, self.conversion(_word(b, 6)), "READ_ONLY" in options, ambdaq_note(b))
+            out[_word(b, 0)] = A2lParameter(_word(b, 0), _integer(b, _word(b, 2), "address"), ext, datatype,
+                                            self._order(options), _integer(b, _word(b, 7), "MaxAxisPoints"),
+                                            _number(b, _word(b, 8), "lower limit"), _number(b, _word(b, 9), "upper limit"),
+                                            self.conversion(_word(b, 6)), "READ_ONLY" in options, ambdaq_note(b))
         return out
 
     def segments(self) -> tuple[A2lSegment, ...]:

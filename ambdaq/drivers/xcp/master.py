@@ -25,7 +25,7 @@ from .transport import Link
 PID_RES, PID_ERR, PID_EV, PID_SERV = 0xFF, 0xFE, 0xFD, 0xFC
 EV_CMD_PENDING, EV_DAQ_OVERLOAD, EV_SESSION_TERMINATED = 0x05, 0x06, 0x07
 SERV_TEXT = 0x01
-TIMEOUT_S = 0.5  # a command unanswered this long is a timeout (ASAM's T1 is often 1 s; a slave on loopback answers in us)
+TIMEOUT_S = 1.0  # a command unanswered this long is a timeout (ASAM XCP Part 2's T1, 1 s as slaves commonly set it)
 PENDING_S = 5.0  # how long EV_CMD_PENDING may extend it, in all
 
 # resources (CONNECT, GET_STATUS, GET_SEED)
