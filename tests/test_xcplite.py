@@ -229,6 +229,14 @@ def test_controller_param_writes_what_pyxcp_reads_back(xcplite, run_cli):
         assert run_cli("controller", "param", "--device", url, "--a2l", a2l, name, str(value), "--yes").exit_code == 0
 
 
+def test_a_prescaler_the_slave_lacks_is_refused(xcplite, tmp_path, run_cli):
+    url, a2l = xcplite  # XCPlite is built without XCP_ENABLE_DAQ_PRESCALER: GET_DAQ_PROCESSOR_INFO says so
+    r = run_cli("record", "--device", f"{url}?prescaler=2", "--a2l", a2l, "--measure", "global_counter",
+                "--duration", "1", "-o", tmp_path / "p.mcap")
+    assert r.exit_code == 2 and "no DAQ prescaler" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert not (tmp_path / "p.mcap").exists()
+
+
 def test_devices_lists_its_sporadic_events(xcplite, run_cli):
     url, _a2l = xcplite
     r = run_cli("devices", "--ask-xcp", url, "--json")
@@ -271,6 +279,13 @@ def test_pages_of_a_calibration_segment(xcplite, run_cli):
         assert r.exit_code == 1 and "XCP_WRITE_ACCESS_NOT_ALLOWED" in r.output and len(r.output.strip().splitlines()) == 1
         r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "--page", "2", "params.flow_rate")
         assert r.exit_code == 1 and "has pages [0, 1], not 2" in r.output
+        # COPY_CAL_PAGE: the reference page over the working page puts the compiled default back
+        r = run_cli("controller", "copy-page", "--device", url, "--a2l", a2l, "params.flow_rate", "--from", "1",
+                    "--to", "0", "--yes")
+        assert r.exit_code == 0 and r.output.strip().endswith("params.flow_rate = 0.301"), r.output
+        r = run_cli("controller", "copy-page", "--device", url, "--a2l", a2l, "params.flow_rate", "--from", "0",
+                    "--to", "1", "--yes")
+        assert r.exit_code == 1 and "XCP_WRITE_ACCESS_NOT_ALLOWED" in r.output
     finally:
         run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.flow_rate", "0.301", "--yes")
 

@@ -162,5 +162,35 @@ def param_command(device, name, values, description, page, yes):
         dev.close()
 
 
+@controller_group.command("copy-page")
+@click.option("--device", metavar="URL", required=True, help="The controller (XCP: xcp+udp://HOST:PORT ...).")
+@click.argument("parameter")
+@a2l_option
+@click.option("--from", "source", type=click.IntRange(0, 255), required=True, metavar="N", help="The page copied.")
+@click.option("--to", "target", type=click.IntRange(0, 255), required=True, metavar="N", help="The page written.")
+@click.option("--yes", is_flag=True, help="Copy without asking (every parameter of the segment changes at once).")
+def copy_page_command(device, parameter, description, source, target, yes):
+    """Copy the calibration segment that holds PARAMETER from one page to another (COPY_CAL_PAGE):
+    e.g. the reference page over the working page, back to the values the controller was built with.
+
+    \b
+    Example:
+      ambdaq controller copy-page --device xcp+udp://127.0.0.1:5555 --a2l hello.a2l params.flow_rate --from 1 --to 0
+    """
+    from ..drivers.interfaces import CalibrationPages
+    from ..drivers.registry import open_parameters
+
+    dev = open_parameters(device, description)
+    try:
+        if not isinstance(dev, CalibrationPages):
+            raise BadInputError(f"{device}: copy-page is for controllers with calibration pages (XCP)")
+        if not yes and not click.confirm(f"copy page {source} over page {target} of {parameter}'s segment on {device}?"):
+            raise click.Abort()
+        dev.copy_page(parameter, source, target)
+        click.echo(f"page {source} copied to page {target}; {parameter} = {_values(dev.read_param(parameter))}")
+    finally:
+        dev.close()
+
+
 def _values(values) -> str:
     return " ".join(f"{float(v):g}" for v in values)

@@ -150,6 +150,11 @@ class CalibrationPages(ABC):
         """A context in which :meth:`Parameters.read_param` and ``write_param`` use page ``page``
         (the XCP page number); the page the device presented before is restored after."""
 
+    @abstractmethod
+    def copy_page(self, parameter: str, source: int, target: int) -> None:
+        """Copy the whole calibration segment that holds ``parameter`` from page ``source`` to page
+        ``target`` (a working page back to its reference values)."""
+
 
 UNLOCK_KEY_ENV = "AMBDAQ_UNLOCK_KEY"
 """Where a user may keep the controller's unlock key (``--key`` and the rig file are the others)."""

@@ -574,6 +574,21 @@ class XcpController(Controller, CalibrationPages):
         finally:
             self._page = None
 
+    def copy_page(self, parameter: str, source: int, target: int) -> None:
+        """COPY_CAL_PAGE of the segment that holds ``parameter``, checked against the A2L's pages."""
+        param = self._parameter(parameter)
+        segment = self.a2l.segment_of(param)
+        if segment is None:
+            raise DeviceError(f"{self.url}: no MEMORY_SEGMENT of the A2L holds {parameter}, so it has no pages to copy")
+        for page in (source, target):
+            if page not in segment.pages:
+                raise DeviceError(f"{self.url}: segment {segment.name} has pages {sorted(segment.pages)}, not {page}")
+        if not segment.pages[target]:
+            raise DeviceError(f"{self.url}: page {target} of segment {segment.name} is not writable over XCP "
+                              "(its A2L: XCP_WRITE_ACCESS_NOT_ALLOWED)")
+        with self._errors(f"copy page {source} to {target} of segment {segment.name}"):
+            self._master.copy_cal_page((segment.number, source), (segment.number, target))
+
     @contextmanager
     def _paged(self, param: A2lParameter, write: bool):
         """The page :meth:`on_page` chose presented for XCP access to ``param``'s segment while
