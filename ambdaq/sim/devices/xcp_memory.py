@@ -155,6 +155,7 @@ class ControllerParameters:
                 address += 8 * param.size
         self.end = address
         self._pending: dict[str, dict[int, int]] = {}  # name -> {byte offset: byte} written, not yet taken
+        self._held: dict[str, bytes] = {}  # name -> the bytes last written and taken, as firmware RAM holds them
 
     def owns(self, address: int) -> bool:
         return PARAMETERS_BASE <= address < self.end
@@ -163,13 +164,20 @@ class ControllerParameters:
         """Drop what a session left half-written (a new session starts from whole values)."""
         self._pending.clear()
 
-    def _image(self, param: Param) -> bytes:
-        return struct.pack(f"<{param.size}d", *param.read(self.rig))
+    def _image(self, name: str, param: Param) -> bytes:
+        """A parameter's bytes: those last written while the rig still runs them (the rig keeps some
+        gains in another form, and a double made back from it may differ in its last bit from the
+        one written, which the firmware's RAM would hold), else the rig's values."""
+        now = param.read(self.rig)
+        held = self._held.get(name)
+        if held is not None and np.allclose(struct.unpack(f"<{param.size}d", held), now, rtol=1e-12, atol=0.0):
+            return held
+        return struct.pack(f"<{param.size}d", *now)
 
     def read(self, address: int, length: int) -> bytes:
         if not (PARAMETERS_BASE <= address and address + length <= self.end):
             raise IndexError(address)
-        image = b"".join(self._image(param) for _name, _base, param in self.entries)
+        image = b"".join(self._image(name, param) for name, _base, param in self.entries)
         off = address - PARAMETERS_BASE
         return image[off : off + length]
 
@@ -187,7 +195,7 @@ class ControllerParameters:
             pending.update({i - base: data[i - address] for i in range(lo, hi)})
             if any(sum(8 * k + j in pending for j in range(8)) < 8 for k in {off // 8 for off in pending}):
                 continue  # a value is still half-written
-            image = bytearray(self._image(param))
+            image = bytearray(self._image(name, param))
             for off, byte in self._pending.pop(name).items():
                 image[off] = byte
             values = np.array(struct.unpack(f"<{param.size}d", image))
@@ -195,6 +203,7 @@ class ControllerParameters:
             if problem:
                 raise Refused(ERR_OUT_OF_RANGE, f"{name}: {problem}")
             param.write(self.rig, values)
+            self._held[name] = bytes(image)
 
 
 class Refused(Exception):
