@@ -87,8 +87,13 @@ def test_a_lost_frame_is_counted_from_the_rolling_counter():
 
 @pytest.mark.parametrize("damage, says", [
     (lambda t: t.replace("SG_ gap_y : 23|16@0-", "SG_ gap_y : 23|16@0"), "line 18"),
-    (lambda t: t.replace('BA_ "GenMsgCycleTime" BO_ 770 2;', ""), "RearGap has no cycle time"),
+    # a message without a cycle time records (tests/test_dbc_corpus.py); a negative one cannot be
+    (lambda t: t.replace('BA_ "GenMsgCycleTime" BO_ 770 2;', 'BA_ "GenMsgCycleTime" BO_ 770 -5;'),
+     "RearGap: GenMsgCycleTime -5 is not a cycle time"),
     (lambda t: "\x00\xff" + t[: len(t) // 3], "not a valid DBC file"),
+    # bounds: a string that would cost cantools some 20 GB is refused before cantools sees it
+    (lambda t: t + 'CM_ "' + "x" * 100_000 + '";\n', "a string or word of 100,002 characters"),
+    (lambda t: t + "\n" * (17 << 20), "more than the 16 MB"),
 ])
 def test_a_broken_dbc_is_one_line_exit_2(tmp_path, run_cli, damage, says):
     bad = tmp_path / "bad.dbc"

@@ -44,7 +44,8 @@ class DeviceEntry:
 
 
 BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
-DESCRIPTION_KEYS = ("dbc", "messages", "counters", "raw", "eds", "mapping", "signal", "a2l", "measurements")
+DESCRIPTION_KEYS = ("dbc", "messages", "counters", "rates", "rate", "raw", "eds", "mapping", "signal", "a2l",
+                    "measurements")
 PATH_KEYS = ("dbc", "eds", "a2l")
 
 

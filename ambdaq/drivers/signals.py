@@ -8,9 +8,26 @@ whether a block came from the in-process simulator or from a driver on a real bu
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+def ros_field(name: str) -> str:
+    """``name`` (a DBC signal's, an A2L measurement's) as a field name ROS 2 and Foxglove accept:
+    ``[a-z][a-z0-9_]*`` without a double or trailing underscore (``HU_date_year`` -> ``hu_date_year``,
+    ``Motor.Speed`` -> ``motor_speed``, ``gapX`` -> ``gap_x``)."""
+    text = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name)
+    text = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
+    return text if text[:1].isalpha() else ("f_" + text).rstrip("_")
+
+
+def ros_type(name: str) -> str:
+    """``name`` as a message type name ROS 2 accepts: ``[A-Z][A-Za-z0-9]*`` (``DbcMessage63big_1``
+    -> ``DbcMessage63big1``)."""
+    text = "".join(p[:1].upper() + p[1:] for p in re.split(r"[^A-Za-z0-9]+", name) if p)
+    return text if text[:1].isalpha() else "T" + text
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,10 @@ NETWORK_INTERFACES = ("udp_multicast",)
 """python-can interfaces that carry CAN over an IP network: refused, whatever the URL."""
 
 
+def _a_rate(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value <= 100_000
+
+
 class CanBackend(Backend):
     """Opens the shared bus of ``INTERFACE/CHANNEL`` and the device at ``node`` on it."""
 
@@ -133,9 +137,13 @@ class CanBackend(Backend):
         raw = d.get("raw", url.flag("raw", False))
         if not isinstance(raw, bool):
             raise BadInputError(f"{url.text}: raw must be true or false")
+        rates, rate = d.get("rates", {}), d.get("rate")
+        if not isinstance(rates, dict) or not all(_a_rate(v) for v in rates.values()) or not (rate is None or _a_rate(rate)):
+            raise BadInputError(f"{url.text}: rates must be a table of message = Hz and rate a number of Hz "
+                                "(0 < Hz <= 100000)")
         path = d.get("dbc") or url.options["dbc"]
         db = load_dbc(path)  # before the bus is opened: a bad file touches nothing
-        wanted = DbcRequest(Path(path), tuple(messages), dict(counters), raw)
+        wanted = DbcRequest(Path(path), tuple(messages), dict(counters), raw, dict(rates), rate)
         name = request.name or Path(path).stem
         receiver = self._on_hub(url, lambda hub: DbcReceiver(hub, db, wanted, name))
         streams = list(receiver.streams.values()) + ([receiver.raw_stream] if receiver.raw_stream else [])

@@ -16,6 +16,9 @@ Frames of identifiers the DBC does not describe are counted, and recorded raw to
 
 from __future__ import annotations
 
+import json
+import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,10 +26,13 @@ import numpy as np
 
 from ...errors import BadInputError
 from ..interfaces import Source
-from ..signals import SampleBlock, SignalGroup
+from ..signals import SampleBlock, SignalGroup, ros_field, ros_type
 from .bus import CanHub
 from ..rows import RowQueue
 
+MAX_DBC_BYTES = 16 << 20  # opendbc's largest files are about 1 MB
+MAX_TOKEN = 1 << 16  # a 50 MB string once cost cantools 10.7 GB and 50 s; 64 KB costs it about 13 MB
+_LONG_TOKEN = re.compile(r'"[^"]{%d,}"|[^\s"]{%d,}' % (MAX_TOKEN + 1, MAX_TOKEN + 1))
 RAW_TOPIC = "/can/raw"
 RAW_FIELDS = ("arbitration_id", "dlc", "extended", *(f"b{i}" for i in range(8)))
 
@@ -41,8 +47,21 @@ def load_dbc(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise BadInputError(f"{path}: no such DBC file")
+    size = path.stat().st_size
+    if size > MAX_DBC_BYTES:
+        raise BadInputError(f"{path}: {size / 1e6:.1f} MB, more than the {MAX_DBC_BYTES >> 20} MB a DBC file is read "
+                            "to (the largest real ones are a few MB)")
     try:
-        return cantools.database.load_file(str(path), database_format="dbc", strict=True)
+        text = path.read_bytes()[:MAX_DBC_BYTES].decode("cp1252", errors="replace")
+    except OSError as err:
+        raise BadInputError(f"{path}: {err.strerror or err}") from None
+    long = _LONG_TOKEN.search(text)
+    if long is not None:
+        line = text.count("\n", 0, long.start()) + 1
+        raise BadInputError(f"{path}: line {line}: a string or word of {len(long.group()):,} characters (at most "
+                            f"{MAX_TOKEN:,}; cantools takes some 200 bytes of memory per character)")
+    try:
+        return cantools.database.load_string(text, database_format="dbc", strict=True)
     except (cantools.database.errors.ParseError, cantools.database.UnsupportedDatabaseFormatError) as err:
         text = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise BadInputError(f"{path}: not a valid DBC file: {text}") from None
@@ -64,20 +83,32 @@ class DbcRequest:
         Message name -> its rolling counter signal.
     raw : bool
         Record frames of identifiers the DBC does not describe to ``/can/raw``.
+    rates : dict of str to float
+        Message name -> its rate in Hz, for a message whose DBC gives no cycle time.
+    rate : float, optional
+        The rate in Hz of every other message without a cycle time; None: such messages are
+        recorded as their frames come.
     """
 
     path: Path
     messages: tuple[str, ...] = ()
     counters: dict[str, str] = field(default_factory=dict)
     raw: bool = False
+    rates: dict[str, float] = field(default_factory=dict)
+    rate: float | None = None
 
 
 class _Stream:
     """Rows of one topic as the bus thread decodes them: (seq, time ns, values)."""
 
-    def __init__(self, group: SignalGroup, counter: str | None, counter_bits: int, rate_hz: float | None) -> None:
+    def __init__(self, group: SignalGroup, counter: str | None, counter_bits: int, rate_hz: float | None,
+                 rate_source: str = "", names: dict[str, str] | None = None,
+                 choices: dict[str, dict[str, str]] | None = None) -> None:
         self.group = group
         self.rate_hz = rate_hz
+        self.rate_source = rate_source
+        self.names = names or {}  # field -> the DBC's signal name
+        self.choices = choices or {}  # field -> its value table (value -> text)
         self.counter = counter
         self.modulus = 1 << counter_bits if counter else 0
         self.queue = RowQueue(2.0 if rate_hz else float("inf"))  # frames of unknown ids may never come
@@ -95,6 +126,20 @@ class _Stream:
             self.received += step
             seq = self.received - 1
         self.queue.rows.append((seq, t_ns, values))
+
+
+def _field_names(path: Path, msg, signals) -> dict[str, str]:
+    """Each signal's field name in the form ROS 2 requires (:func:`ros_field`); two signals of one
+    message that would share a field are refused, naming both."""
+    out: dict[str, str] = {}
+    taken: dict[str, str] = {}
+    for sig in signals:
+        name = ros_field(sig.name)
+        if taken.setdefault(name, sig.name) != sig.name:
+            raise BadInputError(f"{path}: message {msg.name}: signals {taken[name]} and {sig.name} would both be field "
+                                f"{name} (ROS 2 field names are lower case)")
+        out[sig.name] = name
+    return out
 
 
 class DbcReceiver:
@@ -129,15 +174,16 @@ class DbcReceiver:
                 values = sorted({v for s in msg.signals if s.multiplexer_ids for v in s.multiplexer_ids})
                 keys = {v: plain + [s for s in msg.signals if s.multiplexer_ids and v in s.multiplexer_ids]
                         for v in values}
-            if not msg.cycle_time:
-                raise BadInputError(f"{request.path}: message {name} has no cycle time (GenMsgCycleTime): "
-                                    "ambdaq records a DBC message at the rate its DBC declares")
-            rate = 1000.0 / msg.cycle_time / len(keys)  # multiplexed: the pages take turns
+            rate, source = self._rate(msg, request)
+            fields = _field_names(request.path, msg, [s for sig in keys.values() for s in sig])
             for key, signals in keys.items():
                 topic = f"{prefix}/{name}" + ("" if key is None else f"/m{key}")
-                group = SignalGroup(topic, f"Dbc{name}" + ("" if key is None else f"M{key}"),
-                                    tuple(s.name for s in signals), tuple(s.unit or "" for s in signals))
-                self.streams[(msg.frame_id, key)] = _Stream(group, counter, bits, rate)
+                group = SignalGroup(topic, f"Dbc{ros_type(name)}" + ("" if key is None else f"M{key}"),
+                                    tuple(fields[s.name] for s in signals), tuple(s.unit or "" for s in signals))
+                self.streams[(msg.frame_id, key)] = _Stream(
+                    group, counter, bits, None if rate is None else rate / len(keys), source,  # pages take turns
+                    {fields[s.name]: s.name for s in signals},
+                    {fields[s.name]: {f"{int(v)}": str(t) for v, t in s.choices.items()} for s in signals if s.choices})
             self.decoders[msg.frame_id] = (msg, None if mux is None else mux.name, counter,
                                            {k: [s.name for s in sig] for k, sig in keys.items()})
         self.unknown = 0
@@ -148,6 +194,21 @@ class DbcReceiver:
         for frame_id in self.decoders:
             hub.on_frame(frame_id, self._on_frame(frame_id))
         hub.on_unknown(lambda msg: self._on_unknown(msg, known))
+
+    @staticmethod
+    def _rate(msg, request: DbcRequest) -> tuple[float | None, str]:
+        """A message's rate in Hz and where it comes from: its DBC's cycle time, else the rig
+        file's ``rates`` or ``rate``, else none (its frames are recorded as they come)."""
+        cycle = msg.cycle_time
+        if cycle is not None and cycle != 0:
+            if not (isinstance(cycle, (int, float)) and math.isfinite(cycle) and 0 < cycle <= 3_600_000):
+                raise BadInputError(f"{request.path}: message {msg.name}: GenMsgCycleTime {cycle} is not a cycle time "
+                                    "in ms (0 < cycle <= 3,600,000)")
+            return 1000.0 / cycle, f"GenMsgCycleTime {cycle:g} ms"
+        given = request.rates.get(msg.name, request.rate)
+        if given is not None:
+            return float(given), "the rig file"
+        return None, "none declared: recorded as its frames come (ambdaq info measures the rate)"
 
     def _on_frame(self, frame_id: int):
         msg, mux, counter, fields = self.decoders[frame_id]
@@ -193,9 +254,14 @@ class DbcMessageSource(Source):
     def identity(self) -> dict[str, str]:
         db_path = self.receiver.request.path
         rate = {} if self.sample_rate is None else {"sample_rate_hz": f"{self.sample_rate:g}"}
-        return {"url": self.url, "kind": "dbc", "dbc": db_path.name, "topic": self.stream.group.topic, **rate,
-                "sequence": (f"rolling counter {self.stream.counter} ({self.stream.modulus})"
-                             if self.stream.counter else "arrival order: losses cannot be seen")}
+        stream = self.stream
+        named = {f: n for f, n in stream.names.items() if f != n}
+        return {"url": self.url, "kind": "dbc", "dbc": db_path.name, "topic": stream.group.topic, **rate,
+                "rate_source": stream.rate_source,
+                "sequence": (f"rolling counter {stream.counter} ({stream.modulus})"
+                             if stream.counter else "arrival order: losses cannot be seen"),
+                **({"signals": json.dumps(named)} if named else {}),
+                **({"value_tables": json.dumps(stream.choices)} if stream.choices else {})}
 
     def device_calibration(self) -> dict[str, str]:
         return {"scaling": f"as {self.receiver.request.path.name} says"}

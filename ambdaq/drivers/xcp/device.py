@@ -35,7 +35,6 @@ import fnmatch
 import json
 from contextlib import contextmanager
 import os
-import re
 import struct
 from collections.abc import Callable
 
@@ -45,7 +44,7 @@ from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import UNLOCK_KEY_ENV, CalibrationPages, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
-from ..signals import SampleBlock, SignalGroup
+from ..signals import SampleBlock, SignalGroup, ros_field, ros_type
 from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
 from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
@@ -61,17 +60,10 @@ EVENT_TOPIC = "/xcp"
 LinkFactory = Callable[[], Link]
 
 
-def ros_name(name: str) -> str:
-    """A field name ROS 2 and Foxglove accept (``[a-z][a-z0-9_]*``, no double or trailing
-    underscore) for an A2L name."""
-    text = re.sub(r"[^a-z0-9]+", "_", re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name).lower()).strip("_")
-    return ("m_" + text if not text or not text[0].isalpha() else text) or "m"
-
-
 def _event_topic(event: EventChannel) -> tuple[str, str]:
     """Topic and message type of an event's measurements that no annotation places."""
-    word = ros_name(event.name or f"event_{event.number}")
-    return f"{EVENT_TOPIC}/{word}", "Xcp" + "".join(p.capitalize() for p in word.split("_"))
+    word = ros_field(event.name or f"event_{event.number}")
+    return f"{EVENT_TOPIC}/{word}", "Xcp" + ros_type(word.title())
 
 
 def _capabilities(a2l: A2lFile, control_rate_hz: Callable[[], float]) -> Capabilities:
@@ -402,7 +394,7 @@ class XcpController(Controller, CalibrationPages):
                     key, fields = (m.note["topic"], m.note.get("type") or _event_topic(ch)[1]), [m.note["field"]]
                 else:
                     key = _event_topic(ch)
-                    base = m.note.get("field") or ros_name(m.name)
+                    base = m.note.get("field") or ros_field(m.name)
                     fields = [base] if m.count == 1 else [f"{base}_{i}" for i in range(m.count)]
                 for i, f in enumerate(fields):
                     held = taken.setdefault(key[0], {})
@@ -503,7 +495,7 @@ class XcpController(Controller, CalibrationPages):
             out["dto_unknown"] = str(self._assembler.unknown)
             for s in self._streams:
                 state = self._assembler.states[s.plan.number]
-                key = ros_name(s.plan.event.name or str(s.plan.event.number))
+                key = ros_field(s.plan.event.name or str(s.plan.event.number))
                 out[f"{key}_samples_discarded"] = str(state.incomplete)
                 out[f"{key}_dto_wrong_length"] = str(state.malformed)
                 out[f"{key}_dto_overload"] = str(state.overloads)
@@ -835,7 +827,7 @@ class XcpEventSource(Source):
 
     def __init__(self, controller: XcpController, stream: _Stream) -> None:
         self._controller, self._stream = controller, stream
-        self.name = f"{controller.name}.{ros_name(stream.plan.event.name or str(stream.plan.event.number))}"
+        self.name = f"{controller.name}.{ros_field(stream.plan.event.name or str(stream.plan.event.number))}"
         self.sample_rate = stream.sample_rate
 
     def signal_groups(self) -> list[SignalGroup]:

@@ -1,0 +1,154 @@
+"""Real DBC files as their projects ship them (``../shared/corpus/dbc``, none with a cycle time):
+recorded as they are, every value what was sent, every file read back by the official MCAP reader
+and ROS 2 decoder under field names ROS 2 accepts, the DBC's own names and value tables kept.
+
+The sender is the test's own: cantools encodes the frames and python-can puts them on its virtual
+bus, which ambdaq records in this process (no ambdaq code on the sending side).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
+from ambdaq.drivers.signals import ros_field
+
+cantools = pytest.importorskip("cantools")
+can = pytest.importorskip("can")
+pytestmark = pytest.mark.realtime
+
+CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc"
+FILES = sorted(p.name for p in CORPUS.glob("*.dbc"))
+
+
+def _frames(db) -> list[tuple]:
+    """Three frames per message (and per multiplexer value), each signal at a value of its own
+    range: (message, frame id, data, FD, the values cantools decodes from the data)."""
+    out = []
+    for msg in db.messages:
+        mux = next((s for s in msg.signals if s.is_multiplexer), None)
+        pages = [None] if mux is None else sorted({v for s in msg.signals if s.multiplexer_ids for v in s.multiplexer_ids})
+        for page in pages:
+            for k in range(3):
+                values = {}
+                for s in msg.signals:
+                    if s.multiplexer_ids and page not in s.multiplexer_ids:
+                        continue
+                    if s is mux:
+                        values[s.name] = page
+                        continue
+                    raw_max = (1 << (s.length - (1 if s.is_signed else 0))) - 1
+                    raw = min(raw_max, 3 + 5 * k) * (-1 if s.is_signed and k == 2 else 1)
+                    values[s.name] = raw * s.scale + s.offset if not s.is_float else 1.5 * (k + 1)
+                data = msg.encode(values, scaling=True, strict=False)
+                decoded = msg.decode(data, decode_choices=False)
+                out.append((msg, msg.frame_id, data, msg.is_fd, decoded))
+    return out
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
+    path = CORPUS / name
+    db = cantools.database.load_file(str(path))
+    frames = _frames(db)
+    channel = f"corpus-{name}"
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        try:
+            while not stop.is_set():
+                for _msg, frame_id, data, fd, _decoded in frames:
+                    bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
+                                         is_fd=fd))
+                time.sleep(0.01)
+        finally:
+            bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    out = tmp_path / "corpus.mcap"
+    try:
+        r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration", "1", "-q", "-o", out)
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+    assert r.exit_code == 0, r.output
+    rec = load(out)
+    meta = McapFile(out).metadata()
+    sent_by_topic: dict[str, list[dict]] = {}
+    for msg, _id, _data, _fd, decoded in frames:
+        mux = next((s for s in msg.signals if s.is_multiplexer), None)
+        topic = f"/{path.stem}/{msg.name}" + ("" if mux is None else f"/m{int(decoded[mux.name])}")
+        sent_by_topic.setdefault(topic, []).append(decoded)
+    assert set(rec) == set(sent_by_topic)
+    for topic, sent in sent_by_topic.items():
+        got = rec[topic]
+        assert len(got) > 10, topic
+        device = meta[f"ambdaq.device.{path.stem}.{topic.removeprefix(f'/{path.stem}/').replace('/', '.')}"]
+        assert device["rate_source"].startswith("none declared")  # no GenMsgCycleTime in these files
+        original = {f: json.loads(device.get("signals", "{}")).get(f, f) for f in got.fields}
+        # each row is one of the frames sent, all its signals from that one frame
+        rows = np.column_stack([got[f] for f in got.fields])
+        wanted = np.array([[float(d[original[f]]) for f in got.fields] for d in sent])
+        for row in rows:
+            assert np.any(np.all(row == wanted, axis=1)), (topic, row, wanted)
+        # the DBC's value tables are kept beside the numbers
+        tables = json.loads(device.get("value_tables", "{}"))
+        for sig in db.get_message_by_name(topic.split("/")[2]).signals:
+            if sig.choices and ros_field(sig.name) in got.fields:
+                assert tables[ros_field(sig.name)] == {str(int(v)): str(t) for v, t in sig.choices.items()}
+    # the official reader and ROS 2 decoder read every topic, under ROS 2 field names
+    with open(out, "rb") as fh:
+        decoded = {}
+        for _schema, channel_, _message, ros in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            decoded.setdefault(channel_.topic, []).append(ros)
+    for topic in sent_by_topic:
+        got = rec[topic]
+        assert len(decoded[topic]) == len(got)
+        for f in got.fields:
+            assert [getattr(m, f) for m in decoded[topic]] == list(got[f]), (topic, f)
+
+
+def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
+    """motohawk.dbc declares no cycle time; the rig file's `rates` gives ExampleMessage 50 Hz: the
+    recording counts 50 frames a second of it and says where the rate came from."""
+    path = CORPUS / "motohawk.dbc"
+    db = cantools.database.load_file(str(path))
+    msg = db.get_message_by_name("ExampleMessage")
+    data = msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 250.1}, strict=False)
+    channel = "corpus-rates"
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
+                time.sleep(0.005)
+        finally:
+            bus.shutdown()
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(f'[[device]]\nname = "moto"\nurl = "can://virtual/{channel}"\ndbc = "{path}"\n'
+                   'rates = {{ ExampleMessage = 50 }}\n'.replace("{{", "{").replace("}}", "}"))
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        r = run_cli("record", "--rig", rig, "--duration", "1", "--json", "-o", tmp_path / "m.mcap")
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+    assert r.exit_code == 0, r.output
+    device = McapFile(tmp_path / "m.mcap").metadata()["ambdaq.device.moto.ExampleMessage"]
+    assert device["rate_source"] == "the rig file" and device["sample_rate_hz"] == "50"
+    assert len(load(tmp_path / "m.mcap")["/moto/ExampleMessage"]) == 50  # 1 s of a 50 Hz message, counted
