@@ -152,3 +152,57 @@ def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
     device = McapFile(tmp_path / "m.mcap").metadata()["ambdaq.device.moto.ExampleMessage"]
     assert device["rate_source"] == "the rig file" and device["sample_rate_hz"] == "50"
     assert len(load(tmp_path / "m.mcap")["/moto/ExampleMessage"]) == 50  # 1 s of a 50 Hz message, counted
+
+
+def test_a_garbled_slcan_line_is_counted_and_the_recording_goes_on(tmp_path, run_cli):
+    """An SLCAN adapter (the simulated one, on a pseudo-terminal, read by python-can's slcan
+    interface) that sends lines with bytes over 0x7F between motohawk.dbc's frames: each such line
+    is counted in the link statistics and skipped; the frames before and after are recorded."""
+    import os
+    import pty
+
+    from ambdaq.sim.devices.slcan import SimSlcanAdapter
+
+    path = CORPUS / "motohawk.dbc"
+    msg = cantools.database.load_file(str(path)).get_message_by_name("ExampleMessage")
+    master, slave = pty.openpty()
+    adapter = SimSlcanAdapter(master, "garbled-slcan")
+    adapter.start()
+    port = os.ttyname(slave)
+    stop = threading.Event()
+    garbled = []
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel="garbled-slcan")
+        k = 0
+        try:
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=msg.frame_id, is_extended_id=False,
+                                     data=msg.encode({"Enable": k % 2, "AverageRadius": 0.1 * (k % 10),
+                                                      "Temperature": 250.0}, strict=False)))
+                if k in (50, 100, 150):  # once the recording runs
+                    adapter.send_line(b"t1F3\xff\xfe\x80\r")
+                    garbled.append(time.time_ns())
+                k += 1
+                time.sleep(0.005)
+        finally:
+            bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    try:
+        sender.start()
+        out = tmp_path / "g.mcap"
+        r = run_cli("record", "--device", f"can://slcan{port}?open_delay=0&dbc={path}", "--duration", "1.5", "-q",
+                    "-o", out)
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+        adapter.stop()
+        os.close(slave)
+        os.close(master)
+    assert r.exit_code == 0, r.output
+    got = load(out)["/motohawk/ExampleMessage"]
+    link = McapFile(out).metadata()["ambdaq.link.motohawk.ExampleMessage"]
+    assert int(link["malformed_frames"]) == len([t for t in garbled if got.log_time[0] < t < got.log_time[-1]]) > 0
+    assert got.log_time[-1] > max(garbled) and len(got) > 100  # it went on after the last garbled line
+    assert set(got["temperature"]) == {250.0}

@@ -194,9 +194,19 @@ class CanHub:
             try:
                 msg = bus.recv(wait)
             except ValueError as err:  # the interface could not parse what its adapter sent (slcan: a garbled line)
-                self.malformed_frames += 1
-                self.events.put(Event(time.time_ns(), "malformed-frame", 0,
-                                      f"CAN {self.channel}: malformed frame from the interface ({err})", BUS_TOPIC))
+                self._malformed(err)
+                continue
+            except can.CanOperationError as err:
+                if not isinstance(err.__cause__, UnicodeDecodeError) or not isinstance(getattr(bus, "_buffer", None),
+                                                                                       bytearray):
+                    if not self._sync_stop.is_set():
+                        self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
+                    return
+                # python-can's slcan reader cannot decode a line with a byte over 0x7F ("Could not read from
+                # serial device") and keeps that line in its buffer, failing on it at every read after:
+                # the line is dropped and counted, as any malformed line
+                bus._buffer.clear()
+                self._malformed(err.__cause__)
                 continue
             except (can.CanError, OSError) as err:
                 if not self._sync_stop.is_set():
@@ -227,6 +237,12 @@ class CanHub:
             else:
                 for cb in unknown:
                     cb(msg)
+
+    def _malformed(self, err: Exception) -> None:
+        """A line or frame the interface could not parse: counted, and an event."""
+        self.malformed_frames += 1
+        self.events.put(Event(time.time_ns(), "malformed-frame", 0,
+                              f"CAN {self.channel}: malformed frame from the interface ({err})", BUS_TOPIC))
 
     def on_unknown(self, handler: Callable[[can.Message], None]) -> None:
         """Hand ``handler(message)`` every frame that no device registered or subscribed to."""

@@ -204,6 +204,10 @@ class SimSlcanAdapter:
             self.lost += len(lines) - sent
             self._flags |= FLAG_DATA_OVERRUN
 
+    def send_line(self, line: bytes) -> None:
+        """Send ``line`` to the host as it is: a garbled line of a faulty adapter (tests)."""
+        self._send_frames([line])
+
     def _reply(self, answer: bytes) -> None:
         with self._write_lock:
             pending, self._pending = self._pending, b""
