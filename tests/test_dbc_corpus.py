@@ -30,44 +30,69 @@ CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc"
 FILES = sorted(p.name for p in CORPUS.glob("*.dbc"))
 
 
+def _ways(tree: list) -> list[dict]:
+    """Every assignment of multiplexer values a message's signal tree allows (cantools'
+    ``signal_tree``), each in tree order: cascaded multiplexers nest, independent ones combine."""
+    ways: list[dict] = [{}]
+    for node in tree:
+        if isinstance(node, dict):
+            (name, by_value), = node.items()
+            ways = [{**w, name: v, **sub} for w in ways for v, subtree in by_value.items() for sub in _ways(subtree)]
+    return ways
+
+
 def _frames(db) -> list[tuple]:
-    """Three frames per message (and per multiplexer value), each signal at a value of its own
-    range: (message, frame id, data, FD, the values cantools decodes from the data)."""
+    """Three frames per message and multiplexer page, each signal at a value of its own range:
+    (topic suffix, frame id, data, FD, the values cantools decodes from the data)."""
     out = []
     for msg in db.messages:
-        mux = next((s for s in msg.signals if s.is_multiplexer), None)
-        pages = [None] if mux is None else sorted({v for s in msg.signals if s.multiplexer_ids for v in s.multiplexer_ids})
-        for page in pages:
+        for way in _ways(msg.signal_tree):
             for k in range(3):
-                values = {}
+                values = dict(way)
                 for s in msg.signals:
-                    if s.multiplexer_ids and page not in s.multiplexer_ids:
-                        continue
-                    if s is mux:
-                        values[s.name] = page
+                    if s.name in way:
                         continue
                     raw_max = (1 << (s.length - (1 if s.is_signed else 0))) - 1
                     raw = min(raw_max, 3 + 5 * k) * (-1 if s.is_signed and k == 2 else 1)
                     values[s.name] = raw * s.scale + s.offset if not s.is_float else 1.5 * (k + 1)
                 data = msg.encode(values, scaling=True, strict=False)
-                decoded = msg.decode(data, decode_choices=False)
-                out.append((msg, msg.frame_id, data, msg.is_fd, decoded))
+                suffix = msg.name + "".join(f"/m{v}" for v in way.values())
+                out.append((suffix, msg.frame_id, data, msg.is_fd, msg.decode(data, decode_choices=False)))
     return out
 
 
-@pytest.mark.parametrize("name", FILES)
-def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
-    path = CORPUS / name
+CASCADED = """VERSION ""
+NS_ :
+BS_:
+BU_:
+BO_ 2147485000 Cascade: 8 Vector__XXX
+ SG_ Mode M : 0|8@1+ (1,0) [0|0] "" Vector__XXX
+ SG_ Level m1 : 8|8@1+ (0.5,0) [0|0] "mm" Vector__XXX
+ SG_ SubMode m2M : 8|8@1+ (1,0) [0|0] "" Vector__XXX
+ SG_ Pressure m0 : 16|16@1- (0.1,0) [0|0] "bar" Vector__XXX
+ SG_ Flow m1 : 32|16@1+ (0.01,0) [0|0] "l/min" Vector__XXX
+SG_MUL_VAL_ 2147485000 Level Mode 1-1;
+SG_MUL_VAL_ 2147485000 SubMode Mode 2-2;
+SG_MUL_VAL_ 2147485000 Pressure SubMode 0-0;
+SG_MUL_VAL_ 2147485000 Flow SubMode 1-1;
+"""
+"""Cascaded multiplexing (SG_MUL_VAL_), written here (the corpus has none): Mode 1 carries Level;
+Mode 2 carries SubMode, which selects Pressure (0) or Flow (1)."""
+
+
+def _record_and_check(path: Path, tmp_path, run_cli) -> None:
+    """Send every frame of ``path``'s messages on a virtual bus while ambdaq records it as a DBC
+    device; each row must be one frame's values, and the official decoder must read them."""
     db = cantools.database.load_file(str(path))
     frames = _frames(db)
-    channel = f"corpus-{name}"
+    channel = f"corpus-{path.name}"
     stop = threading.Event()
 
     def send() -> None:
         bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         try:
             while not stop.is_set():
-                for _msg, frame_id, data, fd, _decoded in frames:
+                for _suffix, frame_id, data, fd, _decoded in frames:
                     bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
                                          is_fd=fd))
                 time.sleep(0.01)
@@ -86,10 +111,8 @@ def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
     rec = load(out)
     meta = McapFile(out).metadata()
     sent_by_topic: dict[str, list[dict]] = {}
-    for msg, _id, _data, _fd, decoded in frames:
-        mux = next((s for s in msg.signals if s.is_multiplexer), None)
-        topic = f"/{path.stem}/{msg.name}" + ("" if mux is None else f"/m{int(decoded[mux.name])}")
-        sent_by_topic.setdefault(topic, []).append(decoded)
+    for suffix, _id, _data, _fd, decoded in frames:
+        sent_by_topic.setdefault(f"/{path.stem}/{suffix}", []).append(decoded)
     assert set(rec) == set(sent_by_topic)
     for topic, sent in sent_by_topic.items():
         got = rec[topic]
@@ -117,6 +140,21 @@ def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
         assert len(decoded[topic]) == len(got)
         for f in got.fields:
             assert [getattr(m, f) for m in decoded[topic]] == list(got[f]), (topic, f)
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
+    _record_and_check(CORPUS / name, tmp_path, run_cli)
+
+
+def test_cascaded_multiplexing_records_each_page(tmp_path, run_cli):
+    """Three pages (Mode 1; Mode 2 with SubMode 0; Mode 2 with SubMode 1), a topic each:
+    /cascade/Cascade/m1, /m2/m0, /m2/m1 (a bus thread's KeyError had once ended such a run empty)."""
+    path = tmp_path / "cascade.dbc"
+    path.write_text(CASCADED)
+    _record_and_check(path, tmp_path, run_cli)
+    assert set(load(tmp_path / "corpus.mcap")) == {"/cascade/Cascade/m1", "/cascade/Cascade/m2/m0",
+                                                   "/cascade/Cascade/m2/m1"}
 
 
 def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):

@@ -128,6 +128,38 @@ class _Stream:
         self.queue.rows.append((seq, t_ns, values))
 
 
+def _pages(tree: list, path: tuple = ()) -> dict[tuple, list[str]]:
+    """Every way through a message's signal tree (cantools' ``signal_tree``: names, and for each
+    multiplexer ``{name: {value: subtree}}``): the (multiplexer, value) pairs taken -> the signals
+    a frame of them carries.  A plain message has one page, ``()``; cascaded multiplexers
+    (SG_MUL_VAL_) nest, independent ones at one level combine."""
+    plain = [n for n in tree if isinstance(n, str)]
+    muxes = [n for n in tree if isinstance(n, dict)]
+    pages: dict[tuple, list[str]] = {path: plain + [next(iter(m)) for m in muxes]}
+    for mux in muxes:
+        (name, by_value), = mux.items()
+        pages = {p + sub_path: names + sub_names for p, names in pages.items()
+                 for value, subtree in sorted(by_value.items())
+                 for sub_path, sub_names in _pages(subtree, ((name, value),)).items()}
+    return pages
+
+
+def _path(tree: list, decoded: dict) -> tuple | None:
+    """The page of ``_pages`` a decoded frame is on (None: a multiplexer value the DBC lacks)."""
+    path: tuple = ()
+    for mux in (n for n in tree if isinstance(n, dict)):
+        (name, by_value), = mux.items()
+        value = decoded.get(name)
+        subtree = by_value.get(int(value)) if value is not None else None
+        if subtree is None:
+            return None
+        rest = _path(subtree, decoded)
+        if rest is None:
+            return None
+        path += ((name, int(value)),) + rest
+    return path
+
+
 def _field_names(path: Path, msg, signals) -> dict[str, str]:
     """Each signal's field name in the form ROS 2 requires (:func:`ros_field`); two signals of one
     message that would share a field are refused, naming both."""
@@ -166,26 +198,21 @@ class DbcReceiver:
                     raise BadInputError(f"{request.path}: message {name} has no unsigned integer signal "
                                         f"{counter!r} to count frames by")
                 bits = sig.length
-            mux = next((s for s in msg.signals if s.is_multiplexer), None)
-            plain = [s for s in msg.signals if s.multiplexer_ids is None and s is not mux and s.name != counter]
-            if mux is None:
-                keys = {None: plain}
-            else:
-                values = sorted({v for s in msg.signals if s.multiplexer_ids for v in s.multiplexer_ids})
-                keys = {v: plain + [s for s in msg.signals if s.multiplexer_ids and v in s.multiplexer_ids]
-                        for v in values}
+            by_name = {s.name: s for s in msg.signals}
+            muxes = {s.name for s in msg.signals if s.is_multiplexer}
+            keys = {path: [by_name[n] for n in names if n not in muxes and n != counter]
+                    for path, names in _pages(msg.signal_tree).items()}
             rate, source = self._rate(msg, request)
-            fields = _field_names(request.path, msg, [s for sig in keys.values() for s in sig])
+            fields = _field_names(request.path, msg, list({s.name: s for sig in keys.values() for s in sig}.values()))
             for key, signals in keys.items():
-                topic = f"{prefix}/{name}" + ("" if key is None else f"/m{key}")
-                group = SignalGroup(topic, f"Dbc{ros_type(name)}" + ("" if key is None else f"M{key}"),
+                topic = f"{prefix}/{name}" + "".join(f"/m{v}" for _m, v in key)
+                group = SignalGroup(topic, f"Dbc{ros_type(name)}" + "".join(f"M{v}" for _m, v in key),
                                     tuple(fields[s.name] for s in signals), tuple(s.unit or "" for s in signals))
                 self.streams[(msg.frame_id, key)] = _Stream(
                     group, counter, bits, None if rate is None else rate / len(keys), source,  # pages take turns
                     {fields[s.name]: s.name for s in signals},
                     {fields[s.name]: {f"{int(v)}": str(t) for v, t in s.choices.items()} for s in signals if s.choices})
-            self.decoders[msg.frame_id] = (msg, None if mux is None else mux.name, counter,
-                                           {k: [s.name for s in sig] for k, sig in keys.items()})
+            self.decoders[msg.frame_id] = (msg, counter, {k: [s.name for s in sig] for k, sig in keys.items()})
         self.unknown = 0
         self.undecodable = 0
         self.raw_stream = _Stream(SignalGroup(RAW_TOPIC, "RawFrame", RAW_FIELDS,
@@ -211,8 +238,8 @@ class DbcReceiver:
         return None, "none declared: recorded as its frames come (ambdaq info measures the rate)"
 
     def _on_frame(self, frame_id: int):
-        msg, mux, counter, fields = self.decoders[frame_id]
-        streams = self.streams
+        msg, counter, fields = self.decoders[frame_id]
+        streams, tree = self.streams, msg.signal_tree
 
         def on_frame(data: bytearray, timestamp: float) -> None:  # on the bus thread
             try:
@@ -220,9 +247,9 @@ class DbcReceiver:
             except Exception:  # cantools raises DecodeError, ValueError, KeyError ... on a bad frame
                 self.undecodable += 1
                 return
-            key = None if mux is None else int(decoded[mux])
+            key = _path(tree, decoded)
             names = fields.get(key)
-            if names is None:
+            if names is None or any(n not in decoded for n in names):
                 self.undecodable += 1  # a multiplexer value the DBC does not define
                 return
             streams[(frame_id, key)].add(int(round(timestamp * 1e9)), [float(decoded[n]) for n in names],
