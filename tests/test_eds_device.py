@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import struct
+from pathlib import Path
 
 import can
 import numpy as np
@@ -143,6 +144,7 @@ def test_the_devices_own_sdo_abort_is_shown_with_its_meaning(drive, tmp_path, ru
     r = run_cli("record", "--rig", rig_file(tmp_path, channel_url, '[[device.signal]]\nobject = "0x6077"\n'),
                 "--duration", "1", "-o", tmp_path / "x.mcap")
     assert r.exit_code == 1 and "Code 0x06040041" in r.output and "cannot be mapped" in r.output.lower(), r.output
+    assert "(on download of 0x1A00.1, " in r.output  # the object the abort was about, named
 
 
 def test_an_eds_device_behind_slcan_is_refused(tmp_path, run_cli):
@@ -157,3 +159,44 @@ def test_a_broken_eds_is_one_line_exit_2(tmp_path, run_cli):
     r = run_cli("record", "--device", f"can://virtual/nobus?node=5&eds={bad}", "--duration", "1",
                 "-o", tmp_path / "x.mcap")
     assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1 and "bad.eds" in r.output, r.output
+
+
+CORPUS_EDS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds" / "e35.eds"
+
+
+@pytest.mark.parametrize("obj, says", [
+    ("Node ID", "2 objects of the EDS are named 'Node ID' (0x2000.1, 0x2001.1): give the index"),
+    ("Uart configuration.BaudRate", "0x2000.2 (BaudRate) is not PDO-mappable"),  # found by record and sub name
+    ("0x2000.9", "object 0x2000 (Uart configuration) has no sub-index 9 (it has 0, 1, 2, 3, 4, 5, 6, 7, 8)"),
+    ("0x6041.1", "object 0x6041 (Statusword) has no sub-indices: give 0x6041"),
+    ("Uart configuration", "is object 0x2000, which has sub-objects: name one"),
+    ("Motor speed", "no object named 'Motor speed' in the EDS"),
+])
+def test_names_in_a_vendors_eds_resolve_or_say_why_not(obj, says, tmp_path, run_cli):
+    """A CiA 402 drive's EDS as its vendor tooling writes it (canopen's e35.eds): objects by index,
+    by a sub-object's name, ambiguous names refused with the candidates, all before any bus opens."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text(f'[[device]]\nname = "drive"\nurl = "can://virtual/nobus?node=5&sync=100"\neds = "{CORPUS_EDS}"\n'
+                   f'mapping = "configure"\n[[device.signal]]\nobject = "{obj}"\n')
+    r = run_cli("record", "--rig", rig, "--duration", "1", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and says in r.output and len(r.output.strip().splitlines()) == 1, r.output
+
+
+@pytest.mark.parametrize("damage, obj, says", [
+    (lambda t: "", "Statusword", "no objects (is it an EDS file?)"),
+    (lambda t: t.replace("[6041]\n", "[6041]\nFactor=nan\n", 1), "Statusword", "(Statusword) has the factor nan"),
+    (lambda t: t.replace("SubNumber=0x9", "SubNumber=99999999", 1), "Statusword", ""),  # canopen counts the subs
+])
+def test_a_hostile_eds_is_one_line_before_the_bus_opens(damage, obj, says, tmp_path, run_cli):
+    """An empty EDS, a NaN factor: one line, exit 2, no canopen log line beside it; a SubNumber of
+    99999999 costs nothing (canopen reads the sub-objects there are)."""
+    bad = tmp_path / "bad.eds"
+    bad.write_text(damage(CORPUS_EDS.read_text(encoding="latin-1")), encoding="latin-1")
+    rig = tmp_path / "rig.toml"
+    rig.write_text(f'[[device]]\nname = "drive"\nurl = "can://virtual/nobus-{len(says)}?node=5&sync=100"\n'
+                   f'eds = "{bad}"\nmapping = "configure"\n[[device.signal]]\nobject = "{obj}"\n')
+    r = run_cli("record", "--rig", rig, "--duration", "1", "-o", tmp_path / "x.mcap")
+    if says:
+        assert r.exit_code == 2 and says in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    else:  # the file is fine for Statusword: the recording goes as far as the bus, where no device answers
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output

@@ -23,10 +23,13 @@ applies it anyway and the metadata says so.
 
 from __future__ import annotations
 
+import logging
+import math
 import queue
 import re
 import struct
 import time
+import warnings
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +47,7 @@ from ..rows import RowQueue
 
 SIGNAL_KEYS = ("object", "topic", "field", "factor", "offset", "unit", "tpdo")  # a [[device.signal]] table
 MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803
+MAX_EDS_BYTES = 8 << 20  # vendor EDS files are tens to hundreds of kB
 HEARTBEAT_MS = 100
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _STRUCT = {od.BOOLEAN: "?", od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",
@@ -57,11 +61,36 @@ def load_eds(path: str | Path, node_id: int) -> od.ObjectDictionary:
     path = Path(path)
     if not path.is_file():
         raise BadInputError(f"{path}: no such EDS file")
+    if path.stat().st_size > MAX_EDS_BYTES:
+        raise BadInputError(f"{path}: {path.stat().st_size / 1e6:.1f} MB, more than the {MAX_EDS_BYTES >> 20} MB an "
+                            "EDS file is read to")
+    # canopen logs what it finds odd in a file (a missing section, an unknown data type) through
+    # Python's logging, which would print beside ambdaq's one line: what matters of it for the
+    # objects ambdaq uses is checked below and where they are used (check_mapping, _read_mapping)
+    quiet = logging.getLogger("canopen")
+    handlers, propagate = quiet.handlers[:], quiet.propagate
+    quiet.handlers, quiet.propagate = [logging.NullHandler()], False
     try:
-        return canopen.import_od(str(path), node_id)
+        with warnings.catch_warnings():  # canopen 2.4 calls the deprecated logger.warn
+            warnings.simplefilter("ignore", DeprecationWarning)
+            found = canopen.import_od(str(path), node_id)
     except Exception as err:  # configparser, int() and KeyError failures inside canopen's EDS reader
         text = " ".join(str(err).split())[:200] or type(err).__name__
         raise BadInputError(f"{path}: not a valid EDS file ({type(err).__name__}: {text})") from None
+    finally:
+        quiet.handlers, quiet.propagate = handlers, propagate
+    if not list(found):
+        raise BadInputError(f"{path}: no objects (is it an EDS file?)")
+    return found
+
+
+def _recordable(var: od.ODVariable, path: Path) -> None:
+    """Refuse an object whose data type or EDS factor ambdaq cannot record, naming it."""
+    where = f"{path}: object 0x{var.index:04X}.{var.subindex} ({var.name})"
+    if var.data_type not in _STRUCT:
+        raise BadInputError(f"{where} has data type 0x{var.data_type:04X}, which ambdaq cannot record from a PDO")
+    if not math.isfinite(float(var.factor or 1.0)):
+        raise BadInputError(f"{where} has the factor {var.factor} in the EDS")
 
 
 @dataclass(frozen=True)
@@ -81,23 +110,76 @@ class EdsSignal:
 
 
 def _variable(d: od.ObjectDictionary, ref, where: str) -> od.ODVariable:
-    """The variable ``ref`` names: ``"0x6078"``, ``"0x2210.2"`` or ``"0x2210sub2"``, or its EDS name."""
+    """The variable ``ref`` names: ``"0x6078"``, ``"0x2210.2"`` or ``"0x2210sub2"``, or an EDS name:
+    an object's, a sub-object's (``Temperature``), or both (``Driver temperature.Temperature``).  A
+    name several objects carry is refused with the candidates, as is a missing sub-index."""
     text = str(ref)
     m = re.fullmatch(r"(0x[0-9A-Fa-f]{1,4})(?:(?:\.|sub)(\d+|0x[0-9A-Fa-f]+))?", text)
-    try:
-        if m:
-            index, sub = int(m.group(1), 16), int(m.group(2) or "0", 0)
-            obj = d[index]
-            var = obj if isinstance(obj, od.ODVariable) else obj[sub]
-            if isinstance(obj, od.ODVariable) and sub:
-                raise KeyError(sub)
-        else:
-            var = d[text]
-            if not isinstance(var, od.ODVariable):
-                raise KeyError(text)
-    except KeyError:
-        raise BadInputError(f"{where}: no object {text} in the EDS") from None
-    return var
+    if m:
+        index, sub = int(m.group(1), 16), int(m.group(2) or "0", 0)
+        if index not in d:
+            raise BadInputError(f"{where}: no object 0x{index:04X} in the EDS")
+        obj = d[index]
+        if isinstance(obj, od.ODVariable):
+            if sub:
+                raise BadInputError(f"{where}: object 0x{index:04X} ({obj.name}) has no sub-indices: give 0x{index:04X}")
+            return obj
+        subs = sorted(v.subindex for v in obj.values())
+        if sub not in subs:
+            raise BadInputError(f"{where}: object 0x{index:04X} ({obj.name}) has no sub-index {sub} (it has "
+                                f"{', '.join(map(str, subs))})")
+        return obj[sub]
+    found = []
+    for index in d:
+        obj = d[index]
+        if isinstance(obj, od.ODVariable):
+            if obj.name == text:
+                found.append(obj)
+            continue
+        found += [v for v in obj.values() if text in (v.name, f"{obj.name}.{v.name}")]
+    if not found:
+        if text in d.names:  # a record or array by its own name
+            obj = d[text]
+            raise BadInputError(f"{where}: {text} is object 0x{obj.index:04X}, which has sub-objects: name one "
+                                f"({', '.join(f'0x{obj.index:04X}.{v.subindex}' for v in obj.values())})")
+        raise BadInputError(f"{where}: no object named {text!r} in the EDS")
+    if len(found) > 1:
+        shown = ", ".join(f"0x{v.index:04X}.{v.subindex}" for v in found[:6]) + (" ..." if len(found) > 6 else "")
+        raise BadInputError(f"{where}: {len(found)} objects of the EDS are named {text!r} ({shown}): give the index")
+    return found[0]
+
+
+class _AbortOn(canopen.SdoAbortedError):
+    """canopen's SDO abort, naming the object it was about (canopen's says only the code)."""
+
+    def __init__(self, code: int, where: str) -> None:
+        super().__init__(code)
+        self.where = where
+
+    def __str__(self) -> str:
+        return f"{super().__str__()} (on {self.where})"
+
+
+def _aborts_name_their_object(sdo, dictionary: od.ObjectDictionary) -> None:
+    """Have the SDO client's uploads and downloads (canopen's PDO API makes them too) raise
+    aborts that name the object and sub-index."""
+    for method in ("upload", "download"):
+        call = getattr(sdo, method)
+
+        def named(index, subindex, *args, _call=call, _what=method, **kwargs):
+            try:
+                return _call(index, subindex, *args, **kwargs)
+            except _AbortOn:
+                raise
+            except canopen.SdoAbortedError as err:
+                try:
+                    obj = dictionary[index]
+                    name = obj.name if isinstance(obj, od.ODVariable) else f"{obj.name}: {obj[subindex].name}"
+                except KeyError:
+                    name = "not in the EDS"
+                raise _AbortOn(err.code, f"{_what} of 0x{index:04X}.{subindex}, {name}") from None
+
+        setattr(sdo, method, named)
 
 
 def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> list[EdsSignal]:
@@ -111,6 +193,9 @@ def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> l
             raise BadInputError(f"{at}: needs object = \"0xINDEX[.SUB]\" (or the EDS name)")
         check_keys(e, SIGNAL_KEYS, at)
         var = _variable(d, e["object"], at)
+        if "factor" not in e and not math.isfinite(float(var.factor or 1.0)):
+            raise BadInputError(f"{at}: object 0x{var.index:04X}.{var.subindex} ({var.name}) has the factor "
+                                f"{var.factor} in the EDS: give factor = ... in the rig file")
         try:
             factor = float(e.get("factor", var.factor or 1.0))
             offset = float(e.get("offset", 0.0))
@@ -138,8 +223,7 @@ def check_mapping(signals: list[EdsSignal], d: od.ObjectDictionary, path: Path) 
         where = f"{path}: object 0x{s.index:04X}.{s.subindex} ({s.name})"
         if not s.var.pdo_mappable:
             raise BadInputError(f"{where} is not PDO-mappable")
-        if s.var.data_type not in _STRUCT:
-            raise BadInputError(f"{where} has a data type ambdaq cannot record from a PDO")
+        _recordable(s.var, path)
         bits = 8 * struct.calcsize("<" + _STRUCT[s.var.data_type])
         if s.tpdo is not None:
             tpdos[s.tpdo - 1].append(s)
@@ -190,11 +274,12 @@ class EdsDevice(Source):
         self.hub, self.node_id, self.eds, self.name, self.url = hub, node_id, eds, name, url
         self.node = canopen.RemoteNode(node_id, object_dictionary)
         self.node.sdo.RESPONSE_TIMEOUT = 0.5
+        _aborts_name_their_object(self.node.sdo, object_dictionary)
         hub.network.add_node(self.node)
         self.external = sync_hz is None
         self.sample_rate = self._measure_sync() if self.external else sync_hz
         try:
-            self.identity_words = [struct.unpack("<I", self.node.sdo.upload(0x1018, i))[0] for i in (1, 2, 4)]
+            self.identity_words = [self._identity(i) for i in (1, 2, 4)]
             if tpdos is not None:
                 self._configure(tpdos)
             self.tpdos = self._read_mapping(signals)
@@ -241,6 +326,16 @@ class EdsDevice(Source):
                               f"{time.monotonic() - t0:.1f} s")
         return round((last.count - first.count) * 1e9 / (last.time_ns - first.time_ns), 1)
 
+    def _identity(self, sub: int) -> int | None:
+        """0x1018's vendor id (1), product code (2) or serial number (4); the last two are optional
+        in CiA 301, and a device that aborts their upload has none (None)."""
+        try:
+            return struct.unpack("<I", self.node.sdo.upload(0x1018, sub))[0]
+        except canopen.SdoAbortedError:
+            if sub == 1:
+                raise
+            return None
+
     def _configure(self, tpdos: list[list[EdsSignal]]) -> None:
         """Map ``tpdos`` by SDO with canopen's pdo API: each TPDO disabled, mapped, synchronous on
         every SYNC, enabled; unused TPDOs disabled."""
@@ -275,6 +370,7 @@ class EdsDevice(Source):
                 s = named.get((v.index, v.subindex))
                 if s is None:
                     var = v.od
+                    _recordable(var, self.eds)
                     s = EdsSignal(v.index, v.subindex, var.name, f"/{self.name}", _field_name(var.name),
                                   float(var.factor or 1.0), 0.0, var.unit or "", n, var)
                 sigs.append(s)
@@ -289,7 +385,8 @@ class EdsDevice(Source):
     def identity(self) -> dict[str, str]:
         vendor, product, serial = self.identity_words
         return {"url": self.url, "kind": "eds", "eds": self.eds.name, "vendor_id": f"0x{vendor:08X}",
-                "product_code": f"0x{product:08X}", "serial": str(serial), "node_id": str(self.node_id),
+                "product_code": "none (0x1018.2 aborted)" if product is None else f"0x{product:08X}",
+                "serial": "none (0x1018.4 aborted)" if serial is None else str(serial), "node_id": str(self.node_id),
                 "sample_rate_hz": f"{self.sample_rate:g}", "sync": "external" if self.external else "ambdaq",
                 "synchronous_window_us": f"{self.window_ns / 1000:g}" + ("" if self.window_on_device else
                                                                           " (host only: the device has no 0x1007)"),
