@@ -290,6 +290,47 @@ def test_pages_of_a_calibration_segment(xcplite, run_cli):
         run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.flow_rate", "0.301", "--yes")
 
 
+@pytest.fixture(scope="module")
+def multi_thread(build_once, tmp_path_factory):
+    """XCPlite's multi_thread_demo on UDP: eight threads, each with its own sporadic event and
+    counter, and FLOAT64 parameters in a calibration segment."""
+    _needs_a_compiler()
+    built = build_once("xcplite-multi-thread", lambda out: _build(out, tcp=False, example="multi_thread_demo"))
+    url = (built / "url").read_text()
+    proc, a2l = _started(built / "build" / "multi_thread_demo", url, tmp_path_factory.mktemp("multi_thread"))
+    try:
+        yield url, a2l
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_eight_events_eight_daq_lists_and_a_double_parameter(multi_thread, tmp_path, run_cli):
+    """One DAQ list and topic per thread's event, each counting its own loops without a gap (a
+    sample filed under another event would break its run); a FLOAT64 parameter written is what
+    pyxcp reads back."""
+    url, a2l = multi_thread
+    out = tmp_path / "mt.mcap"
+    r = run_cli("record", "--device", url, "--a2l", a2l, "--measure", "task_*.counter", "--duration", "1", "-o", out)
+    assert r.exit_code == 0, r.output
+    rec = load(out)
+    assert set(rec) == {f"/xcp/task_{n}" for n in range(1, 9)}
+    link = McapFile(out).metadata()["ambdaq.link.controller"]
+    for n in range(1, 9):
+        counts = rec[f"/xcp/task_{n}"][f"task_{n}_counter"].astype(np.int64)
+        assert len(counts) > 100
+        steps = np.diff(counts) % 1025  # counter_max 1024, then 0
+        assert np.all(steps == 1) or int(link["transport_lost_packets"]) > 0, (n, steps[steps != 1][:5])
+    where = addresses(a2l)
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "params.ampl", "12.625", "--yes")
+    assert r.exit_code == 0 and r.output.strip() == "params.ampl = 12.625", r.output
+    with pyxcp_master(url) as x:
+        x.connect()
+        held = struct.unpack("<d", x.shortUpload(8, *where["params.ampl"]))[0]
+        x.disconnect()
+    assert held == 12.625  # FLOAT64, exactly
+
+
 COUNTERS = ["counter64s", "g_counter8", "counter", "g_counter64", "counter8s", "g_counter16s", "counter32",
             "g_counter32s", "counter16", "g_counter8s", "counter64", "g_counter16", "counter16s", "g_counter32",
             "counter8", "g_counter64s", "counter32s", "g_param_sum", "params_copy.*"]
@@ -336,3 +377,15 @@ def test_a_map_and_a_curve_read_as_main_c_compiled_them(c_demo, run_cli):
     np.testing.assert_array_equal(rows, expected)  # int8 map[8][8], row by row as C lays it out
     r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "g_param64")
     assert r.exit_code == 0 and r.output.strip() == "g_param64 = 64"
+
+
+def test_xcp_list_uploads_the_a2l_the_slave_holds(xcplite, run_cli):
+    """GET_ID type 4: XCPlite serves the A2L it wrote; `xcp list --device` reads it as it reads the file."""
+    url, a2l = xcplite
+    r = run_cli("xcp", "list", "--device", url, "--json")
+    assert r.exit_code == 0, r.output
+    uploaded = json.loads(r.stdout)
+    local = json.loads(run_cli("xcp", "list", a2l, "--json").stdout)
+    assert uploaded["file"] == f"{url} (GET_ID)" and uploaded["project"] == local["project"] == "hello_xcp"
+    assert uploaded["measurements"] == local["measurements"] and uploaded["events"] == local["events"]
+    assert {m["name"] for m in uploaded["measurements"]} >= {"global_counter", "heat_energy", "inside_temperature"}
