@@ -231,3 +231,29 @@ def test_a_missing_extra_is_one_line_naming_it(spindle_file, tmp_path, run_cli, 
     assert r.returncode == 2, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and extra in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert run_cli(*argv).exit_code == 0  # the same command with the package there (in this process)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "symlink-to-device", "dangling-symlink"])
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_output_is_only_ever_a_regular_file(kind, overwrite, tmp_path, run_cli):
+    """`-o` names a FIFO, a directory or a symlink to a device node or to nothing: one line, exit 2,
+    with or without --overwrite, and the thing is left as it was (it had been replaced by a file)."""
+    import os
+    import stat
+
+    target = tmp_path / "out.mcap"
+    if kind == "fifo":
+        os.mkfifo(target)
+    elif kind == "directory":
+        target.mkdir()
+    elif kind == "symlink-to-device":
+        target.symlink_to("/dev/null")
+    else:
+        target.symlink_to(tmp_path / "nowhere" / "x.mcap")
+    before = os.lstat(target)
+    args = ["sim", "generate", "--duration", "0.1", "-q", "-o", target] + (["--overwrite"] if overwrite else [])
+    r = run_cli(*args)
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "regular file" in r.output or "is a directory" in r.output  # click refuses a directory itself
+    after = os.lstat(target)
+    assert stat.S_IFMT(after.st_mode) == stat.S_IFMT(before.st_mode) and after.st_ino == before.st_ino

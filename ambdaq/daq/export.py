@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError
+from .output import check_output
 from .reader import Recording, TopicData
 
 FORMATS = ("csv", "npz", "parquet")
@@ -48,7 +49,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
     out = Path(out)
     if fmt == "npz":
         target = out if out.suffix == ".npz" else out.with_suffix(".npz")
-        _check(target, overwrite)
+        check_output(target, overwrite)
         arrays = {f"{t.topic}/{name}": col for t in rec.topics.values() for name, col in _columns(t).items()}
         np.savez(target, **arrays)
         return [target]
@@ -61,7 +62,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
         out.mkdir(parents=True, exist_ok=True)
         targets = {t: out / f"{topic_filename(t)}.{fmt}" for t in rec.topics}
     for target in targets.values():
-        _check(target, overwrite)
+        check_output(target, overwrite)
     if fmt == "parquet":
         try:
             import pyarrow as pa
@@ -77,9 +78,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
     return list(targets.values())
 
 
-def _check(path: Path, overwrite: bool) -> None:
-    if path.exists() and not overwrite:
-        raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+
 
 
 def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:

@@ -31,6 +31,7 @@ from ..drivers.signals import Event, SampleBlock
 from ..errors import AmbdaqError, BadInputError, DeviceError
 from .clock import ClockMap
 from .mcapfile import CHUNK_SIZE
+from .output import check_output
 from .sequence import SampleCounts, SequenceTracker, Verdict
 from .snapshot import SnapshotOptions, Snapshots, check_memory, memory_bound, snapshot_name
 from .triggers import Device, Firing
@@ -299,15 +300,13 @@ class Recorder:
             else:  # frames as they come: only the byte limit holds them
                 self.snapshot_bound = snap.max_bytes
             check_memory(self.snapshot_bound, snap)
-        elif not overwrite and self._name(0).exists():
-            raise BadInputError(f"{self._name(0)} exists: choose another -o or pass --overwrite")
+        else:
+            check_output(self._name(0), overwrite)
 
     # --- parts ---------------------------------------------------------------------------------
 
     def _new_writer(self, path: Path, start_ns: int, part: str) -> RecordingWriter:
-        if path.exists():
-            if not self._overwrite:
-                raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+        if check_output(path, self._overwrite).exists():
             path.unlink()
         w = RecordingWriter(path, compression=self.options.compression, chunk_size=self.options.chunk_size,
                             fsync=self.options.fsync)

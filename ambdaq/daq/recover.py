@@ -33,6 +33,7 @@ from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
 from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, decompress, iter_records
+from .output import check_output
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
 from .writer import PROFILE
@@ -113,8 +114,9 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
     src, dst = Path(src), Path(dst)
     if not src.is_file():
         raise BadInputError(f"{src}: no such file")
-    if dst.exists() and (not overwrite or dst.resolve() == src.resolve()):
-        raise BadInputError(f"{dst} exists: choose another -o" + ("" if dst.resolve() == src.resolve() else " or pass --overwrite"))
+    if dst.exists() and dst.resolve() == src.resolve():
+        raise BadInputError(f"{dst} exists: it is the file recovered; choose another -o")
+    check_output(dst, overwrite)
     data = src.read_bytes()
     if not data.startswith(MAGIC):
         raise BadInputError(f"{src}: not an MCAP file (bad magic bytes)")

@@ -16,6 +16,7 @@ import zlib
 from pathlib import Path
 
 from ..errors import BadInputError
+from .output import check_output
 
 MAX_BYTES = 64 * 2**20  # the largest sealed document ambdaq writes is well under 1 MiB
 
@@ -38,8 +39,7 @@ def seal(doc: dict) -> dict:
 def write_sealed(path: str | Path, doc: dict, *, overwrite: bool = False, indent: int | None = None) -> Path:
     """Write ``seal(doc)`` to ``path``; refuses to replace a file unless ``overwrite``."""
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise BadInputError(f"{path} exists: choose another -o or pass --overwrite")
+    check_output(path, overwrite)
     path.write_text(json.dumps(seal(doc), indent=indent) + "\n")
     return path
 
