@@ -24,3 +24,6 @@ def command(file, fmt, topics, start, end, output, overwrite):
     rec = load(file, topics=list(topics) or None, start=start, end=end)
     for path in export(rec, fmt, Path(output), overwrite=overwrite):
         click.echo(str(path))
+    for topic in rec.values():
+        if topic.skipped:  # a topic of another writer: what is not a number is not exported
+            click.echo(f"{topic.topic}: not exported (not numbers): {', '.join(topic.skipped)}", err=True)

@@ -82,10 +82,12 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
 
 
 def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
-    """CSV with integer columns kept integer (ns time stamps do not survive float64)."""
+    """CSV with integer columns kept integer (ns time stamps do not survive float64) and floats
+    written with 17 significant digits, which read back as the same float64 (9 had rounded a
+    10-digit integer such as a ROS stamp's seconds)."""
     names = list(cols)
     table = np.empty(len(cols["time"]), dtype=[(n, cols[n].dtype) for n in names])
     for n in names:
         table[n] = cols[n]
-    fmts = ["%.9f" if n == "time" else ("%.9g" if cols[n].dtype.kind == "f" else "%d") for n in names]
+    fmts = ["%.9f" if n == "time" else ("%.17g" if cols[n].dtype.kind == "f" else "%d") for n in names]
     np.savetxt(path, table, delimiter=",", fmt=fmts, header=",".join(names), comments="")

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..drivers.signals import SignalGroup
 from ..errors import BadInputError
+from .foreign import foreign_topics, load_foreign
 from .mcapfile import McapFile, message_view
 from .schema import HEADER_FIELDS, TopicLayout, parse_schema
 
@@ -58,7 +59,9 @@ class TopicData:
     fields : dict of str to ndarray of float64
         One array per signal, SI units (see ``units``).
     units : dict of str to str
-        SI unit of each field.
+        SI unit of each field ("" for a topic of another writer, whose units its schema does not give).
+    skipped : tuple of str
+        What a topic of another writer carries that is not a number (:mod:`.foreign`), by path.
     """
 
     topic: str
@@ -70,6 +73,7 @@ class TopicData:
     status: np.ndarray
     fields: dict[str, np.ndarray]
     units: dict[str, str]
+    skipped: tuple[str, ...] = ()
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -220,17 +224,22 @@ def load(
     """
     f = path if isinstance(path, McapFile) else McapFile(path)
     available = ambdaq_channels(f)
-    if topics is None:
-        wanted = dict(available)
-        if not wanted:
-            raise BadInputError(f"{f.path}: no ambdaq topics in this file (topics: {', '.join(sorted(c.topic for c in f.summary.channels.values())) or 'none'})")
+    foreign = foreign_topics(f, set(available))
+    if topics is None:  # ambdaq's topics; in a file of another writer, every topic a decoder reads
+        wanted, others = dict(available), [] if available else list(foreign)
+        if not wanted and not others:
+            raise BadInputError(f"{f.path}: no topic ambdaq or an official decoder reads (topics: "
+                                f"{', '.join(sorted(c.topic for c in f.summary.channels.values())) or 'none'})")
     else:
-        wanted = {}
+        wanted, others = {}, []
         for t in topics:
-            if t not in available:
-                others = ", ".join(sorted(available)) or "none"
-                raise BadInputError(f"{f.path}: no ambdaq topic {t}; topics: {others}")
-            wanted[t] = available[t]
+            if t in available:
+                wanted[t] = available[t]
+            elif t in foreign:
+                others.append(t)
+            else:
+                known = ", ".join(sorted({*available, *foreign})) or "none"
+                raise BadInputError(f"{f.path}: no ambdaq topic {t}; topics: {known}")
     stats = f.summary.statistics
     t0 = stats.message_start_time if stats is not None and stats.message_count else min(
         (ci.message_start_time for ci in f.summary.chunk_indexes), default=0
@@ -319,6 +328,8 @@ def load(
         )
         declared = _nominal_rate(metadata, topic)
         result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
+    if others:
+        result.update(load_foreign(f, others, lo, hi, t0))
     return Recording(f.path, result, metadata)
 
 

@@ -1,0 +1,124 @@
+"""Topics of MCAP files ambdaq did not write (rosbag2, Foxglove, any MCAP writer), read through the
+official decoders into the same :class:`~ambdaq.daq.reader.TopicData` as ambdaq's own, so that
+``load``, ``export`` and ``plot`` take them.
+
+A ros2msg/CDR message is decoded by ``mcap-ros2-support``, a JSON one by the standard library.
+Its numeric fields (integers, floats, booleans as 0/1), nested and in arrays, become one column
+each named by its path (``pose.position.x``, ``ranges[3]``, ``new_parameters[0].value.type``);
+an element missing from a message (a shorter array) is NaN there.  Anything else (strings,
+arrays beyond :data:`MAX_ELEMENTS`, columns beyond :data:`MAX_COLUMNS`) is listed in the topic's
+``skipped`` and left out.  This is the slow path, one Python call per message (about 10^4
+messages a second here): ambdaq's own fixed-layout topics are read block by block.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+
+import numpy as np
+
+from ..errors import BadInputError
+from .mcapfile import McapFile
+
+MAX_ELEMENTS = 1024  # elements of one array made columns; a longer one (an image, a point cloud) is skipped
+MAX_COLUMNS = 4096  # columns of one topic
+DECODABLE = {("ros2msg", "cdr"), ("jsonschema", "json"), ("", "json")}
+"""(schema encoding, message encoding) pairs an official decoder here reads."""
+
+
+def foreign_topics(f: McapFile, own: set[str]) -> dict[str, int]:
+    """Topics of ``f`` that are not in ambdaq's layout (``own``) and that an official decoder reads:
+    topic -> channel id."""
+    out = {}
+    for cid, ch in f.summary.channels.items():
+        schema = f.summary.schemas.get(ch.schema_id)
+        encoding = schema.encoding if schema is not None else ""
+        if ch.topic not in own and (encoding, ch.message_encoding) in DECODABLE:
+            out[ch.topic] = cid
+    return out
+
+
+def _flatten(value, path: str, out: dict[str, float], skipped: set[str]) -> None:
+    """The numeric leaves of a decoded message into ``out`` by path; other leaves' paths into ``skipped``."""
+    if isinstance(value, bool):
+        out[path] = float(value)
+    elif isinstance(value, (int, float, np.integer, np.floating)):
+        out[path] = float(value)
+    elif isinstance(value, (bytes, bytearray, list, tuple, np.ndarray)):
+        if len(value) > MAX_ELEMENTS:
+            skipped.add(f"{path} ({len(value)} elements, over {MAX_ELEMENTS})")
+            return
+        for i, item in enumerate(value):
+            _flatten(item, f"{path}[{i}]", out, skipped)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _flatten(item, f"{path}.{key}" if path else str(key), out, skipped)
+    elif hasattr(value, "__slots__") or hasattr(value, "__dict__"):
+        names = getattr(value, "__slots__", None) or list(vars(value))
+        for key in names:
+            _flatten(getattr(value, key), f"{path}.{key}" if path else key, out, skipped)
+    elif value is not None:
+        skipped.add(f"{path} ({type(value).__name__})")
+
+
+def _messages(f: McapFile, topics: list[str], lo: int | None, hi: int | None) -> Iterator[tuple]:
+    """(topic, log_time, publish_time, sequence, decoded message) in file order."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    class JsonDecoders:
+        def decoder_for(self, message_encoding, schema):
+            return (lambda data: json.loads(data)) if message_encoding == "json" else None
+
+    with open(f.path, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory(), JsonDecoders()])
+        try:
+            for _schema, channel, message, decoded in reader.iter_decoded_messages(
+                    topics=topics, start_time=lo, end_time=None if hi is None else hi + 1, log_time_order=True):
+                yield channel.topic, message.log_time, message.publish_time, message.sequence, decoded
+        except BadInputError:
+            raise
+        except Exception as err:  # the official reader's and decoders' errors, whatever their class
+            raise BadInputError(f"{f.path}: cannot decode its messages ({type(err).__name__}: {err}); "
+                                "try: ambdaq recover") from None
+
+
+def load_foreign(f: McapFile, topics: list[str], lo: int | None, hi: int | None, start_ns: int) -> dict:
+    """The ``topics`` of ``f`` (foreign, see :func:`foreign_topics`) as TopicData, between host
+    times ``lo`` and ``hi`` (ns, None: open)."""
+    from .reader import TopicData
+
+    rows: dict[str, list] = {t: [] for t in topics}
+    skipped: dict[str, set[str]] = {t: set() for t in topics}
+    for topic, log_time, publish_time, sequence, decoded in _messages(f, topics, lo, hi):
+        flat: dict[str, float] = {}
+        _flatten(decoded, "", flat, skipped[topic])
+        rows[topic].append((log_time, publish_time, sequence, flat))
+    out = {}
+    for topic in topics:
+        got = rows[topic]
+        columns: dict[str, None] = {}
+        for *_head, flat in got:
+            for key in flat:
+                if key not in columns and len(columns) < MAX_COLUMNS:
+                    columns[key] = None
+                elif key not in columns:
+                    skipped[topic].add(f"{key} (over {MAX_COLUMNS} columns)")
+        n = len(got)
+        fields = {key: np.full(n, math.nan) for key in columns}
+        for i, (*_head, flat) in enumerate(got):
+            for key, value in flat.items():
+                column = fields.get(key)
+                if column is not None:
+                    column[i] = value
+        log_time = np.array([r[0] for r in got], dtype=np.int64)
+        data = TopicData(topic=topic, nominal_rate=0.0, log_time=log_time, start_ns=start_ns,
+                         device_time=np.array([r[1] for r in got], dtype=np.int64),
+                         seq=np.array([r[2] for r in got], dtype=np.int64).astype(np.uint32),
+                         status=np.zeros(n, dtype=np.uint32), fields=fields, units={k: "" for k in fields},
+                         skipped=tuple(sorted(skipped[topic])))
+        data.nominal_rate = data.sample_rate
+        out[topic] = data
+    return out
