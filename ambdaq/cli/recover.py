@@ -28,6 +28,9 @@ def command(file, output, overwrite, as_json):
             err=True,
         )
         for topic, t in report.topics.items():
+            if "samples" not in t:  # another writer's topic: the messages kept
+                click.echo(f"  {topic:<28} kept {t['messages']:>10,} messages (losses not numbered)", err=True)
+                continue
             kept = "?" if t["seconds_kept"] is None else f"{t['seconds_kept']:.3f} s"
             lost = "?" if t["seconds_lost"] is None else f"{t['seconds_lost']:.3f} s"
             click.echo(f"  {topic:<28} kept {t['samples']:>10,} samples ({kept}), lost {t['samples_lost']:>8,} ({lost})",

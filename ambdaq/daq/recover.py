@@ -9,7 +9,8 @@ Every complete chunk is kept, wherever the damage is (docs/data-format.md, "Reco
   length (its own or a neighbour's) costs nothing, and one bad byte costs at most the chunk it
   is in.
 - **Schemas, channels, metadata and attachments** are read record by record in the stretches
-  between chunks, each stretch until its first record that does not parse; the summary (after
+  between chunks, each stretch until its first record that does not parse, and schemas and
+  channels also inside the kept chunks (rosbag2's writer puts them there); the summary (after
   Data End) is read for the schema and channel records it repeats, so a damaged data-section
   channel record is still known.  A kept chunk's messages on a channel known from neither are
   dropped and counted (``orphan_messages``): without its channel record a message cannot be
@@ -129,9 +130,12 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
     bounds = [len(MAGIC), *[x for pos, end, _r in chunks for x in (pos, end)], len(data)]
     for a, b in zip(bounds[0::2], bounds[1::2]):
         covered += _read_stretch(data, a, b, schemas, channels, metadata, attachments)
+    for _pos, _end, records in chunks:  # writers such as rosbag2's put them inside the chunks
+        _chunk_definitions(records, schemas, channels)
     layouts, stats, trackers = {}, {}, {}
     tmp = dst.with_name(dst.name + ".part")
     messages = orphans = 0
+    per_channel: dict[int, int] = {}
     with open(tmp, "wb") as out:
         w = BlockWriter(out, profile=PROFILE)
         for s in schemas.values():
@@ -155,7 +159,7 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
         for _pos, _end, records in chunks:
             records, lost = _known_only(records, known)
             orphans += lost
-            messages += _count(records, layouts, stats, trackers)
+            messages += _count(records, layouts, stats, trackers, per_channel)
             w.add_chunk_records(records)
         rates = _declared_rates(metadata)
         written = _written_samples(metadata)
@@ -171,6 +175,8 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
             d["seconds_kept"] = round(st.samples / rate, 6) if rate else None
             d["seconds_lost"] = round(lost / rate, 6) if rate else None
             topics[topic] = d
+        for cid in known - set(stats):  # another writer's topics: what was kept (its losses are not numbered)
+            topics[w.channel_topic(cid)] = {"messages": per_channel.get(cid, 0)}
         indexed = _indexed_chunks(data)
         if indexed is not None:
             damaged = len(indexed - {pos for pos, _end, _r in chunks})
@@ -245,6 +251,17 @@ def _next_record(data: bytes, pos: int, end: int) -> int:
 
 
 
+def _chunk_definitions(records: bytes, schemas: dict, channels: dict) -> None:
+    """The Schema and Channel records a chunk holds (MCAP allows them there), for the messages
+    after them."""
+    for op, pos, body in iter_records(records, 0):
+        if op in (Opcode.SCHEMA, Opcode.CHANNEL):
+            got = _record_at(records, pos, pos + 9 + len(body))
+            if got is not None and got[1] is not None:
+                target = schemas if op == Opcode.SCHEMA else channels
+                target.setdefault(got[1].id, got[1])
+
+
 def _known_only(records: bytes, known: set[int]) -> tuple[bytes, int]:
     """``records`` without the messages on channels not in ``known``, and how many those were."""
     keep, lost, clean = [], 0, True
@@ -301,9 +318,10 @@ def _declared_rates(metadata: list[Metadata]) -> dict[str, float]:
 
 
 def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, SampleCounts],
-           trackers: dict[int, SequenceTracker]) -> int:
-    """Count messages of one chunk and update each topic's counts from the CDR seq (a recording
-    never holds a duplicate: the recorder dropped them, so here they only count)."""
+           trackers: dict[int, SequenceTracker], per_channel: dict[int, int]) -> int:
+    """Count messages of one chunk, per channel too, and update each ambdaq topic's counts from
+    the CDR seq (a recording never holds a duplicate: the recorder dropped them, so here they
+    only count)."""
     n = 0
     seqs: dict[int, list[int]] = {}
     times: dict[int, list[int]] = {}
@@ -312,6 +330,7 @@ def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, Sam
             continue
         n += 1
         cid, _s, log_time = struct.unpack_from("<HIQ", body, 0)
+        per_channel[cid] = per_channel.get(cid, 0) + 1
         if cid in layouts:
             # payload: cdr header u32, device_time i64, seq u32
             (seq,) = struct.unpack_from("<I", body, MESSAGE_HEADER_SIZE - 9 + 12)
