@@ -116,3 +116,33 @@ def test_recover_keeps_what_the_official_stream_reader_reads(name, tmp_path, run
         assert r.exit_code in (0, 2), r.output  # 2: the flip hit the magic, it is no MCAP file then
         if r.exit_code == 0:
             assert set(_stream_messages((tmp_path / f"flip{k}.mcap").read_bytes())) <= intact
+
+
+def test_a_file_without_chunks_or_summary_recovers(tmp_path, run_cli):
+    """The official writer without chunking (messages in the data section), cut before its summary:
+    `recover` keeps the whole messages before the cut, as the official stream reader reads them,
+    and `load` reads the JSON topic's numbers from the result."""
+    import json
+
+    from mcap.writer import Writer
+
+    path = tmp_path / "plain.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, use_chunking=False)
+        w.start()
+        channel = w.register_channel("/pose", "json", w.register_schema("Pose", "jsonschema", b"{}"))
+        for i in range(100):
+            w.add_message(channel, log_time=10**9 + i * 10**7, publish_time=10**9 + i * 10**7, sequence=i,
+                          data=json.dumps({"x": i, "y": [i, 2 * i], "name": "pose"}).encode())
+        w.finish()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    r = run_cli("recover", cut, "-o", tmp_path / "fixed.mcap")
+    assert r.exit_code == 0, r.output
+    readable = _stream_messages(cut.read_bytes())
+    assert 0 < len(readable) < 100 and _stream_messages((tmp_path / "fixed.mcap").read_bytes()) == readable
+    got = load(tmp_path / "fixed.mcap")["/pose"]
+    np.testing.assert_array_equal(got["x"], np.arange(len(readable)))
+    np.testing.assert_array_equal(got["y[1]"], 2 * np.arange(len(readable)))
+    assert got.skipped == ("name (str)",)

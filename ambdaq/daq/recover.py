@@ -15,6 +15,8 @@ Every complete chunk is kept, wherever the damage is (docs/data-format.md, "Reco
   channel record is still known.  A kept chunk's messages on a channel known from neither are
   dropped and counted (``orphan_messages``): without its channel record a message cannot be
   read.
+- **Messages outside chunks** (a writer that does not chunk) are kept up to the first damage of
+  their stretch and written as one chunk.
 - **Statistics** (samples, drops per topic) are recomputed from the recovered sequence numbers;
   per topic the report says the seconds kept (samples) and lost (gaps in ``seq``), at the rate
   its device declared.
@@ -128,8 +130,11 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
     attachments: list[Attachment] = []
     covered = len(MAGIC) + sum(end - pos for pos, end, _r in chunks)
     bounds = [len(MAGIC), *[x for pos, end, _r in chunks for x in (pos, end)], len(data)]
+    loose: list[bytes] = []
     for a, b in zip(bounds[0::2], bounds[1::2]):
-        covered += _read_stretch(data, a, b, schemas, channels, metadata, attachments)
+        covered += _read_stretch(data, a, b, schemas, channels, metadata, attachments, loose)
+    if loose:  # a writer that does not chunk: its messages become one chunk of the recovered file
+        chunks = [*chunks, (len(data), len(data), b"".join(loose))]
     for _pos, _end, records in chunks:  # writers such as rosbag2's put them inside the chunks
         _chunk_definitions(records, schemas, channels)
     layouts, stats, trackers = {}, {}, {}
@@ -191,17 +196,22 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
 
 
 def _read_stretch(data: bytes, start: int, end: int, schemas: dict, channels: dict, metadata: list,
-                  attachments: list) -> int:
+                  attachments: list, loose: list) -> int:
     """Read the non-chunk records from ``start`` to ``end``; the bytes read.  After a record that
     does not parse, go on at the next offset where a record parses and the one after it starts
-    (or the stretch ends) there: a damaged record costs itself and no more."""
-    pos, read = start, 0
+    (or the stretch ends) there: a damaged record costs itself and no more.  Messages outside
+    chunks (a writer that does not chunk) go to ``loose`` as their record bytes, up to the first
+    damage only: a message has no CRC, and one found after a resynchronisation could be any bytes."""
+    pos, read, clean = start, 0, True
     while pos + 9 <= end:
         got = _record_at(data, pos, end)
         if got is None:
             pos = _next_record(data, pos + 1, end)
+            clean = False
             continue
         op, record, rec_end = got
+        if op == MESSAGE_OPCODE and clean:
+            loose.append(bytes(data[pos:rec_end]))
         if op == Opcode.SCHEMA:
             schemas.setdefault(record.id, record)
         elif op == Opcode.CHANNEL:
