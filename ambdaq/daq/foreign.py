@@ -85,11 +85,10 @@ def _messages(f: McapFile, topics: list[str], lo: int | None, hi: int | None) ->
                                 "try: ambdaq recover") from None
 
 
-def load_foreign(f: McapFile, topics: list[str], lo: int | None, hi: int | None, start_ns: int) -> dict:
-    """The ``topics`` of ``f`` (foreign, see :func:`foreign_topics`) as TopicData, between host
-    times ``lo`` and ``hi`` (ns, None: open)."""
-    from .reader import TopicData
-
+def load_foreign(f: McapFile, topics: list[str], lo: int | None, hi: int | None) -> dict[str, dict]:
+    """The ``topics`` of ``f`` (foreign, see :func:`foreign_topics`) between host times ``lo`` and
+    ``hi`` (ns, None: open), each as the columns of a TopicData: ``log_time``, ``device_time`` (the
+    publish time), ``seq`` (the message sequence), ``fields`` by path and ``skipped``."""
     rows: dict[str, list] = {t: [] for t in topics}
     skipped: dict[str, set[str]] = {t: set() for t in topics}
     for topic, log_time, publish_time, sequence, decoded in _messages(f, topics, lo, hi):
@@ -113,12 +112,8 @@ def load_foreign(f: McapFile, topics: list[str], lo: int | None, hi: int | None,
                 column = fields.get(key)
                 if column is not None:
                     column[i] = value
-        log_time = np.array([r[0] for r in got], dtype=np.int64)
-        data = TopicData(topic=topic, nominal_rate=0.0, log_time=log_time, start_ns=start_ns,
-                         device_time=np.array([r[1] for r in got], dtype=np.int64),
-                         seq=np.array([r[2] for r in got], dtype=np.int64).astype(np.uint32),
-                         status=np.zeros(n, dtype=np.uint32), fields=fields, units={k: "" for k in fields},
-                         skipped=tuple(sorted(skipped[topic])))
-        data.nominal_rate = data.sample_rate
-        out[topic] = data
+        out[topic] = {"log_time": np.array([r[0] for r in got], dtype=np.int64),
+                      "device_time": np.array([r[1] for r in got], dtype=np.int64),
+                      "seq": np.array([r[2] for r in got], dtype=np.int64).astype(np.uint32),
+                      "fields": fields, "skipped": tuple(sorted(skipped[topic]))}
     return out

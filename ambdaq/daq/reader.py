@@ -328,8 +328,13 @@ def load(
         )
         declared = _nominal_rate(metadata, topic)
         result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
-    if others:
-        result.update(load_foreign(f, others, lo, hi, t0))
+    for topic, cols in (load_foreign(f, others, lo, hi) if others else {}).items():
+        n = cols["log_time"].shape[0]
+        data = TopicData(topic=topic, nominal_rate=0.0, log_time=cols["log_time"], start_ns=t0,
+                         device_time=cols["device_time"], seq=cols["seq"], status=np.zeros(n, dtype=np.uint32),
+                         fields=cols["fields"], units={k: "" for k in cols["fields"]}, skipped=cols["skipped"])
+        data.nominal_rate = data.sample_rate
+        result[topic] = data
     return Recording(f.path, result, metadata)
 
 
