@@ -12,7 +12,7 @@ import numpy as np
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
-from .options import POSITIVE, a2l_option
+from .options import DURATION, POSITIVE, a2l_option
 
 
 class LimitsArg(click.ParamType):
@@ -66,8 +66,8 @@ def command() -> None:
 @click.option("--axes", help="Comma-separated axes to excite; default: every axis of the test-signal input.")
 @click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
               help="RMS of the white-noise test signal: um for a displacement input, else the input's unit.")
-@click.option("--duration", type=POSITIVE, default=10.0, show_default=True, metavar="SECONDS", help="Per axis and speed.")
-@click.option("--settle", type=POSITIVE, default=60.0, show_default=True, metavar="SECONDS",
+@click.option("--duration", type=DURATION, default=10.0, show_default=True, metavar="SECONDS", help="Per axis and speed.")
+@click.option("--settle", type=DURATION, default=60.0, show_default=True, metavar="SECONDS",
               help="Longest wait for the rotor to reach each speed.")
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
               help="Where the measured recordings go; default: beside -o, in NAME_runs/.")

@@ -11,6 +11,7 @@ line on stderr; ``--debug`` (or ``AMBDAQ_DEBUG=1``) shows the traceback instead.
 from __future__ import annotations
 
 import ast
+import difflib
 import importlib
 import os
 import sys
@@ -72,6 +73,13 @@ class AmbdaqGroup(click.Group):
             return None
         module, attr = target.split(":")
         return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name = args[0] if args else ""
+        if name and not name.startswith("-") and name not in COMMANDS:
+            close = difflib.get_close_matches(name, list(COMMANDS), n=1)
+            ctx.fail(f"no command {name!r}" + (f": did you mean {close[0]!r}?" if close else ""))
+        return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         limit = formatter.width - 6 - max(len(n) for n in COMMANDS)

@@ -73,7 +73,7 @@ def output_options(command):
     f = click.option("--overwrite", is_flag=True, help="Replace existing output files.")(f)
     f = click.option("--compression", type=click.Choice(["zstd", "lz4", "none"]), default="zstd", show_default=True,
                      help="Chunk compression.")(f)
-    f = click.option("--split-duration", type=POSITIVE, metavar="SECONDS",
+    f = click.option("--split-duration", type=DURATION, metavar="SECONDS",
                      help="Start a new file every SECONDS on the host clock from the start (NAME_000.mcap, "
                           "NAME_001.mcap ...); each sample goes to the part its time falls in.")(f)
     f = click.option("--split-size", type=ByteSize(), help="Start a new file when one reaches SIZE (e.g. 100M).")(f)
@@ -155,15 +155,24 @@ class Seconds(click.ParamType):
     """A time: ``30``, ``30s``, ``500ms``, ``2min``, in s (finite, above 0)."""
 
     name = "SECONDS"
-    UNITS = {"": 1.0, "s": 1.0, "ms": 1e-3, "min": 60.0}
+    UNITS = {"": 1.0, "s": 1.0, "ms": 1e-3, "min": 60.0, "h": 3600.0}
+    LONGEST = 1e7  # 116 days: a longer time is a typing error, not a recording
 
     def convert(self, value, param, ctx):
-        if isinstance(value, float):
-            return value
-        m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*(s|ms|min)?\s*", str(value))
-        if not m or float(m.group(1)) <= 0:
-            self.fail(f"{value!r} is not a time above 0: expected e.g. 30s, 500ms, 2min", param, ctx)
-        return float(m.group(1)) * self.UNITS[m.group(2) or ""]
+        if isinstance(value, (int, float)):
+            seconds = float(value)
+        else:
+            m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*(s|ms|min|h)?\s*", str(value))
+            if not m:
+                self.fail(f"{value!r} is not a time: expected e.g. 10, 10s, 500ms, 2min, 1h", param, ctx)
+            seconds = float(m.group(1)) * self.UNITS[m.group(2) or ""]
+        if not 0 < seconds <= self.LONGEST:
+            self.fail(f"{value!r} is not a time above 0 and up to {self.LONGEST:,.0f} s", param, ctx)
+        return seconds
+
+
+DURATION = Seconds()
+"""The type of every option that takes a duration: ``10``, ``10s``, ``500ms``, ``2min``, ``1h``."""
 
 
 def snapshot_options(command):
@@ -194,9 +203,9 @@ def snapshot_options(command):
                      help="What writes a snapshot (repeatable): fault, manual, excursion>F (F of Cmin), "
                           "touchdown[:8A|:25V], speed:LO..HI (rpm), TOPIC.FIELD>V, TOPIC.FIELD<V, |TOPIC.FIELD|>V. "
                           "SIGUSR1 and Enter always fire (docs/live.md).")(f)
-    f = click.option("--post", "post_s", type=Seconds(), metavar="SECONDS",
+    f = click.option("--post", "post_s", type=DURATION, metavar="SECONDS",
                      help="Time written after a trigger (default 5s).")(f)
-    f = click.option("--snapshot", "snapshot_s", type=Seconds(), metavar="SECONDS",
+    f = click.option("--snapshot", "snapshot_s", type=DURATION, metavar="SECONDS",
                      help="Keep the last SECONDS in memory and write NAME_<time>_<cause>.mcap around each trigger "
                           "instead of one recording.")(f)
     return f

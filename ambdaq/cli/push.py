@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import click
@@ -70,6 +71,9 @@ def push_command(file, device, rig, key, description, dry_run, yes):
             if dry_run:
                 click.echo("dry run: nothing written")
                 return
+            if not sys.stdin.isatty():
+                raise BadInputError("push asks before it commits, and there is no terminal to ask on: pass --yes "
+                                    "(or --dry-run to see the difference)")
             if not click.confirm("commit these coefficients?"):
                 click.echo("push cancelled, nothing written")
                 return

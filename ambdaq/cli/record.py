@@ -16,7 +16,7 @@ from ..daq.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError
-from .options import (POSITIVE, Output, a2l_option, measure_option, output_options, report_options, snapshot_options,
+from .options import (DURATION, POSITIVE, Output, a2l_option, measure_option, output_options, report_options, snapshot_options,
                       speed_option)
 
 
@@ -145,7 +145,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 @click.option("--device", "devices", multiple=True, metavar="URL", envvar="AMBDAQ_DEVICE",
               help="Device URL, e.g. sim://spindle?seed=3 (repeatable).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False), help="Rig file (TOML) listing devices.")
-@click.option("--duration", type=POSITIVE, metavar="SECONDS",
+@click.option("--duration", type=DURATION, metavar="SECONDS",
               help="Recording length; default: until Ctrl-C.")
 @speed_option
 @click.option("--truth", is_flag=True, help="Also record /truth/... topics (simulated rigs).")

@@ -16,7 +16,7 @@ from ..sim.profiles import PROFILES, profile as rig_profile
 from ..sim.source import SimSource
 from ..speed import SpeedProfile
 from ..sim.devices.banks import DEFAULT_UNLOCK_KEY
-from .options import POSITIVE, excitation_option, output_options, report_options, snapshot_options, speed_option
+from .options import DURATION, POSITIVE, excitation_option, output_options, report_options, snapshot_options, speed_option
 from .record import run_recording
 
 if TYPE_CHECKING:
@@ -32,7 +32,7 @@ def command() -> None:
 @click.option("--profile", type=click.Choice(sorted(PROFILES)), default="spindle", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed; the run is deterministic per seed.")
 @speed_option
-@click.option("--duration", type=POSITIVE, required=True, metavar="SECONDS")
+@click.option("--duration", type=DURATION, required=True, metavar="SECONDS")
 @click.option("--truth", is_flag=True, help="Also write /truth/runout and /truth/position.")
 @click.option("--ff", type=click.Choice(["off", "lms"]), default="off", show_default=True,
               help="Feedforward of the simulated controller (lms: seed 000's adaptive runout cancellation).")
@@ -95,7 +95,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
               help="Folder for the recordings: FOLDER/<machine>/<machine>_<date>.mcap.")
 @click.option("--machines", type=click.IntRange(1, 1000), default=10, show_default=True)
 @click.option("--days", type=click.IntRange(1, 3650), default=4, show_default=True, help="One recording a day each.")
-@click.option("--duration", type=POSITIVE, default=1.0, show_default=True, metavar="SECONDS", help="Each recording's.")
+@click.option("--duration", type=DURATION, default=1.0, show_default=True, metavar="SECONDS", help="Each recording's.")
 @click.option("--rpm", type=POSITIVE, default=30000.0, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True, help="Everything follows from it.")
 @click.option("--drop-chance", type=click.FloatRange(0, 1), default=0.15, show_default=True,
@@ -134,7 +134,7 @@ def fleet(folder, machines, days, duration, rpm, seed, drop_chance):
               help="Also serve the controller's XCP slave: XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port), "
                    "XCP on SxI on a pseudo-terminal, or XCP on CAN on the rig's bus (with --can slcan); it prints "
                    "its xcp+... URL; its A2L: ambdaq sim a2l.")
-@click.option("--duration", type=POSITIVE, metavar="SECONDS",
+@click.option("--duration", type=DURATION, metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
 def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, duration):
     """Run a simulated rig in this process with its devices on real transports.

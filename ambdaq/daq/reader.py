@@ -37,6 +37,13 @@ READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at 
 HUGE_PAGE = 2 << 20  # x86-64 and arm64 Linux transparent huge pages, bytes
 
 
+class NotInRecording(BadInputError, KeyError):
+    """A topic or field a recording does not have: one line on the command line (exit 2), and a
+    KeyError to Python, so that ``rec.get(topic)`` and ``topic in rec`` work as for any mapping."""
+
+    __str__ = Exception.__str__
+
+
 @dataclass
 class TopicData:
     """One topic's samples.
@@ -79,7 +86,14 @@ class TopicData:
         try:
             return self.fields[name]
         except KeyError:
-            raise BadInputError(f"{self.topic} has no field {name!r}; fields: {', '.join(self.fields)}") from None
+            raise NotInRecording(f"{self.topic} has no field {name!r}; fields: {', '.join(self.fields)}") from None
+
+    def __iter__(self) -> Iterator[str]:
+        """The field names, as a mapping's keys (``list(gap)``, ``dict(gap)``)."""
+        return iter(self.fields)
+
+    def keys(self):
+        return self.fields.keys()
 
     def __len__(self) -> int:
         return int(self.log_time.shape[0])
@@ -135,7 +149,7 @@ class Recording(Mapping):
         try:
             return self.topics[topic]
         except KeyError:
-            raise BadInputError(f"{self.path}: no topic {topic}; topics: {', '.join(self.topics)}") from None
+            raise NotInRecording(f"{self.path}: no topic {topic}; topics: {', '.join(self.topics)}") from None
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.topics)

@@ -206,6 +206,8 @@ def parse_device_url(text: str | DeviceURL) -> DeviceURL:
     name, sep, _rest = str(text).partition(":")
     found = backend(name) if sep and SCHEME_NAME.fullmatch(name) else None
     if found is None or (not found.scheme.opaque and "://" not in text):
+        if re.fullmatch(r"/dev/\S+|COM\d+", str(text)):  # a serial port given without its scheme
+            raise BadInputError(f"unknown device URL {text!r}: did you mean serial://{text}?")
         raise BadInputError(f"unknown device URL {text!r}: expected {expected_forms()}")
     return found.scheme.parse(str(text))
 

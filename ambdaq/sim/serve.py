@@ -79,6 +79,8 @@ class ServedRig:
         The device URL of each, as a driver opens it.
     ptys : dict of str to Pty
         The pseudo-terminals, by device name.
+    started : list
+        The devices started, in order: what :meth:`stop` stops.
     """
 
     server: RigServer
@@ -87,11 +89,14 @@ class ServedRig:
     urls: dict[str, str] = field(default_factory=dict)
     ptys: dict[str, Pty] = field(default_factory=dict)
     network: object = None
+    started: list = field(default_factory=list)
 
     def stop(self) -> None:
-        """Stop every device and the rig; safe to call twice."""
-        for device in self.devices.values():
+        """Stop every device that was started and the rig; safe to call twice (and after a failed
+        start, when some devices never ran)."""
+        for device in self.started:
             device.stop()
+        self.started.clear()
         self.devices.clear()
         self.can_devices.clear()
         self.server.stop()
@@ -188,6 +193,7 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
         served.server.start()
         for device in served.devices.values():
             device.start()
+            served.started.append(device)
     except BaseException:
         served.stop()
         raise

@@ -46,6 +46,7 @@ import numpy as np
 from ...drivers.coefbank import crc32
 from ...drivers.signals import SampleBlock
 from ...drivers.xcp.keys import sim_key
+from ...errors import DeviceError
 from ..profiles import profile
 from .banks import CoefficientBanks
 from .rig_server import DeviceClock, RigServer
@@ -136,7 +137,10 @@ class XcpSlave:
 
     def serve_tcp(self, port: int) -> None:
         """XCP on TCP on 127.0.0.1:``port`` (0: a free one); :attr:`url` says where."""
-        listener = socket.create_server(("127.0.0.1", port))
+        try:
+            listener = socket.create_server(("127.0.0.1", port))
+        except OSError as err:
+            raise DeviceError(f"XCP on TCP cannot listen on 127.0.0.1:{port}: {err.strerror or err}") from None
         self.url = f"xcp+tcp://127.0.0.1:{listener.getsockname()[1]}"
         self._thread = threading.Thread(target=self._serve_tcp, args=(listener,), name="xcp-slave", daemon=True)
 

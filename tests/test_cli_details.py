@@ -1,0 +1,65 @@
+"""The details users touch on the command line and in Python (issue 29): each one line or the
+behaviour Python users expect of a mapping."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from ambdaq.daq import load
+
+
+def test_a_mistyped_command_is_named_with_the_one_meant(run_cli):
+    r = run_cli("recrod")
+    assert r.exit_code == 2 and "no command 'recrod': did you mean 'record'?" in r.output
+    assert len(r.output.strip().splitlines()) == 1
+
+
+def test_a_serial_port_without_its_scheme_is_answered_with_the_url(run_cli, tmp_path):
+    r = run_cli("record", "--device", "/dev/ttyUSB0", "--duration", "1", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and "did you mean serial:///dev/ttyUSB0?" in r.output
+    assert len(r.output) < 200  # not every URL grammar there is
+
+
+@pytest.mark.parametrize("text, seconds", [("0.25", 0.25), ("250ms", 0.25), ("0.25s", 0.25)])
+def test_durations_take_units_like_snapshot_does(text, seconds, run_cli, tmp_path):
+    r = run_cli("sim", "generate", "--duration", text, "--json", "-o", tmp_path / "g.mcap")
+    assert r.exit_code == 0, r.output
+    assert len(load(tmp_path / "g.mcap")["/amb/gap"]) == round(seconds * 10_000)
+
+
+@pytest.mark.parametrize("text", ["1e308", "0", "-5s", "ten"])
+def test_an_impossible_duration_is_one_line(text, run_cli, tmp_path):
+    r = run_cli("record", "--device", "sim://spindle", "--duration", text, "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and "--duration" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+
+
+def test_recording_and_topic_behave_as_mappings(spindle_file):
+    rec = load(spindle_file, topics=["/amb/gap"])
+    assert rec.get("/amb/current") is None and "/amb/current" not in rec
+    with pytest.raises(KeyError):
+        rec["/amb/current"]
+    gap = rec["/amb/gap"]
+    assert list(gap) == list(gap.fields) == ["front_x", "front_y", "rear_x", "rear_y", "axial"]
+    assert dict(gap)["front_x"] is gap["front_x"]
+    with pytest.raises(KeyError):
+        gap["nope"]
+
+
+def test_push_without_yes_and_without_a_terminal_says_so(tmp_path):
+    """No terminal to ask on (CI, a pipe): one line, exit 2, not click's "Aborted!"."""
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "push", str(tmp_path / "coef.json"), "--device",
+                        "serial:///dev/null"], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+    assert r.returncode in (1, 2) and "Aborted" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_sim_serve_on_a_port_in_use_is_one_line(tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        r = subprocess.run([sys.executable, "-m", "ambdaq", "sim", "serve", "--xcp", f"tcp:{port}", "--duration", "1"],
+                           capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and f"cannot listen on 127.0.0.1:{port}" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "internal error" not in r.stderr
