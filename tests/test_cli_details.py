@@ -63,3 +63,20 @@ def test_sim_serve_on_a_port_in_use_is_one_line(tmp_path):
                            capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and f"cannot listen on 127.0.0.1:{port}" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "internal error" not in r.stderr
+
+
+def test_the_closing_line_names_each_devices_samples_and_drops(run_cli, tmp_path):
+    """sim://spindle opens the controller (`rig`) and four CANopen devices at other rates: the line
+    says what the devices wrote and lost, not the controller's samples beside everyone's drops."""
+    import json
+
+    r = run_cli("record", "--device", "sim://spindle", "--duration", "0.5", "-o", tmp_path / "r.mcap")
+    assert r.exit_code == 0, r.output
+    line = r.stderr.strip().splitlines()[-1]
+    r = run_cli("record", "--device", "sim://spindle", "--duration", "0.5", "--json", "-o", tmp_path / "j.mcap")
+    devices = json.loads(r.stdout)["devices"]
+    assert len(devices) > 1 and "rig" in devices
+    if len(devices) <= 4:
+        assert all(f"{name} " in line for name in devices), line
+    else:
+        assert f"{len(devices)} devices, " in line and " samples each, " in line, line

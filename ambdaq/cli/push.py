@@ -71,10 +71,14 @@ def push_command(file, device, rig, key, description, dry_run, yes):
             if dry_run:
                 click.echo("dry run: nothing written")
                 return
-            if not sys.stdin.isatty():
-                raise BadInputError("push asks before it commits, and there is no terminal to ask on: pass --yes "
-                                    "(or --dry-run to see the difference)")
-            if not click.confirm("commit these coefficients?"):
+            try:
+                answer = click.confirm("commit these coefficients?")
+            except click.Abort:
+                if sys.stdin.isatty():
+                    raise  # the user stopped it at the prompt
+                raise BadInputError("push asks before it commits and its input ended without an answer (no "
+                                    "terminal): pass --yes, or --dry-run to see the difference") from None
+            if not answer:
                 click.echo("push cancelled, nothing written")
                 return
         result = push(port, plan, unlock_key, target=url)

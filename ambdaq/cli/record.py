@@ -61,16 +61,14 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
         click.echo(json.dumps(result.as_dict(), indent=2))
     elif not quiet and snapshot is not None:
         how = " (stopped)" if result.stopped_by_user else ""
-        dups = f", {result.duplicates} duplicates dropped" if result.duplicates else ""
-        click.echo(f"watched {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops{dups}; "
+        click.echo(f"watched {result.duration_s:.3f} s{how}: {result.counts_line()}; "
                    f"{len(result.files)} snapshots, memory peak {result.snapshot['memory_peak_bytes'] / 1e6:.1f} MB"
                    + "".join(f"\n  {f} ({f.stat().st_size / 1e6:.1f} MB)" for f in result.files), err=True)
     elif not quiet:
         size = sum(f.stat().st_size for f in result.files) / 1e6
         how = " (stopped)" if result.stopped_by_user else ""
-        dups = f", {result.duplicates} duplicates dropped" if result.duplicates else ""
         click.echo(
-            f"recorded {result.duration_s:.3f} s{how}: {result.samples} samples, {result.drops} drops{dups} "
+            f"recorded {result.duration_s:.3f} s{how}: {result.counts_line()} "
             f"-> {', '.join(str(f) for f in result.files)} ({size:.1f} MB)",
             err=True,
         )

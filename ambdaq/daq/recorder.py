@@ -136,7 +136,8 @@ class RecordResult:
 
     ``duration_s`` is the longest time any device covered: its sample periods (samples plus
     drops) over its sample rate; ``samples`` is the most any device wrote; ``drops`` and
-    ``duplicates`` are summed over devices (a device's count is the same on each of its topics).
+    ``duplicates`` are summed over devices (a device's count is the same on each of its topics);
+    ``devices`` has each device's own.
     """
 
     files: list[Path]
@@ -150,6 +151,22 @@ class RecordResult:
     events: int = 0
     alignment_us: float | None = None
     snapshot: dict | None = None  # a snapshot recording's memory figures and triggers fired
+    devices: dict[str, dict] = field(default_factory=dict)  # per device: samples, drops, duplicates
+
+    def counts_line(self) -> str:
+        """What each device wrote and lost, in words: the totals mean different things (``samples``
+        is the most any device wrote, ``drops`` the sum), so with several devices each is named."""
+        dups = f", {self.duplicates} duplicates dropped" if self.duplicates else ""
+        if len(self.devices) <= 1:
+            return f"{self.samples} samples, {self.drops} drops{dups}"
+        if len(self.devices) <= 4:
+            return "; ".join(f"{name} {d['samples']} samples, {d['drops']} drops"
+                             + (f", {d['duplicates']} duplicates dropped" if d["duplicates"] else "")
+                             for name, d in self.devices.items())
+        worst = max(self.devices, key=lambda n: self.devices[n]["drops"])
+        fewest = min(d["samples"] for d in self.devices.values())
+        return (f"{len(self.devices)} devices, {fewest} to {self.samples} samples each, {self.drops} drops in all"
+                + (f" (most: {worst}, {self.devices[worst]['drops']})" if self.drops else "") + dups)
 
     def as_dict(self) -> dict:
         return {
@@ -160,6 +177,7 @@ class RecordResult:
             "duplicates": self.duplicates,
             "events": self.events,
             "stopped_by_user": self.stopped_by_user,
+            "devices": self.devices,
             "topics": self.topics,
             "clocks": self.clocks,
             "alignment_us": self.alignment_us,
@@ -553,6 +571,7 @@ class Recorder:
             clocks=self._clock_report(),
             events=self._events,
             alignment_us=self._alignment_us(),
+            devices={n: {k: getattr(t, k) for k in ("samples", "drops", "duplicates")} for n, t in self._totals.items()},
             snapshot=None if self._snapshots is None else {
                 "pre_s": opts.snapshot.pre_s, "post_s": opts.snapshot.post_s,
                 "memory_bound_bytes": self.snapshot_bound, "memory_peak_bytes": self._snapshots.peak_bytes,
