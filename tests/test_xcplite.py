@@ -124,19 +124,24 @@ def xcplite(request, build_once, tmp_path_factory):
         proc.wait(timeout=10)
 
 
-@pytest.fixture(scope="module")
-def c_demo(build_once, tmp_path_factory):
-    """XCPlite's c_demo on UDP: 8- to 64-bit counters, signed and unsigned, globals and on the stack,
-    a typedef instance, a map and a curve in a calibration segment."""
+def _running(build_once, tmp_path_factory, example: str):
+    """XCPlite's ``example`` built for UDP and running, with its A2L; stopped afterwards."""
     _needs_a_compiler()
-    built = build_once("xcplite-c-demo", lambda out: _build(out, tcp=False, example="c_demo"))
+    built = build_once(f"xcplite-{example}", lambda out: _build(out, tcp=False, example=example))
     url = (built / "url").read_text()
-    proc, a2l = _started(built / "build" / "c_demo", url, tmp_path_factory.mktemp("c_demo"))
+    proc, a2l = _started(built / "build" / example, url, tmp_path_factory.mktemp(example))
     try:
         yield url, a2l
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def c_demo(build_once, tmp_path_factory):
+    """XCPlite's c_demo on UDP: 8- to 64-bit counters, signed and unsigned, globals and on the stack,
+    a typedef instance, a map and a curve in a calibration segment."""
+    yield from _running(build_once, tmp_path_factory, "c_demo")
 
 
 def pyxcp_master(url: str):
@@ -294,15 +299,7 @@ def test_pages_of_a_calibration_segment(xcplite, run_cli):
 def multi_thread(build_once, tmp_path_factory):
     """XCPlite's multi_thread_demo on UDP: eight threads, each with its own sporadic event and
     counter, and FLOAT64 parameters in a calibration segment."""
-    _needs_a_compiler()
-    built = build_once("xcplite-multi-thread", lambda out: _build(out, tcp=False, example="multi_thread_demo"))
-    url = (built / "url").read_text()
-    proc, a2l = _started(built / "build" / "multi_thread_demo", url, tmp_path_factory.mktemp("multi_thread"))
-    try:
-        yield url, a2l
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+    yield from _running(build_once, tmp_path_factory, "multi_thread_demo")
 
 
 def test_eight_events_eight_daq_lists_and_a_double_parameter(multi_thread, tmp_path, run_cli):

@@ -101,7 +101,10 @@ def ask_slave(url: str, link: LinkFactory) -> dict[str, str]:
         if got.resources & RES_DAQ:
             processor = master.daq_processor()
             for n in range(min(processor.max_event, 256)):
-                e = master.event_channel(n)
+                try:
+                    e = master.event_channel(n)
+                except XcpRefused:  # MAX_EVENT_CHANNEL may count more than the slave created
+                    break
                 out[f"event_{n}"] = f"{e.name} ({_cycle_text(e)})"
         master.disconnect()
     finally:
@@ -163,24 +166,26 @@ class _Stream:
         self.implausible = 0  # samples dropped: their timestamp cannot be the slave's clock
 
     def read(self, failure: Callable[[], str | None]) -> SampleBlock | None:
-        taken = self.rows.take(failure, lambda s: f"{self.url}: no DAQ data on event {self.plan.event.name!r} "
-                                                  f"for {s:.1f} s")
-        if taken is None:
-            return None
-        rows, seq = taken
-        arrival = np.array([r[1] for r in rows], dtype=np.int64)
-        if self.timed:
+        while True:
+            taken = self.rows.take(failure, lambda s: f"{self.url}: no DAQ data on event {self.plan.event.name!r} "
+                                                      f"for {s:.1f} s")
+            if taken is None:
+                return None
+            rows, seq = taken
+            arrival = np.array([r[1] for r in rows], dtype=np.int64)
+            if not self.timed:
+                device = arrival.copy()
+                break
             raw = np.array([r[2] for r in rows], dtype=np.int64)
             device, plausible, self._last = unwrap_timestamps(raw, arrival, self.tick_ns, self.plan.timestamp,
                                                               self._last)
-            if not plausible.all():
-                self.implausible += int(np.count_nonzero(~plausible))
-                if not plausible.any():
-                    return self.read(failure)
+            if plausible.all():
+                break
+            self.implausible += int(np.count_nonzero(~plausible))
+            if plausible.any():
                 rows = [r for r, ok in zip(rows, plausible) if ok]
                 seq, arrival, device = seq[plausible], arrival[plausible], device[plausible]
-        else:
-            device = arrival.copy()
+                break
         k = int(np.argmin(arrival - device))
         self._pairs.append((int(device[k]), int(arrival[k])))
         payload = np.frombuffer(b"".join(r[3] for r in rows), dtype=self._dtype)

@@ -128,7 +128,26 @@ class _StreamLink(Link):
         return out
 
 
-class TcpLink(_StreamLink):
+class _SocketSend:
+    """Sending and closing on a socket (``_sock``), for the Ethernet links."""
+
+    _sock: socket.socket
+    url: str
+
+    def send(self, packet: bytes) -> None:
+        try:
+            self._sock.sendall(self.frame(packet))
+        except OSError as err:
+            raise DeviceError(f"{self.url}: send failed: {err.strerror or err}") from None
+
+    def close(self) -> None:
+        try:
+            self._sock.close()
+        except OSError:
+            pass
+
+
+class TcpLink(_SocketSend, _StreamLink):
     """XCP on TCP to ``host``:``port``."""
 
     def __init__(self, url: str, host: str, port: int, timeout_s: float) -> None:
@@ -147,19 +166,6 @@ class TcpLink(_StreamLink):
             return b""
         except OSError:
             return None
-
-    def send(self, packet: bytes) -> None:
-        try:
-            self._sock.sendall(self.frame(packet))
-        except OSError as err:
-            raise DeviceError(f"{self.url}: send failed: {err.strerror or err}") from None
-
-    def close(self) -> None:
-        try:
-            self._sock.close()
-        except OSError:
-            pass
-
 
 class SerialLink(_StreamLink):
     """XCP on SxI over a serial port (pyserial URL or device), LEN_CTR_WORD header, no checksum."""
@@ -197,7 +203,7 @@ class SerialLink(_StreamLink):
             pass
 
 
-class UdpLink(Link):
+class UdpLink(_SocketSend, Link):
     """XCP on UDP to ``host``:``port``: each datagram holds one or more LEN CTR PACKET messages."""
 
     def __init__(self, url: str, host: str, port: int) -> None:
@@ -249,19 +255,6 @@ class UdpLink(Link):
             at = end
         if at != len(data) and any(data[at:]):
             self.malformed += 1  # trailing bytes that are no message (zero fill is allowed)
-
-    def send(self, packet: bytes) -> None:
-        try:
-            self._sock.send(self.frame(packet))
-        except OSError as err:
-            raise DeviceError(f"{self.url}: send failed: {err.strerror or err}") from None
-
-    def close(self) -> None:
-        try:
-            self._sock.close()
-        except OSError:
-            pass
-
 
 class CanLink(Link):
     """XCP on CAN: one packet per frame, on a bus shared through :class:`~ambdaq.drivers.can.bus.CanHub`."""
