@@ -42,7 +42,9 @@ def test_interrupt_finishes_the_file_cleanly(tmp_path, sig, times):
     for a reader that never returned, whatever else the machine is doing.)"""
     out = tmp_path / "stop.mcap"
     proc = start_recording(out)
-    wait_for_data(out, proc, 0.5)
+    # 100 kB are on disk after about 0.7 s now that a device's first seconds are written at once
+    # (they had waited 3 s for its clock map, then came in one piece): 1.5 s more is 15,000 samples
+    wait_for_data(out, proc, 1.5)
     sent = time.monotonic()
     for _ in range(times):
         proc.send_signal(sig)

@@ -1,9 +1,10 @@
-"""Export recordings to CSV, NPZ or Parquet (``ambdaq export``).
+"""Export recordings to CSV, NPZ, Parquet or MDF 4 (``ambdaq export``).
 
 Every format carries, per topic, ``time`` (s since the first sample), ``log_time_ns``,
 ``device_time_ns``, ``seq`` and one column per field in SI units.
 CSV and Parquet write one file per topic (``OUT/amb_gap.csv`` ...; a single topic may be written
-to ``OUT.csv`` directly); NPZ writes one archive with keys ``<topic>/<column>``.
+to ``OUT.csv`` directly); NPZ writes one archive with keys ``<topic>/<column>``; MDF 4 one file, a
+channel group per topic (:mod:`.mdf`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from ..errors import BadInputError
 from .output import check_output
 from .reader import Recording, TopicData
 
-FORMATS = ("csv", "npz", "parquet")
+FORMATS = ("csv", "npz", "parquet", "mf4")
 
 
 def _columns(t: TopicData) -> dict[str, np.ndarray]:
@@ -37,7 +38,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
     ----------
     rec : Recording
         Loaded topics (see :func:`ambdaq.daq.load`).
-    fmt : {"csv", "npz", "parquet"}
+    fmt : {"csv", "npz", "parquet", "mf4"}
         Output format.
     out : Path
         A file (npz, or csv/parquet with one topic) or a directory (csv/parquet, several topics).
@@ -47,6 +48,11 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
     if fmt not in FORMATS:
         raise BadInputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
     out = Path(out)
+    if fmt == "mf4":  # one file of every topic, a channel group each (daq/mdf.py)
+        from .mdf import write_mf4
+
+        return [write_mf4(rec, check_output(out if out.suffix.lower() == ".mf4" else out.with_suffix(".mf4"),
+                                            overwrite))]
     if fmt == "npz":
         target = out if out.suffix == ".npz" else out.with_suffix(".npz")
         check_output(target, overwrite)

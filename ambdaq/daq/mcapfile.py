@@ -300,9 +300,11 @@ class BlockWriter:
         self.add_messages(row, [(channel_id, 0, len(record))], np.array([log_time], dtype=np.uint64))
 
     def close_chunk(self) -> None:
-        """Compress and write the open chunk and its message indexes, then flush to the OS."""
+        """Compress and write the open chunk and its message indexes, then flush to the OS (with
+        no open chunk, what is written so far: the header and the records before any message)."""
         chunk = self._chunk
         if chunk.size == 0:
+            self._out.flush()
             return
         data = b"".join(chunk.parts)
         self._write_chunk(data, chunk.start, chunk.end, {cid: np.concatenate(p) for cid, p in chunk.index.items()})

@@ -345,6 +345,7 @@ class Recorder:
                 w.add_device(s.name, s.signal_groups(), s.identity(), s.calibration())
             if self.rig_file is not None:
                 w.add_attachment(self.rig_file.name, "application/toml", self.rig_file.read_bytes(), start_ns)
+            w.flush()  # the devices and the session on disk from the start: a crash keeps who recorded what
         except BaseException:
             w.close()
             raise
@@ -444,7 +445,6 @@ class Recorder:
         self._last_time: dict[str, int | None] = {name: None for name in self._names}
         self._ended: set[str] = set()
         self._clocks: dict[str, ClockMap] = {}
-        self._priming: dict[str, list[SampleBlock]] = {}
         self._host_clocked: set[str] = set()
         self._events = 0
         self._snapshots: Snapshots | None = None
@@ -534,8 +534,6 @@ class Recorder:
                 self._drain(q)
                 time.sleep(0.005)
             self._drain(q)
-            for name in list(self._priming):
-                self._flush_priming(name)
             for s in self.sources:
                 self._write_events(s)
             for part in self._parts:
@@ -604,7 +602,6 @@ class Recorder:
     def _end_device(self, name: str, due: int | None) -> None:
         """``name`` has ended; if it delivered the ``due`` periods it was asked for, the ones it
         never sent after its last sample are drops of its last part."""
-        self._flush_priming(name)
         if due is not None:
             missing = self._trackers[name].missing_after(due)
             if missing and self._snapshots is not None:
@@ -641,10 +638,13 @@ class Recorder:
     def _ingest(self, source, block: SampleBlock) -> None:
         """Map a block to the host clock and write it.
 
-        Blocks that say when they arrived feed the device's online clock map (offset and drift).
-        A device's first blocks wait until its drift is estimated (3 s of pairs), so the whole file is
-        mapped through a fitted line; in-process sources without arrival times start their clock
-        at 0 when the recording starts, so their mapping is the start offset.
+        Blocks that say when they arrived feed the device's online clock map (offset and drift),
+        and are written at once: until the drift is estimated (3 s of pairs) through the offset
+        alone, from the fastest pair so far.  Holding them until then had cost a process killed in
+        its first seconds every sample of such a device; how far the later fits would move those
+        early times is measured and reported (the map's revision, :mod:`.clock`).  In-process
+        sources without arrival times start their clock at 0 when the recording starts, so their
+        mapping is the start offset.
         """
         device = source.name
         if block.host_time_ns is not None:  # the device's times are host times (CAN bus stamps)
@@ -662,22 +662,16 @@ class Recorder:
         latency = source.clock_latency_ns()
         if latency is not None:
             cm.latency_ns = latency
-        self._priming.setdefault(device, []).append(block)
-        if cm.settled:
-            self._flush_priming(device)
-
-    def _flush_priming(self, device: str) -> None:
-        cm = self._clocks.get(device)
-        for b in self._priming.pop(device, []):
-            host = cm.to_host(b.device_time_ns)
-            last = self._last_time[device]
-            if last is not None:
-                # a refit that moves the device's time back would put the block's first samples at
-                # or before the last one written: those (and only those) go just after it, 1 ns
-                # apart, so time never runs back and every other sample keeps its best estimate
-                host = np.maximum(host, last + 1 + np.arange(host.shape[0], dtype=np.int64))
-            cm.written(int(b.device_time_ns[-1]), int(host[-1]))
-            self._write(device, SampleBlock(b.device_time_ns, b.seq, b.values, host, b.received_ns, b.status))
+        host = cm.to_host(block.device_time_ns)
+        last = self._last_time[device]
+        if last is not None:
+            # a refit that moves the device's time back would put the block's first samples at
+            # or before the last one written: those (and only those) go just after it, 1 ns
+            # apart, so time never runs back and every other sample keeps its best estimate
+            host = np.maximum(host, last + 1 + np.arange(host.shape[0], dtype=np.int64))
+        cm.written(int(block.device_time_ns[-1]), int(host[-1]))
+        self._write(device, SampleBlock(block.device_time_ns, block.seq, block.values, host, block.received_ns,
+                                        block.status))
 
     # --- writing ---------------------------------------------------------------------------------
 
@@ -763,10 +757,6 @@ class Recorder:
             now[name].add(total)
             for part in self._parts:
                 now[name].add(part.writer.counts[name])
-        # samples waiting for their device's clock map (the first seconds of a device stamped on its
-        # own clock) are recorded: they count as soon as they arrive, not when they are written
-        for name, blocks in self._priming.items():
-            now[name].samples += sum(len(b) for b in blocks)
         next_split = None
         if self.options.split_duration_s is not None:
             period = self.options.split_duration_s * 1e9
