@@ -80,3 +80,53 @@ def test_the_closing_line_names_each_devices_samples_and_drops(run_cli, tmp_path
         assert all(f"{name} " in line for name in devices), line
     else:
         assert f"{len(devices)} devices, " in line and " samples each, " in line, line
+
+
+def test_a_serial_peer_whose_identity_is_crc_valid_junk_is_one_line(tmp_path, run_cli):
+    """A device on a serial line (a pseudo-terminal) that answers IDENTIFY with a well-framed,
+    CRC-valid IDENTITY whose body is not UTF-8 JSON: one line naming what it sent, exit 1 (it had
+    been "internal error: UnicodeDecodeError")."""
+    import os
+    import pty
+    import select
+    import threading
+
+    from ambdaq.drivers.serial.framing import encode_frame
+    from ambdaq.drivers.serial.protocol import HEADER, MsgType
+
+    master, slave = pty.openpty()
+    stop = threading.Event()
+
+    def answer() -> None:
+        seq = 0
+        while not stop.is_set():
+            if select.select([master], [], [], 0.05)[0]:
+                try:
+                    os.read(master, 4096)
+                except OSError:
+                    return
+                os.write(master, encode_frame(HEADER.pack(MsgType.IDENTITY, 0, seq) + b"\xff\xfe{junk"))
+                seq += 1
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        r = run_cli("record", "--device", f"serial://{os.ttyname(slave)}", "--duration", "1", "-o", tmp_path / "x.mcap")
+    finally:
+        stop.set()
+        os.close(slave)
+        os.close(master)
+    assert r.exit_code == 1 and "IDENTITY is not JSON text" in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and "internal error" not in r.output
+
+
+def test_an_output_name_that_is_no_utf8_records(tmp_path):
+    """A file name with a byte that is no UTF-8 (from another system): recorded, its command line
+    kept in the metadata with the byte escaped (it had been an internal UnicodeEncodeError)."""
+    import os
+
+    name = os.fsdecode(bytes(tmp_path) + b"/run\xff.mcap")
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "sim", "generate", "--duration", "0.1", "-q", "-o", name],
+                       capture_output=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    meta = load(name).metadata["ambdaq.session"]
+    assert "run\\udcff.mcap" in meta["command"]

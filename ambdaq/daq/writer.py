@@ -89,11 +89,11 @@ class RecordingWriter:
             row += layout.record_dtype(prefix=f"{i}.")
         self._devices[name] = _Device(name, list(groups), layouts, channels, np.dtype(row))
         self.counts[name] = SampleCounts(name)
-        self._w.add_metadata(f"ambdaq.device.{name}", identity)
-        self._w.add_metadata(f"ambdaq.calibration.{name}", calibration)
+        self.add_metadata(f"ambdaq.device.{name}", identity)
+        self.add_metadata(f"ambdaq.calibration.{name}", calibration)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        self._w.add_metadata(name, data)
+        self._w.add_metadata(name, {k: _text(v) for k, v in data.items()})
 
     def add_attachment(self, name: str, media_type: str, data: bytes, log_time: int) -> None:
         self._w.add_attachment(name, media_type, data, log_time)
@@ -187,3 +187,9 @@ class RecordingWriter:
             self._sync_wanted.set()
             self._syncer.join()
             self._file.close()
+
+
+def _text(value: str) -> str:
+    """``value`` as MCAP metadata holds it, UTF-8: a path or command line with bytes that are no
+    UTF-8 (a file name from another system) keeps them as backslash escapes."""
+    return value.encode("utf-8", "backslashreplace").decode("utf-8")

@@ -8,7 +8,6 @@ feedforward mode and table, LMS schedule and speed set-point; as a coefficient-b
 
 from __future__ import annotations
 
-import json
 import queue
 import struct
 import time
@@ -196,7 +195,10 @@ class ControllerDriver(Controller):
     def bank_status(self) -> dict:
         """Active bank, device-computed CRC-32s, the push log."""
         reply = self.link.request(MsgType.BANK_STATUS, what="bank status")
-        return json.loads(reply.body[2:].decode())
+        try:
+            return proto.parse_json(reply.body[2:], "BANK_STATUS")
+        except ValueError as err:
+            raise DeviceError(f"{self.name}: {err}") from None
 
     def commit_bank(self, crc: int, record: dict) -> int:
         """Switch to the inactive bank if the device finds ``crc`` in it; returns the first sample

@@ -203,15 +203,16 @@ class SerialLink:
 
     def identify(self, timeout: float = 2.0) -> dict:
         """Ask the device who it is."""
-        import json
-
         self._identity_event.clear()
         self._identity.clear()
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:  # a line just opened may still carry junk: ask again
             self.send(MsgType.IDENTIFY)
             if self._identity_event.wait(0.3):
-                return json.loads(self._identity[-1].body.decode())
+                try:
+                    return proto.parse_json(self._identity[-1].body, "IDENTITY")
+                except ValueError as err:
+                    raise DeviceError(f"{self.port_name}: the device answered IDENTIFY, but {err}") from None
         raise DeviceError(f"{self.port_name}: no device answered IDENTIFY within {timeout:g} s (is it powered and "
                           "connected, at this baud rate, and not in use by another program?)")
 

@@ -257,6 +257,18 @@ def parse_bank_commit(body: bytes) -> tuple[int, dict]:
     return crc, json.loads(body[4:].decode() or "{}")
 
 
+def parse_json(body: bytes, what: str) -> dict:
+    """A body that holds a JSON object (IDENTITY, BANK_STATUS); ValueError naming ``what`` if its
+    bytes are not UTF-8 JSON of an object (a peer's CRC-valid junk)."""
+    try:
+        doc = json.loads(bytes(body).decode())
+    except ValueError:  # UnicodeDecodeError and JSONDecodeError alike
+        raise ValueError(f"its {what} is not JSON text ({len(body)} bytes)") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"its {what} is JSON but not an object")
+    return doc
+
+
 def ack_value(request_seq: int, value: int) -> bytes:
     """An ACK that carries a u32 result (BANK_COMMIT: the first sample run with the new bank)."""
     return struct.pack("<HI", request_seq, value & 0xFFFFFFFF)
