@@ -30,10 +30,12 @@ def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
     for topic, counts in summary["topics"].items():
         assert counts["samples"] + counts["drops"] == round(1.5 * rec[topic].nominal_rate), topic
     # host log_time follows the wall clock of the recording.  The controller's clock runs 50 ppm
-    # fast; a recording shorter than the 3 s the drift estimate needs is mapped by offset alone,
-    # so its span may be off by up to 50 ppm (75 us here), less than one sample period
+    # fast (75 us over 1.5 s), and its first seconds are written as they come (a kill -9 in them
+    # loses no more than the last 0.5 s), each block through the clock map as it then stands: the
+    # offset from the fastest pair so far and the refits move the span by a few tens of us,
+    # once 620 us in 8 runs here.  1 ms bounds that; the device's own time (device_time) is exact
     span = (rec["/amb/gap"].log_time[-1] - rec["/amb/gap"].log_time[0]) * 1e-9
-    assert abs(span - 1.4999) < 100e-6
+    assert abs(span - 1.4999) < 1e-3
     # sim:// runs the real drivers: the controller over a PTY, the CANopen devices on a virtual bus
     kinds = {json.loads(v)["device"] for v in McapFile(out).metadata()["ambdaq.statistics"].values()}
     assert kinds == {"rig", "rig-amplifier", "rig-gap_sensor", "rig-accelerometer", "rig-keyphasor"}

@@ -108,6 +108,11 @@ class ClockMap:
         return self._d0 is not None
 
     @property
+    def span_s(self) -> float:
+        """Device time the pairs so far cover, s."""
+        return self._x[-1] - self._x[0] if self._x else 0.0
+
+    @property
     def settled(self) -> bool:
         """Whether drift is estimated (pairs spanning ``SETTLE_S`` seconds)."""
         return self._settled
@@ -128,7 +133,10 @@ class ClockMap:
         if not self._settled:
             self._settled = x - self._x[0] >= SETTLE_S
             if not self._settled:
-                self._a, self._b = min(self._y), 0.0  # offset only, from the fastest pair
+                offset = min(self._y)  # offset only, from the fastest pair so far
+                if self._written and offset < self._a:  # times written with the slower pair's move by this
+                    self._revision = max(self._revision, self._a - offset)
+                self._a, self._b = offset, 0.0
                 return
         if x >= self._next_fit:
             self._next_fit = x + REFIT_S

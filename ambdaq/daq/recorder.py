@@ -40,6 +40,7 @@ from .writer import RecordingWriter
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the writer
 STOP_WAIT_S = 0.5  # after a stop, how long the devices' last blocks are waited for
+PROVISIONAL_S = 0.5  # a device's first blocks wait for this much of its clock pairs (an offset from more than one)
 
 
 @dataclass(frozen=True)
@@ -445,6 +446,7 @@ class Recorder:
         self._last_time: dict[str, int | None] = {name: None for name in self._names}
         self._ended: set[str] = set()
         self._clocks: dict[str, ClockMap] = {}
+        self._held: dict[str, list[SampleBlock]] = {}  # a device's first blocks, before its map has PROVISIONAL_S
         self._host_clocked: set[str] = set()
         self._events = 0
         self._snapshots: Snapshots | None = None
@@ -534,6 +536,8 @@ class Recorder:
                 self._drain(q)
                 time.sleep(0.005)
             self._drain(q)
+            for name in list(self._held):
+                self._flush_held(name)
             for s in self.sources:
                 self._write_events(s)
             for part in self._parts:
@@ -602,6 +606,7 @@ class Recorder:
     def _end_device(self, name: str, due: int | None) -> None:
         """``name`` has ended; if it delivered the ``due`` periods it was asked for, the ones it
         never sent after its last sample are drops of its last part."""
+        self._flush_held(name)
         if due is not None:
             missing = self._trackers[name].missing_after(due)
             if missing and self._snapshots is not None:
@@ -638,11 +643,12 @@ class Recorder:
     def _ingest(self, source, block: SampleBlock) -> None:
         """Map a block to the host clock and write it.
 
-        Blocks that say when they arrived feed the device's online clock map (offset and drift),
-        and are written at once: until the drift is estimated (3 s of pairs) through the offset
-        alone, from the fastest pair so far.  Holding them until then had cost a process killed in
-        its first seconds every sample of such a device; how far the later fits would move those
-        early times is measured and reported (the map's revision, :mod:`.clock`).  In-process
+        Blocks that say when they arrived feed the device's online clock map (offset and drift).
+        The first ``PROVISIONAL_S`` of a device wait for an offset from more than one pair; then
+        every block is written at once, until the drift is estimated (3 s of pairs) through the
+        offset alone, from the fastest pair so far.  Holding them the whole 3 s had cost a
+        process killed in its first seconds every sample of such a device; how far later fits
+        move those early times is measured and reported (the map's revision, :mod:`.clock`).  In-process
         sources without arrival times start their clock at 0 when the recording starts, so their
         mapping is the start offset.
         """
@@ -662,6 +668,17 @@ class Recorder:
         latency = source.clock_latency_ns()
         if latency is not None:
             cm.latency_ns = latency
+        self._held.setdefault(device, []).append(block)
+        if cm.span_s >= PROVISIONAL_S or cm.settled:  # the first half second waits for an offset from more than one pair
+            self._flush_held(device)
+
+    def _flush_held(self, device: str) -> None:
+        """Write ``device``'s held blocks through its clock map as it is now."""
+        cm = self._clocks.get(device)
+        for b in self._held.pop(device, []):
+            self._write_mapped(device, cm, b)
+
+    def _write_mapped(self, device: str, cm: ClockMap, block: SampleBlock) -> None:
         host = cm.to_host(block.device_time_ns)
         last = self._last_time[device]
         if last is not None:
@@ -757,6 +774,9 @@ class Recorder:
             now[name].add(total)
             for part in self._parts:
                 now[name].add(part.writer.counts[name])
+        # a device's first blocks held for its clock map are recorded: they count as they arrive
+        for name, blocks in self._held.items():
+            now[name].samples += sum(len(b) for b in blocks)
         next_split = None
         if self.options.split_duration_s is not None:
             period = self.options.split_duration_s * 1e9
