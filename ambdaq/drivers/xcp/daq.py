@@ -145,7 +145,7 @@ class ListState:
     ones waiting, and what was discarded."""
 
     plan: DaqListPlan
-    rows: deque = field(default_factory=deque)  # (seq, arrival ns, raw timestamp, payload bytes)
+    rows: deque  # whole samples for the list's source: (seq, arrival ns, raw timestamp, payload bytes)
     partial: list | None = None  # [arrival, timestamp, loss marker, payloads]
     index: int = 0
     counter_last: int | None = None
@@ -162,6 +162,8 @@ class DtoAssembler:
     ----------
     plans : list of DaqListPlan
         The lists as configured (their first PIDs set after selection).
+    rows : list of deque
+        Where each list's whole samples go (its source's row queue), in the order of ``plans``.
     processor : DaqProcessor
         How the slave identifies DTOs and flags overload.
     byte_order : str
@@ -172,8 +174,9 @@ class DtoAssembler:
         A DTO may be padded up to this many bytes (CAN: 8); 0 for Ethernet's fill to 4.
     """
 
-    def __init__(self, plans: list[DaqListPlan], processor: DaqProcessor, byte_order: str, loss, padded_to: int) -> None:
-        self.states = {p.number: ListState(p) for p in plans}
+    def __init__(self, plans: list[DaqListPlan], rows: list[deque], processor: DaqProcessor, byte_order: str, loss,
+                 padded_to: int) -> None:
+        self.states = {p.number: ListState(p, r) for p, r in zip(plans, rows)}
         self.mode = processor.identification
         self.overload_pid = processor.overload == "pid"
         self.loss = loss

@@ -283,6 +283,7 @@ class XcpController(Controller, CalibrationPages):
         self._streaming = False
         self._session_over = False
         self._streams: list[_Stream] = []
+        self._plans: list[DaqListPlan] = []
         self._sources: list[XcpEventSource] = []
         self._master = XcpMaster(link(), url)
         try:
@@ -431,10 +432,9 @@ class XcpController(Controller, CalibrationPages):
         self._processor = processor
         self._plans = plans
         self._streams = [_Stream(p, *streams[p.event.number], processor.timestamp_ns, url) for p in plans]
-        self._assembler = DtoAssembler(plans, processor, self.info.byte_order, lambda: self._master.link.lost_packets,
+        self._assembler = DtoAssembler(plans, [s.rows.rows for s in self._streams], processor, self.info.byte_order,
+                                       lambda: self._master.link.lost_packets,
                                        8 if not self._master.link.has_counter else 0)
-        for plan, stream in zip(plans, self._streams):
-            self._assembler.states[plan.number].rows = stream.rows.rows
         self._sources = [XcpEventSource(self, s) for s in self._streams[1:]]
 
     def _check_bus_load(self, plan: DaqListPlan, bitrate: int) -> None:
@@ -484,7 +484,7 @@ class XcpController(Controller, CalibrationPages):
             ways.append("transport counter (CTR)")
         if self._streams and self._processor.overload != "none":
             ways.append(f"overload indication ({self._processor.overload})")
-        if any(p.counter for p in getattr(self, "_plans", [])):
+        if any(p.counter for p in self._plans):
             ways.append("control-period counter")
         return ", ".join(ways) or "none: XCP on CAN has no transport counter and no counter measurement was named"
 
