@@ -162,14 +162,21 @@ class SerialLink:
 
     # --- send --------------------------------------------------------------------------------------
 
-    def send(self, msg_type: MsgType, body: bytes = b"") -> int:
-        """Send one frame; returns its sequence number."""
+    def send(self, msg_type: MsgType, body: bytes = b"", *, reply_slot: list | None = None) -> int:
+        """Send one frame; returns its sequence number.
+
+        ``reply_slot`` is registered for the reply under the same lock that gives the frame its
+        sequence number, so a ping sent from another thread cannot take the number in between.
+        """
         with self._tx_lock:
             seq = self._tx_seq
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
+            if reply_slot is not None:
+                self._pending[seq] = reply_slot
             try:
                 self._port.write(encode_frame(proto.pack(msg_type, seq, body)))
             except (serial.SerialException, OSError) as err:
+                self._pending.pop(seq, None)
                 raise DeviceError(f"serial port {self.port_name}: write failed: {err}") from None
         return seq
 
@@ -183,15 +190,14 @@ class SerialLink:
         """
         for _attempt in range(attempts):
             slot: list = [threading.Event()]
-            with self._tx_lock:
-                seq = self._tx_seq
-                self._pending[seq] = slot
+            seq = None
             try:
-                self.send(msg_type, body)
+                seq = self.send(msg_type, body, reply_slot=slot)
                 if slot[0].wait(timeout):
                     break
             finally:
-                self._pending.pop(seq, None)
+                if seq is not None:
+                    self._pending.pop(seq, None)
         else:
             raise DeviceTimeout(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s "
                               f"({attempts} attempts)")
