@@ -17,8 +17,17 @@ after exactly one SYNC as that SYNC's. A reply inside no window, or inside two (
 thread can send two SYNCs closer than a period when it runs late), is not kept
 (``late_replies`` in the link statistics; its cycle counts as lost). This needs the interface's
 bus time stamps: python-can's ``slcan`` interface stamps a frame when it reads it, so an EDS
-device is refused there. A device whose EDS has no 0x1007 cannot promise the window; the host
-applies it anyway and the metadata says so.
+device is refused there.
+
+A device that ignores its window, or whose EDS has no 0x1007, can answer a SYNC a whole period
+late, inside the next SYNC's window, where time alone would file it under the wrong SYNC. A
+device answers its SYNCs in order, one TPDO each, so such a lag shows as a window without a reply
+followed, once the device catches up, by a window with two. Rows are therefore held for
+HOLD_CYCLES SYNCs before they are handed on; a second reply of one TPDO in one window withdraws
+every held row back to the last window that had none (``ambiguous_cycles``; they count as lost).
+A lag longer than the hold cannot be withdrawn: it is counted (``unverified_cycles``) and an
+event names the cycles. A late reply whose successor is lost leaves no trace at all; only a
+device that keeps its synchronous window rules that out, and the metadata says whether it does.
 """
 
 from __future__ import annotations
@@ -30,7 +39,7 @@ import re
 import struct
 import time
 import warnings
-from collections import defaultdict
+from collections import defaultdict, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +58,9 @@ SIGNAL_KEYS = ("object", "topic", "field", "factor", "offset", "unit", "tpdo")  
 MAX_TPDOS = 4  # CiA 301 default TPDOs 0x1800..0x1803
 MAX_EDS_BYTES = 8 << 20  # vendor EDS files are tens to hundreds of kB
 HEARTBEAT_MS = 100
+HOLD_CYCLES = 16
+"""SYNC cycles a complete row is held before it is handed on: the longest run of one-period-late
+replies that is withdrawn when the device catches up (0.04 s at 400 Hz)."""
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _STRUCT = {od.BOOLEAN: "?", od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",
            od.INTEGER32: "i", od.UNSIGNED32: "I", od.REAL32: "f", od.INTEGER64: "q", od.UNSIGNED64: "Q",
@@ -302,7 +314,12 @@ class EdsDevice(Source):
         self._offset = np.array([s.offset for s in order])
         self._rows = RowQueue(max(1.0, 20 / self.sample_rate))  # (cycle, time ns, raw values)
         self._parts: list = [None] * len(self.tpdos)
-        self.late_replies = 0
+        self._replied = [-1] * len(self.tpdos)  # per TPDO: the newest cycle it answered
+        self._silent = [-1] * len(self.tpdos)  # per TPDO: the newest cycle it left unanswered
+        self._held: deque[tuple[int, int, list]] = deque()  # complete rows, HOLD_CYCLES before handed on
+        self._handed = -1  # the newest cycle handed on
+        self._withdrawn = -1  # the newest cycle withdrawn (a late row for it must not come back)
+        self.late_replies = self.ambiguous_cycles = self.unverified_cycles = 0
         self.window_ns = int(0.5e9 / self.sample_rate)  # the synchronous window: half a SYNC period
         dictionary = self.node.object_dictionary
         self.window_on_device = 0x1007 in dictionary and dictionary[0x1007].writable  # set in start()
@@ -404,6 +421,7 @@ class EdsDevice(Source):
         self.hub.check_load()
         for i, (cob, fmt, _s) in enumerate(self.tpdos):
             self.hub.on_frame(cob, self._on_tpdo(i, fmt))
+        self.hub.add_sync_listener(self._hand_on)
         self.hub.on_frame(0x700 + self.node_id, self._on_heartbeat)
         self.node.emcy.add_callback(self._on_emcy)
         od_ = self.node.object_dictionary
@@ -435,16 +453,47 @@ class EdsDevice(Source):
                 self.late_replies += 1
                 self._parts[i] = None
                 return
+            c = cycle.count
+            if c == self._replied[i]:  # two replies in one window: the device was a SYNC behind
+                self._parts[i] = None
+                self._withdraw(self._silent[i], c)
+                return
+            if c > self._replied[i] + 1:
+                self._silent[i] = c - 1
+            self._replied[i] = c
+            self.hub.answered = c
             self._parts[i] = (cycle, fmt.unpack(data))
             if i < last:
                 return
             parts, self._parts = self._parts, [None] * len(self._parts)
-            if any(p is None or p[0].count != cycle.count for p in parts):
-                return  # part of this cycle was lost or late: a drop
-            self._rows.rows.append((cycle.count, cycle.time_ns, [v for p in parts for v in p[1]]))
-            self.hub.answered = cycle.count
+            if any(p is None or p[0].count != c for p in parts) or c <= self._withdrawn:
+                return  # part of this cycle was lost, late, or its window had two replies: a drop
+            self._held.append((c, cycle.time_ns, [v for p in parts for v in p[1]]))
 
         return on_tpdo
+
+    def _hand_on(self, cycle) -> None:
+        """A SYNC went out (bus thread): rows HOLD_CYCLES older are handed to the reader."""
+        held, rows = self._held, self._rows.rows
+        while held and held[0][0] <= cycle.count - HOLD_CYCLES:
+            row = held.popleft()
+            rows.append(row)
+            self._handed = row[0]
+
+    def _withdraw(self, silent: int, doubled: int) -> None:
+        """A TPDO answered SYNC ``doubled`` twice: since the window of ``silent`` went without its
+        reply, every reply may have been the SYNC before's. Held rows of those cycles are dropped;
+        rows already handed on are counted and named in an event."""
+        self._withdrawn = max(self._withdrawn, doubled)
+        kept = [r for r in self._held if not silent < r[0] <= doubled]
+        self.ambiguous_cycles += len(self._held) - len(kept)
+        self._held = deque(kept)
+        if self._handed > silent:
+            lost = self._handed - silent
+            self.unverified_cycles += lost
+            self._events.put(Event(time.time_ns(), "late-replies", lost,
+                                   f"node {self.node_id}: SYNC cycles {silent + 1}..{self._handed} were recorded "
+                                   f"before the device caught up; each may hold the SYNC before's data"))
 
     def _on_heartbeat(self, data: bytearray, timestamp: float) -> None:
         state = data[0] & 0x7F if data else None
@@ -472,9 +521,12 @@ class EdsDevice(Source):
         return self.hub.take_events(self._events)
 
     def link_statistics(self) -> dict[str, str]:
-        return self.hub.statistics() | {"late_replies": str(self.late_replies)}
+        return self.hub.statistics() | {"late_replies": str(self.late_replies),
+                                        "ambiguous_cycles": str(self.ambiguous_cycles),
+                                        "unverified_cycles": str(self.unverified_cycles)}
 
     def _close(self) -> None:
+        self.hub.remove_sync_listener(self._hand_on)
         self._rows.closed.set()
         try:
             self.node.nmt.send_command(0x80)  # PRE-OPERATIONAL: TPDOs stop
