@@ -136,7 +136,8 @@ class RecordResult:
     """Summary of a finished recording.
 
     ``duration_s`` is the longest time any device covered: its sample periods (samples plus
-    drops) over its sample rate; ``samples`` is the most any device wrote; ``drops`` and
+    drops) over its sample rate, or the host clock's time where no device's duration is counted
+    in samples (:attr:`Source.duration_in_samples`); ``samples`` is the most any device wrote; ``drops`` and
     ``duplicates`` are summed over devices (a device's count is the same on each of its topics);
     ``devices`` has each device's own.
     """
@@ -456,11 +457,12 @@ class Recorder:
                 lambda f: snapshot_name(self._output, f, lambda p: p.exists() or p in self._files),
                 self._new_writer, lambda w, meta: self._finish_file(w, "ambdaq.snapshot", meta), on_snapshot)
             self._files = self._snapshots.files  # the files so far, for a user who stops
-        due = {s.name: None if opts.duration_s is None or s.sample_rate is None
-               else int(round(opts.duration_s * s.sample_rate)) for s in self.sources}
-        # frames as they come (no nominal rate, e.g. a CAN bus's unknown frames): recorded for the
-        # duration by the host clock, then closed
-        by_time = [s for s in self.sources if s.sample_rate is None]
+        by_samples = {s.name: s.sample_rate is not None and s.duration_in_samples for s in self.sources}
+        due = {s.name: int(round(opts.duration_s * s.sample_rate)) if by_samples[s.name] and opts.duration_s is not None
+               else None for s in self.sources}
+        # frames as they come (no nominal rate, e.g. a CAN bus's unknown frames) and samples at a
+        # rate only declared (an XCP event): recorded for the duration by the host clock, then closed
+        by_time = [s for s in self.sources if not by_samples[s.name]]
         readers = [_Reader(s, q, stop, opts.reconnect) for s in self.sources]
         failure: Exception | None = None
         # Ctrl-C and SIGTERM only raise a flag: the loop stops between blocks, never mid-write; a
@@ -555,8 +557,8 @@ class Recorder:
             where = ", ".join(str(f) for f in self._files)
             raise DeviceError(f"{failure} (after {time.monotonic() - t0:.1f} s; recording finished cleanly: {where})") \
                 from failure
-        rate = {s.name: s.sample_rate for s in self.sources}
-        rated = [(t.samples + t.drops) / rate[n] for n, t in self._totals.items() if rate[n]]
+        rate = {s.name: s.sample_rate for s in self.sources if by_samples[s.name]}
+        rated = [(t.samples + t.drops) / rate[n] for n, t in self._totals.items() if n in rate]
         topics = {}
         for s in self.sources:
             for g in s.signal_groups():

@@ -31,10 +31,15 @@ class Source(ABC):
         Samples per second it declares, in Hz; None for a device whose samples come as they
         come (a CAN bus's unknown frames), which the recorder reads for the duration by the host
         clock.
+    duration_in_samples : bool
+        Whether a recording's duration is counted in its sample periods (a device that samples at
+        its stated rate, every period numbered); False where the rate is only declared (an XCP
+        event's cycle: the ECU task may run slower or skip) and the host clock ends the recording.
     """
 
     name: str
     sample_rate: float | None
+    duration_in_samples = True
     _notes: dict[str, str] | None = None
     _released = False
     _close_hooks: list | None = None

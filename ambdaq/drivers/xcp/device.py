@@ -301,6 +301,9 @@ class XcpController(Controller, CalibrationPages):
             self._master.close()
             raise
         self.sample_rate = self._streams[0].sample_rate if self._streams else None
+        # an event's cycle is declared, not kept (the ECU task may run slower or skip): a duration
+        # is counted in control periods only where a counter numbers them, else by the host clock
+        self.duration_in_samples = bool(self._streams) and self._streams[0].plan.counter is not None
 
     # --- choosing and planning --------------------------------------------------------------------
 
@@ -834,6 +837,7 @@ class XcpEventSource(Source):
         self._controller, self._stream = controller, stream
         self.name = f"{controller.name}.{ros_field(stream.plan.event.name or str(stream.plan.event.number))}"
         self.sample_rate = stream.sample_rate
+        self.duration_in_samples = stream.plan.counter is not None  # as the controller's own list
 
     def signal_groups(self) -> list[SignalGroup]:
         return list(self._stream.groups)
