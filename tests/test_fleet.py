@@ -83,12 +83,27 @@ def test_scan_on_two_workers_matches_the_single_file_commands(fleet, scanned, tm
     df = pd.read_parquet(ds)  # pandas reads the dataset directly, the machine from the partition
     assert len(df) == 42 and df["path"].is_unique
     rows = {r["path"]: r for r in df.to_dict("records")}
+    lossy = []
     for path in good:
         row = rows[str(path.resolve())]
         assert pd.isna(row["error"]) and str(row["machine"]) == path.parent.name
+        # info FILE --json: the drops
+        info = json.loads(run("info", "--json", str(path)).stdout)
+        gap = next(t for t in info["topics"] if t["topic"] == "/amb/gap")
+        assert (row["drops"], row["samples"]) == (gap["drops"], gap["messages"])
+        assert abs(row["rpm_min"] - 30000) < 1 and abs(row["rpm_max"] - 30000) < 1
+        coef = tmp_path / f"{path.stem}.json"
+        if gap["drops"] > 0.001 * (gap["drops"] + gap["messages"]):
+            # lost more than the data-quality gate takes: the commands refuse, the row says why
+            for args in (("runout", "identify", str(path), "-o", str(coef)), ("iso", "vibration", str(path))):
+                res = CliRunner().invoke(cli, list(args))
+                assert res.exit_code == 2 and "would compute over the holes" in res.output, res.output
+            assert pd.isna(row["runout_front_x_1x_um"]) and pd.isna(row["vibration_front_um"])
+            assert "runout identification would compute over the holes" in row["note"]
+            lossy.append(path)
+            continue
         # runout identify FILE: the coefficient file's weights, per axis and harmonic (the same
         # function on the same bits: equal to the last digit, 1e-9 um only for the um conversion)
-        coef = tmp_path / f"{path.stem}.json"
         run("runout", "identify", str(path), "-o", str(coef), "--harmonics", "4", "--overwrite")
         weights = json.loads(coef.read_text())["runout"]["weights"]
         for axis in AXES:
@@ -101,12 +116,8 @@ def test_scan_on_two_workers_matches_the_single_file_commands(fleet, scanned, tm
             assert row[f"vibration_{bearing}_um"] == pytest.approx(worst["max_um"], abs=5e-4)
             assert row[f"zone_{bearing}"] == worst["zone"]
         assert row["cmin_um"] == iso["cmin_um"] == 150.0
-        # info FILE --json: the drops
-        info = json.loads(run("info", "--json", str(path)).stdout)
-        gap = next(t for t in info["topics"] if t["topic"] == "/amb/gap")
-        assert (row["drops"], row["samples"]) == (gap["drops"], gap["messages"])
-        assert abs(row["rpm_min"] - 30000) < 1 and abs(row["rpm_max"] - 30000) < 1
-    assert df["drops"].gt(0).sum() >= 1  # the generator's occasional losses are there
+    assert df["drops"].gt(0).sum() >= 1 and lossy  # the generator's occasional losses are there
+    assert len(lossy) < len(good) // 2  # and most recordings are graded
     # one machine in four runs a pushed coefficient file, named in its recordings' identity
     assert set(df.loc[df["coefficients_sha256"].notna(), "machine"].astype(str)) == {"AMB-04", "AMB-08"}
 

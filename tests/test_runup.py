@@ -79,6 +79,9 @@ def test_slow_roll_compensation_takes_out_what_the_rotor_did_at_slow_roll(runup,
     text = run_cli("runup", runup / "runup.mcap", "--slow-roll", runup / "slow.mcap").output
     # up to 30,000 rpm the slow-roll-compensated 1X only rises: no peak with a half-power band
     assert "compensation: slow-roll vector" in text and "rear_x: no 1X peak that stands out" in text
+    # and the user is told why that number is off on an AMB, and what to use instead
+    assert "warning: a slow-roll vector on an active magnetic bearing holds the rotor's own motion" in text
+    assert "--coefficients from `runout identify`" in text
 
 
 def test_what_cannot_be_tracked_is_one_line_exit_2(runup, run_cli, tmp_path):

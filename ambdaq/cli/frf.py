@@ -13,7 +13,7 @@ from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError
 from ..workflows.frf import COHERENT, estimate_responses, excite, summarize
 from .figures import plot_option, pyplot
-from .options import a2l_option, excitation_option, output_options, report_options, speed_option
+from .options import a2l_option, excitation_option, max_lost_option, output_options, report_options, speed_option
 from .record import run_recording
 
 
@@ -60,7 +60,8 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
 @click.option("--overwrite", is_flag=True)
 @plot_option("Bode plot and coherence (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print a summary as JSON.")
-def estimate(files, output, resolution, input_axis, input_topic, output_topic, overwrite, plot_path, as_json):
+@max_lost_option
+def estimate(files, output, resolution, input_axis, input_topic, output_topic, overwrite, plot_path, as_json, max_lost):
     """H1 frequency response with coherence, from each recording's excited axis to every axis.
 
     The input is the feedforward input /amb/ff (where the controller adds its test signal), the
@@ -71,7 +72,8 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
     Example:
       ambdaq frf estimate frf_fx.mcap frf_fy.mcap frf_rx.mcap frf_ry.mcap frf_ax.mcap -o loop.frf.json
     """
-    frf = estimate_responses([Path(f) for f in files], resolution, input_axis, input_topic, output_topic)
+    frf = estimate_responses([Path(f) for f in files], resolution, input_axis, input_topic, output_topic,
+                             max_lost=max_lost)
     frf.save(output, overwrite=overwrite)
     summary = summarize(frf)
     if plot_path:

@@ -13,7 +13,7 @@ from ..errors import BadInputError
 from ..machines.base_motion import PLANES
 from ..workflows import fx
 from .figures import plot_option, pyplot
-from .options import POSITIVE
+from .options import POSITIVE, max_lost_option
 
 
 def _freqs(spec: str) -> list[float]:
@@ -58,7 +58,8 @@ def command() -> None:
 @click.option("--settle", type=click.FloatRange(min=0), default=0.5, show_default=True,
               help="Wait after moving the shaker before recording each step, s.")
 @click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Campaign folder.")
-def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, settle, output):
+@max_lost_option
+def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, settle, output, max_lost):
     """Stepped sine over the base: the shakers are set through their generator, then every
     (frequency, alpha) step is recorded from the controller to its own MCAP file, listed in
     campaign.json.  The same commands run on hardware and on the simulator.
@@ -71,7 +72,8 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
     """
     out = fx.campaign(device, shaker, shaker_gain, _freqs(freqs), amplitude, [_alpha(a) for a in alphas.split(",")],
                       seconds, settle, Path(output),
-                      on_step=lambda f, a, path: click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {path}", err=True))
+                      on_step=lambda f, a, path: click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {path}", err=True),
+                      max_lost=max_lost)
     click.echo(f"{len(json.loads(out.read_text())['steps'])} steps -> {out}")
 
 
@@ -83,7 +85,8 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
               help="Normalised step on gap 1's error (eta, on gap 2's, is the same).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Compensator points (JSON).")
 @click.option("--overwrite", is_flag=True)
-def estimate(folder, path_file, mu, output, overwrite):
+@max_lost_option
+def estimate(folder, path_file, mu, output, overwrite, max_lost):
     """MFXLMS per frequency and plane over a campaign; two alphas per frequency give W11, W21,
     W12, W22 (seed 002 eq. A-4 to A-17).
 
@@ -95,7 +98,7 @@ def estimate(folder, path_file, mu, output, overwrite):
         click.echo(f"{f:>7g} Hz  " + "  ".join(f"{PLANES[p]}: residual {20 * np.log10(residual[p]):6.1f} dB"
                                               for p in range(2)), err=True)
 
-    out, n = fx.estimate(Path(folder), path_file, mu, output, overwrite=overwrite, on_frequency=say)
+    out, n = fx.estimate(Path(folder), path_file, mu, output, overwrite=overwrite, on_frequency=say, max_lost=max_lost)
     click.echo(f"{n} frequencies x 2 planes -> {out}")
 
 

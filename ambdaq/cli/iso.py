@@ -12,7 +12,7 @@ import numpy as np
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
-from .options import DURATION, POSITIVE, a2l_option
+from .options import DURATION, POSITIVE, a2l_option, max_lost_option
 
 
 class LimitsArg(click.ParamType):
@@ -82,8 +82,9 @@ def command() -> None:
 @plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the results (without curves) as JSON.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
+@max_lost_option
 def stability(recordings, device, description, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
-              min_coherence, output, overwrite, plot_path, as_json, quiet):
+              min_coherence, output, overwrite, plot_path, as_json, quiet, max_lost):
     """ISO 14839-3: peak of the sensitivity function per axis and speed, and its zone.
 
     Measures with --device (white noise at the sensor summing point, one axis at a time, at each
@@ -117,7 +118,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
                             description=description)
     else:
         paths = [Path(p) for p in recordings]
-    runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence)
+    runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,
+                        max_lost=max_lost)
     iso.check_speeds(runs, list(speeds) or None)
     iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
     if plot_path:
@@ -234,7 +236,8 @@ def vibration_figure(bands: list[dict], limits: ZoneLimits, cmin_um: float, out)
 @click.option("--overwrite", is_flag=True)
 @plot_option("Orbit maxima per speed band against the zone limits (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
-def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrite, plot_path, as_json):
+@max_lost_option
+def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrite, plot_path, as_json, max_lost):
     """ISO 14839-2: the rotor's vibration at each radial bearing against Cmin, per speed band.
 
     Graded: per 0.1 s window, the orbit's largest excursion from its mean centre; each band takes
@@ -250,7 +253,9 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
 
     grades, info = iso.evaluate([Path(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,
                                 band_rpm=band_rpm, coefficients=Path(coefficients) if coefficients else None,
-                                limits=limits)
+                                limits=limits, max_lost=max_lost)
+    for note in info["notes"]:
+        click.echo(f"ambdaq: note: {note}", err=True)
     doc = {**info, "bands": [g.as_dict() for g in grades]}
     if output:
         write_sealed(output, {"format": "ambdaq-iso-vibration", "version": 1, **doc}, overwrite=overwrite)

@@ -88,6 +88,16 @@ def report_options(f):
     return f
 
 
+def max_lost_option(f):
+    """--max-lost SHARE: the data-quality gate's limit on samples lost per input (:mod:`ambdaq.daq.quality`)."""
+    from ..daq.quality import MAX_LOST
+
+    return click.option(
+        "--max-lost", type=click.FloatRange(0.0, 1.0), default=MAX_LOST, show_default=True, metavar="SHARE",
+        help="Refuse an input that lost more than this share of its samples (0.001 = 0.1 %).",
+    )(f)
+
+
 def speed_option(f):
     return click.option(
         "--rpm", "speed", metavar="SPEED",

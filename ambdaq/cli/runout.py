@@ -13,7 +13,7 @@ from ..daq.reader import load
 from ..errors import AmbdaqError
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
 from .figures import plot_option
-from .options import POSITIVE
+from .options import POSITIVE, max_lost_option
 
 @click.group("runout")
 def command() -> None:
@@ -30,7 +30,8 @@ def command() -> None:
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the identified runout as JSON.")
 @plot_option("Report image (.png, .pdf, .svg): spectrum, polar plot per harmonic, orbits before and after.")
-def identify(files, output, harmonics, method, overwrite, as_json, plot_path):
+@max_lost_option
+def identify(files, output, harmonics, method, overwrite, as_json, plot_path, max_lost):
     """Identify runout per axis and harmonic from FILES (each at one constant speed).
 
     \b
@@ -38,7 +39,7 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path):
       ambdaq runout identify slowroll.mcap -o coef.json
       ambdaq runout identify run_12k.mcap run_24k.mcap run_36k.mcap -o coef.json --plot report.png
     """
-    ident = identify_recordings([Path(f) for f in files], list(range(1, harmonics + 1)), method)
+    ident = identify_recordings([Path(f) for f in files], list(range(1, harmonics + 1)), method, max_lost=max_lost)
     coef = ident.coef
     coef.save(output, overwrite=overwrite)
     if plot_path:
@@ -74,7 +75,8 @@ class CheckFailed(AmbdaqError):
               help="Fail (exit 1) unless the command error's RMS after is below this, in um.")
 @plot_option("Image (.png, .pdf, .svg): command-error orbits and spectra before and after.")
 @click.option("--json", "as_json", is_flag=True)
-def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
+@max_lost_option
+def check(before, after, harmonics, min_db, max_rms, plot_path, as_json, max_lost):
     """Prove on a new recording that the command error went down: 1X .. NX and RMS, per axis.
 
     The command error is what the controller acts on (gap minus feedforward); the gap sensor
@@ -87,7 +89,7 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
     """
     orders = list(range(1, harmonics + 1))
     recs = [load(f, topics=["/amb/error", "/amb/gap", "/amb/rotor"]) for f in (before, after)]
-    result = check_recordings(*recs, orders, min_db=min_db, max_rms_um=max_rms)
+    result = check_recordings(*recs, orders, min_db=min_db, max_rms_um=max_rms, max_lost=max_lost)
     b, a, rows, failures = result.before, result.after, result.axes, result.failures
     if plot_path:
         from .runout_plots import check_report  # matplotlib and scipy.signal: only for a figure
@@ -105,8 +107,7 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json):
                             for h in r["harmonics"])
             click.echo(f"{axis:<9}{cells}{r['rms_before_um']:>8.2f} ->{r['rms_after_um']:>6.2f}"
                        f"{r['sensor_1x_after_um']:>14.2f} um")
-    if result.speeds_differ:
-        click.echo(f"ambdaq: warning: the recordings run at different speeds ({b['rpm']:,.0f} and "
-                   f"{a['rpm']:,.0f} rpm); the harmonics compare different frequencies", err=True)
+    for note in result.notes:
+        click.echo(f"ambdaq: note: {note}", err=True)
     if failures:
         raise CheckFailed("check failed: " + "; ".join(failures))

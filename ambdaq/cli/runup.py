@@ -11,6 +11,7 @@ import numpy as np
 from ..analysis.orders import CRITICAL_AMPLIFICATION
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
+from .options import max_lost_option
 
 
 def _orders(value: str) -> tuple[int, ...]:
@@ -50,7 +51,9 @@ def _speeds(value: str | None) -> tuple[float, float] | None:
 @click.option("--waterfall-axis", help="Gap axis of the waterfall; default: the first radial one.")
 @plot_option("Bode, polar, waterfall with order lines (and Campbell with --model) (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the tracked vectors and peaks as JSON.")
-def command(recording, coefficients, slow_roll, orders, revolutions, speeds, model, waterfall_axis, plot_path, as_json):
+@max_lost_option
+def command(recording, coefficients, slow_roll, orders, revolutions, speeds, model, waterfall_axis, plot_path, as_json,
+            max_lost):
     """Order tracking of a run-up or coast-down on the key-phasor: 1X (and NX) amplitude and phase
     against speed, 1X peaks with their amplification factor (critical speeds, API 684), a waterfall.
 
@@ -63,11 +66,13 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
 
     res = analyse(Path(recording), coefficients=Path(coefficients) if coefficients else None,
                   slow_roll=Path(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
-                  speeds=_speeds(speeds), waterfall_axis=waterfall_axis, model=model)
+                  speeds=_speeds(speeds), waterfall_axis=waterfall_axis, model=model, max_lost=max_lost)
+    for note in res.notes:
+        click.echo(f"ambdaq: warning: {note}", err=True)
     t = res.track
     if as_json:
         click.echo(json.dumps({
-            "recording": recording, "compensation": res.compensation, "revolutions": revolutions,
+            "recording": recording, "compensation": res.compensation, "notes": res.notes, "revolutions": revolutions,
             "rpm": np.round(t.rpm, 1).tolist(),
             "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
                                    "phase_deg": np.round(np.degrees(np.angle(t.order(k)[:, i])), 2).tolist()}

@@ -14,6 +14,7 @@ from ..analysis.frf import COHERENT, coherent_band, h1_estimate
 from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.mcapfile import McapFile
+from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import ambdaq_channels, load
 from ..drivers.excitation import OFF, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
@@ -90,13 +91,17 @@ def excited_axis(ff, path: Path, given: str | None) -> str:
 
 
 def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str | None,
-                       input_topic: str = "/amb/ff", output_topic: str = "/amb/error") -> FrequencyResponse:
-    """H1 and coherence from each recording's excited axis to every output axis (one column per file)."""
+                       input_topic: str = "/amb/ff", output_topic: str = "/amb/error",
+                       max_lost: float = MAX_LOST) -> FrequencyResponse:
+    """H1 and coherence from each recording's excited axis to every output axis (one column per
+    file); a recording that lost more than ``max_lost`` of its samples (a share, 0..1) is refused:
+    a hole is a jump inside a Welch segment."""
     freq, columns = None, {}
     for path in paths:
         f = McapFile(path)
         spinning = "/amb/rotor" in ambdaq_channels(f)  # base-motion rigs have no rotor topic
         rec = load(f, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
+        require_complete(rec, list(rec), "the frequency response", max_lost)
         x_data, y_data = rec[input_topic], rec[output_topic]
         n = min(len(x_data), len(y_data))
         axis = excited_axis(x_data, path, input_axis)

@@ -22,6 +22,7 @@ from ..analysis.runout import harmonic_fit
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.compensator_points import PAIRS, load_points, save_points
 from ..daq.frequency_response import FrequencyResponse
+from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import load
 from ..daq.recorder import Recorder, RecordOptions
 from ..drivers.registry import endpoints, open_device
@@ -31,12 +32,13 @@ from ..machines.base_motion import AXES, BASE_AXES, PLANES, SAMPLE_RATE
 
 CAMPAIGN = "campaign.json"
 TOPICS = ("/amb/gap", "/base/accel")  # what the controller must stream for the campaign
+STEP_ATTEMPTS = 3  # recordings of a step that loses samples, before the campaign stops
 MAX_BASE_M_S2 = 50.0  # peak base acceleration a campaign step may ask for
 
 
 def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: list[float], amplitude: float,
              ratios: list[complex], seconds: float, settle: float, folder: Path,
-             on_step: Callable[[float, complex, Path], None] | None = None) -> Path:
+             on_step: Callable[[float, complex, Path], None] | None = None, max_lost: float = MAX_LOST) -> Path:
     """Run the stepped sine: for every frequency and disturbance ratio alpha = d1/d2 (eq. A-10) set
     the shakers, wait ``settle`` s, record the controller for ``seconds`` s into its own file.
 
@@ -60,6 +62,9 @@ def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: 
         Where the step files and ``campaign.json`` go.
     on_step : callable, optional
         Called with (frequency, alpha, file) after each step.
+    max_lost : float
+        The share of samples (0..1) a step may lose; a step that loses more is recorded again, up
+        to STEP_ATTEMPTS times, and then the campaign stops naming it (DeviceError).
 
     Returns
     -------
@@ -101,8 +106,7 @@ def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: 
                 shakers.sine(f, amplitude, a)
                 time.sleep(settle)
                 path = folder / f"step_{len(steps):03d}_{f:g}Hz.mcap"
-                Recorder([open_device(controller_url, name="controller")], path, RecordOptions(duration_s=seconds),
-                         overwrite=True).run()
+                _record_step(controller_url, path, seconds, max_lost)
                 steps.append({"file": path.name, "freq_hz": f, "alpha_commanded": [a.real, a.imag]})
                 if on_step is not None:
                     on_step(f, a, path)
@@ -111,6 +115,20 @@ def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: 
         out.write_text(json.dumps({"device": device, "shaker": shakers.identity, "shaker_gain_m_s2_per_v": gain,
                                    "amplitude_m_s2": amplitude, "steps": steps}, indent=2))
     return out
+
+
+def _record_step(controller_url: str, path: Path, seconds: float, max_lost: float) -> None:
+    """One step's recording, made again while it loses more than ``max_lost`` of its samples
+    (MFXLMS runs sample by sample: a hole is a jump in its input), at most STEP_ATTEMPTS times."""
+    for attempt in range(1, STEP_ATTEMPTS + 1):
+        res = Recorder([open_device(controller_url, name="controller")], path, RecordOptions(duration_s=seconds),
+                       overwrite=True).run()
+        lost = res.drops / max(res.samples + res.drops, 1)
+        if lost <= max_lost:
+            return
+    raise DeviceError(f"{path.name}: lost {res.drops:,} of {res.samples + res.drops:,} samples ({lost:.1%}) in each of "
+                      f"{STEP_ATTEMPTS} attempts (limit {max_lost:.1%}, --max-lost): the controller's stream cannot "
+                      "carry this step; the campaign stops here")
 
 
 def _check_controller(url: str) -> float:
@@ -145,7 +163,8 @@ def _path_at(frf: FrequencyResponse, plane: int, f_hz: float) -> np.ndarray:
 
 
 def estimate(folder: Path, path_file: str, mu: float, output: str, *, overwrite: bool = False,
-             on_frequency: Callable[[float, list[float]], None] | None = None) -> tuple[Path, int]:
+             on_frequency: Callable[[float, list[float]], None] | None = None,
+             max_lost: float = MAX_LOST) -> tuple[Path, int]:
     """MFXLMS per frequency and plane over a campaign; the two alphas per frequency give W11, W21,
     W12, W22 (seed 002 eq. A-4 to A-17).  Writes the compensator points file.
 
@@ -161,6 +180,8 @@ def estimate(folder: Path, path_file: str, mu: float, output: str, *, overwrite:
         The points file.
     on_frequency : callable, optional
         Called with (frequency, residual per plane) after each frequency.
+    max_lost : float
+        The share of samples (0..1) a step's recording may have lost (:mod:`ambdaq.daq.quality`).
 
     Returns
     -------
@@ -182,7 +203,7 @@ def estimate(folder: Path, path_file: str, mu: float, output: str, *, overwrite:
     for f, steps in sorted(by_freq.items()):
         if len(steps) != 2:
             raise BadInputError(f"{folder}: {f:g} Hz has {len(steps)} steps; eq. A-17 needs two alphas")
-        runs = [_plane_runs(folder / step["file"], f, frf, mu) for step in steps]
+        runs = [_plane_runs(folder / step["file"], f, frf, mu, max_lost) for step in steps]
         freqs.append(f)
         W.append([separate(runs[0][p][0], runs[0][p][1], runs[1][p][0], runs[1][p][1]) for p in range(2)])
         residual.append([max(runs[0][p][2], runs[1][p][2]) for p in range(2)])
@@ -193,9 +214,11 @@ def estimate(folder: Path, path_file: str, mu: float, output: str, *, overwrite:
     return save_points(output, freqs, np.array(W), residual, source, overwrite=overwrite), len(freqs)
 
 
-def _plane_runs(path: Path, f: float, frf: FrequencyResponse, mu: float) -> list[tuple[complex, complex, float]]:
+def _plane_runs(path: Path, f: float, frf: FrequencyResponse, mu: float,
+                max_lost: float) -> list[tuple[complex, complex, float]]:
     """One step's recording: per plane, MFXLMS's beta, the alpha the base really had and the residual."""
     rec = load(path, topics=list(TOPICS))
+    require_complete(rec, list(TOPICS), f"MFXLMS at {f:g} Hz", max_lost)
     gap, acc = rec["/amb/gap"], rec["/base/accel"]
     n = min(len(gap), len(acc))
     fs = gap.nominal_rate

@@ -24,6 +24,7 @@ from ..analysis.iso14839 import (STABILITY_LIMITS, StabilityGrade, ZoneLimits, c
                                  sensitivity)
 from ..daq.coefficients import file_sha256
 from ..daq.mcapfile import McapFile
+from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import ambdaq_channels, load
 from ..daq.recorder import Recorder, RecordOptions
 from ..daq.sealed import write_sealed
@@ -194,7 +195,7 @@ def synchronous_bins(freq_hz: np.ndarray, speed_rpm: float, resolution_hz: float
 
 def evaluate(paths: list[Path], *, resolution_hz: float = 10.0, band_hz: tuple[float, float] | None = None,
              limits: ZoneLimits = STABILITY_LIMITS, min_coherence: float = 0.9,
-             input_axis: str | None = None) -> list[AxisRun]:
+             input_axis: str | None = None, max_lost: float = MAX_LOST) -> list[AxisRun]:
     """The sensitivity function, its peak and zone, of each recording's excited axis.
 
     Parameters
@@ -211,11 +212,14 @@ def evaluate(paths: list[Path], *, resolution_hz: float = 10.0, band_hz: tuple[f
         Least coherence at the peak for a grade.
     input_axis : str, optional
         The excited axis, if a recording does not make it plain.
+    max_lost : float
+        The share of samples (0..1) a recording may have lost (:mod:`ambdaq.daq.quality`).
     """
     runs = []
     for path in paths:
         spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))
         rec = load(path, topics=["/amb/ff", "/amb/error"] + (["/amb/rotor"] if spinning else []))
+        require_complete(rec, list(rec), "the sensitivity function", max_lost)
         x, y = rec["/amb/ff"], rec["/amb/error"]
         axis = excited_axis(x, path, input_axis)
         if axis not in y.fields:

@@ -24,11 +24,12 @@ import numpy as np
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
+from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
 from ..daq.triggers import CMIN_KEY  # in a device's calibration (ambdaq.calibration.<device>)
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
-from .runout import gap_and_rotor, runout_at
+from .runout import runout_at, with_rotor
 
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
 BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
@@ -95,7 +96,8 @@ def orbit_windows(x: np.ndarray, y: np.ndarray, speed_rpm: np.ndarray, n: int) -
 
 
 def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: float = 1000.0,
-             coefficients: Path | None = None, limits: ZoneLimits = VIBRATION_LIMITS) -> tuple[list[BandGrade], dict]:
+             coefficients: Path | None = None, limits: ZoneLimits = VIBRATION_LIMITS,
+             max_lost: float = MAX_LOST) -> tuple[list[BandGrade], dict]:
     """ISO 14839-2 zones per bearing and speed band over ``paths``.
 
     Parameters
@@ -111,6 +113,8 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
         A runout coefficient file: its runout is taken out of the gap signals first.
     limits : ZoneLimits
         Displacement per Cmin at the zone boundaries.
+    max_lost : float
+        The share of samples (0..1) a recording may have lost (:mod:`ambdaq.daq.quality`).
 
     Returns
     -------
@@ -130,10 +134,13 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
         raise BadInputError(f"minimum clearance must be a finite length above 0, not {cmin_m!r} m")
     coef = Coefficients.load(coefficients) if coefficients is not None else None
     rows: dict[str, list[np.ndarray]] = {b: [] for b in BEARINGS}
-    sources = []
+    sources, notes = [], []
     for source in paths:
         path = source_path(source)
-        gap, rot, m = gap_and_rotor(source, "grading vibration per speed")
+        rec = with_rotor(source, "grading vibration per speed")
+        notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "ISO 14839-2 grading", max_lost)
+        gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+        m = min(len(gap), len(rot))
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:
             raise BadInputError(f"{path}: {m} samples, fewer than one {WINDOW_S:g} s window")
@@ -163,7 +170,7 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
             "limits_ratio_cmin": limits.as_list(), "window_s": WINDOW_S, "band_rpm": band_rpm,
             "runout_removed": None if coefficients is None else {"path": str(coefficients),
                                                                  "sha256": file_sha256(coefficients)},
-            "sources": sources}
+            "sources": sources, "notes": notes}
     return grades, info
 
 

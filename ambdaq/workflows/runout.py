@@ -13,6 +13,7 @@ from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, se
                                synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.mcapfile import McapFile
+from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.reader import Recording, ambdaq_channels, loaded, source_path
 from ..errors import BadInputError
 from ..machines.spindle import AXES
@@ -35,22 +36,6 @@ def with_rotor(source: Path | Recording, purpose: str) -> Recording:
         raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
                             "key-phasor; record with the controller's rotor angle")
     return loaded(opened, ["/amb/gap", "/amb/rotor"])
-
-
-def gap_and_rotor(source: Path | Recording, purpose: str):
-    """The gap sensors and the rotor angle and speed of a recording (see :func:`with_rotor`), cut
-    to the same length.
-
-    Returns
-    -------
-    gap, rotor : TopicData
-        ``/amb/gap`` (m) and ``/amb/rotor`` (angle in rad, speed in rad/s).
-    n : int
-        Samples both have.
-    """
-    rec = with_rotor(source, purpose)
-    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
-    return gap, rot, min(len(gap), len(rot))
 
 
 def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
@@ -83,18 +68,23 @@ class Identification:
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
 
 
-def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str) -> Identification:
+def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str, *,
+                        max_lost: float = MAX_LOST) -> Identification:
     """Runout per axis and harmonic from recordings at constant speed (one speed per file), given
     as paths or loaded (with ``/amb/gap``, ``/amb/current`` and ``/amb/rotor``).
 
     Harmonics above 1X come from every file (averaged); 1X comes from a slow roll if there is
     one, else from separating runout and unbalance over the speeds, else (one fast recording)
-    with a warning that it holds the unbalance response.
+    with a warning that it holds the unbalance response. A recording that lost more than
+    ``max_lost`` of its samples (a share, 0..1), or recordings of different machines, are refused
+    (:mod:`ambdaq.daq.quality`).
     """
     per_file, warnings, sources, recs = [], [], [], []
     rotor = device = identity = None
+    topics = ["/amb/gap", "/amb/current", "/amb/rotor"]
     for source in paths:
-        rec = loaded(source, ["/amb/gap", "/amb/current", "/amb/rotor"])
+        rec = loaded(source, topics)
+        warnings += require_complete(rec, topics, "runout identification", max_lost)
         path = rec.path
         recs.append(rec)
         rotor, device, identity = _rotor(rec, path)
@@ -112,6 +102,7 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
         sources.append({"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(w * RAD_S_TO_RPM, 1)})
+    require_same_machine(recs, "runout identification")
     spins = np.array([w for w, _ in per_file])
     est = np.mean([r for _, r in per_file], axis=0)  # (harmonic, axis)
     if 1 in harmonics:
@@ -168,30 +159,33 @@ class Check:
     after: dict
     axes: dict[str, dict]
     failures: list[str] = field(default_factory=list)
-
-    @property
-    def speeds_differ(self) -> bool:
-        """Whether the two recordings run at speeds more than 1% apart (their harmonics then compare
-        different frequencies)."""
-        return abs(self.after["rpm"] - self.before["rpm"]) > 0.01 * max(self.before["rpm"], 1.0)
+    notes: list[str] = field(default_factory=list)  # samples lost within the limit, per input
 
 
 def check_recordings(before: Recording, after: Recording, harmonics: list[int], *, min_db: float | None = None,
-                     max_rms_um: float | None = None) -> Check:
+                     max_rms_um: float | None = None, max_lost: float = MAX_LOST) -> Check:
     """The command error's 1X..NX and RMS per radial axis before and after, and the failures.
 
     Parameters
     ----------
     before, after : Recording
-        With ``/amb/error``, ``/amb/gap`` and ``/amb/rotor``.
+        With ``/amb/error``, ``/amb/gap`` and ``/amb/rotor``, of one machine at one speed (within
+        1 %; else BadInputError: the harmonics would compare different frequencies).
     harmonics : list of int
         Orders to compare.
     min_db : float, optional
         Every harmonic must fall by at least this, in dB.
     max_rms_um : float, optional
         The RMS after must be below this, in um.
+    max_lost : float
+        The share of samples (0..1) either recording may have lost.
     """
+    topics = ["/amb/error", "/amb/gap", "/amb/rotor"]
+    notes = require_complete(before, topics, "runout check", max_lost) + \
+        require_complete(after, topics, "runout check", max_lost)
+    require_same_machine([before, after], "runout check")
     b, a = _synchronous(before, harmonics), _synchronous(after, harmonics)
+    require_same_speed([before, after], [b["rpm"], a["rpm"]], "runout check")
     rows, failures = {}, []
     for axis, rb in b["axes"].items():
         ra = a["axes"][axis]
@@ -208,4 +202,4 @@ def check_recordings(before: Recording, after: Recording, harmonics: list[int], 
         if max_rms_um is not None and not rows[axis]["rms_after_um"] < max_rms_um:
             failures.append(f"{axis} RMS {rows[axis]['rms_after_um']:.2f} um after (>= {max_rms_um:g} um)")
     return Check({"path": str(before.path), "rpm": round(b["rpm"], 1)}, {"path": str(after.path), "rpm": round(a["rpm"], 1)},
-                 rows, failures)
+                 rows, failures, notes)

@@ -24,10 +24,11 @@ from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, ord
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.coefficients import Coefficients
+from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
-from .runout import gap_and_rotor, runout_at
+from .runout import runout_at, with_rotor
 
 AXIAL = ("axial", "x")  # the spin axis's gap (the spindle's axial, the cone rotor's x): no orbit, not tracked
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
@@ -63,10 +64,14 @@ class RunupDiagnostics:
     waterfall: tuple[np.ndarray, np.ndarray, np.ndarray]
     waterfall_axis: str
     modes: tuple[np.ndarray, np.ndarray] | None
+    notes: list[str]  # what the numbers are computed over, and what to distrust in them
 
 
-def _gap_and_angle(source: Path | Recording):
-    gap, rot, n = gap_and_rotor(source, "order tracking")
+def _gap_and_angle(source: Path | Recording, max_lost: float, notes: list[str]):
+    rec = with_rotor(source, "order tracking")
+    notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "order tracking", max_lost)
+    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    n = min(len(gap), len(rot))
     axes = [a for a in gap.fields if a not in AXIAL]
     if not axes:
         raise BadInputError(f"{source_path(source)}: /amb/gap has no radial axes")
@@ -113,7 +118,7 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
 
 def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
             revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
-            model: str | None = None) -> RunupDiagnostics:
+            model: str | None = None, max_lost: float = MAX_LOST) -> RunupDiagnostics:
     """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
 
     Parameters
@@ -134,11 +139,14 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
         Gap axis of the waterfall; default: the first radial one.
     model : str, optional
         ``spindle`` or ``cone``: its loop's modes over the run's speeds (the Campbell diagram).
+    max_lost : float
+        The share of samples (0..1) a recording may have lost (:mod:`ambdaq.daq.quality`).
     """
     if coefficients is not None and slow_roll is not None:
         raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
     path = source_path(source)
-    axes, x, theta, rpm, fs = _gap_and_angle(source)
+    notes: list[str] = []
+    axes, x, theta, rpm, fs = _gap_and_angle(source, max_lost, notes)
     if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
         raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
@@ -151,7 +159,7 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
     except ValueError as err:
         raise BadInputError(f"{path}: {err}: the rotor never turned") from None
     if slow_roll is not None:
-        s_axes, sx, s_theta, s_rpm, _ = _gap_and_angle(slow_roll)
+        s_axes, sx, s_theta, s_rpm, _ = _gap_and_angle(slow_roll, max_lost, notes)
         if s_axes != axes:
             raise BadInputError(f"{slow_roll}: its axes ({', '.join(s_axes)}) are not the run's ({', '.join(axes)})")
         if np.median(s_rpm) > 0.1 * rpm.max():
@@ -159,6 +167,11 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
                                 f"run's top speed ({rpm.max():,.0f} rpm)")
         track = track.compensated(harmonic_fit(sx, s_theta, tuple(orders)).reshape(len(orders), -1))
         compensation = f"slow-roll vector {slow_roll}"
+        # on an AMB the loop makes the rotor follow the sensor runout at slow roll, so the
+        # slow-roll vector holds rotor motion too, and taking it out hides that much (docs/iso.md)
+        notes.append("a slow-roll vector on an active magnetic bearing holds the rotor's own motion: its loop makes "
+                     "the rotor follow the sensor runout at slow roll, so the compensated 1X is off by that much "
+                     "(docs/iso.md); --coefficients from `runout identify` takes out the runout alone")
     peaks = {a: one_x_peaks(track.rpm, track.order(1)[:, i]) for i, a in enumerate(axes)} if 1 in orders else {}
     w_axis = waterfall_axis or axes[0]
     if w_axis not in axes:
@@ -169,7 +182,7 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
             for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
     modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
-    return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes)
+    return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes)
 
 
 __all__ = ["RunupDiagnostics", "analyse", "model_modes"]
