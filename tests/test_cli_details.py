@@ -130,3 +130,27 @@ def test_an_output_name_that_is_no_utf8_records(tmp_path):
     assert r.returncode == 0, r.stderr
     meta = load(name).metadata["ambdaq.session"]
     assert "run\\udcff.mcap" in meta["command"]
+
+
+def test_a_disk_that_fills_up_is_one_line_naming_the_file_and_what_was_flushed_is_kept(tmp_path):
+    """The process may write 2 MB (RLIMIT_FSIZE, with SIGXFSZ ignored: writes then fail with EFBIG, as
+    they fail with ENOSPC on a full disk): the error names the file, and recover reads what was flushed."""
+    import resource
+    import signal
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2_000_000, 2_000_000))
+
+    out = tmp_path / "big.mcap"
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "sim", "generate", "--duration", "10", "-q", "-o", str(out)],
+                       preexec_fn=small_disk, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.strip() == (f"ambdaq: error: {out}: cannot write the recording: File too large; what was flushed "
+                                "before is in the file (ambdaq recover reads it)")
+    fixed = tmp_path / "fixed.mcap"
+    r = subprocess.run([sys.executable, "-m", "ambdaq", "recover", str(out), "-o", str(fixed)], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    gap = load(fixed)["/amb/gap"]
+    assert len(gap) > 1000 and (gap.seq == gap.seq[0] + range(len(gap))).all()  # the first samples, none missing

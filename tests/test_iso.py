@@ -3,6 +3,7 @@ linearisation, vibration zones (part 2) against the simulator's true rotor motio
 be graded."""
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -76,6 +77,16 @@ def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, ru
     assert abs(got["peak_db"] - detuned) < 0.5, (got, detuned)
     assert got["zone"] == "C" and zones_within(detuned, 0.5) == {"C"}  # 13.4 dB: B/C 12.0, C/D 14.0
     assert got["peak_db"] > runs["front_x"]["peak_db"] + 2.5
+    # the controller is put back to the speed it had (standstill), and the user is told
+    assert "speed set back to 0 rpm, as before the measurement" in r.stderr
+    for _ in range(40):  # the rig ramps at 5,000 rpm/s: 2.4 s from 12,000 rpm
+        now = run_cli("controller", "param", "--device", served, "speed.rpm")
+        assert now.exit_code == 0, now.output
+        rpm = float(now.output.split("=")[1])
+        if rpm < 20:
+            break
+        time.sleep(0.2)
+    assert rpm < 20, now.output  # what the controller itself reports, not what we asked
     saved = json.loads((tmp_path / "detuned.json").read_text())
     assert saved["format"] == "ambdaq-iso-stability" and saved["runs"][0]["zone"] == "C"
     curves = saved["runs"][0]["curves"]

@@ -176,10 +176,12 @@ def test_a_hostile_slave_ends_in_one_line_and_keeps_the_good_samples(case, exit_
         assert 300 <= sent <= 760, sent
     else:
         assert 700 <= sent <= 1500, sent
+    # one bad DTO came before each good one after the first GOOD: each was counted, or dropped
+    # with an implausible time (the last one may have come after the recording ended)
     if case == "short":
-        assert int(link["tick_dto_wrong_length"]) >= 1000  # one after each of the last 1,200 good DTOs
+        assert int(link["tick_dto_wrong_length"]) >= len(ticks) - GOOD - 1
     if case == "random":
-        assert int(link["tick_dto_wrong_length"]) + int(link["dto_unknown"]) >= 1000
+        assert int(link["tick_dto_wrong_length"]) + int(link["dto_unknown"]) + dropped >= len(ticks) - GOOD - 1
     # device time is the timestamp (1 us per count): one tick per sample, never a jump
     assert np.allclose(np.diff(got.device_time), slave.tick_us * 1e3)
 

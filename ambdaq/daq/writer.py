@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..drivers.signals import Event, SampleBlock, SignalGroup
-from ..errors import BadInputError
+from ..errors import BadInputError, DeviceError
 from .mcapfile import CHUNK_SIZE, BlockWriter
 from .sequence import SampleCounts
 from .schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
@@ -57,7 +57,7 @@ class RecordingWriter:
 
     def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, fsync: bool = True) -> None:
         self.path = Path(path)
-        self._file = open(self.path, "xb")
+        self._file = _RecordingFile(self.path)
         self._fsync = fsync
         self._sync_wanted = threading.Event()
         self._closing = False
@@ -187,6 +187,48 @@ class RecordingWriter:
             self._sync_wanted.set()
             self._syncer.join()
             self._file.close()
+
+
+class _RecordingFile:
+    """The file a recording is written to, whose write errors name it: a full disk, a file-size
+    limit or a pulled USB stick is one line saying which file (DeviceError, exit 1), where the OS's
+    own error names nothing ("[Errno 28] No space left on device")."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._f = open(path, "xb")
+
+    def _named(self, err: OSError) -> DeviceError:
+        return DeviceError(f"{self.path}: cannot write the recording: {err.strerror or err}; what was flushed before "
+                           "is in the file (ambdaq recover reads it)")
+
+    def write(self, data) -> int:
+        try:
+            return self._f.write(data)
+        except OSError as err:
+            raise self._named(err) from None
+
+    def flush(self) -> None:
+        try:
+            self._f.flush()
+        except OSError as err:
+            raise self._named(err) from None
+
+    def close(self) -> None:
+        try:
+            self._f.close()
+        except OSError as err:  # its last buffered bytes could not be written; the handle is released
+            raise self._named(err) from None
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def fileno(self) -> int:
+        return self._f.fileno()
+
+    @property
+    def closed(self) -> bool:
+        return self._f.closed
 
 
 def _text(value: str) -> str:

@@ -86,8 +86,12 @@ def wait_for_speed(controller: Controller, target_rpm: float, timeout_s: float, 
 
 def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None, amplitude: float,
             duration_s: float, out_dir: Path, *, settle_s: float = 60.0, overwrite: bool = False,
-            on_run=None, description: dict | None = None) -> list[Path]:
+            on_run=None, description: dict | None = None, on_restore=None) -> list[Path]:
     """Record one excited run per axis at each speed; returns the recordings.
+
+    With ``speeds_rpm`` the controller's speed is set for each; at the end, and when a run fails or
+    is stopped, the speed it had before is set again (``on_restore`` is told), so the machine is
+    not left at the last speed measured. The test signal is switched off after every run.
 
     Parameters
     ----------
@@ -109,8 +113,45 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
         Called with (axis, rpm or None, path) before each run.
     description : dict, optional
         What the device's back-end reads beyond its URL (an XCP controller's A2L: ``{"a2l": path}``).
+    on_restore : callable, optional
+        Called with the speed set back, in rpm, or with an exception if that failed.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
+    before = _speed_now(device, description) if speeds_rpm else None
+    try:
+        return _measure_runs(device, speeds_rpm, axes, amplitude, duration_s, out_dir, settle_s, overwrite, on_run,
+                             description)
+    finally:
+        if before is not None:
+            try:
+                _set_speed(device, description, before)
+            except Exception as err:  # reported, never hiding what ended the measurement
+                if on_restore is not None:
+                    on_restore(err)
+            else:
+                if on_restore is not None:
+                    on_restore(before)
+
+
+def _speed_now(device: str, description: dict | None) -> float | None:
+    """The speed the controller runs at now, rpm (None if it has no speed parameter)."""
+    with Opened() as opened:
+        opened.add(open_url(device, description=description))
+        controller = _controller(opened.sources)
+        param = controller.capabilities.speed_parameter
+        return None if param is None else float(controller.read_param(param)[0])
+
+
+def _set_speed(device: str, description: dict | None, rpm: float) -> None:
+    with Opened() as opened:
+        opened.add(open_url(device, description=description))
+        controller = _controller(opened.sources)
+        controller.write_param(controller.capabilities.speed_parameter, [rpm])
+
+
+def _measure_runs(device: str, speeds_rpm: list[float] | None, axes: list[str] | None, amplitude: float,
+                  duration_s: float, out_dir: Path, settle_s: float, overwrite: bool, on_run,
+                  description: dict | None) -> list[Path]:
     paths = []
     names = list(axes) if axes else None  # else the controller's, learnt at the first run
     for rpm in speeds_rpm if speeds_rpm else [None]:
@@ -124,6 +165,9 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
                 if rpm is not None:
                     wait_for_speed(controller, rpm, settle_s)
                 path = out_dir / (f"gs_{axis}.mcap" if rpm is None else f"gs_{axis}_{rpm:g}rpm.mcap")
+                if path.exists() and not overwrite:
+                    raise BadInputError(f"{path} exists (a run of an earlier measurement): pass --runs DIR for "
+                                        "another folder, or --overwrite")
                 if on_run is not None:
                     on_run(axis, rpm, path)
                 excited = excite(opened.sources, ExcitationRequest(axis, amplitude))
