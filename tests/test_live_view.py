@@ -97,3 +97,40 @@ def test_a_port_in_use_is_one_line_before_recording(run_cli, tmp_path):
         r = run_cli("record", "--device", "sim://spindle", "--duration", "1", "--live", str(port), "-o", tmp_path / "x.mcap")
     assert r.exit_code == 2 and f"--live {port}: cannot serve on 127.0.0.1:{port}" in r.output
     assert "Address already in use" in r.output and not (tmp_path / "x.mcap").exists()
+
+
+def _handshake(port: int, subprotocol: str) -> bytes:
+    """A WebSocket upgrade request offering ``subprotocol`` (RFC 6455 section 4.1), and the answer's first line."""
+    import base64
+
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        key = base64.b64encode(os.urandom(16)).decode()
+        s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                   f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                   f"Sec-WebSocket-Protocol: {subprotocol}\r\n\r\n").encode())
+        return s.recv(4096).split(b"\r\n")[0]
+
+
+@pytest.mark.realtime
+def test_an_older_foxglove_client_is_said_once_not_per_connection(tmp_path):
+    """Three clients offering only foxglove.websocket.v1 (Foxglove's older apps) and one offering
+    foxglove.sdk.v1: the older ones are refused by foxglove-sdk, and the terminal says why once."""
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--duration", "3",
+                             "-o", str(tmp_path / "r.mcap"), "--live", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if "live view on ws://127.0.0.1:" in line:
+            port = int(line.split("ws://127.0.0.1:")[1].split()[0])
+            break
+    else:
+        raise AssertionError(proc.communicate())
+    answers = [_handshake(port, "foxglove.websocket.v1") for _ in range(3)]
+    assert answers == [b"HTTP/1.1 400 Bad Request"] * 3
+    assert _handshake(port, "foxglove.sdk.v1") == b"HTTP/1.1 101 Switching Protocols"
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    said = [ln for ln in err.splitlines() if "foxglove.websocket.v1" in ln]
+    assert len(said) == 1 and said[0].startswith("ambdaq: live: a viewer's WebSocket handshake was refused")
+    assert "Dropping client" not in err

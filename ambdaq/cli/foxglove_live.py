@@ -12,15 +12,41 @@ a second from the last 0.2 s: ``/live/1x`` (the 1X vector per radial axis from t
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
+import click
 import numpy as np
 
 from .live import LiveView
 
 DERIVED_HZ = 5.0  # the derived topics' rate
 BACKLOG = 1024  # messages queued per client before its oldest are dropped (foxglove-sdk's default)
+
+
+SERVER_LOGGER = "foxglove.websocket.server"  # where foxglove-sdk's Rust server logs, through Python logging
+
+
+class _FailedHandshakes(logging.Filter):
+    """foxglove-sdk logs every client whose WebSocket handshake it refuses ("Dropping client ...:
+    handshake failed"); a client that offers only the older ``foxglove.websocket.v1`` subprotocol
+    gets that from this SDK, which speaks ``foxglove.sdk.v1`` only (checked with 0.30: it answers
+    400 "Missing expected sec-websocket-protocol header"). Said once, in ambdaq's words."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.failed = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if "handshake failed" not in record.getMessage():
+            return True
+        self.failed += 1
+        if self.failed == 1:
+            click.echo("ambdaq: live: a viewer's WebSocket handshake was refused: this server speaks the "
+                       "foxglove.sdk.v1 subprotocol, and clients that offer only foxglove.websocket.v1 (older "
+                       "Foxglove apps) cannot connect; update the viewer (further refusals are not shown)", err=True)
+        return False
 
 
 def _schema(name: str, fields: list[str], units: list[str]) -> dict:
@@ -47,6 +73,8 @@ class FoxgloveLive:
     def __init__(self, sources, host: str, port: int, display_hz: float = 100.0) -> None:
         import foxglove
 
+        self._handshakes = _FailedHandshakes()
+        logging.getLogger(SERVER_LOGGER).addFilter(self._handshakes)
         self._context = foxglove.Context()
         self.server = foxglove.start_server(name="ambdaq", host=host, port=port, context=self._context,
                                             message_backlog_size=BACKLOG)
@@ -120,6 +148,7 @@ class FoxgloveLive:
         self._stop.set()
         self._thread.join(timeout=2)
         self.server.stop()
+        logging.getLogger(SERVER_LOGGER).removeFilter(self._handshakes)
 
 
 __all__ = ["FoxgloveLive"]
