@@ -6,13 +6,14 @@ SECONDS s at 30,000 rpm); each phase scans it into a new dataset with ``ambdaq f
 --workers N`` in its own process, timed by the scan itself (from the first task submitted to the
 last row written: the LocalCluster's start-up, 2-4 s, is reported beside it, not in it).
 
-    python benchmarks/bench_fleet.py [--machines 10 --days 8 --seconds 2]
+    python benchmarks/bench_fleet.py [--machines 10 --days 16 --seconds 2 --rounds 3]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -31,8 +32,9 @@ def scan(folder: Path, workers: int) -> tuple[dict, float]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--machines", type=int, default=10)
-    ap.add_argument("--days", type=int, default=8)
+    ap.add_argument("--days", type=int, default=16)
     ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     folder = Path(tempfile.mkdtemp()) / "plant"
     subprocess.run([sys.executable, "-m", "ambdaq", "sim", "fleet", "--machines", str(args.machines), "--days",
@@ -40,15 +42,17 @@ def main() -> None:
     files = sorted(folder.rglob("*.mcap"))
     mb = sum(f.stat().st_size for f in files) / 1e6
     print(f"fleet: {len(files)} recordings, {mb:.1f} MB ({args.seconds:g} s each at 10 kHz)")
-    rates = {}
-    for workers in (1, 2):
-        report, wall = scan(folder, workers)
-        assert report["scanned"] == len(files) and not report["errors"], report
-        s = report["seconds"]
-        rates[workers] = len(files) / s
-        print(f"{workers} worker{'s' if workers > 1 else ' '}: {s:6.2f} s scanning ({wall:5.2f} s with the cluster's "
-              f"start-up): {len(files) / s:6.2f} files/s, {mb / s:6.1f} MB/s")
-    print(f"scaling 2 workers / 1 worker: {rates[2] / rates[1]:.2f}")
+    ratios = []
+    for r in range(args.rounds):  # interleaved, so a change of the host's load touches both
+        seconds = {}
+        for workers in (1, 2):
+            report, wall = scan(folder, workers)
+            assert report["scanned"] == len(files) and not report["errors"], report
+            s = seconds[workers] = report["seconds"]
+            print(f"round {r + 1}, {workers} worker{'s' if workers > 1 else ' '}: {s:6.2f} s scanning ({wall:5.2f} s "
+                  f"with the cluster's start-up): {len(files) / s:6.2f} files/s, {mb / s:6.1f} MB/s")
+        ratios.append(seconds[1] / seconds[2])
+    print(f"scaling 2 workers / 1 worker: {', '.join(f'{x:.2f}' for x in ratios)} (median {statistics.median(ratios):.2f})")
 
 
 if __name__ == "__main__":

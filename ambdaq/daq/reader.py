@@ -212,6 +212,7 @@ def load(
     *,
     start: float | None = None,
     end: float | None = None,
+    threads: int = READ_THREADS,
 ) -> Recording:
     """Load topics of an ambdaq recording as numpy arrays.
 
@@ -224,6 +225,9 @@ def load(
         Topics to load; default all ambdaq topics in the file.
     start, end : float, optional
         Time window, in s since the first message of the file.
+    threads : int
+        Chunks decompressed at once (zstd lets go of the GIL); 1 where the caller is already
+        parallel over files, one process per core (``fleet scan``).
 
     Returns
     -------
@@ -307,7 +311,7 @@ def load(
             # one call for every field: numpy walks the records once, writing each field's row
             np.copyto(cols["values"][:, p : p + n].T, view["values"])
 
-    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
             pass
     for cid in by_id:  # where one chunk's messages meet the next's

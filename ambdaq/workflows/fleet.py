@@ -30,7 +30,7 @@ import numpy as np
 from ..analysis.runout import harmonic_fit
 from ..daq.coefficients import file_sha256
 from ..daq.mcapfile import MAGIC, McapFile
-from ..daq.reader import ambdaq_channels, load
+from ..daq.reader import READ_THREADS, ambdaq_channels, load
 from ..errors import AmbdaqError, BadInputError
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
@@ -43,6 +43,7 @@ WRITING_S = 60.0  # a file without its footer that changed this recently is bein
 MACHINE_KEY = "machine.id"  # in a device's calibration (a rig file's [device.calibration]); else the serial
 COEFFICIENTS_KEY = "active_coefficients_sha256"  # in a device's identity: the coefficient file it runs
 PARTITION = "machine"
+TASKS_PER_WORKER = 8  # a scan's files are cut into this many tasks per worker: balance against scheduling
 
 
 def _machine(meta: dict[str, dict[str, str]]) -> str:
@@ -74,13 +75,15 @@ def empty_row(path: Path) -> dict:
     return row
 
 
-def scan_recording(path: str | Path) -> dict:
+def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
     """One recording's row (what ``fleet scan`` stores; the columns are in docs/fleet.md).
 
     Parameters
     ----------
     path : str or Path
         An ambdaq MCAP recording (or split part).
+    read_threads : int
+        Chunks decompressed at once (:func:`~ambdaq.daq.reader.load`).
 
     Returns
     -------
@@ -104,7 +107,7 @@ def scan_recording(path: str | Path) -> dict:
                                            if n.startswith("ambdaq.device.") and m.get(COEFFICIENTS_KEY)), None)
         # read once, for the 1X here and the runout and zones below (without current: no runout)
         current = ["/amb/current"] if "/amb/current" in ambdaq_channels(f) else []
-        rec = load(f, topics=["/amb/gap", "/amb/rotor", *current])
+        rec = load(f, topics=["/amb/gap", "/amb/rotor", *current], threads=read_threads)
         gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
         n = min(len(gap), len(rot))
         row["samples"] = len(gap)
@@ -250,16 +253,35 @@ def _replace(table, target: Path) -> None:
     os.replace(tmp, target)
 
 
-def _write_row(dataset: Path, row: dict, old: dict | None) -> None:
-    """The row as its own Parquet file under its machine's partition; the row it replaces goes."""
+def scan_into(paths: list[str], dataset: str, old_files: list[str | None], read_threads: int) -> list[dict]:
+    """One Dask task: each recording's row (:func:`scan_recording`) written where the task runs, as
+    its own Parquet file under its machine's partition (the row it replaces goes). What goes back
+    to the client is what it reports (path, size, machine, error), not the rows.
+
+    Parameters
+    ----------
+    paths : list of str
+        The recordings.
+    dataset : str
+        The dataset folder, reachable by the worker (on a cluster: a shared filesystem).
+    old_files : list of str or None
+        The part file of each recording's previous row, if it has one.
+    read_threads : int
+        Chunks each file decompresses at once.
+    """
     import pyarrow as pa
 
-    target = _part_file(dataset, row[PARTITION], row["path"])
-    target.parent.mkdir(parents=True, exist_ok=True)
-    data = dict(row, start=None if row["start"] is None else datetime.fromisoformat(row["start"]))
-    _replace(pa.Table.from_pylist([data], schema=schema()), target)
-    if old is not None and Path(old["file"]) != target:
-        Path(old["file"]).unlink(missing_ok=True)
+    done = []
+    for path, old_file in zip(paths, old_files):
+        row = scan_recording(path, read_threads)
+        target = _part_file(Path(dataset), row[PARTITION], row["path"])
+        target.parent.mkdir(parents=True, exist_ok=True)
+        data = dict(row, start=None if row["start"] is None else datetime.fromisoformat(row["start"]))
+        _replace(pa.Table.from_pylist([data], schema=schema()), target)
+        if old_file is not None and Path(old_file) != target:
+            Path(old_file).unlink(missing_ok=True)
+        done.append({"path": row["path"], "size": row["size"], PARTITION: row[PARTITION], "error": row["error"]})
+    return done
 
 
 def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, int, int], None] | None = None,
@@ -275,7 +297,8 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
     client : distributed.Client
         Where the tasks run (a LocalCluster's or a scheduler's).
     on_row : callable, optional
-        Called with (row, done, total) as each row is written (a progress bar).
+        Called with (report, done, total) as each row is written (a progress bar): the row's path,
+        size, machine and error.
     now : float, optional
         The time (s since the epoch) against which "recently modified" is judged; default: now.
 
@@ -305,31 +328,35 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
             report.unchanged += 1
             continue
         todo.append(p)
-    futures = client.map(scan_recording, [str(p) for p in todo], pure=False)
-    # Ctrl-C (or SIGTERM) only raises a flag: the row being written is finished, then the scan stops
+    # each task writes its rows where it runs: the client only hands out paths and counts. Tasks of
+    # a few files each (TASKS_PER_WORKER per worker): per-task scheduling shares the client's CPU
+    # with the workers on a small machine, and a file takes milliseconds
+    workers = max(1, len(client.scheduler_info().get("workers", {})))
+    per_task = max(1, math.ceil(len(todo) / (workers * TASKS_PER_WORKER)))
+    batches = [todo[i:i + per_task] for i in range(0, len(todo), per_task)]
+    # a lone worker decompresses a file's chunks on every core; several are parallel over files,
+    # and threads of their own would only contend with each other (docs/performance.md)
+    threads = READ_THREADS if workers == 1 else 1
+    futures = client.map(scan_into, [[str(p) for p in b] for b in batches], [str(dataset.resolve())] * len(batches),
+                         [[None if (o := known.get(str(p))) is None else str(o["file"]) for p in b] for b in batches],
+                         [threads] * len(batches), pure=False)
+    # Ctrl-C (or SIGTERM) only raises a flag: the rows being written are finished, then the scan stops
     stop = [False]
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda signum, frame: stop.__setitem__(0, True))
     try:
-        pending = as_completed(futures)
-        while not stop[0] and not pending.is_empty():
-            batch = pending.next_batch(block=False)
-            if not batch:
-                time.sleep(0.05)
-                continue
-            for fut in batch:
-                row = fut.result()
-                _write_row(dataset, row, known.get(row["path"]))
-                report.scanned.append(row["path"])
-                report.bytes_read += row["size"]
-                if row["error"]:
-                    report.errors.append((row["path"], row["error"]))
+        for fut in as_completed(futures):  # woken by each result, never a polling sleep
+            for done in fut.result():
+                report.scanned.append(done["path"])
+                report.bytes_read += done["size"]
+                if done["error"]:
+                    report.errors.append((done["path"], done["error"]))
                 if on_row is not None:
-                    on_row(row, len(report.scanned), len(todo))
-                if stop[0]:
-                    break
+                    on_row(done, len(report.scanned), len(todo))
+            if stop[0]:
+                break
     finally:
         for sig, old in handlers.items():
             signal.signal(sig, old)
@@ -401,5 +428,5 @@ def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
     return out
 
 
-__all__ = ["HARMONICS", "ScanReport", "Movement", "scan", "scan_recording", "recordings", "read", "moved", "index",
+__all__ = ["HARMONICS", "ScanReport", "Movement", "scan", "scan_into", "scan_recording", "recordings", "read", "moved", "index",
            "has_footer"]
