@@ -5,7 +5,7 @@ A profile is written as a short spec, the same on the command line and in a ``si
 ``30000``            constant 30,000 rpm
 ``0:50000``          linear ramp from 0 to 50,000 rpm over the whole run
 ``0:50000:20``       linear ramp over 20 s, then hold 50,000 rpm
-``slowroll``         800 rpm, seed 000's slow-roll speed for runout measurement
+``slowroll``         800 rpm, Ro et al.'s slow-roll speed for runout measurement
 """
 
 from __future__ import annotations

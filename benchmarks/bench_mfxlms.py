@@ -1,4 +1,4 @@
-"""Per-frequency MFXLMS throughput (seed 002 eq. A-4 to A-9): instants (2 gaps, 2 accelerometers)
+"""Per-frequency MFXLMS throughput (Kang & Jung eq. A-4 to A-9): instants (2 gaps, 2 accelerometers)
 per second.
 
 Baseline, measured in the same run on the same data: the same update (in-phase and quadrature

@@ -2,7 +2,7 @@
 
 Baselines, measured in the same run on the same data: for the harmonic fit, the direct numpy
 least squares on an explicit sin/cos basis (``np.linalg.lstsq``); for the LMS, the same update
-(seed 000 eq. 9-10) as a plain Python loop.  Targets: 20,000,000 samples/s each, LMS >= 50x the
+(Ro et al. eq. 9-10) as a plain Python loop.  Targets: 20,000,000 samples/s each, LMS >= 50x the
 plain loop.
 
     python benchmarks/bench_runout.py [--samples 20000000]

@@ -1,4 +1,4 @@
-"""Seed 002 on the base-motion rig: physics against its exact linear model, MFXLMS against W*,
+"""Kang & Jung on the base-motion rig: physics against its exact linear model, MFXLMS against W*,
 and the whole chain through the CLI (secondary path, campaign, estimate, fit, compensated run)."""
 
 import json

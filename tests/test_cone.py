@@ -1,4 +1,4 @@
-"""Seed 001's cone-shaped AMB analysis against the paper's numbers, where they are self-consistent."""
+"""Jeong et al.'s cone-shaped AMB analysis against the paper's numbers, where they are self-consistent."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Seed 001's five-degree-of-freedom rotor, the `cone` simulator profile and `ambdaq identify modal`."""
+"""Jeong et al.'s five-degree-of-freedom rotor, the `cone` simulator profile and `ambdaq identify modal`."""
 
 import json
 
@@ -83,7 +83,7 @@ def test_start_up_levitates_from_the_touchdown_bearings_against_the_supply_limit
 
 
 def test_identify_modal_recovers_the_simulators_axial_mode(tmp_path):
-    """Seed 001's axial impact test (64.1 Hz, 0.476 measured), here within 1 % of the simulator's truth."""
+    """Jeong et al.'s axial impact test (64.1 Hz, 0.476 measured), here within 1 % of the simulator's truth."""
     out = tmp_path / "impact.mcap"
     runner = CliRunner()
     r = runner.invoke(cli, ["sim", "generate", "--profile", "cone", "--duration", "3", "--impact", "x:50",

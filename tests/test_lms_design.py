@@ -1,4 +1,4 @@
-"""The LMS convergence map (seed 000 Fig. 5) against the paper's sign pattern and the simulator."""
+"""The LMS convergence map (Ro et al. Fig. 5) against the paper's sign pattern and the simulator."""
 
 import json
 
@@ -9,7 +9,7 @@ from ambdaq.analysis.lms import HOLD_TOL, OneAxis, converges, convergence_radius
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import SpindleRig
 
-FRONT = OneAxis()  # seed 000: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
+FRONT = OneAxis()  # Ro et al.: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
 
 
 def test_the_loop_itself_is_stable():
@@ -18,7 +18,7 @@ def test_the_loop_itself_is_stable():
 
 
 def test_mu_must_be_negative_at_low_speed_and_positive_at_high_speed():
-    """Seed 000 section 3.3: mu = -0.001 at low speed, +0.001 at high speed, one flip in between."""
+    """Ro et al. section 3.3: mu = -0.001 at low speed, +0.001 at high speed, one flip in between."""
     signs = mu_sign(FRONT, np.array([1000, 3000, 5000, 30000, 50000]))
     np.testing.assert_array_equal(signs, [-1, -1, -1, 1, 1])
     flips = sign_flip_rpm(FRONT)
@@ -69,7 +69,7 @@ def test_map_agrees_with_the_closed_loop_simulator(rpm, good):
     Only 1X adapts: at low speed the 6X-8X lines are already past their own flip, so one sign for
     every harmonic would not converge; a schedule is per harmonic (2X flips at half the speed).
     Between ~10,000 and ~16,000 rpm the five-axis rig (translation mode ~141 Hz, tilt ~308 Hz) and
-    seed 000's one-axis model (m = 1.5 kg, ~170 Hz) disagree: there the map must come from the
+    Ro et al.'s one-axis model (m = 1.5 kg, ~170 Hz) disagree: there the map must come from the
     rig's own sensitivity, not the one-axis model.
     """
     def error_1x(mu):
@@ -86,7 +86,7 @@ def test_map_agrees_with_the_closed_loop_simulator(rpm, good):
 
 def test_rig_map_puts_the_first_flip_near_the_papers_6000_rpm(run_cli):
     """The five-axis rig's first 1X flip sits where its translational mode passes (~7,000 rpm),
-    near seed 000's ~6,000; the one-axis model with m = 1.5 kg (the tilt mode) puts it at ~16,000,
+    near Ro et al.'s ~6,000; the one-axis model with m = 1.5 kg (the tilt mode) puts it at ~16,000,
     and with the whole rotor's 4.38 kg at ~6,900."""
     rig = json.loads(run_cli("lms", "map", "--plant", "rig", "--json").output)["loops"]["rig"]
     first, second = rig["sign_flips_rpm"][:2]
@@ -109,7 +109,7 @@ def test_map_plot_and_transfer_function_plant(run_cli, tmp_path):
 def test_phase_compensated_update_converges_at_every_speed_where_the_schedule_cannot(run_cli, tmp_path,
                                                                                     spindle_file):
     """Beyond the paper: the update turned by the loop's inverse phase converges with one positive
-    mu at every speed (the rig's map and the simulator agree); seed 000's sign-switched schedule
+    mu at every speed (the rig's map and the simulator agree); Ro et al.'s sign-switched schedule
     holds its weights between the flips and never converges there.  The time to converge starts
     from zero weights, as labelled, even for a file that holds identified ones (docs/lms.md's
     ``--weights coef.json``): held weights are not convergence."""

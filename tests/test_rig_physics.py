@@ -1,4 +1,4 @@
-"""The simulated spindle against seed 000: stability over speed, stiffness and damping, runout."""
+"""The simulated spindle against Ro et al.: stability over speed, stiffness and damping, runout."""
 
 from dataclasses import replace
 
@@ -115,7 +115,7 @@ def test_runout_is_fixed_to_the_rotor_angle_at_every_speed():
 
 
 def test_defaults_are_in_the_papers_runout_range():
-    # seed 000: 15 um front, 30 um rear on the spindle; 1X and 2X dominant
+    # Ro et al.: 15 um front, 30 um rear on the spindle; 1X and 2X dominant
     total = SPINDLE.runout_amp.sum(axis=1) * 1e6
     assert 15 <= total[0] <= 20 and 28 <= total[2] <= 32
     assert np.all(np.argsort(SPINDLE.runout_amp[:4], axis=1)[:, -2:].min(axis=1) <= 1)
@@ -146,7 +146,7 @@ def test_keyphasor_pulses_once_per_revolution():
 
 
 def test_lms_feedforward_cancels_runout_in_the_command_error():
-    """Seed 000 eq. 9-10 at 30,000 rpm with mu = +0.001: the 1X and 2X error falls, the sensor keeps the runout."""
+    """Ro et al. eq. 9-10 at 30,000 rpm with mu = +0.001: the 1X and 2X error falls, the sensor keeps the runout."""
     rig = SpindleRig(speed=SpeedProfile(30000, 30000), truth=True, ff_mode="lms",
                      mu_schedule=((0, 60000, 0.001),))
     first = rig.run(2000)

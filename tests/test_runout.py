@@ -1,4 +1,4 @@
-"""Runout identification against the simulator's ground truth and seed 000's equations."""
+"""Runout identification against the simulator's ground truth and Ro et al.'s equations."""
 
 import numpy as np
 import pytest
@@ -80,7 +80,7 @@ def test_several_speeds_separate_runout_from_unbalance():
 
 
 def test_offline_lms_is_the_notch_filter_of_eq_16():
-    """Seed 000 eq. 15-16: the LMS feedforward's error is the IIR notch applied to the signal."""
+    """Ro et al. eq. 15-16: the LMS feedforward's error is the IIR notch applied to the signal."""
     rng = np.random.default_rng(1)
     n, w0, mu = 20000, 2 * np.pi * 0.0371, 0.004  # k Omega h = w0 per sample
     theta = w0 * np.arange(n)

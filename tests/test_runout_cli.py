@@ -116,7 +116,7 @@ def test_report_orbit_after_is_the_true_rotor_motion(tmp_path, run_cli):
 
 @pytest.fixture(scope="module")
 def before_after(tmp_path_factory):
-    """30,000 rpm without feedforward, and with seed 000's LMS adapting from zero (4 s each)."""
+    """30,000 rpm without feedforward, and with Ro et al.'s LMS adapting from zero (4 s each)."""
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli

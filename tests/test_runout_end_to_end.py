@@ -97,7 +97,7 @@ def test_identify_push_and_the_command_error_is_gone(served, tmp_path):
         d2 = 20 * np.log10(h0[a]["e2"] / h1[a]["e2"])
         report[a] = (round(d1, 1), round(d2, 1), round(h0[a]["rms"], 2), round(h1[a]["rms"], 2))
         assert d1 >= 20 and d2 >= 20, report  # the 1X and 2X of the command error fall by 20 dB or more
-        assert h1[a]["rms"] < 5.0, report  # and its RMS below 5 um (seed 000's result)
+        assert h1[a]["rms"] < 5.0, report  # and its RMS below 5 um (Ro et al.'s result)
         # the sensor still carries the runout: the feedforward acts on the error, not the sensor
         assert h1[a]["g1"] > 5.0 and h1[a]["g2"] > 3.0, report
     status = json.loads(ambdaq("controller", "status", "--device", served, "--json").stdout)

@@ -110,7 +110,7 @@ def test_plot_marks_the_orders_of_a_steady_run_and_the_clearance(runup, run_cli,
 
 def test_a_1x_of_sensor_noise_has_no_critical_speed_and_the_cone_model_overlays_its_modes(run_cli, tmp_path):
     """The cone rotor has no unbalance: its 1X is sensor noise, whose peaks are everywhere and none
-    significant.  --model cone overlays seed 001's coupled model: the 57 Hz mode at low speed, and
+    significant.  --model cone overlays Jeong et al.'s coupled model: the 57 Hz mode at low speed, and
     the tilting modes the gyroscopic coupling splits as it spins up."""
     rec = tmp_path / "cone.mcap"
     assert run_cli("sim", "generate", "--profile", "cone", "--rpm", "0:6000:3", "--duration", "3", "-q", "-o", rec).exit_code == 0

@@ -1,4 +1,4 @@
-"""Seed 003: the `lorentz` simulator profile and `ambdaq selfsense` against the paper's claims."""
+"""Jeon et al.: the `lorentz` simulator profile and `ambdaq selfsense` against the paper's claims."""
 
 import json
 from dataclasses import replace
@@ -64,7 +64,7 @@ def test_estimator_is_exact_on_an_ideal_machine():
 
 
 def test_start_up_from_8_degrees_converges_within_5_s(recordings, tmp_path):
-    """Seed 003 Fig. 5: 0 to 100 rpm with an 8 deg initial error; below 1 deg within 5 s."""
+    """Jeon et al. Fig. 5: 0 to 100 rpm with an 8 deg initial error; below 1 deg within 5 s."""
     r = selfsense(recordings["start"], "--initial-error", "8", "--plot", str(tmp_path / "fig5.png"))
     assert r["speed_rpm"]["start"] < 5 and 90 < r["speed_rpm"]["end"] < 110
     assert r["converged_s"] is not None and r["converged_s"] < 5.0
@@ -73,7 +73,7 @@ def test_start_up_from_8_degrees_converges_within_5_s(recordings, tmp_path):
 
 
 def test_steady_error_from_100_to_1000_rpm(recordings, tmp_path):
-    """Seed 003 Fig. 7: mean absolute error 1 deg or less from 100 to 1,000 rpm; the spread falls with speed."""
+    """Jeon et al. Fig. 7: mean absolute error 1 deg or less from 100 to 1,000 rpm; the spread falls with speed."""
     files = [recordings[rpm] for rpm in (100, 300, 500, 1000)]
     out = CliRunner().invoke(cli, ["selfsense", *files, "--json", "--plot", str(tmp_path / "fig7.png")])
     assert out.exit_code == 0, out.output

@@ -1,4 +1,4 @@
-"""The base shakers' generator (SCPI over a serial line) against the simulated one, and seed 002's
+"""The base shakers' generator (SCPI over a serial line) against the simulated one, and Kang & Jung's
 stepped-sine campaign driving both devices over their transports, as it would on hardware."""
 
 import cmath

@@ -1,12 +1,12 @@
 """Linear models of one AMB control axis: digital PID, amplifier, equivalent stiffness and damping.
 
 The controlled bearing acts on the rotor like a spring-damper whose coefficients depend on
-frequency (seed 001 eq. 19 and 21):
+frequency (Jeong et al. eq. 19 and 21):
 
     Keq(w) = -Kx + Ki Re G(jw),    Ceq(w) = Ki Im G(jw) / w,
 
 with G the loop from rotor displacement to coil current: sensor gain Ks, the digital controller
-C(z) at z = exp(jwh), the D/A's zero-order hold and the amplifier G_A (seed 000 eq. 2).
+C(z) at z = exp(jwh), the D/A's zero-order hold and the amplifier G_A (Ro et al. eq. 2).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def pid_z(*, p: float, i: float, d: float, nd: float, h: float) -> tuple[np.ndar
     """The digital PID of the simulated controller as (num, den) in powers of z: the one statement
     of the law (the step kernel runs the same difference equation).
 
-    Parallel form with a Tustin integrator I h (z+1) / (2 (z-1)) (the readable term of seed 000
+    Parallel form with a Tustin integrator I h (z+1) / (2 (z-1)) (the readable term of Ro et al.
     eq. 3) and a backward-Euler filtered derivative D (z - 1) / ((Tf + h) z - Tf), Tf = (D/P)/Nd.
 
     Parameters
@@ -65,7 +65,7 @@ def pid_response(f: np.ndarray, *, p: float, i: float, d: float, nd: float, h: f
 
 
 def amplifier_response(f: np.ndarray, *, gain: float, wn_hz: float, zeta: float) -> np.ndarray:
-    """G_A(jw) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (seed 000 eq. 2).
+    """G_A(jw) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (Ro et al. eq. 2).
 
     Parameters
     ----------
@@ -115,7 +115,7 @@ def equivalent_stiffness_damping(
     amp_wn_hz: float,
     amp_zeta: float,
 ) -> StiffnessDamping:
-    """Keq and Ceq of a digitally controlled AMB axis (seed 001 eq. 19, 21).
+    """Keq and Ceq of a digitally controlled AMB axis (Jeong et al. eq. 19, 21).
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
-"""Seed 001: the cone-shaped AMB, its linearised gains, the analogue PD loop and its stability.
+"""Jeong et al.: the cone-shaped AMB, its linearised gains, the analogue PD loop and its stability.
 
-One decoupled axis (seed 001 section 3): rotor m s^2 - Ky against the magnets' current gain Ki,
+One decoupled axis (Jeong et al. section 3): rotor m s^2 - Ky against the magnets' current gain Ki,
 controlled by a PD with filtered derivative through a current-feedback amplifier (eq. 11, 15,
 17):
 
@@ -20,7 +20,7 @@ MU0 = 4e-7 * np.pi  # H/m
 
 
 def force_factor(theta1: float, theta2: float) -> float:
-    """alpha_g = (sin theta2 - sin theta1) / (theta2 - theta1) (seed 001 eq. 3); angles of the pole
+    """alpha_g = (sin theta2 - sin theta1) / (theta2 - theta1) (Jeong et al. eq. 3); angles of the pole
     faces' edges, in rad. alpha_g <= shape_factor always."""
     if theta1 == theta2:
         return float(np.cos(theta1))
@@ -28,13 +28,13 @@ def force_factor(theta1: float, theta2: float) -> float:
 
 
 def shape_factor(theta1: float, theta2: float) -> float:
-    """c = cos((theta1 + theta2) / 2) (seed 001 eq. 3); angles in rad."""
+    """c = cos((theta1 + theta2) / 2) (Jeong et al. eq. 3); angles in rad."""
     return float(np.cos((theta1 + theta2) / 2))
 
 
 def magnet_force(current: float | np.ndarray, gap: float | np.ndarray, *, area: float, turns: int,
                  alpha_g: float = 1.0) -> np.ndarray:
-    """Attractive force of one magnet, F = alpha_g mu0 A N^2 I^2 / (4 g^2) (seed 001 eq. 1b, 3).
+    """Attractive force of one magnet, F = alpha_g mu0 A N^2 I^2 / (4 g^2) (Jeong et al. eq. 1b, 3).
 
     Parameters
     ----------
@@ -59,7 +59,7 @@ def magnet_force(current: float | np.ndarray, gap: float | np.ndarray, *, area: 
 
 @dataclass(frozen=True)
 class MagnetGains:
-    """Linearised magnet at its operating point (seed 001 eq. 4): F = F0 + Ki i + Kq dg."""
+    """Linearised magnet at its operating point (Jeong et al. eq. 4): F = F0 + Ki i + Kq dg."""
 
     ki: float  # N/A
     kq: float  # N/m
@@ -68,7 +68,7 @@ class MagnetGains:
 
 def linear_gains(*, area: float, turns: int, gap: float, bias: float, alpha_g: float = 1.0,
                  c: float = 1.0) -> MagnetGains:
-    """Ki = alpha_g mu0 A N^2 I0 / (2 g0^2), Kq = c alpha_g mu0 A N^2 I0^2 / (2 g0^3) (seed 001 eq. 4),
+    """Ki = alpha_g mu0 A N^2 I0 / (2 g0^2), Kq = c alpha_g mu0 A N^2 I0^2 / (2 g0^3) (Jeong et al. eq. 4),
     F0 from eq. 1b.
 
     Parameters
@@ -96,7 +96,7 @@ def linear_gains(*, area: float, turns: int, gap: float, bias: float, alpha_g: f
 
 @dataclass(frozen=True)
 class PdLoop:
-    """One decoupled axis with the analogue PD loop (seed 001 eq. 11-17).
+    """One decoupled axis with the analogue PD loop (Jeong et al. eq. 11-17).
 
     Attributes (SI): m (kg), ky (N/m, the negative stiffness), ki (N/A), ks (V/m sensor), kc (A/V
     amplifier), kp (V/V), kd (s), tau (s, derivative filter), tau_c (s, current loop), tau_e
@@ -168,7 +168,7 @@ def routh_stable(coefficients: np.ndarray) -> bool:
 
 @dataclass(frozen=True)
 class StableRegion:
-    """The (Kp, Kd) region where the PD loop is stable (seed 001 eq. 23, derived exactly)."""
+    """The (Kp, Kd) region where the PD loop is stable (Jeong et al. eq. 23, derived exactly)."""
 
     kd_min: float  # s
     kd_max: float  # s
@@ -195,7 +195,7 @@ class StableRegion:
 
 
 def stable_region(loop: PdLoop) -> StableRegion:
-    """Routh-Hurwitz bounds of the PD loop without eddy lag (seed 001 eq. 23):
+    """Routh-Hurwitz bounds of the PD loop without eddy lag (Jeong et al. eq. 23):
 
     tau tau_c < m / Ky;  Ky (tau + tau_c) / G < Kp tau + Kd < (tau + tau_c) m / (tau tau_c G);
     Kp > Ky / G;  with G = Ks Kc Ki. The Kd bounds here are those of Kp tau + Kd at Kp = Kp_min.
@@ -213,7 +213,7 @@ def stable_region(loop: PdLoop) -> StableRegion:
 
 
 def load_limits(*, area: float, b_max: float, beta: float, diameter: float, spacing: float) -> tuple[float, float]:
-    """Fmax = A Bmax^2 / mu0 (N) and Mmax = Fmax (D sin beta - l cos beta) (N m) (seed 001 eq. 24-25).
+    """Fmax = A Bmax^2 / mu0 (N) and Mmax = Fmax (D sin beta - l cos beta) (N m) (Jeong et al. eq. 24-25).
 
     Parameters
     ----------

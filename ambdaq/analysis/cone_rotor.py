@@ -1,4 +1,4 @@
-"""Seed 001: the rigid rotor on two cone-shaped AMBs, five degrees of freedom (eq. 2-10).
+"""Jeong et al.: the rigid rotor on two cone-shaped AMBs, five degrees of freedom (eq. 2-10).
 
 Eight magnets, four per bearing, pull the rotor along their pole axes n_j, tilted by beta from the
 radial plane: the upper bearing (at +l1 along the axial x from the centre of mass) pulls up and
@@ -183,7 +183,7 @@ def uncontrolled_eigenvalues(rotor: ConeRotor, speed: float = 0.0) -> np.ndarray
 
 @dataclass(frozen=True)
 class ConeControl:
-    """Decoupled PD per bearing coordinate through current-feedback amplifiers (seed 001 eq. 11,
+    """Decoupled PD per bearing coordinate through current-feedback amplifiers (Jeong et al. eq. 11,
     15, 16): i = -Kc Ks (Kp + Kd s / (tau s + 1)) / (tau_c s + 1) q_b, force lagging by tau_e.
 
     ``kp``, ``kd`` per axis (x, y1, y2, z1, z2) as Table 3; ``ks`` in V/m, ``kc`` in A/V, time

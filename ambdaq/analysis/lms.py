@@ -1,4 +1,4 @@
-"""Stability of seed 000's LMS runout feedforward inside the AMB loop (Fig. 5).
+"""Stability of Ro et al.'s LMS runout feedforward inside the AMB loop (Fig. 5).
 
 The feedforward r_c is subtracted from the sensor signal, so the command error is
 e = S (r - r_c) with S = 1 / (1 + C P) the sensitivity of the sampled loop.  For one harmonic the
@@ -12,7 +12,7 @@ garbled, eq. 16 follows from this one).  With the loop, the characteristic polyn
     den_S den_ff + num_S num_ff = 0,
 
 and the LMS converges where every root lies inside the unit circle.  Whether mu must be positive
-or negative depends on the phase of S at k Omega: that is the sign flip of seed 000 section 3.3.
+or negative depends on the phase of S at k Omega: that is the sign flip of Ro et al. section 3.3.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from .amb import pid_z
 
 @dataclass(frozen=True)
 class OneAxis:
-    """Seed 000's one-axis loop: G_R = Ki Ks / (m s^2 - Kx) (eq. 1), amplifier G_A (eq. 2),
+    """Ro et al.'s one-axis loop: G_R = Ki Ks / (m s^2 - Kx) (eq. 1), amplifier G_A (eq. 2),
     digital PID at h (eq. 3, parallel form, Tustin integral, filtered derivative).
 
     Parameters (SI): m kg, ki N/A, kx N/m, ks V/m, amplifier gain A/V, wn Hz, zeta, PID gains
@@ -73,7 +73,7 @@ class OneAxis:
 
 @dataclass(frozen=True)
 class PlantLoop(OneAxis):
-    """Any plant G(s) (V in -> sensor V out) as a transfer function, in the loop of seed 000's
+    """Any plant G(s) (V in -> sensor V out) as a transfer function, in the loop of Ro et al.'s
     digital PID (gains and h as :class:`OneAxis`).
 
     Parameters
@@ -121,7 +121,7 @@ HOLD_TOL = 1e-9
 """A spectral radius within this of 1 means the weights *hold*: they neither converge nor
 diverge.  With the weights frozen (mu = 0) the LMS poles lie on the unit circle by construction;
 in the rotation form used here their radius comes out within 1e-14 of 1 at every speed, while
-the slowest convergence that counts (mu = 1e-4 on seed 000's bearings, 10 rpm from a sign flip)
+the slowest convergence that counts (mu = 1e-4 on Ro et al.'s bearings, 10 rpm from a sign flip)
 is 2e-8 inside the circle, 20 times this tolerance.  At 10 kHz a radius 1e-9 from 1 changes the
 error by 1/e in 10^9 samples, 28 hours: nothing a run can show."""
 
@@ -179,7 +179,7 @@ def _radius(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, mu: np.n
 def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmonic: int,
                         g: np.ndarray) -> np.ndarray:
     """Spectral radius of ``loop`` with the LMS filter G_ff on every adapting axis; ``g`` turns
-    each axis's update (ones: seed 000's plain LMS).  The loop's input is r_c itself: e = C x - r_c."""
+    each axis's update (ones: Ro et al.'s plain LMS).  The loop's input is r_c itself: e = C x - r_c."""
     M, B, C = loop.at(rpm)
     axes = list(range(B.shape[1])) if loop.axes is None else list(loop.axes)
     B, C = B[:, axes], C[axes]
@@ -188,13 +188,13 @@ def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmon
 
 
 def bearing_loop(axis: BearingAxis) -> OneAxis:
-    """Seed 000's one-axis loop of one of the spindle's bearing axes (m = 1.5 kg, eq. 1)."""
+    """Ro et al.'s one-axis loop of one of the spindle's bearing axes (m = 1.5 kg, eq. 1)."""
     return OneAxis(ki=axis.ki, kx=axis.kx, amp_gain=axis.amp_gain, amp_wn_hz=axis.amp_wn_hz, amp_zeta=axis.amp_zeta,
                    p=axis.pid_p, i=axis.pid_i, d=axis.pid_d)
 
 
 BEARINGS = {"front": bearing_loop(SPINDLE.front), "rear": bearing_loop(SPINDLE.rear)}
-"""Seed 000's one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
+"""Ro et al.'s one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
 
 
 def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
@@ -276,7 +276,7 @@ def error_response(loop, f_hz: np.ndarray) -> np.ndarray:
 
 
 def phase_compensation(loop, bins: int = 501, bin_hz: float = 10.0) -> PhaseTable:
-    """The phase-compensated update (beyond seed 000): each axis's step turned by
+    """The phase-compensated update (beyond Ro et al.): each axis's step turned by
     g = -conj(T_aa)/|T_aa|, the inverse phase of the loop at the harmonic's frequency, so that a
     positive mu converges at every speed (no sign flip, no dead band).
 
@@ -345,7 +345,7 @@ RPM_MIN = 100.0  # below this the integrator's corner, not the rotor, sets the p
 
 def sign_flip_rpm(loop: OneAxis, harmonic: int = 1, rpm_min: float = RPM_MIN, rpm_max: float = 60000.0,
                   step: float = 10.0) -> list[float]:
-    """Speeds (rpm) where the converging sign of mu changes (seed 000 reports about 6,000 rpm for
+    """Speeds (rpm) where the converging sign of mu changes (Ro et al. reports about 6,000 rpm for
     the front bearing's 1X).  Below ``rpm_min`` the integrator's corner makes its own flips."""
     rpm = np.arange(rpm_min, rpm_max, step)
     return sign_changes(mu_sign(loop, rpm, harmonic), rpm)
@@ -353,7 +353,7 @@ def sign_flip_rpm(loop: OneAxis, harmonic: int = 1, rpm_min: float = RPM_MIN, rp
 
 def sign_schedule(loops, *, mu: float = 0.001, dead_band: float = 500.0, rpm_max: float = 60000.0,
                   harmonic: int = 1, step: float = 10.0) -> list[list[float]]:
-    """A step-size schedule like seed 000's: +-mu where that sign converges on every loop in
+    """A step-size schedule like Ro et al.'s: +-mu where that sign converges on every loop in
     ``loops`` (one loop or a list), 0 (weights held) within ``dead_band`` rpm of a sign change,
     wherever no sign converges on all of them, and below 100 rpm.
 
@@ -390,7 +390,7 @@ def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: i
         Number of harmonics the feedforward runs.
     loops : dict of str to (loop, axes)
         The loops to check, each with the controller axes it stands for (their rows of
-        ``phase``); default: both bearings of seed 000 (front: axis 0, rear: axis 2).
+        ``phase``); default: both bearings of Ro et al. (front: axis 0, rear: axis 2).
     phase : PhaseTable, optional
         The phase compensation the controller will run.
     rpm_step : float

@@ -1,4 +1,4 @@
-"""Seed 002: base-motion compensators by multiple filtered-x LMS, and their FIR fit.
+"""Kang & Jung: base-motion compensators by multiple filtered-x LMS, and their FIR fit.
 
 Per plane the closed loop is y = B u + C d (eq. 14), with u the feedforward (2 amplifier inputs),
 d the base accelerations at the two bearings (2 accelerometers) and y the two gap sensors; the
@@ -96,7 +96,7 @@ def quadrature(x: np.ndarray, f_hz: float, fs: float) -> np.ndarray:
 
 @njit(cache=True, fastmath=True, nogil=True)
 def _mfxlms(y, d, dq, gr, gi, mu, eta, period, w, err):
-    """Normalised MFXLMS (seed 002 eq. A-4 to A-9), offline, on in-phase and quadrature references.
+    """Normalised MFXLMS (Kang & Jung eq. A-4 to A-9), offline, on in-phase and quadrature references.
 
     y (n, 2) gap responses with feedback alone; d, dq (n, 2) base accelerations and their
     quadrature; gr, gi (2, 2) the secondary path B_ij at this frequency; period: samples per
@@ -159,7 +159,7 @@ class MfxlmsResult:
 
 def mfxlms(y: np.ndarray, d: np.ndarray, path: np.ndarray, f_hz: float, fs: float, *, mu: float = 0.01,
            eta: float = 0.01) -> MfxlmsResult:
-    """Adapt the compensator at ``f_hz`` by the normalised MFXLMS (seed 002 eq. A-4 to A-9).
+    """Adapt the compensator at ``f_hz`` by the normalised MFXLMS (Kang & Jung eq. A-4 to A-9).
 
     Parameters
     ----------
@@ -192,7 +192,7 @@ def mfxlms(y: np.ndarray, d: np.ndarray, path: np.ndarray, f_hz: float, fs: floa
 
 def separate(beta_1: np.ndarray, alpha_1: complex, beta_2: np.ndarray, alpha_2: complex) -> np.ndarray:
     """W (2, 2) at one frequency from two runs with disturbance ratios alpha_1 != alpha_2
-    (seed 002 eq. A-13 to A-17).
+    (Kang & Jung eq. A-13 to A-17).
 
     Each run determines beta_j = alpha W_j1 + W_j2 (eq. A-14, A-16): ``beta`` is that run's
     ``MfxlmsResult.response`` combined as ``alpha * R[:, 0] + R[:, 1]``. Eq. A-17 as printed
@@ -214,7 +214,7 @@ def run_beta(result: MfxlmsResult, alpha: complex) -> np.ndarray:
 
 def fit_fir(f_hz: np.ndarray, points: np.ndarray, order: int, fs: float,
             weights: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """FIR taps h_0 .. h_order fitted to frequency-response points (seed 002 eq. 19).
+    """FIR taps h_0 .. h_order fitted to frequency-response points (Kang & Jung eq. 19).
 
     Minimises J = sum_k lambda_k |sum_t h_t e^{-j w_k t T} - W_k|^2 over real taps.
 
@@ -250,7 +250,7 @@ def fit_fir(f_hz: np.ndarray, points: np.ndarray, order: int, fs: float,
 
 
 def knee(orders: np.ndarray, costs: np.ndarray, n_points: int, *, gain: float = 2.0, floor: float = 1e-3) -> int:
-    """The order at the knee of the cost-versus-order curve (seed 002 step 2): the first order
+    """The order at the knee of the cost-versus-order curve (Kang & Jung step 2): the first order
     where one more tap no longer cuts the cost by ``gain`` or more, or whose relative RMS fit error
     sqrt(J / n) is already under ``floor`` (points are not known better than that).
 

@@ -6,7 +6,7 @@ currents: at frequency w the linearised bearings push with F = Kx x + Ki i, so
     (-w^2 M + j w G - Kx) X = Ki I   ->   X = H(w) Ki I,
 
 with M, G the mass and gyroscopic matrices in bearing coordinates (front_x, front_y, rear_x,
-rear_y, axial; seed 000 section 2.2 and seed 001 eq. 5-10), Kx the magnets' negative stiffness.
+rear_y, axial; Ro et al. section 2.2 and Jeong et al. eq. 5-10), Kx the magnets' negative stiffness.
 What the sensor shows beyond X is runout.
 """
 

@@ -1,4 +1,4 @@
-"""Runout identification from signals sampled with the rotor angle (seed 000).
+"""Runout identification from signals sampled with the rotor angle (Ro et al.).
 
 Phasor convention: a harmonic ``R sin(k theta + phi)`` is the complex number ``R exp(j phi)``,
 i.e. ``a sin k theta + b cos k theta`` with ``a + j b``; the feedforward weights of eq. 9-10
@@ -8,7 +8,7 @@ Three estimates of the sensor signal's harmonics, all in the angle domain:
 
 * :func:`synchronous_average`: angle-domain averaging over revolutions (slow-roll vector);
 * :func:`harmonic_fit`: batch least squares on sin/cos of k theta;
-* :func:`lms_offline`: seed 000's LMS (eq. 9-10) run over the recording, converged weights.
+* :func:`lms_offline`: Ro et al.'s LMS (eq. 9-10) run over the recording, converged weights.
 
 In an AMB the runout is fed back: the rotor itself moves, so the sensor shows runout plus rotor
 motion.  :func:`runout_from_sensor` removes the rotor motion reconstructed from the coil
@@ -201,7 +201,7 @@ class LmsResult:
 
 
 def lms_offline(x: np.ndarray, theta: np.ndarray, *, mu: float = 0.002, harmonics=(1, 2, 3, 4, 5, 6)) -> LmsResult:
-    """Seed 000's LMS (eq. 9-10) run over a recorded signal; its weights converge to the phasors.
+    """Ro et al.'s LMS (eq. 9-10) run over a recorded signal; its weights converge to the phasors.
 
     Parameters
     ----------
@@ -228,7 +228,7 @@ def lms_offline(x: np.ndarray, theta: np.ndarray, *, mu: float = 0.002, harmonic
 
 
 def notch_filter(mu: float, k_omega_h: float) -> tuple[np.ndarray, np.ndarray]:
-    """The LMS feedforward seen as a filter from signal to error (seed 000 eq. 16).
+    """The LMS feedforward seen as a filter from signal to error (Ro et al. eq. 16).
 
     ``E/R = (1 - 2 cos(kΩh) z^-1 + z^-2) / (1 - (2 - mu) cos(kΩh) z^-1 + (1 - mu) z^-2)``: an IIR
     notch at the harmonic, narrower for smaller ``mu``.

@@ -1,4 +1,4 @@
-"""Seed 003: rotor-angle self-sensing of a Lorentz-force integrated motor-bearing.
+"""Jeon et al.: rotor-angle self-sensing of a Lorentz-force integrated motor-bearing.
 
 Coils i and i + 3 face each other: the same torque current and back-EMF, opposite radial
 currents, so half their voltage sum is R I_m + L dI_m/dt + d lambda_i/dt (eq. 9).  Over one

@@ -1,4 +1,4 @@
-"""``ambdaq fx``: base-motion compensators (seed 002): stepped-sine campaign, MFXLMS, FIR fit."""
+"""``ambdaq fx``: base-motion compensators (Kang & Jung): stepped-sine campaign, MFXLMS, FIR fit."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def _alpha(text: str) -> complex:
 
 @click.group("fx")
 def command() -> None:
-    """Base-motion feedforward (seed 002): campaign, MFXLMS estimate, FIR fit."""
+    """Base-motion feedforward (Kang & Jung): campaign, MFXLMS estimate, FIR fit."""
 
 
 @command.command("campaign")
@@ -53,7 +53,7 @@ def command() -> None:
 @click.option("--amplitude", type=POSITIVE, default=1.0, show_default=True,
               help="Peak base acceleration d2, m/s^2.")
 @click.option("--alphas", default="1,-1+0.5j", show_default=True,
-              help="Two disturbance ratios d1/d2 (seed 002 eq. A-10); each frequency is run with both.")
+              help="Two disturbance ratios d1/d2 (Kang & Jung eq. A-10); each frequency is run with both.")
 @click.option("--seconds", type=click.FloatRange(min=0.5), default=3.0, show_default=True, help="Recorded per step.")
 @click.option("--settle", type=click.FloatRange(min=0), default=0.5, show_default=True,
               help="Wait after moving the shaker before recording each step, s.")
@@ -88,7 +88,7 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
 @max_lost_option
 def estimate(folder, path_file, mu, output, overwrite, max_lost):
     """MFXLMS per frequency and plane over a campaign; two alphas per frequency give W11, W21,
-    W12, W22 (seed 002 eq. A-4 to A-17).
+    W12, W22 (Kang & Jung eq. A-4 to A-17).
 
     \b
     Example:
@@ -112,7 +112,7 @@ def estimate(folder, path_file, mu, output, overwrite, max_lost):
 @plot_option("Bode plot: points and fits.")
 @click.option("--json", "as_json", is_flag=True)
 def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
-    """Weighted least-squares FIR fit of each compensator W_jm (seed 002 eq. 19); the order at the
+    """Weighted least-squares FIR fit of each compensator W_jm (Kang & Jung eq. 19); the order at the
     knee of cost against order unless --order; a FIR is stable by construction.
 
     \b

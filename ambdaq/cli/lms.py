@@ -1,4 +1,4 @@
-"""``ambdaq lms``: seed 000's LMS feedforward inside the loop: convergence map, sign flips, schedules."""
+"""``ambdaq lms``: Ro et al.'s LMS feedforward inside the loop: convergence map, sign flips, schedules."""
 
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ def _measured_phase_table(path: str) -> PhaseTable:
 
 @click.group("lms")
 def command() -> None:
-    """LMS runout feedforward design (seed 000): convergence map, sign flips, step-size schedules."""
+    """LMS runout feedforward design (Ro et al.): convergence map, sign flips, step-size schedules."""
 
 
 @command.command("map")
@@ -60,7 +60,7 @@ def command() -> None:
 @click.option("--rpm-max", type=click.FloatRange(min=1000), default=60000.0, show_default=True)
 @click.option("--mu-max", type=POSITIVE, default=0.01, show_default=True,
               help="The map spans -MU_MAX .. +MU_MAX.")
-@click.option("--compensated", is_flag=True, help="Map the phase-compensated update instead of seed 000's.")
+@click.option("--compensated", is_flag=True, help="Map the phase-compensated update instead of Ro et al.'s.")
 @plot_option("Write the map as an image (Fig. 5).")
 @click.option("--json", "as_json", is_flag=True)
 def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_json):
@@ -96,7 +96,7 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
         for name, rep in report["loops"].items():
             flips = ", ".join(f"{f:,.0f}" for f in rep["sign_flips_rpm"])
             where = f"flips at {flips} rpm" if flips else f"never flips ({rpm[0]:,.0f}-{rpm[-1]:,.0f} rpm)"
-            click.echo(f"{name}: {harmonic}X, {'phase-compensated' if compensated else 'seed 000 update'}: "
+            click.echo(f"{name}: {harmonic}X, {'phase-compensated' if compensated else 'Ro et al. update'}: "
                        f"sign of mu {where}")
             if rep["no_sign_converges_rpm"]:
                 lo, hi = rep["no_sign_converges_rpm"]
@@ -119,9 +119,9 @@ def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant:
         ax.contour(rpm, mu, r.T, levels=[1.0], colors="k", linewidths=1.0)
         ax.axhline(0, color="grey", lw=0.5)
         ax.set(xlabel="speed (rpm)", ylabel="step size mu",
-               title=f"{name}: {harmonic}X, {'compensated' if compensated else 'seed 000'} update "
+               title=f"{name}: {harmonic}X, {'compensated' if compensated else 'Ro et al.'} update "
                      "(green converges, red diverges, white holds)")
-    fig.suptitle(f"LMS convergence map, plant {plant} (seed 000 Fig. 5)")
+    fig.suptitle(f"LMS convergence map, plant {plant} (Ro et al. Fig. 5)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -132,7 +132,7 @@ def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant:
 @click.option("--mu", type=POSITIVE, default=0.001, show_default=True,
               help="Step size magnitude.")
 @click.option("--dead-band", type=click.FloatRange(min=0), default=500.0, show_default=True,
-              help="Hold the weights this many rpm either side of a sign flip (seed 000 update).")
+              help="Hold the weights this many rpm either side of a sign flip (Ro et al. update).")
 @click.option("--harmonics", type=click.IntRange(1, 8), default=6, show_default=True, help="Schedule 1X .. NX.")
 @click.option("--compensated", is_flag=True,
               help="Phase-compensated update: one positive mu at every speed, with the loop's inverse phase.")

@@ -1,4 +1,4 @@
-"""``ambdaq model``: a cone-shaped AMB axis from its description (seed 001): gains, stability, stiffness."""
+"""``ambdaq model``: a cone-shaped AMB axis from its description (Jeong et al.): gains, stability, stiffness."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from ..errors import BadInputError
 from .figures import plot_option, pyplot
 
 EXAMPLE = """\
-# one axis of seed 001's cone-shaped AMB (Table 1; gains of the Routh-Hurwitz example)
+# one axis of Jeong et al.'s cone-shaped AMB (Table 1; gains of the Routh-Hurwitz example)
 [magnet]
 area_mm2 = 155
 turns = 400
@@ -83,7 +83,7 @@ def load_axis(path: str) -> tuple[PdLoop, dict]:
 @plot_option("The stable (Kp, Kd) region (.png, .pdf, .svg).")
 def command(file, example, as_json, plot_path):
     """Linearised gains, stable (Kp, Kd) region, eigenvalues and equivalent stiffness/damping of
-    one cone-shaped AMB axis with its PD loop (seed 001; docs/cone.md).
+    one cone-shaped AMB axis with its PD loop (Jeong et al.; docs/cone.md).
 
     \b
     Example:
@@ -126,7 +126,7 @@ def command(file, example, as_json, plot_path):
                f"{'stable' if report['stable'] else 'UNSTABLE'}")
     if not np.isfinite(region.kp_min):
         click.echo(f"stable region: none: tau tau_c = {loop.tau * loop.tau_c:.3g} s^2 is not below m/Ky = "
-                   f"{loop.m / loop.ky:.3g} s^2 (seed 001 eq. 23), no PD gains stabilise this axis")
+                   f"{loop.m / loop.ky:.3g} s^2 (Jeong et al. eq. 23), no PD gains stabilise this axis")
     else:
         at_kd = (f"Kp < {kp_max:.4g}" if np.isfinite(kp_max) else "no upper bound on Kp" if kp_max > 0
                  else "no Kp is stable (Kd is outside the range)")
@@ -152,7 +152,7 @@ def _plot_region(loop: PdLoop, region, kp_max: float, path: str) -> None:
     if np.isfinite(kp_max) and kp_max > 0:
         ax.plot(loop.kd, kp_max, "kv", ms=7, label=f"Kp_max {kp_max:.3g} at the design Kd")
     ax.set(xscale="log", yscale="log", xlabel="Kd [s]", ylabel="Kp [V/V]",
-           title="stable PD gains (green), seed 001 eq. 22-23")
+           title="stable PD gains (green), Jeong et al. eq. 22-23")
     ax.legend()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -26,7 +26,7 @@ def command() -> None:
 @click.option("--harmonics", type=click.IntRange(1, 8), default=6, show_default=True, help="Identify 1X .. NX.")
 @click.option("--method", type=click.Choice(sorted(METHODS)), default="fit", show_default=True,
               help="fit: batch least squares; average: angle-domain synchronous averaging (slow roll); "
-                   "lms: seed 000's LMS run offline.")
+                   "lms: Ro et al.'s LMS run offline.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the identified runout as JSON.")
 @plot_option("Report image (.png, .pdf, .svg): spectrum, polar plot per harmonic, orbits before and after.")

@@ -1,4 +1,4 @@
-"""``ambdaq selfsense``: seed 003's flux-linkage angle estimator run offline over recordings."""
+"""``ambdaq selfsense``: Jeon et al.'s flux-linkage angle estimator run offline over recordings."""
 
 from __future__ import annotations
 
@@ -93,10 +93,10 @@ def _analyse(path: str, initial_error_deg: float, settle_s: float, overrides: di
 @click.option("--inductance", type=float, metavar="H", help="Coil inductance the estimator assumes (default: calibration).")
 @click.option("--emf-constant", type=float, metavar="V_S", help="k_e B sin(2 pi/5) (default: calibration).")
 @click.option("--sweep", is_flag=True, help="Also run from initial errors -85..145 deg and compare with the Lyapunov bound (eq. 18).")
-@plot_option("Figure like seed 003 Fig. 5-7.")
+@plot_option("Figure like Jeon et al. Fig. 5-7.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def command(files, initial_error_deg, settle_s, resistance, inductance, emf_constant, sweep, plot_path, as_json):
-    """Rotor angle from the coil voltages (seed 003's flux-linkage estimator, its equations 10-13)
+    """Rotor angle from the coil voltages (Jeon et al.'s flux-linkage estimator, its equations 10-13)
     over recordings, against the encoder.
 
     Each FILE holds six coil voltages (/coil/voltage), currents (/coil/current) and an encoder

@@ -35,7 +35,7 @@ def command() -> None:
 @click.option("--duration", type=DURATION, required=True, metavar="SECONDS")
 @click.option("--truth", is_flag=True, help="Also write /truth/runout and /truth/position.")
 @click.option("--ff", type=click.Choice(["off", "lms"]), default="off", show_default=True,
-              help="Feedforward of the simulated controller (lms: seed 000's adaptive runout cancellation).")
+              help="Feedforward of the simulated controller (lms: Ro et al.'s adaptive runout cancellation).")
 @click.option("--noise/--no-noise", default=True, show_default=True, help="Sensor noise and A/D, D/A quantisation.")
 @excitation_option
 @click.option("--base", metavar="SPEC", help="Base motion (base-motion rig): sine:HZ:AMP[:ALPHA_MAG[:ALPHA_DEG]] "

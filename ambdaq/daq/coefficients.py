@@ -13,7 +13,7 @@ A JSON document (docs/coefficients.md), versioned and checksummed::
      "fir": {},
      "checksum": "crc32:xxxxxxxx"}
 
-The weights are the feedforward r_c = sum w_k0 sin k theta + w_k1 cos k theta of seed 000 eq. 10;
+The weights are the feedforward r_c = sum w_k0 sin k theta + w_k1 cos k theta of Ro et al. eq. 10;
 to cancel the runout they equal its phasors.  The checksum is the CRC-32 of the canonical JSON
 (sorted keys, no spaces) of everything but the checksum.
 """

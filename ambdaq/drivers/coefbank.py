@@ -11,10 +11,10 @@ the device computed over the inactive one.  All numbers little-endian::
     | if sections bit 0: bins u16 | bin width f64 (Hz) | axes x bins f32: the LMS phase
       compensation per axis at 0, bin, 2 bin ... Hz of loop frequency (rad)
     | if sections bit 1: planes u8 | outputs u8 | inputs u8 | taps u16 | sample rate f64 (Hz)
-      | planes x outputs x inputs x taps f64: the base-motion feedforward u = W d (seed 002 eq. 15),
+      | planes x outputs x inputs x taps f64: the base-motion feedforward u = W d (Kang & Jung eq. 15),
       tap t on d(k - t), V per m/s^2
 
-``mode`` is the feedforward the bank runs: 0 off, 1 fixed table (r_c of seed 000 eq. 10 with
+``mode`` is the feedforward the bank runs: 0 off, 1 fixed table (r_c of Ro et al. eq. 10 with
 these weights), 2 LMS (eq. 9) starting from these weights with the schedule's step sizes.
 """
 
@@ -58,7 +58,7 @@ class BankImage:
     source_sha256 : str
         Hex SHA-256 of the coefficient file the bank came from ("" for none).
     phase_rad : ndarray, shape (axes, bins), optional
-        LMS phase compensation per axis over loop frequency, in rad (None: seed 000's update).
+        LMS phase compensation per axis over loop frequency, in rad (None: Ro et al.'s update).
     phase_bin_hz : float
         Frequency step of ``phase_rad``, in Hz.
     fir_taps : ndarray, shape (planes, outputs, inputs, taps), optional

@@ -1,6 +1,6 @@
 """The base shakers of a base-motion rig, driven by a two-channel function generator over SCPI.
 
-Seed 002's campaign moves the base harmonically with a chosen disturbance ratio alpha = d1/d2
+Kang & Jung's campaign moves the base harmonically with a chosen disturbance ratio alpha = d1/d2
 (eq. A-10): channel 1 drives the shaker under base accelerometer 1, channel 2 the one under
 accelerometer 2.  The generator is reached on any pyserial URL: a USB or RS-232 port, or a LAN
 instrument's raw SCPI socket (``serial:socket://HOST:5025``).  The commands are the common SCPI
@@ -117,7 +117,7 @@ class Shaker:
             raise DeviceError(f"shaker generator at {self.url} refused {what}: {first}")
 
     def sine(self, freq_hz: float, d2_peak: float, ratio: complex) -> None:
-        """Move the base harmonically: d2 = ``d2_peak`` sin(wt), d1 = alpha d2 (seed 002 eq. A-10).
+        """Move the base harmonically: d2 = ``d2_peak`` sin(wt), d1 = alpha d2 (Kang & Jung eq. A-10).
 
         Parameters
         ----------

@@ -1,4 +1,4 @@
-"""Seed 002's shaft on two AMBs on a moving base (a vehicle gimbal's elevation axis), as ambdaq
+"""Kang & Jung's shaft on two AMBs on a moving base (a vehicle gimbal's elevation axis), as ambdaq
 knows it: its axes, its base accelerometers, its two planes and its controller's FIR
 feedforward.  The rig's physics and numbers are in :mod:`ambdaq.sim.rigs.base_motion`."""
 

@@ -1,10 +1,10 @@
-"""The 50,000 rpm AMB grinding spindle of seed 000 (Table 1 and section 2), as ambdaq knows it:
+"""The 50,000 rpm AMB grinding spindle of Ro et al. (Table 1 and section 2), as ambdaq knows it:
 axes, rates, the rotor, the five bearing axes with their amplifiers and PID, the sensors and
 converters, the (simulated) runout and unbalance, and its controller's feedforward tables.
 
-The simulator (:mod:`ambdaq.sim.rigs.spindle`), the analysis defaults (seed 000's one-axis loops
+The simulator (:mod:`ambdaq.sim.rigs.spindle`), the analysis defaults (Ro et al.'s one-axis loops
 in :mod:`ambdaq.analysis.lms`, the rigid rotor of :mod:`ambdaq.analysis.rotor`) and the command
-line read it from here.  Where seed 000 gives no number the value is an assumption, marked.
+line read it from here.  Where Ro et al. gives no number the value is an assumption, marked.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ MU_BINS = 601  # 0 .. 60,000 rpm
 PHASE_BIN_HZ = 10.0  # resolution of the LMS phase compensation over loop frequency
 PHASE_BINS = 501  # 0 .. 5,000 Hz (the Nyquist frequency at 10 kHz)
 
-# seed 000, section 3.3: mu = -0.001 below 5,500 rpm, 0 (weights held) to 6,500, +0.001 above.
+# Ro et al., section 3.3: mu = -0.001 below 5,500 rpm, 0 (weights held) to 6,500, +0.001 above.
 PAPER_MU_SCHEDULE = ((0.0, 5500.0, -0.001), (5500.0, 6500.0, 0.0), (6500.0, 60000.0, 0.001))
 
 
@@ -80,7 +80,7 @@ def _runout_table(amps_um: list[float], phases_deg: list[float]) -> tuple[np.nda
 def _default_runout() -> tuple[np.ndarray, np.ndarray]:
     """Electrical runout, amplitude (m) and phase (rad) per axis and harmonic (1X first).
 
-    Seed 000 measured 15 um (front) and 30 um (rear) on the spindle, 1X and 2X dominant.
+    Ro et al. measured 15 um (front) and 30 um (rear) on the spindle, 1X and 2X dominant.
     """
     front = _runout_table([9.0, 5.0, 1.5, 1.0, 0.5, 0.3], [30, 110, 200, 300, 45, 160])
     rear = _runout_table([16.0, 9.0, 3.0, 1.5, 0.8, 0.4], [250, 20, 140, 75, 330, 210])
@@ -99,7 +99,7 @@ def _default_runout() -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class SpindleParams:
-    """Parameters of the simulated spindle rig (defaults: seed 000, Table 1 and section 2)."""
+    """Parameters of the simulated spindle rig (defaults: Ro et al., Table 1 and section 2)."""
 
     mass: float = 4.38  # kg
     jp: float = 0.0014  # kg m^2, polar
@@ -108,7 +108,7 @@ class SpindleParams:
     b: float = 0.11  # m, centre of mass to rear bearing
     front: BearingAxis = BearingAxis(273.0, 1.77e6, 2.1, 0.8, 1800.0, 1.7, 1.6, 1.0, 0.0015, 12.0)
     rear: BearingAxis = BearingAxis(182.0, 1.18e6, 2.1, 0.8, 2500.0, 1.7, 1.6, 1.0, 0.002, 12.0)
-    # assumed: seed 000 gives no thrust-bearing data
+    # assumed: Ro et al. gives no thrust-bearing data
     axial: BearingAxis = BearingAxis(200.0, 0.8e6, 2.1, 0.8, 2500.0, 1.7, 1.6, 1.0, 0.002, 25.0)
     sample_rate: float = SAMPLE_RATE  # Hz
     sensor_gain: float = 1.0e4  # V/m
@@ -125,7 +125,7 @@ class SpindleParams:
     runout_phase: np.ndarray = field(default_factory=lambda: _default_runout()[1])  # rad
     unbalance: tuple[float, float] = (2.0e-6, 3.0e-6)  # kg m, front and rear planes
     unbalance_phase: tuple[float, float] = (0.0, 2.0)  # rad
-    # assumed: seed 000 gives no touchdown bearings; their radial clearance is commonly half the
+    # assumed: Ro et al. gives no touchdown bearings; their radial clearance is commonly half the
     # magnetic air gap (0.3 mm, Table 1)
     min_clearance: float = 0.15e-3  # m, Cmin of ISO 14839-2
 
@@ -161,5 +161,5 @@ SPINDLE = SpindleParams()
 
 
 ONE_AXIS_MASS = 1.5
-"""kg: the mass of seed 000's one-axis model (eq. 1), as the paper prints it; the rotor's tilt
+"""kg: the mass of Ro et al.'s one-axis model (eq. 1), as the paper prints it; the rotor's tilt
 mode has Jt / (2 a^2) = 1.496 kg per bearing with a = b = 0.11 m (why we took that span)."""

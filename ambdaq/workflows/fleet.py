@@ -37,7 +37,7 @@ from ..units import RAD_S_TO_RPM
 from .iso_vibration import BEARINGS, evaluate
 from .runout import identify_recordings
 
-HARMONICS = (1, 2, 3, 4)  # the runout orders kept per axis: seed 000's largest
+HARMONICS = (1, 2, 3, 4)  # the runout orders kept per axis: Ro et al.'s largest
 BAND_RPM = 1000.0  # iso vibration's default speed band
 WRITING_S = 60.0  # a file without its footer that changed this recently is being written, not truncated
 MACHINE_KEY = "machine.id"  # in a device's calibration (a rig file's [device.calibration]); else the serial

@@ -1,4 +1,4 @@
-"""Base-motion compensators (seed 002): the stepped-sine campaign, MFXLMS per frequency, the FIR
+"""Base-motion compensators (Kang & Jung): the stepped-sine campaign, MFXLMS per frequency, the FIR
 fit (docs/base-motion.md).
 
 The campaign drives two devices by URL, the same on hardware and on the simulator: the shaker
@@ -72,7 +72,7 @@ def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: 
         The campaign file.
     """
     if len(ratios) != 2 or abs(ratios[0] - ratios[1]) < 1e-9:
-        raise BadInputError("--alphas: give two different ratios (seed 002 eq. A-17 needs both)")
+        raise BadInputError("--alphas: give two different ratios (Kang & Jung eq. A-17 needs both)")
     if not 0 < amplitude <= MAX_BASE_M_S2:
         raise BadInputError(f"amplitude must be > 0 and <= {MAX_BASE_M_S2:g} m/s^2, not {amplitude:g}")
     folder.mkdir(parents=True, exist_ok=True)
@@ -166,7 +166,7 @@ def estimate(folder: Path, path_file: str, mu: float, output: str, *, overwrite:
              on_frequency: Callable[[float, list[float]], None] | None = None,
              max_lost: float = MAX_LOST) -> tuple[Path, int]:
     """MFXLMS per frequency and plane over a campaign; the two alphas per frequency give W11, W21,
-    W12, W22 (seed 002 eq. A-4 to A-17).  Writes the compensator points file.
+    W12, W22 (Kang & Jung eq. A-4 to A-17).  Writes the compensator points file.
 
     Parameters
     ----------
@@ -268,7 +268,7 @@ class Fit:
 
 
 def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = False) -> Fit:
-    """Weighted least-squares FIR fit of each compensator W_jm (seed 002 eq. 19), of the order at the
+    """Weighted least-squares FIR fit of each compensator W_jm (Kang & Jung eq. 19), of the order at the
     knee of cost against order unless ``order``; ``exact`` also compares with the simulated rig's
     exact W* = -B^-1 C."""
     freqs, W = load_points(points)

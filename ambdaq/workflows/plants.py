@@ -3,12 +3,12 @@
 =========  ========================================================================================
 name       loop
 =========  ========================================================================================
-front      seed 000's one-axis model of the front bearing (Table 1, PID P 1.6, I 1, D 0.0015)
+front      Ro et al.'s one-axis model of the front bearing (Table 1, PID P 1.6, I 1, D 0.0015)
 rear       the same for the rear bearing (D 0.002, amplifier 2,500 Hz)
 bearings   both one-axis models (a schedule must converge on both)
 rig        the simulated spindle's own five-axis loop, linearised from its kernel at each speed
 tf:N/D     any plant G(s), V in -> sensor V out, as comma-separated coefficients of s (descending),
-           in the loop of seed 000's front PID, e.g. ``tf:2184000/1.5,0,-1770000``
+           in the loop of Ro et al.'s front PID, e.g. ``tf:2184000/1.5,0,-1770000``
 ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms.md):
            ``A, B, C[, D]`` a continuous one-input plant G(s) (V -> sensor V) in the loop of seed
            000's front PID; or ``M, B, C, h[, rpm]`` a discrete multi-axis loop with the feedforward

@@ -105,7 +105,7 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
 def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phase: np.ndarray | None,
                     bin_hz: float, where: str) -> None:
     """BadInputError unless the LMS schedule ``rows`` is stable on the convergence map of ``plant``
-    (seed 000 Fig. 5).  The map needs scipy.signal and the rig's linearisation: imported here, so
+    (Ro et al. Fig. 5).  The map needs scipy.signal and the rig's linearisation: imported here, so
     a push without a schedule and ``controller status`` start without them."""
     from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
     from .plants import analysing, resolve_plant

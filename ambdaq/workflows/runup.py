@@ -1,4 +1,4 @@
-"""Seed 000's sign-switched LMS schedule against the phase-compensated update, on the simulator.
+"""Ro et al.'s sign-switched LMS schedule against the phase-compensated update, on the simulator.
 
 Two measures, from coefficient files as ``ambdaq push`` would load them into the controller:
 

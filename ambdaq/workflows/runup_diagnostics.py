@@ -85,7 +85,7 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
     Parameters
     ----------
     model : str
-        ``spindle``: the simulated spindle's own linearised loop; ``cone``: seed 001's coupled 5-DOF
+        ``spindle``: the simulated spindle's own linearised loop; ``cone``: Jeong et al.'s coupled 5-DOF
         cone rotor under its PD control, current loop and eddy-current lag (eq. 10-16).
     rpm_from, rpm_to : float
         Speed range, in rpm.

@@ -1,7 +1,7 @@
 """A fleet of simulated spindles recorded over days (``ambdaq sim fleet``): what ``fleet scan`` is tested
 and benchmarked on without hardware (docs/fleet.md).
 
-Each machine is seed 000's spindle with its own sensor runout (the default table scaled by 0.6-1.4
+Each machine is Ro et al.'s spindle with its own sensor runout (the default table scaled by 0.6-1.4
 and turned by up to +-60 degrees, per harmonic) and its own unbalance, which grows by 0-100 % a day
 (a rotor that is wearing, or collecting deposit); one machine in four had a coefficient file pushed
 (its recordings name its SHA-256 as the controller's).  Each recording is dated on its simulated day

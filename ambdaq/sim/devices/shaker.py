@@ -6,7 +6,7 @@ line by line, with an error queue read by ``SYST:ERR?``.  Channel 1 drives the s
 accelerometer 1, channel 2 the one under accelerometer 2, each with ``SHAKER_GAIN`` m/s^2 per volt
 and no dynamics of its own.  The base moves while both outputs are on with sines of one frequency
 and no offset: d2 = gain V2 sin(wt + phi2), d1 = gain V1 sin(wt + phi1), so alpha = d1/d2 =
-(V1/V2) exp(j(phi1 - phi2)) (seed 002 eq. A-10).  Otherwise it is held still (one shaker alone
+(V1/V2) exp(j(phi1 - phi2)) (Kang & Jung eq. A-10).  Otherwise it is held still (one shaker alone
 would rock the base about the other, which the rig's model does not do).  Changes reach the rig at
 a control-period boundary.
 """

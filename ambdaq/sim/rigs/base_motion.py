@@ -1,7 +1,7 @@
-"""Seed 002's rig: a shaft on two radial AMBs on a moving base (the ``base-motion`` profile).
+"""Kang & Jung's rig: a shaft on two radial AMBs on a moving base (the ``base-motion`` profile).
 
 The shaft (mass m, transverse inertia I) is held by AMB-1 at b1 and AMB-2 at b2 from its centre
-of mass, in a vertical (y, with gravity) and a horizontal (z) plane that do not couple (seed 002
+of mass, in a vertical (y, with gravity) and a horizontal (z) plane that do not couple (Kang & Jung
 eq. 4). Per plane, in centre-of-mass coordinates q = [y, theta] relative to the base (eq. 6):
 
     M q'' - K q = Ka Bi u - M T d - [m g, 0],     M = diag(m, I),
@@ -14,7 +14,7 @@ and rotation alpha = (d2 - d1)/(b1 + b2) (so T maps d to [A, alpha]). The base-r
 eq. 2 is left out (a gimbal's base rates are small). The gap sensors see y1 = y - b1 theta and
 y2 = y + b2 theta (eq. 7). The current amplifiers follow u with a first-order lag.
 
-The controller is seed 002's state feedback with integral action (eq. 10-13), digital: an LQR
+The controller is Kang & Jung's state feedback with integral action (eq. 10-13), digital: an LQR
 on the ZOH model augmented with the integral of [y, theta], its state from a predictor observer
 on the two gap sensors. The feedforward u_ff = W d (eq. 15) is a 2 x 2 FIR per plane on the
 accelerometer signals; a test signal can be added to one axis's u_ff (the secondary-path
@@ -48,7 +48,7 @@ N_STATE = 6  # y, theta, y', theta', i1, i2
 
 @dataclass(frozen=True)
 class BaseMotionParams:
-    """The base-motion rig (seed 002 gives no numbers; these are a gimbal-axis-sized shaft).
+    """The base-motion rig (Kang & Jung gives no numbers; these are a gimbal-axis-sized shaft).
 
     Attributes are SI: kg, kg m^2, m, N/m, N/A, A/V, Hz, m and m/s^2 RMS noise, V.
     """
@@ -115,7 +115,7 @@ class BaseExcitation:
     freq_hz : float
         Sine frequency, in Hz.
     ratio : complex
-        Sine: the disturbance ratio alpha = d1 / d2 (seed 002 eq. A-10).
+        Sine: the disturbance ratio alpha = d1 / d2 (Kang & Jung eq. A-10).
     band_hz : tuple of float
         Noise: the band, in Hz (4th-order Butterworth band-pass).
     """
@@ -228,7 +228,7 @@ def _simulate(
 
 
 class BaseMotionRig(Rig, ExcitationInput):
-    """Seed 002's shaft on a moving base, closed loop, sample by sample (see the module docstring).
+    """Kang & Jung's shaft on a moving base, closed loop, sample by sample (see the module docstring).
 
     Parameters
     ----------
@@ -237,7 +237,7 @@ class BaseMotionRig(Rig, ExcitationInput):
     seed : int
         Seed of the noise generators; the run is deterministic for a given seed.
     speed : SpeedProfile
-        Kept for the recorder's identity; the shaft's rotation is not modelled (seed 002 assumes
+        Kept for the recorder's identity; the shaft's rotation is not modelled (Kang & Jung assumes
         a small spin rate).
     truth : bool
         Also produce ``/truth/base`` (the true base accelerations) and ``/truth/position``.
@@ -441,7 +441,7 @@ class BaseMotionRig(Rig, ExcitationInput):
     def responses(self, f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Exact frequency responses of one plane at ``f_hz`` (Hz): B (n, 2, 2) gap per u_ff (m/V),
         C (n, 2, 2) gap per base acceleration (m per m/s^2), and W* = -B^-1 C (n, 2, 2) in V per
-        m/s^2, the compensator that cancels the base-motion response (seed 002 eq. 17; the
+        m/s^2, the compensator that cancels the base-motion response (Kang & Jung eq. 17; the
         paper's sign convention folds the minus into C)."""
         Acl, Bff, Bd, Ccl = self.closed_loop()
         f_hz = np.atleast_1d(np.asarray(f_hz, dtype=float))
@@ -460,7 +460,7 @@ class BaseMotionRig(Rig, ExcitationInput):
 
 
 class FirFeedforward(Feedforward):
-    """Seed 002's feedforward u = W d as the coefficient banks hold it: FIR taps per plane, output
+    """Kang & Jung's feedforward u = W d as the coefficient banks hold it: FIR taps per plane, output
     and input (docs/base-motion.md); no runout harmonics."""
 
     def layout(self, rig) -> dict:
@@ -478,7 +478,7 @@ class FirFeedforward(Feedforward):
 
 
 FIRMWARE = Firmware(
-    "AMB controller (simulated, seed 002 shaft on a moving base)",
+    "AMB controller (simulated, Kang & Jung shaft on a moving base)",
     ("/amb/gap", "/amb/current", "/amb/ff", "/amb/control", "/base/accel"),
     {
         # the FIR is read here and changed only through the coefficient banks (BANK_*)

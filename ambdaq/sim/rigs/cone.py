@@ -1,4 +1,4 @@
-"""Seed 001's rig: a rotor on two cone-shaped AMBs (the ``cone`` profile).
+"""Jeong et al.'s rig: a rotor on two cone-shaped AMBs (the ``cone`` profile).
 
 The rotor is :class:`~ambdaq.analysis.cone_rotor.ConeRotor`: five rigid-body degrees of freedom
 with gyroscopic coupling, eight magnets with the nonlinear force law F = k i_e^2 / g^2 (eq. 3) on
@@ -15,7 +15,7 @@ Everything runs in continuous time with ``SUBSTEPS`` steps per 10 kHz sample: fi
 are advanced exactly over a step, the rotor by semi-implicit Euler.  An instrumented hammer
 (``/amb/hammer``) strikes the rotor at one bearing coordinate: a half-sine pulse.  The run starts
 levitated, or with ``start="touchdown"`` at rest on the touchdown bearings with the amplifiers
-just enabled (seed 001 Fig. 7a and 8).  :meth:`ConeRig.modes` gives the simulator's own
+just enabled (Jeong et al. Fig. 7a and 8).  :meth:`ConeRig.modes` gives the simulator's own
 linearisation, the ground truth for ``ambdaq identify modal``.
 """
 
@@ -36,12 +36,12 @@ from ...speed import RPM_TO_RAD_S, SpeedProfile
 SUBSTEPS = 50  # 2 us steps: the kernel's modes within 0.2% (frequency) and 2.5% (damping) of the continuous model
 N_STATE = 31  # q_g (5), v_g (5), derivative filters (5), coil currents (8), eddy-lagged currents (8)
 IMPACT_S = 0.5e-3  # hammer pulse length
-TOUCHDOWN_START_UM = (-250.0, -200.0, -120.0, 110.0, -80.0)  # q_b at rest (seed 001 Fig. 8's shape, in the clearance)
+TOUCHDOWN_START_UM = (-250.0, -200.0, -120.0, 110.0, -80.0)  # q_b at rest (Jeong et al. Fig. 8's shape, in the clearance)
 
 
 @dataclass(frozen=True)
 class ConeParams:
-    """The cone rig (SI).  Rotor and gains from seed 001 Tables 1 and 3 where given; the
+    """The cone rig (SI).  Rotor and gains from Jeong et al. Tables 1 and 3 where given; the
     amplifier's Ka, Kf, R are chosen for tau_c = 6e-5 s (the paper's example) and Kc from the
     sensor gain so the axial loop sits near the paper's design (see docs/cone.md)."""
 
@@ -206,7 +206,7 @@ def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur
 
 
 class ConeRig(Rig):
-    """Seed 001's cone-AMB rotor, closed loop (see the module docstring).
+    """Jeong et al.'s cone-AMB rotor, closed loop (see the module docstring).
 
     Parameters
     ----------

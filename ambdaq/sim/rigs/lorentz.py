@@ -1,4 +1,4 @@
-"""Seed 003's rig: a disk-type Lorentz-force integrated motor-bearing (the ``lorentz`` profile).
+"""Jeon et al.'s rig: a disk-type Lorentz-force integrated motor-bearing (the ``lorentz`` profile).
 
 Six coreless coils, 60 deg apart, sit between two 8-pole magnet disks (4 pole pairs).  Coil i's
 flux linkage is lambda_i = Lambda cos(4 theta_r - 4 theta_i) (eq. 1, 6) with theta_i = i pi/3,
@@ -41,7 +41,7 @@ MACHINE_SEED = 3003  # the built machine's R, L and magnet variation: the same i
 
 @dataclass(frozen=True)
 class LorentzParams:
-    """The integrated motor-bearing (SI).  Seed 003 gives no numbers: these are a 60 mm disk
+    """The integrated motor-bearing (SI).  Jeon et al. gives no numbers: these are a 60 mm disk
     motor.  ``resistance`` and ``inductance`` are the datasheet values (the estimator's); each
     coil's true values differ by up to ``r_mismatch`` and ``l_mismatch`` (fractions)."""
 
@@ -175,7 +175,7 @@ def _simulate(st, cmd, noise, c, res, ind, ripple, out_v, out_i, out_gap, out_tr
 
 
 class LorentzRig(Rig):
-    """Seed 003's integrated motor-bearing, open-loop drive (see the module docstring).
+    """Jeon et al.'s integrated motor-bearing, open-loop drive (see the module docstring).
 
     Parameters
     ----------

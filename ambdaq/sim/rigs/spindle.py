@@ -1,23 +1,23 @@
-"""The simulated grinding spindle of seed 000: a rigid rotor on five AMB axes under digital PID.
+"""The simulated grinding spindle of Ro et al.: a rigid rotor on five AMB axes under digital PID.
 
 Physics (all SI):
 
-* Rigid rotor, mass 4.38 kg, Jp 0.0014 kg m^2, Jt 0.0362 kg m^2 (seed 000, section 2.2), radial
+* Rigid rotor, mass 4.38 kg, Jp 0.0014 kg m^2, Jt 0.0362 kg m^2 (Ro et al., section 2.2), radial
   bearings at ``a`` and ``b`` from the centre of mass; the gyroscopic moment Jp*Omega couples the
   two tilt planes.  The state is kept in bearing coordinates (front_x, front_y, rear_x, rear_y,
   axial), so the gap sensors, which we take as co-located with the bearings, read states directly.
-  Seed 000 gives no bearing positions; we take a = b = 0.11 m, where the tilt mode's effective
-  mass per bearing Jt/(2a^2) is 1.50 kg, the one-axis model's m of seed 000 eq. 1.  (With a wider
+  Ro et al. gives no bearing positions; we take a = b = 0.11 m, where the tilt mode's effective
+  mass per bearing Jt/(2a^2) is 1.50 kg, the one-axis model's m of Ro et al. eq. 1.  (With a wider
   span, e.g. 0.15 m, the tilt mode's mass drops to 0.8 kg and the mode lands near 480 Hz with
   zeta 0.08, where the amplifier and D/A lags have eaten the derivative's phase lead.)
 * Linearised magnet force F = Kx x + Ki i (Table 1: front Ki 273 N/A, Kx 1.77e6 N/m; rear 182,
   1.18e6).  The coil pair is driven differentially about the bias I0 with each coil current
   limited to 0..8 A; the force uses the differential law ((I0+i)^2 - (I0-i)^2)/(4 I0), which is
   exactly i while both coils conduct and saturates as the amplifier does.
-* Amplifier G_A(s) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (seed 000 eq. 2), Kamp 0.8 A/V,
+* Amplifier G_A(s) = wn^2 Kamp / (s^2 + 2 zeta wn s + wn^2) (Ro et al. eq. 2), Kamp 0.8 A/V,
   zeta 1.7, wn 1800 Hz front / 2500 Hz rear.
 * Controller at h = 100 us: 16-bit A/D on the sensor voltage (Ks = 10,000 V/m, +-10 V),
-  PID with P 1.6, I 1, D 0.0015 s front / 0.002 s rear (seed 000 eq. 3).  The printed eq. 3 is
+  PID with P 1.6, I 1, D 0.0015 s front / 0.002 s rear (Ro et al. eq. 3).  The printed eq. 3 is
   garbled, so we use the standard parallel PID with a Tustin integrator (the readable term
   I h(z+1)/(2(z-1)) of eq. 3) and a backward-Euler filtered derivative D s/(1 + s Tf) with
   Tf = (D/P)/Nd, Nd = 15.  Output on a 12-bit D/A (+-10 V), held for one period (ZOH).
@@ -30,7 +30,7 @@ Physics (all SI):
 * Housing accelerometers read the bearing reaction force on an effective housing mass (the housing
   on soft mounts, above their resonance): a = -(F_mag - F_static)/M_h.
 
-The axial bearing is not described in seed 000; its values here are assumptions, marked below.
+The axial bearing is not described in Ro et al.; its values here are assumptions, marked below.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
 
 
 def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH-discretised amplifier G_A (seed 000 eq. 2): state [i, di/dt], input in V, step h (s)."""
+    """ZOH-discretised amplifier G_A (Ro et al. eq. 2): state [i, di/dt], input in V, step h (s)."""
     wn = 2 * np.pi * ax.amp_wn_hz
     A = np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]])
     B = np.array([[0.0], [wn**2 * ax.amp_gain]])
@@ -301,12 +301,12 @@ def _groups(truth: bool) -> list[SignalGroup]:
 
 
 class SpindleRig(Rig, ExcitationInput):
-    """Closed-loop simulation of the seed 000 spindle, stepped in blocks of control periods.
+    """Closed-loop simulation of the Ro et al. spindle, stepped in blocks of control periods.
 
     Parameters
     ----------
     params : SpindleParams
-        Rig parameters (defaults: seed 000).
+        Rig parameters (defaults: Ro et al.).
     seed : int
         Seed of the noise generator; the run is deterministic for a given seed.
     speed : SpeedProfile
@@ -316,7 +316,7 @@ class SpindleRig(Rig, ExcitationInput):
     ff_mode : {"off", "table", "lms"}
         Feedforward of the simulated controller.
     mu_schedule : rows of (rpm_from, rpm_to, mu), optional
-        LMS step-size schedule; default: seed 000's sign-switched schedule.
+        LMS step-size schedule; default: Ro et al.'s sign-switched schedule.
     noise : bool
         Add sensor, current and accelerometer noise and quantise on the A/D and D/A.
     """
@@ -447,7 +447,7 @@ class SpindleRig(Rig, ExcitationInput):
         Parameters
         ----------
         phase_rad : ndarray, shape (5, PHASE_BINS), or None
-            Phase per axis at 0, 10, 20 ... 5,000 Hz, in rad; None: no compensation (seed 000's
+            Phase per axis at 0, 10, 20 ... 5,000 Hz, in rad; None: no compensation (Ro et al.'s
             plain update).
         """
         ph = np.zeros((N_AXES, PHASE_BINS)) if phase_rad is None else np.asarray(phase_rad, dtype=float)
@@ -560,7 +560,7 @@ class SpindleRig(Rig, ExcitationInput):
         x[n+1] = M x[n] + B r_c[n],  e[n] = C x[n] - r_c[n].
 
         ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
-        feedforward per axis (m, subtracted from the sensor signal, seed 000 eq. 10) and ``e`` the
+        feedforward per axis (m, subtracted from the sensor signal, Ro et al. eq. 10) and ``e`` the
         command error per axis (m).  Found by stepping the simulation kernel itself from unit
         perturbations, with noise, runout, unbalance, gravity and quantisation off (at standstill,
         once per rig); only the rotor's ZOH matrices depend on the speed (gyroscopics), so at
@@ -632,7 +632,7 @@ class SpindleRig(Rig, ExcitationInput):
 
 
 class RunoutFeedforward(Feedforward):
-    """Seed 000's runout feedforward as the coefficient banks hold it: weights per axis and
+    """Ro et al.'s runout feedforward as the coefficient banks hold it: weights per axis and
     harmonic (a fixed table, or where the LMS starts), the step-size schedule over speed and the
     phase compensation (docs/push.md)."""
 
@@ -672,7 +672,7 @@ def _read_schedule(rig) -> np.ndarray:
 
 
 FIRMWARE = Firmware(
-    "AMB controller (simulated, seed 000 spindle)",
+    "AMB controller (simulated, Ro et al. spindle)",
     ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"),  # /amb/accel: a CANopen device
     {
         "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), 0.0, 100.0, "proportional gain per axis, V/V"),
