@@ -121,27 +121,44 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     tables = Tables()
     tables.feed(dom.stdout)  # the page as the browser built it
 
-    # every number in the tables is the one --json printed, written as JSON writes it
+    # every number in the tables is the one --json printed, rounded as its column says: rpm and Hz
+    # whole with thousands separators, |Gs| to 0.01, dB to 0.1, coherence to 0.001, um to 0.01
     stab = tables.tables["stability"]
     assert len(stab) == len(data["stability"]["rows"]) == 5
     for cells, row in zip(stab, data["stability"]["rows"]):
-        assert cells[:6] == [json.dumps(row[k]) if not isinstance(row[k], str) else row[k]
-                             for k in ("speed_rpm", "axis", "peak", "peak_db", "peak_hz", "coherence_at_peak")]
+        assert cells[:6] == [f"{row['speed_rpm']:,.0f}", row["axis"], f"{row['peak']:.2f}", f"{row['peak_db']:.1f}",
+                             f"{row['peak_hz']:,.0f}", f"{row['coherence_at_peak']:.3f}"]
         assert cells[6] == row["zone"]
     vib = tables.tables["vibration"]
     assert len(vib) == len(data["vibration"]["bands"]) == 12  # 2 bearings x 6 bands of 5,000 rpm
     for cells, band in zip(vib, data["vibration"]["bands"]):
-        assert cells == [band["bearing"], *(json.dumps(band[k]) for k in ("rpm_from", "rpm_to", "windows", "max_um",
-                                                                          "ratio_cmin")), band["zone"], json.dumps(band["at_rpm"])]
+        assert cells == [band["bearing"], f"{band['rpm_from']:,.0f}", f"{band['rpm_to']:,.0f}", str(band["windows"]),
+                         f"{band['max_um']:.2f}", f"{band['ratio_cmin']:.3f}", band["zone"], f"{band['at_rpm']:,.0f}"]
+    assert vib[-1][2] == "30,000"  # not "30000.0"
     runout = tables.tables["runout"]
     for cells, (axis, row) in zip(runout, data["runout"]["axes"].items()):
-        expect = [axis] + [json.dumps(h[k]) for h in row["harmonics"] for k in ("before_um", "after_um", "change_db")]
-        assert cells == expect + [json.dumps(row["rms_before_um"]), json.dumps(row["rms_after_um"])]
+        expect = [axis] + [f"{h[k]:{'+.1f' if k == 'change_db' else '.2f'}}" for h in row["harmonics"]
+                           for k in ("before_um", "after_um", "change_db")]
+        assert cells == expect + [f"{row['rms_before_um']:.2f}", f"{row['rms_after_um']:.2f}"]
         assert row["harmonics"][0]["change_db"] < -20  # the LMS took the runout out of the command error
     (entry,) = data["push_log"]  # only the push of these coefficients
-    assert tables.tables["push-log"] == [["2026-11-23T10:00:00Z", "1", "0x1a2b3c4d", "coef.json",
+    assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
-    assert data["machine"]["devices"]["rig"]["url"].startswith("sim://spindle")
+    # the machine: every device of every input (run-up, before, after, the five stability runs), each once
+    devices = data["machine"]["devices"]
+    assert [d["device"] for d in devices] == ["rig"] and devices[0]["url"].startswith("sim://spindle")
+    assert set(devices[0]["recordings"]) == {"runup.mcap", "before.mcap", "after.mcap",
+                                             *(f"gs_{a}.mcap" for a in ("front_x", "front_y", "rear_x", "rear_y", "axial"))}
+    assert len(data["machine"]["recordings"]) == 8 and tables.tables["machine"][0][0] == "rig"
+    # the verdict first: each standard's worst zone, the runout on its worst axis, the open items
+    verdict = data["verdict"]
+    worst_gs = max(data["stability"]["rows"], key=lambda r: (r["zone"], r["peak"]))
+    worst_band = max(data["vibration"]["bands"], key=lambda b: b["ratio_cmin"])
+    assert [(line["standard"], line["zone"]) for line in verdict["lines"]] == [
+        ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("Ro et al. runout feedforward", None)]
+    assert tables.tables["verdict"][0][2].startswith(f"zone {worst_gs['zone']} (") and worst_gs["axis"] in \
+        tables.tables["verdict"][0][2]
+    assert dom.stdout.index('id="verdict"') < dom.stdout.index('id="machine"') < dom.stdout.index('id="stability"')
     assert pdf.read_bytes()[:5] == b"%PDF-" and pdf.stat().st_size > 100_000
 
 

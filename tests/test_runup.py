@@ -128,3 +128,41 @@ def test_a_1x_of_sensor_noise_has_no_critical_speed_and_the_cone_model_overlays_
     v = 10e-6 * (rpm / 18000) ** 2 / ((1 - (rpm / 18000) ** 2) + 0.2j * rpm / 18000)
     noise = 0.3e-6 * np.array([1, 1j]) @ np.random.default_rng(0).standard_normal((2, 600))
     assert len(one_x_peaks(rpm, v + noise)) == 1 and one_x_peaks(rpm, noise) == []
+
+
+def test_the_runup_figure_shows_the_phase_lag_unwrapped_and_both_axes_of_a_bearing(runup):
+    """What the figure shows, read back from it: the 1X phase is a lag that grows through the run
+    without +-180 jumps (as engineers read it), and x and y of a bearing are told apart (y dashed on
+    top of solid x), so equal curves of an isotropic bearing are both visible."""
+    from ambdaq.cli.figures import pyplot
+    from ambdaq.cli.runup import draw_runup
+    from ambdaq.workflows.runup_diagnostics import analyse
+
+    res = analyse(runup / "runup.mcap", coefficients=runup / "runout.json", orders=(1, 2))
+    fig = draw_runup(res, "runup.mcap")
+    try:
+        amp_ax, ph_ax = fig.axes[0], fig.axes[1]
+        phase = {ln.get_label(): ln for ln in ph_ax.get_lines()}
+        assert set(phase) == {f"{a} 1X" for a in res.axes}
+        for label, line in phase.items():
+            y = np.asarray(line.get_ydata())
+            # neighbouring windows are 8 revolutions apart: the phase moves by far less than 180 deg
+            # between them, so a step that large could only be a wrap
+            assert np.max(np.abs(np.diff(y))) < 180, label
+            assert 0 <= y[0] < 360
+        # the rear bearing's 1X lags by more at the top of the run than at the bottom (it passes
+        # its rigid-body modes near 300 Hz = 18,000 rpm on the way)
+        rear = np.asarray(phase["rear_x 1X"].get_ydata())
+        assert rear[-5:].mean() - rear[:5].mean() > 90
+        # every title inside the figure (a compensation naming a long path is wrapped)
+        fig.canvas.draw()
+        page = fig.get_window_extent()
+        for ax in fig.axes:
+            box = ax.title.get_window_extent()
+            assert box.x0 >= page.x0 and box.x1 <= page.x1, ax.title.get_text()
+        styles = {ln.get_label(): (ln.get_color(), ln.get_linestyle(), ln.get_zorder()) for ln in amp_ax.get_lines()}
+        for bearing in ("front", "rear"):
+            x, y = styles[f"{bearing}_x 1X"], styles[f"{bearing}_y 1X"]
+            assert x[1] == "-" and y[1] == "--" and y[2] > x[2]  # y dashed, drawn over x
+    finally:
+        pyplot().close(fig)

@@ -1,8 +1,9 @@
 """``ambdaq report``: one self-contained HTML commissioning report for a machine (docs/iso.md).
 
 The page carries its figures inline (PNG, base64) and its style: it opens from a mail attachment
-or a USB stick with no network, and prints.  Every number in its tables is the value ``--json``
-prints, written as JSON writes it.
+or a USB stick with no network, and prints.  It opens with the verdict (each standard's worst zone,
+the runout before and after, the open items). Every number in its tables is the value ``--json``
+prints, rounded as its column says (FORMATS) and written with its unit in the header.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ td.zone-A { background: #d8f0d8; } td.zone-B { background: #f3f0c8; } td.zone-C 
 td.zone-D { background: #f4c4c4; } td.zone-none { background: #ddd; }
 figure { margin: 1em 0; } figure img { max-width: 100%; } figcaption { font-size: 0.85em; color: #555; }
 p.note { font-size: 0.9em; color: #444; }
+#verdict-box { border: 2px solid #555; padding: 0 1em 0.5em; margin: 1em 0 2em; }
+#verdict-box h2 { margin-top: 0.6em; border: none; } #verdict-box td { text-align: left; }
 @media print { body { margin: 0; } h2 { break-before: auto; } figure { break-inside: avoid; } }
 """
 
@@ -60,8 +63,30 @@ def print_pdf(page: Path, pdf: Path) -> None:
         raise BadInputError(f"chromium could not print {page}: {(r.stderr.strip().splitlines() or ['no output'])[-1]}")
 
 
-def _cell(value, cls: str = "") -> str:
-    text = "–" if value is None else (value if isinstance(value, str) else json.dumps(value))
+FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
+    "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
+    "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}",
+}
+
+
+def number(value, kind: str) -> str:
+    """``value`` as the report writes a number of ``kind`` (FORMATS), or "–" for none."""
+    return "–" if value is None else FORMATS[kind].format(value)
+
+
+def when(stamp: str) -> str:
+    """An ISO 8601 time as the report writes it: to the second, in UTC ("2026-11-23 10:00:00 UTC")."""
+    from datetime import datetime, timezone
+
+    try:
+        t = datetime.fromisoformat(stamp.replace("Z", "+00:00"))
+    except (ValueError, AttributeError):
+        return stamp or "–"
+    return t.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC") if t.tzinfo else t.strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _cell(value, cls: str = "", kind: str | None = None) -> str:
+    text = number(value, kind) if kind else "–" if value is None else (value if isinstance(value, str) else json.dumps(value))
     return f'<td class="{cls}">{html.escape(text)}</td>' if cls else f"<td>{html.escape(text)}</td>"
 
 
@@ -90,19 +115,30 @@ def render(found, title: str) -> str:
 
     d = found.data
     parts = [f"<h1>{html.escape(title)}</h1>"]
+    verdict = d["verdict"]
+    rows = [[_cell(line["check"], "text"), _cell(line["standard"], "text"),
+             _cell(line["result"], f"zone-{line['zone']} text" if line["zone"] else "text")] for line in verdict["lines"]]
+    parts += ['<section id="verdict-box"><h2>Verdict</h2>', _table(["check", "rule", "result"], rows, "verdict")]
+    if verdict["open_items"]:
+        parts.append('<p class="note">Open items:</p><ul id="open-items">'
+                     + "".join(f"<li>{html.escape(item)}</li>" for item in verdict["open_items"]) + "</ul>")
+    else:
+        parts.append('<p class="note" id="open-items">No open items.</p>')
+    parts.append("</section>")
     m = d["machine"]
     if m:
-        rows = [[_cell(name, "text"), *[_cell(dev.get(k), "text") for k in ("kind", "model", "serial", "firmware", "url")]]
-                for name, dev in m["devices"].items()]
-        parts += ["<h2>Machine</h2>",
-                  f'<p class="note">From {html.escape(m["recording"])}, recorded {html.escape(m["start_time"])} on '
-                  f'{html.escape(m["host"])} with ambdaq {html.escape(m["ambdaq_version"])}.</p>',
-                  _table(["device", "kind", "model", "serial", "firmware", "URL"], rows, "machine")]
+        rows = [[_cell(dev["device"], "text"), *[_cell(dev.get(k), "text") for k in ("kind", "model", "serial", "firmware", "url")],
+                 _cell(", ".join(dev["recordings"]), "text")] for dev in m["devices"]]
+        made = "; ".join(f"{Path(r['recording']).name} {when(r['start_time'])} on {r['host'] or '–'} (ambdaq "
+                         f"{r['ambdaq_version'] or '–'})" for r in m["recordings"])
+        parts += ["<h2>Machine</h2>", f'<p class="note">Every device of every recording of the session: {html.escape(made)}.</p>',
+                  _table(["device", "kind", "model", "serial", "firmware", "URL", "in"], rows, "machine")]
     s = d["stability"]
     if s:
         limits = ZoneLimits(*s["limits_peak_gs"])
-        rows = [[_cell(r["speed_rpm"]), _cell(r["axis"], "text"), _cell(r["peak"]), _cell(r["peak_db"]), _cell(r["peak_hz"]),
-                 _cell(r["coherence_at_peak"]), _cell(r["zone"] or f"not measured: {r['reason']}", f"zone-{r['zone'] or 'none'} text")]
+        rows = [[_cell(r["speed_rpm"], kind="rpm"), _cell(r["axis"], "text"), _cell(r["peak"], kind="gain"),
+                 _cell(r["peak_db"], kind="db"), _cell(r["peak_hz"], kind="hz"), _cell(r["coherence_at_peak"], kind="coherence"),
+                 _cell(r["zone"] or f"not measured: {r['reason']}", f"zone-{r['zone'] or 'none'} text")]
                 for r in s["rows"]]
         curves = [{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": np.array(r.curves.freq_hz),
                    "gs": np.array([np.nan if v is None else v for v in r.curves.gs_real])
@@ -120,8 +156,9 @@ def render(found, title: str) -> str:
     v = d["vibration"]
     if v:
         limits = ZoneLimits(*v["limits_ratio_cmin"])
-        rows = [[_cell(b["bearing"], "text"), _cell(b["rpm_from"]), _cell(b["rpm_to"]), _cell(b["windows"]),
-                 _cell(b["max_um"]), _cell(b["ratio_cmin"]), _cell(b["zone"], f"zone-{b['zone']} text"), _cell(b["at_rpm"])]
+        rows = [[_cell(b["bearing"], "text"), _cell(b["rpm_from"], kind="rpm"), _cell(b["rpm_to"], kind="rpm"),
+                 _cell(b["windows"], kind="count"), _cell(b["max_um"], kind="um"), _cell(b["ratio_cmin"], kind="ratio"),
+                 _cell(b["zone"], f"zone-{b['zone']} text"), _cell(b["at_rpm"], kind="rpm")]
                 for b in v["bands"]]
         removed = ("the sensor runout taken out (" + html.escape(v["runout_removed"]["path"]) + ")"
                    if v["runout_removed"] else "the sensor runout not taken out")
@@ -139,8 +176,9 @@ def render(found, title: str) -> str:
         for axis, row in r["axes"].items():
             cells = [_cell(axis, "text")]
             for h in row["harmonics"]:
-                cells += [_cell(h["before_um"]), _cell(h["after_um"]), _cell(h["change_db"])]
-            rows.append(cells + [_cell(row["rms_before_um"]), _cell(row["rms_after_um"])])
+                cells += [_cell(h["before_um"], kind="um"), _cell(h["after_um"], kind="um"),
+                          _cell(h["change_db"], kind="change_db")]
+            rows.append(cells + [_cell(row["rms_before_um"], kind="um"), _cell(row["rms_after_um"], kind="um")])
         orders = [h["harmonic"] for h in next(iter(r["axes"].values()))["harmonics"]]
         headers = ["axis"] + [f"{k}X {w}" for k in orders for w in ("before [µm]", "after [µm]", "change [dB]")]
         parts += ["<h2>Runout before and after the push</h2>",
@@ -150,7 +188,7 @@ def render(found, title: str) -> str:
     log = d["push_log"]
     parts.append("<h2>Push log</h2>")
     if log:
-        rows = [[_cell(e["host_time"], "text"), _cell(e["bank"]), _cell(e["crc32"], "text"), _cell(e["file"], "text"),
+        rows = [[_cell(when(e["host_time"]), "text"), _cell(e["bank"]), _cell(e["crc32"], "text"), _cell(e["file"], "text"),
                  _cell((e["file_sha256"] or "")[:16], "text"), _cell(e["target"], "text"), _cell(e["effective_sample"])]
                 for e in log]
         parts.append(_table(["host time", "bank", "CRC-32", "file", "sha256", "target", "from sample"], rows, "push-log"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import click
@@ -116,10 +117,27 @@ def _print_table(res) -> None:
                        f"amplification {p.amplification:.1f}: {verdict}")
 
 
+def phase_lag_deg(vector: np.ndarray) -> np.ndarray:
+    """A vector's phase as engineers read it against speed: the lag behind the key-phasor, in
+    degrees, unwrapped along the run (it grows through each critical speed instead of jumping at
+    +-180), starting within 0..360."""
+    lag = -np.degrees(np.unwrap(np.angle(vector)))
+    return lag - 360.0 * np.floor(lag[0] / 360.0) if lag.size else lag
+
+
 def runup_figure(res, out, name: str) -> None:
-    """Bode (1X and NX amplitude, 1X phase), the 1X polar plot, and the waterfall with the order
-    lines and the model's modes, of :func:`~ambdaq.workflows.runup_diagnostics.analyse`'s result;
-    ``out`` a path or a binary file (PNG)."""
+    """:func:`draw_runup`'s figure written to ``out`` (a path or a binary file, PNG)."""
+    plt = pyplot()
+    fig = draw_runup(res, name)
+    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
+    plt.close(fig)
+
+
+def draw_runup(res, name: str):
+    """Bode (1X and NX amplitude, 1X phase lag unwrapped), the 1X polar plot, and the waterfall with
+    the order lines and the model's modes, of :func:`~ambdaq.workflows.runup_diagnostics.analyse`'s
+    result. An axis keeps one colour; x axes are drawn solid and y axes dashed on top, so a pair of
+    equal curves (an isotropic bearing) shows both."""
     plt = pyplot()
     from matplotlib.colors import LogNorm
 
@@ -130,18 +148,22 @@ def runup_figure(res, out, name: str) -> None:
     polar = fig.add_subplot(grid[0, 1], projection="polar")
     fall = fig.add_subplot(grid[1, 1])
     for j, a in enumerate(res.axes):
+        color = f"C{j}"
+        dashed = a.endswith("_y")
         for k in t.orders:
             v = t.order(k)[:, j] * 1e6
-            line = amp_ax.plot(t.rpm, np.abs(v), lw=0.9 if k == 1 else 0.6, ls="-" if k == 1 else "--",
-                               label=f"{a} {k}X")[0]
+            style = dict(color=color, ls="--" if dashed else "-", lw=(1.0 if dashed else 1.6) / k, zorder=3 if dashed else 2)
+            amp_ax.plot(t.rpm, np.abs(v), alpha=1.0 if k == 1 else 0.6, label=f"{a} {k}X", **style)
             if k == 1:
-                ph_ax.plot(t.rpm, np.degrees(np.angle(v)), ".", ms=1.5, color=line.get_color(), label=f"{a} 1X")
-                polar.plot(np.angle(v), np.abs(v), lw=0.8, color=line.get_color(), label=a)
+                ph_ax.plot(t.rpm, phase_lag_deg(v), label=f"{a} 1X", **style)
+                polar.plot(np.angle(v), np.abs(v), label=a, **style)
                 for p in res.peaks.get(a, []):
                     amp_ax.annotate(f"{p.rpm:,.0f} rpm, AF {p.amplification:.1f}", (p.rpm, p.amplitude * 1e6),
                                     fontsize=7, xytext=(5, 5), textcoords="offset points")
-    amp_ax.set(ylabel="amplitude [µm, 0-peak]", title=f"order tracking, {res.compensation}")
-    ph_ax.set(xlabel="speed [rpm]", ylabel="1X phase [deg] from the key-phasor", ylim=(-180, 180), yticks=range(-180, 181, 90))
+    # a compensation names a file: wrapped, so a long path stays inside the panel
+    amp_ax.set(ylabel="amplitude [µm, 0-peak]", title="\n".join(textwrap.wrap(f"order tracking, {res.compensation}", 60)))
+    amp_ax.title.set_fontsize(9)
+    ph_ax.set(xlabel="speed [rpm]", ylabel="1X phase lag [deg] from the key-phasor, unwrapped")
     for ax in (amp_ax, ph_ax):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=2)
@@ -164,5 +186,4 @@ def runup_figure(res, out, name: str) -> None:
     fall.set(xlabel="frequency [Hz]", ylabel="speed [rpm]", xlim=(0, f[keep][-1]),
              title=f"waterfall of {res.waterfall_axis}" + (" with the model's modes (Campbell)" if res.modes else ""))
     fig.suptitle(f"run-up diagnostics: {name}")
-    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
-    plt.close(fig)
+    return fig

@@ -50,14 +50,30 @@ class SessionFiles:
     cmin_m: float | None = None
 
 
-def machine_identity(path: Path) -> dict:
-    """The devices a recording was made with (kind, model, serial, firmware, URL) and when."""
-    meta = McapFile(path).metadata()
-    session = meta.get("ambdaq.session", {})
-    devices = {name.removeprefix("ambdaq.device."): {k: v for k, v in m.items() if k in IDENTITY_KEYS}
-               for name, m in meta.items() if name.startswith("ambdaq.device.")}
-    return {"recording": str(path), "start_time": session.get("start_time", ""),
-            "ambdaq_version": session.get("ambdaq_version", ""), "host": session.get("host", ""), "devices": devices}
+def machine_identity(paths: list[Path]) -> dict:
+    """The devices the session's recordings were made with, each once (kind, model, serial,
+    firmware, URL) with the recordings it is in, and when and where each recording was made.
+
+    Parameters
+    ----------
+    paths : list of Path
+        The session's recordings (run-up, before, after, the stability runs).
+    """
+    devices: dict[tuple, dict] = {}
+    recordings = []
+    for path in paths:
+        meta = McapFile(path).metadata()
+        session = meta.get("ambdaq.session", {})
+        recordings.append({"recording": str(path), "start_time": session.get("start_time", ""),
+                           "ambdaq_version": session.get("ambdaq_version", ""), "host": session.get("host", "")})
+        for name, m in meta.items():
+            if not name.startswith("ambdaq.device."):
+                continue
+            ident = {k: v for k, v in m.items() if k in IDENTITY_KEYS}
+            key = (name, ident.get("serial"), ident.get("model"), ident.get("url"))
+            entry = devices.setdefault(key, {"device": name.removeprefix("ambdaq.device."), **ident, "recordings": []})
+            entry["recordings"].append(path.name)
+    return {"devices": list(devices.values()), "recordings": recordings}
 
 
 def _push_entries(path: Path | None, coefficients: Path | None) -> list[dict]:
@@ -113,12 +129,15 @@ def gather(files: SessionFiles) -> Commissioning:
     if (files.before is None) != (files.after is None):
         raise BadInputError("--before and --after go together: the runout check compares the two")
     doc = iso_stability.load_results(files.stability) if files.stability else None
-    first = files.runup or files.before or Path(doc.runs[0].source.get("path", ""))
-    out: dict = {"machine": machine_identity(first) if first.is_file() else None}
+    inputs = [p for p in (files.runup, files.before, files.after) if p is not None]
+    inputs += [Path(r.source["path"]) for r in (doc.runs if doc else []) if r.source.get("path")]
+    inputs = [p for p in dict.fromkeys(inputs) if p.is_file()]  # each once; runs moved away are not read
+    out: dict = {"machine": machine_identity(inputs) if inputs else None}
     out["stability"] = None if doc is None else {
         "file": str(files.stability), "limits_peak_gs": list(doc.limits_peak_gs), "min_coherence": doc.min_coherence,
         "rows": [{"speed_rpm": r.speed_rpm, "axis": r.axis, "peak": r.peak, "peak_db": r.peak_db, "peak_hz": r.peak_hz,
                   "coherence_at_peak": r.coherence_at_peak, "zone": r.zone, "reason": r.reason} for r in doc.runs]}
+    notes: list[str] = []
     if files.runup:
         runup = with_rotor(files.runup, "a run-up's vibration zones and order tracking")  # read once for both
         grades, info = iso_vibration.evaluate([runup], cmin_m=files.cmin_m, band_rpm=5000.0,
@@ -127,6 +146,7 @@ def gather(files: SessionFiles) -> Commissioning:
                                                     "runout_removed")},
                             "bands": [g.as_dict() for g in grades]}
         diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2))
+        notes += info["notes"] + diag.notes
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
                         "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
@@ -137,12 +157,73 @@ def gather(files: SessionFiles) -> Commissioning:
         out["vibration"] = out["runup"] = None
     if files.before:
         check = check_recordings(load(files.before), load(files.after), [1, 2])
+        notes += check.notes
         out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
     else:
         out["runout"] = None
     out["push_log"] = _push_entries(files.push_log, files.coefficients)
     out["files"] = {k: str(v) for k, v in vars(files).items() if isinstance(v, Path)}
+    out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag)
 
 
-__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity"]
+ZONE_MEANING = {"A": "newly commissioned machines", "B": "unrestricted long-term operation",
+                "C": "limited operation only", "D": "damage may occur"}  # ISO 14839-2/-3 zone descriptions
+
+
+def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
+    """The report's first box: the worst zone of each standard with where it was found, the runout
+    before and after on its worst axis, and the open items (zones C and D, axes not measured, data
+    notes, parts of the session not given).
+
+    Parameters
+    ----------
+    data : dict
+        :func:`gather`'s tables (``stability``, ``vibration``, ``runout``, ``push_log``).
+    notes : list of str
+        What the evaluations noted about their inputs (samples lost within the limit ...).
+    pushed : bool
+        Whether a coefficient file was given (then its push must be in the log).
+    """
+    lines, open_items = [], []
+    s = data["stability"]
+    if s is None:
+        open_items.append("no ISO 14839-3 stability measurement given (--stability)")
+    else:
+        graded = [r for r in s["rows"] if r["zone"]]
+        for r in s["rows"]:
+            if not r["zone"]:
+                open_items.append(f"ISO 14839-3: {r['axis']} at {r['speed_rpm']:,.0f} rpm not measured: {r['reason']}")
+        if graded:
+            w = max(graded, key=lambda r: (r["zone"], r["peak"]))
+            lines.append({"check": "stability margin", "standard": "ISO 14839-3", "zone": w["zone"],
+                          "result": f"zone {w['zone']} ({ZONE_MEANING[w['zone']]}): worst {w['axis']} at "
+                                    f"{w['speed_rpm']:,.0f} rpm, peak |Gs| {w['peak']:.2f} ({w['peak_db']:.1f} dB) "
+                                    f"at {w['peak_hz']:,.0f} Hz"})
+    v = data["vibration"]
+    if v is None:
+        open_items.append("no run-up given (--runup): no ISO 14839-2 vibration zones")
+    elif v["bands"]:
+        w = max(v["bands"], key=lambda b: b["ratio_cmin"])
+        lines.append({"check": "vibration", "standard": "ISO 14839-2", "zone": w["zone"],
+                      "result": f"zone {w['zone']} ({ZONE_MEANING[w['zone']]}): worst {w['bearing']} bearing "
+                                f"{w['max_um']:.2f} µm = {w['ratio_cmin']:.3f} Cmin at {w['at_rpm']:,.0f} rpm "
+                                f"(Cmin {v['cmin_um']:g} µm)"})
+    for line in lines:
+        if line["zone"] in ("C", "D"):
+            open_items.append(f"{line['standard']}: zone {line['zone']}, {ZONE_MEANING[line['zone']]}")
+    r = data["runout"]
+    if r is None:
+        open_items.append("no recordings before and after the push given (--before, --after)")
+    else:
+        worst = max(r["axes"].items(), key=lambda kv: kv[1]["harmonics"][0]["after_um"])
+        h = worst[1]["harmonics"][0]
+        lines.append({"check": "runout (command error 1X)", "standard": "Ro et al. runout feedforward", "zone": None,
+                      "result": f"{worst[0]} {h['before_um']:.2f} -> {h['after_um']:.2f} µm ({h['change_db']:+.1f} dB), "
+                                f"the worst axis after, at {r['after']['rpm']:,.0f} rpm"})
+    if pushed and not data["push_log"]:
+        open_items.append("the coefficient file is not in the push log: was it pushed from this host?")
+    return {"lines": lines, "open_items": open_items + notes}
+
+
+__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity", "verdict"]
