@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import click
 import numpy as np
 
@@ -22,6 +24,14 @@ def orbit_partner(field: str, fields) -> str | None:
     return None
 
 
+ENVELOPE_BINS = 800  # a long window's time panel: min and max per bin (about a screen pixel each)
+RAW_POINTS = 4000  # up to this many samples the waveform itself is drawn
+
+
+def _wrapped(text: str, width: int = 48) -> str:
+    return "\n".join(textwrap.wrap(text, width))
+
+
 @click.command("plot")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--topic", default="/amb/gap", show_default=True)
@@ -34,37 +44,79 @@ def command(file, topic, field_name, start, end, cmin, output):
     """Plot FIELD of TOPIC: time series, amplitude spectrum (with the speed and its orders where the
     rotor angle was recorded), and the bearing's X-Y orbit (with the clearance circle where Cmin is
     known)."""
-    from matplotlib.ticker import MaxNLocator
-
     from ..daq.mcapfile import McapFile
     from ..daq.reader import ambdaq_channels
-    from ..units import RAD_S_TO_RPM
     from ..workflows.iso_vibration import recorded_cmin
 
     plt = pyplot()
-
     spinning = topic != "/amb/rotor" and "/amb/rotor" in ambdaq_channels(McapFile(file))
     rec = load(file, topics=[topic] + (["/amb/rotor"] if spinning else []), start=start, end=end)
+    if len(rec[topic]) < 2:
+        raise BadInputError(f"{file}: {topic} has {len(rec[topic])} samples in the window; nothing to plot")
+    clearance = cmin * 1e-6 if cmin is not None else recorded_cmin(file)
+    fig = draw_signal(rec, topic, field_name, clearance)
+    fig.savefig(output, dpi=110)
+    plt.close(fig)
+    click.echo(output)
+
+
+def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
+    """The figure of ``plot``: the time series (the waveform up to RAW_POINTS samples, beyond that
+    its min-max envelope per bin, so ten seconds at 10 kHz read as amplitude over time and not as a
+    solid band), the amplitude spectrum with the speed's orders when it was steady, and the
+    bearing's orbit with the clearance circle (``clearance_m``, m, if known).
+
+    Parameters
+    ----------
+    rec : Recording
+        With ``topic`` (and ``/amb/rotor`` for the order marks).
+    topic, field_name : str
+        The signal.
+    clearance_m : float or None
+        Minimum clearance, m.
+    """
+    from matplotlib.ticker import MaxNLocator
+
+    from ..units import RAD_S_TO_RPM
+
+    plt = pyplot()
     data = rec[topic]
     y = data[field_name]
-    if len(data) < 2:
-        raise BadInputError(f"{file}: {topic} has {len(data)} samples in the window; nothing to plot")
     scale, unit = UNIT_SCALE.get(data.units[field_name], (1.0, data.units[field_name]))
     partner = orbit_partner(field_name, data.fields)
     ncols = 3 if partner else 2
     fig, axes = plt.subplots(1, ncols, figsize=(5 * ncols, 4.2), constrained_layout=True)
     ax = axes[0]
-    ax.plot(data.time, y * scale, lw=0.6)
-    ax.set(xlabel="time [s]", ylabel=f"{field_name} [{unit}]", title=f"{topic} {field_name}")
+    t = data.time
+    t0 = float(t[0])
+    span = float(t[-1] - t0)
+    # short windows in ms from their first sample, long ones in s: tick labels stay short
+    tscale, tunit = (1e3, "ms") if span < 1.0 else (1.0, "s")
+    rel = (t - t0) * tscale
+    if len(y) <= RAW_POINTS:
+        ax.plot(rel, y * scale, lw=0.7)
+        shown = "waveform"
+    else:
+        edges = np.linspace(0, len(y), ENVELOPE_BINS + 1).astype(int)
+        lo = np.minimum.reduceat(y, edges[:-1]) * scale
+        hi = np.maximum.reduceat(y, edges[:-1]) * scale
+        mid = rel[(edges[:-1] + edges[1:]) // 2]
+        ax.fill_between(mid, lo, hi, color="C0", alpha=0.35, lw=0, label="min-max per bin")
+        ax.plot(mid, np.add.reduceat(y, edges[:-1]) / np.diff(edges) * scale, color="C0", lw=0.8, label="mean per bin")
+        ax.legend(fontsize=7, loc="upper right")
+        shown = f"envelope of {len(y):,} samples in {ENVELOPE_BINS} bins"
+    ax.set(xlabel=f"time [{tunit}] from {t0:.4g} s", ylabel=f"{field_name} [{unit}]",
+           title=_wrapped(f"{topic} {field_name}: {shown}"))
+    ax.xaxis.set_major_locator(MaxNLocator(5))
     ax.grid(alpha=0.3)
     f, a = amplitude_spectrum(y, fs=data.sample_rate)
     ax = axes[1]
     ax.semilogy(f, np.maximum(a * scale, 1e-12), lw=0.6)
     title = "spectrum (Hann)"
-    if spinning and len(rec["/amb/rotor"]):
+    if "/amb/rotor" in rec and topic != "/amb/rotor" and len(rec["/amb/rotor"]):
         rpm = rec["/amb/rotor"]["speed"] * RAD_S_TO_RPM
-        lo, hi, mean = float(rpm.min()), float(rpm.max()), float(rpm.mean())
-        if hi - lo <= 0.02 * max(mean, 1.0) and mean / 60.0 > 2 * (f[1] - f[0]):  # steady: mark the orders
+        lo_rpm, hi_rpm, mean = float(rpm.min()), float(rpm.max()), float(rpm.mean())
+        if hi_rpm - lo_rpm <= 0.02 * max(mean, 1.0) and mean / 60.0 > 2 * (f[1] - f[0]):  # steady: mark the orders
             title = f"spectrum (Hann) at {mean:,.0f} rpm"
             for k in range(1, 7):
                 if k * mean / 60.0 < f[-1]:
@@ -72,25 +124,24 @@ def command(file, topic, field_name, start, end, cmin, output):
                     ax.annotate(f"{k}X", (k * mean / 60.0, 0.98), xycoords=("data", "axes fraction"), color="C3",
                                 fontsize=7, ha="left", va="top")
         else:
-            title = f"spectrum (Hann), {lo:,.0f}-{hi:,.0f} rpm (no order marks: the speed changed)"
-    ax.set(xlabel="frequency [Hz]", ylabel=f"amplitude [{unit}]", title=title)
+            title = f"spectrum (Hann), {lo_rpm:,.0f}-{hi_rpm:,.0f} rpm (no order marks: the speed changed)"
+    ax.set(xlabel="frequency [Hz]", ylabel=f"amplitude [{unit}]", title=_wrapped(title))
     ax.xaxis.set_major_locator(MaxNLocator(6))
     ax.grid(alpha=0.3, which="both")
     if partner:
         ax = axes[2]
         ax.plot(y * scale, data[partner] * scale, lw=0.4)
         ax.set(xlabel=f"{field_name} [{unit}]", ylabel=f"{partner} [{unit}]", title="orbit")
-        clearance = cmin * 1e-6 if cmin is not None else recorded_cmin(file)
-        if clearance is not None and data.units[field_name] == "m":
-            t = np.linspace(0, 2 * np.pi, 361)
-            ax.plot(clearance * scale * np.cos(t), clearance * scale * np.sin(t), color="k", lw=0.8,
-                    label=f"Cmin {clearance * 1e6:g} µm")
+        if clearance_m is not None and data.units[field_name] == "m":
+            circle = np.linspace(0, 2 * np.pi, 361)
+            ax.plot(clearance_m * scale * np.cos(circle), clearance_m * scale * np.sin(circle), color="k", lw=0.8,
+                    label=f"Cmin {clearance_m * 1e6:g} µm")
             ax.legend(fontsize=7, loc="upper right")
             ax.set_title("orbit and the touchdown clearance")
         ax.set_aspect("equal", adjustable="datalim")
         for axis in (ax.xaxis, ax.yaxis):
             axis.set_major_locator(MaxNLocator(5))
         ax.grid(alpha=0.3)
-    fig.savefig(output, dpi=110)
-    plt.close(fig)
-    click.echo(output)
+    for ax in axes:
+        ax.title.set_fontsize(10)
+    return fig

@@ -1,0 +1,85 @@
+"""What the figures show, read back from them: no tick labels on top of each other, titles and
+legends inside the figure and off the data they would hide, the traces that must be visible
+visible. Each figure is drawn by the function its command calls and rendered (Agg) before it is
+measured, since text extents exist only once drawn."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ambdaq.cli.figures import pyplot
+from ambdaq.daq import load
+
+
+def overlapping_tick_labels(ax) -> list[tuple[str, str]]:
+    """Pairs of visible tick labels on one axis whose boxes intersect."""
+    renderer = ax.figure.canvas.get_renderer()
+    out = []
+    for axis in (ax.xaxis, ax.yaxis):
+        labels = [t for t in axis.get_ticklabels() if t.get_visible() and t.get_text()]
+        boxes = [t.get_window_extent(renderer) for t in labels]
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                if boxes[i].overlaps(boxes[j]):
+                    out.append((labels[i].get_text(), labels[j].get_text()))
+    return out
+
+
+def titles_inside(fig) -> list[str]:
+    """Titles of panels whose box leaves the figure, or runs into another panel's title."""
+    renderer = fig.canvas.get_renderer()
+    page = fig.get_window_extent(renderer)
+    boxes = [(ax.title.get_text(), ax.title.get_window_extent(renderer)) for ax in fig.axes if ax.title.get_text()]
+    bad = [t for t, b in boxes if b.x0 < page.x0 - 1 or b.x1 > page.x1 + 1]
+    bad += [f"{a} / {c}" for i, (a, b) in enumerate(boxes) for c, d in boxes[i + 1:] if b.overlaps(d)]
+    return bad
+
+
+@pytest.fixture(scope="module")
+def ten_seconds(tmp_path_factory):
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    out = tmp_path_factory.mktemp("fig") / "ten.mcap"
+    r = CliRunner().invoke(cli, ["sim", "generate", "--rpm", "30000", "--duration", "10", "-q", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+@pytest.mark.parametrize("window", [(None, None), (1.0, 1.02)])
+def test_plot_of_ten_seconds_and_of_20_ms_reads(ten_seconds, window, run_cli, tmp_path):
+    """10 s at 10 kHz: the time panel is the envelope (at most two points per bin), not 100,000
+    points drawn into a band; a 20 ms window is the waveform, its time ticks in ms from the
+    window's start, none on top of another; every title inside the figure."""
+    from ambdaq.cli.plot import ENVELOPE_BINS, draw_signal
+
+    start, end = window
+    out = tmp_path / "p.png"
+    args = ["plot", ten_seconds, "--field", "front_x", "-o", out]
+    if start is not None:
+        args += ["--start", str(start), "--end", str(end)]
+    r = run_cli(*args)
+    assert r.exit_code == 0, r.output
+    assert out.stat().st_size > 30_000
+    rec = load(ten_seconds, topics=["/amb/gap", "/amb/rotor"], start=start, end=end)
+    fig = draw_signal(rec, "/amb/gap", "front_x", 150e-6)
+    try:
+        fig.canvas.draw()
+        time_ax = fig.axes[0]
+        drawn = sum(len(line.get_xdata()) for line in time_ax.get_lines())
+        if start is None:
+            assert drawn <= ENVELOPE_BINS and len(time_ax.collections) == 1  # the mean line and the min-max band
+            assert "envelope of 100,000 samples" in time_ax.title.get_text()
+            # the band holds every sample: its extremes are the signal's
+            band = time_ax.collections[0].get_paths()[0].vertices[:, 1]
+            y = rec["/amb/gap"]["front_x"] * 1e6
+            assert band.max() == pytest.approx(y.max()) and band.min() == pytest.approx(y.min())
+        else:
+            assert drawn == len(rec["/amb/gap"]) == 201 and time_ax.get_xlabel().startswith("time [ms] from 1")
+        for ax in fig.axes:
+            assert overlapping_tick_labels(ax) == [], ax.get_title()
+        assert titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)
