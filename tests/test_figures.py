@@ -83,3 +83,44 @@ def test_plot_of_ten_seconds_and_of_20_ms_reads(ten_seconds, window, run_cli, tm
         assert titles_inside(fig) == []
     finally:
         pyplot().close(fig)
+
+
+def _boxes_overlap(a, b) -> bool:
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def test_runout_identification_figure_shows_x_and_y_and_keeps_its_legend_off_the_angles(ten_seconds, tmp_path):
+    """Each bearing's x and y are told apart (solid filled x under dashed open y), the phasor legend
+    covers no angle label of any polar plot, and the orbit's second trace is not called "after":
+    nothing has been pushed when runout is identified."""
+    from ambdaq.cli.runout_plots import draw_identification
+    from ambdaq.workflows.runout import identify_recordings
+
+    ident = identify_recordings([ten_seconds], [1, 2, 3, 4], "fit")
+    fig = draw_identification(ident)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        polar = [ax for ax in fig.axes if ax.name == "polar"]
+        assert len(polar) == 4
+        legends = [lg for sub in fig.subfigs for lg in sub.legends]
+        assert legends, "the phasor legend"
+        for ax in polar:
+            angle_labels = [t for t in ax.xaxis.get_ticklabels() if t.get_visible() and t.get_text()]
+            assert any("225" in t.get_text() for t in angle_labels)
+            for legend in legends:
+                box = legend.get_window_extent(renderer)
+                hit = [t.get_text() for t in angle_labels if _boxes_overlap(box, t.get_window_extent(renderer))]
+                assert hit == [], hit
+        one_x = polar[0]
+        marks = {ln.get_label(): ln for ln in one_x.get_lines() if not ln.get_label().startswith("_")}
+        for bearing in ("front", "rear"):
+            x, y = marks[f"{bearing}_x"], marks[f"{bearing}_y"]
+            assert (x.get_marker(), y.get_marker()) == ("o", "s") and y.get_markerfacecolor() == "none"
+            assert y.get_zorder() > x.get_zorder() and x.get_markersize() > y.get_markersize()
+        orbit_labels = [t.get_text() for ax in fig.axes for lg in [ax.get_legend()] if lg for t in lg.get_texts()
+                        if "sensor" in t.get_text()]
+        assert orbit_labels and not any("after" in label for label in orbit_labels), orbit_labels
+        assert titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)

@@ -5,16 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
 from ..analysis.runout import synthesise
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import Recording
 from .figures import pyplot
 
-BEARINGS = ("front", "rear")
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
-COLOURS = {"front_x": "C0", "front_y": "C1", "rear_x": "C2", "rear_y": "C3"}
 
 
 def _last_revolutions(theta: np.ndarray, revs: int) -> slice:
@@ -36,42 +33,64 @@ def _order_spectrum(ax, signals: dict[str, tuple[np.ndarray, float]], fs: float,
 
 
 def identify_report(ident, path: str) -> None:
-    """Write the identification report: spectrum, a polar plot per harmonic, orbits before and after.
+    """Write :func:`draw_identification`'s figure to ``path`` (.png, .pdf, .svg)."""
+    plt = pyplot()
+    fig = draw_identification(ident)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _bearings(axes: list[str]) -> list[tuple[str, str, str]]:
+    """(bearing, x axis, y axis) of every NAME_x / NAME_y pair among ``axes``, in their order."""
+    return [(a[:-2], a, a[:-2] + "_y") for a in axes if a.endswith("_x") and a[:-2] + "_y" in axes]
+
+
+def draw_identification(ident):
+    """The identification report: spectrum, a polar plot per harmonic, orbits with and without the
+    identified runout.
 
     Parameters
     ----------
     ident : Identification
         What ``identify_recordings`` returned.
-    path : str
-        Image file (.png, .pdf, .svg).
 
     Notes
     -----
-    The spectrum and the orbits are of the first recording's gap sensors.  The orbit "after" is
-    the sensor signal with the identified runout (``synthesise`` at the recorded rotor angle)
-    taken away: what the controller would see of the rotor with the coefficients pushed.
+    The spectrum and the orbits are of the first recording's gap sensors, for each bearing of the
+    coefficient file (its NAME_x / NAME_y axes). The second orbit is the sensor signal less the
+    identified runout (``synthesise`` at the recorded rotor angle): what the controller would see
+    of the rotor with the coefficients pushed; nothing has been pushed yet. A bearing's x axis is
+    drawn solid with filled markers, its y axis dashed with open ones on top, so equal values
+    (an isotropic bearing) show both.
     """
     plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     coef = ident.coef
     harmonics = coef.harmonics
-    runout = np.array([[complex(*coef.weights[a][i]) for a in AXES] for i in range(len(harmonics))])
+    axes = list(coef.weights)
+    runout = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(harmonics))])
     gap, rot = ident.first["/amb/gap"], ident.first["/amb/rotor"]
     n = min(len(gap), len(rot))
     theta, spin = rot["angle"][:n], float(ident.spins[0])
     rpm = spin * RAD_S_TO_RPM
-    radial = [a for a in AXES if a in COLOURS]
+    bearings = _bearings(axes)
+    style = {}
+    for b, (_name, x, y) in enumerate(bearings):
+        style[x] = {"color": f"C{2 * b}", "ls": "-", "marker": "o", "mfc": f"C{2 * b}", "zorder": 2, "lw": 1.4}
+        style[y] = {"color": f"C{2 * b + 1}", "ls": "--", "marker": "s", "mfc": "none", "zorder": 3, "lw": 1.0}
 
     fig = plt.figure(figsize=(max(12.0, 2.6 * len(harmonics)), 12.5), constrained_layout=True)
     top, middle, bottom = fig.subfigures(3, 1, height_ratios=[1.0, 0.9, 1.2])
-    for ax, bearing in zip(top.subplots(1, 2), BEARINGS):
-        axes = [a for a in radial if a.startswith(bearing)]
-        _order_spectrum(ax, {a: (gap[a][:n], spin) for a in axes}, gap.sample_rate, max_order=max(harmonics) + 2.5,
-                        styles={a: {"color": COLOURS[a]} for a in axes})
-        for a in axes:
-            amp = np.abs(runout[:, AXES.index(a)]) * 1e6
-            ax.plot(harmonics, amp, "o", mfc="none", color=COLOURS[a], label=f"{a} identified runout")
+    for ax, (bearing, x, y) in zip(np.atleast_1d(top.subplots(1, len(bearings))), bearings):
+        _order_spectrum(ax, {a: (gap[a][:n], spin) for a in (x, y)}, gap.sample_rate, max_order=max(harmonics) + 2.5,
+                        styles={a: {"color": style[a]["color"], "ls": style[a]["ls"], "zorder": style[a]["zorder"]}
+                                for a in (x, y)})
+        for a in (x, y):
+            amp = np.abs(runout[:, axes.index(a)]) * 1e6
+            st = style[a]
+            ax.plot(harmonics, amp, st["marker"], mfc=st["mfc"], color=st["color"], ms=7 if a == x else 5,
+                    zorder=st["zorder"] + 2, label=f"{a} identified runout")
         ax.set_title(f"{bearing}: gap sensor spectrum at {rpm:,.0f} rpm")
         ax.legend(fontsize=7)
     top.suptitle(f"runout identification ({coef.source.get('method', '')}) from "
@@ -79,36 +98,39 @@ def identify_report(ident, path: str) -> None:
 
     polar = middle.subplots(1, len(harmonics), subplot_kw={"projection": "polar"}, squeeze=False)[0]
     several = len(ident.paths) > 1
+    radial = [a for _b, x, y in bearings for a in (x, y)]
     for i, (ax, k) in enumerate(zip(polar, harmonics)):
         for a in radial:
-            j = AXES.index(a)
+            j = axes.index(a)
             p = runout[i, j] * 1e6
-            ax.plot([0, np.angle(p)], [0, abs(p)], color=COLOURS[a], lw=1.5)
-            ax.plot(np.angle(p), abs(p), "o", color=COLOURS[a], label=a)
+            st = style[a]
+            ax.plot([0, np.angle(p)], [0, abs(p)], color=st["color"], ls=st["ls"], lw=st["lw"], zorder=st["zorder"])
+            ax.plot(np.angle(p), abs(p), st["marker"], mfc=st["mfc"], color=st["color"], ms=7 if st["ls"] == "-" else 5,
+                    zorder=st["zorder"] + 2, label=a)
             if several:  # each recording's own estimate: at 1X these differ by the unbalance response
                 q = ident.per_file[:, i, j] * 1e6
-                ax.plot(np.angle(q), np.abs(q), "x", color=COLOURS[a], ms=5)
+                ax.plot(np.angle(q), np.abs(q), "x", color=st["color"], ms=5)
         ax.set_title(f"{k}X [µm, deg]", fontsize=9)
         ax.yaxis.set_major_locator(MaxNLocator(3))
         ax.tick_params(labelsize=7)
-    polar[0].legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.35, -0.25))
+    # the legend beside the polar plots, never on their angle labels
+    handles, labels = polar[0].get_legend_handles_labels()
+    middle.legend(handles, labels, fontsize=7, loc="outside right center")
     middle.suptitle("runout phasor per harmonic (angle from the key-phasor)"
                     + ("; x: each recording alone" if several else ""))
 
     window = _last_revolutions(theta, ORBIT_REVS)
     removed = synthesise(runout, harmonics, theta[window])
-    for ax, bearing in zip(bottom.subplots(1, 2), BEARINGS):
-        x, y = f"{bearing}_x", f"{bearing}_y"
+    for ax, (bearing, x, y) in zip(np.atleast_1d(bottom.subplots(1, len(bearings))), bearings):
         gx, gy = gap[x][:n][window], gap[y][:n][window]
-        ax.plot(gx * 1e6, gy * 1e6, lw=0.5, color="0.55", label="sensor (before)")
-        ax.plot((gx - removed[:, AXES.index(x)]) * 1e6, (gy - removed[:, AXES.index(y)]) * 1e6, lw=0.8,
-                color="C3", label="identified runout removed (after)")
+        ax.plot(gx * 1e6, gy * 1e6, lw=0.5, color="0.55", label="sensor, as recorded")
+        ax.plot((gx - removed[:, axes.index(x)]) * 1e6, (gy - removed[:, axes.index(y)]) * 1e6, lw=0.8,
+                color="C3", label="sensor less the identified runout (the rotor, as the controller would see it)")
         ax.set(xlabel=f"{x} [µm]", ylabel=f"{y} [µm]", title=f"{bearing} orbit, last {ORBIT_REVS} revolutions")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
 
 
 def check_report(before: Recording, after: Recording, harmonics: list[int], path: str) -> None:
@@ -130,9 +152,9 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
         n = min(len(err), len(rot))
         runs[label] = (rec.path, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
     styles = {"before": {"color": "0.55"}, "after": {"color": "C3"}}
-    fig, axes = plt.subplots(2, 2, figsize=(12, 10), constrained_layout=True)
-    for col, bearing in enumerate(BEARINGS):
-        x, y = f"{bearing}_x", f"{bearing}_y"
+    bearings = _bearings(list(before["/amb/error"].fields))
+    fig, axes = plt.subplots(2, len(bearings), figsize=(6 * len(bearings), 10), constrained_layout=True, squeeze=False)
+    for col, (bearing, x, y) in enumerate(bearings):
         ax = axes[0, col]
         for label, (file, err, n, theta, _) in runs.items():
             w = _last_revolutions(theta, ORBIT_REVS)
