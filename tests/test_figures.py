@@ -124,3 +124,44 @@ def test_runout_identification_figure_shows_x_and_y_and_keeps_its_legend_off_the
         assert titles_inside(fig) == []
     finally:
         pyplot().close(fig)
+
+
+def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(tmp_path):
+    """Several speeds with --sweep: panel (a) is one file's two angles (two legend entries, not a
+    pair per file), (b) names each file once, and the last panel is the convergence region: the
+    final error against the initial one beside the Lyapunov bound, as the docs promise."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+    from ambdaq.cli.selfsense import _analyse, draw_selfsense
+
+    files = []
+    for rpm in ("100", "400", "1000"):
+        f = tmp_path / f"ls_{rpm}.mcap"
+        r = CliRunner().invoke(cli, ["sim", "generate", "--profile", "lorentz", "--rpm", rpm, "--duration", "1.5", "-q",
+                                     "-o", str(f)])
+        assert r.exit_code == 0, r.output
+        files.append(str(f))
+    overrides = {"resistance": None, "inductance": None, "emf_constant": None}
+    results = [_analyse(f, 8.0, 0.5, overrides, sweep=(f == files[0])) for f in files]
+    fig = draw_selfsense(results)
+    try:
+        fig.canvas.draw()
+        a, b, c, region = fig.axes
+        assert [t.get_text() for t in a.get_legend().get_texts()] == ["encoder", "estimate"]
+        assert len(a.get_lines()) == 2
+        labels = [t.get_text() for t in b.get_legend().get_texts()]
+        assert labels == [f"ls_{rpm}.mcap" for rpm in ("100", "400", "1000")]
+        assert "convergence region" in region.get_title()
+        sweep = results[0]["sweep"]
+        (span,) = region.patches  # the Lyapunov bound, shaded: its corners in data x, axes y
+        corners = span.get_patch_transform().transform(span.get_path().vertices)[:, 0]
+        lo, hi = sweep["lyapunov_deg"]
+        assert corners.min() == pytest.approx(lo) and corners.max() == pytest.approx(hi)
+        plotted = sum(len(line.get_xdata()) for line in region.get_lines())
+        assert plotted == len(sweep["initial_deg"])  # every initial error tried is on it
+        for ax in fig.axes:
+            assert overlapping_tick_labels(ax) == []
+        assert titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)
