@@ -200,6 +200,25 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
     assert "moved more than 3 um" in text and all(m in text for m in moved)
     run("fleet", "trend", str(ds), "--machine", "AMB-01", "--plot", str(tmp_path / "amb01.png"))
     assert (tmp_path / "amb01.png").stat().st_size > 10_000
+    # what the figure shows: dates with their year, no tick label on another, legends off the panels
+    from ambdaq.cli.figures import pyplot
+    from ambdaq.cli.fleet import draw_trend
+    from ambdaq.workflows.fleet import read
+    from test_figures import overlapping_tick_labels, titles_inside
+
+    fig = draw_trend(read(ds, "AMB-01"), "AMB-01")
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        dates = [t.get_text() for t in fig.axes[2].get_xticklabels() if t.get_text()]
+        assert dates and all(d.startswith("2026-01-") for d in dates), dates
+        for ax in fig.axes:
+            assert overlapping_tick_labels(ax) == []
+            legend, panel = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+            assert legend.x0 >= panel.x1, ax.get_ylabel()  # beside the panel, on no data
+        assert titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)
     res = CliRunner().invoke(cli, ["fleet", "trend", str(ds), "--machine", "AMB-99"])
     assert res.exit_code == 2 and "no machine 'AMB-99' (machines: AMB-01" in res.stderr
 
