@@ -5,7 +5,6 @@ measured, since text extents exist only once drawn."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from ambdaq.cli.figures import pyplot
@@ -163,5 +162,28 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
         for ax in fig.axes:
             assert overlapping_tick_labels(ax) == []
         assert titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)
+
+
+def test_model_region_legend_hides_none_of_the_region(run_cli, tmp_path):
+    """The legend stands beside the (Kp, Kd) map: it covers none of the axes, so no stable gain."""
+    from ambdaq.cli.model import EXAMPLE, draw_region, load_axis
+    from ambdaq.analysis.cone import stable_region
+
+    axis = tmp_path / "axis.toml"
+    axis.write_text(EXAMPLE)
+    loop, _magnet = load_axis(str(axis))
+    region = stable_region(loop)
+    fig = draw_region(loop, region, region.kp_max(loop))
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        (ax,) = fig.axes[:1]
+        legend, panel = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+        assert not _boxes_overlap(legend, panel)
+        assert legend.x1 <= fig.get_window_extent(renderer).x1 + 1  # and inside the figure
+        assert [t.get_text() for t in ax.get_legend().get_texts()][0] == "design point"
+        assert overlapping_tick_labels(ax) == [] and titles_inside(fig) == []
     finally:
         pyplot().close(fig)
