@@ -233,3 +233,25 @@ def test_push_the_fir_to_the_served_controller(chain, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_a_fit_that_misses_a_point_far_is_refused_naming_it(run_cli, tmp_path):
+    """Points at the simulated rig's exact W* (5 to 100 Hz) fit within the limit; the same points with
+    the 100 Hz one ten times too large (a step that lost most of its samples gave 1,105 %) are
+    refused in one line naming the point, and no coefficient file is written."""
+    from ambdaq.daq.compensator_points import save_points
+    from ambdaq.sim.rigs.base_motion import BaseMotionRig
+
+    freqs = np.array([5.0, 10, 20, 40, 70, 100])
+    _, _, wstar = BaseMotionRig().responses(freqs)  # (freq, j, m)
+    W = np.repeat(wstar[:, None], 2, axis=1)  # both planes
+    good = save_points(tmp_path / "good.json", freqs.tolist(), W, [[0.06, 0.06]] * len(freqs), {"test": "W*"})
+    r = run_cli("fx", "fit", good, "-o", tmp_path / "fir.json", "--json")
+    assert r.exit_code == 0, r.output
+    assert max(json.loads(r.stdout)["fit_error_pct"]) < 5
+    W[-1, 0, 0, 1] *= 10
+    bad = save_points(tmp_path / "bad.json", freqs.tolist(), W, [[0.06, 0.06]] * len(freqs), {"test": "W* spoilt"})
+    r = run_cli("fx", "fit", bad, "-o", tmp_path / "fir_bad.json")
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "at 100 Hz by" in r.output and "(limit 25 %, --max-fit-error)" in r.output
+    assert not (tmp_path / "fir_bad.json").exists()

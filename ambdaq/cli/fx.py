@@ -111,7 +111,9 @@ def estimate(folder, path_file, mu, output, overwrite, max_lost):
 @click.option("--overwrite", is_flag=True)
 @plot_option("Bode plot: points and fits.")
 @click.option("--json", "as_json", is_flag=True)
-def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
+@click.option("--max-fit-error", type=POSITIVE, default=fx.MAX_FIT_ERROR_PCT, show_default=True, metavar="PCT",
+              help="Refuse a fit that misses a point by more than this, % (a bad campaign step).")
+def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json, max_fit_error):
     """Weighted least-squares FIR fit of each compensator W_jm (Kang & Jung eq. 19); the order at the
     knee of cost against order unless --order; a FIR is stable by construction.
 
@@ -119,7 +121,7 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json):
     Example:
       ambdaq fx fit points.json -o fir.json --plot fir.png --exact
     """
-    result = fx.fit(points, max_order, order, exact=exact)
+    result = fx.fit(points, max_order, order, exact=exact, max_fit_error_pct=max_fit_error)
     result.coefficients.save(output, overwrite=overwrite)
     report, freqs, costs, chosen = result.report, result.freqs, result.costs, result.report["order"]
     orders = np.arange(0, max_order + 1)

@@ -33,6 +33,9 @@ from ..machines.base_motion import AXES, BASE_AXES, PLANES, SAMPLE_RATE
 CAMPAIGN = "campaign.json"
 TOPICS = ("/amb/gap", "/base/accel")  # what the controller must stream for the campaign
 STEP_ATTEMPTS = 3  # recordings of a step that loses samples, before the campaign stops
+MAX_FIT_ERROR_PCT = 25.0
+"""A FIR fit may miss a point by this much (%): good campaigns leave the points within 7 % of W*
+(the secondary path's error at 5 Hz, docs/base-motion.md) and the fit within 1 % of them."""
 MAX_BASE_M_S2 = 50.0  # peak base acceleration a campaign step may ask for
 
 
@@ -267,10 +270,15 @@ class Fit:
     sample_rate: float
 
 
-def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = False) -> Fit:
+def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = False,
+        max_fit_error_pct: float = MAX_FIT_ERROR_PCT) -> Fit:
     """Weighted least-squares FIR fit of each compensator W_jm (Kang & Jung eq. 19), of the order at the
     knee of cost against order unless ``order``; ``exact`` also compares with the simulated rig's
-    exact W* = -B^-1 C."""
+    exact W* = -B^-1 C.
+
+    A fit that misses a point by more than ``max_fit_error_pct`` (%, relative) is refused
+    (BadInputError naming the frequency): a point that far from a smooth compensator is a bad step
+    (lost samples, a shaker that did not follow), and the FIR would carry its error to the rig."""
     freqs, W = load_points(points)
     fs = SAMPLE_RATE
     orders = np.arange(0, max_order + 1)
@@ -283,9 +291,16 @@ def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = 
             taps[p, j, m] = fit_fir(freqs, W[:, p, j, m], chosen, fs)[0]
     E = np.exp(-2j * np.pi * np.outer(freqs / fs, np.arange(chosen + 1)))
     fitted = np.einsum("ft,pjmt->fpjm", E, taps)
+    miss = 100 * np.abs(fitted / W - 1)  # (freq, plane, j, m), %
+    worst = np.unravel_index(int(np.argmax(miss)), miss.shape)
+    if miss[worst] > max_fit_error_pct:
+        f, p, j, m = worst
+        raise BadInputError(f"{points}: the FIR of order {chosen} misses W{j + 1}{m + 1} ({PLANES[p]}) at {freqs[f]:g} Hz "
+                            f"by {miss[worst]:.0f} % (limit {max_fit_error_pct:g} %, --max-fit-error): that point is "
+                            "not a smooth compensator's; record its campaign step again")
     report = {"order": chosen, "taps": chosen + 1,
               "cost_per_order": {f"W{j + 1}{m + 1}": [float(c) for c in costs[j, m]] for j, m in PAIRS},
-              "fit_error_pct": (100 * np.abs(fitted / W - 1)).max(axis=(1, 2, 3)).round(3).tolist()}
+              "fit_error_pct": miss.max(axis=(1, 2, 3)).round(3).tolist()}
     if exact:
         from ..sim.rigs.base_motion import BaseMotionRig
 
