@@ -2,6 +2,7 @@
 simulated loop's own linearisation."""
 
 import json
+import time
 import subprocess
 import sys
 
@@ -118,8 +119,23 @@ def test_measure_through_the_served_controller(tmp_path):
                            capture_output=True, text=True, timeout=60)
         assert r.returncode == 0, r.stderr
         assert not np.any(load(after, topics=["/amb/ff"])["/amb/ff"]["rear_y"])  # switched off
+        # with --rpm the measurement sets the speed it changed back, and says so
+        r = subprocess.run(cmd + ["frf", "measure", "--device", url, "--excite", "rear_y:2", "--duration", "1",
+                                  "--rpm", "12000", "-o", tmp_path / "at12k.mcap"], capture_output=True, text=True,
+                           timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert "speed set back to 0 rpm, as before the measurement" in r.stderr  # `sim serve` stands still
         drv = ControllerDriver(SerialLink(pty))
         try:
+            rpm = float(drv.read_param("speed.rpm")[0])
+            for _ in range(40):  # the rig ramps back at 5,000 rpm/s: what the controller itself reports
+                if rpm < 20:
+                    break
+                time.sleep(0.2)
+                rpm = float(drv.read_param("speed.rpm")[0])
+            assert rpm < 20, rpm
+            at12k = load(tmp_path / "at12k.mcap", topics=["/amb/rotor"])["/amb/rotor"]["speed"] * 60 / (2 * np.pi)
+            assert at12k.max() > 1000  # it had really been sent towards 12,000 rpm
             with pytest.raises(DeviceError, match="axis must be 0 .. 4"):
                 drv.write_param("exc.signal", [7, 1e-6, 0])
             with pytest.raises(DeviceError, match="amplitude must be"):

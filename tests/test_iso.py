@@ -229,3 +229,9 @@ def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp
     assert r.exit_code == 0, r.output
     graded = json.loads((tmp_path / "graded.json").read_text())
     assert sorted(row["axis"] for row in graded["runs"]) == ["front_x", "front_y"]
+    # measuring again meets the runs left behind: the line names the options that move on
+    r = run_cli("iso", "stability", "--device", "sim://spindle", "--axes", "front_x", "--duration", "1",
+                "-o", tmp_path / "s.json")
+    assert r.exit_code == 2 and r.output.strip() == (
+        f"ambdaq: error: {runs / 'gs_front_x.mcap'} exists (a run of an earlier measurement): pass --runs DIR for "
+        "another folder, or --overwrite"), r.output

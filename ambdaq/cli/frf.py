@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from contextlib import nullcontext
 from pathlib import Path
 
 import click
@@ -12,8 +13,10 @@ from ..daq.frequency_response import FrequencyResponse
 from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError
 from ..workflows.frf import COHERENT, estimate_responses, excite, summarize
+from ..workflows.speed_restore import speed_restored
 from .figures import plot_option, pyplot
-from .options import a2l_option, excitation_option, max_lost_option, output_options, report_options, speed_option
+from .options import (a2l_option, excitation_option, max_lost_option, output_options, report_options, speed_option,
+                      speed_restored_note)
 from .record import run_recording
 
 
@@ -40,10 +43,12 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
     """
     if excitation is None:
         raise BadInputError("frf measure needs --excite AXIS:AMPLITUDE[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
-    with Opened() as opened:
-        opened.add(open_url(device, speed=speed, description=description))
-        excited = excite(opened.sources, excitation)
-        run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
+    # --rpm: the speed the controller had is set again, however the run ends
+    with speed_restored(device, description, speed_restored_note(quiet)) if speed else nullcontext():
+        with Opened() as opened:
+            opened.add(open_url(device, speed=speed, description=description))
+            excited = excite(opened.sources, excitation)
+            run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
     if excited.switch_off_problem:
         click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
 

@@ -12,7 +12,7 @@ import numpy as np
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
 from .figures import plot_option, pyplot
-from .options import DURATION, POSITIVE, a2l_option, max_lost_option
+from .options import DURATION, POSITIVE, a2l_option, max_lost_option, speed_restored_note
 
 
 class LimitsArg(click.ParamType):
@@ -113,15 +113,9 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
                 at = "at the present speed" if rpm is None else f"at {rpm:,.0f} rpm"
                 click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
 
-        def restored(rpm_or_error):
-            if isinstance(rpm_or_error, Exception):
-                click.echo(f"ambdaq: warning: could not set the speed back: {rpm_or_error}", err=True)
-            elif not quiet:
-                click.echo(f"speed set back to {rpm_or_error:,.0f} rpm, as before the measurement", err=True)
-
         paths = iso.measure(device, list(speeds) or None, [a.strip() for a in axes.split(",")] if axes else None,
                             amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
-                            description=description, on_restore=restored)
+                            description=description, on_restore=speed_restored_note(quiet))
     else:
         paths = [Path(p) for p in recordings]
     runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,

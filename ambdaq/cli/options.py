@@ -105,6 +105,18 @@ def speed_option(f):
     )(f)
 
 
+def speed_restored_note(quiet: bool):
+    """What a measurement that took ``--rpm`` says when it has set the controller's speed back
+    (:func:`ambdaq.workflows.speed_restore.speed_restored`): the speed, or why it could not."""
+    def say(rpm_or_error) -> None:
+        if isinstance(rpm_or_error, Exception):
+            click.echo(f"ambdaq: warning: could not set the speed back: {rpm_or_error}", err=True)
+        elif not quiet:
+            click.echo(f"speed set back to {rpm_or_error:,.0f} rpm, as before the measurement", err=True)
+
+    return say
+
+
 def a2l_option(f):
     """--a2l FILE, given to the command as the device description ``{"a2l": absolute path}``
     (None without it), as a rig file's ``a2l`` is."""

@@ -13,6 +13,7 @@ way: a grade belongs to the speed the rotor really ran at.
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from ..drivers.interfaces import Controller
 from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError, DeviceError
 from ..units import RAD_S_TO_RPM
+from .speed_restore import speed_restored
 from .frf import excited_axis, excite
 
 FORMAT, VERSION = "ambdaq-iso-stability", 1
@@ -117,36 +119,9 @@ def measure(device: str, speeds_rpm: list[float] | None, axes: list[str] | None,
         Called with the speed set back, in rpm, or with an exception if that failed.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    before = _speed_now(device, description) if speeds_rpm else None
-    try:
+    with speed_restored(device, description, on_restore) if speeds_rpm else nullcontext():
         return _measure_runs(device, speeds_rpm, axes, amplitude, duration_s, out_dir, settle_s, overwrite, on_run,
                              description)
-    finally:
-        if before is not None:
-            try:
-                _set_speed(device, description, before)
-            except Exception as err:  # reported, never hiding what ended the measurement
-                if on_restore is not None:
-                    on_restore(err)
-            else:
-                if on_restore is not None:
-                    on_restore(before)
-
-
-def _speed_now(device: str, description: dict | None) -> float | None:
-    """The speed the controller runs at now, rpm (None if it has no speed parameter)."""
-    with Opened() as opened:
-        opened.add(open_url(device, description=description))
-        controller = _controller(opened.sources)
-        param = controller.capabilities.speed_parameter
-        return None if param is None else float(controller.read_param(param)[0])
-
-
-def _set_speed(device: str, description: dict | None, rpm: float) -> None:
-    with Opened() as opened:
-        opened.add(open_url(device, description=description))
-        controller = _controller(opened.sources)
-        controller.write_param(controller.capabilities.speed_parameter, [rpm])
 
 
 def _measure_runs(device: str, speeds_rpm: list[float] | None, axes: list[str] | None, amplitude: float,
