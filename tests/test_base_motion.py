@@ -255,3 +255,22 @@ def test_a_fit_that_misses_a_point_far_is_refused_naming_it(run_cli, tmp_path):
     assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
     assert "at 100 Hz by" in r.output and "(limit 25 %, --max-fit-error)" in r.output
     assert not (tmp_path / "fir_bad.json").exists()
+
+
+@pytest.mark.realtime
+def test_a_campaign_step_that_loses_samples_is_recorded_again_then_refused(run_cli, tmp_path):
+    """The controller's serial line damages 10 % of its frames (``line_errors``: the host's CRC
+    rejects them, the recorder counts the samples lost): every attempt at the first step loses far
+    more than 0.1 % (0.5 s is about 100 frames; all 100 intact has a chance of 3e-5), so after three
+    the campaign stops naming the step; accepting 50 % it runs."""
+    device = "sim://base-motion?line_errors=0.1"
+    r = run_cli("fx", "campaign", "--device", device, "--freqs", "20", "--seconds", "0.5", "--settle", "0",
+                "-o", tmp_path / "camp")
+    assert r.exit_code == 1, r.output
+    line = r.output.strip().splitlines()[-1]
+    assert line.startswith("ambdaq: error: step_000_20Hz.mcap: lost more than 0.1% of its samples in each of 3 attempts")
+    assert not (tmp_path / "camp" / "campaign.json").exists()  # no campaign that holds the bad step
+    r = run_cli("fx", "campaign", "--device", device, "--freqs", "20", "--seconds", "0.5", "--settle", "0",
+                "--max-lost", "0.5", "-o", tmp_path / "camp2")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "camp2" / "campaign.json").exists()

@@ -14,8 +14,8 @@ class SimBackend(Backend):
     """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
 
     scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&third_party=0|1"
-                           "&fault=SECONDS]",
-                    ("seed", "rpm", "truth", "ff", "noise", "third_party", "fault"))
+                           "&fault=SECONDS&line_errors=SHARE]",
+                    ("seed", "rpm", "truth", "ff", "noise", "third_party", "fault", "line_errors"))
 
     def _serve(self, url: DeviceURL, request: OpenRequest):
         from .serve import serve
@@ -28,10 +28,14 @@ class SimBackend(Backend):
         if fault is not None and fault < 0:
             raise BadInputError(f"option fault={url.options['fault']} in {url.text!r}: expected the seconds (>= 0) "
                                 "after the start at which the controller reports a fault")
+        line_errors = url.number("line_errors", 0.0)
+        if not 0.0 <= line_errors < 1.0:
+            raise BadInputError(f"option line_errors={url.options['line_errors']} in {url.text!r}: expected the share "
+                                "(0 to below 1) of the controller's frames its line damages")
         return serve(url.target, seed=seed, speed=speed,
                      truth=url.flag("truth", False) if request.truth is None else request.truth,
                      ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True),
-                     third_party=url.flag("third_party", False), fault_after_s=fault)
+                     third_party=url.flag("third_party", False), fault_after_s=fault, line_errors=line_errors)
 
     def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
         served = self._serve(url, request)

@@ -19,7 +19,7 @@ from ..speed import SpeedProfile
 from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
-from .devices.faults import ScheduledFault
+from .devices.faults import FaultyPort, ScheduledFault
 from .devices.rig_server import DeviceClock, RigServer
 from .devices.shaker import SimShaker
 from .devices.probes import DBC_PATH as PROBES_DBC, SimProbeConditioner
@@ -111,7 +111,8 @@ class ServedRig:
 def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False,
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
           clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
-          third_party: bool = False, xcp: str | None = None, fault_after_s: float | None = None) -> ServedRig:
+          third_party: bool = False, xcp: str | None = None, fault_after_s: float | None = None,
+          line_errors: float = 0.0) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -138,6 +139,9 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     fault_after_s : float, optional
         The controller reports an injected fault (:data:`~ambdaq.sim.devices.faults.INJECTED_FAULT`)
         this many seconds after the rig starts, in s.
+    line_errors : float
+        Share of the frames the controller sends that its serial line damages (a bit flipped: the
+        host's CRC rejects the frame), 0..1: a bad cable, to rehearse what lost samples do.
     """
     profile = require_served(name)
     rig = profile.build(seed=seed, speed=speed, truth=truth, ff_mode=ff_mode, noise=noise)
@@ -146,8 +150,10 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     served = ServedRig(RigServer(rig))
     try:
         served.ptys["controller"] = Pty.open()
-        served.devices["controller"] = SimController(FdPort(served.ptys["controller"].master), served.server,
-                                                     profile.firmware, clock=clock, truth=truth, unlock_key=unlock_key)
+        master = served.ptys["controller"].master
+        port = FaultyPort(master, flip=line_errors, seed=seed) if line_errors else FdPort(master)
+        served.devices["controller"] = SimController(port, served.server, profile.firmware, clock=clock, truth=truth,
+                                                     unlock_key=unlock_key)
         served.urls["controller"] = f"serial://{served.ptys['controller'].path}"
         if profile.can and can is not None:
             channel = f"ambdaq-sim-{next(_channels)}"

@@ -129,9 +129,9 @@ def _record_step(controller_url: str, path: Path, seconds: float, max_lost: floa
         lost = res.drops / max(res.samples + res.drops, 1)
         if lost <= max_lost:
             return
-    raise DeviceError(f"{path.name}: lost {res.drops:,} of {res.samples + res.drops:,} samples ({lost:.1%}) in each of "
-                      f"{STEP_ATTEMPTS} attempts (limit {max_lost:.1%}, --max-lost): the controller's stream cannot "
-                      "carry this step; the campaign stops here")
+    raise DeviceError(f"{path.name}: lost more than {max_lost:.1%} of its samples in each of {STEP_ATTEMPTS} attempts "
+                      f"(the last: {res.drops:,} of {res.samples + res.drops:,}, {lost:.1%}; --max-lost): the "
+                      "controller's stream cannot carry this step; the campaign stops here")
 
 
 def _check_controller(url: str) -> float:
