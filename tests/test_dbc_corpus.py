@@ -9,6 +9,8 @@ bus, which ambdaq records in this process (no ambdaq code on the sending side).
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -80,33 +82,48 @@ SG_MUL_VAL_ 2147485000 Flow SubMode 1-1;
 Mode 2 carries SubMode, which selects Pressure (0) or Flow (1)."""
 
 
-def _record_and_check(path: Path, tmp_path, run_cli) -> None:
-    """Send every frame of ``path``'s messages on a virtual bus while ambdaq records it as a DBC
-    device; each row must be one frame's values, and the official decoder must read them."""
+def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual") -> None:
+    """Send every frame of ``path``'s messages while ambdaq records it as a DBC device: on a
+    virtual bus in this process (``via="virtual"``), or from another process through the simulated
+    SLCAN adapter, read by python-can's slcan interface (``via="slcan"``). Each row must be one
+    frame's values, and the official decoder must read them."""
     db = cantools.database.load_file(str(path))
     frames = _frames(db)
-    channel = f"corpus-{path.name}"
-    stop = threading.Event()
-
-    def send() -> None:
-        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        try:
-            while not stop.is_set():
-                for _suffix, frame_id, data, fd, _decoded in frames:
-                    bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
-                                         is_fd=fd))
-                time.sleep(0.01)
-        finally:
-            bus.shutdown()
-
-    sender = threading.Thread(target=send, daemon=True)
-    sender.start()
     out = tmp_path / "corpus.mcap"
-    try:
-        r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration", "1", "-q", "-o", out)
-    finally:
-        stop.set()
-        sender.join(timeout=5)
+    if via == "slcan":
+        listing = tmp_path / "frames.json"
+        listing.write_text(json.dumps([[frame_id, data.hex(), fd] for _s, frame_id, data, fd, _d in frames]))
+        sender = subprocess.Popen([sys.executable, str(Path(__file__).with_name("slcan_sender.py")), str(listing), "8"],
+                                  stdout=subprocess.PIPE, text=True)
+        try:
+            tty = sender.stdout.readline().strip()
+            r = run_cli("record", "--device", f"can://slcan{tty}?open_delay=0&dbc={path}", "--duration", "1", "-q",
+                        "-o", out)
+        finally:
+            sender.kill()
+            sender.wait(timeout=10)
+    else:
+        channel = f"corpus-{path.name}"
+        stop = threading.Event()
+
+        def send() -> None:
+            bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+            try:
+                while not stop.is_set():
+                    for _suffix, frame_id, data, fd, _decoded in frames:
+                        bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
+                                             is_fd=fd))
+                    time.sleep(0.01)
+            finally:
+                bus.shutdown()
+
+        thread = threading.Thread(target=send, daemon=True)
+        thread.start()
+        try:
+            r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration", "1", "-q", "-o", out)
+        finally:
+            stop.set()
+            thread.join(timeout=5)
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()
@@ -125,11 +142,21 @@ def _record_and_check(path: Path, tmp_path, run_cli) -> None:
         wanted = np.array([[float(d[original[f]]) for f in got.fields] for d in sent])
         for row in rows:
             assert np.any(np.all(row == wanted, axis=1)), (topic, row, wanted)
-        # the DBC's value tables are kept beside the numbers
+        # the DBC's value tables are kept beside the numbers, and export --labels writes their text
         tables = json.loads(device.get("value_tables", "{}"))
         for sig in db.get_message_by_name(topic.split("/")[2]).signals:
             if sig.choices and ros_field(sig.name) in got.fields:
                 assert tables[ros_field(sig.name)] == {str(int(v)): str(t) for v, t in sig.choices.items()}
+        if tables:
+            csv = tmp_path / f"{topic.strip('/').replace('/', '_')}.csv"
+            r = run_cli("export", out, "--format", "csv", "--topic", topic, "--labels", "-o", csv)
+            assert r.exit_code == 0, r.output
+            import pandas as pd
+
+            table = pd.read_csv(csv, keep_default_na=False)
+            for f, choices in tables.items():
+                by_value = {float(k): v for k, v in choices.items()}
+                assert list(table[f"{f}_label"]) == [by_value.get(v, "") for v in got[f]], f
     # the official reader and ROS 2 decoder read every topic, under ROS 2 field names
     with open(out, "rb") as fh:
         decoded = {}
@@ -142,9 +169,12 @@ def _record_and_check(path: Path, tmp_path, run_cli) -> None:
             assert [getattr(m, f) for m in decoded[topic]] == list(got[f]), (topic, f)
 
 
+@pytest.mark.parametrize("via", ["virtual", "slcan"])
 @pytest.mark.parametrize("name", FILES)
-def test_a_shipped_dbc_records_every_value_it_was_sent(name, tmp_path, run_cli):
-    _record_and_check(CORPUS / name, tmp_path, run_cli)
+def test_a_shipped_dbc_records_every_value_it_was_sent(name, via, tmp_path, run_cli):
+    """In this process on a virtual bus, and from another process through an SLCAN adapter on a
+    pseudo-terminal (CAN FD frames as SLCAN ``d``/``D`` lines)."""
+    _record_and_check(CORPUS / name, tmp_path, run_cli, via)
 
 
 def test_cascaded_multiplexing_records_each_page(tmp_path, run_cli):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..daq.export import FORMATS, export
+from ..daq.export import FORMATS, export, value_tables
 from ..daq.reader import load
 from .options import window_options
 
@@ -19,10 +19,13 @@ from .options import window_options
 @click.option("-o", "--output", type=click.Path(), required=True,
               help="Output: a .npz file; for csv/parquet a file (one topic) or a directory.")
 @click.option("--overwrite", is_flag=True, help="Replace existing files.")
-def command(file, fmt, topics, start, end, output, overwrite):
+@click.option("--labels", is_flag=True,
+              help="Beside each field with a value table (a DBC's choices, an A2L's TAB_VERB), its text as FIELD_label.")
+def command(file, fmt, topics, start, end, output, overwrite, labels):
     """Export topics of FILE with time, device time, seq and every field in SI units."""
     rec = load(file, topics=list(topics) or None, start=start, end=end)
-    for path in export(rec, fmt, Path(output), overwrite=overwrite):
+    tables = value_tables(Path(file)) if labels else None
+    for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables):
         click.echo(str(path))
     for topic in rec.values():
         if topic.skipped:  # a topic of another writer: what is not a number is not exported

@@ -20,10 +20,32 @@ from .reader import Recording, TopicData
 FORMATS = ("csv", "npz", "parquet", "mf4")
 
 
-def _columns(t: TopicData) -> dict[str, np.ndarray]:
+def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None) -> dict[str, np.ndarray]:
     cols = {"time": t.time, "log_time_ns": t.log_time, "device_time_ns": t.device_time, "seq": t.seq}
-    cols.update(t.fields)
+    for name, values in t.fields.items():
+        cols[name] = values
+        table = (tables or {}).get(name)
+        if table:  # the text beside the number: "" where the value has none in the table
+            cols[f"{name}_label"] = np.array([table.get(str(int(v)), "") if float(v).is_integer() else ""
+                                              for v in values.tolist()], dtype=str)
     return cols
+
+
+def value_tables(path: Path) -> dict[str, dict[str, dict[str, str]]]:
+    """Per topic and field, the value table its device declared (a DBC's choices, an A2L's
+    TAB_VERB): ``{topic: {field: {"raw value": "text"}}}``, from the file's device metadata."""
+    import json
+
+    from .mcapfile import McapFile
+
+    f = McapFile(path)
+    meta = f.metadata()
+    out: dict[str, dict[str, dict[str, str]]] = {}
+    for channel in f.summary.channels.values():
+        tables = meta.get(f"ambdaq.device.{channel.metadata.get('device', '')}", {}).get("value_tables")
+        if tables:
+            out[channel.topic] = json.loads(tables)
+    return out
 
 
 def topic_filename(topic: str) -> str:
@@ -31,7 +53,8 @@ def topic_filename(topic: str) -> str:
     return topic.strip("/").replace("/", "_")
 
 
-def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> list[Path]:
+def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
+           labels: dict[str, dict[str, dict[str, str]]] | None = None) -> list[Path]:
     """Write the topics of ``rec`` to ``out`` in ``fmt``; returns the files written.
 
     Parameters
@@ -44,6 +67,10 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
         A file (npz, or csv/parquet with one topic) or a directory (csv/parquet, several topics).
     overwrite : bool
         Replace existing files.
+    labels : dict, optional
+        Value tables (:func:`value_tables`): each field that has one gets a ``<field>_label``
+        column with the text of its value (CSV, Parquet and NPZ; MDF 4 keeps the tables in its
+        attached metadata).
     """
     if fmt not in FORMATS:
         raise BadInputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
@@ -56,7 +83,8 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
     if fmt == "npz":
         target = out if out.suffix == ".npz" else out.with_suffix(".npz")
         check_output(target, overwrite)
-        arrays = {f"{t.topic}/{name}": col for t in rec.topics.values() for name, col in _columns(t).items()}
+        arrays = {f"{t.topic}/{name}": col for t in rec.topics.values()
+                  for name, col in _columns(t, (labels or {}).get(t.topic)).items()}
         np.savez(target, **arrays)
         return [target]
     single = len(rec.topics) == 1 and out.suffix == f".{fmt}"
@@ -76,7 +104,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False) -> l
         except ImportError:
             raise BadInputError("Parquet export needs pyarrow, the parquet extra: pip install 'ambdaq[parquet]'") from None
     for topic, target in targets.items():
-        cols = _columns(rec.topics[topic])
+        cols = _columns(rec.topics[topic], (labels or {}).get(topic))
         if fmt == "csv":
             _write_csv(target, cols)
         else:
@@ -95,5 +123,6 @@ def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
     table = np.empty(len(cols["time"]), dtype=[(n, cols[n].dtype) for n in names])
     for n in names:
         table[n] = cols[n]
-    fmts = ["%.9f" if n == "time" else ("%.17g" if cols[n].dtype.kind == "f" else "%d") for n in names]
+    fmts = ["%.9f" if n == "time" else "%s" if cols[n].dtype.kind == "U" else "%.17g" if cols[n].dtype.kind == "f"
+            else "%d" for n in names]
     np.savetxt(path, table, delimiter=",", fmt=fmts, header=",".join(names), comments="")

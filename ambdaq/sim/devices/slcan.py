@@ -10,10 +10,12 @@ adapter answers CR (done) or BEL (refused)::
     sxxyy     bit timing registers (BTR0, BTR1)              C   close
     tiiildd.. standard frame (id 3 hex, dlc, data)           Tiiiiiiiildd.. extended frame
     riiil     standard remote frame                          Riiiiiiiil     extended remote frame
+    diiil..   CAN FD frame, DLC code 0..F (to the host only)  Diiiiiiiil..  extended; b/B: with bit-rate switch
     V / v     hardware and software version                  N   serial number
     F         status flags (bit 3: a frame was lost)         Z0 / Z1  time stamps off / on
 
-While open, every frame on the bus goes to the host as the same line (``t``/``T``/``r``/``R``),
+While open, every frame on the bus goes to the host as the same line (``t``/``T``/``r``/``R``, and
+``d``/``D``/``b``/``B`` for CAN FD),
 with a 16-bit millisecond time stamp appended when ``Z1`` asked for it.  Like the adapters' own
 receive FIFO, the pseudo-terminal holds a bounded backlog: a frame that finds it full is dropped
 and counted (status flag bit 3), never written half.
@@ -38,11 +40,15 @@ BATCH = 256  # frames taken off the bus per write to the terminal
 
 
 def frame_line(msg: can.Message, stamp_ms: int | None = None) -> bytes:
-    """The SLCAN line of ``msg`` (without the CR), with a 16-bit ms time stamp if given."""
+    """The SLCAN line of ``msg`` (without the CR), with a 16-bit ms time stamp if given. A CAN FD
+    frame goes as ``d``/``D`` (``b``/``B`` with bit-rate switch), its length as the FD DLC code in
+    one hex digit (0..F for 0..64 bytes), as CANable 2.0's FD firmware sends it."""
+    kind = ("b" if msg.bitrate_switch else "d") if msg.is_fd else "r" if msg.is_remote_frame else "t"
+    dlc = can.util.len2dlc(len(msg.data)) if msg.is_fd else msg.dlc
     if msg.is_extended_id:
-        head = f"{'R' if msg.is_remote_frame else 'T'}{msg.arbitration_id:08X}{msg.dlc:d}"
+        head = f"{kind.upper()}{msg.arbitration_id:08X}{dlc:X}"
     else:
-        head = f"{'r' if msg.is_remote_frame else 't'}{msg.arbitration_id:03X}{msg.dlc:d}"
+        head = f"{kind}{msg.arbitration_id:03X}{dlc:X}"
     body = "" if msg.is_remote_frame else bytes(msg.data).hex().upper()
     tail = "" if stamp_ms is None else f"{stamp_ms % 60000:04X}"
     return (head + body + tail).encode()
