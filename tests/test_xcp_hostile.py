@@ -242,6 +242,14 @@ def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_
     assert json.loads(device["raw_fields"]) == {"ticks_verbal": "Ticks.Verbal (TAB_VERB)",
                                                 "ticks_formula": "ticks_formula (FORM)"}
     assert json.loads(device["measurements"])["ticks_verbal"] == "Ticks.Verbal"
+    # export --labels writes the verbal table's text beside the raw value: "off", "on", then none
+    csv = tmp_path / "tick.csv"
+    r = run_cli("export", out, "--format", "csv", "--labels", "-o", csv)
+    assert r.exit_code == 0, r.output
+    lines = csv.read_text().splitlines()
+    column = lines[0].split(",").index("ticks_verbal_label")
+    labels = [line.split(",")[column] for line in lines[1:]]
+    assert labels == [{0: "off", 1: "on"}.get(int(v), "") for v in k]
     # the ASCII measurement in the file stopped nothing above; selected, it is one line
     slave = HostileSlave("good")
     r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l, "--measure", "text",
