@@ -19,6 +19,8 @@ import time
 import click
 import numpy as np
 
+from ..machines.machine import radial_bearings
+
 from .live import LiveView
 
 DERIVED_HZ = 5.0  # the derived topics' rate
@@ -97,8 +99,7 @@ class FoxgloveLive:
         self.view = LiveView({s.name: s.sample_rate for s in sources})
         # every channel is advertised from the start, so a client that connects early sees the orbits
         # without waiting for a new advertisement (bearings: the gap's NAME_x/NAME_y pairs)
-        bearings = sorted({f[:-2] for groups in self._groups.values() for f in groups.get("/amb/gap", [])
-                           if f.endswith("_x") and f"{f[:-2]}_y" in groups["/amb/gap"]})
+        bearings = sorted({b.name for groups in self._groups.values() for b in radial_bearings(groups.get("/amb/gap", []))})
         self._derived = {name: foxglove.Channel(name, message_encoding="json", context=self._context)
                          for name in ("/live/1x", "/live/speed", *(f"/live/orbit/{b}" for b in bearings))}
         self._stop = threading.Event()

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..machines.machine import radial_bearings
 from ..analysis.runout import harmonic_fit
 from ..units import RAD_S_TO_RPM
 from ..daq.recorder import Progress
@@ -97,10 +98,9 @@ class LiveView:
             if "angle" in rotor and "speed" in rotor and all(ROTOR in b.values for b in blocks):
                 rot = np.concatenate([b.values[ROTOR] for b in blocks])[recent]
                 theta, speed = np.unwrap(rot[:, rotor.index("angle")]), rot[:, rotor.index("speed")]
-            for bearing in sorted({n[:-2] for n in names if n.endswith(("_x", "_y"))}):
-                if f"{bearing}_x" not in names or f"{bearing}_y" not in names:
-                    continue
-                cols = gap[:, [names.index(f"{bearing}_x"), names.index(f"{bearing}_y")]]
+            for b in sorted(radial_bearings(names), key=lambda b: b.name):
+                bearing = b.name
+                cols = gap[:, [names.index(b.x), names.index(b.y)]]
                 one_x = None
                 if theta is not None and theta[-1] - theta[0] >= 2 * np.pi:
                     one_x = tuple(complex(v) * 1e6 for v in harmonic_fit(cols, theta, (1,))[0])

@@ -10,18 +10,11 @@ import numpy as np
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import load
 from ..errors import BadInputError
+from ..machines.machine import orbit_partner
 from .options import POSITIVE, window_options
 from .figures import ImagePath, pyplot
 
 UNIT_SCALE = {"m": (1e6, "µm"), "m/s^2": (1.0, "m/s²"), "A": (1.0, "A"), "rad": (1.0, "rad"), "rad/s": (1.0, "rad/s")}
-
-
-def orbit_partner(field: str, fields) -> str | None:
-    """The other radial axis of the same bearing: ``front_x`` <-> ``front_y``."""
-    for a, b in (("_x", "_y"), ("_y", "_x")):
-        if field.endswith(a) and field[: -len(a)] + b in fields:
-            return field[: -len(a)] + b
-    return None
 
 
 ENVELOPE_BINS = 800  # a long window's time panel: min and max per bin (about a screen pixel each)
@@ -83,7 +76,7 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     data = rec[topic]
     y = data[field_name]
     scale, unit = UNIT_SCALE.get(data.units[field_name], (1.0, data.units[field_name]))
-    partner = orbit_partner(field_name, data.fields)
+    partner = orbit_partner(field_name, list(data.fields))
     ncols = 3 if partner else 2
     fig, axes = plt.subplots(1, ncols, figsize=(5 * ncols, 4.2), constrained_layout=True)
     ax = axes[0]

@@ -9,6 +9,7 @@ from ..units import RAD_S_TO_RPM
 from ..analysis.runout import synthesise
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.reader import Recording
+from ..machines.machine import radial_bearings
 from .figures import pyplot
 
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
@@ -40,11 +41,6 @@ def identify_report(ident, path: str) -> None:
     plt.close(fig)
 
 
-def _bearings(axes: list[str]) -> list[tuple[str, str, str]]:
-    """(bearing, x axis, y axis) of every NAME_x / NAME_y pair among ``axes``, in their order."""
-    return [(a[:-2], a, a[:-2] + "_y") for a in axes if a.endswith("_x") and a[:-2] + "_y" in axes]
-
-
 def draw_identification(ident):
     """The identification report: spectrum, a polar plot per harmonic, orbits with and without the
     identified runout.
@@ -74,7 +70,7 @@ def draw_identification(ident):
     n = min(len(gap), len(rot))
     theta, spin = rot["angle"][:n], float(ident.spins[0])
     rpm = spin * RAD_S_TO_RPM
-    bearings = _bearings(axes)
+    bearings = [(b.name, b.x, b.y) for b in radial_bearings(axes)]
     style = {}
     for b, (_name, x, y) in enumerate(bearings):
         style[x] = {"color": f"C{2 * b}", "ls": "-", "marker": "o", "mfc": f"C{2 * b}", "zorder": 2, "lw": 1.4}
@@ -152,7 +148,7 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
         n = min(len(err), len(rot))
         runs[label] = (rec.path, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
     styles = {"before": {"color": "0.55"}, "after": {"color": "C3"}}
-    bearings = _bearings(list(before["/amb/error"].fields))
+    bearings = [(b.name, b.x, b.y) for b in radial_bearings(list(before["/amb/error"].fields))]
     fig, axes = plt.subplots(2, len(bearings), figsize=(6 * len(bearings), 10), constrained_layout=True, squeeze=False)
     for col, (bearing, x, y) in enumerate(bearings):
         ax = axes[0, col]

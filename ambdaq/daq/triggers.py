@@ -27,12 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..machines.machine import CMIN_KEY, CURRENT_LIMIT_KEY, Machine
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 
-CMIN_KEY = "machine.min_clearance_m"  # ISO 14839-2's Cmin, in a device's calibration (its one home)
-CURRENT_LIMIT_KEY = "machine.current_limit_a"  # control current at which the amplifier saturates
 VOLTAGE_LIMIT_KEY = "machine.voltage_limit_v"  # amplifier supply: the coil voltage's limit
 GAP, CURRENT, VOLTAGE, ROTOR = "/amb/gap", "/amb/current", "/amb/voltage", "/amb/rotor"
 AT_LIMIT = 0.98  # an amplifier output this close to its limit is saturated
@@ -165,14 +164,9 @@ def _radii(device: Device, gap: np.ndarray) -> np.ndarray:
     """Per sample, the largest of each radial bearing's orbit radius (axes NAME_x, NAME_y) and each
     other axis's |gap|, in m."""
     names = device.fields(GAP)
-    paired = set()
-    cols = []
-    for n in names:
-        if n.endswith("_x") and f"{n[:-2]}_y" in names:
-            x, y = gap[:, names.index(n)], gap[:, names.index(f"{n[:-2]}_y")]
-            cols.append(np.hypot(x, y))
-            paired |= {n, f"{n[:-2]}_y"}
-    cols += [np.abs(gap[:, i]) for i, n in enumerate(names) if n not in paired]
+    machine = Machine.from_axes(names)
+    cols = [np.hypot(gap[:, names.index(b.x)], gap[:, names.index(b.y)]) for b in machine.bearings]
+    cols += [np.abs(gap[:, names.index(a)]) for a in machine.axial]
     return np.max(np.column_stack(cols), axis=1)
 
 

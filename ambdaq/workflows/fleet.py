@@ -32,12 +32,14 @@ from ..daq.coefficients import file_sha256
 from ..daq.mcapfile import MAGIC, McapFile
 from ..daq.reader import READ_THREADS, ambdaq_channels, load
 from ..errors import AmbdaqError, BadInputError
+from ..machines.machine import radial_bearings
 from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
-from .iso_vibration import BEARINGS, evaluate
+from .iso_vibration import evaluate
 from .runout import identify_recordings
 
 HARMONICS = (1, 2, 3, 4)  # the runout orders kept per axis: Ro et al.'s largest
+BEARINGS = tuple(b.name for b in radial_bearings(AXES))  # the dataset's columns: the spindle's (docs/fleet.md)
 BAND_RPM = 1000.0  # iso vibration's default speed band
 WRITING_S = 60.0  # a file without its footer that changed this recently is being written, not truncated
 MACHINE_KEY = "machine.id"  # in a device's calibration (a rig file's [device.calibration]); else the serial
@@ -131,6 +133,10 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
         try:  # what `ambdaq iso vibration FILE` grades
             grades, info = evaluate([rec], cmin_m=None, band_rpm=BAND_RPM)
             row["cmin_um"] = info["cmin_um"]
+            graded = {g.bearing for g in grades}
+            if graded != set(BEARINGS):
+                raise BadInputError(f"its bearings ({', '.join(sorted(graded))}) are not the dataset's columns "
+                                    f"({', '.join(BEARINGS)})")
             for bearing in BEARINGS:
                 worst = max((g for g in grades if g.bearing == bearing), key=lambda g: g.ratio)
                 row[f"vibration_{bearing}_um"], row[f"ratio_{bearing}"] = worst.max_um, worst.ratio

@@ -26,23 +26,19 @@ from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
-from ..daq.triggers import CMIN_KEY  # in a device's calibration (ambdaq.calibration.<device>)
+from ..machines.machine import Machine
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 from .runout import runout_at, with_rotor
 
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
-BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
 
 
 def recorded_cmin(source: Path | Recording) -> float | None:
     """Cmin (m) a recording's controller reports in its calibration, if any (from its path, or
     the recording loaded)."""
     metadata = source.metadata if isinstance(source, Recording) else McapFile(source).metadata()
-    for name, meta in metadata.items():
-        if name.startswith("ambdaq.calibration.") and CMIN_KEY in meta:
-            return float(meta[CMIN_KEY])
-    return None
+    return Machine.from_metadata((), metadata).cmin_m
 
 
 @dataclass(frozen=True)
@@ -52,7 +48,7 @@ class BandGrade:
     Attributes
     ----------
     bearing : str
-        ``front`` or ``rear``.
+        The bearing's name (its gap axes NAME_x, NAME_y: ``front``, ``de`` ...).
     rpm_from, rpm_to : float
         The band, in rpm.
     windows : int
@@ -133,7 +129,8 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
     if not (np.isfinite(cmin_m) and cmin_m > 0):
         raise BadInputError(f"minimum clearance must be a finite length above 0, not {cmin_m!r} m")
     coef = Coefficients.load(coefficients) if coefficients is not None else None
-    rows: dict[str, list[np.ndarray]] = {b: [] for b in BEARINGS}
+    rows: dict[str, list[np.ndarray]] = {}
+    bearings = None
     sources, notes = [], []
     for source in paths:
         path = source_path(source)
@@ -147,13 +144,18 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
         speed = rot["speed"][:m] * RAD_S_TO_RPM
         removed = None if coef is None else runout_at(coef, list(gap.fields), rot["angle"][:m], coefficients)
         fields = list(gap.fields)
-        for bearing, (ax, ay) in BEARINGS.items():
-            if ax not in gap.fields or ay not in gap.fields:
-                raise BadInputError(f"{path}: /amb/gap has no {ax} and {ay} (the {bearing} bearing)")
-            x, y = gap[ax][:m], gap[ay][:m]
+        here = Machine.from_axes(fields).bearings  # the recording's own radial bearings, any names
+        if not here:
+            raise BadInputError(f"{path}: /amb/gap has no radial bearing (axes NAME_x and NAME_y): {', '.join(fields)}")
+        if bearings is not None and here != bearings:
+            raise BadInputError(f"{path}: its bearings ({', '.join(b.name for b in here)}) are not the first "
+                                f"recording's ({', '.join(b.name for b in bearings)})")
+        bearings = here
+        for b in bearings:
+            x, y = gap[b.x][:m], gap[b.y][:m]
             if removed is not None:
-                x, y = x - removed[:, fields.index(ax)], y - removed[:, fields.index(ay)]
-            rows[bearing].append(np.column_stack(orbit_windows(x, y, speed, n)))
+                x, y = x - removed[:, fields.index(b.x)], y - removed[:, fields.index(b.y)]
+            rows.setdefault(b.name, []).append(np.column_stack(orbit_windows(x, y, speed, n)))
         sources.append({"path": str(path), "sha256": file_sha256(path), "seconds": round(m / gap.nominal_rate, 3)})
     grades = []
     for bearing, parts in rows.items():
@@ -174,4 +176,4 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
     return grades, info
 
 
-__all__ = ["BEARINGS", "BandGrade", "CMIN_KEY", "WINDOW_S", "evaluate", "orbit_windows", "recorded_cmin"]
+__all__ = ["BandGrade", "WINDOW_S", "evaluate", "orbit_windows", "recorded_cmin"]

@@ -16,7 +16,7 @@ from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.reader import Recording, ambdaq_channels, loaded, source_path
 from ..errors import BadInputError
-from ..machines.spindle import AXES
+from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
@@ -36,6 +36,24 @@ def with_rotor(source: Path | Recording, purpose: str) -> Recording:
         raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
                             "key-phasor; record with the controller's rotor angle")
     return loaded(opened, ["/amb/gap", "/amb/rotor"])
+
+
+def rigid_rotor_axes(rec: Recording) -> list[str]:
+    """The gap axes of ``rec`` in the order the rigid-rotor model takes them: two radial bearings
+    (x, y each) and one axial axis, whatever their names; their coil currents must be recorded under
+    the same names. One line, exit 2, for a machine of another shape, which this model does not
+    describe (its rotor motion cannot be told from the currents)."""
+    gap = list(rec["/amb/gap"].fields)
+    machine = Machine.from_metadata(gap, rec.metadata)
+    if len(machine.bearings) != 2 or len(machine.axial) != 1:
+        raise BadInputError(f"{rec.path}: runout identification separates the rotor's motion with a rigid rotor on two "
+                            f"radial bearings (NAME_x, NAME_y each) and one axial axis; /amb/gap has "
+                            f"{', '.join(gap)}")
+    axes = [*machine.radial, *machine.axial]
+    missing = [a for a in axes if a not in rec["/amb/current"].fields]
+    if missing:
+        raise BadInputError(f"{rec.path}: /amb/current has no {', '.join(missing)}: each gap axis needs its coil current")
+    return axes
 
 
 def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
@@ -80,7 +98,7 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
     (:mod:`ambdaq.daq.quality`).
     """
     per_file, warnings, sources, recs = [], [], [], []
-    rotor = device = identity = None
+    rotor = device = identity = axes = None
     topics = ["/amb/gap", "/amb/current", "/amb/rotor"]
     for source in paths:
         rec = loaded(source, topics)
@@ -89,6 +107,11 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
         recs.append(rec)
         rotor, device, identity = _rotor(rec, path)
         gap, cur, rot = rec["/amb/gap"], rec["/amb/current"], rec["/amb/rotor"]
+        here = rigid_rotor_axes(rec)
+        if axes is not None and here != axes:
+            raise BadInputError(f"{path}: its axes ({', '.join(here)}) are not the first recording's "
+                                f"({', '.join(axes)}): one machine's recordings are identified together")
+        axes = here
         n = min(len(gap), len(cur), len(rot))
         speed = rot["speed"][:n]
         w = float(np.median(speed))
@@ -97,8 +120,8 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
                                 f"{speed.min() * RAD_S_TO_RPM:.0f} to {speed.max() * RAD_S_TO_RPM:.0f} rpm")
         theta = rot["angle"][:n]
         fit = METHODS[method]
-        G = np.stack([fit(gap[a][:n], theta, harmonics) for a in AXES], axis=1)  # (harmonic, axis)
-        I = np.stack([fit(cur[a][:n], theta, harmonics) for a in AXES], axis=1)
+        G = np.stack([fit(gap[a][:n], theta, harmonics) for a in axes], axis=1)  # (harmonic, axis)
+        I = np.stack([fit(cur[a][:n], theta, harmonics) for a in axes], axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
         sources.append({"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(w * RAD_S_TO_RPM, 1)})
@@ -117,10 +140,10 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
                             "(right for feedforward at this speed); add a slow roll (--rpm slowroll) or recordings "
                             "at other speeds to separate the runout")
     weights = {axis: [[float(est[i, a].real), float(est[i, a].imag)] for i in range(len(harmonics))]
-               for a, axis in enumerate(AXES)}
+               for a, axis in enumerate(axes)}
     coef = Coefficients(
         target={"rig": identity.get("profile", identity.get("model", "")), "device": device,
-                "serial": identity.get("serial", ""), "axes": list(AXES)},
+                "serial": identity.get("serial", ""), "axes": list(axes)},
         source={"recordings": sources, "method": method, "created": now_iso()},
         harmonics=list(harmonics),
         weights=weights,
@@ -136,8 +159,8 @@ def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
         raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
     theta = rot["angle"][:n]
     out = {"rpm": float(np.median(rot["speed"][:n])) * RAD_S_TO_RPM, "axes": {}}
-    for a in AXES:
-        if a.endswith(("_x", "_y")) and a in err.fields:
+    for a in Machine.from_axes(list(err.fields)).radial:
+        if a in gap.fields:
             out["axes"][a] = {"error": harmonic_fit(err[a][:n], theta, harmonics),
                               "gap": harmonic_fit(gap[a][:n], theta, harmonics),
                               "rms": float(np.sqrt(np.mean(err[a][:n] ** 2)))}
