@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 CMIN_KEY = "machine.min_clearance_m"  # in a device's calibration: the touchdown bearings' radial clearance, m
 CURRENT_LIMIT_KEY = "machine.current_limit_a"  # the amplifier's current limit, A
+AXIAL_KEY = "machine.axial_axes"  # the gap axes along the spin axis, comma-separated (the cone's "x")
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,11 @@ class Machine:
     bearings : tuple of Bearing
         The radial bearings among them.
     axial : tuple of str
-        The axes of no radial bearing (thrust, axial).
+        The axes along the spin axis (thrust, axial): those a device declares (AXIAL_KEY), else
+        those of no radial bearing.
+    radial : tuple of str
+        The other axes, in the order recorded (the bearings' x and y, or radial axes named
+        otherwise, as the cone's y1, z1).
     cmin_m : float or None
         Minimum clearance, m, if a device reports it.
     current_limit_a : float or None
@@ -64,6 +69,7 @@ class Machine:
     axes: tuple[str, ...]
     bearings: tuple[Bearing, ...]
     axial: tuple[str, ...]
+    radial: tuple[str, ...]
     cmin_m: float | None = None
     current_limit_a: float | None = None
 
@@ -72,11 +78,17 @@ class Machine:
         """The machine of gap ``axes`` (field names) and its devices' ``calibrations``."""
         bearings = tuple(radial_bearings(axes))
         paired = {a for b in bearings for a in (b.x, b.y)}
+        declared = next((c[AXIAL_KEY] for c in calibrations if AXIAL_KEY in c), None)
+        if declared is not None:
+            along = {a.strip() for a in declared.split(",")}
+            axial = tuple(a for a in axes if a in along)
+        else:
+            axial = tuple(a for a in axes if a not in paired) if bearings else ()
 
         def first(key: str) -> float | None:
             return next((float(c[key]) for c in calibrations if key in c), None)
 
-        return cls(tuple(axes), bearings, tuple(a for a in axes if a not in paired), first(CMIN_KEY),
+        return cls(tuple(axes), bearings, axial, tuple(a for a in axes if a not in axial), first(CMIN_KEY),
                    first(CURRENT_LIMIT_KEY))
 
     @classmethod
@@ -85,9 +97,9 @@ class Machine:
         return cls.from_axes(axes, [m for name, m in sorted(metadata.items()) if name.startswith("ambdaq.calibration.")])
 
     @property
-    def radial(self) -> tuple[str, ...]:
-        """The radial axes, bearing by bearing (x, y)."""
+    def bearing_axes(self) -> tuple[str, ...]:
+        """The radial bearings' axes, bearing by bearing (x, y)."""
         return tuple(a for b in self.bearings for a in (b.x, b.y))
 
 
-__all__ = ["Bearing", "CMIN_KEY", "CURRENT_LIMIT_KEY", "Machine", "orbit_partner", "radial_bearings"]
+__all__ = ["AXIAL_KEY", "Bearing", "CMIN_KEY", "CURRENT_LIMIT_KEY", "Machine", "orbit_partner", "radial_bearings"]

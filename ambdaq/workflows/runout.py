@@ -49,7 +49,7 @@ def rigid_rotor_axes(rec: Recording) -> list[str]:
         raise BadInputError(f"{rec.path}: runout identification separates the rotor's motion with a rigid rotor on two "
                             f"radial bearings (NAME_x, NAME_y each) and one axial axis; /amb/gap has "
                             f"{', '.join(gap)}")
-    axes = [*machine.radial, *machine.axial]
+    axes = [*machine.bearing_axes, *machine.axial]
     missing = [a for a in axes if a not in rec["/amb/current"].fields]
     if missing:
         raise BadInputError(f"{rec.path}: /amb/current has no {', '.join(missing)}: each gap axis needs its coil current")
@@ -159,7 +159,7 @@ def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
         raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
     theta = rot["angle"][:n]
     out = {"rpm": float(np.median(rot["speed"][:n])) * RAD_S_TO_RPM, "axes": {}}
-    for a in Machine.from_axes(list(err.fields)).radial:
+    for a in Machine.from_axes(list(err.fields)).bearing_axes:
         if a in gap.fields:
             out["axes"][a] = {"error": harmonic_fit(err[a][:n], theta, harmonics),
                               "gap": harmonic_fit(gap[a][:n], theta, harmonics),

@@ -27,10 +27,10 @@ from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
 from ..errors import BadInputError
+from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
 from .runout import runout_at, with_rotor
 
-AXIAL = ("axial", "x")  # the spin axis's gap (the spindle's axial, the cone rotor's x): no orbit, not tracked
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
 MODEL_SPEEDS = 26  # speeds the model's modes are computed at over the run
 
@@ -72,7 +72,7 @@ def _gap_and_angle(source: Path | Recording, max_lost: float, notes: list[str]):
     notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "order tracking", max_lost)
     gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
     n = min(len(gap), len(rot))
-    axes = [a for a in gap.fields if a not in AXIAL]
+    axes = list(Machine.from_metadata(list(gap.fields), rec.metadata).radial)  # the spin axis's gap: not tracked
     if not axes:
         raise BadInputError(f"{source_path(source)}: /amb/gap has no radial axes")
     x = np.column_stack([gap[a][:n] for a in axes])

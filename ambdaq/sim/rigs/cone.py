@@ -297,7 +297,8 @@ class ConeRig(Rig):
         return {"mass_kg": f"{r.mass:g}", "l1_m": f"{r.l1:g}", "l2_m": f"{r.l2:g}",
                 "sensor_gain_v_per_m": f"{p.control.ks:g}", "supply_v": f"{p.supply:g}",
                 "start": self.start, "modes": modes, "units": "SI: m, A, V, N",
-                "machine.min_clearance_m": repr(p.clearance), "machine.voltage_limit_v": repr(p.supply)}
+                "machine.min_clearance_m": repr(p.clearance), "machine.voltage_limit_v": repr(p.supply),
+                "machine.axial_axes": "x"}  # the spin axis (AXIAL_KEY): its gap has no orbit
 
     def run(self, n: int) -> SampleBlock:
         """Advance by ``n`` samples and return them."""
