@@ -125,6 +125,7 @@ def test_measure_through_the_served_controller(tmp_path):
                            timeout=60)
         assert r.returncode == 0, r.stderr
         assert "speed set back to 0 rpm, as before the measurement" in r.stderr  # `sim serve` stands still
+        assert "test signal switched off" in r.stderr
         drv = ControllerDriver(SerialLink(pty))
         try:
             rpm = float(drv.read_param("speed.rpm")[0])

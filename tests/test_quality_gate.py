@@ -71,3 +71,49 @@ def test_recordings_at_different_speeds_are_not_compared(recordings, run_cli):
     assert "runout check compares recordings at one speed, and these differ by more than 1%" in r.output
     assert "fast.mcap at 30,000 rpm, slow.mcap at 800 rpm" in r.output
     assert len(r.output.strip().splitlines()) == 1
+
+
+def test_a_device_that_restarted_its_count_is_said(run_cli, tmp_path):
+    """A controller that began counting its samples again half way (a reboot): nothing is lost by
+    count, but the time across the restart is not known to be whole, and the result says so."""
+    import numpy as np
+
+    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.drivers.interfaces import Source
+    from ambdaq.sim.source import SimSource
+    from ambdaq.speed import SpeedProfile
+
+    class Rebooting(Source):
+        def __init__(self, inner):
+            self.inner, self.name, self.sample_rate = inner, inner.name, inner.sample_rate
+
+        def signal_groups(self):
+            return self.inner.signal_groups()
+
+        def identity(self):
+            return self.inner.identity()
+
+        def device_calibration(self):
+            return self.inner.calibration()
+
+        def start(self, n):
+            self.inner.start(n)
+
+        def read(self):
+            block = self.inner.read()
+            if block is not None and block.seq[0] >= 10_000:  # counts from 0 again after 1 s
+                block = block.select(np.ones(len(block), bool))
+                object.__setattr__(block, "seq", (block.seq - 10_000).astype(np.uint32))
+            return block
+
+        def _close(self):
+            self.inner.close()
+
+    path = tmp_path / "reboot.mcap"
+    Recorder([Rebooting(SimSource("spindle", speed=SpeedProfile(30000, 30000)))], path,
+             RecordOptions(duration_s=2, fsync=False)).run()
+    fast = tmp_path / "fast.mcap"
+    assert run_cli("sim", "generate", "--rpm", "30000", "--duration", "2", "-q", "-o", fast).exit_code == 0
+    r = run_cli("runout", "check", fast, path)
+    assert r.exit_code == 0, r.output
+    assert "the device restarted its sample count 1 time (a reconnect or reboot)" in r.stderr

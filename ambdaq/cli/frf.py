@@ -51,6 +51,8 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
             run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
     if excited.switch_off_problem:
         click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
+    elif not quiet:
+        click.echo("test signal switched off", err=True)
 
 
 @command.command("estimate")

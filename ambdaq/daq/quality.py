@@ -95,6 +95,7 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
         A topic lost more (one line: file, topic, count, the limit and the option that moves it).
     """
     lossy: dict[tuple[int, int], list[str]] = {}  # the topics of one device lose the same samples
+    restarted: dict[int, list[str]] = {}
     for topic in topics:
         c = topic_counts(rec, topic)
         if c.lost_fraction > max_lost:
@@ -103,8 +104,16 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
                 f"{purpose} would compute over the holes (limit {_share(max_lost)}, --max-lost): record it again")
         if c.drops:
             lossy.setdefault((c.drops, c.samples + c.drops), []).append(topic)
-    return [f"{rec.path.name}: {', '.join(names)} lost {drops:,} of {total:,} samples ({_share(drops / total)}), "
-            f"within the {_share(max_lost)} limit" for (drops, total), names in lossy.items()]
+        if c.restarts:
+            restarted.setdefault(c.restarts, []).append(topic)
+    notes = [f"{rec.path.name}: {', '.join(names)} lost {drops:,} of {total:,} samples ({_share(drops / total)}), "
+             f"within the {_share(max_lost)} limit" for (drops, total), names in lossy.items()]
+    # a restart is a device that began counting again (a reconnect, a reboot): no loss is counted
+    # across it, so the computation spans a gap of unknown length
+    notes += [f"{rec.path.name}: {', '.join(names)}: the device restarted its sample count {n} time{'s' if n > 1 else ''}"
+              " (a reconnect or reboot): the time across each restart is not known to be whole"
+              for n, names in restarted.items()]
+    return notes
 
 
 def _share(fraction: float) -> str:

@@ -166,7 +166,7 @@ def _radii(device: Device, gap: np.ndarray) -> np.ndarray:
     names = device.fields(GAP)
     machine = Machine.from_axes(names)
     cols = [np.hypot(gap[:, names.index(b.x)], gap[:, names.index(b.y)]) for b in machine.bearings]
-    cols += [np.abs(gap[:, names.index(a)]) for a in machine.axial]
+    cols += [np.abs(gap[:, i]) for i, n in enumerate(names) if n not in machine.bearing_axes]
     return np.max(np.column_stack(cols), axis=1)
 
 
