@@ -45,10 +45,12 @@ def _free_port(kind: int) -> int:
         return s.getsockname()[1]
 
 
-def _build(out: Path, *, tcp: bool, variadic: bool = True, example: str = "hello_xcp") -> None:
+def _build(out: Path, *, tcp: bool, variadic: bool = True, example: str = "hello_xcp", cyclic_us: int = 0) -> None:
     """An example from the archive (hello_xcp, c_demo), its #defines set: 127.0.0.1, a free port, TCP
     or UDP, log errors only; without OPTION_USE_VARIADIC_MACROS hello_xcp registers its globals with
-    A2lSetAbsoluteAddrMode."""
+    A2lSetAbsoluteAddrMode. With ``cyclic_us`` (and without the variadic macros) its mainloop event
+    is declared cyclic with that cycle (XCPlite's own DaqCreateCyclicEvent in place of
+    DaqCreateEvent: the one source line besides the #defines)."""
     src = out / "xcplite"
     with tarfile.open(ARCHIVE) as tar:
         tar.extractall(src, filter="data")
@@ -63,6 +65,9 @@ def _build(out: Path, *, tcp: bool, variadic: bool = True, example: str = "hello
         assert n == 1, pattern  # the archive is as shipped: each #define is where its README says
     if not variadic:
         text = text.replace("#define OPTION_USE_VARIADIC_MACROS", "// #define OPTION_USE_VARIADIC_MACROS")
+    if cyclic_us:
+        text, n = re.subn(r"DaqCreateEvent\(mainloop\);", f"DaqCreateCyclicEvent(mainloop, {cyclic_us});", text)
+        assert n == 1 and not variadic
     main.write_text(text)
     build = out / "build"
     for cmd in (["cmake", "-S", str(src), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release"],
@@ -386,3 +391,44 @@ def test_xcp_list_uploads_the_a2l_the_slave_holds(xcplite, run_cli):
     assert uploaded["file"] == f"{url} (GET_ID)" and uploaded["project"] == local["project"] == "hello_xcp"
     assert uploaded["measurements"] == local["measurements"] and uploaded["events"] == local["events"]
     assert {m["name"] for m in uploaded["measurements"]} >= {"global_counter", "heat_energy", "inside_temperature"}
+
+
+@pytest.fixture(scope="module")
+def cyclic(build_once, tmp_path_factory):
+    """hello_xcp (TCP, absolute addressing) whose mainloop event is declared cyclic every 1,000 us:
+    its loop sleeps 1,000 us and then works, so it really runs a little slower than it declares."""
+    _needs_a_compiler()
+    built = build_once("xcplite-cyclic", lambda out: _build(out, tcp=True, variadic=False, cyclic_us=1000))
+    url = (built / "url").read_text()
+    proc, a2l = _started(built / "build" / "hello_xcp", url, tmp_path_factory.mktemp("cyclic"))
+    try:
+        yield url, a2l
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_a_cyclic_event_records_for_the_wall_time_asked(cyclic, tmp_path, run_cli):
+    """The event's declared cycle is listed and kept in the metadata, but --duration is wall time: a
+    slave slower than it declares gives fewer samples, not a longer recording; every sample holds
+    the loop it was taken in (the counter relation of main.c)."""
+    url, a2l = cyclic
+    r = run_cli("devices", "--ask-xcp", url, "--json")
+    assert r.exit_code == 0, r.output
+    (slave,) = json.loads(r.stdout)["xcp"]
+    assert "mainloop (every 1000 us)" in {slave["event_0"], slave["event_1"]}
+    out = tmp_path / "cyclic.mcap"
+    started = time.monotonic()
+    r = run_cli("record", "--device", url, "--a2l", a2l, "--measure", "global_counter", "--measure", "counter",
+                "--duration", "1", "--json", "-o", out)
+    took = time.monotonic() - started
+    assert r.exit_code == 0, r.output
+    main = load(out)["/xcp/mainloop"]
+    device = McapFile(out).metadata()["ambdaq.device.controller"]
+    assert device["event_cycle"] == "every 1000 us" and float(device["sample_rate_hz"]) == 1000
+    # 1 s of wall time (the recording opens and closes around it: under 4 s in all): the loop's
+    # 1,000 us sleep plus its work is slower than declared, so fewer than 1,000 samples; counted in
+    # declared periods it would have run until 1,000 arrived
+    assert 300 < len(main) < 1000 and took < 4, (len(main), took)
+    loops = main["global_counter"].astype(np.int64)
+    np.testing.assert_array_equal(main["counter"], loops % 1025)  # counter_max 1024 as shipped
