@@ -274,3 +274,39 @@ def test_a_garbled_slcan_line_is_counted_and_the_recording_goes_on(tmp_path, run
     assert int(link["malformed_frames"]) == len([t for t in garbled if got.log_time[0] < t < got.log_time[-1]]) > 0
     assert got.log_time[-1] > max(garbled) and len(got) > 100  # it went on after the last garbled line
     assert set(got["temperature"]) == {250.0}
+
+
+def test_a_64_bit_integer_beyond_float64_is_counted_not_silent(tmp_path, run_cli):
+    """signed.dbc's s64 carries 2**60 + 1, which float64 (the recorded type) cannot hold: the value is
+    recorded as the nearest float64 and every such value is counted in the link statistics."""
+    path = CORPUS / "signed.dbc"
+    msg = cantools.database.load_file(str(path)).get_message_by_name("Message64")
+    exact = (1 << 60) + 1
+    data = msg.encode({"s64": exact})
+    assert msg.decode(data)["s64"] == exact  # cantools decodes it exactly; the recording cannot
+    channel = "corpus-int64"
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
+                time.sleep(0.005)
+        finally:
+            bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    out = tmp_path / "s64.mcap"
+    try:
+        r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration",
+                    "0.5", "-q", "-o", out)
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+    assert r.exit_code == 0, r.output
+    got = load(out)["/signed/Message64"]["s64"]
+    stats = McapFile(out).metadata()["ambdaq.link.signed.Message64"]
+    assert len(got) > 10 and int(stats["int64_values_rounded"]) == len(got)
+    assert set(got) == {float(exact)}  # the nearest float64, 2**60: off by one, and said so

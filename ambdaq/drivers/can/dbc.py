@@ -98,6 +98,9 @@ class DbcRequest:
     rate: float | None = None
 
 
+ROUND_LIMIT = 1 << 53  # the largest integer float64 holds exactly
+
+
 class _Stream:
     """Rows of one topic as the bus thread decodes them: (seq, time ns, values)."""
 
@@ -114,8 +117,10 @@ class _Stream:
         self.queue = RowQueue(2.0 if rate_hz else float("inf"))  # frames of unknown ids may never come
         self.received = 0  # frames, or the unwrapped counter
         self.last_counter: int | None = None
+        self.rounded = 0  # recorded integer values beyond 2**53, which float64 (the recorded type) cannot hold
 
-    def add(self, t_ns: int, values: list[float], counter: int | None) -> None:
+    def add(self, t_ns: int, values: list[float], counter: int | None, rounded: int = 0) -> None:
+        """One frame's row; ``rounded``: how many of its values float64 holds only rounded."""
         if counter is None:
             seq = self.received
             self.received += 1
@@ -125,7 +130,7 @@ class _Stream:
             self.last_counter = counter
             self.received += step
             seq = self.received - 1
-        self.queue.rows.append((seq, t_ns, values))
+        self.queue.rows.append((seq, t_ns, values, rounded))
 
 
 def _pages(tree: list, path: tuple = ()) -> dict[tuple, list[str]]:
@@ -252,8 +257,11 @@ class DbcReceiver:
             if names is None or any(n not in decoded for n in names):
                 self.undecodable += 1  # a multiplexer value the DBC does not define
                 return
-            streams[(frame_id, key)].add(int(round(timestamp * 1e9)), [float(decoded[n]) for n in names],
-                                         None if counter is None else int(decoded[counter]))
+            values = [decoded[n] for n in names]
+            # a 64-bit integer signal beyond 2**53 is recorded rounded (float64): counted, never silent
+            streams[(frame_id, key)].add(int(round(timestamp * 1e9)), [float(v) for v in values],
+                                         None if counter is None else int(decoded[counter]),
+                                         sum(1 for v in values if isinstance(v, int) and abs(v) > ROUND_LIMIT))
 
         return on_frame
 
@@ -306,6 +314,7 @@ class DbcMessageSource(Source):
         if taken is None:
             return None
         got, seq = taken
+        self.stream.rounded += sum(r[3] for r in got)  # of the rows recorded, not of every frame seen
         t = np.array([r[1] for r in got], dtype=np.int64)
         return SampleBlock(device_time_ns=t, seq=(seq & 0xFFFFFFFF).astype(np.uint32),
                            values={self.stream.group.topic: np.array([r[2] for r in got], dtype=np.float64)},
@@ -313,7 +322,8 @@ class DbcMessageSource(Source):
 
     def link_statistics(self) -> dict[str, str]:
         r = self.receiver
-        return r.hub.statistics() | {"unknown_frames": str(r.unknown), "undecodable_frames": str(r.undecodable)}
+        rounded = {"int64_values_rounded": str(self.stream.rounded)} if self.stream.rounded else {}
+        return r.hub.statistics() | {"unknown_frames": str(r.unknown), "undecodable_frames": str(r.undecodable)} | rounded
 
     def events(self):
         return self.receiver.hub.take_events()
