@@ -249,6 +249,66 @@ def notch_filter(mu: float, k_omega_h: float) -> tuple[np.ndarray, np.ndarray]:
     return np.array([1.0, -2 * c, 1.0]), np.array([1.0, -(2 - mu) * c, 1 - mu])
 
 
+def runout_uncertainty(gap: np.ndarray, current: np.ndarray, theta: np.ndarray, fs: float, spin: float,
+                       harmonics: list[int], rotor: RigidRotor) -> np.ndarray:
+    """Standard uncertainty of each runout phasor's real and imaginary parts (m), from the noise
+    the recording holds at each harmonic: the Cramer-Rao bound for a sinusoid in noise.
+
+    A harmonic's least-squares phasor from N samples in noise of power spectral density S at its
+    frequency (S in m^2 per unit of normalised frequency, sigma^2 for white noise) has each part's
+    variance 2 S / N, which no unbiased estimator beats (Kay, Fundamentals of Statistical Signal
+    Processing, vol. 1, section 3.7; the least-squares fit attains it). The runout is the sensor
+    phasor less the rotor motion the currents explain (:func:`runout_from_sensor`), so the noise
+    that matters is the same combination of the residuals, ``gap - M(k Omega) current``, whose
+    spectrum is averaged over the bins around each harmonic (the harmonics' own bins left out):
+    sensor noise that the loop turns into rotor motion cancels in it, as it does in the runout.
+
+    Parameters
+    ----------
+    gap : ndarray, shape (n, 5)
+        Gap sensors, m, at constant speed.
+    current : ndarray, shape (n, 5)
+        Coil currents, A, at the same samples.
+    theta : ndarray, shape (n,)
+        Rotor angle, rad.
+    fs : float
+        Sample rate, Hz.
+    spin : float
+        Rotor speed, rad/s.
+    harmonics : list of int
+        Orders k.
+    rotor : RigidRotor
+        The rotor model.
+
+    Returns
+    -------
+    ndarray, shape (harmonic, 5)
+        Standard uncertainty of each part (real, imaginary) of each runout phasor, m.
+    """
+    n = gap.shape[0]
+    orders = list(range(1, max(harmonics) + 1))
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        x = x - x.mean(axis=0)
+        return x - synthesise(harmonic_fit(x, theta, orders), orders, theta)
+
+    g, c = np.fft.rfft(residual(gap), axis=0), np.fft.rfft(residual(current), axis=0)
+    freq = np.fft.rfftfreq(n, 1.0 / fs)
+    f_spin = spin / (2 * np.pi)
+    step = fs / n
+    half = max(5 * step, 0.1 * f_spin)  # a tenth of the speed either side, at least five bins
+    near_order = np.abs(freq / f_spin - np.round(freq / f_spin)) * f_spin <= 2 * step
+    out = np.empty((len(harmonics), gap.shape[1]))
+    for i, k in enumerate(harmonics):
+        band = (np.abs(freq - k * f_spin) <= half) & ~near_order
+        w = k * spin
+        M = np.column_stack([rotor.motion_from_currents(np.eye(gap.shape[1])[b], w, spin) for b in range(gap.shape[1])])
+        z = g[band] - c[band] @ M.T  # (bins, axis): the runout's noise at these frequencies
+        psd = np.mean(np.abs(z) ** 2, axis=0) / n  # per-sample noise power at k Omega
+        out[i] = np.sqrt(2.0 * psd / n)
+    return out
+
+
 def runout_from_sensor(gap: np.ndarray, current: np.ndarray, w: float, spin: float, rotor: RigidRotor) -> np.ndarray:
     """Runout phasors at one frequency: sensor phasors less the rotor motion the currents explain.
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.rotor import RigidRotor
-from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, separate_unbalance, synchronous_average,
-                               synthesise)
+from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, separate_unbalance,
+                               synchronous_average, synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
@@ -84,6 +84,7 @@ class Identification:
     first: Recording  # the first recording's gap, current and rotor, for the report
     spins: np.ndarray  # rad/s, per recording
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
+    uncertainty: np.ndarray  # m, (harmonic, axis): each part's standard uncertainty (NaN: not propagated)
 
 
 def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str, *,
@@ -97,7 +98,7 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
     ``max_lost`` of its samples (a share, 0..1), or recordings of different machines, are refused
     (:mod:`ambdaq.daq.quality`).
     """
-    per_file, warnings, sources, recs = [], [], [], []
+    per_file, warnings, sources, recs, u_file = [], [], [], [], []
     rotor = device = identity = axes = None
     topics = ["/amb/gap", "/amb/current", "/amb/rotor"]
     for source in paths:
@@ -124,17 +125,24 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
         I = np.stack([fit(cur[a][:n], theta, harmonics) for a in axes], axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
+        u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
+                                         np.column_stack([cur[a][:n] for a in axes]), theta, gap.nominal_rate, w,
+                                         list(harmonics), rotor))
         sources.append({"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(w * RAD_S_TO_RPM, 1)})
     require_same_machine(recs, "runout identification")
     spins = np.array([w for w, _ in per_file])
     est = np.mean([r for _, r in per_file], axis=0)  # (harmonic, axis)
+    # the mean of independent estimates: its uncertainty is the root sum of squares over their count
+    u = np.sqrt(np.sum(np.square(u_file), axis=0)) / len(u_file)
     if 1 in harmonics:
         i1 = harmonics.index(1)
-        slow = [r for w, r in per_file if w * RAD_S_TO_RPM <= UNBALANCE_NEGLIGIBLE_RPM]
+        slow = [i for i, (w, _r) in enumerate(per_file) if w * RAD_S_TO_RPM <= UNBALANCE_NEGLIGIBLE_RPM]
         if slow:
-            est[i1] = np.mean([r[i1] for r in slow], axis=0)
+            est[i1] = np.mean([per_file[i][1][i1] for i in slow], axis=0)
+            u[i1] = np.sqrt(np.sum([u_file[i][i1] ** 2 for i in slow], axis=0)) / len(slow)
         elif len(set(np.round(spins))) >= 2:
             est[i1] = separate_unbalance(np.array([r[i1] for _, r in per_file]), spins, rotor).runout
+            u[i1] = np.nan  # not propagated through the separation of runout and unbalance
         else:
             warnings.append(f"1X at {spins[0] * RAD_S_TO_RPM:.0f} rpm also holds the rotor's unbalance response "
                             "(right for feedforward at this speed); add a slow roll (--rpm slowroll) or recordings "
@@ -148,7 +156,7 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
         harmonics=list(harmonics),
         weights=weights,
     )
-    return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]))
+    return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]), u)
 
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
