@@ -90,6 +90,15 @@ def test_identify_push_and_the_command_error_is_gone(served, tmp_path):
     # the controller names the coefficient file it runs; the recording keeps it (fleet scan reads it)
     device = load(after, topics=["/amb/gap"]).metadata["ambdaq.device.controller"]
     assert device["active_coefficients_sha256"] == hashlib.sha256(coef.read_bytes()).hexdigest()
+    # MDF 4 for the calibration world: the push of that file goes with the recording, read by asammdf
+    asammdf = pytest.importorskip("asammdf")
+    ambdaq("export", after, "--format", "mf4", "--push-log", tmp_path / "state" / "push.log", "-o",
+           tmp_path / "after.mf4")
+    with asammdf.MDF(tmp_path / "after.mf4") as mdf:
+        attached = dict((name.name if hasattr(name, "name") else str(name), data)
+                        for data, name, _md5 in (mdf.extract_attachment(i) for i in range(len(mdf.attachments))))
+    (history,) = [json.loads(v) for k, v in attached.items() if k.endswith("ambdaq_push_log.json")]
+    assert [(e["file"], e["file_sha256"]) for e in history] == [("coef.json", device["active_coefficients_sha256"])]
     h0, h1 = harmonics(before), harmonics(after)
     report = {}
     for a in RADIAL:

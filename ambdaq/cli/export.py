@@ -21,11 +21,20 @@ from .options import window_options
 @click.option("--overwrite", is_flag=True, help="Replace existing files.")
 @click.option("--labels", is_flag=True,
               help="Beside each field with a value table (a DBC's choices, an A2L's TAB_VERB), its text as FIELD_label.")
-def command(file, fmt, topics, start, end, output, overwrite, labels):
+@click.option("--push-log", type=click.Path(dir_okay=False),
+              help="mf4: the push log whose entries of the running coefficient files are attached (default: this machine's).")
+def command(file, fmt, topics, start, end, output, overwrite, labels, push_log):
     """Export topics of FILE with time, device time, seq and every field in SI units."""
     rec = load(file, topics=list(topics) or None, start=start, end=end)
     tables = value_tables(Path(file)) if labels else None
-    for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables):
+    history = None
+    if fmt == "mf4":  # the calibration history of what the recording's controllers ran
+        from ..workflows.push import push_log_entries
+
+        running = {m["active_coefficients_sha256"] for name, m in rec.metadata.items()
+                   if name.startswith("ambdaq.device.") and m.get("active_coefficients_sha256")}
+        history = push_log_entries(Path(push_log) if push_log else None, running) if running else []
+    for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables, push_log=history):
         click.echo(str(path))
     for topic in rec.values():
         if topic.skipped:  # a topic of another writer: what is not a number is not exported

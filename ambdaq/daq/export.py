@@ -54,7 +54,7 @@ def topic_filename(topic: str) -> str:
 
 
 def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
-           labels: dict[str, dict[str, dict[str, str]]] | None = None) -> list[Path]:
+           labels: dict[str, dict[str, dict[str, str]]] | None = None, push_log: list[dict] | None = None) -> list[Path]:
     """Write the topics of ``rec`` to ``out`` in ``fmt``; returns the files written.
 
     Parameters
@@ -71,6 +71,8 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         Value tables (:func:`value_tables`): each field that has one gets a ``<field>_label``
         column with the text of its value (CSV, Parquet and NPZ; MDF 4 keeps the tables in its
         attached metadata).
+    push_log : list of dict, optional
+        MDF 4: the calibration history to attach (:func:`~ambdaq.daq.mdf.write_mf4`).
     """
     if fmt not in FORMATS:
         raise BadInputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
@@ -79,7 +81,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         from .mdf import write_mf4
 
         return [write_mf4(rec, check_output(out if out.suffix.lower() == ".mf4" else out.with_suffix(".mf4"),
-                                            overwrite))]
+                                            overwrite), push_log)]
     if fmt == "npz":
         target = out if out.suffix == ".npz" else out.with_suffix(".npz")
         check_output(target, overwrite)

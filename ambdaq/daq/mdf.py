@@ -4,8 +4,10 @@ the XCP world open, written by asammdf (the ``mdf`` extra).
 Each topic is one channel group (its comment the topic), its fields channels with their units,
 beside ``device_time_ns`` and ``seq``; the group's time channel is seconds since the recording's
 first message, and the header's start time is that message's host time.  What the recording's
-metadata says (session, devices, calibration, statistics, a push's calibration log) is embedded
-as one JSON attachment, ``ambdaq_metadata.json``, and the header's comment names the source.
+metadata says (session, devices, calibration, statistics) is embedded as one JSON attachment,
+``ambdaq_metadata.json``; the calibration history (the push log's entries of the coefficient files
+the recording's controllers name as running) as ``ambdaq_push_log.json``; the header's comment
+names the source.
 """
 
 from __future__ import annotations
@@ -18,10 +20,13 @@ from ..errors import BadInputError
 from .reader import Recording
 
 METADATA_NAME = "ambdaq_metadata.json"
+PUSH_LOG_NAME = "ambdaq_push_log.json"
 
 
-def write_mf4(rec: Recording, target: Path) -> Path:
-    """Write ``rec`` to the MDF 4.10 file ``target`` (see the module docstring)."""
+def write_mf4(rec: Recording, target: Path, push_log: list[dict] | None = None) -> Path:
+    """Write ``rec`` to the MDF 4.10 file ``target`` (see the module docstring); ``push_log``: the
+    calibration history of the coefficient files its controllers ran (push log entries), attached
+    as ``ambdaq_push_log.json``."""
     try:
         from asammdf import MDF, Signal
     except ImportError:
@@ -43,6 +48,10 @@ def write_mf4(rec: Recording, target: Path) -> Path:
         mdf.append(signals, comment=topic)
     mdf.attach(json.dumps(rec.metadata, indent=1, sort_keys=True).encode(), file_name=METADATA_NAME,
                comment="the recording's metadata: session, devices, calibration, statistics", embedded=True)
+    if push_log:
+        mdf.attach(json.dumps(push_log, indent=1, sort_keys=True).encode(), file_name=PUSH_LOG_NAME,
+                   comment="calibration history: the pushes of the coefficient files the recording's controllers ran",
+                   embedded=True)
     mdf.save(target, overwrite=True)
     mdf.close()
     return target

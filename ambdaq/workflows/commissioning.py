@@ -6,7 +6,6 @@ its tables and prints with ``--json``; the figures are drawn from the same objec
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +14,7 @@ from ..daq.mcapfile import McapFile
 from ..daq.reader import load
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
-from .push import local_log_path
+from .push import push_log_entries
 from .runout import check_recordings, with_rotor
 
 IDENTITY_KEYS = ("kind", "model", "serial", "firmware", "software_version", "url", "sample_rate_hz")
@@ -74,30 +73,6 @@ def machine_identity(paths: list[Path]) -> dict:
             entry = devices.setdefault(key, {"device": name.removeprefix("ambdaq.device."), **ident, "recordings": []})
             entry["recordings"].append(path.name)
     return {"devices": list(devices.values()), "recordings": recordings}
-
-
-def _push_entries(path: Path | None, coefficients: Path | None) -> list[dict]:
-    """The push log's entries (of the coefficient file, if one is given); none if there is no log."""
-    log = path if path is not None else local_log_path()
-    if not log.exists():
-        if path is not None:
-            raise BadInputError(f"{path}: no such push log")
-        return []
-    sha = file_sha256(coefficients) if coefficients is not None else None
-    entries = []
-    for n, line in enumerate(log.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            entry = json.loads(line)
-        except json.JSONDecodeError:
-            raise BadInputError(f"{log}: line {n} is not JSON: not a push log") from None
-        if not isinstance(entry, dict):
-            raise BadInputError(f"{log}: line {n} is not an entry: not a push log")
-        if sha is None or entry.get("file_sha256") == sha:
-            entries.append({k: entry.get(k) for k in ("host_time", "bank", "crc32", "file", "file_sha256", "target",
-                                                      "host", "effective_sample")})
-    return entries
 
 
 @dataclass
@@ -161,7 +136,8 @@ def gather(files: SessionFiles) -> Commissioning:
         out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
     else:
         out["runout"] = None
-    out["push_log"] = _push_entries(files.push_log, files.coefficients)
+    out["push_log"] = push_log_entries(files.push_log,
+                                       None if files.coefficients is None else {file_sha256(files.coefficients)})
     out["files"] = {k: str(v) for k, v in vars(files).items() if isinstance(v, Path)}
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag)

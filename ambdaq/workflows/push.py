@@ -50,6 +50,40 @@ def append_local_log(entry: dict) -> Path:
     return path
 
 
+LOG_KEYS = ("host_time", "bank", "crc32", "file", "file_sha256", "target", "host", "effective_sample")
+
+
+def push_log_entries(path: Path | None, file_sha256s: set[str] | None = None) -> list[dict]:
+    """The push log's entries (``path``, default this machine's; none if there is none), only those
+    of the coefficient files with these SHA-256s if given.
+
+    Parameters
+    ----------
+    path : Path, optional
+        A push log (JSON lines); one line, exit 2, if given and missing or not a push log.
+    file_sha256s : set of str, optional
+        Keep the pushes of these files only.
+    """
+    log = path if path is not None else local_log_path()
+    if not log.exists():
+        if path is not None:
+            raise BadInputError(f"{path}: no such push log")
+        return []
+    entries = []
+    for n, line in enumerate(log.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            raise BadInputError(f"{log}: line {n} is not JSON: not a push log") from None
+        if not isinstance(entry, dict):
+            raise BadInputError(f"{log}: line {n} is not an entry: not a push log")
+        if file_sha256s is None or entry.get("file_sha256") in file_sha256s:
+            entries.append({k: entry.get(k) for k in LOG_KEYS})
+    return entries
+
+
 def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: str) -> BankImage:
     """The bank image for ``coef`` on the controller described by ``status``; BadInputError says
     what does not fit.
