@@ -166,3 +166,23 @@ def test_the_runup_figure_shows_the_phase_lag_unwrapped_and_both_axes_of_a_beari
             assert x[1] == "-" and y[1] == "--" and y[2] > x[2]  # y dashed, drawn over x
     finally:
         pyplot().close(fig)
+
+
+def test_the_shaft_centreline_is_the_rotors_mean_position(runup, run_cli):
+    """The centreline (each bearing's mean gap per 0.1 s, runout taken out) against the simulator's
+    true rotor position averaged over the same windows: the sensor noise (0.2 um RMS over 1,000
+    samples: 0.006 um) and what is left of the runout over a window that is not whole revolutions
+    (under 0.1 um here) keep them within 0.2 um; the rotor sits inside its clearance circle."""
+    out = json.loads(run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json", "--json").stdout)
+    line = out["centreline"]
+    assert set(line["bearings"]) == {"front", "rear"} and line["cmin_um"] == 150.0
+    truth = load(runup / "runup.mcap")["/truth/position"]
+    n = 1000  # 0.1 s at 10 kHz
+    for bearing, xy in line["bearings"].items():
+        for axis, got in (("x", xy["x_um"]), ("y", xy["y_um"])):
+            true = truth[f"{bearing}_{axis}"]
+            want = [true[i * n:(i + 1) * n].mean() * 1e6 for i in range(len(got))]
+            assert np.max(np.abs(np.array(got) - want)) < 0.2, (bearing, axis)
+        radius = np.hypot(xy["x_um"], xy["y_um"])
+        assert radius.max() < line["cmin_um"]
+    assert np.all(np.diff(line["time_s"]) > 0) and line["rpm"][-1] > line["rpm"][0]  # a run-up, in time order

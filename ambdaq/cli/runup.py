@@ -82,6 +82,11 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
                               "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
                               "amplification": round(p.amplification, 2), "critical": p.is_critical()} for p in peaks]
                          for a, peaks in res.peaks.items()},
+            "centreline": {"rpm": np.round(res.centreline.rpm, 1).tolist(),
+                           "time_s": np.round(res.centreline.time_s, 4).tolist(),
+                           "cmin_um": None if res.centreline.cmin_m is None else round(res.centreline.cmin_m * 1e6, 3),
+                           "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
+                                        for b, (x, y) in res.centreline.bearings.items()}},
             "model_modes": None if res.modes is None else {"rpm": res.modes[0].round(1).tolist(),
                                                           "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row]
                                                                       for row in res.modes[1]]},
@@ -133,6 +138,30 @@ def runup_figure(res, out, name: str) -> None:
     plt.close(fig)
 
 
+def _draw_centreline(ax, line) -> None:
+    """Each bearing's mean position over the run, coloured by speed, inside its clearance circle:
+    the origin is the levitation set-point (the sensors' zero)."""
+    from matplotlib.colors import Normalize
+
+    norm = Normalize(vmin=float(line.rpm.min()) if line.rpm.size else 0.0,
+                     vmax=float(line.rpm.max()) if line.rpm.size else 1.0)
+    points = None
+    for b, (name, (x, y)) in enumerate(line.bearings.items()):
+        ax.plot(x * 1e6, y * 1e6, lw=0.6, color=f"C{b}", label=f"{name} bearing")
+        points = ax.scatter(x * 1e6, y * 1e6, c=line.rpm, s=6, cmap="viridis", norm=norm, zorder=3)
+    if line.cmin_m is not None:
+        circle = np.linspace(0, 2 * np.pi, 361)
+        r = line.cmin_m * 1e6
+        ax.plot(r * np.cos(circle), r * np.sin(circle), color="k", lw=0.8, label=f"clearance Cmin {r:g} µm")
+    ax.plot(0, 0, "k+", ms=10, label="levitation set-point")
+    ax.set(xlabel="x [µm]", ylabel="y [µm]", title="shaft centreline (mean position per 0.1 s)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    if points is not None:
+        ax.figure.colorbar(points, ax=ax, label="speed [rpm]")
+
+
 def draw_runup(res, name: str):
     """Bode (1X and NX amplitude, 1X phase lag unwrapped), the 1X polar plot, and the waterfall with
     the order lines and the model's modes, of :func:`~ambdaq.workflows.runup_diagnostics.analyse`'s
@@ -142,11 +171,13 @@ def draw_runup(res, name: str):
     from matplotlib.colors import LogNorm
 
     t = res.track
-    fig = plt.figure(figsize=(13, 10), constrained_layout=True)
-    grid = fig.add_gridspec(2, 2)
+    fig = plt.figure(figsize=(18, 10), constrained_layout=True)
+    grid = fig.add_gridspec(2, 3)
     amp_ax, ph_ax = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0])
     polar = fig.add_subplot(grid[0, 1], projection="polar")
-    fall = fig.add_subplot(grid[1, 1])
+    centre = fig.add_subplot(grid[0, 2])
+    fall = fig.add_subplot(grid[1, 1:])
+    _draw_centreline(centre, res.centreline)
     for j, a in enumerate(res.axes):
         color = f"C{j}"
         dashed = a.endswith("_y")

@@ -55,6 +55,8 @@ class RunupDiagnostics:
     waterfall_axis : str
     modes : tuple of ndarray or None
         (rpm, frequency in Hz per mode with shape (speeds, modes)) from the model, if one was given.
+    centreline : Centreline
+        Each bearing's mean position per window against speed and time.
     """
 
     axes: list[str]
@@ -65,6 +67,31 @@ class RunupDiagnostics:
     waterfall_axis: str
     modes: tuple[np.ndarray, np.ndarray] | None
     notes: list[str]  # what the numbers are computed over, and what to distrust in them
+    centreline: Centreline
+
+
+@dataclass(frozen=True)
+class Centreline:
+    """The shaft centreline: each radial bearing's mean gap (its position about the levitation
+    set-point, the sensors' zero) per window of WATERFALL_S, against speed and time; the runout is
+    taken out where the run's compensation took it out. Where the rotor sits in its clearance as
+    the speed changes shows the static load it carries (a steady offset, gravity's direction) and
+    how the controller holds the set-point (Bently Nevada's shaft centreline plot).
+
+    Attributes
+    ----------
+    rpm, time_s : ndarray, shape (windows,)
+        Mean speed (rpm) and start (s from the recording's start) of each window.
+    bearings : dict
+        Bearing name -> (x, y) mean positions per window, m.
+    cmin_m : float or None
+        The minimum clearance the recording reports, m (the circle it must stay in).
+    """
+
+    rpm: np.ndarray
+    time_s: np.ndarray
+    bearings: dict[str, tuple[np.ndarray, np.ndarray]]
+    cmin_m: float | None
 
 
 def _gap_and_angle(source: Path | Recording, max_lost: float, notes: list[str]):
@@ -72,11 +99,26 @@ def _gap_and_angle(source: Path | Recording, max_lost: float, notes: list[str]):
     notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "order tracking", max_lost)
     gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
     n = min(len(gap), len(rot))
-    axes = list(Machine.from_metadata(list(gap.fields), rec.metadata).radial)  # the spin axis's gap: not tracked
+    machine = Machine.from_metadata(list(gap.fields), rec.metadata)
+    axes = list(machine.radial)  # the spin axis's gap: not tracked
     if not axes:
         raise BadInputError(f"{source_path(source)}: /amb/gap has no radial axes")
     x = np.column_stack([gap[a][:n] for a in axes])
-    return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate
+    return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate, machine, gap.time[:n]
+
+
+def centreline(machine: Machine, axes: list[str], x: np.ndarray, rpm: np.ndarray, time_s: np.ndarray,
+               window: int) -> Centreline:
+    """Each bearing's mean position per ``window`` samples (:class:`Centreline`); ``x`` (m) holds
+    ``axes`` column by column, ``rpm`` and ``time_s`` the speed and time of each sample."""
+    starts = np.arange(0, x.shape[0] - window + 1, window)
+
+    def means(v: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(v[: starts[-1] + window], starts) / window if starts.size else np.empty(0)
+
+    return Centreline(means(rpm), time_s[starts] if starts.size else np.empty(0),
+                      {b.name: (means(x[:, axes.index(b.x)]), means(x[:, axes.index(b.y)]))
+                       for b in machine.bearings if b.x in axes and b.y in axes}, machine.cmin_m)
 
 
 def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray, np.ndarray]:
@@ -146,7 +188,7 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
         raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
     path = source_path(source)
     notes: list[str] = []
-    axes, x, theta, rpm, fs = _gap_and_angle(source, max_lost, notes)
+    axes, x, theta, rpm, fs, machine, time_s = _gap_and_angle(source, max_lost, notes)
     if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
         raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
@@ -159,7 +201,7 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
     except ValueError as err:
         raise BadInputError(f"{path}: {err}: the rotor never turned") from None
     if slow_roll is not None:
-        s_axes, sx, s_theta, s_rpm, _ = _gap_and_angle(slow_roll, max_lost, notes)
+        s_axes, sx, s_theta, s_rpm, *_ = _gap_and_angle(slow_roll, max_lost, notes)
         if s_axes != axes:
             raise BadInputError(f"{slow_roll}: its axes ({', '.join(s_axes)}) are not the run's ({', '.join(axes)})")
         if np.median(s_rpm) > 0.1 * rpm.max():
@@ -182,7 +224,8 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
             for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
     modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
-    return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes)
+    return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
+                            centreline(machine, axes, x, rpm, time_s, n))
 
 
-__all__ = ["RunupDiagnostics", "analyse", "model_modes"]
+__all__ = ["Centreline", "RunupDiagnostics", "analyse", "centreline", "model_modes"]
