@@ -5,6 +5,7 @@ measured, since text extents exist only once drawn."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from ambdaq.cli.figures import pyplot
@@ -185,5 +186,43 @@ def test_model_region_legend_hides_none_of_the_region(run_cli, tmp_path):
         assert legend.x1 <= fig.get_window_extent(renderer).x1 + 1  # and inside the figure
         assert [t.get_text() for t in ax.get_legend().get_texts()][0] == "design point"
         assert overlapping_tick_labels(ax) == [] and titles_inside(fig) == []
+    finally:
+        pyplot().close(fig)
+
+
+def test_full_spectrum_parts_forward_and_backward_whirl_as_the_true_orbit_has_them(tmp_path, run_cli):
+    """The full spectrum of the simulator's true rotor orbit at the front bearing (30,000 rpm): at +1X
+    and -1X it shows the radii of the forward and backward circles that the orbit's 1X ellipse is
+    made of (from the harmonic fit of x and y: (b_x + a_y) + j(b_y - a_x) and (b_x - a_y) + j(a_x +
+    b_y), halved), within 1 %; the unbalance response whirls forward. plot draws it as its fourth
+    panel, forward and backward either side of zero."""
+    from ambdaq.analysis.runout import harmonic_fit
+    from ambdaq.analysis.spectrum import full_spectrum
+    from ambdaq.cli.plot import draw_signal
+
+    rec_path = tmp_path / "truth.mcap"
+    assert run_cli("sim", "generate", "--rpm", "30000", "--duration", "1.05", "--truth", "-q", "-o",
+                   rec_path).exit_code == 0
+    rec = load(rec_path, start=0.05)  # past the simulated rig's start-up
+    pos, theta = rec["/truth/position"], rec["/amb/rotor"]["angle"]
+    n = 10000  # 1 s: 500 Hz falls on a bin
+    x, y = pos["front_x"][:n], pos["front_y"][:n]
+    f, a = full_spectrum(x, y, fs=10000.0)
+    px, py = harmonic_fit(np.column_stack([x, y]), theta[:n], (1,))[0]
+    forward = abs(complex(px.imag + py.real, py.imag - px.real)) / 2
+    backward = abs(complex(px.imag - py.real, px.real + py.imag)) / 2
+    at = {k: a[np.argmin(np.abs(f - k * 500.0))] for k in (1, -1)}
+    # within 1 % of the orbit (the backward circle is a few nm: an isotropic rotor's unbalance
+    # response is nearly circular, and at that size the rotor's noise-driven motion shows)
+    assert abs(at[1] - forward) < 0.01 * forward and abs(at[-1] - backward) < 0.01 * forward
+    assert at[1] > 100 * at[-1]  # the unbalance response whirls forward
+    fig = draw_signal(rec, "/amb/gap", "front_x", 150e-6)
+    try:
+        fig.canvas.draw()
+        panel = fig.axes[3]
+        assert "full spectrum of front" in panel.get_title()
+        lo, hi = panel.get_xlim()
+        assert lo < -500 < 500 < hi  # both directions shown, with the +-1X marks
+        assert titles_inside(fig) == [] and all(overlapping_tick_labels(ax) == [] for ax in fig.axes)
     finally:
         pyplot().close(fig)

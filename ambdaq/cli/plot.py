@@ -7,7 +7,7 @@ import textwrap
 import click
 import numpy as np
 
-from ..analysis.spectrum import amplitude_spectrum
+from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.reader import load
 from ..errors import BadInputError
 from ..machines.machine import orbit_partner
@@ -53,6 +53,28 @@ def command(file, topic, field_name, start, end, cmin, output):
     click.echo(output)
 
 
+def _full_spectrum_panel(ax, data, field_name: str, partner: str, scale: float, unit: str,
+                         steady_rpm: float | None) -> None:
+    """The bearing's full spectrum (x + j y, x turning towards y): forward whirl at positive
+    frequencies, backward at negative ones; with a steady speed, the +-1X and +-2X marks."""
+    from matplotlib.ticker import MaxNLocator
+
+    x, y = (field_name, partner) if field_name.endswith("_x") else (partner, field_name)
+    f, a = full_spectrum(data[x], data[y], fs=data.sample_rate)
+    span = min(f[-1], 10.5 * steady_rpm / 60.0) if steady_rpm else f[-1]
+    keep = np.abs(f) <= span
+    ax.semilogy(f[keep], np.maximum(a[keep] * scale, 1e-12), lw=0.6)
+    if steady_rpm:
+        for k in (1, 2, -1, -2):
+            ax.axvline(k * steady_rpm / 60.0, color="C3", lw=0.6, ls=":", alpha=0.8)
+            ax.annotate(f"{'+' if k > 0 else '-'}{abs(k)}X", (k * steady_rpm / 60.0, 0.98),
+                        xycoords=("data", "axes fraction"), color="C3", fontsize=7, ha="left", va="top")
+    ax.set(xlabel="frequency [Hz]: backward < 0 < forward", ylabel=f"whirl radius [{unit}]",
+           title=_wrapped(f"full spectrum of {x[:-2]}: forward and backward whirl"))
+    ax.xaxis.set_major_locator(MaxNLocator(6))
+    ax.grid(alpha=0.3, which="both")
+
+
 def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     """The figure of ``plot``: the time series (the waveform up to RAW_POINTS samples, beyond that
     its min-max envelope per bin, so ten seconds at 10 kHz read as amplitude over time and not as a
@@ -77,7 +99,7 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     y = data[field_name]
     scale, unit = UNIT_SCALE.get(data.units[field_name], (1.0, data.units[field_name]))
     partner = orbit_partner(field_name, list(data.fields))
-    ncols = 3 if partner else 2
+    ncols = 4 if partner else 2
     fig, axes = plt.subplots(1, ncols, figsize=(5 * ncols, 4.2), constrained_layout=True)
     ax = axes[0]
     t = data.time
@@ -106,10 +128,12 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     ax = axes[1]
     ax.semilogy(f, np.maximum(a * scale, 1e-12), lw=0.6)
     title = "spectrum (Hann)"
+    steady_rpm = None
     if "/amb/rotor" in rec and topic != "/amb/rotor" and len(rec["/amb/rotor"]):
         rpm = rec["/amb/rotor"]["speed"] * RAD_S_TO_RPM
         lo_rpm, hi_rpm, mean = float(rpm.min()), float(rpm.max()), float(rpm.mean())
         if hi_rpm - lo_rpm <= 0.02 * max(mean, 1.0) and mean / 60.0 > 2 * (f[1] - f[0]):  # steady: mark the orders
+            steady_rpm = mean
             title = f"spectrum (Hann) at {mean:,.0f} rpm"
             for k in range(1, 7):
                 if k * mean / 60.0 < f[-1]:
@@ -135,6 +159,7 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
         for axis in (ax.xaxis, ax.yaxis):
             axis.set_major_locator(MaxNLocator(5))
         ax.grid(alpha=0.3)
+        _full_spectrum_panel(axes[3], data, field_name, partner, scale, unit, steady_rpm)
     for ax in axes:
         ax.title.set_fontsize(10)
     return fig

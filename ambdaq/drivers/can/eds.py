@@ -21,10 +21,11 @@ device is refused there.
 
 A device that ignores its window, or whose EDS has no 0x1007, can answer a SYNC a whole period
 late, inside the next SYNC's window, where time alone would file it under the wrong SYNC. A
-device answers its SYNCs in order, one TPDO each, so such a lag shows as a window without a reply
-followed, once the device catches up, by a window with two. Rows are therefore held for
-HOLD_CYCLES SYNCs before they are handed on; a second reply of one TPDO in one window withdraws
-every held row back to the last window that had none (``ambiguous_cycles``; they count as lost).
+device answers its SYNCs in order, one TPDO each, so such a lag shows as a SYNC without a reply
+followed, once the device catches up, by a SYNC with two (both in its window, or one in it and one
+after it closed). Rows are therefore held for HOLD_CYCLES SYNCs before they are handed on; a second
+reply of one TPDO after one SYNC withdraws every held row back to the last SYNC that had none
+(``ambiguous_cycles``; they count as lost).
 A lag longer than the hold cannot be withdrawn: it is counted (``unverified_cycles``) and an
 event names the cycles. A late reply whose successor is lost leaves no trace at all; only a
 device that keeps its synchronous window rules that out, and the metadata says whether it does.
@@ -446,22 +447,27 @@ class EdsDevice(Source):
                 return  # never recorded: a cycle with it is a drop
             t_ns = int(timestamp * 1e9)
             cycle, before = self.hub.cycle_at(t_ns)
-            if (cycle is None or t_ns - cycle.time_ns > self.window_ns
-                    or (before is not None and t_ns - before.time_ns <= self.window_ns)):
-                # outside every synchronous window, or inside two (SYNCs the host sent late, closer
-                # than a window apart): whose reply it is, is unknown
+            if cycle is None:
                 self.late_replies += 1
                 self._parts[i] = None
                 return
             c = cycle.count
-            if c == self._replied[i]:  # two replies in one window: the device was a SYNC behind
+            if c == self._replied[i]:
+                # a second reply since SYNC c, in its window or after it: one of the two answers an
+                # earlier SYNC (the device was a SYNC behind)
                 self._parts[i] = None
                 self._withdraw(self._silent[i], c)
                 return
             if c > self._replied[i] + 1:
                 self._silent[i] = c - 1
-            self._replied[i] = c
+            self._replied[i] = c  # a reply came after SYNC c, kept or not: a second one is a lag
             self.hub.answered = c
+            if t_ns - cycle.time_ns > self.window_ns or (before is not None and t_ns - before.time_ns <= self.window_ns):
+                # outside every synchronous window, or inside two (SYNCs the host sent late, closer
+                # than a window apart): whose reply it is, is unknown
+                self.late_replies += 1
+                self._parts[i] = None
+                return
             self._parts[i] = (cycle, fmt.unpack(data))
             if i < last:
                 return
