@@ -188,6 +188,7 @@ class SerialLink:
         ``attempts`` times: every request of this protocol is idempotent (stream on/off, a
         parameter read, writing the same value again).
         """
+        rejected = self.decoder.stats.rejected
         for _attempt in range(attempts):
             slot: list = [threading.Event()]
             seq = None
@@ -199,8 +200,9 @@ class SerialLink:
                 if seq is not None:
                     self._pending.pop(seq, None)
         else:
+            damaged = self.decoder.stats.rejected - rejected
             raise DeviceTimeout(f"{self.port_name}: no answer to {what or msg_type.name} within {timeout:g} s "
-                              f"({attempts} attempts)")
+                                f"({attempts} attempts; {damaged} damaged frames from the device meanwhile)")
         reply = slot[1]
         if reply.type == MsgType.NAK:
             _req, code, msg = proto.parse_nak(reply.body)
