@@ -25,6 +25,7 @@ from ..errors import AmbdaqError
 
 COMMANDS = {
     # name: "module:attribute" in ambdaq.cli; a new command is one module and one line here
+    "apht": "apht:command",
     "controller": "push:controller_group",
     "devices": "devices:command",
     "export": "export:command",

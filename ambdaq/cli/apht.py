@@ -1,0 +1,115 @@
+"""``ambdaq apht``: amplitude and phase of the synchronous vectors against time at one speed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .figures import plot_option, pyplot
+from .options import POSITIVE, max_lost_option
+
+
+def _orders(value: str) -> list[int]:
+    from ..errors import BadInputError
+
+    try:
+        out = [int(v) for v in value.split(",")]
+    except ValueError:
+        out = []
+    if not out or any(not 1 <= k <= 20 for k in out):
+        raise BadInputError(f"--orders {value!r}: expected orders 1..20, comma-separated (e.g. 1,2)")
+    return out
+
+
+def _vectors(v: np.ndarray, scale: float) -> dict:
+    """Amplitude and phase of (window, order, axis) vectors, per order."""
+    return {"amplitude": np.round(np.abs(v) * scale, 5).tolist(),
+            "phase_deg": np.round(np.degrees(np.angle(v)), 2).tolist()}
+
+
+@click.command("apht")
+@click.argument("recording", type=click.Path(dir_okay=False))
+@click.option("--coefficients", type=click.Path(dir_okay=False),
+              help="Runout coefficient file (runout identify): the sensor runout is taken out of the gap first.")
+@click.option("--orders", default="1", show_default=True, help="Orders to track, comma-separated.")
+@click.option("--window", "window_s", type=POSITIVE, default=0.5, show_default=True, metavar="SECONDS",
+              help="Length of each window.")
+@plot_option("Amplitude and phase against time per axis, the feedforward's beside (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the vectors per window as JSON.")
+@max_lost_option
+def command(recording, coefficients, orders, window_s, plot_path, as_json, max_lost):
+    """APHT: amplitude and phase of 1X (and NX) against time at one speed, per radial axis, with
+    the command error's and the feedforward output's where recorded (an LMS converging, a
+    thermal bow growing).
+
+    \b
+    Example:
+      ambdaq apht steady.mcap --coefficients coef.json --orders 1,2 --plot apht.png
+    """
+    from ..workflows.apht import apht
+
+    res = apht(Path(recording), orders=_orders(orders), window_s=window_s,
+               coefficients=Path(coefficients) if coefficients else None, max_lost=max_lost)
+    if as_json:
+        out = {"recording": recording, "rpm": round(res.rpm, 1), "window_s": window_s, "axes": res.axes,
+               "orders": res.orders, "compensation": res.compensation, "time_s": np.round(res.time_s, 4).tolist(),
+               "gap_um": _vectors(res.gap, 1e6),
+               "error_um": None if res.error is None else _vectors(res.error, 1e6),
+               "feedforward": None if res.feedforward is None else {
+                   **_vectors(res.feedforward, 1e6 if res.ff_unit == "m" else 1.0),
+                   "unit": "um" if res.ff_unit == "m" else res.ff_unit}}
+        click.echo(json.dumps(out, indent=2))
+    else:
+        click.echo(f"APHT at {res.rpm:,.0f} rpm, {len(res.time_s)} windows of {window_s:g} s; compensation: "
+                   f"{res.compensation}")
+        for j, a in enumerate(res.axes):
+            for i, k in enumerate(res.orders):
+                first, last = res.gap[0, i, j] * 1e6, res.gap[-1, i, j] * 1e6
+                line = (f"{a:<9} {k}X gap {abs(first):8.3f} um {np.degrees(np.angle(first)):6.1f}° -> "
+                        f"{abs(last):8.3f} um {np.degrees(np.angle(last)):6.1f}°")
+                if res.error is not None:
+                    line += f"; error {abs(res.error[0, i, j]) * 1e6:.3f} -> {abs(res.error[-1, i, j]) * 1e6:.3f} um"
+                click.echo(line)
+    if plot_path:
+        plt = pyplot()
+        fig = draw_apht(res)
+        fig.savefig(plot_path, dpi=100)
+        plt.close(fig)
+        click.echo(f"-> {plot_path}", err=True)
+
+
+def draw_apht(res):
+    """Per order: amplitude and phase against time of each axis's gap (solid), command error
+    (dashed) and, on a second scale, the feedforward output (dotted)."""
+    plt = pyplot()
+    fig, axs = plt.subplots(2, len(res.orders), figsize=(7 * len(res.orders), 7), sharex=True, squeeze=False,
+                            constrained_layout=True)
+    ff_scale, ff_unit = (1e6, "µm") if res.ff_unit == "m" else (1.0, res.ff_unit)
+    for i, k in enumerate(res.orders):
+        amp, ph = axs[0, i], axs[1, i]
+        ff_ax = amp.twinx() if res.feedforward is not None else None
+        for j, a in enumerate(res.axes):
+            c = f"C{j}"
+            amp.plot(res.time_s, np.abs(res.gap[:, i, j]) * 1e6, color=c, lw=1.2, label=f"{a} gap")
+            ph.plot(res.time_s, np.degrees(np.unwrap(np.angle(res.gap[:, i, j]))), color=c, lw=1.2)
+            if res.error is not None:
+                amp.plot(res.time_s, np.abs(res.error[:, i, j]) * 1e6, color=c, lw=0.9, ls="--", label=f"{a} error")
+            if ff_ax is not None:
+                ff_ax.plot(res.time_s, np.abs(res.feedforward[:, i, j]) * ff_scale, color=c, lw=0.8, ls=":",
+                           label=f"{a} feedforward")
+        amp.set(ylabel="amplitude [µm]", title=f"{k}X at {res.rpm:,.0f} rpm")
+        ph.set(xlabel="time [s]", ylabel="phase [deg], unwrapped")
+        if ff_ax is not None:
+            ff_ax.set_ylabel(f"feedforward {k}X [{ff_unit}] (dotted)")
+        handles, labels = amp.get_legend_handles_labels()
+        if ff_ax is not None:
+            more = ff_ax.get_legend_handles_labels()
+            handles, labels = handles + more[0], labels + more[1]
+        amp.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.12 if ff_ax else 1.01, 1.0))
+        for ax in (amp, ph):
+            ax.grid(alpha=0.3)
+    fig.suptitle(f"APHT, {res.compensation}")
+    return fig

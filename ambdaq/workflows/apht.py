@@ -1,0 +1,126 @@
+"""APHT: amplitude and phase of the synchronous vectors against time at one speed (Bently Nevada's
+APHT plot), per radial axis, the sensor runout taken out; with the controller's feedforward output
+beside it where the recording holds it (``/amb/ff``: what an LMS feedforward adds, whose 1X grows as
+its weights converge). A thermal bow shows as a 1X that turns and grows over minutes; an LMS as a
+command error whose 1X falls while the feedforward's rises.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.runout import harmonic_fit
+from ..daq.coefficients import Coefficients
+from ..daq.quality import MAX_LOST, require_complete
+from ..daq.reader import Recording, loaded
+from ..errors import BadInputError
+from ..machines.machine import Machine
+from ..units import RAD_S_TO_RPM
+from .runout import runout_at
+
+WINDOW_S = 0.5  # 250 revolutions at 30,000 rpm, 7 at 800 rpm: the vector of each half second
+STEADY = 0.02  # a recording whose speed moves more than 2 % is a run-up: `runup` tracks that
+
+
+@dataclass(frozen=True)
+class Apht:
+    """Synchronous vectors per window of one steady recording.
+
+    Attributes
+    ----------
+    time_s : ndarray, shape (windows,)
+        Start of each window, s from the recording's first message.
+    rpm : float
+        The recording's median speed, rpm.
+    axes : list of str
+        The radial axes.
+    orders : list of int
+        The orders tracked (1 = 1X).
+    gap : ndarray of complex, shape (windows, order, axis)
+        The gap's vectors, m (``a + j b`` for ``a sin + b cos`` of the key-phasor angle), runout
+        taken out where a coefficient file was given.
+    error : ndarray of complex or None
+        The command error's (``/amb/error``), m, where recorded.
+    feedforward : ndarray of complex or None
+        The feedforward output's (``/amb/ff``), in its unit, where recorded.
+    ff_unit : str
+        Its unit.
+    compensation : str
+        What was taken out of the gap.
+    """
+
+    time_s: np.ndarray
+    rpm: float
+    axes: list[str]
+    orders: list[int]
+    gap: np.ndarray
+    error: np.ndarray | None
+    feedforward: np.ndarray | None
+    ff_unit: str
+    compensation: str
+
+
+def apht(source: Path | Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficients: Path | None = None,
+         max_lost: float = MAX_LOST) -> Apht:
+    """The APHT of a steady recording (see the module docstring).
+
+    Parameters
+    ----------
+    source : Path or Recording
+        With ``/amb/gap`` and ``/amb/rotor`` (``/amb/error`` and ``/amb/ff`` used where present).
+    orders : sequence of int
+        Orders tracked.
+    window_s : float
+        Length of each window, s.
+    coefficients : Path, optional
+        A runout coefficient file: its runout is taken out of the gap first.
+    max_lost : float
+        The share of samples (0..1) the recording may have lost (:mod:`ambdaq.daq.quality`).
+    """
+    rec = source if isinstance(source, Recording) else None
+    if rec is None:
+        from ..daq.mcapfile import McapFile
+        from ..daq.reader import ambdaq_channels
+
+        present = ambdaq_channels(McapFile(source))
+        rec = loaded(source, ["/amb/gap", "/amb/rotor"] + [t for t in ("/amb/error", "/amb/ff") if t in present])
+    if "/amb/rotor" not in rec:
+        raise BadInputError(f"{rec.path}: no rotor angle (/amb/rotor): APHT needs the key-phasor")
+    require_complete(rec, [t for t in ("/amb/gap", "/amb/rotor", "/amb/error", "/amb/ff") if t in rec], "APHT", max_lost)
+    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    n = min(len(gap), len(rot))
+    speed = rot["speed"][:n] * RAD_S_TO_RPM
+    rpm = float(np.median(speed))
+    if rpm <= 0 or np.max(np.abs(speed - rpm)) > STEADY * rpm:
+        raise BadInputError(f"{rec.path}: APHT is of one speed; this recording runs from {speed.min():,.0f} to "
+                            f"{speed.max():,.0f} rpm (ambdaq runup tracks a run-up)")
+    axes = list(Machine.from_metadata(list(gap.fields), rec.metadata).radial)
+    theta = rot["angle"][:n]
+    x = np.column_stack([gap[a][:n] for a in axes])
+    compensation = "none (the sensor signal as recorded)"
+    if coefficients is not None:
+        x = x - runout_at(Coefficients.load(coefficients), axes, theta, coefficients)
+        compensation = f"runout coefficients {coefficients}"
+    size = int(round(window_s * gap.nominal_rate))
+    if size < 2 or n < size:
+        raise BadInputError(f"{rec.path}: {n} samples, fewer than one {window_s:g} s window")
+    starts = range(0, n - size + 1, size)
+    orders = list(orders)
+
+    def vectors(signal: np.ndarray) -> np.ndarray:
+        return np.array([harmonic_fit(signal[s:s + size], theta[s:s + size], orders) for s in starts])
+
+    def of(topic: str) -> np.ndarray | None:
+        if topic not in rec or not all(a in rec[topic].fields for a in axes):
+            return None
+        return vectors(np.column_stack([rec[topic][a][:n] for a in axes]))
+
+    ff_unit = rec["/amb/ff"].units.get(axes[0], "") if "/amb/ff" in rec else ""
+    return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("/amb/error"), of("/amb/ff"), ff_unit,
+                compensation)
+
+
+__all__ = ["Apht", "WINDOW_S", "apht"]
