@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from contextlib import contextmanager
 import sys
 import threading
 import time
@@ -187,6 +188,30 @@ def test_cascaded_multiplexing_records_each_page(tmp_path, run_cli):
                                                    "/cascade/Cascade/m2/m1"}
 
 
+@contextmanager
+def sending(channel: str, frame_id: int, data: bytes):
+    """One frame sent every 5 ms on python-can's virtual ``channel`` by a thread of the test's own
+    while the block runs (cantools encoded it: no ambdaq code on the sending side)."""
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                time.sleep(0.005)
+        finally:
+            bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+
+
 def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
     """motohawk.dbc declares no cycle time; the rig file's `rates` gives ExampleMessage 50 Hz: the
     recording counts 50 frames a second of it and says where the rate came from."""
@@ -195,27 +220,11 @@ def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
     msg = db.get_message_by_name("ExampleMessage")
     data = msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 250.1}, strict=False)
     channel = "corpus-rates"
-    stop = threading.Event()
-
-    def send() -> None:
-        bus = can.Bus(interface="virtual", channel=channel)
-        try:
-            while not stop.is_set():
-                bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
-                time.sleep(0.005)
-        finally:
-            bus.shutdown()
-
     rig = tmp_path / "rig.toml"
     rig.write_text(f'[[device]]\nname = "moto"\nurl = "can://virtual/{channel}"\ndbc = "{path}"\n'
                    'rates = {{ ExampleMessage = 50 }}\n'.replace("{{", "{").replace("}}", "}"))
-    sender = threading.Thread(target=send, daemon=True)
-    sender.start()
-    try:
+    with sending(channel, msg.frame_id, data):
         r = run_cli("record", "--rig", rig, "--duration", "1", "--json", "-o", tmp_path / "m.mcap")
-    finally:
-        stop.set()
-        sender.join(timeout=5)
     assert r.exit_code == 0, r.output
     device = McapFile(tmp_path / "m.mcap").metadata()["ambdaq.device.moto.ExampleMessage"]
     assert device["rate_source"] == "the rig file" and device["sample_rate_hz"] == "50"
@@ -284,27 +293,10 @@ def test_a_64_bit_integer_beyond_float64_is_counted_not_silent(tmp_path, run_cli
     exact = (1 << 60) + 1
     data = msg.encode({"s64": exact})
     assert msg.decode(data)["s64"] == exact  # cantools decodes it exactly; the recording cannot
-    channel = "corpus-int64"
-    stop = threading.Event()
-
-    def send() -> None:
-        bus = can.Bus(interface="virtual", channel=channel)
-        try:
-            while not stop.is_set():
-                bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
-                time.sleep(0.005)
-        finally:
-            bus.shutdown()
-
-    sender = threading.Thread(target=send, daemon=True)
-    sender.start()
     out = tmp_path / "s64.mcap"
-    try:
-        r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration",
-                    "0.5", "-q", "-o", out)
-    finally:
-        stop.set()
-        sender.join(timeout=5)
+    with sending("corpus-int64", msg.frame_id, data):
+        r = run_cli("record", "--device", f"can://virtual/corpus-int64?dbc={path}", "--duration", "0.5", "-q",
+                    "-o", out)
     assert r.exit_code == 0, r.output
     got = load(out)["/signed/Message64"]["s64"]
     stats = McapFile(out).metadata()["ambdaq.link.signed.Message64"]

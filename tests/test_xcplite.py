@@ -129,12 +129,14 @@ def xcplite(request, build_once, tmp_path_factory):
         proc.wait(timeout=10)
 
 
-def _running(build_once, tmp_path_factory, example: str):
-    """XCPlite's ``example`` built for UDP and running, with its A2L; stopped afterwards."""
+def _running(build_once, tmp_path_factory, example: str, key: str | None = None, **options):
+    """XCPlite's ``example`` built (UDP unless ``options`` say otherwise, see _build) and running,
+    with its A2L; stopped afterwards."""
     _needs_a_compiler()
-    built = build_once(f"xcplite-{example}", lambda out: _build(out, tcp=False, example=example))
+    options.setdefault("tcp", False)
+    built = build_once(key or f"xcplite-{example}", lambda out: _build(out, example=example, **options))
     url = (built / "url").read_text()
-    proc, a2l = _started(built / "build" / example, url, tmp_path_factory.mktemp(example))
+    proc, a2l = _started(built / "build" / example, url, tmp_path_factory.mktemp(key or example))
     try:
         yield url, a2l
     finally:
@@ -397,15 +399,8 @@ def test_xcp_list_uploads_the_a2l_the_slave_holds(xcplite, run_cli):
 def cyclic(build_once, tmp_path_factory):
     """hello_xcp (TCP, absolute addressing) whose mainloop event is declared cyclic every 1,000 us:
     its loop sleeps 1,000 us and then works, so it really runs a little slower than it declares."""
-    _needs_a_compiler()
-    built = build_once("xcplite-cyclic", lambda out: _build(out, tcp=True, variadic=False, cyclic_us=1000))
-    url = (built / "url").read_text()
-    proc, a2l = _started(built / "build" / "hello_xcp", url, tmp_path_factory.mktemp("cyclic"))
-    try:
-        yield url, a2l
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+    yield from _running(build_once, tmp_path_factory, "hello_xcp", key="xcplite-cyclic", tcp=True, variadic=False,
+                        cyclic_us=1000)
 
 
 def test_a_cyclic_event_records_for_the_wall_time_asked(cyclic, tmp_path, run_cli):
