@@ -213,3 +213,18 @@ def test_apht_shows_the_lms_converging_and_the_rotors_own_1x(runup, run_cli, tmp
         want = harmonic_fit(np.column_stack([truth[a][s:s + 2500] for a in out["axes"]]), theta[s:s + 2500], (1,))[0]
         assert np.max(np.abs(got[w] - want * 1e6)) < 0.3, w
     assert (tmp_path / "apht.png").stat().st_size > 30_000
+
+
+def test_the_waterfall_is_the_bearings_full_spectrum_and_the_unbalance_whirls_forward(runup):
+    """The run-up's waterfall is the front bearing's full spectrum (x + j y): over the upper half of
+    the run the unbalance response is on the +1X line, the forward side, and the -1X side holds
+    far less of it (the runout is taken out with the coefficient file)."""
+    from ambdaq.workflows.runup_diagnostics import analyse
+
+    res = analyse(runup / "runup.mcap", coefficients=runup / "runout.json")
+    rpm, f, a = res.waterfall
+    assert res.waterfall_axis == "front" and f[0] < 0 < f[-1]
+    fast = rpm > 15000
+    forward = [a[i, np.argmin(np.abs(f - r / 60.0))] for i, r in zip(np.flatnonzero(fast), rpm[fast])]
+    backward = [a[i, np.argmin(np.abs(f + r / 60.0))] for i, r in zip(np.flatnonzero(fast), rpm[fast])]
+    assert np.median(forward) > 10 * np.median(backward)

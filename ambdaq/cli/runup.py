@@ -201,20 +201,27 @@ def draw_runup(res, name: str):
     polar.set_title("1X vector over the run [µm, deg]", fontsize=10)
     polar.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.15, -0.12))
     rpm, f, a = res.waterfall
-    keep = f <= min(f[-1], 1.2 * max(t.orders + (4,)) * rpm.max() / 60.0)
+    full = f[0] < 0  # a bearing's full spectrum: backward whirl left of zero
+    limit = min(f[-1], 1.2 * max(t.orders + (4,)) * rpm.max() / 60.0)
+    keep = (np.abs(f) if full else f) <= limit
     order = np.argsort(rpm)
     mesh = fall.pcolormesh(f[keep], rpm[order], np.maximum(a[order][:, keep] * 1e6, 1e-3), shading="nearest",
                            norm=LogNorm(vmin=1e-2, vmax=max(1e-1, float(a.max() * 1e6))), cmap="viridis")
     fig.colorbar(mesh, ax=fall, label="amplitude [µm]")
-    for k in range(1, 5):
+    for k in (1, 2, 3, 4, *((-1, -2) if full else ())):
         fall.plot(k * rpm[order] / 60.0, rpm[order], color="w", lw=0.6, ls=":")
-        fall.annotate(f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7, ha="center", va="bottom")
+        fall.annotate(f"{k:+d}X" if full else f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7,
+                      ha="center", va="bottom")
     if res.modes is not None:
         speeds, table = res.modes
         for m in range(table.shape[1]):  # points: a mode may enter or leave the damping limit over the run
             fall.plot(table[:, m], speeds, "o", color="r", ms=2.5, label="model modes" if m == 0 else None)
+            if full:  # the model gives a mode's frequency, not its whirl direction: both sides
+                fall.plot(-table[:, m], speeds, "o", color="r", mfc="none", ms=2.5)
         fall.legend(fontsize=7, loc="lower right")
-    fall.set(xlabel="frequency [Hz]", ylabel="speed [rpm]", xlim=(0, f[keep][-1]),
-             title=f"waterfall of {res.waterfall_axis}" + (" with the model's modes (Campbell)" if res.modes else ""))
+    fall.set(xlabel="frequency [Hz]" + (": backward < 0 < forward" if full else ""), ylabel="speed [rpm]",
+             xlim=(-limit if full else 0, limit),
+             title=(f"full-spectrum waterfall of the {res.waterfall_axis} bearing" if full
+                    else f"waterfall of {res.waterfall_axis}") + (" with the model's modes (Campbell)" if res.modes else ""))
     fig.suptitle(f"run-up diagnostics: {name}")
     return fig

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, order_track
 from ..analysis.runout import harmonic_fit
-from ..analysis.spectrum import amplitude_spectrum
+from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
@@ -51,7 +51,8 @@ class RunupDiagnostics:
         Axis -> its 1X peaks.
     waterfall : tuple of ndarray
         (rpm per spectrum, frequency in Hz, amplitude in m with shape (spectra, bins)) of
-        ``waterfall_axis``.
+        ``waterfall_axis``: its bearing's full spectrum (x + j y, two-sided: forward whirl at
+        positive frequencies, backward at negative) where it has a partner axis, else its own.
     waterfall_axis : str
     modes : tuple of ndarray or None
         (rpm, frequency in Hz per mode with shape (speeds, modes)) from the model, if one was given.
@@ -219,9 +220,16 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
     if w_axis not in axes:
         raise BadInputError(f"--waterfall-axis {w_axis}: the radial axes are {', '.join(axes)}")
     n = int(round(WATERFALL_S * fs))
-    col = x[:, axes.index(w_axis)]
-    rows = [(float(rpm[s:s + n].mean()), amplitude_spectrum(col[s:s + n], fs=fs))
-            for s in range(0, x.shape[0] - n + 1, n)]
+    bearing = next((b for b in machine.bearings if w_axis in (b.x, b.y)), None)
+    if bearing is not None:  # the full spectrum: which way the rotor whirls at each frequency
+        bx, by = x[:, axes.index(bearing.x)], x[:, axes.index(bearing.y)]
+        rows = [(float(rpm[s:s + n].mean()), full_spectrum(bx[s:s + n], by[s:s + n], fs=fs))
+                for s in range(0, x.shape[0] - n + 1, n)]
+        w_axis = bearing.name
+    else:
+        col = x[:, axes.index(w_axis)]
+        rows = [(float(rpm[s:s + n].mean()), amplitude_spectrum(col[s:s + n], fs=fs))
+                for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
     modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
