@@ -13,13 +13,14 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "errors": set(),
     "units": set(),
     "speed": {"errors", "units"},
+    "loading": set(),
     "machines": {"units"},
     "analysis": {"machines", "units", "errors"},
-    "drivers": {"errors", "units", "speed"},
+    "drivers": {"errors", "units", "speed", "loading"},
     "daq": {"drivers", "machines", "errors", "units"},
-    "sim": {"drivers", "analysis", "machines", "speed", "units", "errors"},
+    "sim": {"drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
     "workflows": {"drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
-    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "machines", "speed", "units", "errors"},
+    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "machines", "speed", "units", "errors", "loading"},
 }
 
 

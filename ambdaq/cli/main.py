@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import ast
 import difflib
-import importlib
 import os
 import sys
 from pathlib import Path
 
 import click
 
+from ..loading import load_object
 from .. import __version__
 from ..errors import AmbdaqError
 
@@ -72,8 +72,7 @@ class AmbdaqGroup(click.Group):
         target = COMMANDS.get(name)
         if target is None:
             return None
-        module, attr = target.split(":")
-        return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+        return load_object(f".{target}", __package__)
 
     def resolve_command(self, ctx: click.Context, args: list[str]):
         name = args[0] if args else ""

@@ -13,12 +13,12 @@ imports it.
 
 from __future__ import annotations
 
-import importlib
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 
+from ..loading import load_object
 from ..errors import BadInputError, DeviceError
 from ..speed import SpeedProfile
 from .interfaces import BankPort, Controller, Source
@@ -188,8 +188,7 @@ def backend(scheme: str) -> Backend | None:
         target = BACKENDS.get(scheme) or _targets().get(scheme)
         if target is None:
             return None
-        module, _, cls = target.partition(":")
-        _loaded[scheme] = getattr(importlib.import_module(module), cls)()
+        _loaded[scheme] = load_object(target)()
     return _loaded[scheme]
 
 

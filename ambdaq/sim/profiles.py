@@ -9,10 +9,10 @@ module and one line here.
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import Any
 
+from ..loading import load_object
 from ..errors import BadInputError
 
 PROFILES = {
@@ -62,7 +62,7 @@ def profile(name: str) -> Profile:
     module = PROFILES.get(name)
     if module is None:
         raise BadInputError(f"unknown simulated rig {name!r}: profiles are {', '.join(sorted(PROFILES))}")
-    return importlib.import_module(module).PROFILE
+    return load_object(f"{module}:PROFILE")
 
 
 def require_served(name: str) -> Profile:

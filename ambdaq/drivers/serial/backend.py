@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import importlib
 
+from ...loading import load_object
 from ...errors import DeviceError
 from ..interfaces import BankPort, Controller
 from ..registry import Backend, Opened, OpenRequest, opened_controller
@@ -32,8 +32,7 @@ class SerialBackend(Backend):
             target = DEVICE_TYPES.get(kind)
             if target is None:
                 raise DeviceError(f"{url.text}: no driver for a device of type {kind!r}")
-            module, _, cls = target.partition(":")
-            return getattr(importlib.import_module(module), cls)(link, name=name or kind, url=url.text)
+            return load_object(target)(link, name=name or kind, url=url.text)
         except BaseException:
             link.close()
             raise
