@@ -273,4 +273,4 @@ def test_a_campaign_step_that_loses_samples_is_recorded_again_then_refused(run_c
     r = run_cli("fx", "campaign", "--device", device, "--freqs", "20", "--seconds", "0.5", "--settle", "0",
                 "--max-lost", "0.5", "-o", tmp_path / "camp2")
     assert r.exit_code == 0, r.output
-    assert (tmp_path / "camp2" / "campaign.json").exists()
+    assert (tmp_path / "camp2" / "campaign.json").exists() and "shakers stopped, the base at rest" in r.stderr

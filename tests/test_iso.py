@@ -79,6 +79,7 @@ def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, ru
     assert got["peak_db"] > runs["front_x"]["peak_db"] + 2.5
     # the controller is put back to the speed it had (standstill), and the user is told
     assert "speed set back to 0 rpm, as before the measurement" in r.stderr
+    assert "test signal switched off after each run" in r.stderr
     for _ in range(40):  # the rig ramps at 5,000 rpm/s: 2.4 s from 12,000 rpm
         now = run_cli("controller", "param", "--device", served, "speed.rpm")
         assert now.exit_code == 0, now.output

@@ -74,6 +74,7 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
                       seconds, settle, Path(output),
                       on_step=lambda f, a, path: click.echo(f"{f:>7g} Hz  alpha {a:g}  -> {path}", err=True),
                       max_lost=max_lost)
+    click.echo("shakers stopped, the base at rest", err=True)
     click.echo(f"{len(json.loads(out.read_text())['steps'])} steps -> {out}")
 
 

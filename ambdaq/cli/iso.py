@@ -116,6 +116,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         paths = iso.measure(device, list(speeds) or None, [a.strip() for a in axes.split(",")] if axes else None,
                             amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
                             description=description, on_restore=speed_restored_note(quiet))
+        if not quiet:
+            click.echo("test signal switched off after each run", err=True)
     else:
         paths = [Path(p) for p in recordings]
     runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,
