@@ -83,6 +83,33 @@ SG_MUL_VAL_ 2147485000 Flow SubMode 1-1;
 Mode 2 carries SubMode, which selects Pressure (0) or Flow (1)."""
 
 
+@contextmanager
+def sending(channel: str, frames: list[tuple[int, bytes, bool]], period_s: float):
+    """``frames`` (frame id, data, CAN FD) sent in turn, every ``period_s``, on python-can's virtual
+    ``channel`` by a thread of the test's own while the block runs (cantools encoded them: no
+    ambdaq code on the sending side)."""
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        try:
+            while not stop.is_set():
+                for frame_id, data, fd in frames:
+                    bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
+                                         is_fd=fd))
+                time.sleep(period_s)
+        finally:
+            bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+
+
 def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual") -> None:
     """Send every frame of ``path``'s messages while ambdaq records it as a DBC device: on a
     virtual bus in this process (``via="virtual"``), or from another process through the simulated
@@ -105,26 +132,8 @@ def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual") -> No
             sender.wait(timeout=10)
     else:
         channel = f"corpus-{path.name}"
-        stop = threading.Event()
-
-        def send() -> None:
-            bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-            try:
-                while not stop.is_set():
-                    for _suffix, frame_id, data, fd, _decoded in frames:
-                        bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
-                                             is_fd=fd))
-                    time.sleep(0.01)
-            finally:
-                bus.shutdown()
-
-        thread = threading.Thread(target=send, daemon=True)
-        thread.start()
-        try:
+        with sending(channel, [(frame_id, data, fd) for _s, frame_id, data, fd, _d in frames], 0.01):
             r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration", "1", "-q", "-o", out)
-        finally:
-            stop.set()
-            thread.join(timeout=5)
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()
@@ -188,30 +197,6 @@ def test_cascaded_multiplexing_records_each_page(tmp_path, run_cli):
                                                    "/cascade/Cascade/m2/m1"}
 
 
-@contextmanager
-def sending(channel: str, frame_id: int, data: bytes):
-    """One frame sent every 5 ms on python-can's virtual ``channel`` by a thread of the test's own
-    while the block runs (cantools encoded it: no ambdaq code on the sending side)."""
-    stop = threading.Event()
-
-    def send() -> None:
-        bus = can.Bus(interface="virtual", channel=channel)
-        try:
-            while not stop.is_set():
-                bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
-                time.sleep(0.005)
-        finally:
-            bus.shutdown()
-
-    sender = threading.Thread(target=send, daemon=True)
-    sender.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        sender.join(timeout=5)
-
-
 def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
     """motohawk.dbc declares no cycle time; the rig file's `rates` gives ExampleMessage 50 Hz: the
     recording counts 50 frames a second of it and says where the rate came from."""
@@ -223,7 +208,7 @@ def test_the_rig_file_gives_a_rate_the_dbc_does_not(tmp_path, run_cli):
     rig = tmp_path / "rig.toml"
     rig.write_text(f'[[device]]\nname = "moto"\nurl = "can://virtual/{channel}"\ndbc = "{path}"\n'
                    'rates = {{ ExampleMessage = 50 }}\n'.replace("{{", "{").replace("}}", "}"))
-    with sending(channel, msg.frame_id, data):
+    with sending(channel, [(msg.frame_id, data, False)], 0.005):
         r = run_cli("record", "--rig", rig, "--duration", "1", "--json", "-o", tmp_path / "m.mcap")
     assert r.exit_code == 0, r.output
     device = McapFile(tmp_path / "m.mcap").metadata()["ambdaq.device.moto.ExampleMessage"]
@@ -294,7 +279,7 @@ def test_a_64_bit_integer_beyond_float64_is_counted_not_silent(tmp_path, run_cli
     data = msg.encode({"s64": exact})
     assert msg.decode(data)["s64"] == exact  # cantools decodes it exactly; the recording cannot
     out = tmp_path / "s64.mcap"
-    with sending("corpus-int64", msg.frame_id, data):
+    with sending("corpus-int64", [(msg.frame_id, data, False)], 0.005):
         r = run_cli("record", "--device", f"can://virtual/corpus-int64?dbc={path}", "--duration", "0.5", "-q",
                     "-o", out)
     assert r.exit_code == 0, r.output

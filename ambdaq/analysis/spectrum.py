@@ -6,6 +6,15 @@ import numpy as np
 from scipy.signal import get_window
 
 
+def _window(n: int, fs: float, window: str) -> np.ndarray:
+    """The ``window`` of ``n`` samples, after checking there are two and ``fs`` (Hz) is above 0."""
+    if n < 2:
+        raise ValueError("x must be a 1-D signal of at least 2 samples")
+    if not fs > 0:
+        raise ValueError(f"fs must be > 0 Hz, got {fs}")
+    return get_window(window, n)
+
+
 def amplitude_spectrum(x: np.ndarray, *, fs: float, window: str = "hann") -> tuple[np.ndarray, np.ndarray]:
     """Single-sided amplitude spectrum, scaled so a sinusoid of amplitude A shows a peak of A.
 
@@ -33,11 +42,9 @@ def amplitude_spectrum(x: np.ndarray, *, fs: float, window: str = "hann") -> tup
     (3.0, 500.0)
     """
     x = np.asarray(x, dtype=float)
-    if x.ndim != 1 or x.shape[0] < 2:
+    if x.ndim != 1:
         raise ValueError("x must be a 1-D signal of at least 2 samples")
-    if not fs > 0:
-        raise ValueError(f"fs must be > 0 Hz, got {fs}")
-    w = get_window(window, x.shape[0])
+    w = _window(x.shape[0], fs, window)
     spec = np.fft.rfft((x - x.mean()) * w)
     amp = 2.0 * np.abs(spec) / w.sum()
     amp[0] /= 2.0
@@ -75,11 +82,9 @@ def full_spectrum(x: np.ndarray, y: np.ndarray, *, fs: float, window: str = "han
     (50.0, 2.0)
     """
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    if x.ndim != 1 or x.shape != y.shape or x.shape[0] < 2:
+    if x.ndim != 1 or x.shape != y.shape:
         raise ValueError("x and y must be 1-D signals of the same length, at least 2 samples")
-    if not fs > 0:
-        raise ValueError(f"fs must be > 0 Hz, got {fs}")
-    w = get_window(window, x.shape[0])
+    w = _window(x.shape[0], fs, window)
     z = (x - x.mean()) + 1j * (y - y.mean())
     spec = np.fft.fftshift(np.fft.fft(z * w))
     return np.fft.fftshift(np.fft.fftfreq(x.shape[0], 1.0 / fs)), np.abs(spec) / w.sum()

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -163,11 +164,18 @@ def _cmin(devices: list[Device], cmin_m: float | None, what: str) -> float:
 def _radii(device: Device, gap: np.ndarray) -> np.ndarray:
     """Per sample, the largest of each radial bearing's orbit radius (axes NAME_x, NAME_y) and each
     other axis's |gap|, in m."""
-    names = device.fields(GAP)
-    machine = Machine.from_axes(names)
-    cols = [np.hypot(gap[:, names.index(b.x)], gap[:, names.index(b.y)]) for b in machine.bearings]
-    cols += [np.abs(gap[:, i]) for i, n in enumerate(names) if n not in machine.bearing_axes]
+    pairs, single = _layout(tuple(device.fields(GAP)))
+    cols = [np.hypot(gap[:, i], gap[:, j]) for i, j in pairs] + [np.abs(gap[:, i]) for i in single]
     return np.max(np.column_stack(cols), axis=1)
+
+
+@lru_cache(maxsize=64)
+def _layout(names: tuple[str, ...]) -> tuple[list[tuple[int, int]], list[int]]:
+    """Column indices of each radial bearing's (x, y) and of every other axis, for gap ``names``:
+    worked out once per device, not for every block."""
+    machine = Machine.from_axes(names)
+    pairs = [(names.index(b.x), names.index(b.y)) for b in machine.bearings]
+    return pairs, [i for i, n in enumerate(names) if n not in machine.bearing_axes]
 
 
 class ExcursionTrigger(Trigger):

@@ -122,7 +122,7 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
         try:  # what `ambdaq runout identify FILE` writes
             if not current:
                 raise BadInputError(f"{path}: no coil currents (/amb/current) in the recording")
-            ident = identify_recordings([rec], list(HARMONICS), "fit")
+            ident = identify_recordings([rec], list(HARMONICS), "fit", uncertainty=False)  # not a column
             for axis in AXES:
                 for k, (a, b) in zip(HARMONICS, ident.coef.weights[axis]):
                     v = complex(a, b) * 1e6

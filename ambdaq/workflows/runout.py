@@ -88,7 +88,7 @@ class Identification:
 
 
 def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str, *,
-                        max_lost: float = MAX_LOST) -> Identification:
+                        max_lost: float = MAX_LOST, uncertainty: bool = True) -> Identification:
     """Runout per axis and harmonic from recordings at constant speed (one speed per file), given
     as paths or loaded (with ``/amb/gap``, ``/amb/current`` and ``/amb/rotor``).
 
@@ -96,7 +96,8 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
     one, else from separating runout and unbalance over the speeds, else (one fast recording)
     with a warning that it holds the unbalance response. A recording that lost more than
     ``max_lost`` of its samples (a share, 0..1), or recordings of different machines, are refused
-    (:mod:`ambdaq.daq.quality`).
+    (:mod:`ambdaq.daq.quality`). Each harmonic's standard uncertainty is estimated unless
+    ``uncertainty`` is False (then NaN: a caller that does not report it skips its spectra).
     """
     per_file, warnings, sources, recs, u_file = [], [], [], [], []
     rotor = device = identity = axes = None
@@ -127,7 +128,8 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
         per_file.append((w, r))
         u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
                                          np.column_stack([cur[a][:n] for a in axes]), theta, gap.nominal_rate, w,
-                                         list(harmonics), rotor))
+                                         list(harmonics), rotor) if uncertainty
+                      else np.full((len(harmonics), len(axes)), np.nan))
         sources.append({"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(w * RAD_S_TO_RPM, 1)})
     require_same_machine(recs, "runout identification")
     spins = np.array([w for w, _ in per_file])
