@@ -270,20 +270,24 @@ def test_a_garbled_slcan_line_is_counted_and_the_recording_goes_on(tmp_path, run
     assert set(got["temperature"]) == {250.0}
 
 
-def test_a_64_bit_integer_beyond_float64_is_counted_not_silent(tmp_path, run_cli):
-    """signed.dbc's s64 carries 2**60 + 1, which float64 (the recorded type) cannot hold: the value is
-    recorded as the nearest float64 and every such value is counted in the link statistics."""
+def test_a_64_bit_integer_is_recorded_exactly_as_int64(tmp_path, run_cli):
+    """signed.dbc's s64 carries 2**60 + 1 and -(2**62) - 3, which float64 cannot hold: the field is
+    int64 in the schema and holds both exactly, in ambdaq's reader and in the official ROS 2
+    decoder; nothing was rounded, so the link statistics count nothing."""
     path = CORPUS / "signed.dbc"
     msg = cantools.database.load_file(str(path)).get_message_by_name("Message64")
-    exact = (1 << 60) + 1
-    data = msg.encode({"s64": exact})
-    assert msg.decode(data)["s64"] == exact  # cantools decodes it exactly; the recording cannot
+    exact = {(1 << 60) + 1, -(1 << 62) - 3}
+    frames = [(msg.frame_id, msg.encode({"s64": v}), False) for v in sorted(exact)]
+    assert {msg.decode(d)["s64"] for _i, d, _fd in frames} == exact  # cantools decodes them exactly
     out = tmp_path / "s64.mcap"
-    with sending("corpus-int64", [(msg.frame_id, data, False)], 0.005):
+    with sending("corpus-int64", frames, 0.005):
         r = run_cli("record", "--device", f"can://virtual/corpus-int64?dbc={path}", "--duration", "0.5", "-q",
                     "-o", out)
     assert r.exit_code == 0, r.output
     got = load(out)["/signed/Message64"]["s64"]
-    stats = McapFile(out).metadata()["ambdaq.link.signed.Message64"]
-    assert len(got) > 10 and int(stats["int64_values_rounded"]) == len(got)
-    assert set(got) == {float(exact)}  # the nearest float64, 2**60: off by one, and said so
+    assert got.dtype == np.int64 and len(got) > 10 and set(got.tolist()) == exact
+    assert "int64_values_rounded" not in McapFile(out).metadata()["ambdaq.link.signed.Message64"]
+    with open(out, "rb") as fh:
+        official = [m.s64 for _s, c, _m, m in make_reader(fh, decoder_factories=[DecoderFactory()])
+                    .iter_decoded_messages(topics=["/signed/Message64"])]
+    assert official == got.tolist()

@@ -32,7 +32,8 @@ class Tone(Source):
         self.name, self.hz, self.next, self.end = name, hz, 0, 0
 
     def signal_groups(self):
-        return [SignalGroup("/tone/gap", "Gap", ("x",), ("m",))]
+        return [SignalGroup("/tone/gap", "Gap", ("x",), ("m",)),
+                SignalGroup("/tone/count", "Count", ("up", "down", "half"), ("", "", ""), ("uint64", "int64", "float64"))]
 
     def identity(self):
         return {"url": f"tone://{self.name}?hz={self.hz:g}", "kind": "tone generator"}
@@ -50,7 +51,9 @@ class Tone(Source):
         k = np.arange(self.next, self.next + n, dtype=np.int64)
         self.next += n
         x = 1e-6 * np.sin(2 * np.pi * self.hz * k / RATE)
-        return SampleBlock(k * 1_000_000, k.astype(np.uint32), {"/tone/gap": x[:, None]})
+        count = self.signal_groups()[1].values_array(
+            [(2**64 - 1 - i, -(2**63) + i, i / 2) for i in k.tolist()])  # 64-bit integers at their ends
+        return SampleBlock(k * 1_000_000, k.astype(np.uint32), {"/tone/gap": x[:, None], "/tone/count": count})
 
     def _close(self):
         self.end = self.next
@@ -90,6 +93,44 @@ def test_an_entry_point_back_end_is_recorded_like_ambdaq_s_own(tmp_path):
     assert np.array_equal(gap.seq, k)
     # float64 values are stored byte for byte and computed by the same expression: equal exactly
     assert np.array_equal(gap["x"], 1e-6 * np.sin(2 * np.pi * 50.0 * k / 1000.0))
+
+
+def test_64_bit_integer_fields_are_exact_in_every_reader_and_export(tmp_path):
+    """A back-end that declares uint64 and int64 fields: the values at the ends of their range
+    (2**64 - 1 and -2**63, far past float64's 2**53) come back exactly from ``load``, from the
+    official ROS 2 decoder, as CSV text, as Parquet integer columns, and from ``recover``."""
+    import pyarrow.parquet as pq
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    env = _installed(tmp_path)
+    out = tmp_path / "tone.mcap"
+    run = _ambdaq(env, "record", "--device", "tone://gen", "--duration", "0.3", "-q", "-o", str(out))
+    assert run.returncode == 0, run.stderr
+    k = list(range(300))
+    up, down = [2**64 - 1 - i for i in k], [-(2**63) + i for i in k]
+    count = load(out)["/tone/count"]
+    assert count["up"].dtype == np.uint64 and count["down"].dtype == np.int64 and count["half"].dtype == np.float64
+    assert count["up"].tolist() == up and count["down"].tolist() == down and count["half"].tolist() == [i / 2 for i in k]
+    with open(out, "rb") as fh:
+        official = [(m.up, m.down) for _s, _c, _m, m in make_reader(fh, decoder_factories=[DecoderFactory()])
+                    .iter_decoded_messages(topics=["/tone/count"])]
+    assert official == list(zip(up, down))
+    run = _ambdaq(env, "export", str(out), "--format", "csv", "--topic", "/tone/count", "-o", str(tmp_path / "c.csv"))
+    assert run.returncode == 0, run.stderr
+    rows = [line.split(",") for line in (tmp_path / "c.csv").read_text().splitlines()]
+    head = rows[0]
+    assert [int(r[head.index("up")]) for r in rows[1:]] == up and [int(r[head.index("down")]) for r in rows[1:]] == down
+    run = _ambdaq(env, "export", str(out), "--format", "parquet", "-o", str(tmp_path / "pq"))
+    assert run.returncode == 0, run.stderr
+    table = pq.read_table(tmp_path / "pq" / "tone_count.parquet")
+    assert table.column("up").to_pylist() == up and table.column("down").to_pylist() == down
+    cut = tmp_path / "cut.mcap"  # the file as a crash would leave it: no summary, no footer
+    cut.write_bytes(out.read_bytes()[: int(out.stat().st_size * 0.8)])
+    run = _ambdaq(env, "recover", str(cut), "-o", str(tmp_path / "r.mcap"))
+    assert run.returncode == 0, run.stderr
+    kept = load(tmp_path / "r.mcap")["/tone/count"]
+    assert len(kept) > 0 and kept["up"].tolist() == up[: len(kept)] and kept["down"].tolist() == down[: len(kept)]
 
 
 def test_an_unknown_scheme_names_the_installed_ones(tmp_path):

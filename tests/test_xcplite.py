@@ -364,6 +364,9 @@ def test_every_integer_type_and_a_typedef_instance(c_demo, tmp_path, run_cli):
                  "g_counter32", "g_counter64", "g_counter16s", "g_counter32s", "g_counter64s"):
         np.testing.assert_array_equal(got[name], before, err_msg=name)
     assert set(got["g_param_sum"]) == {8 + 16 + 32 + 64}  # A_UINT64 g_param8 + ... + g_param64
+    # the 64-bit ones are recorded as integers, exact past 2**53 where float64 would round
+    assert {n: got[n].dtype.str for n in ("counter64", "counter64s", "g_param_sum")} == {
+        "counter64": "<u8", "counter64s": "<i8", "g_param_sum": "<u8"}
     copy = {f: set(got[f]) for f in got.fields if f.startswith("params_copy")}
     assert copy == {"params_copy_test_byte1": {1.0}, "params_copy_test_byte2": {-1.0},
                     "params_copy_counter_max": {1024.0}, "params_copy_delay_us": {1000.0}}

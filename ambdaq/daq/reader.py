@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..drivers.signals import SignalGroup
+from ..drivers.signals import FIELD_TYPES, SignalGroup
 from ..errors import BadInputError
 from .foreign import foreign_topics, load_foreign
 from .mcapfile import McapFile, message_view
@@ -63,8 +63,9 @@ class TopicData:
         Device clock, in ns.
     seq : ndarray of uint32
         Device sequence numbers.
-    fields : dict of str to ndarray of float64
-        One array per signal, SI units (see ``units``).
+    fields : dict of str to ndarray
+        One array per signal, SI units (see ``units``): float64, or int64 / uint64 for a 64-bit
+        integer signal, exact.
     units : dict of str to str
         SI unit of each field ("" for a topic of another writer, whose units its schema does not give).
     skipped : tuple of str
@@ -184,13 +185,14 @@ def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
             continue
         group = parse_schema(schema.name, schema.data.decode(errors="replace"))
         if group is not None:
-            out[ch.topic] = (cid, SignalGroup(ch.topic, group.type_name, group.fields, group.units))
+            out[ch.topic] = (cid, SignalGroup(ch.topic, group.type_name, group.fields, group.units, group.types))
     return out
 
 
-def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
+def _topic_arrays(n: int, fields: int, typed: bool) -> dict[str, np.ndarray]:
     """One topic's output arrays for ``n`` samples: the header columns and one (fields, samples)
-    array whose rows are the fields, all carved from one allocation that starts on a huge page.
+    array whose rows are the fields (float64; raw 8-byte words where the topic has integer
+    fields, each row viewed as its field's type once the rows are in place), all carved from one allocation that starts on a huge page.
     numpy asks the kernel for huge pages on allocations of 4 MiB and more, so the first write
     faults 2 MiB in at a time rather than 4 KiB; separate 2.4 MB header arrays were under that
     threshold (with no huge pages at all, bench_read.py's load took 1.4x as long)."""
@@ -199,7 +201,7 @@ def _topic_arrays(n: int, fields: int) -> dict[str, np.ndarray]:
     block = block[-block.ctypes.data % HUGE_PAGE :][:size]
     parts, at = {}, 0
     for name, dtype, shape in (("log_time", np.int64, (n,)), ("device_time", np.int64, (n,)),
-                               ("values", np.float64, (fields, n)), ("seq", np.uint32, (n,)), ("status", np.uint32, (n,))):
+                               ("values", np.uint64 if typed else np.float64, (fields, n)), ("seq", np.uint32, (n,)), ("status", np.uint32, (n,))):
         nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
         parts[name] = block[at : at + nbytes].view(dtype).reshape(shape)
         at += nbytes
@@ -276,7 +278,8 @@ def load(
             plan.append((ci, here))
             for cid, idx in here.items():
                 counts[cid] += idx.shape[0]
-    out = {cid: _topic_arrays(counts[cid], len(layout.group.fields)) for cid, (_topic, layout) in by_id.items()}
+    out = {cid: _topic_arrays(counts[cid], len(layout.group.fields), bool(layout.group.types))
+           for cid, (_topic, layout) in by_id.items()}
     jobs, pos = [], {cid: 0 for cid in by_id}
     for ci, here in plan:  # where each chunk's messages go in the output, known before any is read
         jobs.append((ci, {cid: (idx, pos[cid]) for cid, idx in here.items()}))
@@ -308,8 +311,12 @@ def load(
                 unordered.add(cid)
             for name in HEADER_FIELDS:
                 cols[name][p : p + n] = view[name]
-            # one call for every field: numpy walks the records once, writing each field's row
-            np.copyto(cols["values"][:, p : p + n].T, view["values"])
+            values = view["values"]
+            if values.dtype.names:  # integer fields: each field's 8 bytes into its row, unconverted
+                for i, name in enumerate(values.dtype.names):
+                    np.copyto(cols["values"][i, p : p + n], values[name].view(np.uint64))
+            else:  # one call for every field: numpy walks the records once, writing each field's row
+                np.copyto(cols["values"][:, p : p + n].T, values)
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
@@ -341,7 +348,8 @@ def load(
             device_time=cols["device_time"],
             seq=cols["seq"],
             status=cols["status"],
-            fields={name: cols["values"][i] for i, name in enumerate(g.fields)},
+            fields={name: cols["values"][i].view(FIELD_TYPES[t])
+                    for i, (name, t) in enumerate(zip(g.fields, g.field_types))},
             units=dict(zip(g.fields, g.units)),
         )
         declared = _nominal_rate(metadata, topic)

@@ -5,7 +5,7 @@ Every topic carries one message per sample instant with the same fixed layout::
     int64   device_time   # device clock, ns
     uint32  seq           # device sequence number
     uint32  status        # device status bits, 0 = ok
-    float64 <field>       # one per signal, SI units
+    float64 <field>       # one per signal, SI units (int64 or uint64 for a 64-bit integer)
 
 Encoded as little-endian CDR (4-byte encapsulation header ``00 01 00 00``), every member is
 naturally aligned with no padding, so a message is a fixed-size byte record and a whole block of
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..drivers.signals import SignalGroup
+from ..drivers.signals import FIELD_TYPES, SignalGroup
 
 SCHEMA_PACKAGE = "ambdaq_msgs/msg"
 CDR_LE_HEADER = 0x00000100  # bytes 00 01 00 00 read as little-endian uint32
@@ -54,7 +54,8 @@ class TopicLayout:
             "uint32 seq  # device sequence number",
             "uint32 status  # device status bits, 0 = ok",
         ]
-        lines += [f"float64 {f}  # {u}" for f, u in zip(self.group.fields, self.group.units)]
+        g = self.group
+        lines += [f"{t} {f}  # {u}" for t, f, u in zip(g.field_types, g.fields, g.units)]
         return "\n".join(lines) + "\n"
 
     @property
@@ -79,7 +80,7 @@ class TopicLayout:
             (prefix + "device_time", "<i8"),
             (prefix + "seq", "<u4"),
             (prefix + "status", "<u4"),
-            (prefix + "values", "<f8", (len(self.group.fields),)),
+            (prefix + "values", self.group.value_dtype),
         ]
 
 
@@ -97,7 +98,7 @@ def parse_schema(name: str, text: str) -> SignalGroup | None:
     if head != [("int64", "device_time"), ("uint32", "seq"), ("uint32", "status")]:
         return None
     values = members[3:]
-    if not values or any(t != "float64" for t, _, _ in values):
+    if not values or any(t not in FIELD_TYPES for t, _, _ in values):
         return None
     topic = text.splitlines()[0].lstrip("# ").split(":")[0] if text.startswith("#") else ""
     return SignalGroup(
@@ -105,6 +106,7 @@ def parse_schema(name: str, text: str) -> SignalGroup | None:
         type_name=name.rsplit("/", 1)[-1],
         fields=tuple(n for _, n, _ in values),
         units=tuple(c for _, _, c in values),
+        types=tuple(t for t, _, _ in values),
     )
 
 

@@ -30,6 +30,9 @@ def ros_type(name: str) -> str:
     return text if text[:1].isalpha() else "T" + text
 
 
+FIELD_TYPES = {"float64": "<f8", "int64": "<i8", "uint64": "<u8"}  # ros2msg type -> its CDR (little-endian) dtype
+
+
 @dataclass(frozen=True)
 class SignalGroup:
     """One group of signals sampled at the same instants, recorded as one MCAP topic.
@@ -44,16 +47,60 @@ class SignalGroup:
         Field names, named after the rig's axes (``front_x`` ...).
     units : tuple of str
         SI unit of each field (``m``, ``A``, ``m/s^2``, ``rad`` ...).
+    types : tuple of str, optional
+        The ros2msg type of each field, one of :data:`FIELD_TYPES`; empty (the default) where
+        every field is ``float64``.  A 64-bit integer (a DBC signal of 54 bits and more, an A2L
+        A_INT64 or A_UINT64 recorded as its raw value) is ``int64`` or ``uint64``: float64 holds
+        integers exactly only up to 2**53.
     """
 
     topic: str
     type_name: str
     fields: tuple[str, ...]
     units: tuple[str, ...]
+    types: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.fields) != len(self.units):
             raise ValueError(f"{self.topic}: {len(self.fields)} fields but {len(self.units)} units")
+        if self.types and (len(self.types) != len(self.fields) or not set(self.types) <= set(FIELD_TYPES)):
+            raise ValueError(f"{self.topic}: field types {self.types} are not one of {', '.join(FIELD_TYPES)} per field")
+        if self.types and set(self.types) == {"float64"}:
+            object.__setattr__(self, "types", ())  # one spelling of "all float64"
+
+    @property
+    def field_types(self) -> tuple[str, ...]:
+        """The ros2msg type of every field (``float64`` where :attr:`types` is empty)."""
+        return self.types or ("float64",) * len(self.fields)
+
+    @property
+    def value_dtype(self) -> np.dtype:
+        """The dtype of one sample's values: ``(n_fields,) float64``, or a packed structured dtype
+        naming each field where the group has 64-bit integer fields (every member is 8 bytes, so
+        the CDR layout is the same size and alignment either way)."""
+        if not self.types:
+            return np.dtype(("<f8", (len(self.fields),)))
+        return np.dtype([(f, FIELD_TYPES[t]) for f, t in zip(self.fields, self.types)])
+
+    def values_array(self, rows: "list[list] | list[tuple]") -> np.ndarray:
+        """``rows`` (one list of Python numbers per sample, in field order) as the group's values:
+        an ``(n, n_fields)`` float64 array, or an ``(n,)`` structured array of :attr:`value_dtype`
+        whose integer fields hold Python ints exactly."""
+        if not self.types:
+            return np.array(rows, dtype=np.float64).reshape(len(rows), len(self.fields))
+        return np.array([tuple(r) for r in rows], dtype=self.value_dtype)
+
+    def values_from_columns(self, columns: list[np.ndarray]) -> np.ndarray:
+        """One array per field (each of n samples, in field order) as the group's values (see
+        :meth:`values_array`)."""
+        n = columns[0].shape[0] if columns else 0
+        if not self.types:
+            return np.stack(columns, axis=1) if columns else np.empty((n, 0))
+        out = np.empty(n, dtype=self.value_dtype)
+        for f, c in zip(self.fields, columns):
+            out[f] = c
+        return out
+
 
 
 @dataclass(frozen=True)
@@ -66,8 +113,10 @@ class SampleBlock:
         Sample instants on the device's clock, in ns.
     seq : ndarray of uint32, shape (n,)
         Device sequence numbers; a gap means lost samples.
-    values : dict of str to ndarray of float64, shape (n, n_fields)
-        One array per topic, columns in the order of the group's ``fields``, SI units.
+    values : dict of str to ndarray
+        One array per topic, SI units: ``(n, n_fields)`` float64 with columns in the order of the
+        group's ``fields``, or for a group with 64-bit integer fields an ``(n,)`` structured array
+        of its :attr:`SignalGroup.value_dtype` (:meth:`SignalGroup.values_array` builds either).
     host_time_ns : ndarray of int64, shape (n,)
         Sample instants mapped to the host clock, in ns (MCAP ``log_time``); set by the recorder.
     received_ns : int, optional

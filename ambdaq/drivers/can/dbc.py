@@ -101,6 +101,14 @@ class DbcRequest:
 ROUND_LIMIT = 1 << 53  # the largest integer float64 holds exactly
 
 
+def _field_type(signal) -> str:
+    """The recorded type of a DBC signal: ``int64``/``uint64`` for an unscaled integer signal
+    longer than 53 bits (float64 would round its values past 2**53), else ``float64``."""
+    if signal.is_float or signal.scale != 1 or signal.offset != 0 or signal.length <= 53:
+        return "float64"
+    return "int64" if signal.is_signed else "uint64"
+
+
 class _Stream:
     """Rows of one topic as the bus thread decodes them: (seq, time ns, values)."""
 
@@ -117,7 +125,7 @@ class _Stream:
         self.queue = RowQueue(2.0 if rate_hz else float("inf"))  # frames of unknown ids may never come
         self.received = 0  # frames, or the unwrapped counter
         self.last_counter: int | None = None
-        self.rounded = 0  # recorded integer values beyond 2**53, which float64 (the recorded type) cannot hold
+        self.rounded = 0  # recorded integer values beyond 2**53 in float64 fields, which hold them rounded
 
     def add(self, t_ns: int, values: list[float], counter: int | None, rounded: int = 0) -> None:
         """One frame's row; ``rounded``: how many of its values float64 holds only rounded."""
@@ -212,7 +220,8 @@ class DbcReceiver:
             for key, signals in keys.items():
                 topic = f"{prefix}/{name}" + "".join(f"/m{v}" for _m, v in key)
                 group = SignalGroup(topic, f"Dbc{ros_type(name)}" + "".join(f"M{v}" for _m, v in key),
-                                    tuple(fields[s.name] for s in signals), tuple(s.unit or "" for s in signals))
+                                    tuple(fields[s.name] for s in signals), tuple(s.unit or "" for s in signals),
+                                    tuple(_field_type(s) for s in signals))
                 self.streams[(msg.frame_id, key)] = _Stream(
                     group, counter, bits, None if rate is None else rate / len(keys), source,  # pages take turns
                     {fields[s.name]: s.name for s in signals},
@@ -257,11 +266,13 @@ class DbcReceiver:
             if names is None or any(n not in decoded for n in names):
                 self.undecodable += 1  # a multiplexer value the DBC does not define
                 return
+            stream = streams[(frame_id, key)]
             values = [decoded[n] for n in names]
-            # a 64-bit integer signal beyond 2**53 is recorded rounded (float64): counted, never silent
-            streams[(frame_id, key)].add(int(round(timestamp * 1e9)), [float(v) for v in values],
-                                         None if counter is None else int(decoded[counter]),
-                                         sum(1 for v in values if isinstance(v, int) and abs(v) > ROUND_LIMIT))
+            # an integer beyond 2**53 in a float64 field (an integer scale on a long signal) is
+            # recorded rounded: counted, never silent; int64/uint64 fields hold it exactly
+            stream.add(int(round(timestamp * 1e9)), values, None if counter is None else int(decoded[counter]),
+                       sum(1 for v, t in zip(values, stream.group.field_types)
+                           if t == "float64" and isinstance(v, int) and abs(v) > ROUND_LIMIT))
 
         return on_frame
 
@@ -317,7 +328,7 @@ class DbcMessageSource(Source):
         self.stream.rounded += sum(r[3] for r in got)  # of the rows recorded, not of every frame seen
         t = np.array([r[1] for r in got], dtype=np.int64)
         return SampleBlock(device_time_ns=t, seq=(seq & 0xFFFFFFFF).astype(np.uint32),
-                           values={self.stream.group.topic: np.array([r[2] for r in got], dtype=np.float64)},
+                           values={self.stream.group.topic: self.stream.group.values_array([r[2] for r in got])},
                            host_time_ns=t)
 
     def link_statistics(self) -> dict[str, str]:

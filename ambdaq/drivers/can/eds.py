@@ -51,7 +51,7 @@ from canopen import objectdictionary as od
 from ...errors import BadInputError, DeviceError
 from ..interfaces import Source
 from ..rigfile import check_keys
-from ..signals import Event, SampleBlock, SignalGroup
+from ..signals import FIELD_TYPES, Event, SampleBlock, SignalGroup
 from .bus import CanHub
 from ..rows import RowQueue
 
@@ -120,6 +120,14 @@ class EdsSignal:
     unit: str
     tpdo: int | None
     var: od.ODVariable
+
+    @property
+    def field_type(self) -> str:
+        """``int64``/``uint64`` for an unscaled INTEGER64/UNSIGNED64 object (float64 would round
+        it past 2**53), else ``float64``."""
+        if self.factor != 1 or self.offset != 0 or self.var.data_type not in (od.INTEGER64, od.UNSIGNED64):
+            return "float64"
+        return "int64" if self.var.data_type == od.INTEGER64 else "uint64"
 
 
 def _variable(d: od.ObjectDictionary, ref, where: str) -> od.ODVariable:
@@ -307,12 +315,11 @@ class EdsDevice(Source):
             for s in sigs:
                 by_topic[s.topic].append(s)
         self.groups = [SignalGroup(t, "Eds" + _field_name(t).title().replace("_", ""),
-                                   tuple(s.field for s in sigs), tuple(s.unit for s in sigs))
+                                   tuple(s.field for s in sigs), tuple(s.unit for s in sigs),
+                                   tuple(s.field_type for s in sigs))
                        for t, sigs in by_topic.items()]
-        order = [s for _c, _f, sigs in self.tpdos for s in sigs]
-        self._columns = {t: [order.index(s) for s in sigs] for t, sigs in by_topic.items()}
-        self._factor = np.array([s.factor for s in order])
-        self._offset = np.array([s.offset for s in order])
+        self._order = [s for _c, _f, sigs in self.tpdos for s in sigs]
+        self._columns = {t: [self._order.index(s) for s in sigs] for t, sigs in by_topic.items()}
         self._rows = RowQueue(max(1.0, 20 / self.sample_rate))  # (cycle, time ns, raw values)
         self._parts: list = [None] * len(self.tpdos)
         self._replied = [-1] * len(self.tpdos)  # per TPDO: the newest cycle it answered
@@ -518,10 +525,13 @@ class EdsDevice(Source):
         if taken is None:
             return None
         rows, cycles = taken
-        si = np.array([r[2] for r in rows], dtype=np.float64) * self._factor + self._offset
+        raw = list(zip(*(r[2] for r in rows)))  # per object, its raw values (Python numbers, exact)
+        si = [np.array(v, dtype=FIELD_TYPES[s.field_type]) if s.field_type != "float64"
+              else np.array(v, dtype=np.float64) * s.factor + s.offset for s, v in zip(self._order, raw)]
         t = np.array([r[1] for r in rows], dtype=np.int64)
         return SampleBlock(device_time_ns=t, seq=(cycles & 0xFFFFFFFF).astype(np.uint32),
-                           values={g.topic: si[:, self._columns[g.topic]] for g in self.groups}, host_time_ns=t)
+                           values={g.topic: g.values_from_columns([si[c] for c in self._columns[g.topic]])
+                                   for g in self.groups}, host_time_ns=t)
 
     def events(self) -> list[Event]:
         return self.hub.take_events(self._events)

@@ -44,7 +44,7 @@ from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import UNLOCK_KEY_ENV, CalibrationPages, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
-from ..signals import SampleBlock, SignalGroup, ros_field, ros_type
+from ..signals import FIELD_TYPES, SampleBlock, SignalGroup, ros_field, ros_type
 from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
 from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
@@ -134,6 +134,17 @@ def upload_a2l(url: str, link: LinkFactory) -> bytes:
     return text
 
 
+def field_type(m: A2lMeasurement) -> str:
+    """The recorded type of ``m``: ``int64``/``uint64`` for an A_INT64 or A_UINT64 whose recorded
+    value is its raw integer (an identical conversion, one ambdaq does not compute, a BIT_MASK),
+    so that float64 does not round it past 2**53; ``float64`` for everything else."""
+    kind, size = TYPES[m.datatype]
+    c = m.conversion
+    if kind == "f" or size != 8 or (c.computed and not (c.linear and c.factor == 1 and c.offset == 0)):
+        return "float64"
+    return "uint64" if kind == "u" or m.bit_mask is not None else "int64"
+
+
 def _cycle_text(event: EventChannel) -> str:
     return f"every {event.cycle_ns / 1e3:g} us" if event.cycle_ns else "sporadic"
 
@@ -162,7 +173,7 @@ class _Stream:
         self._dtype = plan.dtype()
         index = {e: k for k, e in enumerate(plan.elements)}
         self._cols = [f"e{index[e]}" for e in fields]
-        self.rounded = 0  # 64-bit integer values beyond 2**53, which float64 cannot hold exactly
+        self.rounded = 0  # scaled 64-bit integers beyond 2**53, which float64 holds rounded
         self.implausible = 0  # samples dropped: their timestamp cannot be the slave's clock
 
     def read(self, failure: Callable[[], str | None]) -> SampleBlock | None:
@@ -189,18 +200,22 @@ class _Stream:
         k = int(np.argmin(arrival - device))
         self._pairs.append((int(device[k]), int(arrival[k])))
         payload = np.frombuffer(b"".join(r[3] for r in rows), dtype=self._dtype)
-        values = np.empty((len(rows), len(self.fields)), dtype=np.float64)
-        for j, (e, col) in enumerate(zip(self.fields, self._cols)):
-            values[:, j] = self._physical(e.measurement, payload[col])
+        values = [self._physical(e.measurement, payload[col]) for e, col in zip(self.fields, self._cols)]
         return SampleBlock(device, (seq & 0xFFFFFFFF).astype(np.uint32),
-                           {g.topic: values[:, cols] for g, cols in zip(self.groups, self.columns)},
+                           {g.topic: g.values_from_columns([values[c] for c in cols])
+                            for g, cols in zip(self.groups, self.columns)},
                            received_ns=int(arrival[-1]))
 
     def _physical(self, m: A2lMeasurement, raw: np.ndarray) -> np.ndarray:
+        """The recorded values of ``m`` from its raw DTO values: exact integers for a 64-bit
+        integer recorded raw (:func:`field_type`), float64 physical values otherwise."""
         if m.bit_mask is not None:
             shift = (m.bit_mask & -m.bit_mask).bit_length() - 1
             raw = (raw.astype(np.uint64) & np.uint64(m.bit_mask)) >> np.uint64(shift)
-        if raw.dtype.kind in "iu" and raw.dtype.itemsize == 8:
+        kind = field_type(m)
+        if kind != "float64":
+            return raw.astype(FIELD_TYPES[kind])
+        if raw.dtype.kind in "iu" and raw.dtype.itemsize == 8:  # scaled: the raw value float64 rounds, counted
             self.rounded += int(np.count_nonzero(np.abs(raw.astype(np.float64)) > 2.0 ** 53))
         x = raw.astype(np.float64)
         c = m.conversion
@@ -420,7 +435,8 @@ class XcpController(Controller, CalibrationPages):
             groups, columns, fields_in_order, k = [], [], [], 0
             for (topic, type_name), elements in by_topic.items():
                 groups.append(SignalGroup(topic, type_name, tuple(x.field for x in elements),
-                                          tuple(x.measurement.unit for x in elements)))
+                                          tuple(x.measurement.unit for x in elements),
+                                          tuple(field_type(x.measurement) for x in elements)))
                 columns.append(np.arange(k, k + len(elements)))
                 fields_in_order += elements
                 k += len(elements)
