@@ -191,6 +191,8 @@ CONVERSIONS = """ASAP2_VERSION 1 71
   /begin MODULE M ""
     /begin COMPU_METHOD CM.VERB "" TAB_VERB "%3.0" "" COMPU_TAB_REF CM.VERB.REF /end COMPU_METHOD
     /begin COMPU_VTAB CM.VERB.REF "" TAB_VERB 2 0 "off" 1 "on" /end COMPU_VTAB
+    /begin COMPU_METHOD CM.RANGE "" TAB_VERB "%3.0" "" COMPU_TAB_REF CM.RANGE.REF /end COMPU_METHOD
+    /begin COMPU_VTAB_RANGE CM.RANGE.REF "" 2 0 9 "low" 10 99 "mid" DEFAULT_VALUE "high" /end COMPU_VTAB_RANGE
     /begin COMPU_METHOD CM.INTP "" TAB_INTP "%8.4" "m" COMPU_TAB_REF CM.INTP.REF /end COMPU_METHOD
     /begin COMPU_TAB CM.INTP.REF "" TAB_INTP 2 0 0.0 1000 1.0 DEFAULT_VALUE_NUMERIC -1 /end COMPU_TAB
     /begin COMPU_METHOD CM.FORM "" FORM "%8.4" "s"
@@ -199,6 +201,7 @@ CONVERSIONS = """ASAP2_VERSION 1 71
     /begin COMPU_METHOD CM.LIN "" LINEAR "%8.4" "mm" COEFFS_LINEAR 0.5 -3 /end COMPU_METHOD
     /begin MEASUREMENT ticks "" ULONG NO_COMPU_METHOD 0 0 0 4294967295 ECU_ADDRESS 0x1000 /end MEASUREMENT
     /begin MEASUREMENT Ticks.Verbal "" ULONG CM.VERB 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
+    /begin MEASUREMENT ticks_range "" ULONG CM.RANGE 0 0 0 4294967295 ECU_ADDRESS 0x1000 /end MEASUREMENT
     /begin MEASUREMENT ticks_table "" ULONG CM.INTP 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
     /begin MEASUREMENT ticks_formula "" ULONG CM.FORM 0 0 0 1 ECU_ADDRESS 0x1000 /end MEASUREMENT
     /begin MEASUREMENT low_byte "" UBYTE CM.LIN 0 0 0 255 ECU_ADDRESS 0x1000 BYTE_ORDER MSB_LAST /end MEASUREMENT
@@ -219,15 +222,16 @@ def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_
     a2l.write_text(CONVERSIONS)
     slave = HostileSlave("good")
     out = tmp_path / "c.mcap"
-    names = ["word_be", "ticks", "Ticks.Verbal", "ticks_table", "ticks_formula", "low_byte", "bits", "pair"]
+    names = ["word_be", "ticks", "Ticks.Verbal", "ticks_range", "ticks_table", "ticks_formula", "low_byte", "bits", "pair"]
     r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l,
                 *[a for n in names for a in ("--measure", n)], "--duration", "1", "-q", "-o", out)
     assert r.exit_code == 0, r.output
     got = load(out)["/xcp/tick"]
     k = got["ticks"].astype(np.int64)
-    assert list(got.fields) == ["word_be", "ticks", "ticks_verbal", "ticks_table", "ticks_formula", "low_byte", "bits",
+    assert list(got.fields) == ["word_be", "ticks", "ticks_verbal", "ticks_range", "ticks_table", "ticks_formula", "low_byte", "bits",
                                 "pair_0", "pair_1"]
     np.testing.assert_array_equal(got["ticks_verbal"], k)  # TAB_VERB: the raw value, its table in the metadata
+    np.testing.assert_array_equal(got["ticks_range"], k)  # a COMPU_VTAB_RANGE too
     # TAB_INTP between (0, 0) and (1000, 1), its default beyond (to 1e-12: interpolation's own rounding, a few ulps)
     np.testing.assert_allclose(got["ticks_table"], np.where(k <= 1000, k / 1000.0, -1.0), rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(got["ticks_formula"], k)  # FORM: raw, named
@@ -238,8 +242,9 @@ def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_
     np.testing.assert_array_equal(got["pair_1"], (k >> 8) & 0xFF)
     assert got.units["ticks_table"] == "m" and got.units["low_byte"] == "mm" and got.units["ticks_formula"] == ""
     device = McapFile(out).metadata()["ambdaq.device.controller"]
-    assert json.loads(device["value_tables"]) == {"ticks_verbal": {"0": "off", "1": "on"}}
-    assert json.loads(device["raw_fields"]) == {"ticks_verbal": "Ticks.Verbal (TAB_VERB)",
+    assert json.loads(device["value_tables"]) == {"ticks_verbal": {"0": "off", "1": "on"},
+                                                  "ticks_range": {"0..9": "low", "10..99": "mid", "default": "high"}}
+    assert json.loads(device["raw_fields"]) == {"ticks_verbal": "Ticks.Verbal (TAB_VERB)", "ticks_range": "ticks_range (TAB_VERB)",
                                                 "ticks_formula": "ticks_formula (FORM)"}
     assert json.loads(device["measurements"])["ticks_verbal"] == "Ticks.Verbal"
     # export --labels writes the verbal table's text beside the raw value: "off", "on", then none
@@ -250,6 +255,9 @@ def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_
     column = lines[0].split(",").index("ticks_verbal_label")
     labels = [line.split(",")[column] for line in lines[1:]]
     assert labels == [{0: "off", 1: "on"}.get(int(v), "") for v in k]
+    column = lines[0].split(",").index("ticks_range_label")  # ranges inclusive, the default beyond them
+    assert [line.split(",")[column] for line in lines[1:]] == ["low" if v <= 9 else "mid" if v <= 99 else "high" for v in k]
+    assert k.min() <= 9 and k.max() > 99  # every branch was taken
     # the ASCII measurement in the file stopped nothing above; selected, it is one line
     slave = HostileSlave("good")
     r = run_cli("record", "--device", f"xcp+tcp://127.0.0.1:{slave.port}", "--a2l", a2l, "--measure", "text",

@@ -26,9 +26,36 @@ def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None) -> d
         cols[name] = values
         table = (tables or {}).get(name)
         if table:  # the text beside the number: "" where the value has none in the table
-            cols[f"{name}_label"] = np.array([table.get(str(int(v)), "") if float(v).is_integer() else ""
-                                              for v in values.tolist()], dtype=str)
+            find = labeller(table)
+            cols[f"{name}_label"] = np.array([find(v) for v in values.tolist()], dtype=str)
     return cols
+
+
+def labeller(table: dict[str, str]):
+    """The text a value table (a recording's ``value_tables`` entry) gives a raw value: keys are a
+    value (a DBC choice, an A2L COMPU_VTAB entry), an inclusive range ``"LO..HI"`` (an A2L
+    COMPU_VTAB_RANGE; a fractional raw value with LO <= x < HI, as ASAM MCD-2 MC reads ranges of
+    floats) or ``"default"`` (its DEFAULT_VALUE); "" where none applies."""
+    exact, ranges = {}, []
+    for key, text in table.items():
+        lo, sep, hi = key.partition("..")
+        if sep:
+            ranges.append((float(lo), float(hi), text))
+        elif key != "default":  # an integer key stays an int: a 64-bit value is matched exactly
+            exact[int(key) if key.lstrip("-").isdigit() else float(key)] = text
+    default = table.get("default", "")
+
+    def find(value: float | int) -> str:
+        if value in exact:
+            return exact[value]
+        v = float(value)
+        whole = v.is_integer()
+        for lo, hi, text in ranges:
+            if lo <= v <= hi if whole else lo <= v < hi:
+                return text
+        return default
+
+    return find
 
 
 def value_tables(path: Path) -> dict[str, dict[str, dict[str, str]]]:

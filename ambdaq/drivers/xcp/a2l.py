@@ -5,7 +5,8 @@ Measurements: address and address extension, data type, byte order, bit mask, ar
 conversion to physical units and the DAQ events the file allows (``IF_DATA XCP`` ``DAQ_EVENT``
 ``FIXED_EVENT_LIST`` / ``DEFAULT_EVENT_LIST``).  A conversion ambdaq computes (``IDENTICAL``,
 ``LINEAR``, a linear ``RAT_FUNC``, ``TAB_INTP``) gives physical values; any other (``TAB_VERB``,
-whose verbal table is kept for the recording's metadata, ``TAB_NOINTP``, ``FORM``, a non-linear
+whose verbal table, a ``COMPU_VTAB`` or ``COMPU_VTAB_RANGE`` with its ``DEFAULT_VALUE``, is
+kept for the recording's metadata, ``TAB_NOINTP``, ``FORM``, a non-linear
 ``RAT_FUNC``) is recorded as the raw value with the conversion named.  Nothing about a
 measurement that is not selected can refuse the file: what ambdaq cannot record is refused when
 it is selected (:meth:`A2lMeasurement.problem`).
@@ -46,7 +47,7 @@ TYPES = {"UBYTE": ("u", 1), "SBYTE": ("i", 1), "UWORD": ("u", 2), "SWORD": ("i",
 BYTE_ORDERS = {"MSB_LAST": "<", "LITTLE_ENDIAN": "<", "MSB_FIRST": ">", "BIG_ENDIAN": ">"}
 """A2L BYTE_ORDER -> numpy byte order (MSB_FIRST_MSW_LAST and MSB_LAST_MSW_FIRST are not read)."""
 KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERISTIC", "AXIS_PTS", "COMPU_METHOD", "COMPU_TAB",
-                  "COMPU_VTAB", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
+                  "COMPU_VTAB", "COMPU_VTAB_RANGE", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
                   "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "INSTANCE", "TYPEDEF_STRUCTURE",
                   "STRUCTURE_COMPONENT", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC", "AXIS_DESCR", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
 RECORD_ITEM = re.compile(r"FNC_VALUES|IDENTIFICATION|RESERVED|(NO_)?AXIS_PTS_[XYZ45]|(NO_)?RESCALE_[XYZ]|"
@@ -59,7 +60,8 @@ class Conversion:
     """A COMPU_METHOD as ambdaq applies it: ``kind``; physical = factor * raw + offset where
     ``linear``; ``table`` (raw -> physical, ascending raw) for TAB_INTP, linear between its
     points, its ``default`` outside them or else its end values; ``verbal`` (raw -> text) for
-    TAB_VERB; ``unit``."""
+    TAB_VERB, as the value table of a recording's metadata: keys a raw value (COMPU_VTAB), an
+    inclusive range ``"LO..HI"`` (COMPU_VTAB_RANGE) or ``"default"`` (DEFAULT_VALUE); ``unit``."""
 
     kind: str = "IDENTICAL"
     linear: bool = True
@@ -67,7 +69,7 @@ class Conversion:
     offset: float = 0.0
     unit: str = ""
     table: tuple[tuple[float, float], ...] = ()
-    verbal: tuple[tuple[float, str], ...] = ()
+    verbal: tuple[tuple[str, str], ...] = ()
     default: float | None = None  # TAB_INTP: the value outside the table (DEFAULT_VALUE_NUMERIC), else its ends
 
     @property
@@ -305,7 +307,8 @@ def _integer(block: Block, token: str, what: str) -> int:
 
 ARITY = {"ECU_ADDRESS": 1, "ECU_ADDRESS_EXTENSION": 1, "BYTE_ORDER": 1, "BIT_MASK": 1, "ARRAY_SIZE": 1,
          "MATRIX_DIM": 3, "PHYS_UNIT": 1, "NUMBER": 1, "COEFFS": 6, "COEFFS_LINEAR": 2, "COMPU_TAB_REF": 1,
-         "FNC_VALUES": 4, "AXIS_PTS_X": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1, "DEFAULT_VALUE_NUMERIC": 1}
+         "FNC_VALUES": 4, "AXIS_PTS_X": 4, "READ_ONLY": 0, "ANNOTATION_LABEL": 1, "DEFAULT_VALUE_NUMERIC": 1,
+         "DEFAULT_VALUE": 1}
 """The optional keywords ambdaq reads and how many words follow each (MATRIX_DIM: up to 3 numbers)."""
 
 
@@ -348,7 +351,8 @@ class _ModuleReader:
         order = _options(common, 1).get("BYTE_ORDER", ["MSB_LAST"]) if common is not None else ["MSB_LAST"]
         self.byte_order = BYTE_ORDERS.get(order[0] if order else "MSB_LAST", "")
         self.methods = {_word(b, 0): b for b in module.children("COMPU_METHOD")}
-        self.tables = {_word(b, 0): b for b in module.children("COMPU_TAB") + module.children("COMPU_VTAB")}
+        self.tables = {_word(b, 0): b for kind in ("COMPU_TAB", "COMPU_VTAB", "COMPU_VTAB_RANGE")
+                       for b in module.children(kind)}
         self.layouts: dict[str, tuple[str, bool]] = {}  # name -> FNC_VALUES type, whether it holds only them
         self.axis_layouts: dict[str, str] = {}  # name -> AXIS_PTS_X type, for a record of axis points alone
         for layout in module.children("RECORD_LAYOUT"):
@@ -393,11 +397,10 @@ class _ModuleReader:
             table = self.tables.get(ref)
             if table is None:
                 return Conversion(kind, False)
+            if kind == "TAB_VERB":
+                return Conversion(kind, False, verbal=self._verbal(table))
             n = _integer(table, _word(table, 3, "0"), "number of pairs")
             pairs = table.items[4 : 4 + 2 * n]
-            if kind == "TAB_VERB":
-                return Conversion(kind, False, verbal=tuple((_number(table, pairs[i], "value"), str(pairs[i + 1]))
-                                                            for i in range(0, len(pairs) - 1, 2)))
             if kind == "TAB_NOINTP" or _word(table, 2, "") != "TAB_INTP":
                 return Conversion("TAB_NOINTP", False)  # the table's own type says it does not interpolate
             points = sorted((_number(table, pairs[i], "value"), _number(table, pairs[i + 1], "value"))
@@ -408,6 +411,24 @@ class _ModuleReader:
         if kind == "IDENTICAL":
             return Conversion(kind, True, unit=unit)
         return Conversion(kind, False)  # FORM and what else a vendor writes: recorded raw, named
+
+    @staticmethod
+    def _verbal(table: Block) -> tuple[tuple[str, str], ...]:
+        """A COMPU_VTAB (name, long name, TAB_VERB, n, n pairs value "text") or COMPU_VTAB_RANGE
+        (name, long name, n, n triples min max "text"), either with an optional DEFAULT_VALUE
+        (ASAM MCD-2 MC 1.7): its entries as value-table keys and texts."""
+        ranges = table.keyword == "COMPU_VTAB_RANGE"
+        at, width = (3, 3) if ranges else (4, 2)
+        n = _integer(table, _word(table, at - 1, "0"), "number of entries")
+        items = table.items[at : at + width * n]
+        out = []
+        for i in range(0, len(items) - width + 1, width):
+            values = [_number(table, v, "value") for v in items[i : i + width - 1]]
+            # written exactly (":g" would make 100000000 "1e+08", another key than the raw value's)
+            key = "..".join(str(int(v)) if float(v).is_integer() else repr(float(v)) for v in values)
+            out.append((key, str(items[i + width - 1])))
+        default = _options(table, at + width * n).get("DEFAULT_VALUE")
+        return tuple(out) + ((("default", default[0]),) if default else ())
 
     def _measurement(self, b: Block, name: str, where: tuple[int, int] | None, events: Block) -> A2lMeasurement:
         """A MEASUREMENT, or a TYPEDEF_MEASUREMENT placed by an INSTANCE at ``where`` (extension,

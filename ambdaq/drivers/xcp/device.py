@@ -236,7 +236,7 @@ class _Stream:
     def identity(self) -> dict[str, str]:
         raw = {e.field: f"{e.measurement.name} ({e.measurement.conversion.kind})" for e in self.fields
                if not e.measurement.conversion.computed}
-        verbal = {e.field: {f"{k:g}": v for k, v in e.measurement.conversion.verbal} for e in self.fields
+        verbal = {e.field: dict(e.measurement.conversion.verbal) for e in self.fields
                   if e.measurement.conversion.verbal}
         out = {"event": self.plan.event.name, "event_number": str(self.plan.event.number),
                "event_cycle": _cycle_text(self.plan.event),
