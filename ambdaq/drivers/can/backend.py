@@ -11,6 +11,7 @@ from ..registry import Backend, Opened, OpenRequest
 from ..url import DeviceURL, Scheme
 
 
+SOCKETCAND_PORT = 29536  # socketcand's default TCP port
 NETWORK_INTERFACES = ("udp_multicast",)
 """python-can interfaces that carry CAN over an IP network: refused, whatever the URL."""
 
@@ -25,8 +26,9 @@ class CanBackend(Backend):
     scheme = Scheme("can", "can://INTERFACE/CHANNEL?node=N[&kind=amplifier|gap_sensor|accelerometer|keyphasor|controller"
                            "&sync=HZ&bitrate=1000000&namespace=NAME&open_delay=S], can://INTERFACE/CHANNEL?node=N&eds=FILE"
                            "[&sync=HZ|external] or can://INTERFACE/CHANNEL?dbc=FILE[&raw=1] "
-                           "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16)",
-                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw", "eds"))
+                           "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16, "
+                           "can://socketcand/can0?host=H&port=29536&dbc=FILE)",
+                    ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw", "eds", "host", "port"))
 
     def _on_hub(self, url: DeviceURL, make):
         """``make(hub)`` on the shared bus ``url`` names; the hub is released if that fails."""
@@ -48,6 +50,18 @@ class CanBackend(Backend):
             raise BadInputError(f"CANopen node id must be 1..127, not {node}")
         return node
 
+    @staticmethod
+    def _sync_timeable(url: DeviceURL, external: bool) -> None:
+        """Refuse a SYNC from ambdaq where it cannot be timed against the replies: a gateway that
+        stamps frames on its own clock and returns none that ambdaq sends (bus.GATEWAY_CLOCK)."""
+        from .bus import GATEWAY_CLOCK
+
+        interface = url.target.partition("/")[0]
+        if interface in GATEWAY_CLOCK and not external:
+            raise BadInputError(f"{url.text}: a {interface} gateway stamps frames on its own clock and returns none that "
+                                "ambdaq sends, so a SYNC from ambdaq cannot be timed against the replies; give "
+                                "sync=external, with a SYNC master on the bus")
+
     def bus_of(self, url: DeviceURL) -> tuple[str, str, dict]:
         """python-can interface, channel and bus options of ``url``.
 
@@ -64,6 +78,12 @@ class CanBackend(Backend):
         if "/" in channel:
             channel = "/" + channel
         options = {}
+        if interface == "socketcand":  # a CAN-over-TCP gateway (socketcand's protocol, its raw mode)
+            if "host" not in url.options:
+                raise BadInputError(f"{url.text}: a socketcand gateway needs host=H (and port=P, default {SOCKETCAND_PORT})")
+            options = {"host": url.options["host"], "port": url.integer("port", SOCKETCAND_PORT)}
+        elif "host" in url.options or "port" in url.options:
+            raise BadInputError(f"options host and port in {url.text!r} are for socketcand gateways only")
         if "open_delay" in url.options:
             if interface != "slcan":
                 raise BadInputError(f"option open_delay in {url.text!r} is for slcan adapters only")
@@ -85,6 +105,7 @@ class CanBackend(Backend):
         if "node" not in url.options and kind is None:
             raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {self.scheme.form}")
         node = self._node(url, PROFILES[kind].default_node if kind else 0)
+        self._sync_timeable(url, external=False)  # ambdaq's own CANopen devices follow ambdaq's SYNC
         dev = self._on_hub(url, lambda hub: CanopenDevice(
             hub, node, kind=kind, sync_hz=url.number("sync", 800.0), name=request.name,
             namespace=url.options.get("namespace", ""), url=url.text))
@@ -116,6 +137,7 @@ class CanBackend(Backend):
         tpdos = check_mapping(signals, odict, path) if mapping == "configure" else None
         sync = url.options.get("sync", "800")
         sync_hz = None if sync == "external" else url.number("sync", 800.0)
+        self._sync_timeable(url, external=sync_hz is None)
         device = self._on_hub(url, lambda hub: EdsDevice(hub, node, path, odict, signals, tpdos, sync_hz=sync_hz,
                                                          name=name, url=url.text))
         device.add_calibration(request.calibration)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import queue
+import socket
 import threading
 import time
 from collections import deque
@@ -24,10 +25,11 @@ from typing import Callable, NamedTuple
 
 import can
 import canopen
+import numpy as np
 
 from ...errors import BadInputError, DeviceError
 from .profiles import SYNC_COUNTER_MAX
-from ..signals import Event
+from ..signals import Event, SampleBlock
 
 SYNC_COB_ID = 0x80
 MAX_LOAD = 0.80
@@ -40,6 +42,14 @@ OWN_ECHO = ("virtual", "socketcan")
 """Interfaces that hand a frame we send back to us with its bus time (python-can's
 ``receive_own_messages``): our SYNC is timed by that echo.  Any other (an SLCAN adapter) is timed
 as it is handed to the interface."""
+GATEWAY_CLOCK = ("socketcand",)
+"""Interfaces whose frames carry the time stamps of a gateway's own clock (socketcand: the kernel's
+receive time on the gateway host), not the host's: a device's sample times on them are mapped to
+the host clock by the recorder's clock map, from (bus time, arrival) pairs (:meth:`CanHub.take_clock_pairs`),
+as a serial device's are.  Such a gateway returns no frame the host sends, so a SYNC from ambdaq
+cannot be timed on its clock: there the SYNC must come from a master on the bus (``sync=external``)."""
+GATEWAY_TIMEOUT_S = 3.0  # to reach a gateway's TCP port
+PAIR_WINDOW_NS = 100_000_000  # one (bus time, arrival) pair per 100 ms: the frame that arrived soonest
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -74,8 +84,18 @@ class CanHub:
     def __init__(self, interface: str, channel: str, bitrate: int, **bus_options) -> None:
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
         self.own_echo = interface in OWN_ECHO
+        self.host_clock = interface not in GATEWAY_CLOCK  # bus time stamps on the host clock
+        self._pairs: list[tuple[int, int]] = []  # gateway clock: (bus ns, arrival ns), one per PAIR_WINDOW_NS
+        self._pair_window = (0, 0, 0)  # (window start, bus ns, arrival ns) of the soonest frame in it
+        self._pairs_taken: dict[int, int] = {}  # reader -> how many of _pairs it has taken
         if self.own_echo:
             bus_options["receive_own_messages"] = True
+        if "host" in bus_options:  # a gateway: python-can's client retries a refused connection for 10 s
+            try:
+                socket.create_connection((bus_options["host"], bus_options["port"]), timeout=GATEWAY_TIMEOUT_S).close()
+            except OSError as err:
+                raise DeviceError(f"cannot reach the {interface} gateway at {bus_options['host']}:{bus_options['port']}: "
+                                  f"{err.strerror or err}") from None
         try:
             bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, **bus_options)
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
@@ -219,6 +239,8 @@ class CanHub:
                     time.sleep(RX_POLL_S)
                 continue
             wait = 0.0
+            if not self.host_clock:
+                self._pair(int(msg.timestamp * 1e9), time.time_ns())
             while own:  # a SYNC we sent while waiting comes before any reply to it
                 counter, sent = own.popleft()
                 self._on_sync(bytes([counter]), sent)
@@ -237,6 +259,35 @@ class CanHub:
             else:
                 for cb in unknown:
                     cb(msg)
+
+    def _pair(self, bus_ns: int, arrival_ns: int) -> None:
+        """Keep the frame that arrived soonest after its bus time in each PAIR_WINDOW_NS: the pair
+        closest to the true offset between the gateway's clock and the host's."""
+        start, bus, arrival = self._pair_window
+        if arrival_ns - start >= PAIR_WINDOW_NS:
+            if start:
+                self._pairs.append((bus, arrival))
+            self._pair_window = (arrival_ns, bus_ns, arrival_ns)
+        elif arrival_ns - bus_ns < arrival - bus:
+            self._pair_window = (start, bus_ns, arrival_ns)
+
+    def take_clock_pairs(self, reader: object) -> list[tuple[int, int]] | None:
+        """The (bus time, host arrival) pairs, in ns, that ``reader`` (a device's source) has not
+        taken yet; None where bus times are host times (GATEWAY_CLOCK)."""
+        if self.host_clock:
+            return None
+        done = self._pairs_taken.get(id(reader), 0)
+        pairs = self._pairs[done:]
+        self._pairs_taken[id(reader)] = done + len(pairs)
+        return pairs
+
+    def sample_block(self, time_ns: np.ndarray, seq: np.ndarray, values: dict[str, np.ndarray]) -> SampleBlock:
+        """A block of samples at bus times ``time_ns`` (ns): host times as they are, or on a
+        gateway's clock (GATEWAY_CLOCK) left for the recorder to map by its clock pairs."""
+        seq32 = (seq & 0xFFFFFFFF).astype(np.uint32)
+        if self.host_clock:
+            return SampleBlock(device_time_ns=time_ns, seq=seq32, values=values, host_time_ns=time_ns)
+        return SampleBlock(device_time_ns=time_ns, seq=seq32, values=values, received_ns=time.time_ns())
 
     def _malformed(self, err: Exception) -> None:
         """A line or frame the interface could not parse: counted, and an event."""

@@ -327,9 +327,10 @@ class DbcMessageSource(Source):
         got, seq = taken
         self.stream.rounded += sum(r[3] for r in got)  # of the rows recorded, not of every frame seen
         t = np.array([r[1] for r in got], dtype=np.int64)
-        return SampleBlock(device_time_ns=t, seq=(seq & 0xFFFFFFFF).astype(np.uint32),
-                           values={self.stream.group.topic: self.stream.group.values_array([r[2] for r in got])},
-                           host_time_ns=t)
+        return hub.sample_block(t, seq, {self.stream.group.topic: self.stream.group.values_array([r[2] for r in got])})
+
+    def clock_pairs(self) -> list[tuple[int, int]] | None:
+        return self.receiver.hub.take_clock_pairs(self)
 
     def link_statistics(self) -> dict[str, str]:
         r = self.receiver

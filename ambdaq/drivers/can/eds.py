@@ -529,9 +529,11 @@ class EdsDevice(Source):
         si = [np.array(v, dtype=FIELD_TYPES[s.field_type]) if s.field_type != "float64"
               else np.array(v, dtype=np.float64) * s.factor + s.offset for s, v in zip(self._order, raw)]
         t = np.array([r[1] for r in rows], dtype=np.int64)
-        return SampleBlock(device_time_ns=t, seq=(cycles & 0xFFFFFFFF).astype(np.uint32),
-                           values={g.topic: g.values_from_columns([si[c] for c in self._columns[g.topic]])
-                                   for g in self.groups}, host_time_ns=t)
+        return self.hub.sample_block(t, cycles, {g.topic: g.values_from_columns([si[c] for c in self._columns[g.topic]])
+                                                 for g in self.groups})
+
+    def clock_pairs(self) -> list[tuple[int, int]] | None:
+        return self.hub.take_clock_pairs(self)
 
     def events(self) -> list[Event]:
         return self.hub.take_events(self._events)

@@ -1,0 +1,170 @@
+"""CAN through a network gateway in another process: every EDS of the corpus, as shipped, a device
+built from it behind a socketcand gateway (``tests/eds_gateway.py``), recorded by python-can's
+``socketcand`` interface with the bus's own SYNC master. Each recorded value is the one the device
+put in that SYNC's TPDOs, and the gateway's clock, 37.25 s off the host's, is mapped, not trusted."""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from canopen import objectdictionary as od
+
+from ambdaq.daq import load
+from ambdaq.daq.mcapfile import McapFile
+
+sys.path.insert(0, str(Path(__file__).parent))
+from eds_gateway import FORMATS, value_of  # noqa: E402
+
+pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+
+CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds"
+EDS_FILES = sorted(CORPUS.glob("*.eds"))
+NODE, RATE, OFFSET_S = 9, 100, 37.25
+SIGNALS_PER_TPDO, TPDOS = 2, 2
+
+
+def recordable(path: Path) -> list[tuple[int, int, int]]:
+    """(index, sub-index, data type) of the EDS's first TPDO-mappable, readable numeric objects of
+    the manufacturer and profile areas (0x2000 on), four bytes or less each, so two share a TPDO."""
+    import canopen
+
+    found = []
+    for obj in canopen.import_od(str(path)).values():
+        for var in [obj] if isinstance(obj, od.ODVariable) else [v for v in obj.values() if v.subindex > 0]:
+            if var.index >= 0x2000 and var.pdo_mappable and "r" in var.access_type and var.data_type in FORMATS \
+                    and struct.calcsize(FORMATS[var.data_type]) <= 4:
+                found.append((var.index, var.subindex, var.data_type))
+    return found[: SIGNALS_PER_TPDO * TPDOS]
+
+
+@pytest.fixture
+def gateway(request):
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).parent / "eds_gateway.py"), str(request.param), str(NODE),
+                             str(RATE), str(OFFSET_S)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        yield request.param, int(proc.stdout.readline())
+    finally:
+        proc.stdin.close()
+        proc.wait(timeout=10)
+
+
+@pytest.mark.skipif(not EDS_FILES, reason="../shared/corpus/eds/ is not beside the clone")
+@pytest.mark.parametrize("gateway", EDS_FILES, ids=[p.name for p in EDS_FILES], indirect=True)
+def test_every_corpus_eds_through_a_gateway_in_another_process(gateway, tmp_path, run_cli):
+    eds, port = gateway
+    objects = recordable(eds)
+    assert objects, f"{eds.name} has no TPDO-mappable numeric object"
+    (tmp_path / eds.name).write_bytes(eds.read_bytes())
+    signals = "".join(f'''[[device.signal]]
+object = "0x{index:04X}.{sub}"
+topic = "/dev/pd"
+field = "o{index:04x}_{sub}"
+factor = 1
+tpdo = {k // SIGNALS_PER_TPDO + 1}
+''' for k, (index, sub, _t) in enumerate(objects))
+    rig = tmp_path / "rig.toml"
+    rig.write_text(f'''name = "gateway"
+[[device]]
+name = "dev"
+url = "can://socketcand/can0?host=127.0.0.1&port={port}&node={NODE}&sync=external"
+eds = "{eds.name}"
+mapping = "configure"
+{signals}''')
+    before = time.time_ns()
+    out = tmp_path / "gw.mcap"
+    r = run_cli("record", "--rig", rig, "--duration", "2", "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    after = time.time_ns()
+    pd = load(out)["/dev/pd"]
+    assert len(pd) > RATE  # two seconds at 100 Hz, less what the start of the stream takes
+    # which SYNC each row answers: the counter the device put into its first object (one row per SYNC)
+    index, sub, data_type = objects[0]
+    counters = np.arange(1, 241)
+    first = {value_of(c, index, sub, data_type): c for c in counters}
+    counter = np.array([first[v] for v in pd[f"o{index:04x}_{sub}"].tolist()])
+    assert np.all(np.diff(counter) % 240 == np.diff(pd.seq.astype(np.int64)) % 240)  # seq steps as the SYNC counter
+    for index, sub, data_type in objects:  # every object holds that same SYNC's value, exactly
+        expected = [value_of(int(c), index, sub, data_type) for c in counter]
+        assert pd[f"o{index:04x}_{sub}"].tolist() == expected, f"0x{index:04X}.{sub}"
+    # time: the gateway stamps 37.25 s ahead of the host; the recording is on the host clock
+    assert before < pd.log_time[0] and pd.log_time[-1] < after
+    # each interval is the gateway's between its SYNCs (the master's period, give or take its own
+    # jitter), moved at most by a refinement of the clock map's offset: 0.5 ms on loopback
+    np.testing.assert_allclose(np.diff(pd.log_time), np.diff(pd.device_time), atol=0.5e6)
+    assert abs(np.median(np.diff(pd.device_time)) * 1e-9 - 1.0 / RATE) < 1e-4
+    assert np.all(pd.device_time - pd.log_time > (OFFSET_S - 0.05) * 1e9)  # the gateway's own clock is kept
+    device = McapFile(out).metadata()["ambdaq.device.dev"]
+    assert device["sync"] == "external"
+    link = McapFile(out).metadata()["ambdaq.link.dev"]
+    assert int(link["late_replies"]) == 0 and int(link["ambiguous_cycles"]) == 0, link
+
+
+def test_a_sync_from_ambdaq_through_a_gateway_is_refused(tmp_path, run_cli):
+    """The gateway returns none of ambdaq's frames and stamps the rest on its clock: a SYNC ambdaq
+    sends could not be timed against the replies. One line, exit 2, nothing written."""
+    if not EDS_FILES:
+        pytest.skip("../shared/corpus/eds/ is not beside the clone")
+    from ambdaq.sim.devices.socketcand import SimSocketcand
+
+    server = SimSocketcand("refused-gateway")
+    server.start()
+    try:
+        eds = EDS_FILES[0]
+        out = tmp_path / "x.mcap"
+        r = run_cli("record", "--device", f"can://socketcand/can0?host=127.0.0.1&port={server.port}&node={NODE}"
+                    f"&eds={eds}&sync=100", "--duration", "1", "-o", out)
+    finally:
+        server.stop()
+    assert r.exit_code == 2 and "sync=external" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert not out.exists()
+
+
+def test_dbc_frames_through_a_gateway_are_on_the_host_clock(tmp_path, run_cli):
+    """A DBC device behind the gateway: the frames' values as cantools encoded them, their times
+    mapped from the gateway's clock (37.25 s ahead) to the host's."""
+    import threading
+
+    import can
+    import cantools
+
+    from ambdaq.sim.devices.socketcand import SimSocketcand
+
+    path = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc" / "motohawk.dbc"
+    if not path.is_file():
+        pytest.skip("../shared/corpus/dbc/motohawk.dbc is not beside the clone")
+    msg = cantools.database.load_file(str(path)).get_message_by_name("ExampleMessage")
+    data = msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 250.1})
+    channel = f"gateway-dbc-{time.monotonic_ns()}"
+    server = SimSocketcand(channel, clock_offset_s=OFFSET_S)
+    server.start()
+    stop = threading.Event()
+
+    def send() -> None:
+        bus = can.Bus(interface="virtual", channel=channel)
+        while not stop.wait(0.01):
+            bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
+        bus.shutdown()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    before = time.time_ns()
+    try:
+        out = tmp_path / "g.mcap"
+        r = run_cli("record", "--device", f"can://socketcand/can0?host=127.0.0.1&port={server.port}&dbc={path}",
+                    "--duration", "1.5", "-q", "-o", out)
+    finally:
+        stop.set()
+        sender.join(2)
+        server.stop()
+    after = time.time_ns()
+    assert r.exit_code == 0, r.output
+    got = load(out)["/motohawk/ExampleMessage"]
+    assert len(got) > 50 and set(got["temperature"]) == {msg.decode(data)["Temperature"]}
+    assert before < got.log_time[0] and got.log_time[-1] < after  # the host's clock, not the gateway's
+    assert np.all(got.device_time - got.log_time > (OFFSET_S - 0.05) * 1e9)
