@@ -168,3 +168,56 @@ def test_dbc_frames_through_a_gateway_are_on_the_host_clock(tmp_path, run_cli):
     assert len(got) > 50 and set(got["temperature"]) == {msg.decode(data)["Temperature"]}
     assert before < got.log_time[0] and got.log_time[-1] < after  # the host's clock, not the gateway's
     assert np.all(got.device_time - got.log_time > (OFFSET_S - 0.05) * 1e9)
+
+
+@pytest.mark.parametrize("ending", ["garbage", "close"])
+def test_a_hostile_gateway_is_counted_or_one_line_and_the_file_keeps_every_good_frame(tmp_path, run_cli, ending):
+    """A gateway that sends 60 good frames, then a byte over 0x7F (counted as a malformed line, the
+    recording goes on) or closes the connection (one line, exit 1): the file is finished and holds
+    the 60 frames, each as sent."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def serve() -> None:
+        conn, _ = server.accept()  # ambdaq's reachability check
+        conn.close()
+        conn, _ = server.accept()
+        with conn:
+            conn.sendall(b"< hi >")
+            conn.recv(100)
+            conn.sendall(b"< ok >")
+            conn.recv(100)
+            conn.sendall(b"< ok >")
+            time.sleep(0.1)
+            for i in range(60):
+                conn.sendall(f"< frame 1F0 {time.time():.6f} {i:02X}02030405060708 >".encode())
+                time.sleep(0.01)
+            if ending == "garbage":
+                conn.sendall(b"< frame \xff\xfe >")
+                time.sleep(1.5)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    dbc = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc" / "motohawk.dbc"
+    if not dbc.is_file():
+        pytest.skip("../shared/corpus/dbc/motohawk.dbc is not beside the clone")
+    out = tmp_path / "h.mcap"
+    r = run_cli("record", "--device", f"can://socketcand/can0?host=127.0.0.1&port={port}&dbc={dbc}",
+                "--duration", "2", "-q", "-o", out)
+    thread.join(5)
+    server.close()
+    if ending == "garbage":
+        assert r.exit_code == 0, r.output
+        assert McapFile(out).metadata()["ambdaq.link.motohawk.ExampleMessage"]["malformed_frames"] == "1"
+    else:
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output  # which says where the file is
+        assert "the gateway closed the connection" in r.output and "finished cleanly" in r.output
+    import cantools
+
+    msg = cantools.database.load_file(str(dbc)).get_message_by_name("ExampleMessage")
+    got = load(out)["/motohawk/ExampleMessage"]
+    expected = [msg.decode(bytes([i, 2, 3, 4, 5, 6, 7, 8]))["Temperature"] for i in range(60)]
+    assert got["temperature"].tolist() == expected

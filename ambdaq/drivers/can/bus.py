@@ -16,6 +16,7 @@ counts them, or records them raw).  At full bus load that keeps the per-frame co
 from __future__ import annotations
 
 import itertools
+import logging
 import queue
 import socket
 import threading
@@ -50,6 +51,27 @@ as a serial device's are.  Such a gateway returns no frame the host sends, so a 
 cannot be timed on its clock: there the SYNC must come from a master on the bus (``sync=external``)."""
 GATEWAY_TIMEOUT_S = 3.0  # to reach a gateway's TCP port
 PAIR_WINDOW_NS = 100_000_000  # one (bus time, arrival) pair per 100 ms: the frame that arrived soonest
+
+
+def _one_line(err: Exception) -> str:
+    """What an interface's exception says, on one line (python-can's socketcand client puts a
+    traceback into its message)."""
+    return " ".join(str(err).split("Traceback")[0].split()) or type(err).__name__
+
+
+def _gateway_closed(bus: can.BusABC) -> bool:
+    """Whether a gateway's TCP connection was closed by the gateway. python-can's socketcand client
+    reads an empty string from a closed socket as "no frame" for ever, so its socket (a private
+    attribute: None if a later python-can renames it, and then only silence tells) is peeked."""
+    sock = getattr(bus, "_SocketCanDaemonBus__socket", None)
+    if sock is None:
+        return False
+    try:
+        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -90,6 +112,11 @@ class CanHub:
         self._pairs_taken: dict[int, int] = {}  # reader -> how many of _pairs it has taken
         if self.own_echo:
             bus_options["receive_own_messages"] = True
+        if interface in GATEWAY_CLOCK:  # ambdaq says what went wrong, once; python-can's client logs it too
+            quiet = logging.getLogger(f"can.interfaces.{interface}")
+            if quiet.propagate:
+                quiet.addHandler(logging.NullHandler())
+                quiet.propagate = False
         if "host" in bus_options:  # a gateway: python-can's client retries a refused connection for 10 s
             try:
                 socket.create_connection((bus_options["host"], bus_options["port"]), timeout=GATEWAY_TIMEOUT_S).close()
@@ -216,22 +243,19 @@ class CanHub:
             except ValueError as err:  # the interface could not parse what its adapter sent (slcan: a garbled line)
                 self._malformed(err)
                 continue
-            except can.CanOperationError as err:
-                if not isinstance(err.__cause__, UnicodeDecodeError) or not isinstance(getattr(bus, "_buffer", None),
-                                                                                       bytearray):
+            except (can.CanError, OSError) as err:
+                if not isinstance(err.__cause__, UnicodeDecodeError):
                     if not self._sync_stop.is_set():
-                        self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
+                        self.failure = f"CAN {self.interface}/{self.channel} receive failed: {_one_line(err)}"
                     return
-                # python-can's slcan reader cannot decode a line with a byte over 0x7F ("Could not read from
-                # serial device") and keeps that line in its buffer, failing on it at every read after:
-                # the line is dropped and counted, as any malformed line
-                bus._buffer.clear()
+                # a byte over 0x7F from the adapter or gateway: python-can's slcan reader keeps the
+                # line in its buffer and fails on it at every read after, so it is dropped; its
+                # socketcand client has dropped what it read (the frames in it are lost). Counted,
+                # as any malformed line, and the recording goes on
+                if isinstance(getattr(bus, "_buffer", None), bytearray):
+                    bus._buffer.clear()
                 self._malformed(err.__cause__)
                 continue
-            except (can.CanError, OSError) as err:
-                if not self._sync_stop.is_set():
-                    self.failure = f"CAN {self.interface}/{self.channel} receive failed: {err}"
-                return
             if msg is None:
                 if stream:
                     wait = RX_POLL_S
@@ -426,6 +450,9 @@ class CanHub:
         while not self._sync_stop.wait(0.05):
             bus = self.network.bus
             if bus is None:
+                return
+            if not self.host_clock and _gateway_closed(bus):
+                self.failure = f"CAN {self.interface}/{self.channel}: the gateway closed the connection"
                 return
             try:
                 state = bus.state
