@@ -98,7 +98,7 @@ class ClockMap:
         self._b = 0.0
         self._spread = float("nan")  # of the bin minima about the line, once settled
         self._settled = False
-        self.latency_ns = 0  # one-way latency of the fastest pairs, subtracted when known
+        self._latency = 0  # one-way latency of the fastest pairs, subtracted when known
         self._written: deque[tuple[int, int]] = deque()  # (device ns, host ns written) of the last SPAN_S
         self._revision = 0.0  # the most a refit moved a written time, ns
 
@@ -146,6 +146,20 @@ class ClockMap:
             if self._written:
                 d, h = np.array(self._written, dtype=np.int64).T
                 self._revision = max(self._revision, float(np.abs(self.to_host(d) - h).max()))
+
+    @property
+    def latency_ns(self) -> int:
+        """One-way latency of the fastest pairs (ns), subtracted from every time mapped."""
+        return self._latency
+
+    @latency_ns.setter
+    def latency_ns(self, value: int) -> None:
+        # a better round trip moves every later time by the change: times already written count it
+        # in the revision, as a refit's move (a first round trip 3 ms slow on a loaded host, then a
+        # fast one, had moved a 1.5 s span by 2.9 ms with a revision of 11 us stated)
+        if self._written and value != self._latency:
+            self._revision = max(self._revision, float(abs(value - self._latency)))
+        self._latency = int(value)
 
     def written(self, device_ns: int, host_ns: int) -> None:
         """Note that the sample at ``device_ns`` was written at ``host_ns`` (both ns; one per block
