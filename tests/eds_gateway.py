@@ -39,6 +39,42 @@ def value_of(counter: int, index: int, subindex: int, data_type: int) -> float |
     return raw - (1 << bits) if fmt.islower() and raw >= 1 << (bits - 1) else raw
 
 
+def recordable(path: str, count: int) -> list[tuple[int, int, int]]:
+    """(index, sub-index, data type) of the first ``count`` TPDO-mappable, readable numeric objects
+    of an EDS's manufacturer and profile areas (0x2000 on), four bytes or less each, so two share
+    a TPDO."""
+    found = []
+    for obj in canopen.import_od(str(path)).values():
+        for var in [obj] if isinstance(obj, od.ODVariable) else [v for v in obj.values() if v.subindex > 0]:
+            if var.index >= 0x2000 and var.pdo_mappable and "r" in var.access_type and var.data_type in FORMATS \
+                    and struct.calcsize(FORMATS[var.data_type]) <= 4:
+                found.append((var.index, var.subindex, var.data_type))
+    return found[:count]
+
+
+def synchronous_tpdos(node: canopen.LocalNode, counter: int) -> list[tuple[int, bytes]]:
+    """(COB-ID, payload) of every mapped synchronous TPDO of ``node`` for the SYNC with ``counter``,
+    each mapped object first set to its :func:`value_of` (as the device's application would)."""
+    frames = []
+    for n in range(512):
+        if 0x1800 + n not in node.object_dictionary or 0x1A00 + n not in node.object_dictionary:
+            continue
+        cob_id = struct.unpack("<I", node.get_data(0x1800 + n, 1))[0]
+        if cob_id & 0x80000000 or not 1 <= node.get_data(0x1800 + n, 2)[0] <= 240:
+            continue
+        payload = b""
+        for i in range(1, node.get_data(0x1A00 + n, 0)[0] + 1):
+            entry = struct.unpack("<I", node.get_data(0x1A00 + n, i))[0]
+            index, sub = entry >> 16, (entry >> 8) & 0xFF
+            var = node.object_dictionary[index]
+            var = var if isinstance(var, od.ODVariable) else var[sub]
+            raw = struct.pack("<" + FORMATS[var.data_type], value_of(counter, index, sub, var.data_type))
+            node.set_data(index, sub, raw, check_writable=False)
+            payload += raw[: (entry & 0xFF) // 8]
+        frames.append((cob_id & 0x7FF, payload))
+    return frames
+
+
 def main() -> None:
     eds, node_id, rate, offset = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
     channel = f"eds-gateway-{random.getrandbits(32):08x}"
@@ -52,23 +88,7 @@ def main() -> None:
     def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
         if node.nmt.state != "OPERATIONAL" or not data:
             return
-        frames = []
-        for n in range(512):  # every TPDO the EDS has, mapped and synchronous
-            if 0x1800 + n not in node.object_dictionary or 0x1A00 + n not in node.object_dictionary:
-                continue
-            cob_id = struct.unpack("<I", node.get_data(0x1800 + n, 1))[0]
-            if cob_id & 0x80000000 or not 1 <= node.get_data(0x1800 + n, 2)[0] <= 240:
-                continue
-            payload = b""
-            for i in range(1, node.get_data(0x1A00 + n, 0)[0] + 1):
-                entry = struct.unpack("<I", node.get_data(0x1A00 + n, i))[0]
-                index, sub = entry >> 16, (entry >> 8) & 0xFF
-                var = node.object_dictionary[index]
-                var = var if isinstance(var, od.ODVariable) else var[sub]
-                raw = struct.pack("<" + FORMATS[var.data_type], value_of(data[0], index, sub, var.data_type))
-                node.set_data(index, sub, raw, check_writable=False)
-                payload += raw[: (entry & 0xFF) // 8]
-            frames.append((cob_id & 0x7FF, payload))
+        frames = synchronous_tpdos(node, data[0])
         time.sleep(rng.uniform(1e-4, 4e-4))  # the device's reaction time, well inside the window
         for cob, payload in frames:
             network.send_message(cob, payload)

@@ -1,14 +1,15 @@
-"""CANopen rows hold one SYNC's data or none: a device known by a real vendor EDS (the corpus's
-e35.eds, as shipped) that answers some SYNCs a whole period late, as a device without a usable
-synchronous window (0x1007) can. The device puts the counter byte of the SYNC it answers into its
-values, so every recorded row says which SYNC its data came from."""
+"""CANopen rows hold one SYNC's data or none: a device known by a real EDS, as shipped (the
+corpus's vendor e35.eds, and python-canopen's sample.eds, which has no synchronous window 0x1007),
+that answers some SYNCs a whole period late, as a device without a usable window can. The device
+puts a value of the counter byte of the SYNC it answers into each mapped object, so every recorded
+row says which SYNC its data came from."""
 
 from __future__ import annotations
 
 import json
 import queue
 import random
-import struct
+import sys
 import threading
 import time
 from pathlib import Path
@@ -20,18 +21,22 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
 
+sys.path.insert(0, str(Path(__file__).parent))
+from eds_gateway import recordable, synchronous_tpdos, value_of  # noqa: E402
+
 pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 
 E35 = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds" / "e35.eds"
+SAMPLE = Path(__file__).parent / "data" / "canopen_sample.eds"  # python-canopen's test/sample.eds, as shipped
 NODE = 9
 RATE = 200  # Hz: a 5 ms period, a 2.5 ms synchronous window
 SYNC_COUNTER_MAX = 240  # CiA 301 0x1019: the SYNC counter runs 1..240
 
 
 class LaggingEchoDrive:
-    """A canopen LocalNode from ``eds`` that, on each SYNC, puts the SYNC's counter byte into
-    0x6064 (position actual value) and 7x it into 0x606C (velocity actual value), and sends its
-    synchronous TPDOs as the host mapped them. Replies leave in SYNC order from one sender thread;
+    """A canopen LocalNode from ``eds`` that, on each SYNC, puts into every object mapped to its
+    synchronous TPDOs the value ``value_of`` gives for the SYNC's counter byte (tests/eds_gateway.py),
+    and sends those TPDOs as the host mapped them. Replies leave in SYNC order from one sender thread;
     most after 0.1-0.4 ms, but ``lag`` of the SYNCs start a run of one to five answered a whole
     period late (the device then catches up), and ``late`` go out after the window has closed.
     It never honours the window the host sets: that is the device the host must not trust."""
@@ -55,19 +60,7 @@ class LaggingEchoDrive:
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.node.nmt.state != "OPERATIONAL" or not data:
             return
-        counter = data[0]
-        self.node.set_data(0x6064, 0, struct.pack("<i", counter), check_writable=False)
-        self.node.set_data(0x606C, 0, struct.pack("<i", 7 * counter), check_writable=False)
-        frames = []
-        for n in range(4):
-            cob_id = struct.unpack("<I", self.node.get_data(0x1800 + n, 1))[0]
-            if cob_id & 0x80000000 or not 1 <= self.node.get_data(0x1800 + n, 2)[0] <= 240:
-                continue
-            payload = b""
-            for i in range(1, self.node.get_data(0x1A00 + n, 0)[0] + 1):
-                entry = struct.unpack("<I", self.node.get_data(0x1A00 + n, i))[0]
-                payload += self.node.get_data(entry >> 16, (entry >> 8) & 0xFF)[: (entry & 0xFF) // 8]
-            frames.append((cob_id & 0x7FF, payload))
+        frames = synchronous_tpdos(self.node, data[0])
         if self._lagging == 0 and self.rng.random() < self.lag:
             self._lagging = self.rng.randint(1, 5)
         delay = self.rng.uniform(1e-4, 4e-4)
@@ -95,36 +88,35 @@ class LaggingEchoDrive:
         self.network.disconnect()
 
 
-def rig_file(tmp_path: Path, channel: str) -> Path:
-    (tmp_path / "e35.eds").write_bytes(E35.read_bytes())
+def rig_file(tmp_path: Path, channel: str, eds: Path, objects: list[tuple[int, int, int]]) -> Path:
+    (tmp_path / eds.name).write_bytes(eds.read_bytes())
     path = tmp_path / "rig.toml"
     path.write_text(f'''name = "echo"
 [[device]]
 name = "drive"
 url = "can://virtual/{channel}?node={NODE}&sync={RATE}"
-eds = "e35.eds"
+eds = "{eds.name}"
 mapping = "configure"
-[[device.signal]]
-object = "0x6064"
+''' + "".join(f'''[[device.signal]]
+object = "0x{index:04X}.{sub}"
 topic = "/drive/sync"
-field = "counter"
-tpdo = 1
-[[device.signal]]
-object = "0x606C"
-topic = "/drive/sync"
-field = "counter_x7"
-tpdo = 2
-''')
+field = "o{index:04x}_{sub}"
+factor = 1
+tpdo = {k + 1}
+''' for k, (index, sub, _t) in enumerate(objects)))
     return path
 
 
-@pytest.mark.skipif(not E35.is_file(), reason="../shared/corpus/eds/e35.eds is not beside the clone")
-def test_no_row_holds_another_syncs_data_when_the_device_answers_a_period_late(tmp_path, run_cli):
+@pytest.mark.parametrize("eds", [E35, SAMPLE], ids=["e35.eds", "canopen_sample.eds (no 0x1007)"])
+def test_no_row_holds_another_syncs_data_when_the_device_answers_a_period_late(eds, tmp_path, run_cli):
+    if not eds.is_file():
+        pytest.skip(f"{eds} is not beside the clone")
+    objects = recordable(eds, 2)  # one per TPDO: a lag shows as a second reply of each
     channel = f"sync-echo-{time.monotonic_ns()}"
-    drive = LaggingEchoDrive(channel, E35, lag=0.03, late=0.02, seed=7)
+    drive = LaggingEchoDrive(channel, eds, lag=0.03, late=0.02, seed=7)
     try:
         out = tmp_path / "echo.mcap"
-        r = run_cli("record", "--rig", rig_file(tmp_path, channel), "--duration", "3", "--json", "-o", out)
+        r = run_cli("record", "--rig", rig_file(tmp_path, channel, eds, objects), "--duration", "3", "--json", "-o", out)
         assert r.exit_code == 0, r.output
     finally:
         drive.close()
@@ -132,14 +124,18 @@ def test_no_row_holds_another_syncs_data_when_the_device_answers_a_period_late(t
     cycles = 3 * RATE
     assert summary["samples"] + summary["drops"] == cycles  # every cycle recorded or counted lost
     sync = load(out)["/drive/sync"]
-    # the SYNC each row's data answered, against the SYNC the row is filed under (its seq)
+    # the SYNC each row's data answered (every object's value says it), against the SYNC the row is
+    # filed under (its seq)
     expected = sync.seq.astype(np.int64) % SYNC_COUNTER_MAX + 1
-    wrong = np.flatnonzero(sync["counter"] != expected)
-    assert wrong.size == 0, f"{wrong.size} of {len(sync)} rows hold another SYNC's data: seq {sync.seq[wrong[:5]]}"
-    np.testing.assert_array_equal(sync["counter_x7"], 7 * sync["counter"])  # both TPDOs of one SYNC
+    for index, sub, data_type in objects:
+        want = np.array([value_of(int(c), index, sub, data_type) for c in expected])
+        wrong = np.flatnonzero(sync[f"o{index:04x}_{sub}"] != want)
+        assert wrong.size == 0, f"{wrong.size} of {len(sync)} rows hold another SYNC's data: seq {sync.seq[wrong[:5]]}"
     stats = McapFile(out).metadata()["ambdaq.link.drive"]
     # about 3 % of 600 SYNCs start a lag (18 runs, each ending with a catch-up the host sees), 2 %
     # are answered after their window: both kinds occurred, were dropped and counted
     assert int(stats["ambiguous_cycles"]) > 0 and int(stats["late_replies"]) > 0, stats
     assert int(stats["unverified_cycles"]) == 0  # no run was longer than the hold
     assert len(sync) >= cycles // 2  # the rest of the SYNCs are kept (a loaded host loses more to lateness)
+    window = McapFile(out).metadata()["ambdaq.device.drive"]["synchronous_window_us"]
+    assert window == ("2500 (host only: the device has no 0x1007)" if eds is SAMPLE else "2500")

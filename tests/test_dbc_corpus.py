@@ -9,6 +9,7 @@ bus, which ambdaq records in this process (no ambdaq code on the sending side).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 from contextlib import contextmanager
 import sys
@@ -31,6 +32,7 @@ pytestmark = pytest.mark.realtime
 
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc"
 FILES = sorted(p.name for p in CORPUS.glob("*.dbc"))
+ROSMSG_CHECK = Path(__file__).parent / "rosmsg_check"
 
 
 def _ways(tree: list) -> list[dict]:
@@ -110,11 +112,46 @@ def sending(channel: str, frames: list[tuple[int, bytes, bool]], period_s: float
         sender.join(timeout=5)
 
 
-def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual") -> None:
+@pytest.fixture(scope="session")
+def foxglove_parser(tmp_path_factory):
+    """Foxglove's own ros2msg parser (@foxglove/rosmsg from the npm registry, run by Node)."""
+    npm = shutil.which("npm")
+    assert npm and shutil.which("node"), "the schema check needs Node.js and npm"
+    d = tmp_path_factory.mktemp("rosmsg-check")
+    for name in ("package.json", "parse.js"):
+        shutil.copy(ROSMSG_CHECK / name, d / name)
+    r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error"], cwd=d, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return d / "parse.js"
+
+
+def _foxglove_reads_every_schema(out: Path, parser: Path) -> None:
+    """Every schema of the recording parses with Foxglove's parser, into the fields ambdaq loads,
+    of the types the recording holds."""
+    rec, summary = load(out), McapFile(out).summary
+    schemas = [{"name": s.name, "text": s.data.decode()} for s in summary.schemas.values() if s.encoding == "ros2msg"]
+    r = subprocess.run(["node", str(parser)], input=json.dumps(schemas), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    parsed = {p["name"]: p for p in json.loads(r.stdout)}
+    assert not [p for p in parsed.values() if "error" in p], parsed
+    for channel in summary.channels.values():
+        if channel.topic not in rec:
+            continue
+        data = rec[channel.topic]
+        kinds = {"f": "float64", "i": "int64", "u": "uint64"}
+        want = [("device_time", "int64"), ("seq", "uint32"), ("status", "uint32")] + [
+            (f, kinds[data[f].dtype.kind]) for f in data.fields]
+        got = [(d["name"], d["type"]) for d in parsed[summary.schemas[channel.schema_id].name]["fields"]]
+        assert got == want, channel.topic
+
+
+def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual", parser: Path | None = None) -> None:
     """Send every frame of ``path``'s messages while ambdaq records it as a DBC device: on a
     virtual bus in this process (``via="virtual"``), or from another process through the simulated
     SLCAN adapter, read by python-can's slcan interface (``via="slcan"``). Each row must be one
-    frame's values, and the official decoder must read them."""
+    frame's values, the official decoder must read them, and Foxglove's parser (``parser``) every
+    schema."""
     db = cantools.database.load_file(str(path))
     frames = _frames(db)
     out = tmp_path / "corpus.mcap"
@@ -177,14 +214,17 @@ def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual") -> No
         assert len(decoded[topic]) == len(got)
         for f in got.fields:
             assert [getattr(m, f) for m in decoded[topic]] == list(got[f]), (topic, f)
+    if parser is not None:
+        _foxglove_reads_every_schema(out, parser)
 
 
 @pytest.mark.parametrize("via", ["virtual", "slcan"])
 @pytest.mark.parametrize("name", FILES)
-def test_a_shipped_dbc_records_every_value_it_was_sent(name, via, tmp_path, run_cli):
+def test_a_shipped_dbc_records_every_value_it_was_sent(name, via, tmp_path, run_cli, foxglove_parser):
     """In this process on a virtual bus, and from another process through an SLCAN adapter on a
-    pseudo-terminal (CAN FD frames as SLCAN ``d``/``D`` lines)."""
-    _record_and_check(CORPUS / name, tmp_path, run_cli, via)
+    pseudo-terminal (CAN FD frames as SLCAN ``d``/``D`` lines); the schemas (the same either way)
+    parsed by Foxglove's parser once."""
+    _record_and_check(CORPUS / name, tmp_path, run_cli, via, foxglove_parser if via == "virtual" else None)
 
 
 def test_cascaded_multiplexing_records_each_page(tmp_path, run_cli):
