@@ -331,3 +331,39 @@ def test_a_64_bit_integer_is_recorded_exactly_as_int64(tmp_path, run_cli):
         official = [m.s64 for _s, c, _m, m in make_reader(fh, decoder_factories=[DecoderFactory()])
                     .iter_decoded_messages(topics=["/signed/Message64"])]
     assert official == got.tolist()
+
+HEADER_CLASH = '''VERSION ""
+BO_ 256 Health: 3 Vector__XXX
+ SG_ Status : 0|8@1+ (1,0) [0|255] "" Vector__XXX
+ SG_ SEQ : 8|8@1+ (1,0) [0|255] "" Vector__XXX
+ SG_ HU_date_year : 16|8@1+ (1,2000) [2000|2255] "" Vector__XXX
+'''
+
+
+def test_signals_named_like_the_message_header_keep_their_values_and_names(tmp_path, run_cli):
+    """Signals named ``Status`` and ``SEQ`` would be fields ``status`` and ``seq``, members every
+    message already has: they are recorded as ``status_value`` and ``seq_value`` (never in place of
+    the sample's own), the official decoder reads them, and the DBC's names come back in the Python
+    API and ``export --device-names``."""
+    path = tmp_path / "health.dbc"
+    path.write_text(HEADER_CLASH)
+    msg = cantools.database.load_file(str(path)).get_message_by_name("Health")
+    data = msg.encode({"Status": 7, "SEQ": 200, "HU_date_year": 2026})
+    out = tmp_path / "h.mcap"
+    with sending("corpus-header-clash", [(msg.frame_id, data, False)], 0.005):
+        r = run_cli("record", "--device", f"can://virtual/corpus-header-clash?dbc={path}", "--duration", "0.5", "-q",
+                    "-o", out)
+    assert r.exit_code == 0, r.output
+    got = load(out)["/health/Health"]
+    assert list(got.fields) == ["status_value", "seq_value", "hu_date_year"]
+    assert got.names == {"status_value": "Status", "seq_value": "SEQ", "hu_date_year": "HU_date_year"}
+    assert set(got["status_value"]) == {7} and set(got["seq_value"]) == {200} and set(got["hu_date_year"]) == {2026}
+    np.testing.assert_array_equal(np.diff(got.seq.astype(np.int64)), 1)  # the sample's own sequence number
+    with open(out, "rb") as fh:
+        official = [(m.seq, m.status_value, m.seq_value) for _s, _c, _m, m in
+                    make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+    assert official == [(int(s), 7, 200) for s in got.seq]
+    csv = tmp_path / "h.csv"
+    r = run_cli("export", out, "--format", "csv", "--device-names", "-o", csv)
+    assert r.exit_code == 0, r.output
+    assert csv.read_text().splitlines()[0] == "time,log_time_ns,device_time_ns,seq,Status,SEQ,HU_date_year"

@@ -21,9 +21,12 @@ from .options import window_options
 @click.option("--overwrite", is_flag=True, help="Replace existing files.")
 @click.option("--labels", is_flag=True,
               help="Beside each field with a value table (a DBC's choices, an A2L's TAB_VERB), its text as FIELD_label.")
+@click.option("--device-names", is_flag=True,
+              help="csv/parquet/npz: name each field's column as its device does where that differs (a DBC signal's "
+                   "own name, HU_date_year for hu_date_year).")
 @click.option("--push-log", type=click.Path(dir_okay=False),
               help="mf4: the push log whose entries of the running coefficient files are attached (default: this machine's).")
-def command(file, fmt, topics, start, end, output, overwrite, labels, push_log):
+def command(file, fmt, topics, start, end, output, overwrite, labels, device_names, push_log):
     """Export topics of FILE with time, device time, seq and every field in SI units."""
     rec = load(file, topics=list(topics) or None, start=start, end=end)
     tables = value_tables(Path(file)) if labels else None
@@ -34,7 +37,8 @@ def command(file, fmt, topics, start, end, output, overwrite, labels, push_log):
         running = {m["active_coefficients_sha256"] for name, m in rec.metadata.items()
                    if name.startswith("ambdaq.device.") and m.get("active_coefficients_sha256")}
         history = push_log_entries(Path(push_log) if push_log else None, running) if running else []
-    for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables, push_log=history):
+    for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables, push_log=history,
+                       device_names=device_names):
         click.echo(str(path))
     for topic in rec.values():
         if topic.skipped:  # a topic of another writer: what is not a number is not exported

@@ -20,14 +20,16 @@ from .reader import Recording, TopicData
 FORMATS = ("csv", "npz", "parquet", "mf4")
 
 
-def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None) -> dict[str, np.ndarray]:
+def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None,
+             device_names: bool = False) -> dict[str, np.ndarray]:
     cols = {"time": t.time, "log_time_ns": t.log_time, "device_time_ns": t.device_time, "seq": t.seq}
     for name, values in t.fields.items():
-        cols[name] = values
+        column = t.names.get(name, name) if device_names else name
+        cols[column] = values
         table = (tables or {}).get(name)
         if table:  # the text beside the number: "" where the value has none in the table
             find = labeller(table)
-            cols[f"{name}_label"] = np.array([find(v) for v in values.tolist()], dtype=str)
+            cols[f"{column}_label"] = np.array([find(v) for v in values.tolist()], dtype=str)
     return cols
 
 
@@ -81,7 +83,8 @@ def topic_filename(topic: str) -> str:
 
 
 def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
-           labels: dict[str, dict[str, dict[str, str]]] | None = None, push_log: list[dict] | None = None) -> list[Path]:
+           labels: dict[str, dict[str, dict[str, str]]] | None = None, push_log: list[dict] | None = None,
+           device_names: bool = False) -> list[Path]:
     """Write the topics of ``rec`` to ``out`` in ``fmt``; returns the files written.
 
     Parameters
@@ -100,6 +103,9 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         attached metadata).
     push_log : list of dict, optional
         MDF 4: the calibration history to attach (:func:`~ambdaq.daq.mdf.write_mf4`).
+    device_names : bool
+        CSV, Parquet and NPZ: name each field's column by the device's own name where it differs
+        (a DBC signal's, :attr:`TopicData.names`), not by the recorded ROS 2 name.
     """
     if fmt not in FORMATS:
         raise BadInputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
@@ -113,7 +119,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         target = out if out.suffix == ".npz" else out.with_suffix(".npz")
         check_output(target, overwrite)
         arrays = {f"{t.topic}/{name}": col for t in rec.topics.values()
-                  for name, col in _columns(t, (labels or {}).get(t.topic)).items()}
+                  for name, col in _columns(t, (labels or {}).get(t.topic), device_names).items()}
         np.savez(target, **arrays)
         return [target]
     single = len(rec.topics) == 1 and out.suffix == f".{fmt}"
@@ -133,7 +139,7 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         except ImportError:
             raise BadInputError("Parquet export needs pyarrow, the parquet extra: pip install 'ambdaq[parquet]'") from None
     for topic, target in targets.items():
-        cols = _columns(rec.topics[topic], (labels or {}).get(topic))
+        cols = _columns(rec.topics[topic], (labels or {}).get(topic), device_names)
         if fmt == "csv":
             _write_csv(target, cols)
         else:

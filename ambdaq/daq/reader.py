@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..drivers.signals import FIELD_TYPES, SignalGroup
+from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
 from .foreign import foreign_topics, load_foreign
 from .mcapfile import McapFile, message_view
-from .schema import HEADER_FIELDS, TopicLayout, parse_schema
+from .schema import TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
 HUGE_PAGE = 2 << 20  # x86-64 and arm64 Linux transparent huge pages, bytes
@@ -70,6 +70,9 @@ class TopicData:
         SI unit of each field ("" for a topic of another writer, whose units its schema does not give).
     skipped : tuple of str
         What a topic of another writer carries that is not a number (:mod:`.foreign`), by path.
+    names : dict of str to str
+        The device's own name of each field whose recorded name differs (a DBC signal's:
+        ``hu_date_year`` -> ``HU_date_year``), from the device's metadata; empty where none does.
     """
 
     topic: str
@@ -82,6 +85,7 @@ class TopicData:
     fields: dict[str, np.ndarray]
     units: dict[str, str]
     skipped: tuple[str, ...] = ()
+    names: dict[str, str] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -174,6 +178,17 @@ def _nominal_rate(metadata: dict[str, dict[str, str]], topic: str) -> float | No
         return float(metadata[f"ambdaq.device.{device}"]["sample_rate_hz"])
     except (KeyError, ValueError, TypeError):
         return None
+
+
+def _device_names(metadata: dict[str, dict[str, str]], topic: str, fields: tuple[str, ...]) -> dict[str, str]:
+    """The device's own names of ``topic``'s fields where they differ: a DBC device's ``signals``
+    (one topic per device, so a field names one signal)."""
+    try:
+        device = json.loads(metadata["ambdaq.statistics"][topic])["device"]
+        named = json.loads(metadata[f"ambdaq.device.{device}"].get("signals", "{}"))
+    except (KeyError, ValueError, TypeError):
+        return {}
+    return {f: str(n) for f, n in named.items() if f in fields and n != f} if isinstance(named, dict) else {}
 
 
 def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
@@ -351,6 +366,7 @@ def load(
             fields={name: cols["values"][i].view(FIELD_TYPES[t])
                     for i, (name, t) in enumerate(zip(g.fields, g.field_types))},
             units=dict(zip(g.fields, g.units)),
+            names=_device_names(metadata, topic, g.fields),
         )
         declared = _nominal_rate(metadata, topic)
         result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate

@@ -23,7 +23,6 @@ from ..drivers.signals import FIELD_TYPES, SignalGroup
 
 SCHEMA_PACKAGE = "ambdaq_msgs/msg"
 CDR_LE_HEADER = 0x00000100  # bytes 00 01 00 00 read as little-endian uint32
-HEADER_FIELDS = ("device_time", "seq", "status")
 # MCAP Message record: opcode u8, length u64, channel_id u16, sequence u32, log_time u64,
 # publish_time u64, then the payload
 MESSAGE_OPCODE = 0x05

@@ -14,13 +14,30 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+HEADER_FIELDS = ("device_time", "seq", "status")
+"""The members every ambdaq message begins with (:mod:`ambdaq.daq.schema`): no signal's field."""
+ROS_FIELD = re.compile(r"[a-z](?:[a-z0-9]|_(?!_))*(?<!_)")
+"""A field name ROS 2 and Foxglove accept: lower case, no double or trailing underscore."""
+
+
 def ros_field(name: str) -> str:
-    """``name`` (a DBC signal's, an A2L measurement's) as a field name ROS 2 and Foxglove accept:
-    ``[a-z][a-z0-9_]*`` without a double or trailing underscore (``HU_date_year`` -> ``hu_date_year``,
-    ``Motor.Speed`` -> ``motor_speed``, ``gapX`` -> ``gap_x``)."""
+    """``name`` (a DBC signal's, an A2L measurement's, an EDS object's) as a field name ROS 2 and
+    Foxglove accept: ``[a-z][a-z0-9_]*`` without a double or trailing underscore (``HU_date_year``
+    -> ``hu_date_year``, ``Motor.Speed`` -> ``motor_speed``, ``gapX`` -> ``gap_x``), and not one of
+    the :data:`HEADER_FIELDS` (a signal ``Status`` -> ``status_value``)."""
     text = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name)
     text = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
-    return text if text[:1].isalpha() else ("f_" + text).rstrip("_")
+    text = text if text[:1].isalpha() else ("f_" + text).rstrip("_")
+    return text + "_value" if text in HEADER_FIELDS else text
+
+
+def field_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a recorded field (a rig file's ``field = ...``), or None."""
+    if name in HEADER_FIELDS:
+        return f"field {name!r} is a member every message has ({', '.join(HEADER_FIELDS)})"
+    if not ROS_FIELD.fullmatch(name):
+        return f"field {name!r} is not a ROS 2 field name (lower case letters, digits, single underscores)"
+    return None
 
 
 def ros_type(name: str) -> str:
@@ -65,6 +82,10 @@ class SignalGroup:
             raise ValueError(f"{self.topic}: {len(self.fields)} fields but {len(self.units)} units")
         if self.types and (len(self.types) != len(self.fields) or not set(self.types) <= set(FIELD_TYPES)):
             raise ValueError(f"{self.topic}: field types {self.types} are not one of {', '.join(FIELD_TYPES)} per field")
+        problems = [p for p in map(field_problem, self.fields) if p] + (
+            [f"fields repeat: {', '.join(self.fields)}"] if len(set(self.fields)) != len(self.fields) else [])
+        if problems:
+            raise ValueError(f"{self.topic}: {problems[0]}")
         if self.types and set(self.types) == {"float64"}:
             object.__setattr__(self, "types", ())  # one spelling of "all float64"
 

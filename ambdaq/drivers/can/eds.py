@@ -51,7 +51,7 @@ from canopen import objectdictionary as od
 from ...errors import BadInputError, DeviceError
 from ..interfaces import Source
 from ..rigfile import check_keys
-from ..signals import FIELD_TYPES, Event, SampleBlock, SignalGroup
+from ..signals import FIELD_TYPES, Event, SampleBlock, SignalGroup, field_problem, ros_field, ros_type
 from .bus import CanHub
 from ..rows import RowQueue
 
@@ -227,14 +227,12 @@ def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> l
         tpdo = e.get("tpdo")
         if tpdo is not None and (not isinstance(tpdo, int) or not 1 <= tpdo <= MAX_TPDOS):
             raise BadInputError(f"{at}: tpdo must be 1..{MAX_TPDOS}")
-        out.append(EdsSignal(var.index, var.subindex, var.name, str(e.get("topic", f"/{device}")),
-                             str(e.get("field", _field_name(var.name))), factor, offset,
+        field = str(e.get("field", ros_field(var.name)))
+        if (problem := field_problem(field)) is not None:
+            raise BadInputError(f"{at}: {problem}")
+        out.append(EdsSignal(var.index, var.subindex, var.name, str(e.get("topic", f"/{device}")), field, factor, offset,
                              str(e.get("unit", var.unit or "")), tpdo, var))
     return out
-
-
-def _field_name(name: str) -> str:
-    return re.sub(r"[^0-9a-zA-Z]+", "_", name).strip("_").lower() or "value"
 
 
 def check_mapping(signals: list[EdsSignal], d: od.ObjectDictionary, path: Path) -> list[list[EdsSignal]]:
@@ -314,7 +312,7 @@ class EdsDevice(Source):
         for _cob, _fmt, sigs in self.tpdos:
             for s in sigs:
                 by_topic[s.topic].append(s)
-        self.groups = [SignalGroup(t, "Eds" + _field_name(t).title().replace("_", ""),
+        self.groups = [SignalGroup(t, "Eds" + ros_type(t),
                                    tuple(s.field for s in sigs), tuple(s.unit for s in sigs),
                                    tuple(s.field_type for s in sigs))
                        for t, sigs in by_topic.items()]
@@ -396,7 +394,7 @@ class EdsDevice(Source):
                 if s is None:
                     var = v.od
                     _recordable(var, self.eds)
-                    s = EdsSignal(v.index, v.subindex, var.name, f"/{self.name}", _field_name(var.name),
+                    s = EdsSignal(v.index, v.subindex, var.name, f"/{self.name}", ros_field(var.name),
                                   float(var.factor or 1.0), 0.0, var.unit or "", n, var)
                 sigs.append(s)
             out.append((pdo.cob_id, struct.Struct("<" + "".join(_STRUCT[s.var.data_type] for s in sigs)), sigs))

@@ -50,8 +50,11 @@ class ControllerDriver(Controller):
         if self.info.get("device_type") != "controller":
             raise DeviceError(f"{self.url}: expected an AMB controller, found {self.info.get('device_type')!r}")
         self.sample_rate = float(self.info["sample_rate_hz"])
-        self._groups = [SignalGroup(g["topic"], g["type"], tuple(g["fields"]), tuple(g["units"]))
-                        for g in self.info["groups"]]
+        try:
+            self._groups = [SignalGroup(g["topic"], g["type"], tuple(g["fields"]), tuple(g["units"]))
+                            for g in self.info["groups"]]
+        except (KeyError, TypeError, ValueError) as err:  # what the device says of its streams is checked
+            raise DeviceError(f"{self.url}: the controller describes its streams badly: {err}") from None
         self._capabilities = Capabilities.from_dict(self.info.get("capabilities"))
         self._n_samples: int | None = None
         self._end_index: int | None = None  # stop at this sample index (device time, not count)

@@ -44,7 +44,7 @@ from ...errors import BadInputError, DeviceError
 from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import UNLOCK_KEY_ENV, CalibrationPages, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
-from ..signals import FIELD_TYPES, SampleBlock, SignalGroup, ros_field, ros_type
+from ..signals import FIELD_TYPES, SampleBlock, SignalGroup, field_problem, ros_field, ros_type
 from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
 from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
@@ -414,6 +414,8 @@ class XcpController(Controller, CalibrationPages):
                 raise BadInputError(f"{url}: event {ch.name!r} takes no DAQ lists")
             by_topic: dict[tuple[str, str], list[Element]] = {}
             for m in ms:
+                if m.note.get("field") and (problem := field_problem(m.note["field"])) is not None:
+                    raise BadInputError(f"{url}: {m.name}'s ambdaq annotation: {problem}")
                 if {"topic", "field"} <= set(m.note) and m.count == 1:
                     key, fields = (m.note["topic"], m.note.get("type") or _event_topic(ch)[1]), [m.note["field"]]
                 else:
