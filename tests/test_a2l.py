@@ -106,3 +106,19 @@ def test_xcplite_style_file_without_its_a2ml_include_lists(tmp_path, run_cli):
     found = json.loads(r.stdout)
     assert found["events"] == [{"number": 1, "name": "mainloop", "cycle_ns": 0}]
     assert found["measurements"][0]["address"] == "0:0x10000"  # 0X10000, written as vendors do
+
+
+def test_a_broken_conversion_table_refuses_only_what_uses_it(tmp_path, run_cli):
+    """A COMPU_TAB that holds fewer pairs than its count (as ASAM's own demo file ships some) is
+    that measurement's problem, listed beside it; the file and every other object read, and
+    recording it is one line naming the table."""
+    a2l = tmp_path / "t.a2l"
+    a2l.write_text(GOOD.replace('  /end MODULE', '''    /begin COMPU_METHOD CM.T "" TAB_VERB "%3.0" "" COMPU_TAB_REF CM.T.REF /end COMPU_METHOD
+    /begin COMPU_VTAB CM.T.REF "" TAB_VERB 3 0 "off" 1 "on" /end COMPU_VTAB
+    /begin MEASUREMENT mode "" UBYTE CM.T 0 0 0 255 ECU_ADDRESS 0x10010 /end MEASUREMENT
+  /end MODULE'''))
+    r = run_cli("xcp", "list", a2l, "--json")
+    assert r.exit_code == 0, r.output
+    problems = {m["name"]: m["problem"] for m in json.loads(r.stdout)["measurements"]}
+    assert problems["speed"] == "" and "fewer entries than its count, 3" in problems["mode"], problems
+    assert "t.a2l: line 6: COMPU_VTAB CM.T.REF" in problems["mode"]  # where the table is

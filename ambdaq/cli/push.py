@@ -166,6 +166,8 @@ def param_command(device, name, values, description, page, yes):
                     raise click.Abort()
                 dev.write_param(name, list(values))
             click.echo(f"{name} = {_values(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
+            for axis, points in dev.read_axes(name).items():  # a CURVE or MAP that stores its own axis points
+                click.echo(f"{name}.{axis} = {_values(points)}")
     finally:
         dev.close()
 

@@ -136,6 +136,11 @@ class Parameters(ABC):
     def read_param(self, name: str) -> np.ndarray:
         """The parameter's values (one for a scalar)."""
 
+    def read_axes(self, name: str) -> dict[str, np.ndarray]:
+        """The axis points a parameter stores with its values (an A2L STD_AXIS CURVE or MAP:
+        ``x``, ``y``), physical; empty where it stores none."""
+        return {}
+
     @abstractmethod
     def write_param(self, name: str, values: ArrayLike) -> None:
         """Write the parameter (a scalar or its values); the device refuses with DeviceError."""

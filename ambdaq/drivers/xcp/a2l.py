@@ -50,6 +50,14 @@ KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERIS
                   "COMPU_VTAB", "COMPU_VTAB_RANGE", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
                   "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "INSTANCE", "TYPEDEF_STRUCTURE",
                   "STRUCTURE_COMPONENT", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC", "AXIS_DESCR", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
+DEFAULT_ALIGNMENT = {"UBYTE": 1, "SBYTE": 1, "UWORD": 2, "SWORD": 2, "ULONG": 4, "SLONG": 4, "A_UINT64": 8,
+                     "A_INT64": 8, "FLOAT16_IEEE": 2, "FLOAT32_IEEE": 4, "FLOAT64_IEEE": 8}
+"""Alignment of each data type in ECU memory where MOD_COMMON does not say (ASAM MCD-2 MC: ALIGNMENT_*)."""
+ALIGNMENT_KEYWORDS = {"ALIGNMENT_BYTE": ("UBYTE", "SBYTE"), "ALIGNMENT_WORD": ("UWORD", "SWORD"),
+                      "ALIGNMENT_LONG": ("ULONG", "SLONG"), "ALIGNMENT_INT64": ("A_UINT64", "A_INT64"),
+                      "ALIGNMENT_FLOAT16_IEEE": ("FLOAT16_IEEE",), "ALIGNMENT_FLOAT32_IEEE": ("FLOAT32_IEEE",),
+                      "ALIGNMENT_FLOAT64_IEEE": ("FLOAT64_IEEE",)}
+RECORD_AXIS_ITEM = re.compile(r"(NO_AXIS_PTS|AXIS_PTS)_([XYZ45])")
 RECORD_ITEM = re.compile(r"FNC_VALUES|IDENTIFICATION|RESERVED|(NO_)?AXIS_PTS_[XYZ45]|(NO_)?RESCALE_[XYZ]|"
                          r"(OFFSET|SHIFT_OP|DIST_OP|SRC_ADDR|AXIS_RESCALE)_[XYZ45]|RIP_ADDR_[WXYZ45]")
 """The items a RECORD_LAYOUT places in memory (ASAM MCD-2 MC, RECORD_LAYOUT)."""
@@ -71,6 +79,7 @@ class Conversion:
     table: tuple[tuple[float, float], ...] = ()
     verbal: tuple[tuple[str, str], ...] = ()
     default: float | None = None  # TAB_INTP: the value outside the table (DEFAULT_VALUE_NUMERIC), else its ends
+    problem: str = ""  # why the file's COMPU_METHOD or its table cannot be read: refused where it is used
 
     @property
     def computed(self) -> bool:
@@ -131,6 +140,8 @@ class A2lMeasurement:
 
     def problem(self) -> str | None:
         """Why ambdaq cannot record it, or None."""
+        if self.conversion.problem:
+            return f"its conversion cannot be read: {self.conversion.problem}"
         if self.datatype not in TYPES:
             return f"data type {self.datatype} is not a number ambdaq records"
         if not self.byte_order:
@@ -140,6 +151,23 @@ class A2lMeasurement:
         if self.bit_mask is not None and (self.bit_mask == 0 or TYPES[self.datatype][0] == "f"):
             return f"BIT_MASK 0x{self.bit_mask:X} on a {self.datatype}"
         return None
+
+
+@dataclass(frozen=True)
+class RecordItem:
+    """One item of a CURVE's or MAP's record in ECU memory (ASAM MCD-2 MC, RECORD_LAYOUT), in
+    the order of its position: ``kind`` ``NO_AXIS_PTS``, ``AXIS_PTS`` or ``FNC_VALUES`` (or
+    ``RESERVED``, bytes skipped), ``axis`` 0 for X and 1 for Y (-1 for the values), ``datatype``,
+    ``count`` the most elements it holds (MaxAxisPoints, or their product for the values),
+    ``align`` its alignment in bytes (MOD_COMMON's ALIGNMENT_*, or the layout's),
+    ``conversion`` an axis's own."""
+
+    kind: str
+    axis: int
+    datatype: str
+    count: int
+    align: int
+    conversion: "Conversion | None" = None
 
 
 @dataclass(frozen=True)
@@ -168,6 +196,12 @@ class A2lParameter:
         READ_ONLY: read, never written.
     role : dict of str to str
         The words of its ``ambdaq`` annotation (``role``, ``unit``, ``axes`` ...); empty if none.
+    record : tuple of RecordItem
+        For a CURVE or MAP whose axis points are stored in its own record (STD_AXIS), the record's
+        items in memory order (read only); empty where the values alone are at ``address``.
+    static : bool
+        The record keeps room for every axis point however many are used (STATIC_RECORD_LAYOUT);
+        else it is compact, each item right after the points in use.
     """
 
     name: str
@@ -181,6 +215,8 @@ class A2lParameter:
     conversion: Conversion
     read_only: bool
     role: dict[str, str]
+    record: tuple[RecordItem, ...] = ()
+    static: bool = False
 
     @property
     def size(self) -> int:
@@ -238,7 +274,7 @@ class A2lFile:
 
     @property
     def writable(self) -> dict[str, A2lParameter]:
-        return {k: p for k, p in self.parameters.items() if not p.read_only}
+        return {k: p for k, p in self.parameters.items() if not p.read_only and not p.record}
 
 
 def catalogue(a2l: A2lFile) -> dict:
@@ -350,12 +386,15 @@ class _ModuleReader:
         common = module.child("MOD_COMMON")
         order = _options(common, 1).get("BYTE_ORDER", ["MSB_LAST"]) if common is not None else ["MSB_LAST"]
         self.byte_order = BYTE_ORDERS.get(order[0] if order else "MSB_LAST", "")
+        self.alignment = self._alignment(common, dict(DEFAULT_ALIGNMENT))
         self.methods = {_word(b, 0): b for b in module.children("COMPU_METHOD")}
         self.tables = {_word(b, 0): b for kind in ("COMPU_TAB", "COMPU_VTAB", "COMPU_VTAB_RANGE")
                        for b in module.children(kind)}
         self.layouts: dict[str, tuple[str, bool]] = {}  # name -> FNC_VALUES type, whether it holds only them
         self.axis_layouts: dict[str, str] = {}  # name -> AXIS_PTS_X type, for a record of axis points alone
+        self.records: dict[str, Block] = {}  # name -> the RECORD_LAYOUT, for a record with its own axes
         for layout in module.children("RECORD_LAYOUT"):
+            self.records[_word(layout, 0)] = layout
             items = {str(t) for t in layout.items if not isinstance(t, Text) and RECORD_ITEM.fullmatch(str(t))}
             options = _options(layout, 1)
             values, points = options.get("FNC_VALUES", []), options.get("AXIS_PTS_X", [])
@@ -363,6 +402,68 @@ class _ModuleReader:
             if items == {"AXIS_PTS_X"} and len(points) > 1:
                 self.axis_layouts[_word(layout, 0)] = points[1]
         self._conversions: dict[str, Conversion] = {}
+
+    @staticmethod
+    def _alignment(block: Block | None, base: dict[str, int]) -> dict[str, int]:
+        """Alignment in bytes per A2L data type: ``base`` with the block's ALIGNMENT_* keywords."""
+        if block is None:
+            return base
+        items = block.items
+        for i, token in enumerate(items[:-1]):
+            kind = ALIGNMENT_KEYWORDS.get(str(token)) if not isinstance(token, Text) else None
+            if kind is not None:
+                for datatype in kind:
+                    base[datatype] = max(_integer(block, items[i + 1], str(token)), 1)
+        return base
+
+    def _record(self, b: Block, layout_name: str) -> tuple[tuple[RecordItem, ...], bool] | None:
+        """The record of a CURVE or MAP whose every axis is a STD_AXIS (points in the record), in
+        memory order, and whether it is static; None where it holds anything else (addresses,
+        offsets, shifts: not read) or an axis is not a STD_AXIS."""
+        layout = self.records.get(layout_name)
+        axes = b.children("AXIS_DESCR")
+        if layout is None or not axes or any(_word(a, 0, "") != "STD_AXIS" for a in axes) or len(axes) > 2:
+            return None
+        align = self._alignment(layout, dict(self.alignment))
+        maxima = [max(_integer(a, _word(a, 3), "MaxAxisPoints"), 1) for a in axes]
+        items, i, tokens = [], 0, layout.items
+        for k, token in enumerate(tokens[:-1]):  # FIX_NO_AXIS_PTS_X n: that many points, always
+            fixed = re.fullmatch(r"FIX_NO_AXIS_PTS_([XY])", str(token)) if not isinstance(token, Text) else None
+            if fixed and "XY".index(fixed.group(1)) < len(maxima):
+                maxima["XY".index(fixed.group(1))] = max(_integer(layout, tokens[k + 1], str(token)), 1)
+        while i < len(tokens):
+            token = str(tokens[i]) if not isinstance(tokens[i], Text) else ""
+            m = RECORD_AXIS_ITEM.fullmatch(token)
+            if token in ("FNC_VALUES", "RESERVED", "IDENTIFICATION") or m:
+                if i + 2 >= len(tokens):
+                    return None
+                position, datatype = _integer(layout, tokens[i + 1], token + " position"), str(tokens[i + 2])
+                if token == "RESERVED":  # RESERVED position BYTE|WORD|LONG: bytes skipped
+                    datatype = {"BYTE": "UBYTE", "WORD": "UWORD", "LONG": "ULONG"}.get(datatype, "")
+                if datatype not in TYPES:
+                    return None
+                if m:
+                    axis = "XY".index(m.group(2)) if m.group(2) in "XY" else 2
+                    if axis >= len(axes):
+                        return None
+                    kind = m.group(1)
+                    count = 1 if kind == "NO_AXIS_PTS" else maxima[axis]
+                    conversion = self.conversion(_word(axes[axis], 2, "NO_COMPU_METHOD"))
+                    items.append((position, RecordItem(kind, axis, datatype, count, align[datatype], conversion)))
+                elif token == "FNC_VALUES":
+                    items.append((position, RecordItem("FNC_VALUES", -1, datatype, math.prod(maxima), align[datatype])))
+                else:  # RESERVED and IDENTIFICATION: bytes in the record that are not read
+                    items.append((position, RecordItem("RESERVED", -1, datatype, 1, align[datatype])))
+                i += 3
+                continue
+            if RECORD_ITEM.fullmatch(token):
+                return None  # addresses, offsets, shifts, rescaling: a record ambdaq does not read
+            i += 1
+        kinds = {(r.kind, r.axis) for _p, r in items}
+        if ("FNC_VALUES", -1) not in kinds or any(("AXIS_PTS", a) not in kinds for a in range(len(axes))):
+            return None
+        static = any(str(t) == "STATIC_RECORD_LAYOUT" for t in tokens if not isinstance(t, Text))
+        return tuple(r for _p, r in sorted(items, key=lambda pr: pr[0])), static
 
     def _order(self, options: dict[str, list[str]]) -> str:
         given = options.get("BYTE_ORDER")
@@ -373,7 +474,10 @@ class _ModuleReader:
         if name in self._conversions:
             return self._conversions[name]
         method = self.methods.get(name)
-        found = Conversion() if method is None else self._method(method)
+        try:
+            found = Conversion() if method is None else self._method(method)
+        except BadInputError as err:  # refused where a selected object uses it, never for the whole file
+            found = Conversion(_word(method, 2, "?"), False, problem=str(err))
         self._conversions[name] = found
         return found
 
@@ -401,6 +505,8 @@ class _ModuleReader:
                 return Conversion(kind, False, verbal=self._verbal(table))
             n = _integer(table, _word(table, 3, "0"), "number of pairs")
             pairs = table.items[4 : 4 + 2 * n]
+            if len(pairs) < 2 * n:
+                raise BadInputError(f"A2L file {table.where()}: COMPU_TAB {ref}: fewer pairs than its count, {n}")
             if kind == "TAB_NOINTP" or _word(table, 2, "") != "TAB_INTP":
                 return Conversion("TAB_NOINTP", False)  # the table's own type says it does not interpolate
             points = sorted((_number(table, pairs[i], "value"), _number(table, pairs[i + 1], "value"))
@@ -421,6 +527,9 @@ class _ModuleReader:
         at, width = (3, 3) if ranges else (4, 2)
         n = _integer(table, _word(table, at - 1, "0"), "number of entries")
         items = table.items[at : at + width * n]
+        if len(items) < width * n or any(isinstance(t, Text) for k, t in enumerate(items) if k % width != width - 1):
+            raise BadInputError(f"A2L file {table.where()}: {table.keyword} {_word(table, 0, '')}: fewer entries "
+                                f"than its count, {n}")
         out = []
         for i in range(0, len(items) - width + 1, width):
             values = [_number(table, v, "value") for v in items[i : i + width - 1]]
@@ -514,6 +623,15 @@ class _ModuleReader:
         out = {}
         for name, b, address, ext, options, count, kind, layout, method, lower, upper in self._characteristics():
             datatype, only_values = self.layouts.get(layout, ("", False))
+            record = self._record(b, layout) if kind in ("CURVE", "MAP") and not only_values else None
+            if record is not None:  # axis points in its own record (STD_AXIS): read, never written
+                order = self._order(options)
+                values = next(r for r in record[0] if r.kind == "FNC_VALUES")
+                if order:
+                    out[name] = A2lParameter(name, address, ext, values.datatype, order, values.count,
+                                             _number(b, lower, "lower limit"), _number(b, upper, "upper limit"),
+                                             self.conversion(method), True, ambdaq_note(b), *record)
+                continue
             if kind in ("CURVE", "MAP", "CUBOID", "CUBE_4", "CUBE_5") and only_values:
                 # its axes are not in its record (FIX_AXIS, COM_AXIS ...): MaxAxisPoints of each axis values
                 count = 1

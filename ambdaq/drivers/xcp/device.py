@@ -45,7 +45,7 @@ from ..can.bus import MAX_LOAD, bus_load
 from ..interfaces import UNLOCK_KEY_ENV, CalibrationPages, Capabilities, Controller, ExcitationSpec, Source
 from ..rows import RowQueue
 from ..signals import FIELD_TYPES, SampleBlock, SignalGroup, field_problem, ros_field, ros_type
-from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter
+from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter, Conversion
 from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
 from .keys import KeyAlgorithm
@@ -132,6 +132,14 @@ def upload_a2l(url: str, link: LinkFactory) -> bytes:
     finally:
         master.close()
     return text
+
+
+def _physical_values(raw: bytes, datatype: str, byte_order: str, conversion: Conversion | None) -> np.ndarray:
+    """``raw`` bytes of ``datatype`` values in ``byte_order`` as physical values (float64): through
+    ``conversion`` where it is linear, else raw."""
+    kind, size = TYPES[datatype]
+    x = np.frombuffer(raw, dtype=f"{byte_order}{kind}{size}").astype(np.float64)
+    return x * conversion.factor + conversion.offset if conversion is not None and conversion.linear else x
 
 
 def field_type(m: A2lMeasurement) -> str:
@@ -307,7 +315,7 @@ class XcpController(Controller, CalibrationPages):
                 if self.info.optional_comm_mode:
                     self._master.get_comm_mode_info()
                 self.project = _identifier(self._master)
-            self._constants = {n: ",".join(repr(float(v)) for v in self._read_values(p))
+            self._constants = {n: ",".join(repr(float(v)) for v in self._read_values(p)[0])
                                for n, p in a2l.constants.items()}
             if record:
                 self._plan(chosen, counter, event, prescaler, bus_bitrate)
@@ -582,6 +590,10 @@ class XcpController(Controller, CalibrationPages):
             known = ", ".join((self.a2l.writable if write else self.a2l.parameters)) or "none"
             what = "writable numeric parameter" if write else "numeric parameter (VALUE or VAL_BLK)"
             raise DeviceError(f"{self.url}: the A2L describes no {what} {name!r} (it has: {known})")
+        problems = [c.problem for c in (found.conversion, *(r.conversion for r in found.record if r.conversion))
+                    if c.problem]
+        if problems:
+            raise DeviceError(f"{self.url}: {name}: its conversion cannot be read: {problems[0]}")
         return found
 
     @contextmanager
@@ -633,16 +645,71 @@ class XcpController(Controller, CalibrationPages):
             with self._errors(f"give back page {before} of segment {segment.name}"):
                 self._master.set_cal_page(0x02, segment.number, before)
 
-    def _read_values(self, param: A2lParameter) -> np.ndarray:
+    def _read_values(self, param: A2lParameter) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The parameter's physical values, and for a record with its own axes (STD_AXIS) each
+        axis's points (``x``, ``y``)."""
+        if param.record:
+            return self._read_record(param)
         kind, size = TYPES[param.datatype]
         with self._paged(param, False), self._errors(f"read {param.name}"):
             raw = self._master.read(param.extension, param.address, size * param.count)
-        x = np.frombuffer(raw, dtype=f"{param.byte_order}{kind}{size}").astype(np.float64)
-        c = param.conversion
-        return x * c.factor + c.offset if c.linear else x
+        return _physical_values(raw, param.datatype, param.byte_order, param.conversion), {}
+
+    def _read_record(self, param: A2lParameter) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """A CURVE or MAP stored with its axis points (ASAM MCD-2 MC RECORD_LAYOUT): the record is
+        read as large as it can be, then walked item by item in memory order, each aligned; in a
+        compact record each item follows the points in use (NO_AXIS_PTS), in a static one the
+        room for every point. A count beyond MaxAxisPoints, or one that follows the points it
+        counts in a compact record, is refused: the layout cannot then be decided."""
+        def aligned(offset: int, align: int) -> int:
+            return offset + (-(param.address + offset)) % align
+
+        largest = 0
+        for item in param.record:
+            largest = aligned(largest, item.align) + TYPES[item.datatype][1] * item.count
+        with self._paged(param, False), self._errors(f"read {param.name}"):
+            raw = self._master.read(param.extension, param.address, largest)
+        used = [next((r.count for r in param.record if r.kind == "AXIS_PTS" and r.axis == a), 1) for a in range(2)]
+        counted: set[int] = set()
+        offset, values, axes = 0, np.zeros(0), {}
+        for item in param.record:
+            size = TYPES[item.datatype][1]
+            offset = aligned(offset, item.align)
+            if item.kind == "AXIS_PTS":
+                n = used[item.axis]
+            elif item.kind == "FNC_VALUES":
+                n = used[0] * used[1]
+            else:
+                n = item.count
+            sized_by = {item.axis} if item.kind == "AXIS_PTS" else {0, 1} if item.kind == "FNC_VALUES" else set()
+            if not param.static and any(r.kind == "NO_AXIS_PTS" and r.axis in sized_by and r.axis not in counted
+                                        for r in param.record):
+                raise DeviceError(f"{self.url}: {param.name}: its record gives a count of axis points after the "
+                                  "points it counts; ambdaq cannot place them")
+            data = raw[offset : offset + size * n]
+            if item.kind == "NO_AXIS_PTS":
+                count = int(_physical_values(data, item.datatype, param.byte_order, None)[0])
+                most = next(r.count for r in param.record if r.kind == "AXIS_PTS" and r.axis == item.axis)
+                if not 1 <= count <= most:
+                    raise DeviceError(f"{self.url}: {param.name}: the ECU holds {count} points on axis "
+                                      f"{'xy'[item.axis]}, its A2L at most {most}")
+                used[item.axis] = count
+                counted.add(item.axis)
+            elif item.kind == "AXIS_PTS":
+                axes["xy"[item.axis]] = _physical_values(data, item.datatype, param.byte_order, item.conversion)
+            elif item.kind == "FNC_VALUES":
+                if param.static and used[1] > 1 and used[0] < item.count // used[1]:
+                    raise DeviceError(f"{self.url}: {param.name}: a static MAP using fewer x points than it has room "
+                                      "for: where each row's values lie is not decided by its A2L")
+                values = _physical_values(data, item.datatype, param.byte_order, param.conversion)
+            offset += size * (item.count if param.static and item.kind != "NO_AXIS_PTS" else n)
+        return values, axes
 
     def read_param(self, name: str) -> np.ndarray:
-        return self._read_values(self._parameter(name))
+        return self._read_values(self._parameter(name))[0]
+
+    def read_axes(self, name: str) -> dict[str, np.ndarray]:
+        return self._read_values(self._parameter(name))[1]
 
     def write_param(self, name: str, values) -> None:
         """Download ``values`` (physical) to parameter ``name`` after checking their number, the
