@@ -483,3 +483,27 @@ def test_an_xcp_error_response_is_named_with_its_meaning(served):
     finally:
         x.close()
     assert str(err.value) == f"{served.url}: write a DAQ entry: the controller answered ERR_SEQUENCE (commands out of sequence)"
+
+
+def test_static_daq_lists_hold_what_the_controller_sent(a2l, tmp_path, run_cli):
+    """A slave whose DAQ lists are static (3 lists of 16 ODTs of 7 entries, as many ECUs have: no
+    FREE_DAQ or ALLOC): every measurement of the A2L goes into the room GET_DAQ_LIST_INFO gives,
+    after CLEAR_DAQ_LIST (the slave refuses an eighth entry in an ODT), and each recorded value is
+    the rig's at that sample."""
+    rig = serve("spindle", speed=SpeedProfile(30000, 30000), can=None, xcp="tcp:0", static_daq=True)
+    blocks: deque = deque(maxlen=2000)
+    rig.server.subscribe(blocks.append)
+    try:
+        out = tmp_path / "static.mcap"
+        r = run_cli("record", "--device", rig.urls["xcp"], "--a2l", a2l, "--duration", "1", "--json", "-o", out)
+        assert r.exit_code == 0, r.output
+        summary = json.loads(r.stdout)
+        assert summary["samples"] == 10000 and summary["drops"] == 0
+        rec = load(out)
+        for topic, field in (("/amb/gap", "front_x"), ("/amb/current", "rear_y"), ("/amb/rotor", "angle")):
+            got = rec[topic]
+            col = [g.fields for g in rig.server.rig.signal_groups() if g.topic == topic][0].index(field)
+            by_seq = {int(s): v for b in list(blocks) for s, v in zip(b.seq, b.values[topic][:, col])}
+            np.testing.assert_array_equal(got[field], np.array([by_seq[int(s)] for s in got.seq], dtype=np.float32))
+    finally:
+        rig.stop()

@@ -134,9 +134,12 @@ def fleet(folder, machines, days, duration, rpm, seed, drop_chance):
               help="Also serve the controller's XCP slave: XCP on TCP on 127.0.0.1:PORT (tcp:0: a free port), "
                    "XCP on SxI on a pseudo-terminal, or XCP on CAN on the rig's bus (with --can slcan); it prints "
                    "its xcp+... URL; its A2L: ambdaq sim a2l.")
+@click.option("--xcp-daq", type=click.Choice(["dynamic", "static"]), default="dynamic", show_default=True,
+              help="With --xcp: DAQ lists the master allocates (dynamic), or a fixed set it fills (static, as many "
+                   "ECUs have).")
 @click.option("--duration", type=DURATION, metavar="SECONDS",
               help="Stop after this long; default: until Ctrl-C.")
-def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, duration):
+def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_party, xcp, xcp_daq, duration):
     """Run a simulated rig in this process with its devices on real transports.
 
     Prints one line per pseudo-terminal, NAME PATH, and with --can one per CANopen device,
@@ -165,7 +168,8 @@ def serve(profile, seed, speed, truth, drift_ppm, unlock_key, base, can, third_p
     motion = None if base is None else _base_motion(profile, base)
     served = serve(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, unlock_key=unlock_key,
                    clock=DeviceClock(CONTROLLER_CLOCK.offset_ns, drift_ppm), base_motion=motion,
-                   can=None if can == "none" else can, third_party=third_party, xcp=xcp)
+                   can=None if can == "none" else can, third_party=third_party, xcp=xcp,
+                   static_daq=xcp_daq == "static")
     for name, pty in served.ptys.items():
         if name != "xcp":
             click.echo(f"{name} {pty.path}")

@@ -112,7 +112,7 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
           ff_mode: str = "off", noise: bool = True, unlock_key: str = DEFAULT_UNLOCK_KEY,
           clock: DeviceClock = CONTROLLER_CLOCK, base_motion=None, can: str | None = "virtual",
           third_party: bool = False, xcp: str | None = None, fault_after_s: float | None = None,
-          line_errors: float = 0.0) -> ServedRig:
+          line_errors: float = 0.0, static_daq: bool = False) -> ServedRig:
     """Start rig profile ``name`` in real time with its devices on transports.
 
     Parameters
@@ -136,6 +136,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
     xcp : {"tcp:PORT", "sxi", "can"}, optional
         Also serve the controller's XCP slave: on TCP on 127.0.0.1:PORT (0: a free port), on SxI
         on a pseudo-terminal, or on CAN on the rig's bus; ``urls["xcp"]`` says where.
+    static_daq : bool
+        The XCP slave has static DAQ lists, not dynamic ones.
     fault_after_s : float, optional
         The controller reports an injected fault (:data:`~ambdaq.sim.devices.faults.INJECTED_FAULT`)
         this many seconds after the rig starts, in s.
@@ -179,7 +181,8 @@ def serve(name: str, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0
                 if can == "virtual":  # its replies are matched by bus time, which python-can's slcan lacks
                     served.urls["drive"] = f"can://{bus}node={VENDOR_DRIVE_NODE}&sync={sync:g}&eds={VENDOR_DRIVE_EDS}"
         if xcp is not None:
-            slave = served.devices["xcp"] = XcpSlave(served.server, served.devices["controller"].banks, clock)
+            slave = served.devices["xcp"] = XcpSlave(served.server, served.devices["controller"].banks, clock,
+                                                     static_daq=static_daq)
             if xcp == "sxi":
                 served.ptys["xcp"] = Pty.open()
                 slave.serve_pty(served.ptys["xcp"])

@@ -3,7 +3,9 @@
 
 ambdaq packs each DAQ list's ODTs itself: one ODT entry per element, in the order measurements
 were selected, an ODT filled until the next entry would not fit MAX_DTO (less the identification
-field, and the timestamp on the first ODT).  The same plan that is written with WRITE_DAQ is the
+field, and the timestamp on the first ODT) or its entries the list's room.  A slave with dynamic
+DAQ configuration allocates the lists to fit; on one with static lists each event gets a free list
+that holds it (GET_DAQ_LIST_INFO), cleared (CLEAR_DAQ_LIST) and written the same way.  The same plan that is written with WRITE_DAQ is the
 one DTO bytes are read by, so a field always holds the bytes of its own address: what the slave
 was told is what is decoded, whatever the order or sizes of the measurements.
 
@@ -23,7 +25,7 @@ import numpy as np
 
 from ...errors import BadInputError
 from .a2l import TYPES, A2lMeasurement
-from .master import DaqProcessor, EventChannel
+from .master import DaqListInfo, DaqProcessor, EventChannel
 
 ID_SIZES = {0: 1, 1: 2, 2: 3, 3: 4}  # identification field: absolute PID; ODT + DAQ byte; + DAQ word; + fill + DAQ word
 FILL_MAX = 3  # XCP on Ethernet may fill a DTO to a multiple of 4 bytes (Part 3)
@@ -99,43 +101,76 @@ class DaqListPlan:
         return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.payload})
 
 
+MAX_ALLOC_ENTRIES = 0xFF  # ALLOC_ODT_ENTRY's count is a byte
+
+
+def _pack(elements: list[Element], processor: DaqProcessor, max_dto: int, header: int, timestamp: int,
+          max_entries: int, url: str) -> list[list[Element]]:
+    """The ODTs of one list: each element into the first ODT it fits, in bytes (MAX_DTO, less the
+    identification field and, on the first, the timestamp) and in entries (``max_entries``)."""
+    max_entry = processor.max_entry_size * processor.granularity
+    odts: list[list[Element]] = [[]]
+    rooms = [max_dto - header - timestamp]  # the first ODT also carries the timestamp
+    for e in elements:  # first fit: a small element fills a gap an earlier ODT left
+        size = e.measurement.size
+        if size % processor.granularity or size > max_entry:
+            raise BadInputError(f"{url}: {e.measurement.name} is {size} bytes; the slave's ODT entries are "
+                                f"multiples of {processor.granularity} up to {max_entry} bytes")
+        fits = [j for j, room in enumerate(rooms) if size <= room and len(odts[j]) < max_entries and (
+            processor.address_extension != "odt" or not odts[j]
+            or odts[j][0].measurement.extension == e.measurement.extension)]
+        if not fits:
+            if size > max_dto - header:
+                raise BadInputError(f"{url}: {e.measurement.name} ({size} bytes) does not fit a {max_dto}-byte DTO")
+            odts.append([])
+            rooms.append(max_dto - header)
+            fits = [len(odts) - 1]
+        odts[fits[0]].append(e)
+        rooms[fits[0]] -= size
+    return odts
+
+
 def plan_lists(by_event: dict[int, list[Element]], events: dict[int, EventChannel], processor: DaqProcessor,
-               max_dto: int, *, prescaler: int, counters: dict[int, Element | None], url: str) -> list[DaqListPlan]:
-    """Pack each event's elements into one DAQ list's ODTs (the slave's limits checked first)."""
-    if not processor.dynamic:
-        raise BadInputError(f"{url}: the slave's DAQ lists are static; ambdaq configures dynamic ones")
+               max_dto: int, *, prescaler: int, counters: dict[int, Element | None], url: str,
+               static_lists: list[DaqListInfo] | None = None) -> list[DaqListPlan]:
+    """Pack each event's elements into one DAQ list's ODTs (the slave's limits checked first).
+
+    A slave with dynamic DAQ configuration gets lists numbered from MIN_DAQ, allocated to fit. A
+    static one (``static_lists``: GET_DAQ_LIST_INFO of each configurable list) gives each event the
+    first list free for it (its fixed event, or none) whose ODTs and entries per ODT hold the
+    elements as packed for it; predefined lists, whose entries are fixed, are not used."""
     header = ID_SIZES[processor.identification]
     timestamp = processor.timestamp_size if (processor.timestamps or processor.timestamp_fixed) else 0
-    max_entry = processor.max_entry_size * processor.granularity
     plans = []
     odt_limit = 0x7C if processor.overload == "pid" else MAX_PID + 1
+    taken: set[int] = set()
     for i, (event, elements) in enumerate(by_event.items()):
-        odts: list[list[Element]] = [[]]
-        rooms = [max_dto - header - timestamp]  # the first ODT also carries the timestamp
-        for e in elements:  # first fit: a small element fills a gap an earlier ODT left
-            size = e.measurement.size
-            if size % processor.granularity or size > max_entry:
-                raise BadInputError(f"{url}: {e.measurement.name} is {size} bytes; the slave's ODT entries are "
-                                    f"multiples of {processor.granularity} up to {max_entry} bytes")
-            fits = [j for j, room in enumerate(rooms) if size <= room and (
-                processor.address_extension != "odt" or not odts[j]
-                or odts[j][0].measurement.extension == e.measurement.extension)]
-            if not fits:
-                if size > max_dto - header:
-                    raise BadInputError(f"{url}: {e.measurement.name} ({size} bytes) does not fit a {max_dto}-byte DTO")
-                odts.append([])
-                rooms.append(max_dto - header)
-                fits = [len(odts) - 1]
-            odts[fits[0]].append(e)
-            rooms[fits[0]] -= size
+        name = events[event].name
         if processor.address_extension == "daq" and len({e.measurement.extension for e in elements}) > 1:
             raise BadInputError(f"{url}: the slave takes one address extension per DAQ list, and the measurements on "
-                                f"event {events[event].name!r} have several")
+                                f"event {name!r} have several")
+        if static_lists is None:
+            number, odts = processor.min_daq + i, _pack(elements, processor, max_dto, header, timestamp,
+                                                        MAX_ALLOC_ENTRIES, url)
+        else:
+            free = sorted((d for d in static_lists if d.daq and not d.predefined and d.number not in taken
+                           and d.fixed_event in (None, event)), key=lambda d: d.fixed_event is None)
+            found = None
+            for d in free:  # a list fixed to this event first
+                odts = _pack(elements, processor, max_dto, header, timestamp, max(d.max_odt_entries, 1), url)
+                if len(odts) <= d.max_odt:
+                    found = d
+                    break
+            if found is None:
+                room = ", ".join(f"{d.number}: {d.max_odt} ODTs of {d.max_odt_entries} entries" for d in free) or "none"
+                raise BadInputError(f"{url}: the slave's DAQ lists are static and none free for event {name!r} holds "
+                                    f"its {len(elements)} entries (lists free for it: {room})")
+            number = found.number
+            taken.add(number)
         if len(odts) > odt_limit:
-            raise BadInputError(f"{url}: event {events[event].name!r} needs {len(odts)} ODTs, more than the "
+            raise BadInputError(f"{url}: event {name!r} needs {len(odts)} ODTs, more than the "
                                 f"{odt_limit} a DAQ list's identification field can number")
-        plans.append(DaqListPlan(processor.min_daq + i, events[event], odts, header, timestamp, prescaler,
-                                 counters.get(event)))
+        plans.append(DaqListPlan(number, events[event], odts, header, timestamp, prescaler, counters.get(event)))
     return plans
 
 

@@ -453,8 +453,10 @@ class XcpController(Controller, CalibrationPages):
             counter_element = counters[e]
             layout[e] = ([counter_element] if counter_element else []) + fields_in_order
             streams[e] = (groups, columns, fields_in_order)
+        static = None if processor.dynamic else [  # a bounded look, whatever MAX_DAQ a slave claims
+            master.daq_list_info(n) for n in range(processor.min_daq, min(processor.max_daq, processor.min_daq + 256))]
         plans = plan_lists(layout, channels, processor, self.info.max_dto, prescaler=prescaler, counters=counters,
-                           url=url)
+                           url=url, static_lists=static)
         if bus_bitrate is not None:
             for plan in plans:
                 self._check_bus_load(plan, bus_bitrate)
@@ -543,18 +545,22 @@ class XcpController(Controller, CalibrationPages):
         self._start_daq()
 
     def _start_daq(self) -> None:
-        """Configure every DAQ list (ASAM XCP Part 2, dynamic DAQ configuration) and start them."""
+        """Configure every DAQ list (ASAM XCP Part 2, dynamic or static DAQ configuration) and start them."""
         if self._streaming:
             return
         m = self._master
         with self._errors("DAQ setup"):
-            m.free_daq()
-            m.alloc_daq(len(self._plans))
-            for p in self._plans:
-                m.alloc_odt(p.number, len(p.odts))
-            for p in self._plans:
-                for j, odt in enumerate(p.odts):
-                    m.alloc_odt_entry(p.number, j, len(odt))
+            if self._processor.dynamic:
+                m.free_daq()
+                m.alloc_daq(len(self._plans))
+                for p in self._plans:
+                    m.alloc_odt(p.number, len(p.odts))
+                for p in self._plans:
+                    for j, odt in enumerate(p.odts):
+                        m.alloc_odt_entry(p.number, j, len(odt))
+            else:  # static lists: their room is there, what a last user left in them is cleared
+                for p in self._plans:
+                    m.clear_daq_list(p.number)
             for p in self._plans:
                 for j, odt in enumerate(p.odts):
                     if odt:  # an ODT of the timestamp alone has no entry to point at

@@ -38,6 +38,7 @@ SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0
 DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO, COPY_CAL_PAGE = 0xF0, 0xEB, 0xEA, 0xE9, 0xE4
 SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
 GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDA, 0xD9, 0xD7
+GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST = 0xD8, 0xE3
 FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
 
 XCP_ERRORS = {
@@ -114,6 +115,19 @@ class DaqProcessor:
     timestamp_size: int  # bytes, 0 for none
     timestamp_fixed: bool
     timestamp_ns: int  # one tick, in ns
+
+
+@dataclass(frozen=True)
+class DaqListInfo:
+    """GET_DAQ_LIST_INFO (Part 2) of a static DAQ list: its number, whether it is predefined (its
+    entries fixed) or tied to one event (``fixed_event``, else None), its room (ODTs, entries per ODT)."""
+
+    number: int
+    predefined: bool
+    fixed_event: int | None
+    daq: bool  # a DAQ (not only STIM) list
+    max_odt: int
+    max_odt_entries: int
 
 
 @dataclass(frozen=True)
@@ -382,6 +396,16 @@ class XcpMaster:
         if cycle and unit not in TIME_UNITS_NS:
             raise DeviceError(f"{self.url}: event {number} names time unit {unit}, which ASAM XCP 1.x does not define")
         return EventChannel(number, name.rstrip("\0"), cycle * TIME_UNITS_NS.get(unit, 0), max_lists, bool(props & 0x04))
+
+    def daq_list_info(self, number: int) -> DaqListInfo:
+        r = self.command(GET_DAQ_LIST_INFO, 0, self._u16(number), expect=6)
+        props = r[1]
+        (fixed,) = self.unpack("H", r, 4)
+        return DaqListInfo(number, bool(props & 0x01), fixed if props & 0x02 else None, bool(props & 0x04) or
+                           not props & 0x0C, r[2], r[3])
+
+    def clear_daq_list(self, number: int) -> None:
+        self.command(CLEAR_DAQ_LIST, 0, self._u16(number))
 
     def free_daq(self) -> None:
         self.command(FREE_DAQ)

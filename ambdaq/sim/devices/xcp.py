@@ -11,7 +11,10 @@ answers, in Intel byte order, byte address granularity, MAX_CTO 255 and MAX_DTO 
 - calibration: DOWNLOAD, SHORT_DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO;
 - DAQ (dynamic lists): GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO,
   GET_DAQ_CLOCK, FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, SET_DAQ_PTR, WRITE_DAQ,
-  SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH;
+  SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH; or, with ``static_daq``, the
+  static configuration of many ECUs: ``STATIC_LISTS`` lists of ``STATIC_ODTS`` ODTs of
+  ``STATIC_ENTRIES`` entries each, described by GET_DAQ_LIST_INFO and emptied by CLEAR_DAQ_LIST,
+  FREE_DAQ and the ALLOC commands unknown; an ODT with no entry is not sent;
 
 and refuses any other command with ERR_CMD_UNKNOWN, as a slave that lacks it does.
 
@@ -67,6 +70,7 @@ EVENT_CYCLE, EVENT_UNIT_100US = 1, 5  # one control period: 1 x 100 us
 TIMESTAMP_MODE = 0x30 | 0x08 | 0x04  # unit 1 us, fixed (every first ODT), 4 bytes
 DAQ_PROPERTIES = 0x01 | 0x02 | 0x10  # dynamic configuration, prescaler, timestamps
 MAX_DAQ_LISTS, MAX_ODT_ENTRY_SIZE = 16, 255
+STATIC_LISTS, STATIC_ODTS, STATIC_ENTRIES = 3, 16, 7  # static configuration: lists, ODTs per list, entries per ODT
 DAQ_QUEUE_S = 2.0
 
 CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
@@ -75,6 +79,7 @@ DOWNLOAD, SHORT_DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO = 0
 SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
 GET_DAQ_CLOCK, GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDC, 0xDA, 0xD9, 0xD7
 FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
+GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST = 0xD8, 0xE3
 
 
 @dataclass
@@ -101,10 +106,14 @@ class XcpSlave:
         The controller's coefficient banks (shared with its other ports).
     clock : DeviceClock
         The controller's clock, which stamps the DTOs.
+    static_daq : bool
+        Static DAQ lists (fixed room, GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST) instead of dynamic ones.
     """
 
-    def __init__(self, server: RigServer, banks: CoefficientBanks, clock: DeviceClock) -> None:
+    def __init__(self, server: RigServer, banks: CoefficientBanks, clock: DeviceClock, *,
+                 static_daq: bool = False) -> None:
         self.server = server
+        self.static_daq = static_daq
         self.memory = MeasurementMap(server)
         self.pages = CalibrationPages(banks)
         self.constants = CalibrationConstants(server.rig.calibration())
@@ -130,10 +139,16 @@ class XcpSlave:
         self._upload_text: bytes | None = None  # after GET_ID / GET_DAQ_EVENT_INFO: uploads read this
         self._seed = b""
         self._protected = RES_CALPAG
-        self._daq: list[DaqList] = []
+        self._daq: list[DaqList] = self._fresh_lists()
         self._ptr: tuple[int, int, int] | None = None
         self._plan: list | None = None  # the running lists' DTO layout
         self.parameters.forget()
+
+    def _fresh_lists(self) -> list[DaqList]:
+        """The DAQ lists a new session finds: none (dynamic), or the static ones, empty."""
+        if not self.static_daq:
+            return []
+        return [DaqList(odts=[[None] * STATIC_ENTRIES for _ in range(STATIC_ODTS)]) for _ in range(STATIC_LISTS)]
 
     def serve_tcp(self, port: int) -> None:
         """XCP on TCP on 127.0.0.1:``port`` (0: a free one); :attr:`url` says where."""
@@ -261,6 +276,8 @@ class XcpSlave:
             if not daq.running:
                 continue
             for j, entries in enumerate(daq.odts):
+                if self.static_daq and not any(entries):
+                    continue  # a static list's ODT with no entry is not sent
                 index = [np.arange(a - MEASUREMENT_BASE, a - MEASUREMENT_BASE + s) for s, a in filter(None, entries)]
                 plan.append((daq.prescaler, daq.first_pid + j, daq.timestamp and j == 0,
                              np.concatenate(index) if index else np.zeros(0, dtype=np.int64)))
@@ -427,7 +444,23 @@ class XcpSlave:
 
     def _get_daq_processor_info(self, _p: bytes) -> bytes:
         # key byte 0: absolute ODT number as PID, address extension free, default optimisation
+        if self.static_daq:
+            return struct.pack("<BBHHBB", PID_RES, DAQ_PROPERTIES & ~0x01, STATIC_LISTS, 1, 0, 0x00)
         return struct.pack("<BBHHBB", PID_RES, DAQ_PROPERTIES, MAX_DAQ_LISTS, 1, 0, 0x00)
+
+    def _get_daq_list_info(self, p: bytes) -> bytes:
+        (daq,) = struct.unpack_from("<H", p, 2)
+        if not self.static_daq or daq >= STATIC_LISTS:
+            raise Refused(ERR_OUT_OF_RANGE, f"no static DAQ list {daq}")
+        return struct.pack("<BBBBH", PID_RES, 0x04, STATIC_ODTS, STATIC_ENTRIES, 0)  # a DAQ list, no fixed event
+
+    def _clear_daq_list(self, p: bytes) -> bytes:
+        (daq,) = struct.unpack_from("<H", p, 2)
+        d = self._daq[daq]
+        d.running = d.selected = False
+        d.odts = [[None] * len(entries) for entries in d.odts]
+        self._arm()
+        return bytes([PID_RES])
 
     def _get_daq_resolution_info(self, _p: bytes) -> bytes:
         return struct.pack("<BBBBBBH", PID_RES, 1, MAX_ODT_ENTRY_SIZE, 1, 0, TIMESTAMP_MODE, 1)
@@ -450,11 +483,15 @@ class XcpSlave:
         self._plan = None
 
     def _free_daq(self, _p: bytes) -> bytes:
+        if self.static_daq:
+            raise Refused(ERR_CMD_UNKNOWN, "static DAQ lists")
         self._stop_daq()
         self._daq, self._ptr = [], None
         return bytes([PID_RES])
 
     def _alloc_daq(self, p: bytes) -> bytes:
+        if self.static_daq:
+            raise Refused(ERR_CMD_UNKNOWN, "static DAQ lists")
         (count,) = struct.unpack_from("<H", p, 2)
         if self._daq or count > MAX_DAQ_LISTS:
             raise Refused(ERR_SEQUENCE if self._daq else ERR_OUT_OF_RANGE, "ALLOC_DAQ once after FREE_DAQ")
@@ -462,11 +499,15 @@ class XcpSlave:
         return bytes([PID_RES])
 
     def _alloc_odt(self, p: bytes) -> bytes:
+        if self.static_daq:
+            raise Refused(ERR_CMD_UNKNOWN, "static DAQ lists")
         (daq,), count = struct.unpack_from("<H", p, 2), p[4]
         self._daq[daq].odts = [[] for _ in range(count)]
         return bytes([PID_RES])
 
     def _alloc_odt_entry(self, p: bytes) -> bytes:
+        if self.static_daq:
+            raise Refused(ERR_CMD_UNKNOWN, "static DAQ lists")
         (daq,), odt, count = struct.unpack_from("<H", p, 2), p[4], p[5]
         self._daq[daq].odts[odt] = [None] * count
         return bytes([PID_RES])
@@ -536,5 +577,5 @@ class XcpSlave:
         GET_DAQ_CLOCK: _get_daq_clock, FREE_DAQ: _free_daq, ALLOC_DAQ: _alloc_daq, ALLOC_ODT: _alloc_odt,
         ALLOC_ODT_ENTRY: _alloc_odt_entry, SET_DAQ_PTR: _set_daq_ptr, WRITE_DAQ: _write_daq,
         SET_DAQ_LIST_MODE: _set_daq_list_mode, START_STOP_DAQ_LIST: _start_stop_daq_list,
-        START_STOP_SYNCH: _start_stop_synch,
+        START_STOP_SYNCH: _start_stop_synch, GET_DAQ_LIST_INFO: _get_daq_list_info, CLEAR_DAQ_LIST: _clear_daq_list,
     }
