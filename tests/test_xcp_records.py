@@ -38,6 +38,12 @@ A2L = """ASAP2_VERSION 1 71
       NO_AXIS_PTS_Y 3 UBYTE
       FNC_VALUES 5 SWORD COLUMN_DIR DIRECT
     /end RECORD_LAYOUT
+    /begin RECORD_LAYOUT RL.AXIS.COUNTED
+      NO_AXIS_PTS_X 1 UWORD
+      AXIS_PTS_X 2 SLONG INDEX_INCR DIRECT
+    /end RECORD_LAYOUT
+    /begin AXIS_PTS speed_axis "a shared speed axis" 0x6000 NO_INPUT_QUANTITY RL.AXIS.COUNTED 0 CM.RPM 6 0 100000
+    /end AXIS_PTS
     /begin CHARACTERISTIC gain_curve "gain against speed" CURVE 0x2000 RL.CURVE.COMPACT 0 CM.GAIN 0 600
       /begin AXIS_DESCR STD_AXIS speed CM.RPM 8 0 100000 /end AXIS_DESCR
     /end CHARACTERISTIC
@@ -79,6 +85,8 @@ def memory() -> dict[int, int]:
     put(0x4001, bytes([2, 10, 20, 2, 7, 9]))
     put(0x4008, struct.pack("<4h", -3, 4, -5, 6))  # 0x4007 is odd: one pad byte
     put(0x5000, struct.pack("<B", 9))  # broken_curve: 9 points in use where the A2L gives room for 4
+    put(0x6000, struct.pack("<H", 3))  # speed_axis: 3 of 6 points, the SLONGs aligned to 0x6004
+    put(0x6004, struct.pack("<3i", 100, 200, 400))
     return image
 
 
@@ -165,3 +173,10 @@ def test_a_record_with_its_own_axes_is_read_not_written(slave, run_cli):
     url, a2l = slave
     r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "gain_curve", "1", "2", "3", "4", "5", "--yes")
     assert r.exit_code == 1 and "no writable numeric parameter 'gain_curve'" in r.output, r.output
+
+
+def test_axis_points_with_their_count_in_the_record(slave, run_cli):
+    url, a2l = slave
+    r = run_cli("controller", "param", "--device", url, "--a2l", a2l, "speed_axis")
+    assert r.exit_code == 0, r.output
+    assert r.output.splitlines() == ["speed_axis = 1000 2000 4000"]

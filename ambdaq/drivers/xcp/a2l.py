@@ -416,16 +416,17 @@ class _ModuleReader:
                     base[datatype] = max(_integer(block, items[i + 1], str(token)), 1)
         return base
 
-    def _record(self, b: Block, layout_name: str) -> tuple[tuple[RecordItem, ...], bool] | None:
-        """The record of a CURVE or MAP whose every axis is a STD_AXIS (points in the record), in
-        memory order, and whether it is static; None where it holds anything else (addresses,
-        offsets, shifts: not read) or an axis is not a STD_AXIS."""
+    def _record(self, layout_name: str, axes: list[tuple[int, str]], values: bool
+                ) -> tuple[tuple[RecordItem, ...], bool] | None:
+        """A record that holds its own axis points, in memory order, and whether it is static:
+        a CURVE's or MAP's (``values``: FNC_VALUES too) or an AXIS_PTS's with its count. ``axes``:
+        each axis's MaxAxisPoints and conversion. None where the record holds anything else
+        (addresses, offsets, shifts: not read)."""
         layout = self.records.get(layout_name)
-        axes = b.children("AXIS_DESCR")
-        if layout is None or not axes or any(_word(a, 0, "") != "STD_AXIS" for a in axes) or len(axes) > 2:
+        if layout is None or not axes or len(axes) > 2:
             return None
         align = self._alignment(layout, dict(self.alignment))
-        maxima = [max(_integer(a, _word(a, 3), "MaxAxisPoints"), 1) for a in axes]
+        maxima = [max(n, 1) for n, _c in axes]
         items, i, tokens = [], 0, layout.items
         for k, token in enumerate(tokens[:-1]):  # FIX_NO_AXIS_PTS_X n: that many points, always
             fixed = re.fullmatch(r"FIX_NO_AXIS_PTS_([XY])", str(token)) if not isinstance(token, Text) else None
@@ -448,7 +449,7 @@ class _ModuleReader:
                         return None
                     kind = m.group(1)
                     count = 1 if kind == "NO_AXIS_PTS" else maxima[axis]
-                    conversion = self.conversion(_word(axes[axis], 2, "NO_COMPU_METHOD"))
+                    conversion = self.conversion(axes[axis][1])
                     items.append((position, RecordItem(kind, axis, datatype, count, align[datatype], conversion)))
                 elif token == "FNC_VALUES":
                     items.append((position, RecordItem("FNC_VALUES", -1, datatype, math.prod(maxima), align[datatype])))
@@ -460,7 +461,7 @@ class _ModuleReader:
                 return None  # addresses, offsets, shifts, rescaling: a record ambdaq does not read
             i += 1
         kinds = {(r.kind, r.axis) for _p, r in items}
-        if ("FNC_VALUES", -1) not in kinds or any(("AXIS_PTS", a) not in kinds for a in range(len(axes))):
+        if (("FNC_VALUES", -1) in kinds) != values or any(("AXIS_PTS", a) not in kinds for a in range(len(axes))):
             return None
         static = any(str(t) == "STATIC_RECORD_LAYOUT" for t in tokens if not isinstance(t, Text))
         return tuple(r for _p, r in sorted(items, key=lambda pr: pr[0])), static
@@ -623,7 +624,11 @@ class _ModuleReader:
         out = {}
         for name, b, address, ext, options, count, kind, layout, method, lower, upper in self._characteristics():
             datatype, only_values = self.layouts.get(layout, ("", False))
-            record = self._record(b, layout) if kind in ("CURVE", "MAP") and not only_values else None
+            axes = b.children("AXIS_DESCR")  # STD_AXIS: Attribute InputQuantity Conversion MaxAxisPoints ...
+            record = self._record(layout, [(_integer(a, _word(a, 3), "MaxAxisPoints"), _word(a, 2, "NO_COMPU_METHOD"))
+                                           for a in axes], True) \
+                if kind in ("CURVE", "MAP") and not only_values and all(_word(a, 0, "") == "STD_AXIS" for a in axes) \
+                else None
             if record is not None:  # axis points in its own record (STD_AXIS): read, never written
                 order = self._order(options)
                 values = next(r for r in record[0] if r.kind == "FNC_VALUES")
@@ -649,13 +654,21 @@ class _ModuleReader:
             # AXIS_PTS name "long" address InputQuantity layout MaxDiff conversion MaxAxisPoints lower upper
             datatype = self.axis_layouts.get(_word(b, 4, ""), "")
             options = _options(b, 10)
-            if datatype not in TYPES or not self._order(options) or len(b.items) < 10:
-                continue  # axis points with their count in the record: not read
+            if not self._order(options) or len(b.items) < 10:
+                continue
+            record: tuple = ()
+            if datatype not in TYPES:  # its count in the record beside the points: read, never written
+                found = self._record(_word(b, 4), [(_integer(b, _word(b, 7), "MaxAxisPoints"), _word(b, 6))], False)
+                if found is None:
+                    continue
+                record = found
+                datatype = next(r.datatype for r in found[0] if r.kind == "AXIS_PTS")
             ext = _integer(b, (options.get("ECU_ADDRESS_EXTENSION") or ["0"])[0], "ECU_ADDRESS_EXTENSION")
             out[_word(b, 0)] = A2lParameter(_word(b, 0), _integer(b, _word(b, 2), "address"), ext, datatype,
                                             self._order(options), _integer(b, _word(b, 7), "MaxAxisPoints"),
                                             _number(b, _word(b, 8), "lower limit"), _number(b, _word(b, 9), "upper limit"),
-                                            self.conversion(_word(b, 6)), "READ_ONLY" in options, ambdaq_note(b))
+                                            self.conversion(_word(b, 6)), "READ_ONLY" in options or bool(record),
+                                            ambdaq_note(b), *record)
         return out
 
     def segments(self) -> tuple[A2lSegment, ...]:

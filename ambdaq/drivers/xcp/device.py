@@ -709,6 +709,8 @@ class XcpController(Controller, CalibrationPages):
                                       "for: where each row's values lie is not decided by its A2L")
                 values = _physical_values(data, item.datatype, param.byte_order, param.conversion)
             offset += size * (item.count if param.static and item.kind != "NO_AXIS_PTS" else n)
+        if not any(r.kind == "FNC_VALUES" for r in param.record):  # an AXIS_PTS: its points are its values
+            return axes.pop("x"), axes
         return values, axes
 
     def read_param(self, name: str) -> np.ndarray:
