@@ -65,6 +65,13 @@ def test_order_tracking_with_the_runout_out_is_the_true_rotor(runup, run_cli):
     modes = out["model_modes"]
     assert modes["rpm"][0] == pytest.approx(out["rpm"][0], abs=0.1)
     assert any(280 < f < 330 for f in modes["freq_hz"][0] if f is not None)  # the radial rigid-body modes
+    # whirl, from each mode's shape at the bearings: the gyroscopic moment splits the radial pair, and
+    # the mode marked forward is the one that stiffens with speed, the backward one the one that
+    # softens (the physics, not a label); the split grows with speed, from under 2 Hz at the run's start
+    split = [{w: f for f, w in zip(fs, ws) if w} for fs, ws in zip(modes["freq_hz"], modes["whirl"])]
+    assert all(set(s) == {"forward", "backward"} and s["forward"] > s["backward"] for s in split)
+    assert np.all(np.diff([s["forward"] for s in split]) >= 0) and np.all(np.diff([s["backward"] for s in split]) <= 0)
+    assert split[0]["forward"] - split[0]["backward"] < 2 and split[-1]["forward"] - split[-1]["backward"] > 10
     assert (runup / "runup.png").stat().st_size > 60_000
 
 

@@ -170,8 +170,21 @@ def one_x_peaks(rpm: np.ndarray, vector: np.ndarray, *, significance: float = 5.
     return peaks
 
 
-def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Frequencies and damping ratios of a discrete loop's lightly damped modes (its poles).
+WHIRL_RATIO = 1.5
+"""A mode whirls forward (backward) when its forward circular part outweighs its backward one
+(the reverse) by this much in energy; between, it is close to planar and not marked."""
+
+
+def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: float | None = None,
+               outputs: np.ndarray | None = None, pairs: tuple[tuple[int, int], ...] = ()
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies, damping ratios and whirl directions of a discrete loop's lightly damped modes.
+
+    A mode's whirl is read from its shape at each radial bearing: the shape ``(v_x, v_y)`` of
+    ``x + j y`` splits into a forward circle ``(v_x + j v_y) e^{j w t}`` and a backward one
+    ``(v_x - j v_y) e^{-j w t}`` (the full spectrum's convention, :mod:`.spectrum`: positive
+    frequencies whirl forward); the larger in energy over the bearings, by :data:`WHIRL_RATIO`,
+    gives the direction.
 
     Parameters
     ----------
@@ -183,21 +196,34 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
         Modes with more damping than this are left out.
     fmax_hz : float, optional
         Highest frequency kept, in Hz (default: Nyquist).
+    outputs : ndarray, shape (m, n), optional
+        The gap sensors' rows (``y = C x``, in m), for the whirl.
+    pairs : tuple of (int, int)
+        The (x, y) rows of ``outputs`` of each radial bearing.
 
     Returns
     -------
     freq_hz, damping : ndarray
         Sorted by frequency; one per complex pair.
+    whirl : ndarray of int
+        +1 forward, -1 backward, 0 neither or not known (no ``outputs``).
     """
-    z = np.linalg.eigvals(M)
-    z = z[(np.imag(z) > 0) & (np.abs(z) > 0)]
+    z, vectors = np.linalg.eig(M)
+    pick = (np.imag(z) > 0) & (np.abs(z) > 0)
+    z, vectors = z[pick], vectors[:, pick]
     s = np.log(z) / h
     wn = np.abs(s)
     zeta = -np.real(s) / np.where(wn > 0, wn, 1.0)
     f = np.imag(s) / (2 * np.pi)
     keep = (zeta <= max_damping) & (f > 0) & (f <= (fmax_hz if fmax_hz is not None else 0.5 / h))
     idx = np.argsort(f[keep])
-    return f[keep][idx], zeta[keep][idx]
+    whirl = np.zeros(int(keep.sum()), dtype=int)
+    if outputs is not None and pairs:
+        shape = outputs @ vectors[:, keep][:, idx]  # (m, modes): each mode at each sensor
+        forward = sum(np.abs(shape[i] + 1j * shape[j]) ** 2 for i, j in pairs)
+        backward = sum(np.abs(shape[i] - 1j * shape[j]) ** 2 for i, j in pairs)
+        whirl = np.where(forward > WHIRL_RATIO * backward, 1, np.where(backward > WHIRL_RATIO * forward, -1, 0))
+    return f[keep][idx], zeta[keep][idx], whirl
 
 
-__all__ = ["CRITICAL_AMPLIFICATION", "OneXPeak", "OrderTrack", "loop_modes", "one_x_peaks", "order_track"]
+__all__ = ["CRITICAL_AMPLIFICATION", "WHIRL_RATIO", "OneXPeak", "OrderTrack", "loop_modes", "one_x_peaks", "order_track"]

@@ -87,9 +87,11 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
                            "cmin_um": None if res.centreline.cmin_m is None else round(res.centreline.cmin_m * 1e6, 3),
                            "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
                                         for b, (x, y) in res.centreline.bearings.items()}},
-            "model_modes": None if res.modes is None else {"rpm": res.modes[0].round(1).tolist(),
-                                                          "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row]
-                                                                      for row in res.modes[1]]},
+            "model_modes": None if res.modes is None else {
+                "rpm": res.modes[0].round(1).tolist(),
+                "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes[1]],
+                "whirl": [[None if np.isnan(f) or not w else ("forward" if w > 0 else "backward")
+                           for f, w in zip(row, ws)] for row, ws in zip(res.modes[1], res.modes[2])]},
         }, indent=2))
     else:
         _print_table(res)
@@ -213,11 +215,22 @@ def draw_runup(res, name: str):
         fall.annotate(f"{k:+d}X" if full else f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7,
                       ha="center", va="bottom")
     if res.modes is not None:
-        speeds, table = res.modes
-        for m in range(table.shape[1]):  # points: a mode may enter or leave the damping limit over the run
-            fall.plot(table[:, m], speeds, "o", color="r", ms=2.5, label="model modes" if m == 0 else None)
-            if full:  # the model gives a mode's frequency, not its whirl direction: both sides
-                fall.plot(-table[:, m], speeds, "o", color="r", mfc="none", ms=2.5)
+        speeds, table, whirl = res.modes
+        # points: a mode may enter or leave the damping limit over the run. Forward whirl up, backward
+        # down; in the full spectrum each on its own side (a mode whose whirl the model does not give:
+        # on both, hollow)
+        for direction, marker, label in ((1, "^", "model modes, forward"), (-1, "v", "model modes, backward"),
+                                         (0, "o", "model modes")):
+            f = np.where(whirl == direction, table, np.nan)
+            if not np.isfinite(f).any():
+                continue
+            rows = np.repeat(speeds[:, None], f.shape[1], axis=1)
+            if full and direction == 0:
+                fall.plot(np.concatenate([f.ravel(), -f.ravel()]), np.concatenate([rows.ravel()] * 2), marker,
+                          color="r", mfc="none", ms=2.5, ls="none", label=label)
+            else:
+                fall.plot((-f if full and direction < 0 else f).ravel(), rows.ravel(), marker, color="r", ms=3,
+                          ls="none", label=label)
         fall.legend(fontsize=7, loc="lower right")
     fall.set(xlabel="frequency [Hz]" + (": backward < 0 < forward" if full else ""), ylabel="speed [rpm]",
              xlim=(-limit if full else 0, limit),

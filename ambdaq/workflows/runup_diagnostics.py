@@ -27,7 +27,7 @@ from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
 from ..errors import BadInputError
-from ..machines.machine import Machine
+from ..machines.machine import Machine, radial_bearings
 from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
 from .runout import runout_at, with_rotor
 
@@ -55,7 +55,8 @@ class RunupDiagnostics:
         positive frequencies, backward at negative) where it has a partner axis, else its own.
     waterfall_axis : str
     modes : tuple of ndarray or None
-        (rpm, frequency in Hz per mode with shape (speeds, modes)) from the model, if one was given.
+        (rpm, frequency in Hz per mode with shape (speeds, modes), whirl per mode: +1 forward, -1
+        backward, 0 not known) from the model, if one was given.
     centreline : Centreline
         Each bearing's mean position per window against speed and time.
     """
@@ -66,7 +67,7 @@ class RunupDiagnostics:
     peaks: dict[str, list[OneXPeak]]
     waterfall: tuple[np.ndarray, np.ndarray, np.ndarray]
     waterfall_axis: str
-    modes: tuple[np.ndarray, np.ndarray] | None
+    modes: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     notes: list[str]  # what the numbers are computed over, and what to distrust in them
     centreline: Centreline
 
@@ -122,8 +123,10 @@ def centreline(machine: Machine, axes: list[str], x: np.ndarray, rpm: np.ndarray
                        for b in machine.bearings if b.x in axes and b.y in axes}, machine.cmin_m)
 
 
-def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray, np.ndarray]:
-    """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed.
+def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
+    and which whirl forward and which backward (:func:`~ambdaq.analysis.orders.loop_modes`: the
+    spindle's; the cone model gives its modes' frequencies only).
 
     Parameters
     ----------
@@ -134,11 +137,19 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
         Speed range, in rpm.
     """
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
+    whirls: list[np.ndarray] = []
     if model == "spindle":
         from ..sim.rigs.spindle import SpindleRig
 
         rig = SpindleRig()
-        freqs = [loop_modes(rig.loop_matrices(float(r))[0], rig.h, fmax_hz=2000.0)[0] for r in speeds]
+        gap = next(g.fields for g in rig.signal_groups() if g.topic == "/amb/gap")
+        pairs = tuple((gap.index(b.x), gap.index(b.y)) for b in radial_bearings(gap))
+        freqs = []
+        for r in speeds:
+            M, _B, C = rig.loop_matrices(float(r))
+            f, _zeta, whirl = loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
+            freqs.append(f)
+            whirls.append(whirl)
     elif model == "cone":
         from ..analysis.cone_rotor import controlled_eigenvalues
         from ..sim.rigs.cone import CONE
@@ -154,9 +165,12 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
         raise BadInputError(f"--model {model!r}: the models known here are 'spindle' and 'cone'")
     width = max(len(f) for f in freqs)
     table = np.full((speeds.shape[0], width), np.nan)
+    directions = np.zeros((speeds.shape[0], width), dtype=int)  # +1 forward, -1 backward, 0 not known
     for i, f in enumerate(freqs):
         table[i, : len(f)] = f
-    return speeds, table
+        if whirls:
+            directions[i, : len(f)] = whirls[i]
+    return speeds, table, directions
 
 
 def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
