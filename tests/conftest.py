@@ -66,6 +66,22 @@ def pytest_collection_finish(session):
                                 "in its group; install the pinned test extra (pip install -e '.[test]')")
 
 
+def npm_installed(tmp_path_factory, folder: Path, files: tuple[str, ...]) -> Path:
+    """A copy of ``folder``'s ``files`` with its package.json's pinned packages installed from the
+    npm registry (an independent peer: a Foxglove client, Foxglove's parser), in a fresh folder."""
+    import shutil
+
+    npm = shutil.which("npm")
+    assert npm and shutil.which("node"), f"{folder.name} needs Node.js and npm"
+    d = tmp_path_factory.mktemp(folder.name)
+    for name in ("package.json", *files):
+        shutil.copy(folder / name, d / name)
+    r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error"], cwd=d, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return d
+
+
 @pytest.fixture
 def run_cli():
     """Invoke ``ambdaq ARGS...`` through click's runner; returns the result (exit_code, output)."""

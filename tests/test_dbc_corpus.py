@@ -9,7 +9,6 @@ bus, which ambdaq records in this process (no ambdaq code on the sending side).
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 from contextlib import contextmanager
 import sys
@@ -21,6 +20,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+
+from conftest import npm_installed
 
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
@@ -115,15 +116,7 @@ def sending(channel: str, frames: list[tuple[int, bytes, bool]], period_s: float
 @pytest.fixture(scope="session")
 def foxglove_parser(tmp_path_factory):
     """Foxglove's own ros2msg parser (@foxglove/rosmsg from the npm registry, run by Node)."""
-    npm = shutil.which("npm")
-    assert npm and shutil.which("node"), "the schema check needs Node.js and npm"
-    d = tmp_path_factory.mktemp("rosmsg-check")
-    for name in ("package.json", "parse.js"):
-        shutil.copy(ROSMSG_CHECK / name, d / name)
-    r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error"], cwd=d, capture_output=True,
-                       text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return d / "parse.js"
+    return npm_installed(tmp_path_factory, ROSMSG_CHECK, ("parse.js",)) / "parse.js"
 
 
 def _foxglove_reads_every_schema(out: Path, parser: Path) -> None:

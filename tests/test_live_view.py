@@ -4,7 +4,6 @@ file keeps every sample; a slow viewer costs none; a taken port is one line."""
 
 import json
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -12,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from conftest import npm_installed
 
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load
@@ -22,15 +23,7 @@ CLIENT = Path(__file__).parent / "live_client"
 @pytest.fixture(scope="session")
 def node_client(tmp_path_factory):
     """The client script with its pinned packages installed from the npm registry."""
-    npm = shutil.which("npm")
-    assert npm and shutil.which("node"), "the live view test needs Node.js and npm"
-    d = tmp_path_factory.mktemp("live-client")
-    for name in ("package.json", "client.js"):
-        shutil.copy(CLIENT / name, d / name)
-    r = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error"], cwd=d, capture_output=True,
-                       text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return d
+    return npm_installed(tmp_path_factory, CLIENT, ("client.js",))
 
 
 def start_recording(url: str, out: Path, *extra: str) -> tuple[subprocess.Popen, int]:

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 import pytest
+from xcp_tcp import commands
 
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
@@ -54,16 +55,8 @@ class HostileSlave:
     def _serve(self) -> None:
         conn, _ = self.listener.accept()
         conn.settimeout(5)
-        buf = b""
         try:
-            while True:
-                while len(buf) < 4 or len(buf) < 4 + struct.unpack_from("<H", buf)[0]:
-                    data = conn.recv(4096)
-                    if not data:
-                        return
-                    buf += data
-                n = struct.unpack_from("<H", buf)[0]
-                cmd, buf = buf[4 : 4 + n], buf[4 + n :]
+            for cmd in commands(conn):
                 if cmd[0] == 0xE1:  # WRITE_DAQ: bit offset, size, extension, address
                     self.entries.append((cmd[2], struct.unpack_from("<I", cmd, 4)[0]))
                 reply = self._answer(cmd)

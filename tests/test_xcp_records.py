@@ -10,6 +10,7 @@ import struct
 import threading
 
 import pytest
+from xcp_tcp import commands
 
 A2L = """ASAP2_VERSION 1 71
 /begin PROJECT RECORDS ""
@@ -101,16 +102,8 @@ class MemorySlave:
 
     def _serve(self) -> None:
         conn, _ = self.listener.accept()
-        buf = b""
         with conn:
-            while True:
-                while len(buf) < 4 or len(buf) < 4 + struct.unpack_from("<H", buf)[0]:
-                    data = conn.recv(4096)
-                    if not data:
-                        return
-                    buf += data
-                n = struct.unpack_from("<H", buf)[0]
-                cmd, buf = buf[4 : 4 + n], buf[4 + n :]
+            for cmd in commands(conn):
                 reply = self._answer(cmd)
                 conn.sendall(struct.pack("<HH", len(reply), self.ctr & 0xFFFF) + reply)
                 self.ctr += 1
