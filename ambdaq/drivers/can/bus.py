@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 import queue
 import socket
 import threading
@@ -50,6 +51,8 @@ the host clock by the recorder's clock map, from (bus time, arrival) pairs (:met
 as a serial device's are.  Such a gateway returns no frame the host sends, so a SYNC from ambdaq
 cannot be timed on its clock: there the SYNC must come from a master on the bus (``sync=external``)."""
 GATEWAY_TIMEOUT_S = 3.0  # to reach a gateway's TCP port
+GATEWAY_JUMP_NS = 1_000_000_000  # a time stamp whose lag behind arrival moves more than this is not the gateway's clock
+GATEWAY_STEP_FRAMES = 10  # frames in a row agreeing on a new lag: the gateway's clock was stepped
 PAIR_WINDOW_NS = 100_000_000  # one (bus time, arrival) pair per 100 ms: the frame that arrived soonest
 
 
@@ -110,6 +113,9 @@ class CanHub:
         self._pairs: list[tuple[int, int]] = []  # gateway clock: (bus ns, arrival ns), one per PAIR_WINDOW_NS
         self._pair_window = (0, 0, 0)  # (window start, bus ns, arrival ns) of the soonest frame in it
         self._pairs_taken: dict[int, int] = {}  # reader -> how many of _pairs it has taken
+        self._lag: int | None = None  # gateway clock: the last kept frame's arrival minus its time stamp, ns
+        self._stepped: list[int] = []  # lags of the frames in a row that jumped from it
+        self.implausible_time = 0  # gateway frames whose time stamp cannot be the gateway's clock: dropped
         if self.own_echo:
             bus_options["receive_own_messages"] = True
         if interface in GATEWAY_CLOCK:  # ambdaq says what went wrong, once; python-can's client logs it too
@@ -263,8 +269,7 @@ class CanHub:
                     time.sleep(RX_POLL_S)
                 continue
             wait = 0.0
-            if not self.host_clock:
-                self._pair(int(msg.timestamp * 1e9), time.time_ns())
+            timed = self.host_clock or self._plausible(msg)
             while own:  # a SYNC we sent while waiting comes before any reply to it
                 counter, sent = own.popleft()
                 self._on_sync(bytes([counter]), sent)
@@ -275,14 +280,42 @@ class CanHub:
                 continue
             handler = fast.get(msg.arbitration_id)
             if handler is not None:
-                handler(msg.data, msg.timestamp)
+                if timed:  # process data is timed by its stamp: one that cannot be the gateway's is not kept
+                    handler(msg.data, msg.timestamp)
             elif msg.is_remote_frame:
                 continue
-            elif msg.arbitration_id in subscribers:
+            elif msg.arbitration_id in subscribers:  # SDO, EMCY, NMT: their answers count, not their time
                 notify(msg.arbitration_id, msg.data, msg.timestamp)
-            else:
+            elif timed:
                 for cb in unknown:
                     cb(msg)
+
+    def _plausible(self, msg: can.Message) -> bool:
+        """Whether a gateway's time stamp can be its clock: its lag behind the host's arrival stays
+        within GATEWAY_JUMP_NS of the last frame kept. The first frame only sets that lag. One that
+        jumps is not timed, paired or recorded, and is counted (``implausible_time``);
+        GATEWAY_STEP_FRAMES in a row that agree on a new lag are the gateway's clock stepped (NTP):
+        taken from there on, with an event."""
+        arrival = time.time_ns()
+        stamp = msg.timestamp
+        if not (isinstance(stamp, float) and math.isfinite(stamp)):
+            self.implausible_time += 1
+            return False
+        bus = int(stamp * 1e9)
+        lag = arrival - bus
+        if self._lag is None:
+            self._lag = lag
+            return False
+        if abs(lag - self._lag) > GATEWAY_JUMP_NS:
+            self._stepped = [s for s in self._stepped if abs(lag - s) <= GATEWAY_JUMP_NS] + [lag]
+            if len(self._stepped) < GATEWAY_STEP_FRAMES:
+                self.implausible_time += 1
+                return False
+            self.events.put(Event(arrival, "clock-step", 0, f"CAN {self.channel}: the gateway's clock stepped by "
+                                                            f"{(self._lag - lag) / 1e9:+.3f} s", BUS_TOPIC))
+        self._lag, self._stepped = lag, []
+        self._pair(bus, arrival)
+        return True
 
     def _pair(self, bus_ns: int, arrival_ns: int) -> None:
         """Keep the frame that arrived soonest after its bus time in each PAIR_WINDOW_NS: the pair
@@ -431,7 +464,8 @@ class CanHub:
     def statistics(self) -> dict[str, str]:
         """The bus's counts, for each device's link statistics."""
         return {"error_frames": str(self.error_frames), "malformed_frames": str(self.malformed_frames),
-                "skipped_syncs": str(self.skipped_syncs), "bitrate": str(self.bitrate)}
+                "skipped_syncs": str(self.skipped_syncs), "bitrate": str(self.bitrate)} | (
+                {} if self.host_clock else {"implausible_time": str(self.implausible_time)})
 
     def take_events(self, *device_queues: "queue.SimpleQueue[Event]") -> list[Event]:
         """Every event waiting in a device's ``device_queues`` and on the bus, in that order."""
