@@ -100,13 +100,16 @@ def parse_schema(name: str, text: str) -> SignalGroup | None:
     if not values or any(t not in FIELD_TYPES for t, _, _ in values):
         return None
     topic = text.splitlines()[0].lstrip("# ").split(":")[0] if text.startswith("#") else ""
-    return SignalGroup(
-        topic=topic,
-        type_name=name.rsplit("/", 1)[-1],
-        fields=tuple(n for _, n, _ in values),
-        units=tuple(c for _, _, c in values),
-        types=tuple(t for t, _, _ in values),
-    )
+    try:
+        return SignalGroup(
+            topic=topic,
+            type_name=name.rsplit("/", 1)[-1],
+            fields=tuple(n for _, n, _ in values),
+            units=tuple(c for _, _, c in values),
+            types=tuple(t for t, _, _ in values),
+        )
+    except ValueError:  # field names ambdaq never writes (a damaged schema): not one of ours
+        return None
 
 
 EVENT_SCHEMA_NAME = f"{SCHEMA_PACKAGE}/Event"
