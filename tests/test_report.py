@@ -101,7 +101,8 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     page, pdf = tmp_path / "report.html", tmp_path / "report.pdf"
     r = run_cli("report", "--stability", session / "stability.json", "--runup", session / "runup.mcap",
                 "--coefficients", session / "coef.json", "--before", session / "before.mcap", "--after",
-                session / "after.mcap", "--push-log", session / "state" / "push.log", "-o", page, "--pdf", pdf, "--json")
+                session / "after.mcap", "--push-log", session / "state" / "push.log", "--model", "spindle", "-o", page,
+                "--pdf", pdf, "--json")
     assert r.exit_code == 0, r.output
     data = json.loads(r.stdout)
     # self-contained: no file or address outside the page
@@ -141,6 +142,13 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
                            for k in ("before_um", "after_um", "change_db")]
         assert cells == expect + [f"{row['rms_before_um']:.2f}", f"{row['rms_after_um']:.2f}"]
         assert row["harmonics"][0]["change_db"] < -20  # the LMS took the runout out of the command error
+    # the run-up's critical speeds against the spindle model (API 684): speeds whole, factors to 0.01
+    crit = data["runup"]["critical_speeds"]
+    assert len(crit) >= 1 and tables.tables["critical-speeds"] == [
+        [f"{c['predicted_rpm']:,.0f}", f"{c['predicted_amplification']:.2f}", c["whirl"] or "–",
+         "–" if c["measured_rpm"] is None else f"{c['measured_rpm']:,.0f}", c["axis"] or "–",
+         "–" if c["measured_amplification"] is None else f"{c['measured_amplification']:.2f}",
+         "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
@@ -155,7 +163,9 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     worst_gs = max(data["stability"]["rows"], key=lambda r: (r["zone"], r["peak"]))
     worst_band = max(data["vibration"]["bands"], key=lambda b: b["ratio_cmin"])
     assert [(line["standard"], line["zone"]) for line in verdict["lines"]] == [
-        ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("Ro et al. runout feedforward", None)]
+        ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("API 684", None),
+        ("Ro et al. runout feedforward", None)]
+    assert verdict["lines"][2]["result"] == f"{sum(c['passed'] for c in crit)} of {len(crit)} verified against the spindle model"
     assert tables.tables["verdict"][0][2].startswith(f"zone {worst_gs['zone']} (") and worst_gs["axis"] in \
         tables.tables["verdict"][0][2]
     assert dom.stdout.index('id="verdict"') < dom.stdout.index('id="machine"') < dom.stdout.index('id="stability"')

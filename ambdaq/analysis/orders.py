@@ -170,6 +170,163 @@ def one_x_peaks(rpm: np.ndarray, vector: np.ndarray, *, significance: float = 5.
     return peaks
 
 
+SPEED_TOLERANCE = 0.05
+"""A measured critical speed agrees with a predicted one within 5 % of it (the acceptance the
+machinery practice of API 684 applies to a run-up against the rotordynamic model)."""
+
+
+@dataclass(frozen=True)
+class PredictedCritical:
+    """Where a model's mode meets an order line: a critical speed the model predicts.
+
+    Attributes
+    ----------
+    rpm : float
+        The speed at which the mode's frequency equals ``order`` times the speed, in rpm.
+    frequency_hz : float
+        The mode's frequency there, in Hz.
+    damping : float
+        Its damping ratio there.
+    amplification : float
+        The amplification factor it predicts, ``1 / (2 zeta)`` (the half-power factor of a
+        single mode, what the run-up's peaks are measured by).
+    whirl : int
+        +1 forward, 0 not known (planar or not given by the model).
+    order : int
+        The order line (1: 1X, the unbalance response).
+    """
+
+    rpm: float
+    frequency_hz: float
+    damping: float
+    amplification: float
+    whirl: int
+    order: int = 1
+
+
+def predicted_criticals(rpm: np.ndarray, freq_hz: np.ndarray, damping: np.ndarray, whirl: np.ndarray, *,
+                        order: int = 1) -> list[PredictedCritical]:
+    """The speeds where a model's modes cross the ``order`` line of a Campbell diagram.
+
+    An unbalance drives forward whirl: where the model marks whirl, only a forward mode is taken
+    (not a backward one, nor one with no whirl at the bearings, such as an axial mode); a model
+    that marks none has each of its modes taken. The crossing is interpolated linearly between the
+    two speeds it lies between.
+
+    Parameters
+    ----------
+    rpm : ndarray, shape (s,)
+        Speeds the modes were computed at, ascending, in rpm.
+    freq_hz, damping : ndarray, shape (s, m)
+        Each mode's frequency (Hz, NaN where absent) and damping ratio at each speed.
+    whirl : ndarray of int, shape (s, m)
+        +1 forward, -1 backward, 0 not known.
+    order : int
+        The order line.
+    """
+    out = []
+    line = order * rpm / 60.0
+    marked = bool(np.any(whirl != 0))
+    for m in range(freq_hz.shape[1]):
+        gap = freq_hz[:, m] - line
+        for i in range(rpm.shape[0] - 1):
+            a, b = gap[i], gap[i + 1]
+            if not (np.isfinite(a) and np.isfinite(b)) or a * b > 0 or a == b:
+                continue
+            if marked and 1 not in (whirl[i, m], whirl[i + 1, m]):
+                continue
+            w = a / (a - b)  # where the gap is zero, between the two speeds
+            zeta = float(damping[i, m] + w * (damping[i + 1, m] - damping[i, m]))
+            speed = float(rpm[i] + w * (rpm[i + 1] - rpm[i]))
+            out.append(PredictedCritical(speed, order * speed / 60.0, zeta, 1.0 / (2.0 * max(zeta, 1e-9)),
+                                         int(max(whirl[i, m], whirl[i + 1, m])), order))
+    return sorted(out, key=lambda c: c.rpm)
+
+
+@dataclass(frozen=True)
+class CriticalCheck:
+    """A predicted critical speed against what the run-up measured, or a measured one the model
+    does not predict.
+
+    Attributes
+    ----------
+    predicted : PredictedCritical or None
+    measured : OneXPeak or None
+        The measured 1X peak within ``SPEED_TOLERANCE`` of the prediction (the most amplified), on
+        ``axis``.
+    axis : str or None
+    passed : bool
+    rule : str
+        What was applied, in words, with its source.
+    """
+
+    predicted: PredictedCritical | None
+    measured: "OneXPeak | None"
+    axis: str | None
+    passed: bool
+    rule: str
+
+    def as_dict(self) -> dict:
+        """As ``runup --json`` and the report give it: speeds to 0.1 rpm, factors to 0.01."""
+        p, m = self.predicted, self.measured
+        return {"predicted_rpm": None if p is None else round(p.rpm, 1),
+                "predicted_hz": None if p is None else round(p.frequency_hz, 2),
+                "predicted_amplification": None if p is None else round(p.amplification, 2),
+                "whirl": None if p is None or p.whirl <= 0 else "forward",
+                "measured_rpm": None if m is None else round(m.rpm, 1), "axis": self.axis,
+                "measured_amplification": None if m is None else round(m.amplification, 2),
+                "deviation": None if p is None or m is None else round((m.rpm - p.rpm) / p.rpm, 4),
+                "passed": self.passed, "rule": self.rule}
+
+
+def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["OneXPeak"]], rpm_range: tuple[float, float],
+                     *, tolerance: float = SPEED_TOLERANCE, min_amplification: float = CRITICAL_AMPLIFICATION
+                     ) -> list[CriticalCheck]:
+    """Each predicted critical speed inside the run against the 1X peaks it measured (API 684).
+
+    A mode the model amplifies less than ``min_amplification`` is critically damped: it passes
+    when no measured peak near it is a critical speed. One amplified more must be measured within
+    ``tolerance`` of the prediction and no more amplified than predicted. A measured critical speed
+    (a peak amplified at least ``min_amplification``) that no prediction explains fails.
+
+    Parameters
+    ----------
+    predicted : list of PredictedCritical
+    peaks : dict of str to list of OneXPeak
+        Each axis's measured 1X peaks.
+    rpm_range : (float, float)
+        The run's speeds, in rpm: predictions outside it are not checked.
+    tolerance : float
+        The relative speed difference within which a peak is the predicted one.
+    min_amplification : float
+        API 684's amplification factor below which a mode is critically damped.
+    """
+    lo, hi = rpm_range
+    checks, explained = [], set()
+    for p in predicted:
+        if not lo <= p.rpm <= hi:
+            continue
+        near = [(a, k) for a, ps in peaks.items() for k in ps if abs(k.rpm - p.rpm) <= tolerance * p.rpm]
+        for a, k in near:
+            explained.add((a, k.rpm))
+        axis, peak = max(near, key=lambda ak: ak[1].amplification) if near else (None, None)
+        if p.amplification < min_amplification:
+            ok = peak is None or not peak.is_critical(min_amplification)
+            rule = (f"API 684: amplification {p.amplification:.2f} < {min_amplification:g}, critically damped: no "
+                    f"critical speed within {tolerance:.0%}")
+        else:
+            ok = peak is not None and peak.is_critical(min_amplification) and peak.amplification <= p.amplification
+            rule = (f"API 684: measured within {tolerance:.0%} of the predicted speed, amplified no more than "
+                    f"predicted ({p.amplification:.2f})")
+        checks.append(CriticalCheck(p, peak, axis, ok, rule))
+    for a, ps in peaks.items():
+        for k in ps:
+            if k.is_critical(min_amplification) and (a, k.rpm) not in explained:
+                checks.append(CriticalCheck(None, k, a, False, f"a critical speed (amplification {k.amplification:.2f}) "
+                                                                "the model does not predict"))
+    return checks
+
+
 WHIRL_RATIO = 1.5
 """A mode whirls forward (backward) when its forward circular part outweighs its backward one
 (the reverse) by this much in energy; between, it is close to planar and not marked."""
@@ -226,4 +383,5 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
     return f[keep][idx], zeta[keep][idx], whirl
 
 
-__all__ = ["CRITICAL_AMPLIFICATION", "WHIRL_RATIO", "OneXPeak", "OrderTrack", "loop_modes", "one_x_peaks", "order_track"]
+__all__ = ["CRITICAL_AMPLIFICATION", "SPEED_TOLERANCE", "WHIRL_RATIO", "CriticalCheck", "OneXPeak", "OrderTrack",
+           "PredictedCritical", "loop_modes", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]

@@ -65,7 +65,7 @@ def print_pdf(page: Path, pdf: Path) -> None:
 
 FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
-    "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}",
+    "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}",
 }
 
 
@@ -202,7 +202,18 @@ def render(found, title: str) -> str:
                           for a, ps in u["peaks_1x"].items())
         parts += ["<h2>Run-up</h2>",
                   f'<p class="note">{u["rpm_from"]:,.0f} to {u["rpm_to"]:,.0f} rpm, {u["windows"]} windows; compensation: '
-                  f"{html.escape(u['compensation'])}. 1X peaks: {html.escape(peaks)}.</p>",
+                  f"{html.escape(u['compensation'])}. 1X peaks: {html.escape(peaks)}.</p>"]
+        if u["model"]:
+            rows = [[_cell(c["predicted_rpm"], kind="rpm"), _cell(c["predicted_amplification"], kind="factor"),
+                     _cell(c["whirl"] or "–", "text"), _cell(c["measured_rpm"], kind="rpm"), _cell(c["axis"] or "–", "text"),
+                     _cell(c["measured_amplification"], kind="factor"), _cell("pass" if c["passed"] else "FAIL", "text"),
+                     _cell(c["rule"], "text")] for c in u["critical_speeds"]]
+            parts.append(f'<p class="note">Critical speeds of the {html.escape(u["model"])} model (forward modes on '
+                         "the 1X line) against the run's 1X peaks, by API 684's practice.</p>"
+                         + (_table(["predicted rpm", "predicted AF", "whirl", "measured rpm", "axis", "measured AF",
+                                    "verdict", "rule"], rows, "critical-speeds")
+                            if rows else '<p class="note">No critical speed predicted inside the run.</p>'))
+        parts += [
                   _figure(_png(lambda out: runup_figure(found.runup, out, Path(d["files"]["runup"]).name)),
                           "Order tracking (1X, 2X amplitude in µm and 1X phase in degrees against speed in rpm), the "
                           "1X vector, and the waterfall of the gap spectrum with the order lines.")]
@@ -218,12 +229,14 @@ def render(found, title: str) -> str:
 @click.option("--after", type=click.Path(dir_okay=False), help="A recording after the push, at the same speed.")
 @click.option("--push-log", type=click.Path(dir_okay=False), help="Push log (JSON lines); default: this machine's.")
 @click.option("--cmin", type=POSITIVE, metavar="UM", help="Minimum clearance, um; default: what the run-up reports.")
+@click.option("--model", type=click.Choice(["spindle", "cone"]),
+              help="Verify the run-up's critical speeds against this rotordynamic model's (API 684).")
 @click.option("--title", default="AMB commissioning report", show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The report (.html).")
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
-def command(stability, runup, coefficients, before, after, push_log, cmin, title, output, pdf, overwrite, as_json):
+def command(stability, runup, coefficients, before, after, push_log, cmin, model, title, output, pdf, overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
     push with the push log, the run-up's order tracking.
@@ -243,7 +256,7 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, title
         browser()  # before the work: a missing browser is one line now, not after a minute of figures
     as_path = (lambda v: Path(v) if v else None)
     found = gather(SessionFiles(as_path(stability), as_path(runup), as_path(coefficients), as_path(before),
-                                as_path(after), as_path(push_log), None if cmin is None else cmin * 1e-6))
+                                as_path(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

@@ -88,10 +88,12 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
                            "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
                                         for b, (x, y) in res.centreline.bearings.items()}},
             "model_modes": None if res.modes is None else {
-                "rpm": res.modes[0].round(1).tolist(),
-                "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes[1]],
+                "rpm": res.modes.rpm.round(1).tolist(),
+                "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes.freq_hz],
+                "damping": [[None if np.isnan(z) else round(float(z), 4) for z in row] for row in res.modes.damping],
                 "whirl": [[None if np.isnan(f) or not w else ("forward" if w > 0 else "backward")
-                           for f, w in zip(row, ws)] for row, ws in zip(res.modes[1], res.modes[2])]},
+                           for f, w in zip(row, ws)] for row, ws in zip(res.modes.freq_hz, res.modes.whirl)]},
+            "critical_speeds": [c.as_dict() for c in res.criticals],
         }, indent=2))
     else:
         _print_table(res)
@@ -122,6 +124,13 @@ def _print_table(res) -> None:
             click.echo(f"{a}: 1X peak {p.amplitude * 1e6:.2f} um at {p.rpm:,.0f} rpm, half-power band "
                        f"{p.band_rpm[0]:,.0f}-{p.band_rpm[1]:,.0f} rpm, phase turns {p.phase_change_deg:.0f}°, "
                        f"amplification {p.amplification:.1f}: {verdict}")
+    for c in res.criticals:  # the model's critical speeds against the run (API 684)
+        row = c.as_dict()
+        said = (f"predicted {row['predicted_rpm']:,.0f} rpm (amplification {row['predicted_amplification']:.2f})"
+                if c.predicted else "not predicted")
+        seen = (f"measured {row['measured_rpm']:,.0f} rpm on {c.axis} (amplification {row['measured_amplification']:.2f})"
+                if c.measured else "no peak measured")
+        click.echo(f"critical speed: {said}; {seen}: {'pass' if c.passed else 'FAIL'} ({c.rule})")
 
 
 def phase_lag_deg(vector: np.ndarray) -> np.ndarray:
@@ -215,7 +224,7 @@ def draw_runup(res, name: str):
         fall.annotate(f"{k:+d}X" if full else f"{k}X", (k * rpm.max() / 60.0, rpm.max()), color="w", fontsize=7,
                       ha="center", va="bottom")
     if res.modes is not None:
-        speeds, table, whirl = res.modes
+        speeds, table, whirl = res.modes.rpm, res.modes.freq_hz, res.modes.whirl
         # points: a mode may enter or leave the damping limit over the run. Forward whirl up, backward
         # down; in the full spectrum each on its own side (a mode whose whirl the model does not give:
         # on both, hollow)

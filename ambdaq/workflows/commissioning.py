@@ -38,6 +38,9 @@ class SessionFiles:
         The host's push log (JSON lines); default: this machine's, if it exists.
     cmin_m : float or None
         Minimum clearance, in m; default: what the run-up's controller reports.
+    model : str or None
+        The rotordynamic model whose critical speeds the run-up verifies (``spindle``, ``cone``:
+        :func:`~ambdaq.workflows.runup_diagnostics.model_modes`); None: not verified.
     """
 
     stability: Path | None = None
@@ -47,6 +50,7 @@ class SessionFiles:
     after: Path | None = None
     push_log: Path | None = None
     cmin_m: float | None = None
+    model: str | None = None
 
 
 def machine_identity(paths: list[Path]) -> dict:
@@ -120,13 +124,14 @@ def gather(files: SessionFiles) -> Commissioning:
         out["vibration"] = {**{k: info[k] for k in ("cmin_um", "cmin_from", "limits_ratio_cmin", "band_rpm",
                                                     "runout_removed")},
                             "bands": [g.as_dict() for g in grades]}
-        diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2))
+        diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2), model=files.model)
         notes += info["notes"] + diag.notes
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
                         "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
                                           "amplification": round(p.amplification, 2), "critical": p.is_critical()}
-                                         for p in ps] for a, ps in diag.peaks.items()}}
+                                         for p in ps] for a, ps in diag.peaks.items()},
+                        "model": files.model, "critical_speeds": [c.as_dict() for c in diag.criticals]}
     else:
         diag = None
         out["vibration"] = out["runup"] = None
@@ -185,6 +190,18 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
                       "result": f"zone {w['zone']} ({ZONE_MEANING[w['zone']]}): worst {w['bearing']} bearing "
                                 f"{w['max_um']:.2f} µm = {w['ratio_cmin']:.3f} Cmin at {w['at_rpm']:,.0f} rpm "
                                 f"(Cmin {v['cmin_um']:g} µm)"})
+    u = data.get("runup")
+    if u is not None and u.get("model"):
+        checks = u["critical_speeds"]
+        failed = [c for c in checks if not c["passed"]]
+        lines.append({"check": "critical speeds", "standard": "API 684", "zone": None,
+                      "result": (f"{len(checks) - len(failed)} of {len(checks)} verified against the {u['model']} model"
+                                 if checks else f"the {u['model']} model predicts none inside the run")})
+        for c in failed:
+            open_items.append("API 684: critical speed " + (f"predicted at {c['predicted_rpm']:,.0f} rpm"
+                                                            if c["predicted_rpm"] is not None else
+                                                            f"measured at {c['measured_rpm']:,.0f} rpm") +
+                              f" fails: {c['rule']}")
     for line in lines:
         if line["zone"] in ("C", "D"):
             open_items.append(f"{line['standard']}: zone {line['zone']}, {ZONE_MEANING[line['zone']]}")

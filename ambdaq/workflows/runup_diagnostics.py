@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.orders import OneXPeak, OrderTrack, loop_modes, one_x_peaks, order_track
+from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, loop_modes, one_x_peaks,
+                               order_track, predicted_criticals, verify_criticals)
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.coefficients import Coefficients
@@ -54,9 +55,11 @@ class RunupDiagnostics:
         ``waterfall_axis``: its bearing's full spectrum (x + j y, two-sided: forward whirl at
         positive frequencies, backward at negative) where it has a partner axis, else its own.
     waterfall_axis : str
-    modes : tuple of ndarray or None
-        (rpm, frequency in Hz per mode with shape (speeds, modes), whirl per mode: +1 forward, -1
-        backward, 0 not known) from the model, if one was given.
+    modes : ModelModes or None
+        The model's modes over the run, if one was given.
+    criticals : list of CriticalCheck
+        Each critical speed the model predicts inside the run against the 1X peaks measured, and
+        each measured one it does not predict (API 684); empty without a model.
     centreline : Centreline
         Each bearing's mean position per window against speed and time.
     """
@@ -67,9 +70,10 @@ class RunupDiagnostics:
     peaks: dict[str, list[OneXPeak]]
     waterfall: tuple[np.ndarray, np.ndarray, np.ndarray]
     waterfall_axis: str
-    modes: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    modes: ModelModes | None
     notes: list[str]  # what the numbers are computed over, and what to distrust in them
     centreline: Centreline
+    criticals: list[CriticalCheck]
 
 
 @dataclass(frozen=True)
@@ -123,7 +127,32 @@ def centreline(machine: Machine, axes: list[str], x: np.ndarray, rpm: np.ndarray
                        for b in machine.bearings if b.x in axes and b.y in axes}, machine.cmin_m)
 
 
-def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class ModelModes:
+    """A model's lightly damped modes over a run's speeds (a Campbell diagram's lines).
+
+    Attributes
+    ----------
+    rpm : ndarray, shape (s,)
+        Speeds, in rpm.
+    freq_hz, damping : ndarray, shape (s, m)
+        Each mode's frequency (Hz) and damping ratio at each speed, sorted by frequency; NaN
+        where a speed has fewer modes.
+    whirl : ndarray of int, shape (s, m)
+        +1 forward, -1 backward, 0 not known (planar, or a model that does not give it).
+    """
+
+    rpm: np.ndarray
+    freq_hz: np.ndarray
+    damping: np.ndarray
+    whirl: np.ndarray
+
+    def criticals(self, order: int = 1) -> list[PredictedCritical]:
+        """The critical speeds these modes predict on the ``order`` line."""
+        return predicted_criticals(self.rpm, self.freq_hz, self.damping, self.whirl, order=order)
+
+
+def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
     """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
     and which whirl forward and which backward (:func:`~ambdaq.analysis.orders.loop_modes`: the
     spindle's; the cone model gives its modes' frequencies only).
@@ -137,40 +166,37 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> tuple[np.ndarray,
         Speed range, in rpm.
     """
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
-    whirls: list[np.ndarray] = []
+    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per speed: frequencies, damping, whirl
     if model == "spindle":
         from ..sim.rigs.spindle import SpindleRig
 
         rig = SpindleRig()
         gap = next(g.fields for g in rig.signal_groups() if g.topic == "/amb/gap")
         pairs = tuple((gap.index(b.x), gap.index(b.y)) for b in radial_bearings(gap))
-        freqs = []
         for r in speeds:
             M, _B, C = rig.loop_matrices(float(r))
-            f, _zeta, whirl = loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
-            freqs.append(f)
-            whirls.append(whirl)
+            rows.append(loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs))
     elif model == "cone":
         from ..analysis.cone_rotor import controlled_eigenvalues
         from ..sim.rigs.cone import CONE
 
-        freqs = []
         for r in speeds:
             s = controlled_eigenvalues(CONE.rotor, CONE.control, float(r) * RPM_TO_RAD_S)
             s = s[s.imag > 0]
             zeta = -s.real / np.abs(s)
             f = s.imag / (2 * np.pi)
-            freqs.append(np.sort(f[(zeta <= 0.5) & (f <= 2000.0)]))
+            keep = (zeta <= 0.5) & (f <= 2000.0)
+            order = np.argsort(f[keep])
+            rows.append((f[keep][order], zeta[keep][order], np.zeros(int(keep.sum()), dtype=int)))
     else:
         raise BadInputError(f"--model {model!r}: the models known here are 'spindle' and 'cone'")
-    width = max(len(f) for f in freqs)
+    width = max(len(f) for f, _z, _w in rows)
     table = np.full((speeds.shape[0], width), np.nan)
-    directions = np.zeros((speeds.shape[0], width), dtype=int)  # +1 forward, -1 backward, 0 not known
-    for i, f in enumerate(freqs):
-        table[i, : len(f)] = f
-        if whirls:
-            directions[i, : len(f)] = whirls[i]
-    return speeds, table, directions
+    damping = np.full((speeds.shape[0], width), np.nan)
+    whirl = np.zeros((speeds.shape[0], width), dtype=int)
+    for i, (f, z, w) in enumerate(rows):
+        table[i, : len(f)], damping[i, : len(f)], whirl[i, : len(f)] = f, z, w
+    return ModelModes(speeds, table, damping, whirl)
 
 
 def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
@@ -246,8 +272,10 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
                 for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
     modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
+    checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max()))) \
+        if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
-                            centreline(machine, axes, x, rpm, time_s, n))
+                            centreline(machine, axes, x, rpm, time_s, n), checks)
 
 
-__all__ = ["Centreline", "RunupDiagnostics", "analyse", "centreline", "model_modes"]
+__all__ = ["Centreline", "ModelModes", "RunupDiagnostics", "analyse", "centreline", "model_modes"]
