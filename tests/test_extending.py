@@ -98,7 +98,7 @@ def test_an_entry_point_back_end_is_recorded_like_ambdaq_s_own(tmp_path):
 def test_64_bit_integer_fields_are_exact_in_every_reader_and_export(tmp_path):
     """A back-end that declares uint64 and int64 fields: the values at the ends of their range
     (2**64 - 1 and -2**63, far past float64's 2**53) come back exactly from ``load``, from the
-    official ROS 2 decoder, as CSV text, as Parquet integer columns, and from ``recover``."""
+    official ROS 2 decoder, as CSV text, as Parquet and MDF 4 integer columns, and from ``recover``."""
     import pyarrow.parquet as pq
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -125,6 +125,13 @@ def test_64_bit_integer_fields_are_exact_in_every_reader_and_export(tmp_path):
     assert run.returncode == 0, run.stderr
     table = pq.read_table(tmp_path / "pq" / "tone_count.parquet")
     assert table.column("up").to_pylist() == up and table.column("down").to_pylist() == down
+    run = _ambdaq(env, "export", str(out), "--format", "mf4", "--topic", "/tone/count", "-o", str(tmp_path / "c.mf4"))
+    assert run.returncode == 0, run.stderr
+    from asammdf import MDF
+
+    mdf = MDF(tmp_path / "c.mf4")  # asammdf, as CANape and INCA users open it: integer channels
+    assert mdf.get("up").samples.tolist() == up and mdf.get("down").samples.tolist() == down
+    mdf.close()
     cut = tmp_path / "cut.mcap"  # the file as a crash would leave it: no summary, no footer
     cut.write_bytes(out.read_bytes()[: int(out.stat().st_size * 0.8)])
     run = _ambdaq(env, "recover", str(cut), "-o", str(tmp_path / "r.mcap"))
