@@ -103,16 +103,18 @@ def test_a_serial_peer_whose_identity_is_crc_valid_junk_is_one_line(tmp_path, ru
             if select.select([master], [], [], 0.05)[0]:
                 try:
                     os.read(master, 4096)
+                    os.write(master, encode_frame(HEADER.pack(MsgType.IDENTITY, 0, seq) + b"\xff\xfe{junk"))
                 except OSError:
                     return
-                os.write(master, encode_frame(HEADER.pack(MsgType.IDENTITY, 0, seq) + b"\xff\xfe{junk"))
                 seq += 1
 
-    threading.Thread(target=answer, daemon=True).start()
+    device = threading.Thread(target=answer, daemon=True)
+    device.start()
     try:
         r = run_cli("record", "--device", f"serial://{os.ttyname(slave)}", "--duration", "1", "-o", tmp_path / "x.mcap")
     finally:
         stop.set()
+        device.join(timeout=2)  # before its terminal is closed under it
         os.close(slave)
         os.close(master)
     assert r.exit_code == 1 and "IDENTITY is not JSON text" in r.output, r.output
