@@ -20,7 +20,8 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "daq": {"drivers", "machines", "errors", "units"},
     "sim": {"drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
     "workflows": {"drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
-    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "machines", "speed", "units", "errors", "loading"},
+    "live": {"daq", "analysis", "machines", "units"},
+    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "live", "machines", "speed", "units", "errors", "loading"},
 }
 
 

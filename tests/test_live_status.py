@@ -12,7 +12,7 @@ import pytest
 
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load
-from ambdaq.cli.live import LiveView
+from ambdaq.live.view import LiveView
 from ambdaq.drivers.signals import SampleBlock
 
 GROUPS = {"ctl": {"/amb/gap": ["front_x", "front_y", "axial"], "/amb/rotor": ["angle", "speed", "keyphasor"]}}

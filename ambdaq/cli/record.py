@@ -89,13 +89,14 @@ def start_live(sources, live: LiveOptions):
         import foxglove  # noqa: F401 (the live extra)
     except ImportError:
         raise BadInputError("--live needs foxglove-sdk, the live extra: pip install 'ambdaq[live]'") from None
-    from .foxglove_live import FoxgloveLive
+    from ..live.foxglove import FoxgloveLive
 
     if live.host not in ("127.0.0.1", "localhost", "::1"):
         click.echo(f"ambdaq: warning: the live view is served on {live.host}: anyone who reaches it sees the "
                    "machine's signals", err=True)
     try:
-        server = FoxgloveLive(sources, live.host, live.port, live.display_hz)
+        server = FoxgloveLive(sources, live.host, live.port, live.display_hz,
+                              warn=lambda text: click.echo(f"ambdaq: live: {text}", err=True))
     except RuntimeError as err:  # foxglove-sdk reports a bind failure so
         raise BadInputError(f"--live {live.port}: cannot serve on {live.host}:{live.port} ({err})") from None
     click.echo(f"ambdaq: live view on ws://{live.host}:{server.port} (Foxglove: open a WebSocket connection)", err=True)
@@ -123,7 +124,8 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
     from rich.console import Console
     from rich.live import Live
 
-    from .live import LiveView, status_table
+    from ..live.view import LiveView
+    from .live import status_table
 
     view = LiveView({s.name: s.sample_rate for s in sources})
     observers = [view.observe, *observers]

@@ -1,5 +1,5 @@
-"""``ambdaq record --live``: the recording's topics served over the Foxglove WebSocket protocol while
-the file keeps every sample (docs/live.md).
+"""The recording's topics served over the Foxglove WebSocket protocol while the file keeps every
+sample (``ambdaq record --live``, docs/live.md).
 
 The server is foxglove-sdk's (``foxglove.start_server``, in Rust on its own threads): each client
 has a bounded queue that drops its oldest messages when the client is slow, so no viewer can stall
@@ -16,12 +16,12 @@ import logging
 import threading
 import time
 
-import click
+from collections.abc import Callable
+
 import numpy as np
 
 from ..machines.machine import radial_bearings
-
-from .live import LiveView
+from .view import LiveView
 
 DERIVED_HZ = 5.0  # the derived topics' rate
 BACKLOG = 1024  # messages queued per client before its oldest are dropped (foxglove-sdk's default)
@@ -36,18 +36,19 @@ class _FailedHandshakes(logging.Filter):
     gets that from this SDK, which speaks ``foxglove.sdk.v1`` only (checked with 0.30: it answers
     400 "Missing expected sec-websocket-protocol header"). Said once, in ambdaq's words."""
 
-    def __init__(self) -> None:
+    def __init__(self, warn: Callable[[str], None]) -> None:
         super().__init__()
         self.failed = 0
+        self.warn = warn
 
     def filter(self, record: logging.LogRecord) -> bool:
         if "handshake failed" not in record.getMessage():
             return True
         self.failed += 1
         if self.failed == 1:
-            click.echo("ambdaq: live: a viewer's WebSocket handshake was refused: this server speaks the "
-                       "foxglove.sdk.v1 subprotocol, and clients that offer only foxglove.websocket.v1 (older "
-                       "Foxglove apps) cannot connect; update the viewer (further refusals are not shown)", err=True)
+            self.warn("a viewer's WebSocket handshake was refused: this server speaks the foxglove.sdk.v1 "
+                      "subprotocol, and clients that offer only foxglove.websocket.v1 (older Foxglove apps) cannot "
+                      "connect; update the viewer (further refusals are not shown)")
         return False
 
 
@@ -70,12 +71,15 @@ class FoxgloveLive:
         TCP port; 0 picks a free one (:attr:`port` tells which).
     display_hz : float
         Samples per second and topic sent to viewers.
+    warn : callable
+        Where what a viewer's failed connection means is said, once (the command line's stderr).
     """
 
-    def __init__(self, sources, host: str, port: int, display_hz: float = 100.0) -> None:
+    def __init__(self, sources, host: str, port: int, display_hz: float = 100.0, *,
+                 warn: Callable[[str], None] = lambda text: None) -> None:
         import foxglove
 
-        self._handshakes = _FailedHandshakes()
+        self._handshakes = _FailedHandshakes(warn)
         logging.getLogger(SERVER_LOGGER).addFilter(self._handshakes)
         self._context = foxglove.Context()
         self.server = foxglove.start_server(name="ambdaq", host=host, port=port, context=self._context,
