@@ -133,7 +133,8 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli
-    from ambdaq.cli.selfsense import _analyse, draw_selfsense
+    from ambdaq.cli.selfsense import draw_selfsense
+    from ambdaq.workflows.selfsense import analyse
 
     files = []
     for rpm in ("100", "400", "1000"):
@@ -143,7 +144,7 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
         assert r.exit_code == 0, r.output
         files.append(str(f))
     overrides = {"resistance": None, "inductance": None, "emf_constant": None}
-    results = [_analyse(f, 8.0, 0.5, overrides, sweep=(f == files[0])) for f in files]
+    results = [analyse(f, 8.0, 0.5, overrides, sweep=(f == files[0])) for f in files]
     fig = draw_selfsense(results)
     try:
         fig.canvas.draw()
