@@ -5,14 +5,8 @@ from __future__ import annotations
 import json
 
 import click
-import numpy as np
 
-from ..analysis.modal import free_decays, stable_modes, strikes
-from ..daq import load
-from ..errors import BadInputError
-
-HAMMER = "/amb/hammer"
-GAP = "/amb/gap"
+from ..workflows.modal import identify_modal
 
 
 @click.group("identify")
@@ -41,35 +35,14 @@ def modal(file, axes, window_s, skip_s, as_json):
       ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
       ambdaq identify modal impact.mcap --axis x
     """
-    rec = load(file, topics=[HAMMER, GAP])  # one line and exit 2 if a topic is missing
-    gap, hammer = rec[GAP], rec[HAMMER]
-    rate = rec[GAP].nominal_rate
-    force = np.interp(gap.log_time, hammer.log_time, hammer["hammer"]) if len(hammer) != len(gap) else hammer["hammer"]
-    hits = strikes(force, rate)
-    if not hits:
-        raise BadInputError(f"{file}: no hammer strike found on {HAMMER}")
-    names = list(gap.fields)
-    for axis in axes:
-        if axis not in names:
-            raise BadInputError(f"--axis {axis!r}: the gap sensors are {', '.join(names)}")
-    if not axes:  # the axes whose response to the first strike is at least a tenth of the largest
-        a, _ = hits[0]
-        swing = {n: np.ptp(gap[n][a: a + int(0.02 * rate)]) for n in names}
-        axes = tuple(n for n in names if swing[n] >= 0.1 * max(swing.values()))
-    decays = free_decays(np.column_stack([gap[n] for n in axes]), force, rate, window_s=window_s, skip_s=skip_s)
-    if not decays:
-        raise BadInputError(f"{file}: no strike has {window_s:g} s of free decay after it")
-    found, order = stable_modes(decays, rate)
-    if not found:
-        raise BadInputError(f"{file}: no damped mode confirmed on {', '.join(axes)} (ERA orders 2-12 disagree)")
-    result = {"file": str(file), "axes": list(axes), "strikes": len(decays), "order": order,
+    res = identify_modal(file, tuple(axes), window_s=window_s, skip_s=skip_s)
+    result = {"file": str(file), "axes": res.axes, "strikes": res.strikes, "order": res.order,
               "modes": [{"freq_hz": round(m.freq_hz, 4), "zeta": round(m.zeta, 5),
-                         "amplitude": float(f"{m.amplitude:.4g}")} for m in found]}
+                         "amplitude": float(f"{m.amplitude:.4g}")} for m in res.modes]}
     if as_json:
         click.echo(json.dumps(result, indent=2))
         return
-    unit = gap.units.get(axes[0], "")
-    click.echo(f"{file}: {len(decays)} strikes, response {', '.join(axes)}, ERA order {order}")
-    for k, m in enumerate(found):
+    click.echo(f"{file}: {res.strikes} strikes, response {', '.join(res.axes)}, ERA order {res.order}")
+    for k, m in enumerate(res.modes):
         mark = "  (dominant)" if k == 0 else ""
-        click.echo(f"  {m.freq_hz:9.3f} Hz  zeta {m.zeta:6.4f}  amplitude {m.amplitude:.3g} {unit}{mark}")
+        click.echo(f"  {m.freq_hz:9.3f} Hz  zeta {m.zeta:6.4f}  amplitude {m.amplitude:.3g} {res.unit}{mark}")
