@@ -8,45 +8,15 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import (PhaseTable, StateSpaceLoop, converges, convergence_radius, measured_phase_compensation, mu_sign,
-                            phase_compensation, sign_changes, sign_schedule)
+from ..analysis.lms import PhaseTable, converges, convergence_radius, mu_sign, sign_changes
+from ..daq.coefficients import Coefficients
+from ..workflows.lms_design import grid_step, phase_table, schedule
 from ..workflows.plants import PLANT_NAMES, analysing, resolve_plant
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.frequency_response import FrequencyResponse
-from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
-from ..errors import BadInputError
 from .figures import plot_option, pyplot
 from .options import POSITIVE
 
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
                             help=f"Loop to design on: {', '.join(PLANT_NAMES)} (docs/lms.md).")
-
-
-def _grid_step(loops: dict, fine: float) -> float:
-    """A state-space loop is linearised per speed: a coarser grid keeps it to seconds."""
-    return 100.0 if any(isinstance(lp, StateSpaceLoop) for lp, _ in loops.values()) else fine
-
-
-def _phase_table(loops: dict) -> PhaseTable:
-    """Per-axis phase compensation from the design loops: each loop fills the axes it stands for
-    (a plant of one loop fills every axis; a one-axis loop's row is shared by its axes)."""
-    table = np.zeros((N_AXES, PHASE_BINS))
-    for loop, axes in loops.values():
-        ph = phase_compensation(loop, PHASE_BINS, PHASE_BIN_HZ).phase_rad
-        rows = list(range(N_AXES)) if len(loops) == 1 else list(axes)
-        table[rows] = ph if ph.shape[0] == len(rows) else ph[0]
-    return PhaseTable(table, PHASE_BIN_HZ)
-
-
-def _measured_phase_table(path: str) -> PhaseTable:
-    """Per-axis phase compensation from a measured T_aa (every axis must have been excited)."""
-    frf = FrequencyResponse.load(path)
-    pairs = [frf.response(a, a) for a in AXES]
-    try:
-        return measured_phase_compensation(frf.freq_hz, np.array([h for h, _ in pairs]),
-                                           np.array([c for _, c in pairs]), bins=PHASE_BINS, bin_hz=PHASE_BIN_HZ)
-    except ValueError as err:
-        raise BadInputError(f"{path}: {err}") from None
 
 
 @click.group("lms")
@@ -73,8 +43,8 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
     """
     loops = resolve_plant(plant)
     with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
-        phase = _phase_table(loops) if compensated else None
-        step = _grid_step(loops, 50.0)
+        phase = phase_table(loops) if compensated else None
+        step = grid_step(loops, 50.0)
         rpm = np.arange(step, rpm_max + step / 2, step)
         mu = np.linspace(-mu_max, mu_max, 41)
         report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
@@ -154,34 +124,9 @@ def schedule_command(plant, mu, dead_band, harmonics, compensated, frf_file, wei
       ambdaq lms schedule --plant rig --compensated --mu 0.002 -o coef_lms.json
       ambdaq lms schedule --plant rig --frf loop.frf.json --mu 0.002 -o coef_lms.json   # measured phase
     """
-    loops = resolve_plant(plant)
-    step = _grid_step(loops, 10.0)
-    compensated = compensated or frf_file is not None
-    if compensated:
-        with analysing(plant):
-            phase = _measured_phase_table(frf_file) if frf_file else _phase_table(loops)
-        rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
-        phase_doc = {"bin_hz": phase.bin_hz,
-                     "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
-    else:
-        phase_doc = {}
-        with analysing(plant):
-            rows = [[k, *r] for k in range(1, harmonics + 1)
-                    for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
-                                           rpm_max=rpm_max, harmonic=k, step=step)]
-        rows = [r for r in rows if r[3] != 0.0]  # a harmonic not named in a speed range is held
-    if weights_file:
-        base = Coefficients.load(weights_file)
-        target, source, harm, weights = base.target, dict(base.source), base.harmonics, base.weights
-    else:
-        target, source, harm = {"axes": list(AXES)}, {}, list(range(1, harmonics + 1))
-        weights = {a: [[0.0, 0.0] for _ in harm] for a in AXES}
-    design = {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated}
-    if frf_file:
-        design["phase_from"] = {"path": str(frf_file), "sha256": file_sha256(frf_file)}
-    source.update({"lms_design": design,
-                   "created": now_iso()})
-    coef = Coefficients(target, source, harm, weights, rows, phase_doc, lms_plant=plant)
+    coef = schedule(plant, mu=mu, dead_band=dead_band, harmonics=harmonics, compensated=compensated,
+                    frf_file=frf_file, weights_file=weights_file, rpm_max=rpm_max)
+    rows, compensated = coef.lms_schedule, coef.source["lms_design"]["compensated"]
     coef.save(output, overwrite=overwrite)
     click.echo(f"{len(rows)} schedule rows for 1X..{harmonics}X on plant {plant}"
                f"{' (phase-compensated)' if compensated else ''} -> {Path(output)}")

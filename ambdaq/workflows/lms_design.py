@@ -1,0 +1,102 @@
+"""Ro et al.'s LMS feedforward designed for a plant (``ambdaq lms``): the per-axis phase
+compensation from the design loops or a measured frequency response, and a coefficient file
+whose step-size schedule converges on the plant's map (docs/lms.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.lms import (PhaseTable, StateSpaceLoop, measured_phase_compensation, phase_compensation,
+                            sign_schedule)
+from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..daq.frequency_response import FrequencyResponse
+from ..errors import BadInputError
+from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
+from .plants import analysing, resolve_plant
+
+
+def grid_step(loops: dict, fine: float) -> float:
+    """A state-space loop is linearised per speed: a coarser grid keeps it to seconds."""
+    return 100.0 if any(isinstance(lp, StateSpaceLoop) for lp, _ in loops.values()) else fine
+
+
+def phase_table(loops: dict) -> PhaseTable:
+    """Per-axis phase compensation from the design loops: each loop fills the axes it stands for
+    (a plant of one loop fills every axis; a one-axis loop's row is shared by its axes)."""
+    table = np.zeros((N_AXES, PHASE_BINS))
+    for loop, axes in loops.values():
+        ph = phase_compensation(loop, PHASE_BINS, PHASE_BIN_HZ).phase_rad
+        rows = list(range(N_AXES)) if len(loops) == 1 else list(axes)
+        table[rows] = ph if ph.shape[0] == len(rows) else ph[0]
+    return PhaseTable(table, PHASE_BIN_HZ)
+
+
+def measured_phase_table(path: str) -> PhaseTable:
+    """Per-axis phase compensation from a measured T_aa (every axis must have been excited)."""
+    frf = FrequencyResponse.load(path)
+    pairs = [frf.response(a, a) for a in AXES]
+    try:
+        return measured_phase_compensation(frf.freq_hz, np.array([h for h, _ in pairs]),
+                                           np.array([c for _, c in pairs]), bins=PHASE_BINS, bin_hz=PHASE_BIN_HZ)
+    except ValueError as err:
+        raise BadInputError(f"{path}: {err}") from None
+
+
+def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compensated: bool = False,
+             frf_file: str | Path | None = None, weights_file: str | Path | None = None,
+             rpm_max: float = 60000.0) -> Coefficients:
+    """A coefficient file whose LMS step-size schedule converges on ``plant``'s map.
+
+    Parameters
+    ----------
+    plant : str
+        The loop designed on (:data:`~.plants.PLANT_NAMES`).
+    mu : float
+        Step size (its magnitude; the schedule gives its sign per speed range).
+    dead_band : float
+        Speed around a sign change left without adaptation, in rpm.
+    harmonics : int
+        Schedule 1X .. NX.
+    compensated : bool
+        The phase-compensated update (one row per harmonic over the whole range) instead of Ro
+        et al.'s sign-switched one; implied by ``frf_file``.
+    frf_file : str or Path, optional
+        A measured frequency response whose phase compensates the update.
+    weights_file : str or Path, optional
+        A coefficient file whose weights (and target) the schedule goes with.
+    rpm_max : float
+        Top of the schedule, in rpm.
+    """
+    loops = resolve_plant(plant)
+    step = grid_step(loops, 10.0)
+    compensated = compensated or frf_file is not None
+    if compensated:
+        with analysing(plant):
+            phase = measured_phase_table(frf_file) if frf_file else phase_table(loops)
+        rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
+        phase_doc = {"bin_hz": phase.bin_hz,
+                     "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
+    else:
+        phase_doc = {}
+        with analysing(plant):
+            rows = [[k, *r] for k in range(1, harmonics + 1)
+                    for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
+                                           rpm_max=rpm_max, harmonic=k, step=step)]
+        rows = [r for r in rows if r[3] != 0.0]  # a harmonic not named in a speed range is held
+    if weights_file:
+        base = Coefficients.load(weights_file)
+        target, source, harm, weights = base.target, dict(base.source), base.harmonics, base.weights
+    else:
+        target, source, harm = {"axes": list(AXES)}, {}, list(range(1, harmonics + 1))
+        weights = {a: [[0.0, 0.0] for _ in harm] for a in AXES}
+    design = {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated}
+    if frf_file:
+        design["phase_from"] = {"path": str(frf_file), "sha256": file_sha256(frf_file)}
+    source.update({"lms_design": design,
+                   "created": now_iso()})
+    return Coefficients(target, source, harm, weights, rows, phase_doc, lms_plant=plant)
+
+
+__all__ = ["grid_step", "measured_phase_table", "phase_table", "schedule"]
