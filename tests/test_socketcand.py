@@ -8,6 +8,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,23 @@ CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds"
 EDS_FILES = sorted(CORPUS.glob("*.eds"))
 NODE, RATE, OFFSET_S = 9, 100, 37.25
 SIGNALS_PER_TPDO, TPDOS = 2, 2
+
+
+@contextmanager
+def raw_mode_client(server):
+    """The connection of the client a hand-written hostile gateway serves: ambdaq's reachability
+    check accepted and closed first, then socketcand's handshake (hi, open, rawmode) answered."""
+    conn, _ = server.accept()  # ambdaq's reachability check
+    conn.close()
+    conn, _ = server.accept()
+    with conn:
+        conn.sendall(b"< hi >")
+        conn.recv(100)  # < open can0 >
+        conn.sendall(b"< ok >")
+        conn.recv(100)  # < rawmode >
+        conn.sendall(b"< ok >")
+        time.sleep(0.1)
+        yield conn
 
 
 @pytest.fixture
@@ -176,16 +194,7 @@ def test_a_hostile_gateway_is_counted_or_one_line_and_the_file_keeps_every_good_
     port = server.getsockname()[1]
 
     def serve() -> None:
-        conn, _ = server.accept()  # ambdaq's reachability check
-        conn.close()
-        conn, _ = server.accept()
-        with conn:
-            conn.sendall(b"< hi >")
-            conn.recv(100)
-            conn.sendall(b"< ok >")
-            conn.recv(100)
-            conn.sendall(b"< ok >")
-            time.sleep(0.1)
+        with raw_mode_client(server) as conn:
             for i in range(60):
                 conn.sendall(f"< frame 1F0 {time.time():.6f} {i:02X}02030405060708 >".encode())
                 time.sleep(0.01)
@@ -238,16 +247,7 @@ def test_a_time_stamp_that_cannot_be_the_gateways_clock_is_not_recorded(tmp_path
     port = server.getsockname()[1]
 
     def serve() -> None:
-        conn, _ = server.accept()  # ambdaq's reachability check
-        conn.close()
-        conn, _ = server.accept()
-        with conn:
-            conn.sendall(b"< hi >")
-            conn.recv(100)  # < open can0 >
-            conn.sendall(b"< ok >")
-            conn.recv(100)  # < rawmode >
-            conn.sendall(b"< ok >")
-            time.sleep(0.1)
+        with raw_mode_client(server) as conn:
             for i in range(150):
                 stamp = {70: f"{time.time() + 3600:.6f}", 71: "nan"}.get(i, f"{time.time():.6f}")
                 conn.sendall(f"< frame {msg.frame_id:03X} {stamp} {frames[i].hex().upper()} >".encode())
