@@ -4,7 +4,7 @@ Each profile is one module in :mod:`ambdaq.sim.rigs` with a rig class (physics, 
 :class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` saying which of its devices are served on
 transports: its controller's :class:`~ambdaq.sim.devices.firmware.Firmware` (on a serial line),
 its CANopen devices (on a CAN bus), a shaker generator (on a serial line).  A new profile is one
-module and one line here.
+module and one line here; a profile with a rotordynamic model (``modes``) is a ``runup --model``.
 """
 
 from __future__ import annotations
@@ -40,6 +40,10 @@ class Profile:
         Its CANopen devices (amplifier, gap sensor, accelerometer, key-phasor) are served on a CAN bus.
     shaker : bool
         A two-channel SCPI generator that moves its base is served on a serial line.
+    modes : callable or None
+        Its rotordynamic model's lightly damped modes at a speed: ``modes(rpm)`` (rpm) gives
+        frequencies (Hz), damping ratios and whirl (+1 forward, -1 backward, 0 not known), each an
+        array sorted by frequency (``runup --model NAME``); None: the profile has no such model.
     """
 
     name: str
@@ -47,6 +51,7 @@ class Profile:
     firmware: Any = None
     can: bool = False
     shaker: bool = False
+    modes: Any = None
 
     @property
     def served(self) -> bool:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, loop_modes, one_x_peaks,
+from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, one_x_peaks,
                                order_track, predicted_criticals, verify_criticals)
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
@@ -28,8 +28,8 @@ from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.reader import Recording, source_path
 from ..errors import BadInputError
-from ..machines.machine import Machine, radial_bearings
-from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S
+from ..machines.machine import Machine
+from ..units import RAD_S_TO_RPM
 from .runout import runout_at, with_rotor
 
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
@@ -154,42 +154,26 @@ class ModelModes:
 
 def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
     """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
-    and which whirl forward and which backward (:func:`~ambdaq.analysis.orders.loop_modes`: the
-    spindle's; the cone model gives its modes' frequencies only).
+    and which whirl forward and which backward (the spindle's; the cone model gives its modes'
+    frequencies only), found through the rig profile of that name.
 
     Parameters
     ----------
     model : str
-        ``spindle``: the simulated spindle's own linearised loop; ``cone``: Jeong et al.'s coupled 5-DOF
-        cone rotor under its PD control, current loop and eddy-current lag (eq. 10-16).
+        A rig profile with a rotordynamic model (its ``modes``): ``spindle``, the simulated
+        spindle's own linearised loop; ``cone``, Jeong et al.'s coupled 5-DOF cone rotor under its
+        PD control, current loop and eddy-current lag (eq. 10-16).
     rpm_from, rpm_to : float
         Speed range, in rpm.
     """
+    from ..sim.profiles import PROFILES, profile
+
+    found = profile(model) if model in PROFILES else None
+    if found is None or found.modes is None:
+        known = ", ".join(n for n in PROFILES if profile(n).modes is not None)
+        raise BadInputError(f"--model {model!r}: the models known here are the rig profiles' ({known})")
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
-    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per speed: frequencies, damping, whirl
-    if model == "spindle":
-        from ..sim.rigs.spindle import SpindleRig
-
-        rig = SpindleRig()
-        gap = next(g.fields for g in rig.signal_groups() if g.topic == "/amb/gap")
-        pairs = tuple((gap.index(b.x), gap.index(b.y)) for b in radial_bearings(gap))
-        for r in speeds:
-            M, _B, C = rig.loop_matrices(float(r))
-            rows.append(loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs))
-    elif model == "cone":
-        from ..analysis.cone_rotor import controlled_eigenvalues
-        from ..sim.rigs.cone import CONE
-
-        for r in speeds:
-            s = controlled_eigenvalues(CONE.rotor, CONE.control, float(r) * RPM_TO_RAD_S)
-            s = s[s.imag > 0]
-            zeta = -s.real / np.abs(s)
-            f = s.imag / (2 * np.pi)
-            keep = (zeta <= 0.5) & (f <= 2000.0)
-            order = np.argsort(f[keep])
-            rows.append((f[keep][order], zeta[keep][order], np.zeros(int(keep.sum()), dtype=int)))
-    else:
-        raise BadInputError(f"--model {model!r}: the models known here are 'spindle' and 'cone'")
+    rows = [found.modes(float(r)) for r in speeds]  # per speed: frequencies, damping, whirl
     width = max(len(f) for f, _z, _w in rows)
     table = np.full((speeds.shape[0], width), np.nan)
     damping = np.full((speeds.shape[0], width), np.nan)

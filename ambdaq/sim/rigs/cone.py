@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor
+from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor, controlled_eigenvalues
 from ...errors import BadInputError
 from ...drivers.signals import SampleBlock, SignalGroup
 from ..profiles import Profile
@@ -358,4 +358,17 @@ class ConeRig(Rig):
         return sorted(out)
 
 
-PROFILE = Profile("cone", ConeRig)  # served on no transport: ambdaq sim generate only
+def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Jeong et al.'s coupled 5-DOF cone rotor under its PD control, current loop and eddy-current
+    lag (eq. 10-16) at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5, below 2 kHz) and their
+    damping; their whirl is not given (0)."""
+    s = controlled_eigenvalues(CONE.rotor, CONE.control, float(rpm) * RPM_TO_RAD_S)
+    s = s[s.imag > 0]
+    zeta = -s.real / np.abs(s)
+    f = s.imag / (2 * np.pi)
+    keep = (zeta <= 0.5) & (f <= 2000.0)
+    order = np.argsort(f[keep])
+    return f[keep][order], zeta[keep][order], np.zeros(int(keep.sum()), dtype=int)
+
+
+PROFILE = Profile("cone", ConeRig, modes=campbell_modes)  # served on no transport: ambdaq sim generate only

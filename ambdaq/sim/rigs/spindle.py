@@ -35,12 +35,16 @@ The axial bearing is not described in Ro et al.; its values here are assumptions
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
+
 import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
+from ...analysis.orders import loop_modes
 from ...drivers.signals import SampleBlock, SignalGroup
+from ...machines.machine import radial_bearings
 from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
@@ -689,4 +693,19 @@ FIRMWARE = Firmware(
     RunoutFeedforward(),
 )
 
-PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True)
+def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The spindle's own linearised loop at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5,
+    below 2 kHz), damping and whirl from their shape at the bearings (:func:`loop_modes`)."""
+    rig = _model_rig()
+    M, _B, C = rig.loop_matrices(float(rpm))
+    pairs = tuple((AXES.index(b.x), AXES.index(b.y)) for b in radial_bearings(AXES))
+    return loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
+
+
+@functools.lru_cache(maxsize=1)
+def _model_rig() -> "SpindleRig":
+    """One rig for the model: its standstill probe is made once (:meth:`SpindleRig.loop_matrices`)."""
+    return SpindleRig()
+
+
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True, modes=campbell_modes)
