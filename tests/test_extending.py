@@ -61,9 +61,13 @@ class Tone(Source):
 
 class ToneBackend(Backend):
     scheme = Scheme("tone", "tone://NAME[?hz=F]", ("hz",))
+    description_keys = ("pitch_file",)  # a rig file may name a file holding the tone's frequency
+    path_keys = ("pitch_file",)
 
     def open(self, url, request):
-        return Opened([Tone(request.name or url.target, url.number("hz", 50.0))])
+        pitch = request.description.get("pitch_file")
+        hz = float(open(pitch).read()) if pitch else url.number("hz", 50.0)
+        return Opened([Tone(request.name or url.target, hz)])
 '''
 
 
@@ -148,3 +152,21 @@ def test_an_unknown_scheme_names_the_installed_ones(tmp_path):
     # without the plugin on the path its scheme is as unknown as any other
     run = _ambdaq({**os.environ}, "record", "--device", "tone://gen", "--duration", "0.1", "-o", str(tmp_path / "y.mcap"))
     assert run.returncode == 2 and "unknown device URL 'tone://gen'" in run.stderr
+
+
+def test_a_back_end_declares_the_rig_file_keys_it_reads(tmp_path):
+    """The plug-in's own rig-file key (a file name, taken relative to the rig file) reaches it;
+    a key no back-end of that device declares is one line naming the keys it has."""
+    env = _installed(tmp_path)
+    rigs = tmp_path / "rigs"
+    rigs.mkdir()
+    (rigs / "pitch.txt").write_text("25")
+    (rigs / "rig.toml").write_text('name = "t"\n[[device]]\nname = "gen"\nurl = "tone://gen"\npitch_file = "pitch.txt"\n')
+    out = tmp_path / "rig.mcap"
+    run = _ambdaq(env, "record", "--rig", str(rigs / "rig.toml"), "--duration", "0.5", "-q", "-o", str(out))
+    assert run.returncode == 0, run.stderr
+    k = np.arange(500)
+    assert np.array_equal(load(out)["/tone/gap"]["x"], 1e-6 * np.sin(2 * np.pi * 25.0 * k / 1000.0))
+    (rigs / "bad.toml").write_text('[[device]]\nurl = "tone://gen"\ndbc = "x.dbc"\n')
+    run = _ambdaq(env, "record", "--rig", str(rigs / "bad.toml"), "--duration", "0.5", "-o", str(tmp_path / "b.mcap"))
+    assert run.returncode == 2 and "unknown key 'dbc'" in run.stderr and "pitch_file" in run.stderr, run.stderr

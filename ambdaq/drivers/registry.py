@@ -143,9 +143,16 @@ def opened_controller(dev: Controller, url: DeviceURL, request: OpenRequest) -> 
 
 
 class Backend(ABC):
-    """What a URL scheme opens.  Subclasses set :attr:`scheme` and implement :meth:`open`."""
+    """What a URL scheme opens.  Subclasses set :attr:`scheme` and implement :meth:`open`.
+
+    A back-end whose devices a rig file describes beyond their URL names the keys of a
+    ``[[device]]`` table it reads (:attr:`description_keys`, handed to it as
+    ``OpenRequest.description``) and which of them name files (:attr:`path_keys`: made absolute,
+    relative to the rig file); the rig-file reader takes only those for its devices."""
 
     scheme: Scheme
+    description_keys: tuple[str, ...] = ()
+    path_keys: tuple[str, ...] = ()
 
     @abstractmethod
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:

@@ -13,10 +13,12 @@
     [device.calibration]          # optional, stored in the recording's metadata
     note = "sensor gains from 2026-11-01 slow roll"
 
-A device described by a file no one here wrote adds its description (docs/hardware.md): a DBC
-device ``dbc``, ``messages``, ``counters``, ``raw``; a CANopen device from its vendor's EDS
-``eds``, ``mapping`` and ``[[device.signal]]`` tables.  Relative paths are taken from the rig
-file's folder; the device's back-end checks the rest.
+A device described by a file no one here wrote adds its description (docs/hardware.md), in the
+keys its back-end declares (``Backend.description_keys``): a DBC device ``dbc``, ``messages``,
+``counters``, ``rates``, ``raw``; a CANopen device from its vendor's EDS ``eds``, ``mapping`` and
+``[[device.signal]]`` tables; an XCP controller ``a2l`` and ``measurements``; a plug-in back-end
+its own.  Relative paths (``Backend.path_keys``) are taken from the rig file's folder; the
+device's back-end checks the rest.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import BadInputError
-from .registry import parse_device_url
+from .registry import Backend, backend, parse_device_url
 
 MAX_BYTES = 2**20  # a rig file lists a machine's devices: a megabyte is far beyond any
 
@@ -44,9 +46,7 @@ class DeviceEntry:
 
 
 BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
-DESCRIPTION_KEYS = ("dbc", "messages", "counters", "rates", "rate", "raw", "eds", "mapping", "signal", "a2l",
-                    "measurements")
-PATH_KEYS = ("dbc", "eds", "a2l")
+"""Keys every [[device]] table may have; the rest are its back-end's (``Backend.description_keys``)."""
 
 
 @dataclass(frozen=True)
@@ -90,8 +90,9 @@ def load_rig(path: str | Path) -> RigFile:
         where = f"{path}: device {i + 1}"
         if not isinstance(e, dict) or "url" not in e:
             raise BadInputError(f"{where}: needs url = \"scheme://...\"")
-        check_keys(e, BASE_KEYS + DESCRIPTION_KEYS, where)
-        parse_device_url(str(e["url"]))
+        url = parse_device_url(str(e["url"]))
+        known = backend(url.scheme)  # parse_device_url found it
+        check_keys(e, BASE_KEYS + known.description_keys, where)
         cal = e.get("calibration", {})
         if not isinstance(cal, dict):
             raise BadInputError(f"{where}: calibration must be a table")
@@ -102,7 +103,7 @@ def load_rig(path: str | Path) -> RigFile:
                 rpm=None if "rpm" not in e else str(e["rpm"]),
                 unlock_key=None if "unlock_key" not in e else str(e["unlock_key"]),
                 calibration={str(k): str(v) for k, v in cal.items()},
-                description=_description(e, path.parent, where),
+                description=_description(e, known, path.parent, where),
             )
         )
     names = [d.name for d in devices]
@@ -111,10 +112,10 @@ def load_rig(path: str | Path) -> RigFile:
     return RigFile(path, str(doc.get("name", path.stem)), tuple(devices))
 
 
-def _description(entry: dict, folder: Path, where: str) -> dict:
-    """The device's description keys, with its files' paths made absolute."""
-    out = {k: entry[k] for k in DESCRIPTION_KEYS if k in entry}
-    for k in PATH_KEYS:
+def _description(entry: dict, known: Backend, folder: Path, where: str) -> dict:
+    """The device's description keys (its back-end's), with its files' paths made absolute."""
+    out = {k: entry[k] for k in known.description_keys if k in entry}
+    for k in known.path_keys:
         if k in out:
             if not isinstance(out[k], str):
                 raise BadInputError(f"{where}: {k} must be a file name")

@@ -29,6 +29,8 @@ class CanBackend(Backend):
                            "(any python-can interface, e.g. can://virtual/amb0?node=16, can://slcan/dev/ttyACM0?node=16, "
                            "can://socketcand/can0?host=H&port=29536&dbc=FILE)",
                     ("node", "kind", "sync", "bitrate", "namespace", "open_delay", "dbc", "raw", "eds", "host", "port"))
+    description_keys = ("dbc", "messages", "counters", "rates", "rate", "raw", "eds", "mapping", "signal")
+    path_keys = ("dbc", "eds")
 
     def _on_hub(self, url: DeviceURL, make):
         """``make(hub)`` on the shared bus ``url`` names; the hub is released if that fails."""

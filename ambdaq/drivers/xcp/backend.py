@@ -21,6 +21,9 @@ class _XcpBackend(Backend):
     """Opens the XCP slave a URL names with the A2L the URL (``a2l=``), the rig file or
     ``--a2l`` names; subclasses say how the slave is reached."""
 
+    description_keys = ("a2l", "measurements")
+    path_keys = ("a2l",)
+
     def link(self, url: DeviceURL):
         """A callable that opens the transport (:mod:`.transport`)."""
         raise NotImplementedError
