@@ -2,6 +2,7 @@
 (docs/architecture.md, "Adding a device type"): installed beside ambdaq, its scheme is found by
 ``ambdaq record`` without a line of ambdaq changed, and what it streams is recorded exactly."""
 
+import json
 import os
 import subprocess
 import sys
@@ -63,6 +64,9 @@ class ToneBackend(Backend):
     scheme = Scheme("tone", "tone://NAME[?hz=F]", ("hz",))
     description_keys = ("pitch_file",)  # a rig file may name a file holding the tone's frequency
     path_keys = ("pitch_file",)
+
+    def discover(self):
+        return [{"url": "tone://gen?hz=50", "description": "the test tone generator"}]
 
     def open(self, url, request):
         pitch = request.description.get("pitch_file")
@@ -170,3 +174,12 @@ def test_a_back_end_declares_the_rig_file_keys_it_reads(tmp_path):
     (rigs / "bad.toml").write_text('[[device]]\nurl = "tone://gen"\ndbc = "x.dbc"\n')
     run = _ambdaq(env, "record", "--rig", str(rigs / "bad.toml"), "--duration", "0.5", "-o", str(tmp_path / "b.mcap"))
     assert run.returncode == 2 and "unknown key 'dbc'" in run.stderr and "pitch_file" in run.stderr, run.stderr
+
+
+def test_ambdaq_devices_lists_what_a_plug_in_finds(tmp_path):
+    env = _installed(tmp_path)
+    run = _ambdaq(env, "devices")
+    assert run.returncode == 0, run.stderr
+    assert "tone:// (plug-in):" in run.stdout and "the test tone generator  tone://gen?hz=50" in run.stdout
+    run = _ambdaq(env, "devices", "--json")
+    assert json.loads(run.stdout)["plugins"] == {"tone": [{"url": "tone://gen?hz=50", "description": "the test tone generator"}]}

@@ -22,8 +22,11 @@ from ..errors import BadInputError
 def command(ask, ask_xcp, as_json):
     """List CAN channels (python-can's detection), SLCAN adapters (by their USB ids), serial
     ports (pyserial's list_ports) and the XCP slaves asked for."""
+    from ..drivers.registry import backend, plugin_schemes
+
     found = {"can": can_channels(), "slcan": slcan_adapters() + [ask_slcan(port) for port in ask],
-             "serial": serial_ports(), "xcp": [_ask_xcp(url) for url in ask_xcp]}
+             "serial": serial_ports(), "xcp": [_ask_xcp(url) for url in ask_xcp],
+             "plugins": {s: backend(s).discover() for s in plugin_schemes()}}
     if as_json:
         click.echo(json.dumps(found, indent=2))
         return
@@ -42,6 +45,10 @@ def command(ask, ask_xcp, as_json):
                    f"{x['protected'] or 'none'}), MAX_CTO {x['max_cto']}, MAX_DTO {x['max_dto']}")
         for key in sorted((k for k in x if k.startswith("event_")), key=lambda k: int(k[6:])):
             click.echo(f"  event {key[6:]}: {x[key]}")
+    for scheme, devices in found["plugins"].items():  # back-ends of installed packages, by their discover()
+        click.echo(f"{scheme}:// (plug-in):" if devices else f"{scheme}:// (plug-in): none found")
+        for d in devices:
+            click.echo("  " + "  ".join(f"{v}" for k, v in d.items() if k != "url") + f"  {d['url']}")
     click.echo("not searched: " + "; ".join(f"{k} ({why})" for k, why in NOT_SEARCHED.items()))
     click.echo("simulated rigs: sim://spindle (in process); ambdaq sim serve (on a pseudo-terminal)")
 

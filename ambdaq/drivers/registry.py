@@ -158,6 +158,11 @@ class Backend(ABC):
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
         """The devices at ``url``, opened, as recorder sources."""
 
+    def discover(self) -> list[dict[str, str]]:
+        """What of this back-end's this host can reach, without writing to anything: one dict per
+        device with its ``url`` and what else is known (``ambdaq devices`` lists a plug-in's)."""
+        return []
+
     def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
         """Where the devices behind ``url`` are reached (hardware: the URL itself)."""
         return Endpoints({"device": url.text})
@@ -187,6 +192,11 @@ def _targets() -> dict[str, str]:
     for ep in entry_points(group=ENTRY_POINTS):
         out.setdefault(ep.name, ep.value)
     return out
+
+
+def plugin_schemes() -> list[str]:
+    """The schemes installed packages add (the ``ambdaq.backends`` entry points), sorted."""
+    return sorted(s for s in _targets() if s not in BACKENDS)
 
 
 def backend(scheme: str) -> Backend | None:
