@@ -200,7 +200,8 @@ def test_devices_lists_can_channels_and_serial_ports(run_cli):
     r = run_cli("devices", "--json")
     assert r.exit_code == 0
     found = json.loads(r.stdout)
-    assert set(found) == {"can", "slcan", "serial", "xcp"}
+    assert set(found) == {"can", "slcan", "serial", "xcp", "plugins"}
+    assert found["plugins"] == {}  # no back-end of another package is installed here
     # never probed: IP networks, and the in-process bus (whose detection would invent a channel)
     assert not {c["interface"] for c in found["can"]} & {"udp_multicast", "socketcand", "virtual"}
     assert "socketcand" in run_cli("devices").output  # ... and said so
