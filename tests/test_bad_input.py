@@ -264,3 +264,12 @@ def test_output_is_only_ever_a_regular_file(kind, overwrite, tmp_path, run_cli):
     assert "regular file" in r.output or "is a directory" in r.output  # click refuses a directory itself
     after = os.lstat(target)
     assert stat.S_IFMT(after.st_mode) == stat.S_IFMT(before.st_mode) and after.st_ino == before.st_ino
+
+
+@pytest.mark.parametrize("profile", ["cone", "lorentz", "base-motion"])
+def test_a_feedforward_mode_for_a_rig_without_one_is_one_line(profile, run_cli, tmp_path):
+    """Only the spindle runs Ro et al.'s runout feedforward; asking another rig for it had been an
+    internal ValueError."""
+    r = run_cli("sim", "generate", "--profile", profile, "--ff", "lms", "--duration", "0.1", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and f"the {profile} rig has no runout feedforward" in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "x.mcap").exists()

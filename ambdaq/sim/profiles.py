@@ -58,7 +58,15 @@ class Profile:
         return self.firmware is not None
 
     def build(self, **options: Any):
-        """The rig, with keyword ``options`` (seed, speed, truth, ff_mode, noise)."""
+        """The rig, with keyword ``options`` (seed, speed, truth, ff_mode, noise). ``ff_mode`` other
+        than ``off`` goes only to a rig with Ro et al.'s runout feedforward (``"feedforward"`` in
+        its ``inputs``); another's is one line, and a rig without it never sees the option."""
+        ff_mode = options.pop("ff_mode", "off")
+        if ff_mode != "off":
+            if "feedforward" not in self.rig.inputs:
+                raise BadInputError(f"the {self.name} rig has no runout feedforward to run in mode {ff_mode!r}: "
+                                    "leave ff off")
+            options["ff_mode"] = ff_mode
         return self.rig(**options)
 
 

@@ -31,9 +31,9 @@ class Rig:
     profile: str
     inputs: frozenset[str] = frozenset()
     """What can act on the rig besides its speed, declared by each rig class: ``"excitation"``
-    (the controller's test signal, :class:`~.excitation.ExcitationInput`), ``"fir"`` (FIR
-    feedforward u = W d), ``"base"`` (a moving base), ``"impact"`` (hammer strikes and a touchdown
-    start)."""
+    (the controller's test signal, :class:`~.excitation.ExcitationInput`), ``"feedforward"`` (Ro
+    et al.'s runout feedforward, ``ff_mode`` table or lms), ``"fir"`` (FIR feedforward u = W d),
+    ``"base"`` (a moving base), ``"impact"`` (hammer strikes and a touchdown start)."""
 
     def __init__(self, params: Any, *, seed: int, speed: SpeedProfile, truth: bool, noise: bool) -> None:
         self.params = params

@@ -241,8 +241,6 @@ class BaseMotionRig(Rig, ExcitationInput):
         a small spin rate).
     truth : bool
         Also produce ``/truth/base`` (the true base accelerations) and ``/truth/position``.
-    ff_mode : {"off"}
-        The FIR feedforward starts empty; :meth:`set_feedforward_fir` loads one.
     noise : bool
         Gap-sensor and accelerometer noise.
     """
@@ -255,10 +253,7 @@ class BaseMotionRig(Rig, ExcitationInput):
     excitation_min = MIN_TEST_SIGNAL_V
 
     def __init__(self, params: BaseMotionParams = BASE_MOTION, *, seed: int = 0,
-                 speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False, ff_mode: str = "off",
-                 noise: bool = True) -> None:
-        if ff_mode != "off":
-            raise ValueError("the base-motion rig's feedforward is a FIR loaded by push, not a mode; use ff=off")
+                 speed: SpeedProfile = SpeedProfile(0.0, 0.0), truth: bool = False, noise: bool = True) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self._exc_rng = np.random.default_rng([seed, 1])
         self._base_rng = np.random.default_rng([seed, 2])

@@ -218,8 +218,6 @@ class ConeRig(Rig):
         Spin (the gyroscopic term); a robot joint turns slowly.
     truth : bool
         Also produce ``/truth/position`` (the true bearing coordinates).
-    ff_mode : {"off"}
-        The cone rig has no feedforward.
     noise : bool
         Gap-sensor and hammer load-cell noise.
     start : {"levitated", "touchdown"}
@@ -233,10 +231,8 @@ class ConeRig(Rig):
     inputs = frozenset({"impact"})
 
     def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
-                 truth: bool = False, ff_mode: str = "off", noise: bool = True, start: str = "levitated",
+                 truth: bool = False, noise: bool = True, start: str = "levitated",
                  impact: Impact | None = None) -> None:
-        if ff_mode != "off":
-            raise ValueError("the cone rig has no feedforward; use ff=off")
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
         self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)

@@ -187,8 +187,6 @@ class LorentzRig(Rig):
         Commanded speed; at a constant speed the rotor starts in step with it.
     truth : bool
         Also produce ``/truth/rotor`` (unquantised angle and speed).
-    ff_mode : {"off"}
-        No feedforward.
     noise : bool
         Measurement noise on voltages, currents and gaps.
     """
@@ -196,9 +194,7 @@ class LorentzRig(Rig):
     profile = "lorentz"
 
     def __init__(self, params: LorentzParams = LORENTZ, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
-                 truth: bool = False, ff_mode: str = "off", noise: bool = True) -> None:
-        if ff_mode != "off":
-            raise ValueError("the lorentz rig has no feedforward; use ff=off")
+                 truth: bool = False, noise: bool = True) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.res, self.ind, self.ripple = machine(params)
         self.state = np.zeros(18)

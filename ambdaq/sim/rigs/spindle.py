@@ -326,7 +326,7 @@ class SpindleRig(Rig, ExcitationInput):
     """
 
     profile = "spindle"
-    inputs = frozenset({"excitation"})
+    inputs = frozenset({"excitation", "feedforward"})
     excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
     excitation_unit = "m"
     excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal
