@@ -11,8 +11,8 @@ import json
 import pytest
 
 from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.drivers.interfaces import Source
-from ambdaq.drivers.signals import SampleBlock, SignalGroup
+from ambdaq.drivers.interfaces import PassThrough
+from ambdaq.drivers.signals import SignalGroup
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SpeedProfile
 
@@ -20,12 +20,13 @@ NAMES = {"front_x": "de_x", "front_y": "de_y", "rear_x": "nde_x", "rear_y": "nde
 BEARINGS = {"front": "de", "rear": "nde"}
 
 
-class Blower(Source):
+class Blower(PassThrough):
     """The simulated spindle as a controller that names its axes otherwise: every topic's fields
     renamed, the samples untouched."""
 
     def __init__(self, inner: SimSource) -> None:
-        self.inner, self.name, self.sample_rate = inner, "blower", inner.sample_rate
+        super().__init__(inner)
+        self.name = "blower"
 
     def signal_groups(self):
         return [SignalGroup(g.topic, g.type_name, tuple(NAMES.get(f, f) for f in g.fields), g.units)
@@ -34,17 +35,6 @@ class Blower(Source):
     def identity(self):
         return {**self.inner.identity(), "model": "blower (the simulated spindle, renamed)"}
 
-    def device_calibration(self):
-        return self.inner.calibration()
-
-    def start(self, n_samples):
-        self.inner.start(n_samples)
-
-    def read(self) -> SampleBlock | None:
-        return self.inner.read()
-
-    def _close(self) -> None:
-        self.inner.close()
 
 
 @pytest.fixture(scope="module")

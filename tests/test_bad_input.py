@@ -150,9 +150,17 @@ def test_bad_options(args, needle, tmp_path, run_cli):
 
 @pytest.mark.parametrize("url", ["can://udp_multicast/239.74.163.2?node=16",
                                  "xcp+can://udp_multicast/239.74.163.2?id_master=1&id_slave=2&a2l=x.a2l"])
-def test_can_over_an_ip_network_is_refused(url, tmp_path, run_cli):
+def test_can_over_an_ip_network_is_refused(url, tmp_path, run_cli, monkeypatch):
     """The house never sends traffic onto a network: python-can's network interface is refused by
-    the URL parser itself, before any bus is opened."""
+    the URL parser itself, before any bus is opened. Should that refusal ever break, no bus can
+    open here either: python-can's constructor fails the test instead of joining the group."""
+    import can
+
+    def no_bus(*args, **kwargs):
+        raise AssertionError(f"a CAN bus was opened: {args} {kwargs}")
+
+    monkeypatch.setattr(can, "Bus", no_bus)
+    monkeypatch.setattr(can.interface, "Bus", no_bus)
     one_line_error(run_cli("record", "--device", url, "--duration", "0.1", "-o", tmp_path / "x.mcap"),
                    "sends CAN frames onto an IP network")
     assert not (tmp_path / "x.mcap").exists()

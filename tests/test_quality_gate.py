@@ -79,35 +79,17 @@ def test_a_device_that_restarted_its_count_is_said(run_cli, tmp_path):
     import numpy as np
 
     from ambdaq.daq.recorder import Recorder, RecordOptions
-    from ambdaq.drivers.interfaces import Source
+    from ambdaq.drivers.interfaces import PassThrough
     from ambdaq.sim.source import SimSource
     from ambdaq.speed import SpeedProfile
 
-    class Rebooting(Source):
-        def __init__(self, inner):
-            self.inner, self.name, self.sample_rate = inner, inner.name, inner.sample_rate
-
-        def signal_groups(self):
-            return self.inner.signal_groups()
-
-        def identity(self):
-            return self.inner.identity()
-
-        def device_calibration(self):
-            return self.inner.calibration()
-
-        def start(self, n):
-            self.inner.start(n)
-
+    class Rebooting(PassThrough):
         def read(self):
             block = self.inner.read()
             if block is not None and block.seq[0] >= 10_000:  # counts from 0 again after 1 s
                 block = block.select(np.ones(len(block), bool))
                 object.__setattr__(block, "seq", (block.seq - 10_000).astype(np.uint32))
             return block
-
-        def _close(self):
-            self.inner.close()
 
     path = tmp_path / "reboot.mcap"
     Recorder([Rebooting(SimSource("spindle", speed=SpeedProfile(30000, 30000)))], path,

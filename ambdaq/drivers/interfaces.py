@@ -128,6 +128,38 @@ class Source(ABC):
         self.close()
 
 
+class PassThrough(Source):
+    """A source that streams another's blocks as they come: a subclass changes what it must (a
+    simulated line that loses samples, a device that reboots, one that names its axes otherwise).
+
+    Parameters
+    ----------
+    inner : Source
+        The source passed through; its name and sample rate are this one's.
+    """
+
+    def __init__(self, inner: Source) -> None:
+        self.inner, self.name, self.sample_rate = inner, inner.name, inner.sample_rate
+
+    def signal_groups(self) -> list[SignalGroup]:
+        return self.inner.signal_groups()
+
+    def identity(self) -> dict[str, str]:
+        return self.inner.identity()
+
+    def device_calibration(self) -> dict[str, str]:
+        return self.inner.calibration()
+
+    def start(self, n_samples: int | None) -> None:
+        self.inner.start(n_samples)
+
+    def read(self) -> SampleBlock | None:
+        return self.inner.read()
+
+    def _close(self) -> None:
+        self.inner.close()
+
+
 class Parameters(ABC):
     """Named device parameters (docs/protocol.md lists the controller's; a CANopen device's are
     its EDS objects)."""

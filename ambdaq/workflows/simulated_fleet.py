@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..daq.recorder import Recorder, RecordOptions
-from ..drivers.interfaces import Source
+from ..drivers.interfaces import PassThrough
 from ..drivers.signals import SampleBlock
 from ..machines.spindle import SPINDLE
 from ..sim.source import SimSource
@@ -29,25 +29,13 @@ from .fleet import COEFFICIENTS_KEY, MACHINE_KEY
 FIRST_DAY = datetime(2026, 1, 5, 6, 0, tzinfo=timezone.utc)  # the fleet's commissioning
 
 
-class _Losing(Source):
+class _Losing(PassThrough):
     """A source that loses ``lost`` samples from ``at`` on (a line that dropped them): the recorder
     sees the gap in ``seq`` and counts it."""
 
     def __init__(self, inner: SimSource, at: int, lost: int) -> None:
-        self.inner, self.name, self.sample_rate = inner, inner.name, inner.sample_rate
+        super().__init__(inner)
         self._at, self._lost, self._next = at, lost, 0
-
-    def signal_groups(self):
-        return self.inner.signal_groups()
-
-    def identity(self):
-        return self.inner.identity()
-
-    def device_calibration(self):
-        return self.inner.calibration()
-
-    def start(self, n_samples):
-        self.inner.start(n_samples)
 
     def read(self) -> SampleBlock | None:
         block = self.inner.read()
@@ -57,9 +45,6 @@ class _Losing(Source):
         idx = np.arange(first, self._next)
         keep = (idx < self._at) | (idx >= self._at + self._lost)
         return block if keep.all() else block.select(keep)
-
-    def _close(self):
-        self.inner.close()
 
 
 @dataclasses.dataclass(frozen=True)
