@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.daq.recorder import Recorder, RecordOptions, machine_of
 from ambdaq.drivers.interfaces import PassThrough
 from ambdaq.drivers.signals import SignalGroup
 from ambdaq.sim.source import SimSource
@@ -99,13 +99,13 @@ def test_plot_and_live_status_find_the_blowers_bearings(pairs, run_cli, tmp_path
     for machine in ("spindle", "blower"):
         source = SimSource("spindle", seed=5, speed=SpeedProfile(30000, 30000))
         device = source if machine == "spindle" else Blower(source)
-        view = LiveView({device.name: device.sample_rate})
         groups = {device.name: {g.topic: list(g.fields) for g in device.signal_groups()}}
+        view = LiveView({device.name: device.sample_rate}, groups, machine_of([device]))
         device.start(5000)
         while (block := device.read()) is not None:
             view.observe(device.name, block)
         device.close()
-        status[machine] = view.bearings(groups)
+        status[machine] = view.bearings()
     assert [b.bearing for b in status["blower"]] == ["de", "nde"]
     for s, b in zip(status["spindle"], status["blower"]):
         assert b.one_x == s.one_x and b.dc_um == s.dc_um

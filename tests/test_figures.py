@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ambdaq.cli.figures import pyplot
-from ambdaq.daq import load
+from ambdaq.daq import load, open_recording
 
 
 def overlapping_tick_labels(ax) -> list[tuple[str, str]]:
@@ -96,7 +96,7 @@ def test_runout_identification_figure_shows_x_and_y_and_keeps_its_legend_off_the
     from ambdaq.cli.runout_plots import draw_identification
     from ambdaq.workflows.runout import identify_recordings
 
-    ident = identify_recordings([ten_seconds], [1, 2, 3, 4], "fit")
+    ident = identify_recordings([open_recording(ten_seconds)], [1, 2, 3, 4], "fit")
     fig = draw_identification(ident)
     try:
         fig.canvas.draw()
@@ -144,7 +144,7 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
         assert r.exit_code == 0, r.output
         files.append(str(f))
     overrides = {"resistance": None, "inductance": None, "emf_constant": None}
-    results = [analyse(f, 8.0, 0.5, overrides, sweep=(f == files[0])) for f in files]
+    results = [analyse(open_recording(f), 8.0, 0.5, overrides, sweep=(f == files[0])) for f in files]
     fig = draw_selfsense(results)
     try:
         fig.canvas.draw()

@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
+from ambdaq.workflows.fleet import read
 
 # one worker builds the fleet once and runs these in order (the last two rewrite a recording)
 pytestmark = pytest.mark.xdist_group("fleet")
@@ -80,7 +81,8 @@ def test_scan_on_two_workers_matches_the_single_file_commands(fleet, scanned, tm
     ds, report = scanned
     assert report["scanned"] == 42 and report["unchanged"] == 0  # 40 recordings and the two damaged files
     assert report["writing"] == [str((root / "plant" / "damaged" / "writing.mcap").resolve())]
-    df = pd.read_parquet(ds)  # pandas reads the dataset directly, the machine from the partition
+    assert len(pd.read_parquet(ds)) == 42  # pandas reads the dataset directly, the machine from the partition
+    df = read(ds)  # each machine's axes and bearings as columns
     assert len(df) == 42 and df["path"].is_unique
     rows = {r["path"]: r for r in df.to_dict("records")}
     lossy = []
@@ -151,8 +153,8 @@ def test_the_commands_own_cluster_and_duckdb_agree_with_the_scan(fleet, scanned,
     res = ambdaq("fleet", "scan", str(root / "plant" / "AMB-05"), "-o", str(own), "--workers", "1", "--json", env=env)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["scanned"] == 4
-    mine = pd.read_parquet(own).set_index("path").sort_index()
-    theirs = pd.read_parquet(ds).set_index("path").loc[mine.index]
+    mine = read(own).set_index("path").sort_index()
+    theirs = read(ds).set_index("path").loc[mine.index]
     assert list(mine.columns) == list(theirs.columns)
     for column in mine.columns:  # the same function on the same bytes: equal, not close
         assert mine[column].astype(object).equals(theirs[column].astype(object)), column
@@ -203,7 +205,6 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
     # what the figure shows: dates with their year, no tick label on another, legends off the panels
     from ambdaq.cli.figures import pyplot
     from ambdaq.cli.fleet import draw_trend
-    from ambdaq.workflows.fleet import read
     from test_figures import overlapping_tick_labels, titles_inside
 
     fig = draw_trend(read(ds, "AMB-01"), "AMB-01")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.lms import error_response
-from ambdaq.workflows.plants import rig_loop
+from ambdaq.sim.rigs.spindle import rig_loop
 from ambdaq.daq import load
 from ambdaq.daq.frequency_response import FrequencyResponse
 from ambdaq.drivers.serial.controller import ControllerDriver

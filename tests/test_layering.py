@@ -14,14 +14,15 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "units": set(),
     "speed": {"errors", "units"},
     "loading": set(),
-    "machines": {"units"},
-    "analysis": {"machines", "units", "errors"},
-    "drivers": {"errors", "units", "speed", "loading"},
-    "daq": {"drivers", "machines", "errors", "units"},
-    "sim": {"drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
-    "workflows": {"drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
-    "live": {"daq", "analysis", "machines", "units"},
-    "cli": {"drivers", "daq", "analysis", "sim", "workflows", "live", "machines", "speed", "units", "errors", "loading"},
+    "layout": set(),
+    "machines": {"analysis", "units", "errors", "layout"},
+    "analysis": {"units", "errors"},
+    "drivers": {"layout", "errors", "units", "speed", "loading"},
+    "daq": {"layout", "drivers", "machines", "errors", "units"},
+    "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
+    "workflows": {"layout", "drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
+    "live": {"layout", "daq", "analysis", "machines", "units"},
+    "cli": {"layout", "drivers", "daq", "analysis", "sim", "workflows", "live", "machines", "speed", "units", "errors", "loading"},
 }
 
 

@@ -14,14 +14,16 @@ from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load
 from ambdaq.live.view import LiveView
 from ambdaq.drivers.signals import SampleBlock
+from ambdaq.machines.machine import Machine
 
 GROUPS = {"ctl": {"/amb/gap": ["front_x", "front_y", "axial"], "/amb/rotor": ["angle", "speed", "keyphasor"]}}
+MACHINE = Machine.describe(GROUPS["ctl"])
 
 
 def test_bearing_figures_are_the_last_windows_dc_and_1x():
     """Blocks of a gap with a known DC and 1X at a known speed: the view reports exactly those over
     its window, whatever came before it (an older block with other values is out of the window)."""
-    view = LiveView({"ctl": 10_000.0}, window_s=0.2)
+    view = LiveView({"ctl": 10_000.0}, GROUPS, MACHINE, window_s=0.2)
     omega = 30000 * 2 * np.pi / 60
     for k, (dc, amp) in enumerate(((50e-6, 1e-6), (12e-6, 17e-6), (12e-6, 17e-6), (12e-6, 17e-6))):
         n = np.arange(k * 1000, (k + 1) * 1000)
@@ -29,17 +31,17 @@ def test_bearing_figures_are_the_last_windows_dc_and_1x():
         gap = np.column_stack([dc + amp * np.sin(theta + 0.3), -dc + 0.5 * amp * np.cos(theta), np.zeros(1000)])
         rotor = np.column_stack([np.mod(theta, 2 * np.pi), np.full(1000, omega), np.zeros(1000)])
         view.observe("ctl", SampleBlock(n * 100_000, n.astype(np.uint32), {"/amb/gap": gap, "/amb/rotor": rotor}))
-    (front,) = view.bearings(GROUPS)
+    (front,) = view.bearings()
     assert front.bearing == "front" and front.speed_rpm == pytest.approx(30000, rel=1e-9)
     # 0.2 s at 30,000 rpm is 100 whole revolutions: the mean and the 1X fit are exact to rounding
     assert front.dc_um == pytest.approx((12.0, -12.0), abs=1e-9)
     assert front.one_x_um == pytest.approx((17.0, 8.5), rel=1e-9)
     assert len(front.orbit_um[0]) == len(front.orbit_um[1]) == 400  # 2,000 samples, every 5th
-    short = LiveView({"ctl": 10_000.0}, window_s=0.2)
+    short = LiveView({"ctl": 10_000.0}, GROUPS, MACHINE, window_s=0.2)
     n = np.arange(540)
     short.observe("ctl", SampleBlock(n * 100_000, n.astype(np.uint32),
                                      {"/amb/gap": np.zeros((540, 3)), "/amb/rotor": np.zeros((540, 3))}))
-    assert len(short.bearings(GROUPS)[0].orbit_um[0]) <= 400  # a window not yet full is capped too
+    assert len(short.bearings()[0].orbit_um[0]) <= 400  # a window not yet full is capped too
 
 
 def strip(text: str) -> str:

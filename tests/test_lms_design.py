@@ -5,11 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from ambdaq.analysis.lms import HOLD_TOL, OneAxis, converges, convergence_radius, mu_sign, sign_flip_rpm, sign_schedule
+from dataclasses import replace
+
+from ambdaq.analysis.lms import HOLD_TOL, converges, convergence_radius, mu_sign, sign_flip_rpm, sign_schedule
+from ambdaq.machines.spindle import FRONT_LOOP
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import SpindleRig
 
-FRONT = OneAxis()  # Ro et al.: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
+FRONT = FRONT_LOOP  # Ro et al.: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
 
 
 def test_the_loop_itself_is_stable():
@@ -96,7 +99,7 @@ def test_rig_map_puts_the_first_flip_near_the_papers_6000_rpm(run_cli):
     bearings = json.loads(run_cli("lms", "map", "--plant", "bearings", "--json").output)["loops"]
     assert 15000 < bearings["front"]["sign_flips_rpm"][0] < 17000
     assert 12500 < bearings["rear"]["sign_flips_rpm"][0] < 14000
-    assert 6000 < sign_flip_rpm(OneAxis(m=4.38))[0] < 7500
+    assert 6000 < sign_flip_rpm(replace(FRONT, m=4.38))[0] < 7500
 
 
 def test_map_plot_and_transfer_function_plant(run_cli, tmp_path):

@@ -131,18 +131,21 @@ def test_messages_written_out_of_time_order_are_loaded_in_time_order(tmp_path, o
 
 
 def test_a_workflow_takes_a_recording_already_loaded(spindle_file):
-    """What the fleet does: load once, hand the recording to several workflows. One that lacks a
-    topic the workflow needs is one clear error, not a second read of the file."""
-    from ambdaq.daq.reader import loaded
+    """What the fleet does: open once, hand the recording to several workflows, each topic decoded
+    once. A recording shown with fewer topics than the workflow needs is one clear error."""
+    from ambdaq.daq import open_recording
     from ambdaq.workflows.runout import identify_recordings
 
     rec = load(spindle_file, topics=["/amb/gap", "/amb/rotor"])
-    assert loaded(rec, ["/amb/gap"]) is rec
-    with pytest.raises(BadInputError, match="no ambdaq topic /amb/current loaded"):
+    with pytest.raises(BadInputError, match="no current signals"):
         identify_recordings([rec], [1, 2], "fit")
-    by_path = identify_recordings([spindle_file], [1, 2], "fit")
+    opened = open_recording(spindle_file)
+    by_open = identify_recordings([opened], [1, 2], "fit")
+    gap = opened["/amb/gap"]
+    assert identify_recordings([opened], [1, 2], "fit").coef.weights == by_open.coef.weights
+    assert opened["/amb/gap"] is gap  # decoded once, kept
     by_rec = identify_recordings([load(spindle_file, topics=["/amb/gap", "/amb/current", "/amb/rotor"])], [1, 2], "fit")
-    assert by_rec.coef.weights == by_path.coef.weights and by_rec.paths == by_path.paths
+    assert by_rec.coef.weights == by_open.coef.weights and by_rec.paths == by_open.paths
 
 
 def test_export_mf4_reads_back_with_asammdf(spindle_file, tmp_path, run_cli):

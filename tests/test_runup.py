@@ -8,7 +8,7 @@ import pytest
 
 from ambdaq.analysis.orders import CRITICAL_AMPLIFICATION, one_x_peaks, order_track
 from ambdaq.analysis.runout import harmonic_fit
-from ambdaq.daq import load
+from ambdaq.daq import load, open_recording
 
 
 @pytest.mark.parametrize("zeta, critical", [(0.1, True), (0.15, True), (0.3, False)])
@@ -168,7 +168,7 @@ def test_the_runup_figure_shows_the_phase_lag_unwrapped_and_both_axes_of_a_beari
     from ambdaq.cli.runup import draw_runup
     from ambdaq.workflows.runup_diagnostics import analyse
 
-    res = analyse(runup / "runup.mcap", coefficients=runup / "runout.json", orders=(1, 2))
+    res = analyse(open_recording(runup / "runup.mcap"), coefficients=runup / "runout.json", orders=(1, 2))
     fig = draw_runup(res, "runup.mcap")
     try:
         amp_ax, ph_ax = fig.axes[0], fig.axes[1]
@@ -250,7 +250,7 @@ def test_the_waterfall_is_the_bearings_full_spectrum_and_the_unbalance_whirls_fo
     far less of it (the runout is taken out with the coefficient file)."""
     from ambdaq.workflows.runup_diagnostics import analyse
 
-    res = analyse(runup / "runup.mcap", coefficients=runup / "runout.json")
+    res = analyse(open_recording(runup / "runup.mcap"), coefficients=runup / "runout.json")
     rpm, f, a = res.waterfall
     assert res.waterfall_axis == "front" and f[0] < 0 < f[-1]
     fast = rpm > 15000

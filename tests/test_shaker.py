@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.runout import harmonic_fit
-from ambdaq.daq.reader import load
+from ambdaq.daq import load
 from ambdaq.sim.rigs.base_motion import BASE_AXES
 from ambdaq.drivers.shaker import Shaker
 from ambdaq.sim.serve import serve

@@ -18,12 +18,12 @@ or negative depends on the phase of S at k Omega: that is the sign flip of Ro et
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Callable
 
 import numpy as np
 from scipy.signal import cont2discrete, tf2ss
 
-from ..machines.spindle import ONE_AXIS_MASS, SPINDLE, BearingAxis
 from ..units import RPM_TO_RAD_S
 from .amb import pid_z
 
@@ -34,22 +34,22 @@ class OneAxis:
     digital PID at h (eq. 3, parallel form, Tustin integral, filtered derivative).
 
     Parameters (SI): m kg, ki N/A, kx N/m, ks V/m, amplifier gain A/V, wn Hz, zeta, PID gains
-    V/V, 1/s, s, derivative filter Nd, sample period s.  Defaults: the spindle's front bearing
-    (:mod:`ambdaq.machines.spindle`); :func:`bearing_loop` builds any of its bearings.
+    V/V, 1/s, s, derivative filter Nd, sample period s.  A machine's own loops are built where
+    the machine is described (the spindle's: :data:`ambdaq.machines.spindle.FRONT_LOOP`).
     """
 
-    m: float = ONE_AXIS_MASS
-    ki: float = SPINDLE.front.ki
-    kx: float = SPINDLE.front.kx
-    ks: float = SPINDLE.sensor_gain
-    amp_gain: float = SPINDLE.front.amp_gain
-    amp_wn_hz: float = SPINDLE.front.amp_wn_hz
-    amp_zeta: float = SPINDLE.front.amp_zeta
-    p: float = SPINDLE.front.pid_p
-    i: float = SPINDLE.front.pid_i
-    d: float = SPINDLE.front.pid_d
-    nd: float = SPINDLE.derivative_filter
-    h: float = 1.0 / SPINDLE.sample_rate
+    m: float
+    ki: float
+    kx: float
+    ks: float
+    amp_gain: float
+    amp_wn_hz: float
+    amp_zeta: float
+    p: float
+    i: float
+    d: float
+    nd: float
+    h: float
 
     def plant_z(self) -> tuple[np.ndarray, np.ndarray]:
         """ZOH-discretised amplifier + rotor + sensor, V in -> V out: (num, den) in powers of z."""
@@ -73,8 +73,8 @@ class OneAxis:
 
 @dataclass(frozen=True)
 class PlantLoop(OneAxis):
-    """Any plant G(s) (V in -> sensor V out) as a transfer function, in the loop of Ro et al.'s
-    digital PID (gains and h as :class:`OneAxis`).
+    """Any plant G(s) (V in -> sensor V out) as a transfer function, in the loop of a digital PID
+    (gains and h as :class:`OneAxis`; its magnet, amplifier and sensor are not used).
 
     Parameters
     ----------
@@ -187,14 +187,30 @@ def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmon
     return _radius(M, -B, C, np.eye(len(axes)), mu, phi, g[axes])
 
 
-def bearing_loop(axis: BearingAxis) -> OneAxis:
-    """Ro et al.'s one-axis loop of one of the spindle's bearing axes (m = 1.5 kg, eq. 1)."""
-    return OneAxis(ki=axis.ki, kx=axis.kx, amp_gain=axis.amp_gain, amp_wn_hz=axis.amp_wn_hz, amp_zeta=axis.amp_zeta,
-                   p=axis.pid_p, i=axis.pid_i, d=axis.pid_d)
+@dataclass(frozen=True)
+class DesignModels:
+    """The loops one machine's LMS feedforward is designed on (``ambdaq lms --plant``).
 
+    Parameters
+    ----------
+    plants : mapping of str to callable
+        Named plants, each a factory of {label: (loop, the controller axes it stands for)}.
+    pid : OneAxis
+        The controller loop a transfer-function or continuous state-space plant is placed in
+        (its PID gains, derivative filter and sample period).
+    axes : tuple of str
+        The controller's feedforward axes, in order: what a plant of every axis stands for.
+    phase_bins : int
+        Bins of the controller's phase-compensation table.
+    phase_bin_hz : float
+        Their spacing, in Hz.
+    """
 
-BEARINGS = {"front": bearing_loop(SPINDLE.front), "rear": bearing_loop(SPINDLE.rear)}
-"""Ro et al.'s one-axis loops of the two radial bearings (Table 1, the PID gains; m = 1.5 kg)."""
+    plants: Mapping[str, Callable[[], dict]]
+    pid: OneAxis
+    axes: tuple[str, ...]
+    phase_bins: int
+    phase_bin_hz: float
 
 
 def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
@@ -246,15 +262,22 @@ class PhaseTable:
         Phase at 0, bin_hz, 2 bin_hz ... in rad.
     bin_hz : float
         Frequency step, in Hz.
+    axes : tuple of str
+        The axis of each row, by name.
     """
 
     phase_rad: np.ndarray
     bin_hz: float = 10.0
+    axes: tuple[str, ...] = ()
 
     def at(self, f_hz: float) -> np.ndarray:
         """Phase per axis at ``f_hz`` (nearest bin, as the controller looks it up), in rad."""
         b = min(int(f_hz / self.bin_hz + 0.5), self.phase_rad.shape[1] - 1)
         return self.phase_rad[:, b]
+
+    def select(self, axes: tuple[str, ...]) -> "PhaseTable":
+        """The rows of ``axes`` (names), in that order."""
+        return PhaseTable(self.phase_rad[[self.axes.index(a) for a in axes]], self.bin_hz, tuple(axes))
 
 
 def error_response(loop, f_hz: np.ndarray) -> np.ndarray:
@@ -379,7 +402,7 @@ def sign_schedule(loops, *, mu: float = 0.001, dead_band: float = 500.0, rpm_max
 
 
 def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: int,
-                     loops: dict | None = None, phase: PhaseTable | None = None, rpm_step: float = 100.0) -> str:
+                     loops: dict, phase: PhaseTable | None = None, rpm_step: float = 100.0) -> str:
     """Why a step-size schedule is not stable on the convergence map ("" if it is).
 
     Parameters
@@ -389,21 +412,20 @@ def schedule_problem(rows: list[tuple[float, float, float, float]], harmonics: i
     harmonics : int
         Number of harmonics the feedforward runs.
     loops : dict of str to (loop, axes)
-        The loops to check, each with the controller axes it stands for (their rows of
-        ``phase``); default: both bearings of Ro et al. (front: axis 0, rear: axis 2).
+        The loops to check, each with the controller axes (names) it stands for: their rows of
+        ``phase``.
     phase : PhaseTable, optional
         The phase compensation the controller will run.
     rpm_step : float
         Speed grid, in rpm.
     """
-    loops = loops or {"front": (BEARINGS["front"], (0,)), "rear": (BEARINGS["rear"], (2,))}
     for k, lo, hi, mu in rows:
         if mu == 0:
             continue
         rpm = np.arange(max(lo, rpm_step / 2), hi, rpm_step)
         for kk in range(1, harmonics + 1) if k == 0 else (int(k),):
             for name, (loop, axes) in loops.items():
-                ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
+                ph = None if phase is None else phase.select(axes)
                 r = convergence_radius(loop, rpm, np.array([mu]), kk, phase=ph)[:, 0]
                 bad = np.flatnonzero(converges(r) < 1)
                 if bad.size:

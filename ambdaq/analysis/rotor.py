@@ -8,6 +8,9 @@ currents: at frequency w the linearised bearings push with F = Kx x + Ki i, so
 with M, G the mass and gyroscopic matrices in bearing coordinates (front_x, front_y, rear_x,
 rear_y, axial; Ro et al. section 2.2 and Jeong et al. eq. 5-10), Kx the magnets' negative stiffness.
 What the sensor shows beyond X is runout.
+
+The one rigid-rotor model: the simulated spindle's state equations are built from
+:meth:`RigidRotor.mass_gyro` too (:mod:`ambdaq.sim.rigs.spindle`).
 """
 
 from __future__ import annotations
@@ -59,6 +62,13 @@ class RigidRotor:
             )
         except (KeyError, ValueError) as err:
             raise ValueError(f"rotor model incomplete or malformed ({err})") from None
+
+    def metadata(self) -> dict[str, str]:
+        """The ``rotor.*`` entries :meth:`from_metadata` reads (docs/coefficients.md)."""
+        return {"rotor.mass_kg": repr(self.mass), "rotor.jt_kgm2": repr(self.jt), "rotor.jp_kgm2": repr(self.jp),
+                "rotor.a_m": repr(self.a), "rotor.b_m": repr(self.b),
+                "rotor.kx_n_per_m": ",".join(repr(k) for k in self.kx),
+                "rotor.ki_n_per_a": ",".join(repr(k) for k in self.ki)}
 
     def mass_gyro(self, spin: float) -> tuple[np.ndarray, np.ndarray]:
         """Mass matrix (kg) and gyroscopic matrix (N s/m) in bearing coordinates at ``spin`` (rad/s)."""

@@ -49,9 +49,10 @@ def command(recording, coefficients, orders, window_s, plot_path, as_json, max_l
     Example:
       ambdaq apht steady.mcap --coefficients coef.json --orders 1,2 --plot apht.png
     """
+    from ..daq.recording import open_recording
     from ..workflows.apht import apht
 
-    res = apht(Path(recording), orders=_orders(orders), window_s=window_s,
+    res = apht(open_recording(recording), orders=_orders(orders), window_s=window_s,
                coefficients=Path(coefficients) if coefficients else None, max_lost=max_lost)
     if as_json:
         out = {"recording": recording, "rpm": round(res.rpm, 1), "window_s": window_s, "axes": res.axes,

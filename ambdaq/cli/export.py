@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..daq.export import FORMATS, export, value_tables
-from ..daq.reader import load
+from ..daq.recording import load
 from .options import window_options
 
 
@@ -29,13 +29,13 @@ from .options import window_options
 def command(file, fmt, topics, start, end, output, overwrite, labels, device_names, push_log):
     """Export topics of FILE with time, device time, seq and every field in SI units."""
     rec = load(file, topics=list(topics) or None, start=start, end=end)
-    tables = value_tables(Path(file)) if labels else None
+    tables = value_tables(rec) if labels else None
     history = None
     if fmt == "mf4":  # the calibration history of what the recording's controllers ran
         from ..workflows.push import push_log_entries
 
-        running = {m["active_coefficients_sha256"] for name, m in rec.metadata.items()
-                   if name.startswith("ambdaq.device.") and m.get("active_coefficients_sha256")}
+        running = {d.identity["active_coefficients_sha256"] for d in rec.devices.values()
+                   if d.identity.get("active_coefficients_sha256")}
         history = push_log_entries(Path(push_log) if push_log else None, running) if running else []
     for path in export(rec, fmt, Path(output), overwrite=overwrite, labels=tables, push_log=history,
                        device_names=device_names):

@@ -115,12 +115,12 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
     """
     import numpy as np
 
-    from ..workflows.fleet import BEARINGS, HARMONICS, moved, read
+    from ..workflows.fleet import HARMONICS, axes_of, bearings_of, moved, read
 
     df = read(Path(dataset), machine)
-    axes = trend_axes(df)
+    axes = axes_of(df)
     figures = ([f"onex_{a}_um" for a in axes] + [f"runout_{a}_{k}x_um" for a in axes for k in HARMONICS]
-               + [f"vibration_{b}_um" for b in BEARINGS])
+               + [f"vibration_{b}_um" for b in bearings_of(df)])
     movements = moved(df, figures, threshold)
     if plot_path:
         if machine is None:
@@ -139,14 +139,15 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
         return
     good = df[df["error"].isna()]
     click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'drops':>6s} {'zone now':>8s} "
-               f"{'1X front_x um':>13s} {'errors':>6s}")
+               f"{'largest 1X now':>22s} {'errors':>6s}")
     for m, rows in df.groupby("machine"):
         ok = good[good["machine"] == m].sort_values("start")
         last = ok.iloc[-1] if len(ok) else None
+        one_x = {a: last[f"onex_{a}_um"] for a in axes if last is not None and np.isfinite(last[f"onex_{a}_um"])}
+        biggest = f"{max(one_x.values()):.2f} um {max(one_x, key=one_x.get)}" if one_x else "-"
         click.echo(f"{m:10s} {len(rows):10d} {str(ok['start'].min())[:16]:>17s} {str(ok['start'].max())[:16]:>17s} "
                    f"{int(rows['drops'].sum()):6d} {str(last['zone'] if last is not None else '-'):>8s} "
-                   f"{(last['onex_front_x_um'] if last is not None else np.nan):13.2f} "
-                   f"{int(rows['error'].notna().sum()):6d}")
+                   f"{biggest:>22s} {int(rows['error'].notna().sum()):6d}")
     if movements:
         click.echo(f"moved more than {threshold:g} um since the first recording:")
         for mv in movements:
@@ -154,11 +155,6 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
                        f"({mv.change:+.2f}; {mv.first_start[:10]} -> {mv.last_start[:10]})")
     else:
         click.echo(f"no machine moved more than {threshold:g} um since its first recording")
-
-
-def trend_axes(df) -> list[str]:
-    """The axes a fleet dataset has columns for (``onex_<axis>_um``), in column order."""
-    return [c[len("onex_"):-len("_um")] for c in df.columns if c.startswith("onex_") and c.endswith("_um")]
 
 
 def draw_trend(df, machine: str):
@@ -175,10 +171,10 @@ def draw_trend(df, machine: str):
     """
     import matplotlib.dates as mdates
 
-    from ..workflows.fleet import BEARINGS, HARMONICS
+    from ..workflows.fleet import HARMONICS, axes_of, bearings_of
 
     plt = pyplot()
-    axes = trend_axes(df)
+    axes = [a for a in axes_of(df) if df[f"onex_{a}_um"].notna().any()]  # one machine's own axes and bearings
     fig, axs = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
     t = df["start"]
     for a in axes:
@@ -187,7 +183,7 @@ def draw_trend(df, machine: str):
     for k in HARMONICS:
         axs[1].plot(t, df[[f"runout_{a}_{k}x_um" for a in axes]].mean(axis=1), "o-", ms=3, label=f"{k}X")
     axs[1].set_ylabel("sensor runout,\nmean of axes [µm]")
-    for b in BEARINGS:
+    for b in (b for b in bearings_of(df) if df[f"vibration_{b}_um"].notna().any()):
         axs[2].plot(t, df[f"vibration_{b}_um"], "o-", ms=3, label=f"{b} orbit")
     cmin = df["cmin_um"].dropna()
     if not cmin.empty:

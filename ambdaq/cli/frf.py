@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from contextlib import nullcontext
-from pathlib import Path
 
 import click
 import numpy as np
@@ -79,7 +78,9 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
     Example:
       ambdaq frf estimate frf_fx.mcap frf_fy.mcap frf_rx.mcap frf_ry.mcap frf_ax.mcap -o loop.frf.json
     """
-    frf = estimate_responses([Path(f) for f in files], resolution, input_axis, input_topic, output_topic,
+    from ..daq.recording import open_recording
+
+    frf = estimate_responses([open_recording(f) for f in files], resolution, input_axis, input_topic, output_topic,
                              max_lost=max_lost)
     frf.save(output, overwrite=overwrite)
     summary = summarize(frf)

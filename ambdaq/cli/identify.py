@@ -6,6 +6,7 @@ import json
 
 import click
 
+from ..daq.recording import open_recording
 from ..workflows.modal import identify_modal
 
 
@@ -35,7 +36,7 @@ def modal(file, axes, window_s, skip_s, as_json):
       ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
       ambdaq identify modal impact.mcap --axis x
     """
-    res = identify_modal(file, tuple(axes), window_s=window_s, skip_s=skip_s)
+    res = identify_modal(open_recording(file), tuple(axes), window_s=window_s, skip_s=skip_s)
     result = {"file": str(file), "axes": res.axes, "strikes": res.strikes, "order": res.order,
               "modes": [{"freq_hz": round(m.freq_hz, 4), "zeta": round(m.zeta, 5),
                          "amplitude": float(f"{m.amplitude:.4g}")} for m in res.modes]}

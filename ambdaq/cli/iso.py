@@ -120,7 +120,9 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
             click.echo("test signal switched off after each run", err=True)
     else:
         paths = [Path(p) for p in recordings]
-    runs = iso.evaluate(paths, resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,
+    from ..daq.recording import open_recording
+
+    runs = iso.evaluate([open_recording(p) for p in paths], resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,
                         max_lost=max_lost)
     iso.check_speeds(runs, list(speeds) or None)
     iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
@@ -250,10 +252,11 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
       ambdaq iso vibration runup.mcap --coefficients runout.json
       ambdaq iso vibration run_*.mcap --cmin 150 --band-rpm 5000 --json
     """
+    from ..daq.recording import open_recording
     from ..daq.sealed import write_sealed
     from ..workflows import iso_vibration as iso
 
-    grades, info = iso.evaluate([Path(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,
+    grades, info = iso.evaluate([open_recording(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,
                                 band_rpm=band_rpm, coefficients=Path(coefficients) if coefficients else None,
                                 limits=limits, max_lost=max_lost)
     for note in info["notes"]:

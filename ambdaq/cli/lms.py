@@ -8,15 +8,15 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import PhaseTable, converges, convergence_radius, mu_sign, sign_changes
+from ..analysis.lms import converges, convergence_radius, mu_sign, sign_changes
 from ..daq.coefficients import Coefficients
 from ..workflows.lms_design import grid_step, phase_table, schedule
-from ..workflows.plants import PLANT_NAMES, analysing, resolve_plant
+from ..workflows.plants import analysing, design_models, resolve_plant
 from .figures import plot_option, pyplot
 from .options import POSITIVE
 
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
-                            help=f"Loop to design on: {', '.join(PLANT_NAMES)} (docs/lms.md).")
+                            help="Loop to design on: the spindle's front, rear, bearings, rig; tf:NUM/DEN; ss:FILE (docs/lms.md).")
 
 
 @click.group("lms")
@@ -41,16 +41,17 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
       ambdaq lms map --plant front --plot fig5.png
       ambdaq lms map --plant rig --harmonic 2 --json
     """
-    loops = resolve_plant(plant)
+    models = design_models()
+    loops = resolve_plant(plant, models)
     with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
-        phase = phase_table(loops) if compensated else None
+        phase = phase_table(loops, models) if compensated else None
         step = grid_step(loops, 50.0)
         rpm = np.arange(step, rpm_max + step / 2, step)
         mu = np.linspace(-mu_max, mu_max, 41)
         report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
         maps = {}
         for name, (loop, axes) in loops.items():
-            ph = None if phase is None else PhaseTable(phase.phase_rad[list(axes)], phase.bin_hz)
+            ph = None if phase is None else phase.select(axes)
             if plot_path:  # the whole map only for the picture: the report needs the signs alone
                 maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
             signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)

@@ -8,9 +8,9 @@ import click
 import numpy as np
 
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
-from ..daq.reader import load
+from ..daq.recording import Recording, open_recording
 from ..errors import BadInputError
-from ..machines.machine import orbit_partner
+from ..machines.machine import Bearing, orbit_partner, radial_bearings
 from .options import POSITIVE, window_options
 from .figures import ImagePath, pyplot
 
@@ -37,30 +37,24 @@ def command(file, topic, field_name, start, end, cmin, output):
     """Plot FIELD of TOPIC: time series, amplitude spectrum (with the speed and its orders where the
     rotor angle was recorded), and the bearing's X-Y orbit (with the clearance circle where Cmin is
     known)."""
-    from ..daq.mcapfile import McapFile
-    from ..daq.reader import ambdaq_channels
-    from ..workflows.iso_vibration import recorded_cmin
-
     plt = pyplot()
-    spinning = topic != "/amb/rotor" and "/amb/rotor" in ambdaq_channels(McapFile(file))
-    rec = load(file, topics=[topic] + (["/amb/rotor"] if spinning else []), start=start, end=end)
-    if len(rec[topic]) < 2:
-        raise BadInputError(f"{file}: {topic} has {len(rec[topic])} samples in the window; nothing to plot")
-    clearance = cmin * 1e-6 if cmin is not None else recorded_cmin(file)
+    rec = open_recording(file, start=start, end=end)
+    data = rec.signals(topic)
+    if len(data) < 2:
+        raise BadInputError(f"{file}: {topic} has {len(data)} samples in the window; nothing to plot")
+    clearance = cmin * 1e-6 if cmin is not None else rec.machine.cmin_m
     fig = draw_signal(rec, topic, field_name, clearance)
     fig.savefig(output, dpi=110)
     plt.close(fig)
     click.echo(output)
 
 
-def _full_spectrum_panel(ax, data, field_name: str, partner: str, scale: float, unit: str,
-                         steady_rpm: float | None) -> None:
+def _full_spectrum_panel(ax, data, bearing: Bearing, scale: float, unit: str, steady_rpm: float | None) -> None:
     """The bearing's full spectrum (x + j y, x turning towards y): forward whirl at positive
     frequencies, backward at negative ones; with a steady speed, the +-1X and +-2X marks."""
     from matplotlib.ticker import MaxNLocator
 
-    x, y = (field_name, partner) if field_name.endswith("_x") else (partner, field_name)
-    f, a = full_spectrum(data[x], data[y], fs=data.sample_rate)
+    f, a = full_spectrum(data[bearing.x], data[bearing.y], fs=data.sample_rate)
     span = min(f[-1], 10.5 * steady_rpm / 60.0) if steady_rpm else f[-1]
     keep = np.abs(f) <= span
     ax.semilogy(f[keep], np.maximum(a[keep] * scale, 1e-12), lw=0.6)
@@ -70,12 +64,19 @@ def _full_spectrum_panel(ax, data, field_name: str, partner: str, scale: float, 
             ax.annotate(f"{'+' if k > 0 else '-'}{abs(k)}X", (k * steady_rpm / 60.0, 0.98),
                         xycoords=("data", "axes fraction"), color="C3", fontsize=7, ha="left", va="top")
     ax.set(xlabel="frequency [Hz]: backward < 0 < forward", ylabel=f"whirl radius [{unit}]",
-           title=_wrapped(f"full spectrum of {x[:-2]}: forward and backward whirl"))
+           title=_wrapped(f"full spectrum of {bearing.name}: forward and backward whirl"))
     ax.xaxis.set_major_locator(MaxNLocator(6))
     ax.grid(alpha=0.3, which="both")
 
 
-def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
+def _bearings(rec: Recording, fields: list[str]) -> list[Bearing]:
+    """The radial bearings among ``fields``: the machine's where the topic carries its axes (gap,
+    current, error), else the NAME_x/NAME_y pairs of the topic's own fields."""
+    machine = [b for b in rec.machine.bearings if b.x in fields and b.y in fields]
+    return machine or radial_bearings(fields)
+
+
+def draw_signal(rec: Recording, topic: str, field_name: str, clearance_m: float | None):
     """The figure of ``plot``: the time series (the waveform up to RAW_POINTS samples, beyond that
     its min-max envelope per bin, so ten seconds at 10 kHz read as amplitude over time and not as a
     solid band), the amplitude spectrum with the speed's orders when it was steady, and the
@@ -84,9 +85,10 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     Parameters
     ----------
     rec : Recording
-        With ``topic`` (and ``/amb/rotor`` for the order marks).
+        With ``topic`` (and the rotor angle for the order marks).
     topic, field_name : str
-        The signal.
+        The signal: a role, its topic (``/amb/gap``: the machine's gap wherever recorded) or any
+        topic, and a field of it.
     clearance_m : float or None
         Minimum clearance, m.
     """
@@ -95,10 +97,12 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     from ..units import RAD_S_TO_RPM
 
     plt = pyplot()
-    data = rec[topic]
+    data = rec.signals(topic)
     y = data[field_name]
     scale, unit = UNIT_SCALE.get(data.units[field_name], (1.0, data.units[field_name]))
-    partner = orbit_partner(field_name, list(data.fields))
+    bearings = _bearings(rec, list(data.fields))
+    partner = orbit_partner(field_name, bearings)
+    bearing = next((b for b in bearings if field_name in (b.x, b.y)), None)
     ncols = 4 if partner else 2
     fig, axes = plt.subplots(1, ncols, figsize=(5 * ncols, 4.2), constrained_layout=True)
     ax = axes[0]
@@ -129,8 +133,9 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
     ax.semilogy(f, np.maximum(a * scale, 1e-12), lw=0.6)
     title = "spectrum (Hann)"
     steady_rpm = None
-    if "/amb/rotor" in rec and topic != "/amb/rotor" and len(rec["/amb/rotor"]):
-        rpm = rec["/amb/rotor"]["speed"] * RAD_S_TO_RPM
+    rotor = rec.role("rotor") if rec.has_role("rotor") else None
+    if rotor is not None and rotor.topic != data.topic and len(rotor):
+        rpm = rotor["speed"] * RAD_S_TO_RPM
         lo_rpm, hi_rpm, mean = float(rpm.min()), float(rpm.max()), float(rpm.mean())
         if hi_rpm - lo_rpm <= 0.02 * max(mean, 1.0) and mean / 60.0 > 2 * (f[1] - f[0]):  # steady: mark the orders
             steady_rpm = mean
@@ -159,7 +164,7 @@ def draw_signal(rec, topic: str, field_name: str, clearance_m: float | None):
         for axis in (ax.xaxis, ax.yaxis):
             axis.set_major_locator(MaxNLocator(5))
         ax.grid(alpha=0.3)
-        _full_spectrum_panel(axes[3], data, field_name, partner, scale, unit, steady_rpm)
+        _full_spectrum_panel(axes[3], data, bearing, scale, unit, steady_rpm)
     for ax in axes:
         ax.title.set_fontsize(10)
     return fig

@@ -14,22 +14,23 @@ import click
 from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
 from ..daq.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
-from ..drivers.rigfile import load_rig
+from ..drivers.rigfile import RigFile, load_rig
 from ..errors import BadInputError
 from .options import (DURATION, POSITIVE, Output, a2l_option, measure_option, output_options, report_options, snapshot_options,
                       speed_option)
 
 
-def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: Path | None = None,
+def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFile | None = None,
                   reconnect: bool = False, live: "LiveOptions | None" = None,
                   snapshot: SnapshotOptions | None = None) -> None:
     """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim);
     with ``live``, serve the topics to Foxglove while recording; with ``snapshot``, write a file
-    around each trigger instead of one recording."""
+    around each trigger instead of one recording; ``rig``: the rig file they came from (attached,
+    its [machine] described)."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
                             compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot)
-    recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig_file,
-                        overwrite=out.overwrite)
+    recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig.path if rig else None,
+                        overwrite=out.overwrite, machine_table=rig.machine if rig else None)
     tty = sys.stderr.isatty()
     if snapshot is not None and not quiet:
         manual = "SIGUSR1" + (" or Enter" if sys.stdin.isatty() else "")
@@ -50,7 +51,7 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig_file: P
     def stopping(files: list[Path]) -> None:  # at once, so a user who pressed Ctrl-C knows it was heard
         click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
 
-    server = start_live(sources, live) if live is not None else None
+    server = start_live(sources, recorder.machine, live) if live is not None else None
     observers = [server.observe] if server is not None else []
     try:
         result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping, observers, snapped)
@@ -83,7 +84,7 @@ class LiveOptions:
     display_hz: float = 100.0
 
 
-def start_live(sources, live: LiveOptions):
+def start_live(sources, machine, live: LiveOptions):
     """The Foxglove live server for ``sources``; one line if the extra is missing or the port is taken."""
     try:
         import foxglove  # noqa: F401 (the live extra)
@@ -95,7 +96,7 @@ def start_live(sources, live: LiveOptions):
         click.echo(f"ambdaq: warning: the live view is served on {live.host}: anyone who reaches it sees the "
                    "machine's signals", err=True)
     try:
-        server = FoxgloveLive(sources, live.host, live.port, live.display_hz,
+        server = FoxgloveLive(sources, machine, live.host, live.port, live.display_hz,
                               warn=lambda text: click.echo(f"ambdaq: live: {text}", err=True))
     except RuntimeError as err:  # foxglove-sdk reports a bind failure so
         raise BadInputError(f"--live {live.port}: cannot serve on {live.host}:{live.port} ({err})") from None
@@ -127,13 +128,13 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
     from ..live.view import LiveView
     from .live import status_table
 
-    view = LiveView({s.name: s.sample_rate for s in sources})
-    observers = [view.observe, *observers]
     groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
+    view = LiveView({s.name: s.sample_rate for s in sources}, groups, recorder.machine)
+    observers = [view.observe, *observers]
     shown: list[Progress] = []
 
     def redraw(p: Progress) -> None:
-        live.update(status_table(p, shown[-1] if shown else None, view.bearings(groups)))
+        live.update(status_table(p, shown[-1] if shown else None, view.bearings()))
         shown[:] = [p]
 
     with Live(console=Console(stderr=True), refresh_per_second=2) as live:
@@ -187,7 +188,7 @@ def command(devices, rig_path, duration, speed, truth, reconnect, description, m
         for d in rig.devices if rig is not None else ():
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
                                 calibration=d.calibration, description=d.description))
-        run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json,
-                      rig_file=rig.path if rig else None, reconnect=reconnect,
+        run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json, rig=rig,
+                      reconnect=reconnect,
                       live=None if live_port is None else LiveOptions(live_port, live_host, live_rate),
                       snapshot=snapshot)

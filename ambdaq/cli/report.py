@@ -246,6 +246,7 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
       ambdaq report --stability stability.json --runup runup.mcap --coefficients coef.json \\
                     --before before.mcap --after after.mcap -o report.html --pdf report.pdf
     """
+    from ..daq.recording import open_recording
     from ..workflows.commissioning import SessionFiles, gather
 
     out = Path(output)
@@ -255,8 +256,9 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     if pdf:
         browser()  # before the work: a missing browser is one line now, not after a minute of figures
     as_path = (lambda v: Path(v) if v else None)
-    found = gather(SessionFiles(as_path(stability), as_path(runup), as_path(coefficients), as_path(before),
-                                as_path(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model))
+    opened = (lambda v: open_recording(v) if v else None)
+    found = gather(SessionFiles(as_path(stability), opened(runup), as_path(coefficients), opened(before),
+                                opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

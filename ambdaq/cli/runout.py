@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
 import click
 import numpy as np
 
-from ..daq.reader import load
+from ..daq.recording import open_recording
 from ..errors import AmbdaqError
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
 from .figures import plot_option
@@ -39,7 +38,8 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
       ambdaq runout identify slowroll.mcap -o coef.json
       ambdaq runout identify run_12k.mcap run_24k.mcap run_36k.mcap -o coef.json --plot report.png
     """
-    ident = identify_recordings([Path(f) for f in files], list(range(1, harmonics + 1)), method, max_lost=max_lost)
+    ident = identify_recordings([open_recording(f) for f in files], list(range(1, harmonics + 1)), method,
+                                max_lost=max_lost)
     coef = ident.coef
     coef.save(output, overwrite=overwrite)
     if plot_path:
@@ -96,7 +96,7 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json, max_los
       ambdaq runout check run.mcap after.mcap --min-db 20 --max-rms 5 --plot check.png
     """
     orders = list(range(1, harmonics + 1))
-    recs = [load(f, topics=["/amb/error", "/amb/gap", "/amb/rotor"]) for f in (before, after)]
+    recs = [open_recording(f) for f in (before, after)]
     result = check_recordings(*recs, orders, min_db=min_db, max_rms_um=max_rms, max_lost=max_lost)
     b, a, rows, failures = result.before, result.after, result.axes, result.failures
     if plot_path:

@@ -8,8 +8,7 @@ import numpy as np
 from ..units import RAD_S_TO_RPM
 from ..analysis.runout import synthesise
 from ..analysis.spectrum import amplitude_spectrum
-from ..daq.reader import Recording
-from ..machines.machine import radial_bearings
+from ..daq.recording import Recording
 from .figures import pyplot
 
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
@@ -66,11 +65,11 @@ def draw_identification(ident):
     harmonics = coef.harmonics
     axes = list(coef.weights)
     runout = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(harmonics))])
-    gap, rot = ident.first["/amb/gap"], ident.first["/amb/rotor"]
+    gap, rot = ident.first.role("gap"), ident.first.role("rotor")
     n = min(len(gap), len(rot))
     theta, spin = rot["angle"][:n], float(ident.spins[0])
     rpm = spin * RAD_S_TO_RPM
-    bearings = [(b.name, b.x, b.y) for b in radial_bearings(axes)]
+    bearings = [(b.name, b.x, b.y) for b in ident.first.machine.bearings if b.x in axes and b.y in axes]
     style = {}
     for b, (_name, x, y) in enumerate(bearings):
         style[x] = {"color": f"C{2 * b}", "ls": "-", "marker": "o", "mfc": f"C{2 * b}", "zorder": 2, "lw": 1.4}
@@ -135,7 +134,7 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
     Parameters
     ----------
     before, after : Recording
-        Loaded with ``/amb/error`` and ``/amb/rotor``, before and after the push.
+        With the command error and the rotor angle, before and after the push.
     harmonics : list of int
         Orders marked on the spectra.
     path : str
@@ -144,11 +143,12 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
     plt = pyplot()
     runs = {}
     for label, rec in (("before", before), ("after", after)):
-        err, rot = rec["/amb/error"], rec["/amb/rotor"]
+        err, rot = rec.role("error"), rec.role("rotor")
         n = min(len(err), len(rot))
         runs[label] = (rec.path, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
     styles = {"before": {"color": "0.55"}, "after": {"color": "C3"}}
-    bearings = [(b.name, b.x, b.y) for b in radial_bearings(list(before["/amb/error"].fields))]
+    fields = before.role("error").fields
+    bearings = [(b.name, b.x, b.y) for b in before.machine.bearings if b.x in fields and b.y in fields]
     fig, axes = plt.subplots(2, len(bearings), figsize=(6 * len(bearings), 10), constrained_layout=True, squeeze=False)
     for col, (bearing, x, y) in enumerate(bearings):
         ax = axes[0, col]

@@ -63,10 +63,11 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
       ambdaq runup runup.mcap --coefficients coef.json --model spindle --plot runup.png
       ambdaq runup coastdown.mcap --slow-roll slow.mcap --orders 1,2,3 --json
     """
+    from ..daq.recording import open_recording
     from ..workflows.runup_diagnostics import analyse
 
-    res = analyse(Path(recording), coefficients=Path(coefficients) if coefficients else None,
-                  slow_roll=Path(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
+    res = analyse(open_recording(recording), coefficients=Path(coefficients) if coefficients else None,
+                  slow_roll=open_recording(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
                   speeds=_speeds(speeds), waterfall_axis=waterfall_axis, model=model, max_lost=max_lost)
     for note in res.notes:
         click.echo(f"ambdaq: warning: {note}", err=True)

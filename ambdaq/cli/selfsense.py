@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..daq.recording import open_recording
 from ..workflows.selfsense import CONVERGED_DEG, analyse
 from .figures import plot_option, pyplot
 
@@ -38,7 +39,7 @@ def command(files, initial_error_deg, settle_s, resistance, inductance, emf_cons
       ambdaq selfsense start.mcap --sweep --plot start.png
     """
     overrides = {"resistance": resistance, "inductance": inductance, "emf_constant": emf_constant}
-    results = [analyse(f, initial_error_deg, settle_s, overrides, sweep) for f in files]
+    results = [analyse(open_recording(f), initial_error_deg, settle_s, overrides, sweep) for f in files]
     if plot_path:
         _plot(results, plot_path)
     for r in results:

@@ -1,5 +1,6 @@
-"""Recorder, MCAP layout and schemas, fast reader, recovery and export."""
+"""Recorder, MCAP layout and schemas, recordings opened once, fast reader, recovery and export."""
 
-from .reader import Recording, TopicData, load
+from .reader import TopicData
+from .recording import DeviceInfo, Recording, load, open_recording
 
-__all__ = ["Recording", "TopicData", "load"]
+__all__ = ["DeviceInfo", "Recording", "TopicData", "load", "open_recording"]

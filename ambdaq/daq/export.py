@@ -15,7 +15,8 @@ import numpy as np
 
 from ..errors import BadInputError
 from .output import check_output
-from .reader import Recording, TopicData
+from .reader import TopicData
+from .recording import Recording
 
 FORMATS = ("csv", "npz", "parquet", "mf4")
 
@@ -60,20 +61,17 @@ def labeller(table: dict[str, str]):
     return find
 
 
-def value_tables(path: Path) -> dict[str, dict[str, dict[str, str]]]:
+def value_tables(rec: Recording) -> dict[str, dict[str, dict[str, str]]]:
     """Per topic and field, the value table its device declared (a DBC's choices, an A2L's
-    TAB_VERB): ``{topic: {field: {"raw value": "text"}}}``, from the file's device metadata."""
+    TAB_VERB): ``{topic: {field: {"raw value": "text"}}}``, from the recording's devices."""
     import json
 
-    from .mcapfile import McapFile
-
-    f = McapFile(path)
-    meta = f.metadata()
     out: dict[str, dict[str, dict[str, str]]] = {}
-    for channel in f.summary.channels.values():
-        tables = meta.get(f"ambdaq.device.{channel.metadata.get('device', '')}", {}).get("value_tables")
+    for device in rec.devices.values():
+        tables = device.identity.get("value_tables")
         if tables:
-            out[channel.topic] = json.loads(tables)
+            for topic in device.topics:
+                out[topic] = json.loads(tables)
     return out
 
 

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ..errors import BadInputError
-from .reader import Recording
+from .recording import Recording
 
 METADATA_NAME = "ambdaq_metadata.json"
 PUSH_LOG_NAME = "ambdaq_push_log.json"

@@ -10,13 +10,12 @@ an option where a user may knowingly accept more.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BadInputError
-from .reader import Recording
+from .recording import Recording
 from .sequence import HALF, WRAP
 
 MAX_LOST = 0.001
@@ -60,9 +59,8 @@ class TopicCounts:
 def topic_counts(rec: Recording, topic: str) -> TopicCounts:
     """The counts the recorder wrote for ``topic`` (``ambdaq.statistics``), or, in a file without
     them (another writer's, a recovered one), the gaps in its ``seq``."""
-    stats = rec.metadata.get("ambdaq.statistics", {}).get(topic)
-    if stats:
-        s = json.loads(stats)
+    s = rec.statistics(topic)
+    if s:
         return TopicCounts(topic, int(s.get("samples", 0)), int(s.get("drops", 0)), int(s.get("restarts", 0)))
     seq = rec[topic].seq.astype(np.int64)
     step = np.diff(seq) % WRAP
@@ -145,10 +143,7 @@ def require_same_speed(recs: list[Recording], rpm: list[float], purpose: str,
 
 def machine_of(rec: Recording) -> tuple[str, str] | None:
     """(device name, serial) of the recording's controller, or None if it names no serial."""
-    for name, meta in sorted(rec.metadata.items()):
-        if name.startswith("ambdaq.device.") and meta.get("kind") == "controller" and meta.get("serial"):
-            return name.removeprefix("ambdaq.device."), meta["serial"]
-    return None
+    return next(((d.name, d.serial) for d in rec.devices.values() if d.kind == "controller" and d.serial), None)
 
 
 def require_same_machine(recs: list[Recording], purpose: str) -> None:

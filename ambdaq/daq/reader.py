@@ -1,13 +1,5 @@
-"""Fast reading of ambdaq recordings into numpy arrays.
-
->>> rec = load("run.mcap", topics=["/amb/gap"])            # doctest: +SKIP
->>> rec                                                      # doctest: +SKIP
-<Recording run.mcap: 1 topic, 10.000 s; /amb/gap 100000 samples at 10000 Hz>
->>> gap = rec["/amb/gap"]                                    # doctest: +SKIP
->>> gap.time, gap["front_x"], gap.nominal_rate               # doctest: +SKIP  (s, m, Hz)
->>> gap.to_pandas()                                          # doctest: +SKIP  (needs the pandas extra)
-
-A :class:`Recording` is a read-only mapping of topic to :class:`TopicData`.
+"""Fast reading of ambdaq's fixed-layout topics into numpy arrays (what a
+:class:`~ambdaq.daq.recording.Recording` loads a topic with).
 
 Whole chunks are decompressed and decoded through their message indexes with one strided copy
 per field; nothing is decoded message by message.
@@ -23,13 +15,11 @@ from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
 from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
-from .foreign import foreign_topics, load_foreign
 from .mcapfile import McapFile, message_view
 from .schema import TopicLayout, parse_schema
 
@@ -129,6 +119,17 @@ class TopicData:
         return (f"<TopicData {self.topic}: {len(self)} samples, {self.duration:.3f} s at {self.nominal_rate:g} Hz; "
                 f"{fields}>")
 
+    def as_role(self, fields: "Mapping[str, str]") -> "TopicData":
+        """The same samples with only the fields of ``fields`` (axis -> recorded field), named after
+        the axes: a role's view of a device's topic (no copy)."""
+        missing = [f for f in fields.values() if f not in self.fields]
+        if missing:
+            raise NotInRecording(f"{self.topic} has no field {missing[0]!r}; fields: {', '.join(self.fields)}")
+        return TopicData(self.topic, self.nominal_rate, self.log_time, self.start_ns, self.device_time, self.seq,
+                         self.status, {a: self.fields[f] for a, f in fields.items()},
+                         {a: self.units.get(f, "") for a, f in fields.items()}, self.skipped,
+                         {a: self.names.get(f, f) for a, f in fields.items() if self.names.get(f, f) != a})
+
     def to_pandas(self):
         """The fields as a pandas DataFrame indexed by ``time`` (s); ``df.attrs`` holds the topic, the
         units of each column and the nominal rate.  pandas is the ``pandas`` extra."""
@@ -139,36 +140,6 @@ class TopicData:
         df = pd.DataFrame(self.fields, index=pd.Index(self.time, name="time"))
         df.attrs = {"topic": self.topic, "units": dict(self.units), "time_unit": "s", "nominal_rate_hz": self.nominal_rate}
         return df
-
-
-@dataclass(repr=False)
-class Recording(Mapping):
-    """Topics loaded from a recording, plus its metadata: a read-only mapping of topic to
-    :class:`TopicData`."""
-
-    path: Path
-    topics: dict[str, TopicData]
-    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
-
-    def __getitem__(self, topic: str) -> TopicData:
-        try:
-            return self.topics[topic]
-        except KeyError:
-            raise NotInRecording(f"{self.path}: no topic {topic}; topics: {', '.join(self.topics)}") from None
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self.topics)
-
-    def __len__(self) -> int:
-        return len(self.topics)
-
-    def __contains__(self, topic: object) -> bool:
-        return topic in self.topics
-
-    def __repr__(self) -> str:
-        span = max((t.duration for t in self.topics.values()), default=0.0)
-        parts = "; ".join(f"{t.topic} {len(t)} samples at {t.nominal_rate:g} Hz" for t in self.topics.values())
-        return f"<Recording {self.path.name}: {len(self)} topic{'s' if len(self) != 1 else ''}, {span:.3f} s; {parts}>"
 
 
 def _nominal_rate(metadata: dict[str, dict[str, str]], topic: str) -> float | None:
@@ -223,64 +194,26 @@ def _topic_arrays(n: int, fields: int, typed: bool) -> dict[str, np.ndarray]:
     return parts
 
 
-def load(
-    path: str | Path | McapFile,
-    topics: list[str] | tuple[str, ...] | None = None,
-    *,
-    start: float | None = None,
-    end: float | None = None,
-    threads: int = READ_THREADS,
-) -> Recording:
-    """Load topics of an ambdaq recording as numpy arrays.
+def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
+               metadata: dict[str, dict[str, str]], threads: int = READ_THREADS) -> dict[str, TopicData]:
+    """Read fixed-layout topics of ``f`` in one pass over its chunks.
 
     Parameters
     ----------
-    path : str, Path or McapFile
-        MCAP file written by ambdaq (or any file using its fixed-layout schemas), or one already
-        opened (whose summary a caller has read: it is not read again).
-    topics : list of str, optional
-        Topics to load; default all ambdaq topics in the file.
-    start, end : float, optional
-        Time window, in s since the first message of the file.
+    f : McapFile
+        The file, opened.
+    wanted : dict of str to (int, SignalGroup)
+        Topic -> its channel id and group (:func:`ambdaq_channels`).
+    t0 : int
+        Host time where the recording's ``time`` starts, ns.
+    lo, hi : int or None
+        Host-time window, ns (None: open).
+    metadata : dict
+        The file's metadata (declared rates, the devices' own field names).
     threads : int
         Chunks decompressed at once (zstd lets go of the GIL); 1 where the caller is already
-        parallel over files, one process per core (``fleet scan``).
-
-    Returns
-    -------
-    Recording
-        ``rec[topic]`` is a :class:`TopicData`; ``rec.metadata`` holds the file's metadata.
-
-    Raises
-    ------
-    BadInputError
-        Not an MCAP file, truncated (``ambdaq recover`` rebuilds it), corrupted, or a topic
-        that is missing or not in ambdaq's layout.
+        parallel over files (``fleet scan``).
     """
-    f = path if isinstance(path, McapFile) else McapFile(path)
-    available = ambdaq_channels(f)
-    foreign = foreign_topics(f, set(available))
-    if topics is None:  # ambdaq's topics; in a file of another writer, every topic a decoder reads
-        wanted, others = dict(available), [] if available else list(foreign)
-        if not wanted and not others:
-            raise BadInputError(f"{f.path}: no topic ambdaq or an official decoder reads (topics: "
-                                f"{', '.join(sorted(c.topic for c in f.summary.channels.values())) or 'none'})")
-    else:
-        wanted, others = {}, []
-        for t in topics:
-            if t in available:
-                wanted[t] = available[t]
-            elif t in foreign:
-                others.append(t)
-            else:
-                known = ", ".join(sorted({*available, *foreign})) or "none"
-                raise BadInputError(f"{f.path}: no ambdaq topic {t}; topics: {known}")
-    stats = f.summary.statistics
-    t0 = stats.message_start_time if stats is not None and stats.message_count else min(
-        (ci.message_start_time for ci in f.summary.chunk_indexes), default=0
-    )
-    lo = None if start is None else t0 + int(start * 1e9)
-    hi = None if end is None else t0 + int(end * 1e9)
     chunks = sorted(f.summary.chunk_indexes, key=lambda ci: ci.message_start_time)
     chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
     by_id = {cid: (topic, TopicLayout(group)) for topic, (cid, group) in wanted.items()}
@@ -341,7 +274,6 @@ def load(
         if starts.size and np.any(out[cid]["log_time"][starts] < out[cid]["log_time"][starts - 1]):
             unordered.add(cid)
     result = {}
-    metadata = f.metadata()
     for cid, (topic, layout) in by_id.items():
         cols = out[cid]
         lt = cols["log_time"]
@@ -370,43 +302,7 @@ def load(
         )
         declared = _nominal_rate(metadata, topic)
         result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
-    for topic, cols in (load_foreign(f, others, lo, hi) if others else {}).items():
-        n = cols["log_time"].shape[0]
-        data = TopicData(topic=topic, nominal_rate=0.0, log_time=cols["log_time"], start_ns=t0,
-                         device_time=cols["device_time"], seq=cols["seq"], status=np.zeros(n, dtype=np.uint32),
-                         fields=cols["fields"], units={k: "" for k in cols["fields"]}, skipped=cols["skipped"])
-        data.nominal_rate = data.sample_rate
-        result[topic] = data
-    return Recording(f.path, result, metadata)
+    return result
 
 
-def loaded(source: str | Path | McapFile | Recording, topics: list[str]) -> Recording:
-    """``source`` itself if it is a :class:`Recording` that holds ``topics``, else ``load(source,
-    topics)``: a workflow takes either, so a caller running several on one file reads it once.
-
-    Parameters
-    ----------
-    source : str, Path, McapFile or Recording
-        A recording's path, the file opened, or the recording already loaded.
-    topics : list of str
-        Topics the caller needs.
-
-    Raises
-    ------
-    BadInputError
-        A topic is missing (from the file, or from what was loaded).
-    """
-    if not isinstance(source, Recording):
-        return load(source, topics=topics)
-    missing = [t for t in topics if t not in source]
-    if missing:
-        raise BadInputError(f"{source.path}: no ambdaq topic {missing[0]} loaded; topics: {', '.join(source) or 'none'}")
-    return source
-
-
-def source_path(source: str | Path | Recording) -> Path:
-    """The file a recording's path or a loaded :class:`Recording` came from (for messages)."""
-    return source.path if isinstance(source, Recording) else Path(source)
-
-
-__all__ = ["Recording", "TopicData", "load", "loaded", "source_path"]
+__all__ = ["NotInRecording", "READ_THREADS", "TopicData", "ambdaq_channels", "read_fixed"]

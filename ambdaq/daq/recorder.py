@@ -29,6 +29,7 @@ from .. import __version__
 from ..drivers.interfaces import Source
 from ..drivers.signals import Event, SampleBlock
 from ..errors import AmbdaqError, BadInputError, DeviceError
+from ..machines.machine import RECORD as MACHINE_RECORD, Machine
 from .clock import ClockMap
 from .mcapfile import CHUNK_SIZE
 from .output import check_output
@@ -86,6 +87,13 @@ class RecordOptions:
     snapshot: SnapshotOptions | None = None
     start_ns: int | None = None
 
+
+
+def machine_of(sources: list[Source], table: dict | None = None, where: str = "[machine]") -> Machine:
+    """The machine ``sources`` are on: what they declare (their signal groups, their calibration's
+    ``machine.*`` and ``rotor.*``) with a rig file's ``[machine]`` ``table`` over it."""
+    topics = {g.topic: g.fields for s in sources for g in s.signal_groups()}
+    return Machine.describe(topics, [s.calibration() for s in sources], table, where)
 
 
 def _freeze_heap() -> None:
@@ -273,6 +281,9 @@ class Recorder:
         The rig file, attached to every part.
     overwrite : bool
         Replace existing output files.
+    machine_table : dict, optional
+        The rig file's ``[machine]`` table: the machine description over what the devices declare
+        (:meth:`~ambdaq.machines.machine.Machine.describe`), written into every file.
 
     Notes
     -----
@@ -292,6 +303,7 @@ class Recorder:
         command: str = "",
         rig_file: Path | None = None,
         overwrite: bool = False,
+        machine_table: dict | None = None,
     ) -> None:
         if not sources:
             raise BadInputError("nothing to record: give --device or --rig")
@@ -299,6 +311,7 @@ class Recorder:
         if len(set(names)) != len(names):
             raise BadInputError(f"device names must be unique, got {', '.join(names)}")
         self.sources = sources
+        self.machine = machine_of(sources, machine_table, f"{rig_file}: [machine]" if rig_file else "[machine]")
         self.options = options
         self.command = command
         self.rig_file = rig_file
@@ -312,9 +325,9 @@ class Recorder:
         if snap is not None:
             if self._split:
                 raise BadInputError("--snapshot writes a file per trigger: it takes no --split-size or --split-duration")
-            armed = [Device(s.name, s.signal_groups(), s.calibration()) for s in sources]
+            armed = [Device(s.name, s.signal_groups()) for s in sources]
             for trigger in snap.triggers:
-                trigger.arm(armed, snap.cmin_m)
+                trigger.arm(armed, self.machine, snap.cmin_m)
             if all(s.sample_rate for s in sources):
                 self.snapshot_bound = memory_bound([(s.sample_rate, s.signal_groups()) for s in sources], snap)
             else:  # frames as they come: only the byte limit holds them
@@ -345,6 +358,7 @@ class Recorder:
             )
             for s in self.sources:
                 w.add_device(s.name, s.signal_groups(), s.identity(), s.calibration())
+            w.add_metadata(MACHINE_RECORD, self.machine.record())
             if self.rig_file is not None:
                 w.add_attachment(self.rig_file.name, "application/toml", self.rig_file.read_bytes(), start_ns)
             w.flush()  # the devices and the session on disk from the start: a crash keeps who recorded what

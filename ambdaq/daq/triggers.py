@@ -2,8 +2,9 @@
 seconds around an event to a file of its own (docs/live.md).
 
 A trigger is parsed from the text the user gives (:func:`parse_trigger`), armed against the
-devices that will be recorded (their topics, fields and calibration: an unknown field or a missing
-clearance is an error before the recording starts), then shown every written block, with its
+devices that will be recorded and their machine (their topics and fields, where the machine records
+each signal role, its clearance and amplifier limits: an unknown field or a missing clearance is an
+error before the recording starts), then shown every written block, with its
 samples on the host clock, and every event.  It fires on a rising edge: when its condition turns
 true, not for as long as it stays true, so a rotor that sits on its touchdown bearings is one
 firing, not ten thousand a second.
@@ -24,17 +25,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
-from ..machines.machine import CMIN_KEY, CURRENT_LIMIT_KEY, Machine
+from ..machines.machine import CMIN_KEY, CURRENT_LIMIT_KEY, VOLTAGE_LIMIT_KEY, Machine, Role
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
-
-VOLTAGE_LIMIT_KEY = "machine.voltage_limit_v"  # amplifier supply: the coil voltage's limit
-GAP, CURRENT, VOLTAGE, ROTOR = "/amb/gap", "/amb/current", "/amb/voltage", "/amb/rotor"
 AT_LIMIT = 0.98  # an amplifier output this close to its limit is saturated
 AT_CLEARANCE = 0.9  # a gap this close to the clearance is on the touchdown bearing
 TOUCHDOWN_WINDOW_NS = 20_000_000  # saturation and contact this close together are one touchdown
@@ -66,11 +63,10 @@ class Firing:
 
 @dataclass(frozen=True)
 class Device:
-    """What a trigger is armed against: one device's signal groups and calibration."""
+    """What a trigger is armed against: one device's signal groups."""
 
     name: str
     groups: list[SignalGroup]
-    calibration: dict[str, str]
 
     def field(self, topic: str, name: str) -> int | None:
         """Column of ``name`` in ``topic``'s samples, or None."""
@@ -88,8 +84,9 @@ class Trigger:
 
     text: str
 
-    def arm(self, devices: list[Device], cmin_m: float | None) -> None:
-        """Check that the devices carry what the trigger needs; a BadInputError names what is missing."""
+    def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
+        """Check that the devices carry what the trigger needs (the machine says where each signal
+        role is recorded); a BadInputError names what is missing."""
 
     def on_block(self, device: str, block: SampleBlock) -> list[Firing]:
         """Firings in a block of written samples (``host_time_ns`` set)."""
@@ -151,31 +148,46 @@ class ManualTrigger(Trigger):
     text = "manual"
 
 
-def _cmin(devices: list[Device], cmin_m: float | None, what: str) -> float:
+def _cmin(machine: Machine, cmin_m: float | None, what: str) -> float:
     if cmin_m is not None:
         return cmin_m
-    for d in devices:
-        if CMIN_KEY in d.calibration:
-            return float(d.calibration[CMIN_KEY])
-    raise BadInputError(f"--trigger {what}: no minimum clearance in the devices' calibration ({CMIN_KEY}): "
-                        "pass --cmin UM")
+    if machine.cmin_m is not None:
+        return machine.cmin_m
+    raise BadInputError(f"--trigger {what}: no minimum clearance in the devices' calibration ({CMIN_KEY}) or the rig "
+                        "file's [machine]: pass --cmin UM")
 
 
-def _radii(device: Device, gap: np.ndarray) -> np.ndarray:
-    """Per sample, the largest of each radial bearing's orbit radius (axes NAME_x, NAME_y) and each
-    other axis's |gap|, in m."""
-    pairs, single = _layout(tuple(device.fields(GAP)))
-    cols = [np.hypot(gap[:, i], gap[:, j]) for i, j in pairs] + [np.abs(gap[:, i]) for i in single]
-    return np.max(np.column_stack(cols), axis=1)
+@dataclass(frozen=True)
+class _GapLayout:
+    """Where the machine's gap is in one device's samples: its topic, each radial bearing's (x, y)
+    columns and every other axis's column, worked out once when armed, not for every block."""
+
+    topic: str
+    pairs: tuple[tuple[int, int], ...]
+    single: tuple[int, ...]
+
+    @classmethod
+    def of(cls, device: Device, machine: Machine) -> "_GapLayout | None":
+        role = machine.role("gap")
+        names = device.fields(role.topic) if role is not None else ()
+        if not names:
+            return None
+        col = {axis: names.index(f) for axis, f in role.fields.items()}
+        return cls(role.topic, tuple((col[b.x], col[b.y]) for b in machine.bearings),
+                   tuple(col[a] for a in machine.axes if a not in machine.bearing_axes))
+
+    def radii(self, gap: np.ndarray) -> np.ndarray:
+        """Per sample, the largest of each radial bearing's orbit radius and each other axis's |gap|, in m."""
+        cols = [np.hypot(gap[:, i], gap[:, j]) for i, j in self.pairs] + [np.abs(gap[:, i]) for i in self.single]
+        return np.max(np.column_stack(cols), axis=1)
 
 
-@lru_cache(maxsize=64)
-def _layout(names: tuple[str, ...]) -> tuple[list[tuple[int, int]], list[int]]:
-    """Column indices of each radial bearing's (x, y) and of every other axis, for gap ``names``:
-    worked out once per device, not for every block."""
-    machine = Machine.from_axes(names)
-    pairs = [(names.index(b.x), names.index(b.y)) for b in machine.bearings]
-    return pairs, [i for i, n in enumerate(names) if n not in machine.bearing_axes]
+def _role_columns(device: Device, role: Role | None) -> tuple[str, list[int]] | None:
+    """(topic, columns) of ``role``'s axes in ``device``'s samples, or None if it does not record it."""
+    if role is None or not device.fields(role.topic):
+        return None
+    names = device.fields(role.topic)
+    return role.topic, [names.index(f) for f in role.fields.values()]
 
 
 class ExcursionTrigger(Trigger):
@@ -186,18 +198,20 @@ class ExcursionTrigger(Trigger):
             raise BadInputError(f"--trigger {text}: the fraction of Cmin must be in (0, 1.5], not {fraction:g}")
         self.fraction, self.text = fraction, text
         self._edges = _Edges()
-        self._devices: dict[str, Device] = {}
+        self._gaps: dict[str, _GapLayout] = {}
 
-    def arm(self, devices: list[Device], cmin_m: float | None) -> None:
-        self._devices = {d.name: d for d in devices if d.fields(GAP)}
-        if not self._devices:
-            raise BadInputError(f"--trigger {self.text}: no device records {GAP}")
-        self.limit_m = self.fraction * _cmin(devices, cmin_m, self.text)
+    def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
+        self._gaps = {d.name: g for d in devices if (g := _GapLayout.of(d, machine)) is not None}
+        if not self._gaps:
+            raise BadInputError(f"--trigger {self.text}: no device records the gap (/amb/gap, or the rig file's "
+                                "[machine] gap)")
+        self.limit_m = self.fraction * _cmin(machine, cmin_m, self.text)
 
     def on_block(self, device: str, block: SampleBlock) -> list[Firing]:
-        if device not in self._devices or GAP not in block.values:
+        layout = self._gaps.get(device)
+        if layout is None or layout.topic not in block.values:
             return []
-        r = _radii(self._devices[device], block.values[GAP])
+        r = layout.radii(block.values[layout.topic])
         return [Firing(int(block.host_time_ns[i]), "excursion",
                        f"{device}: gap {r[i] * 1e6:.1f} um beyond {self.limit_m * 1e6:.1f} um "
                        f"({self.fraction:g} Cmin)")
@@ -216,46 +230,46 @@ class TouchdownTrigger(Trigger):
             if m is None:
                 raise BadInputError(f"--trigger {text}: the limit is a current or a voltage, e.g. touchdown:8A "
                                     "or touchdown:25V")
-            self._given = (CURRENT if m.group(2) == "A" else VOLTAGE, float(m.group(1)))
+            self._given = ("current" if m.group(2) == "A" else "voltage", float(m.group(1)))
         self._edges = _Edges()
         self._last_contact: int | None = None  # host time of the last sample at the clearance, ns
         self._last_saturation: int | None = None  # and of the last at an amplifier limit
-        self._devices: dict[str, Device] = {}
+        self._gaps: dict[str, _GapLayout] = {}
 
-    def arm(self, devices: list[Device], cmin_m: float | None) -> None:
-        self.clearance_m = _cmin(devices, cmin_m, self.text)
-        self._devices = {d.name: d for d in devices}
-        self._limits: dict[str, tuple[str, float]] = {}
+    def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
+        self.clearance_m = _cmin(machine, cmin_m, self.text)
+        self._gaps = {d.name: g for d in devices if (g := _GapLayout.of(d, machine)) is not None}
+        # device -> (topic, columns, limit): the amplifier outputs (current or voltage) and their limit
+        self._limits: dict[str, tuple[str, list[int], float]] = {}
+        known = (("current", machine.current_limit_a), ("voltage", machine.voltage_limit_v))
         for d in devices:
-            if self._given is not None:
-                if d.fields(self._given[0]):
-                    self._limits[d.name] = self._given
-            elif CURRENT_LIMIT_KEY in d.calibration and d.fields(CURRENT):
-                self._limits[d.name] = (CURRENT, float(d.calibration[CURRENT_LIMIT_KEY]))
-            elif VOLTAGE_LIMIT_KEY in d.calibration and d.fields(VOLTAGE):
-                self._limits[d.name] = (VOLTAGE, float(d.calibration[VOLTAGE_LIMIT_KEY]))
+            for role, limit in [self._given] if self._given is not None else known:
+                where = _role_columns(d, machine.role(role))
+                if where is not None and limit is not None:
+                    self._limits[d.name] = (*where, limit)
+                    break
         if not self._limits:
             raise BadInputError(f"--trigger {self.text}: no amplifier limit in the devices' calibration "
-                                f"({CURRENT_LIMIT_KEY} with {CURRENT}, or {VOLTAGE_LIMIT_KEY} with {VOLTAGE}): "
-                                "give it, e.g. touchdown:8A or touchdown:25V")
-        if not any(d.fields(GAP) for d in devices):
-            raise BadInputError(f"--trigger {self.text}: no device records {GAP}")
+                                f"({CURRENT_LIMIT_KEY} with the coil currents, or {VOLTAGE_LIMIT_KEY} with the coil "
+                                "voltages) or the rig file's [machine]: give it, e.g. touchdown:8A or touchdown:25V")
+        if not self._gaps:
+            raise BadInputError(f"--trigger {self.text}: no device records the gap (/amb/gap, or the rig file's "
+                                "[machine] gap)")
 
     def on_block(self, device: str, block: SampleBlock) -> list[Firing]:
-        d = self._devices.get(device)
-        if d is None:
+        layout, limit = self._gaps.get(device), self._limits.get(device)
+        if layout is None and limit is None:
             return []
         t = block.host_time_ns
         never = np.full(t.shape, NEVER, dtype=np.int64)
         contact = saturation = never
-        if GAP in block.values:
-            contact = self._latest(t, _radii(d, block.values[GAP]) >= AT_CLEARANCE * self.clearance_m,
+        if layout is not None and layout.topic in block.values:
+            contact = self._latest(t, layout.radii(block.values[layout.topic]) >= AT_CLEARANCE * self.clearance_m,
                                    self._last_contact)
         elif self._last_contact is not None:
             contact = np.full(t.shape, self._last_contact, dtype=np.int64)
-        limit = self._limits.get(device)
         if limit is not None and limit[0] in block.values:
-            saturated = np.max(np.abs(block.values[limit[0]]), axis=1) >= AT_LIMIT * limit[1]
+            saturated = np.max(np.abs(block.values[limit[0]][:, limit[1]]), axis=1) >= AT_LIMIT * limit[2]
             saturation = self._latest(t, saturated, self._last_saturation)
         elif self._last_saturation is not None:
             saturation = np.full(t.shape, self._last_saturation, dtype=np.int64)
@@ -286,15 +300,19 @@ class SpeedTrigger(Trigger):
         self._edges = _Edges(entering=True)
         self._column: dict[str, int] = {}
 
-    def arm(self, devices: list[Device], cmin_m: float | None) -> None:
-        self._column = {d.name: c for d in devices if (c := d.field(ROTOR, "speed")) is not None}
+    def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
+        role = machine.role("rotor")
+        self._topic = role.topic if role is not None else ""
+        self._column = {d.name: c for d in devices if role is not None
+                        and (c := d.field(role.topic, role.fields["speed"])) is not None}
         if not self._column:
-            raise BadInputError(f"--trigger {self.text}: no device records {ROTOR} speed (the key-phasor's)")
+            raise BadInputError(f"--trigger {self.text}: no device records the rotor speed (the key-phasor's: "
+                                "/amb/rotor speed, or the rig file's [machine] rotor)")
 
     def on_block(self, device: str, block: SampleBlock) -> list[Firing]:
-        if device not in self._column or ROTOR not in block.values:
+        if device not in self._column or self._topic not in block.values:
             return []
-        rpm = block.values[ROTOR][:, self._column[device]] * RAD_S_TO_RPM
+        rpm = block.values[self._topic][:, self._column[device]] * RAD_S_TO_RPM
         inside = (rpm >= self.lo) & (rpm <= self.hi)
         return [Firing(int(block.host_time_ns[i]), f"speed-{self.lo:.0f}-{self.hi:.0f}",
                        f"{device}: {rpm[i]:.0f} rpm entered {self.lo:.0f}..{self.hi:.0f} rpm")
@@ -310,7 +328,7 @@ class ThresholdTrigger(Trigger):
         self._edges = _Edges()
         self._column: dict[str, int] = {}
 
-    def arm(self, devices: list[Device], cmin_m: float | None) -> None:
+    def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
         self._column = {d.name: c for d in devices if (c := d.field(self.topic, self.field_name)) is not None}
         if not self._column:
             known = sorted({f"{g.topic}.{f}" for d in devices for g in d.groups for f in g.fields})

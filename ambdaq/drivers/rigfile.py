@@ -13,6 +13,11 @@
     [device.calibration]          # optional, stored in the recording's metadata
     note = "sensor gains from 2026-11-01 slow roll"
 
+    [machine]                     # optional: the machine the devices are on (docs/device-urls.md)
+    id = "blower-7"
+    min_clearance_m = 150e-6
+    gap.de_x = "/probes/probes.probe_1"   # which recorded field is which bearing's gap
+
 A device described by a file no one here wrote adds its description (docs/hardware.md), in the
 keys its back-end declares (``Backend.description_keys``): a DBC device ``dbc``, ``messages``,
 ``counters``, ``rates``, ``raw``; a CANopen device from its vendor's EDS ``eds``, ``mapping`` and
@@ -51,11 +56,13 @@ BASE_KEYS = ("name", "url", "rpm", "unlock_key", "calibration")
 
 @dataclass(frozen=True)
 class RigFile:
-    """A parsed rig file."""
+    """A parsed rig file: its devices, and its ``[machine]`` table as written (checked against the
+    devices' topics when they are recorded: :meth:`ambdaq.machines.machine.Machine.describe`)."""
 
     path: Path
     name: str
     devices: tuple[DeviceEntry, ...]
+    machine: dict | None = None
 
 
 def check_keys(table: dict, allowed: tuple[str, ...], where: str) -> None:
@@ -79,9 +86,13 @@ def load_rig(path: str | Path) -> RigFile:
         raise BadInputError(f"{path}: not a valid TOML rig file ({err})") from None
     except RecursionError:
         raise BadInputError(f"{path}: not a rig file: tables or arrays nested too deep") from None
-    unknown = sorted(set(doc) - {"name", "device"})
+    unknown = sorted(set(doc) - {"name", "device", "machine"})
     if unknown:
-        raise BadInputError(f"{path}: unknown key {unknown[0]!r}; a rig file has 'name' and [[device]] tables")
+        raise BadInputError(f"{path}: unknown key {unknown[0]!r}; a rig file has 'name', [[device]] tables and "
+                            "a [machine] table")
+    machine = doc.get("machine")
+    if machine is not None and not isinstance(machine, dict):
+        raise BadInputError(f"{path}: machine must be a table ([machine])")
     entries = doc.get("device")
     if not isinstance(entries, list) or not entries:
         raise BadInputError(f"{path}: no [[device]] tables")
@@ -109,7 +120,7 @@ def load_rig(path: str | Path) -> RigFile:
     names = [d.name for d in devices]
     if len(set(names)) != len(names):
         raise BadInputError(f"{path}: device names must be unique ({', '.join(names)})")
-    return RigFile(path, str(doc.get("name", path.stem)), tuple(devices))
+    return RigFile(path, str(doc.get("name", path.stem)), tuple(devices), machine)
 
 
 def _description(entry: dict, known: Backend, folder: Path, where: str) -> dict:

@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..machines.machine import radial_bearings
+from ..machines.machine import Machine
 from .view import LiveView
 
 DERIVED_HZ = 5.0  # the derived topics' rate
@@ -65,6 +65,9 @@ class FoxgloveLive:
     ----------
     sources : list of Source
         The recording's devices (their signal groups become the channels).
+    machine : Machine
+        Their machine: where its gap and rotor angle are recorded, its radial bearings (the
+        derived orbit and 1X topics).
     host : str
         Address to bind (127.0.0.1 unless the user asks otherwise).
     port : int
@@ -75,7 +78,7 @@ class FoxgloveLive:
         Where what a viewer's failed connection means is said, once (the command line's stderr).
     """
 
-    def __init__(self, sources, host: str, port: int, display_hz: float = 100.0, *,
+    def __init__(self, sources, machine: Machine, host: str, port: int, display_hz: float = 100.0, *,
                  warn: Callable[[str], None] = lambda text: None) -> None:
         import foxglove
 
@@ -100,10 +103,10 @@ class FoxgloveLive:
                                                        message_encoding="json", context=self._context)
                 self._fields[key] = list(g.fields)
         self._next: dict[str, int] = {}
-        self.view = LiveView({s.name: s.sample_rate for s in sources})
+        self.view = LiveView({s.name: s.sample_rate for s in sources}, self._groups, machine)
         # every channel is advertised from the start, so a client that connects early sees the orbits
-        # without waiting for a new advertisement (bearings: the gap's NAME_x/NAME_y pairs)
-        bearings = sorted({b.name for groups in self._groups.values() for b in radial_bearings(groups.get("/amb/gap", []))})
+        # without waiting for a new advertisement
+        bearings = sorted(b.name for b in machine.bearings)
         self._derived = {name: foxglove.Channel(name, message_encoding="json", context=self._context)
                          for name in ("/live/1x", "/live/speed", *(f"/live/orbit/{b}" for b in bearings))}
         self._stop = threading.Event()
@@ -135,7 +138,7 @@ class FoxgloveLive:
         while not self._stop.wait(1.0 / DERIVED_HZ):
             now = time.time_ns()
             speeds = {}
-            for b in self.view.bearings(self._groups):
+            for b in self.view.bearings():
                 if b.one_x is not None:
                     for axis, v in zip(("x", "y"), b.one_x):
                         self._derived["/live/1x"].log(

@@ -15,11 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..analysis.runout import harmonic_fit
-from ..machines.machine import radial_bearings
+from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 
 WINDOW_S = 0.2  # the window the gap figures are computed over: 100 revolutions at 30,000 rpm
-GAP, ROTOR = "/amb/gap", "/amb/rotor"
 ORBIT_POINTS = 400  # an orbit's points on the live view
 
 
@@ -32,7 +31,7 @@ class BearingStatus:
     device : str
         The device that measures it.
     bearing : str
-        ``front``, ``rear`` ...: the axes ``NAME_x`` and ``NAME_y``.
+        ``front``, ``rear``, ``de`` ...: the machine's radial bearing.
     dc_um : tuple of float
         Mean gap of x and y, in um.
     one_x : tuple of complex or None
@@ -58,16 +57,31 @@ class BearingStatus:
 
 
 class LiveView:
-    """The recent gap and rotor blocks of each device, and the figures computed from them."""
+    """The recent gap and rotor blocks of each device, and the figures computed from them.
 
-    def __init__(self, rates: dict[str, float | None], window_s: float = WINDOW_S) -> None:
-        """``rates``: each device's sample rate (Hz; None for a device without one, not shown)."""
+    Parameters
+    ----------
+    rates : dict of str to float or None
+        Each device's sample rate, Hz (None for a device without one, not shown).
+    groups : dict
+        Device -> topic -> field names, as its signal groups give them.
+    machine : Machine
+        Where the gap and the rotor angle are recorded, and the radial bearings.
+    window_s : float
+        The window the figures are computed over, s.
+    """
+
+    def __init__(self, rates: dict[str, float | None], groups: dict[str, dict[str, list[str]]], machine: Machine,
+                 window_s: float = WINDOW_S) -> None:
         self.window = {d: int(round(r * window_s)) for d, r in rates.items() if r}
+        self.groups, self.machine = groups, machine
+        gap = machine.role("gap")
+        self._gap = gap.topic if gap is not None else None
         self._blocks: dict[str, deque] = {}
 
     def observe(self, device: str, block) -> None:
         """Keep a received block that carries the gap (called by the recorder for every block)."""
-        if GAP not in block.values or len(block) == 0 or device not in self.window:
+        if self._gap not in block.values or len(block) == 0 or device not in self.window:
             return
         ring = self._blocks.setdefault(device, deque())
         ring.append(block)
@@ -75,31 +89,26 @@ class LiveView:
         while len(ring) > 1 and held - len(ring[0]) >= self.window[device]:
             held -= len(ring.popleft())
 
-    def bearings(self, groups: dict[str, dict[str, list[str]]]) -> list[BearingStatus]:
-        """The status of every radial bearing (axes ``NAME_x``, ``NAME_y``) of every device.
-
-        Parameters
-        ----------
-        groups : dict
-            Device -> topic -> field names, as its signal groups give them (``/amb/gap``, and
-            ``/amb/rotor`` with ``angle`` in rad and ``speed`` in rad/s).
-        """
+    def bearings(self) -> list[BearingStatus]:
+        """The status of every radial bearing of the machine, from the device that records its gap."""
         out = []
+        gap_role, rot_role = self.machine.role("gap"), self.machine.role("rotor")
         for device, ring in self._blocks.items():
             blocks = list(ring)  # the recorder's thread may append meanwhile
-            names = groups.get(device, {}).get(GAP)
-            rotor = groups.get(device, {}).get(ROTOR, [])
+            names = self.groups.get(device, {}).get(self._gap)
+            rotor = self.groups.get(device, {}).get(rot_role.topic, []) if rot_role is not None else []
             if not blocks or not names:
                 continue
             recent = slice(-self.window[device], None)
-            gap = np.concatenate([b.values[GAP] for b in blocks])[recent]
+            gap = np.concatenate([b.values[self._gap] for b in blocks])[recent]
             theta = speed = None
-            if "angle" in rotor and "speed" in rotor and all(ROTOR in b.values for b in blocks):
-                rot = np.concatenate([b.values[ROTOR] for b in blocks])[recent]
-                theta, speed = np.unwrap(rot[:, rotor.index("angle")]), rot[:, rotor.index("speed")]
-            for b in sorted(radial_bearings(names), key=lambda b: b.name):
+            angle, rate = (rot_role.fields["angle"], rot_role.fields["speed"]) if rot_role is not None else ("", "")
+            if angle in rotor and rate in rotor and all(rot_role.topic in b.values for b in blocks):
+                rot = np.concatenate([b.values[rot_role.topic] for b in blocks])[recent]
+                theta, speed = np.unwrap(rot[:, rotor.index(angle)]), rot[:, rotor.index(rate)]
+            for b in sorted(self.machine.bearings, key=lambda b: b.name):
                 bearing = b.name
-                cols = gap[:, [names.index(b.x), names.index(b.y)]]
+                cols = gap[:, [names.index(gap_role.fields[b.x]), names.index(gap_role.fields[b.y])]]
                 one_x = None
                 if theta is not None and theta[-1] - theta[0] >= 2 * np.pi:
                     one_x = tuple(complex(v) * 1e6 for v in harmonic_fit(cols, theta, (1,))[0])

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..analysis.lms import OneAxis
+from ..analysis.rotor import RigidRotor
 from ..units import GRAVITY
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")  # bearing coordinates, gap sensors co-located
@@ -137,15 +139,16 @@ class SpindleParams:
         """Runout as sin and cos coefficients: R sin(k theta + phi) = A sin k theta + B cos k theta."""
         return self.runout_amp * np.cos(self.runout_phase), self.runout_amp * np.sin(self.runout_phase)
 
+    @property
+    def rotor(self) -> RigidRotor:
+        """The rigid rotor on its five bearing axes (one model for the simulator and the analysis)."""
+        return RigidRotor(self.mass, self.jt, self.jp, self.a, self.b, tuple(ax.kx for ax in self.axes),
+                          tuple(ax.ki for ax in self.axes))
+
     def rotor_metadata(self) -> dict[str, str]:
         """The rotor model as ``rotor.*`` calibration entries (docs/coefficients.md): what runout
         identification needs to tell rotor motion from runout."""
-        return {
-            "rotor.mass_kg": repr(self.mass), "rotor.jt_kgm2": repr(self.jt), "rotor.jp_kgm2": repr(self.jp),
-            "rotor.a_m": repr(self.a), "rotor.b_m": repr(self.b),
-            "rotor.kx_n_per_m": ",".join(repr(ax.kx) for ax in self.axes),
-            "rotor.ki_n_per_a": ",".join(repr(ax.ki) for ax in self.axes),
-        }
+        return self.rotor.metadata()
 
     def bearing_gravity(self) -> np.ndarray:
         """Static gravity load per axis in bearing coordinates, in N (negative: downwards)."""
@@ -163,3 +166,17 @@ SPINDLE = SpindleParams()
 ONE_AXIS_MASS = 1.5
 """kg: the mass of Ro et al.'s one-axis model (eq. 1), as the paper prints it; the rotor's tilt
 mode has Jt / (2 a^2) = 1.496 kg per bearing with a = b = 0.11 m (why we took that span)."""
+
+
+def one_axis_loop(axis: BearingAxis, p: SpindleParams = SPINDLE) -> OneAxis:
+    """Ro et al.'s one-axis loop of one of the spindle's bearing axes (m = 1.5 kg, eq. 1; the
+    sensor, derivative filter and control rate of ``p``)."""
+    return OneAxis(m=ONE_AXIS_MASS, ki=axis.ki, kx=axis.kx, ks=p.sensor_gain, amp_gain=axis.amp_gain,
+                   amp_wn_hz=axis.amp_wn_hz, amp_zeta=axis.amp_zeta, p=axis.pid_p, i=axis.pid_i, d=axis.pid_d,
+                   nd=p.derivative_filter, h=1.0 / p.sample_rate)
+
+
+FRONT_LOOP = one_axis_loop(SPINDLE.front)
+"""Ro et al.'s front bearing: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us."""
+REAR_LOOP = one_axis_loop(SPINDLE.rear)
+"""The same for the rear bearing (D 0.002, amplifier 2,500 Hz)."""

@@ -44,6 +44,9 @@ class Profile:
         Its rotordynamic model's lightly damped modes at a speed: ``modes(rpm)`` (rpm) gives
         frequencies (Hz), damping ratios and whirl (+1 forward, -1 backward, 0 not known), each an
         array sorted by frequency (``runup --model NAME``); None: the profile has no such model.
+    lms : DesignModels or None
+        The loops its LMS feedforward is designed on (``ambdaq lms --plant``,
+        :class:`~ambdaq.analysis.lms.DesignModels`); None: it has none.
     """
 
     name: str
@@ -52,6 +55,7 @@ class Profile:
     can: bool = False
     shaker: bool = False
     modes: Any = None
+    lms: Any = None
 
     @property
     def served(self) -> bool:

@@ -15,9 +15,8 @@ import numpy as np
 from ..analysis.runout import harmonic_fit
 from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import Recording, loaded
+from ..daq.recording import Recording
 from ..errors import BadInputError
-from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 from .runout import runout_at
 
@@ -43,9 +42,9 @@ class Apht:
         The gap's vectors, m (``a + j b`` for ``a sin + b cos`` of the key-phasor angle), runout
         taken out where a coefficient file was given.
     error : ndarray of complex or None
-        The command error's (``/amb/error``), m, where recorded.
+        The command error's (role ``error``), m, where recorded.
     feedforward : ndarray of complex or None
-        The feedforward output's (``/amb/ff``), in its unit, where recorded.
+        The feedforward output's (role ``ff``), in its unit, where recorded.
     ff_unit : str
         Its unit.
     compensation : str
@@ -63,14 +62,15 @@ class Apht:
     compensation: str
 
 
-def apht(source: Path | Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficients: Path | None = None,
+def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficients: Path | None = None,
          max_lost: float = MAX_LOST) -> Apht:
     """The APHT of a steady recording (see the module docstring).
 
     Parameters
     ----------
-    source : Path or Recording
-        With ``/amb/gap`` and ``/amb/rotor`` (``/amb/error`` and ``/amb/ff`` used where present).
+    rec : Recording
+        With the gap and the rotor angle (roles ``gap``, ``rotor``; ``error`` and ``ff`` used where
+        present).
     orders : sequence of int
         Orders tracked.
     window_s : float
@@ -80,24 +80,19 @@ def apht(source: Path | Recording, *, orders=(1,), window_s: float = WINDOW_S, c
     max_lost : float
         The share of samples (0..1) the recording may have lost (:mod:`ambdaq.daq.quality`).
     """
-    rec = source if isinstance(source, Recording) else None
-    if rec is None:
-        from ..daq.mcapfile import McapFile
-        from ..daq.reader import ambdaq_channels
-
-        present = ambdaq_channels(McapFile(source))
-        rec = loaded(source, ["/amb/gap", "/amb/rotor"] + [t for t in ("/amb/error", "/amb/ff") if t in present])
-    if "/amb/rotor" not in rec:
+    if not rec.has_role("rotor"):
         raise BadInputError(f"{rec.path}: no rotor angle (/amb/rotor): APHT needs the key-phasor")
-    require_complete(rec, [t for t in ("/amb/gap", "/amb/rotor", "/amb/error", "/amb/ff") if t in rec], "APHT", max_lost)
-    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    roles = [r for r in ("gap", "rotor", "error", "ff") if rec.has_role(r)]
+    rec.load_roles(roles)
+    require_complete(rec, [rec.role(r).topic for r in roles], "APHT", max_lost)
+    gap, rot = rec.role("gap"), rec.role("rotor")
     n = min(len(gap), len(rot))
     speed = rot["speed"][:n] * RAD_S_TO_RPM
     rpm = float(np.median(speed))
     if rpm <= 0 or np.max(np.abs(speed - rpm)) > STEADY * rpm:
         raise BadInputError(f"{rec.path}: APHT is of one speed; this recording runs from {speed.min():,.0f} to "
                             f"{speed.max():,.0f} rpm (ambdaq runup tracks a run-up)")
-    axes = list(Machine.from_metadata(list(gap.fields), rec.metadata).radial)
+    axes = list(rec.machine.radial)
     theta = rot["angle"][:n]
     x = np.column_stack([gap[a][:n] for a in axes])
     compensation = "none (the sensor signal as recorded)"
@@ -113,14 +108,13 @@ def apht(source: Path | Recording, *, orders=(1,), window_s: float = WINDOW_S, c
     def vectors(signal: np.ndarray) -> np.ndarray:
         return np.array([harmonic_fit(signal[s:s + size], theta[s:s + size], orders) for s in starts])
 
-    def of(topic: str) -> np.ndarray | None:
-        if topic not in rec or not all(a in rec[topic].fields for a in axes):
+    def of(role: str) -> np.ndarray | None:
+        if role not in roles or not all(a in rec.role(role).fields for a in axes):
             return None
-        return vectors(np.column_stack([rec[topic][a][:n] for a in axes]))
+        return vectors(np.column_stack([rec.role(role)[a][:n] for a in axes]))
 
-    ff_unit = rec["/amb/ff"].units.get(axes[0], "") if "/amb/ff" in rec else ""
-    return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("/amb/error"), of("/amb/ff"), ff_unit,
-                compensation)
+    ff_unit = rec.role("ff").units.get(axes[0], "") if "ff" in roles else ""
+    return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation)
 
 
 __all__ = ["Apht", "WINDOW_S", "apht"]

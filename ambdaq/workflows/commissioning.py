@@ -10,8 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..daq.coefficients import file_sha256
-from ..daq.mcapfile import McapFile
-from ..daq.reader import load
+from ..daq.recording import Recording, open_recording
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .push import push_log_entries
@@ -28,11 +27,11 @@ class SessionFiles:
     ----------
     stability : Path or None
         ``ambdaq iso stability -o`` results.
-    runup : Path or None
+    runup : Recording or None
         A run-up or coast-down recording (ISO 14839-2 zones, order tracking).
     coefficients : Path or None
         The runout coefficient file that was pushed (its runout is taken out of the run-up).
-    before, after : Path or None
+    before, after : Recording or None
         Recordings at one speed before and after the push.
     push_log : Path or None
         The host's push log (JSON lines); default: this machine's, if it exists.
@@ -44,38 +43,35 @@ class SessionFiles:
     """
 
     stability: Path | None = None
-    runup: Path | None = None
+    runup: Recording | None = None
     coefficients: Path | None = None
-    before: Path | None = None
-    after: Path | None = None
+    before: Recording | None = None
+    after: Recording | None = None
     push_log: Path | None = None
     cmin_m: float | None = None
     model: str | None = None
 
 
-def machine_identity(paths: list[Path]) -> dict:
+def machine_identity(recs: list[Recording]) -> dict:
     """The devices the session's recordings were made with, each once (kind, model, serial,
     firmware, URL) with the recordings it is in, and when and where each recording was made.
 
     Parameters
     ----------
-    paths : list of Path
+    recs : list of Recording
         The session's recordings (run-up, before, after, the stability runs).
     """
     devices: dict[tuple, dict] = {}
     recordings = []
-    for path in paths:
-        meta = McapFile(path).metadata()
-        session = meta.get("ambdaq.session", {})
-        recordings.append({"recording": str(path), "start_time": session.get("start_time", ""),
+    for rec in recs:
+        session = rec.session
+        recordings.append({"recording": str(rec.path), "start_time": session.get("start_time", ""),
                            "ambdaq_version": session.get("ambdaq_version", ""), "host": session.get("host", "")})
-        for name, m in meta.items():
-            if not name.startswith("ambdaq.device."):
-                continue
-            ident = {k: v for k, v in m.items() if k in IDENTITY_KEYS}
-            key = (name, ident.get("serial"), ident.get("model"), ident.get("url"))
-            entry = devices.setdefault(key, {"device": name.removeprefix("ambdaq.device."), **ident, "recordings": []})
-            entry["recordings"].append(path.name)
+        for d in rec.devices.values():
+            ident = {k: v for k, v in d.identity.items() if k in IDENTITY_KEYS}
+            key = (d.name, ident.get("serial"), ident.get("model"), ident.get("url"))
+            entry = devices.setdefault(key, {"device": d.name, **ident, "recordings": []})
+            entry["recordings"].append(rec.path.name)
     return {"devices": list(devices.values()), "recordings": recordings}
 
 
@@ -108,10 +104,12 @@ def gather(files: SessionFiles) -> Commissioning:
     if (files.before is None) != (files.after is None):
         raise BadInputError("--before and --after go together: the runout check compares the two")
     doc = iso_stability.load_results(files.stability) if files.stability else None
-    inputs = [p for p in (files.runup, files.before, files.after) if p is not None]
-    inputs += [Path(r.source["path"]) for r in (doc.runs if doc else []) if r.source.get("path")]
-    inputs = [p for p in dict.fromkeys(inputs) if p.is_file()]  # each once; runs moved away are not read
-    out: dict = {"machine": machine_identity(inputs) if inputs else None}
+    inputs = {r.path.resolve(): r for r in (files.runup, files.before, files.after) if r is not None}
+    for run in doc.runs if doc else []:  # each once; runs moved away are not read
+        path = Path(run.source.get("path") or "")
+        if run.source.get("path") and path.is_file() and path.resolve() not in inputs:
+            inputs[path.resolve()] = open_recording(path)
+    out: dict = {"machine": machine_identity(list(inputs.values())) if inputs else None}
     out["stability"] = None if doc is None else {
         "file": str(files.stability), "limits_peak_gs": list(doc.limits_peak_gs), "min_coherence": doc.min_coherence,
         "rows": [{"speed_rpm": r.speed_rpm, "axis": r.axis, "peak": r.peak, "peak_db": r.peak_db, "peak_hz": r.peak_hz,
@@ -136,14 +134,15 @@ def gather(files: SessionFiles) -> Commissioning:
         diag = None
         out["vibration"] = out["runup"] = None
     if files.before:
-        check = check_recordings(load(files.before), load(files.after), [1, 2])
+        check = check_recordings(files.before, files.after, [1, 2])
         notes += check.notes
         out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
     else:
         out["runout"] = None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})
-    out["files"] = {k: str(v) for k, v in vars(files).items() if isinstance(v, Path)}
+    out["files"] = {k: str(v.path if isinstance(v, Recording) else v) for k, v in vars(files).items()
+                    if isinstance(v, (Path, Recording))}
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag)
 

@@ -1,11 +1,17 @@
 """A fleet's recordings as one table: one row per recording (or split part), computed in parallel on
-Dask (docs/fleet.md).
+Dask (docs/fleet.md), for any machine.
 
 :func:`scan_recording` is one file's row, made by the same library calls as the single-file
 commands (``runout identify``: :func:`~.runout.identify_recordings`; ``iso vibration``:
-:func:`~.iso_vibration.evaluate`), so the fleet has no second implementation of either.
-:func:`scan` runs it as one Dask task per file on whatever cluster the caller's client reaches and
-writes each row, as it comes back, to a Parquet dataset partitioned by machine
+:func:`~.iso_vibration.evaluate`), so the fleet has no second implementation of either.  A
+machine's axes and bearings are its own (the recording's :class:`~ambdaq.machines.machine.Machine`):
+a row holds them as lists, ``axes`` (per gap axis: 1X, runout per harmonic) and ``bearings`` (per
+radial bearing: orbit, ratio, zone), so a spindle's five axes and a blower's ``de``/``nde``/``thrust``
+sit in one dataset.  :func:`read` gives the rows flat, a column per machine axis
+(``onex_<axis>_um``, ``runout_<axis>_<k>x_um``, ``vibration_<bearing>_um`` ...).
+
+:func:`scan` runs it as Dask tasks on whatever cluster the caller's client reaches and writes each
+row where its task runs, to a Parquet dataset partitioned by machine
 (``DATASET/machine=M/<key>.parquet``, one small file per recording, written to a temporary name and
 renamed, so an interrupted scan leaves only whole rows).  A second scan skips every file whose size
 and modification time are unchanged, and re-reads (by SHA-256) one whose time moved.
@@ -14,7 +20,6 @@ and modification time are unchanged, and re-reads (by SHA-256) one whose time mo
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import signal
@@ -29,41 +34,31 @@ import numpy as np
 
 from ..analysis.runout import harmonic_fit
 from ..daq.coefficients import file_sha256
-from ..daq.mcapfile import MAGIC, McapFile
-from ..daq.reader import READ_THREADS, ambdaq_channels, load
+from ..daq.mcapfile import MAGIC
+from ..daq.reader import READ_THREADS
+from ..daq.recording import Recording
 from ..errors import AmbdaqError, BadInputError
-from ..machines.machine import radial_bearings
-from ..machines.spindle import AXES
 from ..units import RAD_S_TO_RPM
 from .iso_vibration import evaluate
 from .runout import identify_recordings
 
 HARMONICS = (1, 2, 3, 4)  # the runout orders kept per axis: Ro et al.'s largest
-BEARINGS = tuple(b.name for b in radial_bearings(AXES))  # the dataset's columns: the spindle's (docs/fleet.md)
 BAND_RPM = 1000.0  # iso vibration's default speed band
 WRITING_S = 60.0  # a file without its footer that changed this recently is being written, not truncated
-MACHINE_KEY = "machine.id"  # in a device's calibration (a rig file's [device.calibration]); else the serial
 COEFFICIENTS_KEY = "active_coefficients_sha256"  # in a device's identity: the coefficient file it runs
 PARTITION = "machine"
 TASKS_PER_WORKER = 8  # a scan's files are cut into this many tasks per worker: balance against scheduling
+AXIS_FIELDS = ("onex_um", "onex_deg", *(f"runout_{k}x_{u}" for k in HARMONICS for u in ("um", "deg")))
+"""What a row says of each gap axis (beside its name and bearing): the 1X vector from the
+key-phasor, and the sensor runout per harmonic (``runout identify``)."""
+BEARING_FIELDS = ("vibration_um", "ratio")  # and "zone": the worst band of ``iso vibration`` per bearing
 
 
-def _machine(meta: dict[str, dict[str, str]]) -> str:
-    """Machine id: a device's ``machine.id`` calibration, else the controller's serial, else the host."""
-    for name, m in meta.items():
-        if name.startswith("ambdaq.calibration.") and m.get(MACHINE_KEY):
-            return m[MACHINE_KEY]
-    for name, m in meta.items():
-        if name.startswith("ambdaq.device.") and m.get("serial"):
-            return f"serial-{m['serial']}"
-    return meta.get("ambdaq.session", {}).get("host") or "unknown"
-
-
-def _counts(meta: dict[str, dict[str, str]]) -> tuple[int, int]:
+def _counts(rec: Recording) -> tuple[int, int]:
     """Drops and duplicates summed over the recording's devices (each device's are on all its topics)."""
     per_device: dict[str, tuple[int, int]] = {}
-    for stats in meta.get("ambdaq.statistics", {}).values():
-        s = json.loads(stats)
+    for topic in rec.metadata.get("ambdaq.statistics", {}):
+        s = rec.statistics(topic)
         per_device[s["device"]] = (int(s.get("drops", 0)), int(s.get("duplicates", 0)))
     return sum(d for d, _ in per_device.values()), sum(u for _, u in per_device.values())
 
@@ -71,9 +66,9 @@ def _counts(meta: dict[str, dict[str, str]]) -> tuple[int, int]:
 def empty_row(path: Path) -> dict:
     """A row with only the file's identity: what an unreadable file gets, beside its error."""
     st = path.stat()
-    row = {c: None if c in TEXT or c.startswith("zone_") or c == "start" else 0 if c in INTEGER else math.nan
-           for c in columns()}
-    row.update({"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns, PARTITION: "unknown"})
+    row = {c: None if c in TEXT or c == "start" else 0 if c in INTEGER else math.nan for c in columns()}
+    row.update({"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns, PARTITION: "unknown",
+                "axes": [], "bearings": []})
     return row
 
 
@@ -85,7 +80,7 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
     path : str or Path
         An ambdaq MCAP recording (or split part).
     read_threads : int
-        Chunks decompressed at once (:func:`~ambdaq.daq.reader.load`).
+        Chunks decompressed at once (:class:`~ambdaq.daq.recording.Recording`).
 
     Returns
     -------
@@ -98,50 +93,52 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
     notes = []
     try:
         row["sha256"] = file_sha256(path)
-        f = McapFile(path)
-        meta = f.metadata()
-        row[PARTITION] = _machine(meta)
-        session = meta.get("ambdaq.session", {})
-        row["start"] = session.get("start_time") or None
-        row["part"] = session.get("part") or None
-        row["drops"], row["duplicates"] = _counts(meta)
-        row["coefficients_sha256"] = next((m[COEFFICIENTS_KEY] for n, m in meta.items()
-                                           if n.startswith("ambdaq.device.") and m.get(COEFFICIENTS_KEY)), None)
+        rec = Recording(path, threads=read_threads)
+        machine = rec.machine
+        row[PARTITION] = rec.machine_id
+        row["start"] = rec.session.get("start_time") or None
+        row["part"] = rec.session.get("part") or None
+        row["drops"], row["duplicates"] = _counts(rec)
+        row["coefficients_sha256"] = next((d.identity[COEFFICIENTS_KEY] for d in rec.devices.values()
+                                           if d.identity.get(COEFFICIENTS_KEY)), None)
         # read once, for the 1X here and the runout and zones below (without current: no runout)
-        current = ["/amb/current"] if "/amb/current" in ambdaq_channels(f) else []
-        rec = load(f, topics=["/amb/gap", "/amb/rotor", *current], threads=read_threads)
-        gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+        rec.load_roles(["gap", "rotor", "current"])
+        gap, rot = rec.role("gap"), rec.role("rotor")
         n = min(len(gap), len(rot))
         row["samples"] = len(gap)
         row["duration_s"] = len(gap) / gap.nominal_rate
         rpm = rot["speed"][:n] * RAD_S_TO_RPM
         row["rpm_min"], row["rpm_max"] = float(rpm.min()), float(rpm.max())
-        one_x = harmonic_fit(np.column_stack([gap[a][:n] for a in AXES]), rot["angle"][:n], (1,))[0] * 1e6
-        for axis, v in zip(AXES, one_x):
-            row[f"onex_{axis}_um"], row[f"onex_{axis}_deg"] = float(abs(v)), float(np.degrees(np.angle(v)))
+        axes = list(machine.axes)
+        bearing_of = {a: b.name for b in machine.bearings for a in (b.x, b.y)}
+        one_x = harmonic_fit(np.column_stack([gap[a][:n] for a in axes]), rot["angle"][:n], (1,))[0] * 1e6
+        per_axis = {a: {"axis": a, "bearing": bearing_of.get(a), "onex_um": float(abs(v)),
+                        "onex_deg": float(np.degrees(np.angle(v))),
+                        **{f"runout_{k}x_{u}": math.nan for k in HARMONICS for u in ("um", "deg")}}
+                    for a, v in zip(axes, one_x)}
         try:  # what `ambdaq runout identify FILE` writes
-            if not current:
+            if not rec.has_role("current"):
                 raise BadInputError(f"{path}: no coil currents (/amb/current) in the recording")
             ident = identify_recordings([rec], list(HARMONICS), "fit", uncertainty=False)  # not a column
-            for axis in AXES:
-                for k, (a, b) in zip(HARMONICS, ident.coef.weights[axis]):
+            for axis, weights in ident.coef.weights.items():
+                for k, (a, b) in zip(HARMONICS, weights):
                     v = complex(a, b) * 1e6
-                    row[f"runout_{axis}_{k}x_um"], row[f"runout_{axis}_{k}x_deg"] = abs(v), float(np.degrees(np.angle(v)))
+                    per_axis[axis][f"runout_{k}x_um"] = abs(v)
+                    per_axis[axis][f"runout_{k}x_deg"] = float(np.degrees(np.angle(v)))
             notes += ident.warnings
         except BadInputError as err:
             notes.append(f"runout: {err}")
+        row["axes"] = list(per_axis.values())
         try:  # what `ambdaq iso vibration FILE` grades
             grades, info = evaluate([rec], cmin_m=None, band_rpm=BAND_RPM)
             row["cmin_um"] = info["cmin_um"]
-            graded = {g.bearing for g in grades}
-            if graded != set(BEARINGS):
-                raise BadInputError(f"its bearings ({', '.join(sorted(graded))}) are not the dataset's columns "
-                                    f"({', '.join(BEARINGS)})")
-            for bearing in BEARINGS:
-                worst = max((g for g in grades if g.bearing == bearing), key=lambda g: g.ratio)
-                row[f"vibration_{bearing}_um"], row[f"ratio_{bearing}"] = worst.max_um, worst.ratio
-                row[f"zone_{bearing}"] = worst.zone
-            row["zone"] = max(row[f"zone_{b}"] for b in BEARINGS)
+            worst = {}
+            for g in grades:
+                if g.bearing not in worst or g.ratio > worst[g.bearing].ratio:
+                    worst[g.bearing] = g
+            row["bearings"] = [{"bearing": b.name, "vibration_um": worst[b.name].max_um, "ratio": worst[b.name].ratio,
+                                "zone": worst[b.name].zone} for b in machine.bearings if b.name in worst]
+            row["zone"] = max((b["zone"] for b in row["bearings"]), default=None)
         except BadInputError as err:
             notes.append(f"zone: {err}")
     except AmbdaqError as err:
@@ -166,10 +163,16 @@ def schema():
             continue  # the partition is the folder
         if name == "start":
             kind = pa.timestamp("us", tz="UTC")
-        elif name in TEXT or name.startswith("zone_"):
+        elif name in TEXT:
             kind = pa.string()
         elif name in INTEGER:
             kind = pa.int64()
+        elif name == "axes":
+            kind = pa.list_(pa.struct([("axis", pa.string()), ("bearing", pa.string()),
+                                       *((f, pa.float64()) for f in AXIS_FIELDS)]))
+        elif name == "bearings":
+            kind = pa.list_(pa.struct([("bearing", pa.string()), *((f, pa.float64()) for f in BEARING_FIELDS),
+                                       ("zone", pa.string())]))
         else:
             kind = pa.float64()
         fields.append(pa.field(name, kind))
@@ -179,13 +182,8 @@ def schema():
 def columns():
     """The row's columns, in order."""
     yield from ("path", "size", "mtime_ns", "sha256", PARTITION, "start", "duration_s", "part", "rpm_min", "rpm_max",
-                "samples", "drops", "duplicates", "coefficients_sha256", "cmin_um", "zone", "error", "note")
-    for axis in AXES:
-        for k in HARMONICS:
-            yield from (f"runout_{axis}_{k}x_um", f"runout_{axis}_{k}x_deg")
-        yield from (f"onex_{axis}_um", f"onex_{axis}_deg")
-    for bearing in BEARINGS:
-        yield from (f"vibration_{bearing}_um", f"ratio_{bearing}", f"zone_{bearing}")
+                "samples", "drops", "duplicates", "coefficients_sha256", "cmin_um", "zone", "error", "note", "axes",
+                "bearings")
 
 
 def _key(path: str) -> str:
@@ -385,7 +383,8 @@ def _touch(old: dict, mtime_ns: int) -> None:
 
 def read(dataset: Path, machine: str | None = None):
     """The dataset as a pandas DataFrame (the machine column from the partition), sorted by machine and
-    start; only ``machine``'s rows if given."""
+    start; only ``machine``'s rows if given.  Each row's axes and bearings are flat columns named
+    after them (:func:`flat`)."""
     import pyarrow.dataset as ds
 
     if not dataset.exists():
@@ -397,7 +396,40 @@ def read(dataset: Path, machine: str | None = None):
         known = sorted(set(d.to_table(columns=[PARTITION]).column(PARTITION).to_pylist()))
         raise BadInputError(f"{dataset}: no machine {machine!r} (machines: {', '.join(known)})")
     df[PARTITION] = df[PARTITION].astype(str)
-    return df.sort_values([PARTITION, "start", "path"]).reset_index(drop=True)
+    return flat(df.sort_values([PARTITION, "start", "path"]).reset_index(drop=True))
+
+
+def flat(df):
+    """Rows with their ``axes`` and ``bearings`` lists as columns: ``onex_<axis>_um``,
+    ``runout_<axis>_<k>x_um`` ... per gap axis, ``vibration_<bearing>_um``, ``ratio_<bearing>``,
+    ``zone_<bearing>`` per bearing (NaN or None where a machine has no such axis or bearing)."""
+    import pandas as pd
+
+    extra: dict[str, list] = {}
+    n = len(df)
+    for i, (axes, bearings) in enumerate(zip(df["axes"], df["bearings"])):
+        cells = {}
+        for a in axes if axes is not None else []:
+            for f in AXIS_FIELDS:
+                kind, _, rest = f.partition("_")  # onex_um -> onex_<axis>_um
+                cells[f"{kind}_{a['axis']}_{rest}"] = a[f]
+        for b in bearings if bearings is not None else []:
+            cells[f"vibration_{b['bearing']}_um"] = b["vibration_um"]
+            cells[f"ratio_{b['bearing']}"] = b["ratio"]
+            cells[f"zone_{b['bearing']}"] = b["zone"]
+        for k, v in cells.items():
+            extra.setdefault(k, [math.nan if not k.startswith("zone_") else None] * n)[i] = v
+    return pd.concat([df, pd.DataFrame(extra, index=df.index)], axis=1) if extra else df
+
+
+def axes_of(df) -> list[str]:
+    """The gap axes the rows hold (``onex_<axis>_um`` columns of :func:`read`), in column order."""
+    return [c[len("onex_"):-len("_um")] for c in df.columns if c.startswith("onex_") and c.endswith("_um")]
+
+
+def bearings_of(df) -> list[str]:
+    """The radial bearings the rows hold (``vibration_<bearing>_um`` columns), in column order."""
+    return [c[len("vibration_"):-len("_um")] for c in df.columns if c.startswith("vibration_") and c.endswith("_um")]
 
 
 @dataclass(frozen=True)
@@ -434,5 +466,5 @@ def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
     return out
 
 
-__all__ = ["HARMONICS", "ScanReport", "Movement", "scan", "scan_into", "scan_recording", "recordings", "read", "moved", "index",
-           "has_footer"]
+__all__ = ["HARMONICS", "ScanReport", "Movement", "axes_of", "bearings_of", "flat", "has_footer", "index", "moved", "read",
+           "recordings", "scan", "scan_into", "scan_recording"]

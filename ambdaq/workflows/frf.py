@@ -13,9 +13,8 @@ import numpy as np
 from ..analysis.frf import COHERENT, coherent_band, h1_estimate
 from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
-from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import ambdaq_channels, load
+from ..daq.recording import Recording
 from ..drivers.excitation import OFF, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
 from ..errors import BadInputError, DeviceError
@@ -90,19 +89,21 @@ def excited_axis(ff, path: Path, given: str | None) -> str:
     return live[0]
 
 
-def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str | None,
+def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: str | None,
                        input_topic: str = "/amb/ff", output_topic: str = "/amb/error",
                        max_lost: float = MAX_LOST) -> FrequencyResponse:
     """H1 and coherence from each recording's excited axis to every output axis (one column per
     file); a recording that lost more than ``max_lost`` of its samples (a share, 0..1) is refused:
-    a hole is a jump inside a Welch segment."""
+    a hole is a jump inside a Welch segment.  ``input_topic`` and ``output_topic`` name a role or a
+    topic (:meth:`~ambdaq.daq.recording.Recording.signals`)."""
     freq, columns = None, {}
-    for path in paths:
-        f = McapFile(path)
-        spinning = "/amb/rotor" in ambdaq_channels(f)  # base-motion rigs have no rotor topic
-        rec = load(f, topics=[input_topic, output_topic] + (["/amb/rotor"] if spinning else []))
-        require_complete(rec, list(rec), "the frequency response", max_lost)
-        x_data, y_data = rec[input_topic], rec[output_topic]
+    for rec in recs:
+        path = rec.path
+        spinning = rec.has_role("rotor")  # base-motion rigs have no rotor topic
+        x_data, y_data = rec.signals(input_topic), rec.signals(output_topic)
+        rot = rec.role("rotor") if spinning else None
+        require_complete(rec, [x_data.topic, y_data.topic] + ([rot.topic] if spinning else []),
+                         "the frequency response", max_lost)
         n = min(len(x_data), len(y_data))
         axis = excited_axis(x_data, path, input_axis)
         x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
@@ -111,7 +112,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         outputs = list(y_data.fields)
         try:
             est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
-                              fs=rec[input_topic].nominal_rate, resolution_hz=resolution_hz)
+                              fs=x_data.nominal_rate, resolution_hz=resolution_hz)
         except ValueError as err:
             raise BadInputError(f"{path}: {err}") from None
         if not np.all(np.isfinite(est.response)):
@@ -119,7 +120,7 @@ def estimate_responses(paths: list[Path], resolution_hz: float, input_axis: str 
         if freq is not None and not np.array_equal(freq, est.freq_hz):
             raise BadInputError(f"{path}: sample rate differs from the other recordings'")
         freq = est.freq_hz
-        rpm = float(np.median(rec["/amb/rotor"]["speed"])) * RAD_S_TO_RPM if spinning else 0.0
+        rpm = float(np.median(rot["speed"])) * RAD_S_TO_RPM if spinning else 0.0
         columns[axis] = {
             "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
                        "segments": est.segments},

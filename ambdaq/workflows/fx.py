@@ -23,7 +23,7 @@ from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.compensator_points import PAIRS, load_points, save_points
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import load
+from ..daq.recording import load
 from ..daq.recorder import Recorder, RecordOptions
 from ..drivers.registry import endpoints, open_device
 from ..drivers.shaker import Shaker, drive_problem

@@ -24,9 +24,8 @@ from ..analysis.runout import harmonic_fit, synthesise
 from ..analysis.iso14839 import (STABILITY_LIMITS, StabilityGrade, ZoneLimits, closed_and_open_loop, grade_stability,
                                  sensitivity)
 from ..daq.coefficients import file_sha256
-from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import ambdaq_channels, load
+from ..daq.recording import Recording
 from ..daq.recorder import Recorder, RecordOptions
 from ..daq.sealed import write_sealed
 from ..drivers.excitation import ExcitationRequest
@@ -212,15 +211,16 @@ def synchronous_bins(freq_hz: np.ndarray, speed_rpm: float, resolution_hz: float
     return mask
 
 
-def evaluate(paths: list[Path], *, resolution_hz: float = 10.0, band_hz: tuple[float, float] | None = None,
+def evaluate(recs: list[Recording], *, resolution_hz: float = 10.0, band_hz: tuple[float, float] | None = None,
              limits: ZoneLimits = STABILITY_LIMITS, min_coherence: float = 0.9,
              input_axis: str | None = None, max_lost: float = MAX_LOST) -> list[AxisRun]:
     """The sensitivity function, its peak and zone, of each recording's excited axis.
 
     Parameters
     ----------
-    paths : list of Path
-        Recordings with the test signal on one axis (``measure``, ``frf measure``).
+    recs : list of Recording
+        Recordings with the test signal on one axis (``measure``, ``frf measure``): its input
+        (role ``ff``) and the command error (role ``error``).
     resolution_hz : float
         Frequency step, in Hz.
     band_hz : (float, float), optional
@@ -235,24 +235,27 @@ def evaluate(paths: list[Path], *, resolution_hz: float = 10.0, band_hz: tuple[f
         The share of samples (0..1) a recording may have lost (:mod:`ambdaq.daq.quality`).
     """
     runs = []
-    for path in paths:
-        spinning = "/amb/rotor" in ambdaq_channels(McapFile(path))
-        rec = load(path, topics=["/amb/ff", "/amb/error"] + (["/amb/rotor"] if spinning else []))
-        require_complete(rec, list(rec), "the sensitivity function", max_lost)
-        x, y = rec["/amb/ff"], rec["/amb/error"]
+    for rec in recs:
+        path = rec.path
+        spinning = rec.has_role("rotor")
+        rec.load_roles(["ff", "error", "rotor"] if spinning else ["ff", "error"])
+        x, y = rec.role("ff"), rec.role("error")
+        rot = rec.role("rotor") if spinning else None
+        require_complete(rec, [x.topic, y.topic] + ([rot.topic] if spinning else []), "the sensitivity function",
+                         max_lost)
         axis = excited_axis(x, path, input_axis)
         if axis not in y.fields:
-            raise BadInputError(f"{path}: /amb/error has no axis {axis}")
-        n = min(len(x), len(y), len(rec["/amb/rotor"]) if spinning else len(x))
+            raise BadInputError(f"{path}: the command error ({y.topic}) has no axis {axis}")
+        n = min(len(x), len(y), len(rot) if spinning else len(x))
         on = np.flatnonzero(x[axis][:n])  # while the test signal ran (it may start after the recording)
         span = slice(int(on[0]), int(on[-1]) + 1)
         xs, ys = x[axis][span], y[axis][span]
-        rpm = float(np.median(rec["/amb/rotor"]["speed"][span])) * RAD_S_TO_RPM if spinning else 0.0
+        rpm = float(np.median(rot["speed"][span])) * RAD_S_TO_RPM if spinning else 0.0
         if rpm / 60.0 >= resolution_hz:
             # the rotor's own synchronous lines (runout, unbalance; a feedforward in the input) are
             # not the loop's answer to the test signal, and 40 dB above it they leak into the bins
             # beside them: fitted against the key-phasor angle and taken out of input and output
-            theta = rec["/amb/rotor"]["angle"][span]
+            theta = rot["angle"][span]
             orders = [k for k in range(1, SYNCHRONOUS_ORDERS + 1) if k * rpm / 60.0 < x.nominal_rate / 2]
             xs = xs - synthesise(harmonic_fit(xs, theta, orders), orders, theta)
             ys = ys - synthesise(harmonic_fit(ys, theta, orders), orders, theta)

@@ -23,10 +23,8 @@ import numpy as np
 
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
 from ..daq.coefficients import Coefficients, file_sha256
-from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import Recording, source_path
-from ..machines.machine import Machine
+from ..daq.recording import Recording
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 from .runout import runout_at, with_rotor
@@ -34,11 +32,10 @@ from .runout import runout_at, with_rotor
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
 
 
-def recorded_cmin(source: Path | Recording) -> float | None:
-    """Cmin (m) a recording's controller reports in its calibration, if any (from its path, or
-    the recording loaded)."""
-    metadata = source.metadata if isinstance(source, Recording) else McapFile(source).metadata()
-    return Machine.from_metadata((), metadata).cmin_m
+def recorded_cmin(rec: Recording) -> float | None:
+    """Cmin (m) the recording's machine description gives (its controller's calibration, or the rig
+    file's [machine]), if any."""
+    return rec.machine.cmin_m
 
 
 @dataclass(frozen=True)
@@ -91,16 +88,15 @@ def orbit_windows(x: np.ndarray, y: np.ndarray, speed_rpm: np.ndarray, n: int) -
             np.sqrt(xs * xs + ys * ys).max(axis=1))
 
 
-def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: float = 1000.0,
+def evaluate(recs: list[Recording], *, cmin_m: float | None, band_rpm: float = 1000.0,
              coefficients: Path | None = None, limits: ZoneLimits = VIBRATION_LIMITS,
              max_lost: float = MAX_LOST) -> tuple[list[BandGrade], dict]:
     """ISO 14839-2 zones per bearing and speed band over ``paths``.
 
     Parameters
     ----------
-    paths : list of Path or Recording
-        Recordings with the gap sensors (``/amb/gap``) and the rotor angle and speed (``/amb/rotor``),
-        as paths or loaded.
+    recs : list of Recording
+        Recordings with the gap sensors and the rotor angle and speed (roles ``gap``, ``rotor``).
     cmin_m : float or None
         Minimum clearance, in m; None: the one the recordings' controller reports.
     band_rpm : float
@@ -119,7 +115,7 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
         Cmin used and where it came from, the sources, whether runout was removed.
     """
     if cmin_m is None:
-        found = {recorded_cmin(p) for p in paths}
+        found = {recorded_cmin(r) for r in recs}
         if None in found or len(found) != 1:
             raise BadInputError("no minimum clearance: pass --cmin UM (the touchdown bearings' radial clearance) "
                                 "or record with a controller that reports machine.min_clearance_m")
@@ -132,11 +128,11 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
     rows: dict[str, list[np.ndarray]] = {}
     bearings = None
     sources, notes = [], []
-    for source in paths:
-        path = source_path(source)
-        rec = with_rotor(source, "grading vibration per speed")
-        notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "ISO 14839-2 grading", max_lost)
-        gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+    for rec in recs:
+        path = rec.path
+        with_rotor(rec, "grading vibration per speed")
+        gap, rot = rec.role("gap"), rec.role("rotor")
+        notes += require_complete(rec, [gap.topic, rot.topic], "ISO 14839-2 grading", max_lost)
         m = min(len(gap), len(rot))
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:
@@ -144,9 +140,10 @@ def evaluate(paths: list[Path | Recording], *, cmin_m: float | None, band_rpm: f
         speed = rot["speed"][:m] * RAD_S_TO_RPM
         removed = None if coef is None else runout_at(coef, list(gap.fields), rot["angle"][:m], coefficients)
         fields = list(gap.fields)
-        here = Machine.from_axes(fields).bearings  # the recording's own radial bearings, any names
+        here = rec.machine.bearings  # the recording's own radial bearings, any names
         if not here:
-            raise BadInputError(f"{path}: /amb/gap has no radial bearing (axes NAME_x and NAME_y): {', '.join(fields)}")
+            raise BadInputError(f"{path}: its gap has no radial bearing (axes NAME_x and NAME_y, or a rig file's "
+                                f"[machine] bearings): {', '.join(fields)}")
         if bearings is not None and here != bearings:
             raise BadInputError(f"{path}: its bearings ({', '.join(b.name for b in here)}) are not the first "
                                 f"recording's ({', '.join(b.name for b in bearings)})")

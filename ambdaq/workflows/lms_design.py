@@ -4,17 +4,17 @@ whose step-size schedule converges on the plant's map (docs/lms.md)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..analysis.lms import (PhaseTable, StateSpaceLoop, measured_phase_compensation, phase_compensation,
-                            sign_schedule)
+from ..analysis.lms import (DesignModels, PhaseTable, StateSpaceLoop, measured_phase_compensation,
+                            phase_compensation, sign_schedule)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
 from ..errors import BadInputError
-from ..machines.spindle import AXES, N_AXES, PHASE_BIN_HZ, PHASE_BINS
-from .plants import analysing, resolve_plant
+from .plants import analysing, design_models, resolve_plant
 
 
 def grid_step(loops: dict, fine: float) -> float:
@@ -22,26 +22,30 @@ def grid_step(loops: dict, fine: float) -> float:
     return 100.0 if any(isinstance(lp, StateSpaceLoop) for lp, _ in loops.values()) else fine
 
 
-def phase_table(loops: dict) -> PhaseTable:
-    """Per-axis phase compensation from the design loops: each loop fills the axes it stands for
-    (a plant of one loop fills every axis; a one-axis loop's row is shared by its axes)."""
-    table = np.zeros((N_AXES, PHASE_BINS))
-    for loop, axes in loops.values():
-        ph = phase_compensation(loop, PHASE_BINS, PHASE_BIN_HZ).phase_rad
-        rows = list(range(N_AXES)) if len(loops) == 1 else list(axes)
+def phase_table(loops: dict, models: DesignModels) -> PhaseTable:
+    """Per-axis phase compensation from the design loops, a row per controller axis (``models.axes``):
+    each loop fills the axes it stands for (a plant of one loop fills every axis; a one-axis
+    loop's row is shared by its axes)."""
+    axes = models.axes
+    table = np.zeros((len(axes), models.phase_bins))
+    for loop, names in loops.values():
+        ph = phase_compensation(loop, models.phase_bins, models.phase_bin_hz).phase_rad
+        rows = list(range(len(axes))) if len(loops) == 1 else [axes.index(a) for a in names]
         table[rows] = ph if ph.shape[0] == len(rows) else ph[0]
-    return PhaseTable(table, PHASE_BIN_HZ)
+    return PhaseTable(table, models.phase_bin_hz, axes)
 
 
-def measured_phase_table(path: str) -> PhaseTable:
-    """Per-axis phase compensation from a measured T_aa (every axis must have been excited)."""
+def measured_phase_table(path: str, axes: tuple[str, ...], models: DesignModels) -> PhaseTable:
+    """Per-axis phase compensation from a measured T_aa (each of ``axes`` must have been excited)."""
     frf = FrequencyResponse.load(path)
-    pairs = [frf.response(a, a) for a in AXES]
+    pairs = [frf.response(a, a) for a in axes]
     try:
-        return measured_phase_compensation(frf.freq_hz, np.array([h for h, _ in pairs]),
-                                           np.array([c for _, c in pairs]), bins=PHASE_BINS, bin_hz=PHASE_BIN_HZ)
+        table = measured_phase_compensation(frf.freq_hz, np.array([h for h, _ in pairs]),
+                                            np.array([c for _, c in pairs]), bins=models.phase_bins,
+                                            bin_hz=models.phase_bin_hz)
     except ValueError as err:
         raise BadInputError(f"{path}: {err}") from None
+    return PhaseTable(table.phase_rad, table.bin_hz, tuple(axes))
 
 
 def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compensated: bool = False,
@@ -52,7 +56,7 @@ def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compens
     Parameters
     ----------
     plant : str
-        The loop designed on (:data:`~.plants.PLANT_NAMES`).
+        The loop designed on (:func:`~.plants.plant_names`).
     mu : float
         Step size (its magnitude; the schedule gives its sign per speed range).
     dead_band : float
@@ -69,15 +73,25 @@ def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compens
     rpm_max : float
         Top of the schedule, in rpm.
     """
-    loops = resolve_plant(plant)
+    models = design_models()
+    base = Coefficients.load(weights_file) if weights_file else None
+    axes = tuple(base.target["axes"]) if base is not None else models.axes  # the controller the file goes to
+    if plant not in models.plants:  # a plant the user gives (tf:, ss:) stands for the file's axes
+        models = replace(models, axes=axes)
+    loops = resolve_plant(plant, models)
     step = grid_step(loops, 10.0)
     compensated = compensated or frf_file is not None
     if compensated:
         with analysing(plant):
-            phase = measured_phase_table(frf_file) if frf_file else phase_table(loops)
+            phase = measured_phase_table(frf_file, axes, models) if frf_file else phase_table(loops, models)
+        missing = [a for a in axes if a not in phase.axes]
+        if missing:
+            raise BadInputError(f"the plant {plant!r} has no loop for axis {missing[0]} of the coefficient file: "
+                                "give --frf with every axis excited, or a plant of those axes")
+        phase = phase.select(axes)
         rows = [[k, 0.0, rpm_max, mu] for k in range(1, harmonics + 1)]
         phase_doc = {"bin_hz": phase.bin_hz,
-                     "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(AXES)}}
+                     "phase_rad": {a: [round(float(v), 6) for v in phase.phase_rad[i]] for i, a in enumerate(axes)}}
     else:
         phase_doc = {}
         with analysing(plant):
@@ -85,12 +99,11 @@ def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compens
                     for r in sign_schedule([lp for lp, _ in loops.values()], mu=mu, dead_band=dead_band,
                                            rpm_max=rpm_max, harmonic=k, step=step)]
         rows = [r for r in rows if r[3] != 0.0]  # a harmonic not named in a speed range is held
-    if weights_file:
-        base = Coefficients.load(weights_file)
+    if base is not None:
         target, source, harm, weights = base.target, dict(base.source), base.harmonics, base.weights
     else:
-        target, source, harm = {"axes": list(AXES)}, {}, list(range(1, harmonics + 1))
-        weights = {a: [[0.0, 0.0] for _ in harm] for a in AXES}
+        target, source, harm = {"axes": list(axes)}, {}, list(range(1, harmonics + 1))
+        weights = {a: [[0.0, 0.0] for _ in harm] for a in axes}
     design = {"plant": plant, "mu": mu, "dead_band_rpm": dead_band, "compensated": compensated}
     if frf_file:
         design["phase_from"] = {"path": str(frf_file), "sha256": file_sha256(frf_file)}

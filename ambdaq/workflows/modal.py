@@ -5,16 +5,14 @@ order the lowest the next order confirms."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..analysis.modal import Mode, free_decays, stable_modes, strikes
-from ..daq import load
+from ..daq.recording import Recording
 from ..errors import BadInputError
 
 HAMMER = "/amb/hammer"
-GAP = "/amb/gap"
 
 
 @dataclass(frozen=True)
@@ -42,15 +40,15 @@ class ModalResult:
     unit: str
 
 
-def identify_modal(path: str | Path, axes: tuple[str, ...] = (), *, window_s: float = 0.05,
+def identify_modal(rec: Recording, axes: tuple[str, ...] = (), *, window_s: float = 0.05,
                    skip_s: float = 0.002) -> ModalResult:
     """Natural frequencies and damping ratios from the hammer strikes of one recording.
 
     Parameters
     ----------
-    path : str or Path
+    rec : Recording
         A recording with an instrumented hammer's force (``/amb/hammer``, N) and the gap sensors
-        (``/amb/gap``, m).
+        (role ``gap``, m).
     axes : tuple of str
         Gap axes to analyse; empty: every axis that moves at least a tenth as much as the most
         moved one in the first strike's 20 ms.
@@ -59,8 +57,9 @@ def identify_modal(path: str | Path, axes: tuple[str, ...] = (), *, window_s: fl
     skip_s : float
         Time left out after each strike ends (the fast poles), in s.
     """
-    rec = load(path, topics=[HAMMER, GAP])  # one line and exit 2 if a topic is missing
-    gap, hammer = rec[GAP], rec[HAMMER]
+    path = rec.path
+    rec.load([HAMMER])  # one line and exit 2 if it is missing
+    gap, hammer = rec.role("gap"), rec[HAMMER]
     rate = gap.nominal_rate
     force = np.interp(gap.log_time, hammer.log_time, hammer["hammer"]) if len(hammer) != len(gap) else hammer["hammer"]
     hits = strikes(force, rate)
@@ -83,4 +82,4 @@ def identify_modal(path: str | Path, axes: tuple[str, ...] = (), *, window_s: fl
     return ModalResult(list(axes), len(decays), order, found, gap.units.get(axes[0], ""))
 
 
-__all__ = ["GAP", "HAMMER", "ModalResult", "identify_modal"]
+__all__ = ["HAMMER", "ModalResult", "identify_modal"]

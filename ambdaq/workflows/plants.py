@@ -1,5 +1,8 @@
 """The loops an LMS design is made on, by name (``--plant``), for ``ambdaq lms`` and ``ambdaq push``.
 
+A machine's named plants come with its rig profile (``Profile.lms``, an
+:class:`~ambdaq.analysis.lms.DesignModels`); the spindle of Ro et al. is the one that has them:
+
 =========  ========================================================================================
 name       loop
 =========  ========================================================================================
@@ -8,12 +11,15 @@ rear       the same for the rear bearing (D 0.002, amplifier 2,500 Hz)
 bearings   both one-axis models (a schedule must converge on both)
 rig        the simulated spindle's own five-axis loop, linearised from its kernel at each speed
 tf:N/D     any plant G(s), V in -> sensor V out, as comma-separated coefficients of s (descending),
-           in the loop of Ro et al.'s front PID, e.g. ``tf:2184000/1.5,0,-1770000``
+           in the loop of the machine's PID (Ro et al.'s front PID), e.g. ``tf:2184000/1.5,0,-1770000``
 ss:FILE    any plant in state space, from a ``.npz`` or ``.json`` file (docs/lms.md):
-           ``A, B, C[, D]`` a continuous one-input plant G(s) (V -> sensor V) in the loop of seed
-           000's front PID; or ``M, B, C, h[, rpm]`` a discrete multi-axis loop with the feedforward
-           as its input, x[n+1] = M x + B r_c, e = C x - r_c (one set, or one per speed in ``rpm``)
+           ``A, B, C[, D]`` a continuous one-input plant G(s) (V -> sensor V) in the loop of that
+           PID; or ``M, B, C, h[, rpm]`` a discrete multi-axis loop with the feedforward as its
+           input, x[n+1] = M x + B r_c, e = C x - r_c (one set, or one per speed in ``rpm``)
 =========  ========================================================================================
+
+Each loop stands for some of the controller's axes, by name; the controller's axes are the
+design's (``DesignModels.axes``) unless the coefficient file it goes with names its own.
 """
 
 from __future__ import annotations
@@ -26,24 +32,28 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import ss2tf
 
-from ..analysis.lms import BEARINGS, PlantLoop, StateSpaceLoop
-from ..machines.spindle import N_AXES  # the controller's axes a plant's inputs stand for, in order
-from ..sim.rigs.spindle import SpindleRig
+from ..analysis.lms import DesignModels, PlantLoop, StateSpaceLoop
 from ..daq.sealed import check_regular_file, read_json
 from ..errors import BadInputError
+from ..sim.profiles import profile
 
-PLANT_NAMES = ("front", "rear", "bearings", "rig", "tf:NUM/DEN", "ss:FILE")
-_RIG: dict[str, StateSpaceLoop] = {}
-
-
-def rig_loop() -> StateSpaceLoop:
-    """The simulated spindle's loop (one per process: its linearisations are cached)."""
-    if "spindle" not in _RIG:
-        _RIG["spindle"] = StateSpaceLoop(SpindleRig().loop_matrices)
-    return _RIG["spindle"]
-
-
+DESIGN_MACHINE = "spindle"  # the rig profile whose models --plant names: the one with LMS design models
+FORMS = ("tf:NUM/DEN", "ss:FILE")
 MAX_ORDER = 64  # a plant model's order: the simulated spindle's discrete loop has 35 states
+MAX_AXES = 16  # a discrete loop's feedforward inputs: a controller's axes
+
+
+def design_models(machine: str = DESIGN_MACHINE) -> DesignModels:
+    """The LMS design models of rig profile ``machine``; one line if it has none."""
+    models = profile(machine).lms
+    if models is None:
+        raise BadInputError(f"the {machine} rig has no LMS design models: give --plant ss:FILE with its loop")
+    return models
+
+
+def plant_names(models: DesignModels | None = None) -> tuple[str, ...]:
+    """The plants ``--plant`` takes: the machine's named ones, then the forms any machine may give."""
+    return (*(models or design_models()).plants, *FORMS)
 
 
 @contextmanager
@@ -62,16 +72,19 @@ def analysing(spec: str):
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
-def resolve_plant(spec: str) -> dict:
-    """``spec`` -> {name: (loop, controller axes it stands for)}."""
-    if spec == "front":
-        return {"front": (BEARINGS["front"], (0, 1))}
-    if spec == "rear":
-        return {"rear": (BEARINGS["rear"], (2, 3))}
-    if spec == "bearings":
-        return {"front": (BEARINGS["front"], (0, 1)), "rear": (BEARINGS["rear"], (2, 3))}
-    if spec == "rig":
-        return {"rig": (rig_loop(), (0, 1, 2, 3, 4))}
+def resolve_plant(spec: str, models: DesignModels | None = None) -> dict:
+    """``spec`` -> {label: (loop, the controller axes it stands for, by name)}.
+
+    Parameters
+    ----------
+    spec : str
+        A named plant of ``models``, ``tf:NUM/DEN`` or ``ss:FILE`` (the module's table).
+    models : DesignModels, optional
+        The machine's design models; default the spindle's (:data:`DESIGN_MACHINE`).
+    """
+    models = models or design_models()
+    if spec in models.plants:
+        return models.plants[spec]()
     if spec.startswith("tf:"):
         try:
             num, den = (tuple(float(x) for x in part.split(",")) for part in spec[3:].split("/"))
@@ -83,15 +96,15 @@ def resolve_plant(spec: str) -> dict:
             raise BadInputError(f"plant {spec!r}: finite coefficients, a denominator of order {MAX_ORDER} at most")
         if len(np.trim_zeros(np.array(num), "f")) > len(den):
             raise BadInputError(f"plant {spec!r}: improper (the numerator's order is above the denominator's)")
-        return {"tf": (PlantLoop(num=num, den=den), (0, 1, 2, 3, 4))}
+        return {"tf": (PlantLoop(**vars(models.pid), num=num, den=den), models.axes)}
     if spec.startswith("ss:"):
-        return state_space_plant(Path(spec[3:]))
-    raise BadInputError(f"unknown plant {spec!r}: expected one of {', '.join(PLANT_NAMES)}")
+        return state_space_plant(Path(spec[3:]), models)
+    raise BadInputError(f"unknown plant {spec!r}: expected one of {', '.join(plant_names(models))}")
 
 
 MAX_SPEEDS = 1_000  # linearisations per discrete loop (the rig every 100 rpm to 60,000 would be 601)
 # values a plant file may hold: MAX_SPEEDS sets of M (n, n), B and C at the largest order
-MAX_PLANT_VALUES = MAX_SPEEDS * (MAX_ORDER**2 + 2 * MAX_ORDER * N_AXES)
+MAX_PLANT_VALUES = MAX_SPEEDS * (MAX_ORDER**2 + 2 * MAX_ORDER * MAX_AXES)
 
 
 def _npz_shapes(path: Path) -> dict[str, tuple[int, ...]]:
@@ -131,7 +144,7 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
         raise BadInputError(f"{where}: cannot read a .npz or .json of named arrays ({err})") from None
 
 
-def state_space_plant(path: Path) -> dict:
+def state_space_plant(path: Path, models: DesignModels) -> dict:
     """A plant in state space from ``path`` (see the module table), checked for shape and finiteness.
 
     Parameters
@@ -142,6 +155,9 @@ def state_space_plant(path: Path) -> dict:
         (n, p) or (k, n, p) in state per m of feedforward, ``C`` (p, n) or (k, p, n) in m of
         command error per state, ``h`` the sample period in s, and with k sets ``rpm`` (k,),
         increasing, in rpm: between them the matrices are interpolated linearly, beyond them held.
+    models : DesignModels
+        The machine's: its PID (for a continuous plant) and its axes (a discrete loop's p inputs
+        stand for its first p axes).
 
     Returns
     -------
@@ -160,7 +176,8 @@ def state_space_plant(path: Path) -> dict:
         missing = [k for k in "BC" if k not in a]
         if missing:
             raise BadInputError(f"{where}: a discrete loop needs M, B, C and h; {missing[0]} is missing")
-        return {"ss": (_discrete_loop(a, where), tuple(range(a["B"].shape[-1])))}
+        loop = _discrete_loop(a, where, len(models.axes))
+        return {"ss": (loop, models.axes[: a["B"].shape[-1]])}
     if "A" not in a:
         raise BadInputError(f"{where}: expected arrays A, B, C[, D] (continuous plant) or M, B, C, h[, rpm] (loop)")
     A, B, C = (np.atleast_2d(a.get(k, np.zeros(0))) for k in "ABC")
@@ -170,10 +187,11 @@ def state_space_plant(path: Path) -> dict:
         raise BadInputError(f"{where}: a continuous plant needs A (n, n), B (n, 1), C (1, n), D (1, 1); "
                             f"got {A.shape}, {B.shape}, {C.shape}, {D.shape}")
     num, den = ss2tf(A, B, C, D)
-    return {"ss": (PlantLoop(num=tuple(np.trim_zeros(num[0], "f")) or (0.0,), den=tuple(den)), tuple(range(N_AXES)))}
+    loop = PlantLoop(**vars(models.pid), num=tuple(np.trim_zeros(num[0], "f")) or (0.0,), den=tuple(den))
+    return {"ss": (loop, models.axes)}
 
 
-def _discrete_loop(a: dict[str, np.ndarray], where: str) -> StateSpaceLoop:
+def _discrete_loop(a: dict[str, np.ndarray], where: str, n_axes: int) -> StateSpaceLoop:
     """``M, B, C, h[, rpm]`` -> a :class:`StateSpaceLoop` interpolated over speed."""
     if "h" not in a or a["h"].size != 1 or not a["h"].item() > 0:
         raise BadInputError(f"{where}: a discrete loop needs h, its sample period in s (> 0)")
@@ -183,10 +201,10 @@ def _discrete_loop(a: dict[str, np.ndarray], where: str) -> StateSpaceLoop:
         raise BadInputError(f"{where}: {k:,} speeds; a discrete loop is given at {MAX_SPEEDS:,} speeds at most")
     M, B, C = (a[name] if a[name].ndim == 3 else np.broadcast_to(a[name], (k, *a[name].shape)) for name in "MBC")
     n, p = M.shape[-1], B.shape[-1]
-    if (M.shape != (k, n, n) or B.shape != (k, n, p) or C.shape != (k, p, n) or not 1 <= p <= N_AXES
+    if (M.shape != (k, n, n) or B.shape != (k, n, p) or C.shape != (k, p, n) or not 1 <= p <= n_axes
             or np.any(np.diff(rpm) <= 0)):
         raise BadInputError(f"{where}: a discrete loop needs M (k, n, n), B (k, n, p), C (k, p, n) with "
-                            f"1 <= p <= {N_AXES} and k increasing speeds in rpm; got M {M.shape}, B {B.shape}, "
+                            f"1 <= p <= {n_axes} (the controller's axes) and k increasing speeds in rpm; got M {M.shape}, B {B.shape}, "
                             f"C {C.shape}, rpm {rpm.shape}")
 
     def matrices(speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -132,19 +132,29 @@ def image_from(coef: Coefficients, status: dict, *, source_sha256: str, where: s
     if problem:
         raise BadInputError(f"{where}: {problem}")
     if rows:
-        _check_schedule(rows, n_harm, coef.lms_plant or "bearings", phase, bin_hz, where)
+        _check_schedule(rows, n_harm, coef.lms_plant or "bearings", phase, bin_hz, tuple(axes), where)
     return image
 
 
 def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phase: np.ndarray | None,
-                    bin_hz: float, where: str) -> None:
+                    bin_hz: float, axes: tuple[str, ...], where: str) -> None:
     """BadInputError unless the LMS schedule ``rows`` is stable on the convergence map of ``plant``
-    (Ro et al. Fig. 5).  The map needs scipy.signal and the rig's linearisation: imported here, so
-    a push without a schedule and ``controller status`` start without them."""
-    from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
-    from .plants import analysing, resolve_plant
+    (Ro et al. Fig. 5), its loops standing for the controller's ``axes``.  The map needs
+    scipy.signal and the rig's linearisation: imported here, so a push without a schedule and
+    ``controller status`` start without them."""
+    from dataclasses import replace
 
-    loops = resolve_plant(plant)
+    from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
+    from .plants import analysing, design_models, resolve_plant
+
+    models = design_models()
+    if plant not in models.plants:  # a plant the user gave stands for this controller's axes
+        models = replace(models, axes=axes)
+    loops = resolve_plant(plant, models)
+    for name, (_loop, names) in loops.items():
+        if not set(names) <= set(axes):
+            raise BadInputError(f"{where}: its LMS schedule was designed on plant {plant!r}, whose {name} loop "
+                                f"stands for {', '.join(names)}; the controller has {', '.join(axes)}")
     state_space = any(isinstance(loop, StateSpaceLoop) for loop, _ in loops.values())  # an eigenproblem per speed
     step = 250.0 if state_space else 100.0
     points = sum(max(0, math.ceil((hi - max(lo, step / 2)) / step)) * (n_harm if k == 0 else 1)
@@ -153,7 +163,7 @@ def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phas
         raise BadInputError(f"{where}: the LMS schedule asks for {points:,} points of the convergence map to check; "
                             f"at most {MAX_MAP_POINTS:,} (fewer or narrower rows)")
     with analysing(plant):
-        problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz),
+        problem = schedule_problem(rows, n_harm, loops, None if phase is None else PhaseTable(phase, bin_hz, axes),
                                    rpm_step=step)
     if problem:
         raise BadInputError(f"{where}: LMS schedule is not stable: {problem}")

@@ -8,15 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.rotor import RigidRotor
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, separate_unbalance,
                                synchronous_average, synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.mcapfile import McapFile
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
-from ..daq.reader import Recording, ambdaq_channels, loaded, source_path
+from ..daq.recording import Recording
 from ..errors import BadInputError
-from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
@@ -28,14 +25,13 @@ METHODS = {
 }
 
 
-def with_rotor(source: Path | Recording, purpose: str) -> Recording:
-    """A recording's gap sensors and rotor angle and speed, loaded (or ``source`` itself if it is
-    loaded); one line, exit 2, if it has no rotor topic (``purpose`` says what needed it)."""
-    opened = source if isinstance(source, Recording) else McapFile(source)  # its summary, read once
-    if "/amb/rotor" not in (opened if isinstance(opened, Recording) else ambdaq_channels(opened)):
-        raise BadInputError(f"{source_path(source)}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
+def with_rotor(rec: Recording, purpose: str) -> Recording:
+    """``rec`` with its gap and rotor angle and speed loaded; one line, exit 2, if it has no rotor
+    signals (``purpose`` says what needed them)."""
+    if not rec.has_role("rotor"):
+        raise BadInputError(f"{rec.path}: no rotor angle and speed (/amb/rotor): {purpose} needs the "
                             "key-phasor; record with the controller's rotor angle")
-    return loaded(opened, ["/amb/gap", "/amb/rotor"])
+    return rec.load_roles(["gap", "rotor"])
 
 
 def rigid_rotor_axes(rec: Recording) -> list[str]:
@@ -43,16 +39,15 @@ def rigid_rotor_axes(rec: Recording) -> list[str]:
     (x, y each) and one axial axis, whatever their names; their coil currents must be recorded under
     the same names. One line, exit 2, for a machine of another shape, which this model does not
     describe (its rotor motion cannot be told from the currents)."""
-    gap = list(rec["/amb/gap"].fields)
-    machine = Machine.from_metadata(gap, rec.metadata)
+    machine = rec.machine
     if len(machine.bearings) != 2 or len(machine.axial) != 1:
         raise BadInputError(f"{rec.path}: runout identification separates the rotor's motion with a rigid rotor on two "
-                            f"radial bearings (NAME_x, NAME_y each) and one axial axis; /amb/gap has "
-                            f"{', '.join(gap)}")
+                            f"radial bearings and one axial axis; its gap axes are {', '.join(machine.axes)}")
     axes = [*machine.bearing_axes, *machine.axial]
-    missing = [a for a in axes if a not in rec["/amb/current"].fields]
+    missing = [a for a in axes if a not in rec.role("current").fields]
     if missing:
-        raise BadInputError(f"{rec.path}: /amb/current has no {', '.join(missing)}: each gap axis needs its coil current")
+        raise BadInputError(f"{rec.path}: the coil currents have no {', '.join(missing)}: each gap axis needs its coil "
+                            "current")
     return axes
 
 
@@ -66,12 +61,15 @@ def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Pat
     return synthesise(phasors, coef.harmonics, theta)
 
 
-def _rotor(rec, path: Path) -> tuple[RigidRotor, str, dict]:
-    for name, meta in rec.metadata.items():
-        if name.startswith("ambdaq.calibration.") and "rotor.mass_kg" in meta:
-            device = name.removeprefix("ambdaq.calibration.")
-            return RigidRotor.from_metadata(meta), device, rec.metadata.get(f"ambdaq.device.{device}", {})
-    raise BadInputError(f"{path}: no rotor model (rotor.* calibration) in the recording; the rig file must give one")
+def _rotor(rec: Recording):
+    """The rigid rotor the recording's machine describes, with the device whose calibration gave it."""
+    rotor = rec.machine.rotor
+    if rotor is None:
+        raise BadInputError(f"{rec.path}: no rotor model (rotor.* calibration, or a rig file's [machine.rotor]) in the "
+                            "recording; the rig file must give one")
+    device = next((d for d in rec.devices.values() if "rotor.mass_kg" in d.calibration),
+                  next((d for d in rec.devices.values() if d.kind == "controller"), None))
+    return rotor, device
 
 
 @dataclass(frozen=True)
@@ -87,10 +85,10 @@ class Identification:
     uncertainty: np.ndarray  # m, (harmonic, axis): each part's standard uncertainty (NaN: not propagated)
 
 
-def identify_recordings(paths: list[Path | Recording], harmonics: list[int], method: str, *,
+def identify_recordings(recs: list[Recording], harmonics: list[int], method: str, *,
                         max_lost: float = MAX_LOST, uncertainty: bool = True) -> Identification:
-    """Runout per axis and harmonic from recordings at constant speed (one speed per file), given
-    as paths or loaded (with ``/amb/gap``, ``/amb/current`` and ``/amb/rotor``).
+    """Runout per axis and harmonic from recordings at constant speed (one speed per file), each
+    with its gap, coil currents and rotor angle (roles ``gap``, ``current``, ``rotor``).
 
     Harmonics above 1X come from every file (averaged); 1X comes from a slow roll if there is
     one, else from separating runout and unbalance over the speeds, else (one fast recording)
@@ -99,16 +97,14 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
     (:mod:`ambdaq.daq.quality`). Each harmonic's standard uncertainty is estimated unless
     ``uncertainty`` is False (then NaN: a caller that does not report it skips its spectra).
     """
-    per_file, warnings, sources, recs, u_file = [], [], [], [], []
-    rotor = device = identity = axes = None
-    topics = ["/amb/gap", "/amb/current", "/amb/rotor"]
-    for source in paths:
-        rec = loaded(source, topics)
-        warnings += require_complete(rec, topics, "runout identification", max_lost)
+    per_file, warnings, sources, u_file = [], [], [], []
+    rotor = device = axes = None
+    for rec in recs:
+        rec.load_roles(["gap", "current", "rotor"])
+        gap, cur, rot = rec.role("gap"), rec.role("current"), rec.role("rotor")
+        warnings += require_complete(rec, [gap.topic, cur.topic, rot.topic], "runout identification", max_lost)
         path = rec.path
-        recs.append(rec)
-        rotor, device, identity = _rotor(rec, path)
-        gap, cur, rot = rec["/amb/gap"], rec["/amb/current"], rec["/amb/rotor"]
+        rotor, device = _rotor(rec)
         here = rigid_rotor_axes(rec)
         if axes is not None and here != axes:
             raise BadInputError(f"{path}: its axes ({', '.join(here)}) are not the first recording's "
@@ -151,8 +147,9 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
                             "at other speeds to separate the runout")
     weights = {axis: [[float(est[i, a].real), float(est[i, a].imag)] for i in range(len(harmonics))]
                for a, axis in enumerate(axes)}
+    identity = device.identity if device is not None else {}
     coef = Coefficients(
-        target={"rig": identity.get("profile", identity.get("model", "")), "device": device,
+        target={"rig": identity.get("profile", identity.get("model", "")), "device": device.name if device else "",
                 "serial": identity.get("serial", ""), "axes": list(axes)},
         source={"recordings": sources, "method": method, "created": now_iso()},
         harmonics=list(harmonics),
@@ -163,14 +160,14 @@ def identify_recordings(paths: list[Path | Recording], harmonics: list[int], met
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
     """Per radial axis: harmonic phasors of the command error and the gap sensor (m), the error's RMS (m)."""
-    err, gap, rot = rec["/amb/error"], rec["/amb/gap"], rec["/amb/rotor"]
+    err, gap, rot = rec.role("error"), rec.role("gap"), rec.role("rotor")
     n = min(len(err), len(gap), len(rot))
     if n < 2:
         raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
     theta = rot["angle"][:n]
     out = {"rpm": float(np.median(rot["speed"][:n])) * RAD_S_TO_RPM, "axes": {}}
-    for a in Machine.from_axes(list(err.fields)).bearing_axes:
-        if a in gap.fields:
+    for a in rec.machine.bearing_axes:
+        if a in err.fields and a in gap.fields:
             out["axes"][a] = {"error": harmonic_fit(err[a][:n], theta, harmonics),
                               "gap": harmonic_fit(gap[a][:n], theta, harmonics),
                               "rms": float(np.sqrt(np.mean(err[a][:n] ** 2)))}
@@ -202,7 +199,7 @@ def check_recordings(before: Recording, after: Recording, harmonics: list[int], 
     Parameters
     ----------
     before, after : Recording
-        With ``/amb/error``, ``/amb/gap`` and ``/amb/rotor``, of one machine at one speed (within
+        With the command error, gap and rotor angle, of one machine at one speed (within
         1 %; else BadInputError: the harmonics would compare different frequencies).
     harmonics : list of int
         Orders to compare.
@@ -213,9 +210,11 @@ def check_recordings(before: Recording, after: Recording, harmonics: list[int], 
     max_lost : float
         The share of samples (0..1) either recording may have lost.
     """
-    topics = ["/amb/error", "/amb/gap", "/amb/rotor"]
-    notes = require_complete(before, topics, "runout check", max_lost) + \
-        require_complete(after, topics, "runout check", max_lost)
+    notes = []
+    for rec in (before, after):
+        rec.load_roles(["error", "gap", "rotor"])
+        topics = [rec.role(r).topic for r in ("error", "gap", "rotor")]
+        notes += require_complete(rec, topics, "runout check", max_lost)
     require_same_machine([before, after], "runout check")
     b, a = _synchronous(before, harmonics), _synchronous(after, harmonics)
     require_same_speed([before, after], [b["rpm"], a["rpm"]], "runout check")

@@ -17,10 +17,8 @@ import numpy as np
 from ..daq.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..speed import SpeedProfile
-from ..machines.spindle import AXES, N_HARMONICS, SPINDLE
+from ..sim.rigs.spindle import AXES, N_HARMONICS, SPINDLE, RunoutFeedforward, SpindleRig  # the rig compared on
 from ..units import RAD_S_TO_RPM
-from ..sim.rigs.spindle import SpindleRig
-from ..sim.rigs.spindle import RunoutFeedforward
 from .push import image_from
 
 WINDOW_S = 0.2  # demodulation window, s

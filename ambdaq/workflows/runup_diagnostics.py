@@ -26,7 +26,7 @@ from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.reader import Recording, source_path
+from ..daq.recording import Recording
 from ..errors import BadInputError
 from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
@@ -100,15 +100,15 @@ class Centreline:
     cmin_m: float | None
 
 
-def _gap_and_angle(source: Path | Recording, max_lost: float, notes: list[str]):
-    rec = with_rotor(source, "order tracking")
-    notes += require_complete(rec, ["/amb/gap", "/amb/rotor"], "order tracking", max_lost)
-    gap, rot = rec["/amb/gap"], rec["/amb/rotor"]
+def _gap_and_angle(rec: Recording, max_lost: float, notes: list[str]):
+    with_rotor(rec, "order tracking")
+    gap, rot = rec.role("gap"), rec.role("rotor")
+    notes += require_complete(rec, [gap.topic, rot.topic], "order tracking", max_lost)
     n = min(len(gap), len(rot))
-    machine = Machine.from_metadata(list(gap.fields), rec.metadata)
+    machine = rec.machine
     axes = list(machine.radial)  # the spin axis's gap: not tracked
     if not axes:
-        raise BadInputError(f"{source_path(source)}: /amb/gap has no radial axes")
+        raise BadInputError(f"{rec.path}: its gap has no radial axes")
     x = np.column_stack([gap[a][:n] for a in axes])
     return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate, machine, gap.time[:n]
 
@@ -183,18 +183,18 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
     return ModelModes(speeds, table, damping, whirl)
 
 
-def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_roll: Path | None = None, orders=(1, 2),
+def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Recording | None = None, orders=(1, 2),
             revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
             model: str | None = None, max_lost: float = MAX_LOST) -> RunupDiagnostics:
     """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
 
     Parameters
     ----------
-    source : Path or Recording
-        The recording (gap sensors and the rotor angle), as a path or loaded.
+    rec : Recording
+        The recording (gap sensors and the rotor angle).
     coefficients : Path, optional
         Runout coefficient file: its runout is taken out sample by sample.
-    slow_roll : Path, optional
+    slow_roll : Recording, optional
         Slow-roll recording: its vectors are taken out of every window's.
     orders : sequence of int
         Orders tracked (1 = 1X).
@@ -211,9 +211,9 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
     """
     if coefficients is not None and slow_roll is not None:
         raise BadInputError("give --coefficients or --slow-roll, not both: each takes the runout out its own way")
-    path = source_path(source)
+    path = rec.path
     notes: list[str] = []
-    axes, x, theta, rpm, fs, machine, time_s = _gap_and_angle(source, max_lost, notes)
+    axes, x, theta, rpm, fs, machine, time_s = _gap_and_angle(rec, max_lost, notes)
     if speeds is not None and (rpm.min() > speeds[0] + 0.01 * speeds[1] or rpm.max() < 0.99 * speeds[1]):
         raise BadInputError(f"{path}: the run covers {rpm.min():,.0f}-{rpm.max():,.0f} rpm, not {speeds[0]:,.0f}-"
                             f"{speeds[1]:,.0f}: record a run-up (or coast-down) over the whole range")
@@ -228,12 +228,12 @@ def analyse(source: Path | Recording, *, coefficients: Path | None = None, slow_
     if slow_roll is not None:
         s_axes, sx, s_theta, s_rpm, *_ = _gap_and_angle(slow_roll, max_lost, notes)
         if s_axes != axes:
-            raise BadInputError(f"{slow_roll}: its axes ({', '.join(s_axes)}) are not the run's ({', '.join(axes)})")
+            raise BadInputError(f"{slow_roll.path}: its axes ({', '.join(s_axes)}) are not the run's ({', '.join(axes)})")
         if np.median(s_rpm) > 0.1 * rpm.max():
-            raise BadInputError(f"{slow_roll}: ran at {np.median(s_rpm):,.0f} rpm: a slow roll is below a tenth of the "
+            raise BadInputError(f"{slow_roll.path}: ran at {np.median(s_rpm):,.0f} rpm: a slow roll is below a tenth of the "
                                 f"run's top speed ({rpm.max():,.0f} rpm)")
         track = track.compensated(harmonic_fit(sx, s_theta, tuple(orders)).reshape(len(orders), -1))
-        compensation = f"slow-roll vector {slow_roll}"
+        compensation = f"slow-roll vector {slow_roll.path}"
         # on an AMB the loop makes the rotor follow the sensor runout at slow roll, so the
         # slow-roll vector holds rotor motion too, and taking it out hides that much (docs/iso.md)
         notes.append("a slow-roll vector on an active magnetic bearing holds the rotor's own motion: its loop makes "

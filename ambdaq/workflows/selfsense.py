@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ..analysis.selfsense import angle_error, estimate_angle, lyapunov_bound
-from ..daq import load
+from ..daq.recording import Recording
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 
@@ -18,9 +18,10 @@ CONVERGED_DEG = 1.0
 SWEEP_DEG = np.arange(-85, 150, 5)
 
 
-def _model(meta: dict, path: str, overrides: dict) -> dict:
+def _model(rec: Recording, overrides: dict) -> dict:
     """R, L and the back-EMF constant: the options, else the recording's calibration."""
-    cal = next((v for k, v in meta.items() if k.startswith("ambdaq.calibration.") and "emf_constant_v_s" in v), {})
+    path = rec.path
+    cal = next((d.calibration for d in rec.devices.values() if "emf_constant_v_s" in d.calibration), {})
     out = {}
     for key, name in (("resistance", "resistance_ohm"), ("inductance", "inductance_h"), ("emf_constant", "emf_constant_v_s")):
         value = overrides[key] if overrides[key] is not None else cal.get(name)
@@ -33,12 +34,12 @@ def _model(meta: dict, path: str, overrides: dict) -> dict:
     return out
 
 
-def analyse(path: str, initial_error_deg: float, settle_s: float, overrides: dict, sweep: bool) -> dict:
+def analyse(rec: Recording, initial_error_deg: float, settle_s: float, overrides: dict, sweep: bool) -> dict:
     """Jeon et al.'s flux-linkage angle estimator (eq. 10-13) over one recording, against its encoder.
 
     Parameters
     ----------
-    path : str
+    rec : Recording
         A recording with six coil voltages (``/coil/voltage``, V), currents (``/coil/current``, A)
         and the encoder (``/motor/encoder``, rad) at the same instants.
     initial_error_deg : float
@@ -57,11 +58,12 @@ def analyse(path: str, initial_error_deg: float, settle_s: float, overrides: dic
         What ``ambdaq selfsense --json`` prints, and ``_series`` (time s, true and estimated angle
         rad, error deg, speed rpm) for the figure.
     """
-    rec = load(path, topics=[VOLTAGE, CURRENT, ENCODER])  # one line and exit 2 if a topic is missing
+    path = rec.path
+    rec.load([VOLTAGE, CURRENT, ENCODER])  # one line and exit 2 if a topic is missing
     v, i, enc = rec[VOLTAGE], rec[CURRENT], rec[ENCODER]
     if len(v) != len(i) or len(v) != len(enc) or len(v) < 100:
         raise BadInputError(f"{path}: voltages, currents and encoder must be the same sample instants (at least 100)")
-    model = _model(rec.metadata, path, overrides)
+    model = _model(rec, overrides)
     rate = rec[VOLTAGE].nominal_rate
     V = np.column_stack([v[f] for f in v.fields])
     I = np.column_stack([i[f] for f in i.fields])

@@ -21,10 +21,11 @@ import numpy as np
 from ..daq.recorder import Recorder, RecordOptions
 from ..drivers.interfaces import PassThrough
 from ..drivers.signals import SampleBlock
-from ..machines.spindle import SPINDLE
+from ..sim.rigs.spindle import SPINDLE  # the simulated fleet is of spindles
 from ..sim.source import SimSource
 from ..speed import SpeedProfile
-from .fleet import COEFFICIENTS_KEY, MACHINE_KEY
+from ..machines.machine import ID_KEY
+from .fleet import COEFFICIENTS_KEY
 
 FIRST_DAY = datetime(2026, 1, 5, 6, 0, tzinfo=timezone.utc)  # the fleet's commissioning
 
@@ -113,7 +114,7 @@ def generate_fleet(folder: Path, *, n_machines: int, days: int, duration_s: floa
                                params=machine.params(day),
                                identity={COEFFICIENTS_KEY: machine.coefficients_sha256} if machine.coefficients_sha256
                                else None)
-            source.add_calibration({MACHINE_KEY: machine.machine_id})
+            source.add_calibration({ID_KEY: machine.machine_id})
             n = int(round(duration_s * source.sample_rate))
             if rng.random() < drop_chance:
                 source = _Losing(source, int(rng.integers(n // 4, n // 2)), int(rng.integers(1, 201)))

@@ -42,6 +42,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
+from ...analysis.lms import DesignModels, StateSpaceLoop
 from ...analysis.orders import loop_modes
 from ...drivers.signals import SampleBlock, SignalGroup
 from ...machines.machine import radial_bearings
@@ -50,8 +51,8 @@ from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
 from .base import Rig
 from .excitation import ExcitationInput
-from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE, PHASE_BIN_HZ,
-                                  PHASE_BINS, SPINDLE, BearingAxis, SpindleParams)
+from ...machines.spindle import (AXES, FRONT_LOOP, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
+                                  PHASE_BIN_HZ, PHASE_BINS, REAR_LOOP, SPINDLE, BearingAxis, SpindleParams)
 from ...speed import SpeedProfile
 from ...units import RAD_S_TO_RPM, RPM_TO_RAD_S
 
@@ -78,26 +79,13 @@ def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarr
     B : ndarray, shape (10, 5)
         Input matrix for the bearing forces, in N.
     """
-    a, b = p.a, p.b
-    # q_b = T q_c with q_c = [x, theta_y, y, theta_x] and q_b = [x1, y1, x2, y2]
-    T = np.array([[1, a, 0, 0], [0, 0, 1, a], [1, -b, 0, 0], [0, 0, 1, -b]], dtype=float)
-    Mc_inv = np.diag([1 / p.mass, 1 / p.jt, 1 / p.mass, 1 / p.jt])
-    Gc = np.zeros((4, 4))
-    Gc[1, 3] = p.jp * omega  # Jt theta_y'' + Jp Omega theta_x' = M_y
-    Gc[3, 1] = -p.jp * omega  # Jt theta_x'' - Jp Omega theta_y' = M_x
-    T_inv = np.linalg.inv(T)
-    Minv_b = T @ Mc_inv @ T.T  # bearing forces -> bearing accelerations
-    G_b = T @ Mc_inv @ Gc @ T_inv  # velocity coupling in bearing coordinates
-    Minv = np.zeros((N_AXES, N_AXES))
-    Minv[:4, :4] = Minv_b
-    Minv[4, 4] = 1 / p.mass
-    G = np.zeros((N_AXES, N_AXES))
-    G[:4, :4] = G_b
+    M, G = p.rotor.mass_gyro(omega)  # the one rigid-rotor model (ambdaq.analysis.rotor)
+    Minv = np.linalg.inv(M)  # bearing forces -> bearing accelerations
     kx = np.array([ax.kx for ax in p.axes])
     A = np.zeros((10, 10))
     A[:5, 5:] = np.eye(5)
     A[5:, :5] = Minv * kx[None, :]
-    A[5:, 5:] = -G
+    A[5:, 5:] = -Minv @ G  # the gyroscopic coupling of the tilt planes
     B = np.zeros((10, 5))
     B[5:, :] = Minv
     return A, B
@@ -708,4 +696,20 @@ def _model_rig() -> "SpindleRig":
     return SpindleRig()
 
 
-PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True, modes=campbell_modes)
+@functools.lru_cache(maxsize=1)
+def rig_loop() -> StateSpaceLoop:
+    """The simulated spindle's own five-axis loop, linearised from its kernel at each speed (one per
+    process: its linearisations are cached)."""
+    return StateSpaceLoop(_model_rig().loop_matrices)
+
+
+LMS = DesignModels(
+    plants={  # Ro et al.'s one-axis models (eq. 1-3) and the rig's own loop (docs/lms.md)
+        "front": lambda: {"front": (FRONT_LOOP, AXES[0:2])},
+        "rear": lambda: {"rear": (REAR_LOOP, AXES[2:4])},
+        "bearings": lambda: {"front": (FRONT_LOOP, AXES[0:2]), "rear": (REAR_LOOP, AXES[2:4])},
+        "rig": lambda: {"rig": (rig_loop(), AXES)},
+    },
+    pid=FRONT_LOOP, axes=AXES, phase_bins=PHASE_BINS, phase_bin_hz=PHASE_BIN_HZ)
+
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True, modes=campbell_modes, lms=LMS)

@@ -1,0 +1,303 @@
+"""A recording, opened once: its devices, its machine and its topics.
+
+>>> rec = open_recording("run.mcap")                          # doctest: +SKIP
+>>> rec.devices["rig"].sample_rate_hz, rec.machine.bearings   # doctest: +SKIP  (typed, read once)
+>>> gap = rec.role("gap")                                     # doctest: +SKIP  (the gap, by axis, wherever recorded)
+>>> rec = load("run.mcap", topics=["/amb/gap"])               # doctest: +SKIP  (those topics, read at once)
+>>> rec["/amb/gap"].time, rec["/amb/gap"]["front_x"]          # doctest: +SKIP  (s, m)
+
+A :class:`Recording` reads the file's summary and metadata when it is opened and never again; a
+topic is decoded when first asked for and kept (:mod:`.reader` for ambdaq's fixed layouts,
+:mod:`.foreign` through the official decoders for other writers').  It is a read-only mapping of
+topic to :class:`~ambdaq.daq.reader.TopicData`.  What the file says about its devices is typed
+(:class:`DeviceInfo`), and its machine (:class:`~ambdaq.machines.machine.Machine`) says where each
+signal role is recorded: workflows ask for ``rec.role("gap")``, not for a topic name.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from ..layout import ROLE_TOPICS
+from ..machines.machine import RECORD, Machine
+from .foreign import foreign_topics, load_foreign
+from .mcapfile import McapFile
+from .reader import READ_THREADS, NotInRecording, TopicData, ambdaq_channels, read_fixed
+
+DEVICE, CALIBRATION, CLOCK, LINK = "ambdaq.device.", "ambdaq.calibration.", "ambdaq.clock.", "ambdaq.link."
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """One recorded device as the recording describes it.
+
+    Attributes
+    ----------
+    name : str
+        Its name in the recording.
+    identity : dict of str to str
+        What it said of itself (kind, model, serial, firmware, declared sample rate ...).
+    calibration : dict of str to str
+        Its calibration (``machine.*``, ``rotor.*``, a rig file's ``[device.calibration]``).
+    topics : tuple of str
+        The topics it recorded.
+    clock : dict of str to str
+        Its clock map's fit (drift, offset, uncertainty), where it has one.
+    link : dict of str to str
+        Its link's statistics (frames, CRC errors, lost packets ...), where it has them.
+    """
+
+    name: str
+    identity: Mapping[str, str]
+    calibration: Mapping[str, str]
+    topics: tuple[str, ...] = ()
+    clock: Mapping[str, str] = field(default_factory=dict)
+    link: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return self.identity.get("kind", "")
+
+    @property
+    def serial(self) -> str:
+        return self.identity.get("serial", "")
+
+    @property
+    def sample_rate_hz(self) -> float | None:
+        """The rate it declared, Hz, or None (frames as they come)."""
+        try:
+            return float(self.identity["sample_rate_hz"])
+        except (KeyError, ValueError):
+            return None
+
+
+class Recording(Mapping):
+    """One MCAP recording, its summary and metadata read once, its topics loaded when asked for.
+
+    Parameters
+    ----------
+    source : str, Path or McapFile
+        The file (any MCAP: ambdaq's, or another writer's).
+    topics : list of str, optional
+        The topics it shows; default every ambdaq topic (in a file of another writer, every
+        topic an official decoder reads).  A topic the file lacks is one line (exit 2).
+    start, end : float, optional
+        Time window, in s since the first message of the file.
+    threads : int
+        Chunks decompressed at once (1 where the caller is already parallel over files).
+    """
+
+    def __init__(self, source: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None = None, *,
+                 start: float | None = None, end: float | None = None, threads: int = READ_THREADS) -> None:
+        f = source if isinstance(source, McapFile) else McapFile(source)
+        self.file, self.path, self.threads = f, f.path, threads
+        self.metadata: dict[str, dict[str, str]] = f.metadata()  # the file's metadata records, once
+        self._fixed = ambdaq_channels(f)
+        self._foreign = foreign_topics(f, set(self._fixed))
+        if topics is None:  # ambdaq's topics; in a file of another writer, every topic a decoder reads
+            shown = list(self._fixed) or list(self._foreign)
+            if not shown:
+                raise NotInRecording(f"{f.path}: no topic ambdaq or an official decoder reads (topics: "
+                                     f"{', '.join(sorted(c.topic for c in f.summary.channels.values())) or 'none'})")
+        else:
+            shown = []
+            for t in topics:
+                if t not in self._fixed and t not in self._foreign:
+                    known = ", ".join(sorted({*self._fixed, *self._foreign})) or "none"
+                    raise NotInRecording(f"{f.path}: no ambdaq topic {t}; topics: {known}")
+                shown.append(t)
+        self._shown = list(dict.fromkeys(shown))
+        stats = f.summary.statistics
+        self.start_ns = stats.message_start_time if stats is not None and stats.message_count else min(
+            (ci.message_start_time for ci in f.summary.chunk_indexes), default=0)
+        self._lo = None if start is None else self.start_ns + int(start * 1e9)
+        self._hi = None if end is None else self.start_ns + int(end * 1e9)
+        self._cache: dict[str, TopicData] = {}
+
+    # --- the mapping ------------------------------------------------------------------------------
+
+    def __getitem__(self, topic: str) -> TopicData:
+        if topic not in self._cache:
+            if topic not in self._shown:
+                raise NotInRecording(f"{self.path}: no topic {topic}; topics: {', '.join(self._shown)}")
+            self.load([topic])
+        return self._cache[topic]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._shown)
+
+    def __len__(self) -> int:
+        return len(self._shown)
+
+    def __contains__(self, topic: object) -> bool:
+        return topic in self._shown
+
+    def __repr__(self) -> str:
+        loaded = [self._cache[t] for t in self._shown if t in self._cache]
+        span = max((t.duration for t in loaded), default=0.0)
+        parts = "; ".join(f"{t.topic} {len(t)} samples at {t.nominal_rate:g} Hz" for t in loaded)
+        return f"<Recording {self.path.name}: {len(self)} topic{'s' if len(self) != 1 else ''}, {span:.3f} s; {parts}>"
+
+    @property
+    def topics(self) -> dict[str, TopicData]:
+        """Every topic it shows, loaded."""
+        self.load(self._shown)
+        return {t: self._cache[t] for t in self._shown}
+
+    def load(self, topics: list[str] | tuple[str, ...]) -> Recording:
+        """Decode ``topics`` now, in one pass over the chunks (those already loaded are kept).
+
+        Raises
+        ------
+        NotInRecording
+            A topic it does not show (one line, exit 2; a KeyError to Python).
+        """
+        missing = [t for t in topics if t not in self._shown]
+        if missing:
+            raise NotInRecording(f"{self.path}: no ambdaq topic {missing[0]}; topics: {', '.join(self._shown) or 'none'}")
+        todo = [t for t in dict.fromkeys(topics) if t not in self._cache]
+        fixed = {t: self._fixed[t] for t in todo if t in self._fixed}
+        if fixed:
+            self._cache.update(read_fixed(self.file, fixed, self.start_ns, self._lo, self._hi, self.metadata,
+                                          self.threads))
+        others = [t for t in todo if t not in self._fixed]
+        for topic, cols in (load_foreign(self.file, others, self._lo, self._hi) if others else {}).items():
+            n = cols["log_time"].shape[0]
+            data = TopicData(topic=topic, nominal_rate=0.0, log_time=cols["log_time"], start_ns=self.start_ns,
+                             device_time=cols["device_time"], seq=cols["seq"], status=np.zeros(n, dtype=np.uint32),
+                             fields=cols["fields"], units={k: "" for k in cols["fields"]}, skipped=cols["skipped"])
+            data.nominal_rate = data.sample_rate
+            self._cache[topic] = data
+        return self
+
+    # --- what the file says -----------------------------------------------------------------------
+
+    @cached_property
+    def devices(self) -> dict[str, DeviceInfo]:
+        """The recorded devices by name, with what the file says of each."""
+        owner = {ch.topic: (ch.metadata or {}).get("device", "") for ch in self.file.summary.channels.values()}
+        out = {}
+        for name, identity in self.metadata.items():
+            if name.startswith(DEVICE):
+                dev = name.removeprefix(DEVICE)
+                out[dev] = DeviceInfo(dev, identity, self.metadata.get(CALIBRATION + dev, {}),
+                                      tuple(t for t, d in owner.items() if d == dev), self.metadata.get(CLOCK + dev, {}),
+                                      self.metadata.get(LINK + dev, {}))
+        return dict(sorted(out.items()))
+
+    def device_of(self, topic: str) -> DeviceInfo | None:
+        """The device that recorded ``topic``, or None."""
+        return next((d for d in self.devices.values() if topic in d.topics), None)
+
+    @property
+    def session(self) -> Mapping[str, str]:
+        """The recording session: start time, command, host, part ..."""
+        return self.metadata.get("ambdaq.session", {})
+
+    def statistics(self, topic: str) -> dict | None:
+        """The counts the recorder wrote for ``topic`` (samples, drops, duplicates ...), or None in a
+        file without them (another writer's, a recovered one)."""
+        text = self.metadata.get("ambdaq.statistics", {}).get(topic)
+        return json.loads(text) if text else None
+
+    @cached_property
+    def machine(self) -> Machine:
+        """The machine it was recorded on: its ``ambdaq.machine`` description, or, in a file made
+        before recordings held one, what its devices declare."""
+        record = self.metadata.get(RECORD)
+        if record is not None:
+            return Machine.from_record(record)
+        topics = {t: g.fields for t, (_cid, g) in self._fixed.items()}
+        return Machine.describe(topics, [d.calibration for d in self.devices.values()])
+
+    @property
+    def machine_id(self) -> str:
+        """Which machine of a fleet: its description's id, else a device's serial, else the host."""
+        if self.machine.id:
+            return self.machine.id
+        for d in self.devices.values():
+            if d.serial:
+                return f"serial-{d.serial}"
+        return self.session.get("host") or "unknown"
+
+    def role(self, name: str) -> TopicData:
+        """The signals of role ``name`` (:data:`ambdaq.layout.ROLE_TOPICS`: gap, current, rotor ...),
+        fields named after the machine's axes, wherever the machine records them.
+
+        Raises
+        ------
+        NotInRecording
+            The recording has no such signals (one line naming the topic that would hold them).
+        """
+        r = self.machine.role(name)
+        if r is None or r.topic not in self._shown:
+            raise NotInRecording(f"{self.path}: no {name} signals ({ROLE_TOPICS[name]}, or a rig file's "
+                                 f"[machine] {name} mapping); topics: {', '.join(self._shown) or 'none'}")
+        data = self[r.topic]
+        return data if not r.renamed and tuple(data.fields) == r.axes else data.as_role(r.fields)
+
+    def signals(self, spec: str) -> TopicData:
+        """A role by name (``gap``), by the topic ambdaq's own devices record it on (``/amb/gap``: the
+        machine's gap wherever it is recorded), or any other topic as it is."""
+        role = spec if spec in ROLE_TOPICS else next((r for r, t in ROLE_TOPICS.items() if t == spec), None)
+        if role is not None and (self.has_role(role) or spec not in self._shown):
+            return self.role(role)
+        return self[spec]
+
+    def has_role(self, name: str) -> bool:
+        """Whether the recording holds the signals of role ``name``."""
+        r = self.machine.role(name)
+        return r is not None and r.topic in self._shown
+
+    def load_roles(self, names: list[str] | tuple[str, ...]) -> Recording:
+        """Decode the topics of roles ``names`` in one pass (a role it lacks is left for :meth:`role` to name)."""
+        topics = [r.topic for n in names if (r := self.machine.role(n)) is not None and r.topic in self._shown]
+        return self.load(topics)
+
+
+def open_recording(source: str | Path | McapFile, **options) -> Recording:
+    """A recording opened, its topics loaded when asked for (options as :class:`Recording`)."""
+    return Recording(source, **options)
+
+
+def load(path: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None = None, *, start: float | None = None,
+         end: float | None = None, threads: int = READ_THREADS) -> Recording:
+    """Load topics of a recording as numpy arrays, all at once.
+
+    Parameters
+    ----------
+    path : str, Path or McapFile
+        An MCAP file: ambdaq's (fixed layouts, read block by block) or another writer's (its topics
+        through the official decoders, numeric fields as columns by path).
+    topics : list of str, optional
+        Topics to load; default all ambdaq topics in the file (in another writer's, every topic
+        a decoder reads).
+    start, end : float, optional
+        Time window, in s since the first message of the file.
+    threads : int
+        Chunks decompressed at once (zstd lets go of the GIL).
+
+    Returns
+    -------
+    Recording
+        ``rec[topic]`` is a :class:`~ambdaq.daq.reader.TopicData`; ``rec.metadata`` holds the
+        file's metadata.
+
+    Raises
+    ------
+    BadInputError
+        Not an MCAP file, truncated (``ambdaq recover`` rebuilds it), corrupted, or a topic
+        that is missing.
+    """
+    rec = Recording(path, topics, start=start, end=end, threads=threads)
+    rec.load(list(rec))
+    return rec
+
+
+__all__ = ["DeviceInfo", "Recording", "load", "open_recording"]
