@@ -103,7 +103,7 @@ def test_plot_and_live_status_find_the_blowers_bearings(pairs, run_cli, tmp_path
         view = LiveView({device.name: device.sample_rate}, groups, machine_of([device]))
         device.start(5000)
         while (block := device.read()) is not None:
-            view.observe(device.name, block)
+            view.received(device.name, block)
         device.close()
         status[machine] = view.bearings()
     assert [b.bearing for b in status["blower"]] == ["de", "nde"]

@@ -30,7 +30,7 @@ def test_bearing_figures_are_the_last_windows_dc_and_1x():
         theta = omega * n / 10_000.0
         gap = np.column_stack([dc + amp * np.sin(theta + 0.3), -dc + 0.5 * amp * np.cos(theta), np.zeros(1000)])
         rotor = np.column_stack([np.mod(theta, 2 * np.pi), np.full(1000, omega), np.zeros(1000)])
-        view.observe("ctl", SampleBlock(n * 100_000, n.astype(np.uint32), {"/amb/gap": gap, "/amb/rotor": rotor}))
+        view.received("ctl", SampleBlock(n * 100_000, n.astype(np.uint32), {"/amb/gap": gap, "/amb/rotor": rotor}))
     (front,) = view.bearings()
     assert front.bearing == "front" and front.speed_rpm == pytest.approx(30000, rel=1e-9)
     # 0.2 s at 30,000 rpm is 100 whole revolutions: the mean and the 1X fit are exact to rounding
@@ -39,7 +39,7 @@ def test_bearing_figures_are_the_last_windows_dc_and_1x():
     assert len(front.orbit_um[0]) == len(front.orbit_um[1]) == 400  # 2,000 samples, every 5th
     short = LiveView({"ctl": 10_000.0}, GROUPS, MACHINE, window_s=0.2)
     n = np.arange(540)
-    short.observe("ctl", SampleBlock(n * 100_000, n.astype(np.uint32),
+    short.received("ctl", SampleBlock(n * 100_000, n.astype(np.uint32),
                                      {"/amb/gap": np.zeros((540, 3)), "/amb/rotor": np.zeros((540, 3))}))
     assert len(short.bearings()[0].orbit_um[0]) <= 400  # a window not yet full is capped too
 

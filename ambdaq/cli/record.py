@@ -52,9 +52,9 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
         click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
 
     server = start_live(sources, recorder.machine, live) if live is not None else None
-    observers = [server.observe] if server is not None else []
     try:
-        result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping, observers, snapped)
+        result = _run(recorder, sources, tty and not quiet, None if quiet else progress, stopping,
+                      [server] if server is not None else [], snapped)
     finally:
         if server is not None:
             server.close()
@@ -110,18 +110,13 @@ def _enter_fires(recorder) -> None:
         recorder.trigger("Enter")
 
 
-def _run(recorder, sources, status: bool, progress, stopping, observers: list, snapped):
+def _run(recorder, sources, status: bool, progress, stopping, sinks: list, snapped):
     """Run ``recorder`` with the live terminal status when ``status`` (stderr is a terminal), else
-    with ``progress`` lines; ``observers`` see every block as it is received; ``snapped`` hears of
+    with ``progress`` lines; ``sinks`` see every block as it is received; ``snapped`` hears of
     every snapshot file opened."""
-
-    def observe(device, block) -> None:
-        for o in observers:
-            o(device, block)
-
     if not status:
-        return recorder.run(on_progress=progress, progress_interval_s=5.0, on_stopping=stopping,
-                            on_block=observe if observers else None, on_snapshot=snapped)
+        return recorder.run(on_progress=progress, progress_interval_s=5.0, on_stopping=stopping, sinks=sinks,
+                            on_snapshot=snapped)
     from rich.console import Console
     from rich.live import Live
 
@@ -130,7 +125,6 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
 
     groups = {s.name: {g.topic: list(g.fields) for g in s.signal_groups()} for s in sources}
     view = LiveView({s.name: s.sample_rate for s in sources}, groups, recorder.machine)
-    observers = [view.observe, *observers]
     shown: list[Progress] = []
 
     def redraw(p: Progress) -> None:
@@ -138,7 +132,7 @@ def _run(recorder, sources, status: bool, progress, stopping, observers: list, s
         shown[:] = [p]
 
     with Live(console=Console(stderr=True), refresh_per_second=2) as live:
-        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, on_block=observe,
+        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, sinks=[view, *sinks],
                             on_snapshot=snapped)
 
 

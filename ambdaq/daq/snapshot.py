@@ -1,8 +1,8 @@
 """Snapshot recording (``ambdaq record --snapshot``): the last seconds of every device in memory, and a
 file around each trigger, as rosbag2's snapshot mode and an AMB controller's fault buffer keep them.
 
-The recorder hands :class:`Snapshots` every block it would have written (samples judged and on the
-host clock) and every event.  Each device's samples wait in a ring (:class:`_Ring`) that holds at
+:class:`Snapshots` is a sink of the acquisition (:mod:`.acquisition`): it takes every judged block on
+the host clock and every event.  Each device's samples wait in a ring (:class:`_Ring`) that holds at
 least the ``pre_s`` seconds before its newest sample and is bounded in bytes.  When a trigger fires
 at host time T (:mod:`.triggers`), a file is opened that gets every device's samples and events in
 [T - pre, T + post): what the ring holds at once, the rest as it arrives; it is finished when every
@@ -14,6 +14,8 @@ one file.  Each file is a complete recording: its drops are counted within its s
 
 from __future__ import annotations
 
+import queue
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -24,6 +26,8 @@ import numpy as np
 
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
+from .acquisition import Acquisition, Sink
+from .files import RecordingFiles
 from .sequence import SampleCounts, Verdict
 from .triggers import Firing, Trigger
 from .writer import RecordingWriter
@@ -240,44 +244,51 @@ class _Capture:
     done: dict[str, int] = field(default_factory=dict)  # device -> host time of its last sample written
 
 
-class Snapshots:
+class Snapshots(Sink):
     """The rings, the triggers and the snapshot files of one recording (see the module docstring).
 
     Parameters
     ----------
     options : SnapshotOptions
         Pre and post time, memory, triggers (armed by the caller).
-    devices : list of str
-        The recording's devices.
-    path_for : callable
-        The file for a firing.
-    new_writer : callable
-        ``(path, start_ns, label)`` -> an open RecordingWriter with the session's metadata and devices.
-    finish : callable
-        ``(writer, metadata)``: adds the recording's per-file metadata and the given one, and closes.
+    files : RecordingFiles
+        Opens each snapshot file with the session's metadata and devices, and finishes it.
+    output : Path
+        What the files are named after (:func:`snapshot_name`).
     on_snapshot : callable, optional
         Called with (path, firing) when a snapshot file is opened.
+    flush_interval_s : float
+        Longest wall time between the open files' chunk flushes, in s.
     """
 
-    def __init__(self, options: SnapshotOptions, devices: list[str], path_for: Callable[[Firing], Path],
-                 new_writer: Callable[[Path, int, str], RecordingWriter],
-                 finish: Callable[[RecordingWriter, dict[str, str]], None],
-                 on_snapshot: Callable[[Path, Firing], None] | None = None) -> None:
+    def __init__(self, options: SnapshotOptions, files: RecordingFiles, output: Path,
+                 on_snapshot: Callable[[Path, Firing], None] | None = None, flush_interval_s: float = 0.5) -> None:
         self.options = options
         self._pre_ns, self._post_ns = int(options.pre_s * 1e9), int(options.post_s * 1e9)
-        self._rings = {d: _Ring() for d in devices}
+        self._files, self._output, self._on_snapshot = files, Path(output), on_snapshot
+        self._flush_interval_s, self._last_flush = flush_interval_s, 0.0
+        self._rings: dict[str, _Ring] = {}
         self._events: deque[tuple[str, int, Event]] = deque()
         self._ended: set[str] = set()
         self._open: list[_Capture] = []
-        self._path_for, self._new_writer, self._finish, self._on_snapshot = path_for, new_writer, finish, on_snapshot
+        self._manual: queue.SimpleQueue[str] = queue.SimpleQueue()
         self.files: list[Path] = []
         self.finished_bytes = 0
         self.peak_bytes = 0
         self.evicted_early = 0  # segments dropped for the byte limit before they were pre_s old
 
-    # --- what the recorder hands over ------------------------------------------------------------------
+    def trigger(self, cause: str = "manual") -> None:
+        """Fire the manual trigger now (thread- and signal-safe: SimpleQueue.put): a key press,
+        SIGUSR1, a notebook's call.  It fires at the acquisition thread's next tick."""
+        self._manual.put(cause)
 
-    def write(self, device: str, block: SampleBlock, verdict: Verdict) -> None:
+    # --- the sink ----------------------------------------------------------------------------------
+
+    def start(self, acquisition: Acquisition) -> None:
+        self._rings = {d: _Ring() for d in acquisition.names}
+        self._last_flush = acquisition.t0
+
+    def block(self, device: str, block: SampleBlock, verdict: Verdict) -> None:
         """A judged block on the host clock: held, shown to the triggers, written to the open snapshots."""
         held = _Held.judged(block, verdict)
         if not len(held):
@@ -291,7 +302,7 @@ class Snapshots:
         self._evict()
         self._close_passed()
 
-    def write_event(self, device: str, t_ns: int, event: Event) -> None:
+    def event(self, device: str, t_ns: int, event: Event) -> None:
         """An event at host time ``t_ns``: held, shown to the triggers, written to the snapshots it falls in."""
         self._events.append((device, t_ns, event))
         for cap in self._open:
@@ -300,6 +311,27 @@ class Snapshots:
         for trigger in self.options.triggers:
             for firing in trigger.on_event(device, t_ns, event):
                 self.fire(firing)
+
+    def device_ended(self, device: str, missing: int) -> None:
+        """The periods it never sent are outside every snapshot's span: not counted in a file."""
+        self._ended.add(device)
+        self._close_passed()
+
+    def tick(self, now: float) -> None:
+        self._take_manual()
+        if now - self._last_flush >= self._flush_interval_s:
+            for cap in self._open:
+                cap.writer.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        """Fire what was asked for last, then finish every snapshot still open with what arrived."""
+        self._take_manual()
+        while self._open:
+            self._finish_capture(self._open.pop(0))
+
+    def abort(self) -> None:
+        """Nothing was recorded: no snapshot file was opened."""
 
     def fire(self, firing: Firing) -> None:
         """Open a snapshot around ``firing`` or, if one still being written has not reached its end,
@@ -313,9 +345,9 @@ class Snapshots:
                         cap.writer.write_event(ev.topic, device, t, ev)
                 break
         else:
-            path = self._path_for(firing)
+            path = snapshot_name(self._output, firing, lambda p: p.exists() or p in self.files)
             start = firing.t_ns - self._pre_ns
-            cap = _Capture(self._new_writer(path, start, f"snapshot {len(self.files)}"), start,
+            cap = _Capture(self._files.open(path, start, f"snapshot {len(self.files)}"), start,
                            firing.t_ns + self._post_ns, [firing])
             self.files.append(path)
             self._open.append(cap)
@@ -327,18 +359,14 @@ class Snapshots:
         for device in self._rings:
             self._catch_up(cap, device)
 
-    def device_ended(self, device: str) -> None:
-        self._ended.add(device)
-        self._close_passed()
-
-    def flush(self) -> None:
-        for cap in self._open:
-            cap.writer.flush()
-
-    def close(self) -> None:
-        """Finish every snapshot still open with what arrived (the recording stopped)."""
-        while self._open:
-            self._finish_capture(self._open.pop(0))
+    def _take_manual(self) -> None:
+        """Fire what :meth:`trigger` was asked for since the last look."""
+        while True:
+            try:
+                how = self._manual.get_nowait()
+            except queue.Empty:
+                return
+            self.fire(Firing(time.time_ns(), "manual", f"manual trigger ({how})"))
 
     # --- figures ------------------------------------------------------------------------------------------
 
@@ -357,9 +385,7 @@ class Snapshots:
     def _catch_up(self, cap: _Capture, device: str) -> None:
         """Write ``device``'s held samples that fall in the snapshot and are not in it yet."""
         for piece in self._rings[device].after(cap.done.get(device, cap.start_ns - 1), cap.end_ns):
-            first = device not in cap.done
-            cap.writer.counts[device].add(piece.counts(device, first))
-            cap.writer.write(device, piece.block)
+            cap.writer.write(device, piece.block, piece.counts(device, device not in cap.done))
             cap.done[device] = int(piece.block.host_time_ns[-1])
 
     def _evict(self) -> None:
@@ -394,7 +420,7 @@ class Snapshots:
                 "triggers": "; ".join(f"{f.cause} at {f.t_ns}: {f.detail}" for f in cap.firings),
                 "pre_s": f"{self.options.pre_s:g}", "post_s": f"{self.options.post_s:g}",
                 "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns)}
-        self._finish(cap.writer, meta)
+        self._files.finish(cap.writer, "ambdaq.snapshot", meta)
         self.finished_bytes += cap.writer.path.stat().st_size
 
 

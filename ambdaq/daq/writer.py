@@ -71,7 +71,7 @@ class RecordingWriter:
         self._event_channels: dict[str, int] = {}
         self._event_schema: int | None = None
         self.event_counts: dict[str, int] = {}
-        self.counts: dict[str, SampleCounts] = {}  # per device, kept by the recorder (daq/sequence.py)
+        self.counts: dict[str, SampleCounts] = {}  # per device: what the file holds and lost (daq/sequence.py)
 
     def add_device(self, name: str, groups: list[SignalGroup], identity: dict[str, str], calibration: dict[str, str]) -> None:
         """Register a device's signal groups as channels and store its identity and calibration."""
@@ -98,11 +98,27 @@ class RecordingWriter:
     def add_attachment(self, name: str, media_type: str, data: bytes, log_time: int) -> None:
         self._w.add_attachment(name, media_type, data, log_time)
 
-    def write(self, device: str, block: SampleBlock) -> None:
+    def write(self, device: str, block: SampleBlock, counts: SampleCounts | None = None) -> None:
         """Encode and append one block of ``device``; every topic gets one message per instant.
-        What the samples mean for the device's counts is the recorder's to say (``counts``)."""
-        dev = self._devices[device]
+
+        Parameters
+        ----------
+        device : str
+            A device added with :meth:`add_device`.
+        block : SampleBlock
+            Its samples to write, on the host clock.
+        counts : SampleCounts, optional
+            What the block's stretch of the device holds and lost (its samples, the drops and
+            duplicates judged in it: :class:`~.sequence.Verdict`), added to the file's counts;
+            default: its samples, nothing lost (a block no one judged).
+        """
         n = len(block)
+        if counts is None and n:
+            counts = SampleCounts(device, n, first_seq=int(block.seq[0]), last_seq=int(block.seq[-1]),
+                                  first_time=int(block.host_time_ns[0]), last_time=int(block.host_time_ns[-1]))
+        if counts is not None:
+            self.counts[device].add(counts)
+        dev = self._devices[device]
         if n == 0:
             return
         log_time = block.host_time_ns.astype(np.uint64)
@@ -162,6 +178,11 @@ class RecordingWriter:
                 os.fsync(self._file.fileno())
             except (OSError, ValueError):  # the file is being closed
                 return
+
+    def lost_at_end(self, device: str, periods: int) -> None:
+        """``device`` never sent ``periods`` sample periods it was asked for after its last sample
+        in this file: they count as its drops here."""
+        self.counts[device].drops += periods
 
     @property
     def bytes_written(self) -> int:

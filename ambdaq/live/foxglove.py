@@ -3,7 +3,8 @@ sample (``ambdaq record --live``, docs/live.md).
 
 The server is foxglove-sdk's (``foxglove.start_server``, in Rust on its own threads): each client
 has a bounded queue that drops its oldest messages when the client is slow, so no viewer can stall
-the recorder. The recorder hands every received block to :meth:`FoxgloveLive.observe`, which logs
+the recorder. It is a sink of the acquisition (:mod:`ambdaq.daq.acquisition`): every block received
+goes to :meth:`FoxgloveLive.received`, which logs
 every ``decimation``-th sample of each topic as JSON (a display rate a viewer can take: 100 Hz by
 default against the devices' 10 kHz). A thread of its own publishes the derived topics five times
 a second from the last 0.2 s: ``/live/1x`` (the 1X vector per radial axis from the key-phasor),
@@ -20,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..daq.acquisition import Sink
 from ..machines.machine import Machine
 from .view import LiveView
 
@@ -58,7 +60,7 @@ def _schema(name: str, fields: list[str], units: list[str]) -> dict:
     return {"title": name, "type": "object", "properties": props}
 
 
-class FoxgloveLive:
+class FoxgloveLive(Sink):
     """A Foxglove WebSocket server for one recording.
 
     Parameters
@@ -113,10 +115,10 @@ class FoxgloveLive:
         self._thread = threading.Thread(target=self._publish_derived, name="foxglove-derived", daemon=True)
         self._thread.start()
 
-    def observe(self, device: str, block) -> None:
+    def received(self, device: str, block) -> None:
         """Log every ``decimation``-th sample of the block's topics; keep it for the derived topics
-        (the recorder calls this for every block it receives)."""
-        self.view.observe(device, block)
+        (the acquisition hands it every block it receives)."""
+        self.view.received(device, block)
         every = self._every.get(device, 1)
         seq = block.seq.astype(np.int64)
         first = self._next.get(device, int(seq[0]))
@@ -152,7 +154,9 @@ class FoxgloveLive:
                 self._derived["/live/speed"].log({"device": device, "rpm": rpm}, log_time=now)
 
     def close(self) -> None:
-        """Stop the derived topics and the server."""
+        """Stop the derived topics and the server (once: the recording's end, or its caller)."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self._thread.join(timeout=2)
         self.server.stop()

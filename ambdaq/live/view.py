@@ -1,9 +1,9 @@
 """What a recording shows while it runs: per device its sample rate and losses, per bearing the gap's
 DC and 1X amplitude from the key-phasor, the speed, the file size and the time to the next split.
 
-The recorder hands every block it receives to :meth:`LiveView.observe` (a reference kept in a
-short ring, no copy, no arithmetic on the recorder's thread), before its clock is mapped, so a
-controller's figures show from its first block; they are computed only when the terminal is
+It is a sink of the acquisition (:mod:`ambdaq.daq.acquisition`): every block received goes to
+:meth:`LiveView.received` (a reference kept in a short ring, no copy, no arithmetic on the
+acquisition's thread), before its clock is mapped, so a controller's figures show from its first block; they are computed only when the terminal is
 redrawn, over the device's last ``WINDOW_S`` seconds of samples.
 """
 
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..analysis.runout import harmonic_fit
+from ..daq.acquisition import Sink
 from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 
@@ -56,7 +57,7 @@ class BearingStatus:
         return None if self.one_x is None else (abs(self.one_x[0]), abs(self.one_x[1]))
 
 
-class LiveView:
+class LiveView(Sink):
     """The recent gap and rotor blocks of each device, and the figures computed from them.
 
     Parameters
@@ -79,8 +80,8 @@ class LiveView:
         self._gap = gap.topic if gap is not None else None
         self._blocks: dict[str, deque] = {}
 
-    def observe(self, device: str, block) -> None:
-        """Keep a received block that carries the gap (called by the recorder for every block)."""
+    def received(self, device: str, block) -> None:
+        """Keep a received block that carries the gap (the acquisition hands it every block)."""
         if self._gap not in block.values or len(block) == 0 or device not in self.window:
             return
         ring = self._blocks.setdefault(device, deque())

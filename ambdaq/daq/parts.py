@@ -1,0 +1,185 @@
+"""The files of a recording as a sink of its acquisition: one file, or parts cut on the host clock
+(``--split-duration``) or by size (``--split-size``), each holding exactly its stretch of every
+device.
+
+Parts are cut at ``start + k * split_duration`` (or where a part reached ``split_size``); each
+sample goes to the part its time falls in.  A part stays open until every device has written a
+sample past its end (or ended), so a device whose samples arrive late (a serial line whose clock
+map is still settling) still lands in the right file.  Every open file's chunk is closed and handed
+to the OS at least every ``flush_interval`` seconds of wall time, and forced to the disk (fsync)
+on a thread of its own right after, so a killed recorder loses at most that much data and a power
+cut that much plus the time the disk takes to sync (docs/data-format.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..drivers.signals import Event, SampleBlock
+from .acquisition import Acquisition, Sink
+from .files import RecordingFiles
+from .sequence import Verdict
+from .writer import RecordingWriter
+
+SIZE_CHECK = 1000  # samples between two looks at the size of the newest part (--split-size)
+
+
+def split_names(output: Path, split: bool) -> Callable[[int], Path]:
+    """File name for part ``i``: the output itself, or ``NAME_000.mcap`` ... when splitting."""
+    if not split:
+        return lambda i: output
+    return lambda i: output.with_name(f"{output.stem}_{i:03d}{output.suffix or '.mcap'}")
+
+
+@dataclass
+class _Part:
+    """One output file and the stretch of host time it holds: [start_ns, end_ns)."""
+
+    index: int
+    writer: RecordingWriter
+    start_ns: int
+    end_ns: int | None  # None: the newest part, open-ended until a split decides its end
+
+
+class FileParts(Sink):
+    """Writes the judged samples and the events into the recording's file or parts.
+
+    Parameters
+    ----------
+    files : RecordingFiles
+        Opens and finishes each file.
+    output : Path
+        The file (``NAME_000.mcap`` ... when splitting).
+    split_size : int or None
+        Start a new file when the present one reaches this many bytes.
+    split_duration_s : float or None
+        Start a new file every this many seconds on the host clock, from the recording's start.
+    flush_interval_s : float
+        Longest wall time between chunk flushes (and disk syncs), in s.
+    """
+
+    def __init__(self, files: RecordingFiles, output: Path, *, split_size: int | None = None,
+                 split_duration_s: float | None = None, flush_interval_s: float = 0.5) -> None:
+        self.files = files
+        self.split_size, self.split_duration_s, self.flush_interval_s = split_size, split_duration_s, flush_interval_s
+        self.name = split_names(Path(output), split_size is not None or split_duration_s is not None)
+        self.paths: list[Path] = []  # every file opened, in order
+        self._parts: list[_Part] = []
+        self._ended: set[str] = set()
+        self._last_flush = 0.0
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes in the open files."""
+        return sum(p.writer.bytes_written for p in self._parts)
+
+    def next_split_s(self, now_ns: int) -> float | None:
+        """Seconds to the next file of a recording split by duration, else None."""
+        if self.split_duration_s is None:
+            return None
+        period = self.split_duration_s * 1e9
+        since = now_ns - self.acq.start_ns
+        return ((since // period + 1) * period - since) * 1e-9
+
+    # --- the sink --------------------------------------------------------------------------------
+
+    def start(self, acquisition: Acquisition) -> None:
+        self.acq = acquisition
+        self._last_flush = acquisition.t0
+        self._open(acquisition.start_ns)
+
+    def block(self, device: str, block: SampleBlock, verdict: Verdict) -> None:
+        """The judged block's kept samples, each into the part its time falls in."""
+        n, t = len(block), block.host_time_ns
+        pos = 0
+        while pos < n:
+            part = self._part_for(int(t[pos]))
+            end = n if part.end_ns is None else pos + int(np.searchsorted(t[pos:], part.end_ns, "left"))
+            end = max(end, pos + 1)
+            if self.split_size is not None and part.end_ns is None:
+                end = min(end, pos + SIZE_CHECK)
+            sl = slice(pos, end)
+            keep = verdict.keep[sl]
+            piece = block.slice(pos, end)
+            part.writer.write(device, piece if keep.all() else piece.select(keep),
+                              verdict.counts(device, sl, block.seq, t))
+            if self.split_size is not None and part.end_ns is None and part.writer.bytes_written >= self.split_size:
+                part.end_ns = int(t[end - 1]) + 1
+            pos = end
+        self._close_finished()
+
+    def event(self, device: str, t_ns: int, event: Event) -> None:
+        self._part_for(t_ns).writer.write_event(event.topic, device, t_ns, event)
+
+    def device_ended(self, device: str, missing: int) -> None:
+        """The periods ``device`` never sent are drops of the part its last sample is in."""
+        if missing:
+            last = self.acq.last_time(device)
+            self._part_for(last if last is not None else self.acq.start_ns).writer.lost_at_end(device, missing)
+        self._ended.add(device)
+        self._close_finished()
+
+    def tick(self, now: float) -> None:
+        if now - self._last_flush >= self.flush_interval_s:
+            for part in self._parts:
+                part.writer.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        for part in self._parts:
+            self._finish(part)
+        self._parts.clear()
+
+    def abort(self) -> None:
+        for part in self._parts:
+            part.writer.close()
+            part.writer.path.unlink(missing_ok=True)
+        self._parts.clear()
+
+    # --- inside ----------------------------------------------------------------------------------
+
+    def _open(self, start_ns: int) -> _Part:
+        index = len(self.paths)
+        end = None
+        if self.split_duration_s is not None:
+            end = self.acq.start_ns + int(round((index + 1) * self.split_duration_s * 1e9))
+        part = _Part(index, self.files.open(self.name(index), start_ns, str(index)), start_ns, end)
+        self.paths.append(part.writer.path)
+        self._parts.append(part)
+        return part
+
+    def _part_for(self, t_ns: int) -> _Part:
+        """The part that holds host time ``t_ns``, opening parts up to it (split by duration);
+        a time before the oldest open part goes to that part."""
+        while True:
+            newest = self._parts[-1]
+            if newest.end_ns is None or t_ns < newest.end_ns:
+                break
+            self._open(newest.end_ns)
+        for part in self._parts:
+            if part.end_ns is None or t_ns < part.end_ns:
+                return part
+        return self._parts[-1]
+
+    def _close_finished(self) -> None:
+        """Close every part but the newest once each device has passed its end or ended."""
+        while len(self._parts) > 1:
+            oldest = self._parts[0]
+            if any(name not in self._ended and ((last := self.acq.last_time(name)) is None or last < oldest.end_ns)
+                   for name in self.acq.names):
+                return
+            self._finish(self._parts.pop(0))
+
+    def _finish(self, part: _Part) -> None:
+        """Its host-time span, clock fits and link statistics go into the part's metadata, then it is
+        finished."""
+        self.files.finish(part.writer, "ambdaq.part", {
+            "index": str(part.index), "start_ns": str(part.start_ns),
+            "end_ns": "" if part.end_ns is None else str(part.end_ns)})
+
+
+__all__ = ["FileParts", "split_names"]
