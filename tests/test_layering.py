@@ -87,3 +87,11 @@ def test_each_part_imports_only_what_its_layer_may():
     assert not wrong, wrong
     # in particular: no hardware driver imports the simulator
     assert not [(m, n) for m, deps in GRAPH.items() for n in deps if part(m) == "drivers" and part(n) == "sim"]
+
+
+def test_no_host_side_module_takes_the_spindles_axes():
+    """Only the spindle's own description (``machines/``) and its simulation (``sim/``) import
+    ``ambdaq.machines.spindle``: every host-side part (daq, workflows, live, cli ...) takes its axes,
+    bearings and signals from the recording's machine (issue 27)."""
+    wrong = sorted(m for m, deps in GRAPH.items() if "ambdaq.machines.spindle" in deps and part(m) not in ("machines", "sim"))
+    assert not wrong, wrong

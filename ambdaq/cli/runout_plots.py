@@ -65,8 +65,8 @@ def draw_identification(ident):
     harmonics = coef.harmonics
     axes = list(coef.weights)
     runout = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(harmonics))])
-    gap, rot = ident.first.role("gap"), ident.first.role("rotor")
-    n = min(len(gap), len(rot))
+    gap, rot = ident.first.together("gap", "rotor")
+    n = len(gap)
     theta, spin = rot["angle"][:n], float(ident.spins[0])
     rpm = spin * RAD_S_TO_RPM
     bearings = [(b.name, b.x, b.y) for b in ident.first.machine.bearings if b.x in axes and b.y in axes]
@@ -143,8 +143,8 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
     plt = pyplot()
     runs = {}
     for label, rec in (("before", before), ("after", after)):
-        err, rot = rec.role("error"), rec.role("rotor")
-        n = min(len(err), len(rot))
+        err, rot = rec.together("error", "rotor")
+        n = len(err)
         runs[label] = (rec.path, err, n, rot["angle"][:n], float(np.median(rot["speed"][:n])))
     styles = {"before": {"color": "0.55"}, "after": {"color": "C3"}}
     fields = before.role("error").fields

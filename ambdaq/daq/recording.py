@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import BadInputError
 from ..layout import ROLE_TOPICS
 from ..machines.machine import RECORD, Machine
 from .foreign import foreign_topics, load_foreign
@@ -242,6 +243,11 @@ class Recording(Mapping):
         data = self[r.topic]
         return data if not r.renamed and tuple(data.fields) == r.axes else data.as_role(r.fields)
 
+    def together(self, *names: str) -> list[TopicData]:
+        """The signals of roles ``names`` (``gap``, ``rotor`` ...) at the same sample instants, the
+        first role's (:func:`same_instants`)."""
+        return same_instants([self.role(n) for n in names], list(names), self.path)
+
     def signals(self, spec: str) -> TopicData:
         """A role by name (``gap``), by the topic ambdaq's own devices record it on (``/amb/gap``: the
         machine's gap wherever it is recorded), or any other topic as it is."""
@@ -259,6 +265,43 @@ class Recording(Mapping):
         """Decode the topics of roles ``names`` in one pass (a role it lacks is left for :meth:`role` to name)."""
         topics = [r.topic for n in names if (r := self.machine.role(n)) is not None and r.topic in self._shown]
         return self.load(topics)
+
+
+def same_instants(data: list[TopicData], labels: list[str], where: Path) -> list[TopicData]:
+    """``data`` on the sample instants of its first member: as recorded where they share them (the
+    topics of one device); the rotor angle and speed (label ``rotor``) of a key-phasor on another
+    device mapped onto them through the unwrapped angle, where it is sampled fast enough for that to
+    be exact (less than half a revolution between two of its samples) and covers them.  Anything
+    else measured by another device is refused in one line: ambdaq never pairs samples by index
+    when they were not taken together."""
+    base = data[0]
+    out = [base]
+    for label, d in zip(labels[1:], data[1:]):
+        if d.log_time is base.log_time or (len(d) == len(base) and np.array_equal(d.log_time, base.log_time)):
+            out.append(d)
+        elif label == "rotor":
+            out.append(_rotor_at(d, base, where))
+        else:
+            raise BadInputError(f"{where}: {label} ({d.topic}) is not sampled at the instants of {labels[0]} "
+                                f"({base.topic}): ambdaq pairs no samples of different devices by index; record "
+                                "both on one device")
+    return out
+
+
+def _rotor_at(rot: TopicData, base: TopicData, where: Path) -> TopicData:
+    """The key-phasor's angle (rad, wrapped) and speed (rad/s) at ``base``'s instants."""
+    t, tb = rot.log_time, base.log_time
+    if len(rot) < 2 or len(base) == 0 or tb[0] < t[0] or tb[-1] > t[-1]:
+        raise BadInputError(f"{where}: the rotor angle ({rot.topic}) does not cover the {base.topic} samples: they "
+                            "cannot be placed on the key-phasor")
+    dt = np.diff(t) * 1e-9
+    if float(np.max(np.abs(rot["speed"][1:]) * dt)) >= np.pi:
+        raise BadInputError(f"{where}: the rotor angle ({rot.topic}) is sampled too slowly for its speed (half a "
+                            f"revolution or more between two samples) to be placed at the {base.topic} samples")
+    angle = np.interp(tb, t, np.unwrap(rot["angle"]))
+    speed = np.interp(tb, t, rot["speed"])
+    return TopicData(rot.topic, base.nominal_rate, tb, base.start_ns, base.device_time, base.seq, base.status,
+                     {"angle": np.mod(angle, 2 * np.pi), "speed": speed}, {"angle": "rad", "speed": "rad/s"})
 
 
 def open_recording(source: str | Path | McapFile, **options) -> Recording:
@@ -300,4 +343,4 @@ def load(path: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None
     return rec
 
 
-__all__ = ["DeviceInfo", "Recording", "load", "open_recording"]
+__all__ = ["DeviceInfo", "Recording", "load", "open_recording", "same_instants"]

@@ -9,9 +9,11 @@ Where the description comes from (:meth:`Machine.describe`), first to last:
 * the devices that know: ambdaq's controllers declare ``machine.*`` and ``rotor.*`` entries in
   their calibration, and record each role on its topic (:data:`ambdaq.layout.ROLE_TOPICS`) with
   fields named after the axes;
-* a rig file's ``[machine]`` table (docs/device-urls.md): a name, the bearings, the axial axes, the
-  limits, the rotor, and for devices no one here wrote which recorded field plays which role:
-  ``gap.de_x = "/probes/probes.de_x"`` (``TOPIC.FIELD``, as ``ambdaq info`` lists them).
+* a rig file's ``[machine]`` table (docs/device-urls.md): an id, the bearings, the axial axes, the
+  limits, the rigid rotor's constants (``[machine.rigid_rotor]``), and for devices no one here
+  wrote which recorded field plays which role: ``gap.de_x = "/xcp/mainloop.probe_de_x"``
+  (``TOPIC.FIELD``, as ``ambdaq info`` lists them; ``rotor.angle`` and ``rotor.speed`` for the
+  key-phasor).
 
 The recorder writes the result into every recording (metadata ``ambdaq.machine``,
 :meth:`Machine.record`); a recording made before that is described from its devices' calibration
@@ -41,7 +43,7 @@ ID_KEY = "machine.id"  # the machine's identity in a fleet (a rig file's [device
 RECORD = "ambdaq.machine"  # the metadata record a recording describes its machine in
 LIMITS = {"min_clearance_m": CMIN_KEY, "current_limit_a": CURRENT_LIMIT_KEY, "voltage_limit_v": VOLTAGE_LIMIT_KEY,
           "sensor_gain_v_per_m": SENSOR_GAIN_KEY}  # a [machine] key -> its calibration entry
-TABLE_KEYS = ("id", "bearings", "axial", "rotor", *LIMITS, *ROLE_TOPICS)
+TABLE_KEYS = ("id", "bearings", "axial", "rigid_rotor", *LIMITS, *ROLE_TOPICS)
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,7 @@ class Machine:
         for key, entry in LIMITS.items():
             value = table.get(key, first(entry))
             limits[key] = None if value is None else _positive(value, key, where)
-        rotor = _rotor(table["rotor"], where) if "rotor" in table else _rotor_of(calibrations)
+        rotor = _rotor(table["rigid_rotor"], where) if "rigid_rotor" in table else _rotor_of(calibrations)
         ident = table.get("id", first(ID_KEY))
         return cls(tuple(axes), bearings, axial, tuple(a for a in axes if a not in axial), limits["min_clearance_m"],
                    limits["current_limit_a"], limits["voltage_limit_v"], limits["sensor_gain_v_per_m"], rotor, roles,
@@ -300,15 +302,16 @@ def _positive(value, key: str, where: str) -> float:
 
 
 def _rotor(table, where: str) -> RigidRotor:
-    """A ``[machine.rotor]`` table: the ``rotor.*`` calibration entries without their prefix."""
+    """A ``[machine.rigid_rotor]`` table: the ``rotor.*`` calibration entries without their prefix."""
     if not isinstance(table, Mapping):
-        raise BadInputError(f"{where}: rotor is a table (mass_kg, jt_kgm2, jp_kgm2, a_m, b_m, kx_n_per_m, ki_n_per_a)")
+        raise BadInputError(f"{where}: rigid_rotor is a table (mass_kg, jt_kgm2, jp_kgm2, a_m, b_m, kx_n_per_m, "
+                            "ki_n_per_a)")
     entries = {f"rotor.{k}": ",".join(repr(float(x)) for x in v) if isinstance(v, list) else str(v)
                for k, v in table.items()}
     try:
         return RigidRotor.from_metadata(entries)
     except ValueError as err:
-        raise BadInputError(f"{where}: rotor: {err}") from None
+        raise BadInputError(f"{where}: rigid_rotor: {err}") from None
 
 
 def _rotor_of(calibrations: Sequence[Mapping[str, str]]) -> RigidRotor | None:

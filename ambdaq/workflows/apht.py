@@ -85,8 +85,9 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
     roles = [r for r in ("gap", "rotor", "error", "ff") if rec.has_role(r)]
     rec.load_roles(roles)
     require_complete(rec, [rec.role(r).topic for r in roles], "APHT", max_lost)
-    gap, rot = rec.role("gap"), rec.role("rotor")
-    n = min(len(gap), len(rot))
+    signals = dict(zip(roles, rec.together(*roles)))  # gap first: the others at its instants
+    gap, rot = signals["gap"], signals["rotor"]
+    n = len(gap)
     speed = rot["speed"][:n] * RAD_S_TO_RPM
     rpm = float(np.median(speed))
     if rpm <= 0 or np.max(np.abs(speed - rpm)) > STEADY * rpm:
@@ -109,11 +110,11 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
         return np.array([harmonic_fit(signal[s:s + size], theta[s:s + size], orders) for s in starts])
 
     def of(role: str) -> np.ndarray | None:
-        if role not in roles or not all(a in rec.role(role).fields for a in axes):
+        if role not in signals or not all(a in signals[role].fields for a in axes):
             return None
-        return vectors(np.column_stack([rec.role(role)[a][:n] for a in axes]))
+        return vectors(np.column_stack([signals[role][a][:n] for a in axes]))
 
-    ff_unit = rec.role("ff").units.get(axes[0], "") if "ff" in roles else ""
+    ff_unit = signals["ff"].units.get(axes[0], "") if "ff" in signals else ""
     return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation)
 
 

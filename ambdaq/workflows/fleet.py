@@ -103,8 +103,8 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
                                            if d.identity.get(COEFFICIENTS_KEY)), None)
         # read once, for the 1X here and the runout and zones below (without current: no runout)
         rec.load_roles(["gap", "rotor", "current"])
-        gap, rot = rec.role("gap"), rec.role("rotor")
-        n = min(len(gap), len(rot))
+        gap, rot = rec.together("gap", "rotor")
+        n = len(gap)
         row["samples"] = len(gap)
         row["duration_s"] = len(gap) / gap.nominal_rate
         rpm = rot["speed"][:n] * RAD_S_TO_RPM

@@ -14,7 +14,7 @@ from ..analysis.frf import COHERENT, coherent_band, h1_estimate
 from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.recording import Recording
+from ..daq.recording import Recording, same_instants
 from ..drivers.excitation import OFF, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
 from ..errors import BadInputError, DeviceError
@@ -100,11 +100,13 @@ def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: 
     for rec in recs:
         path = rec.path
         spinning = rec.has_role("rotor")  # base-motion rigs have no rotor topic
-        x_data, y_data = rec.signals(input_topic), rec.signals(output_topic)
-        rot = rec.role("rotor") if spinning else None
+        x_data, y_data, *rot = same_instants(
+            [rec.signals(input_topic), rec.signals(output_topic), *([rec.role("rotor")] if spinning else [])],
+            ["input", "output", "rotor"], path)
+        rot = rot[0] if rot else None
         require_complete(rec, [x_data.topic, y_data.topic] + ([rot.topic] if spinning else []),
                          "the frequency response", max_lost)
-        n = min(len(x_data), len(y_data))
+        n = len(x_data)
         axis = excited_axis(x_data, path, input_axis)
         x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
         if axis in columns:

@@ -23,7 +23,7 @@ from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.compensator_points import PAIRS, load_points, save_points
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
-from ..daq.recording import load
+from ..daq.recording import load, same_instants
 from ..daq.recorder import Recorder, RecordOptions
 from ..drivers.registry import endpoints, open_device
 from ..drivers.shaker import Shaker, drive_problem
@@ -222,8 +222,8 @@ def _plane_runs(path: Path, f: float, frf: FrequencyResponse, mu: float,
     """One step's recording: per plane, MFXLMS's beta, the alpha the base really had and the residual."""
     rec = load(path, topics=list(TOPICS))
     require_complete(rec, list(TOPICS), f"MFXLMS at {f:g} Hz", max_lost)
-    gap, acc = rec["/amb/gap"], rec["/base/accel"]
-    n = min(len(gap), len(acc))
+    gap, acc = same_instants([rec["/amb/gap"], rec["/base/accel"]], ["gap", "base acceleration"], path)
+    n = len(gap)
     fs = gap.nominal_rate
     theta = 2 * np.pi * f * np.arange(n) / fs
     out = []

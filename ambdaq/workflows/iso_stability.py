@@ -239,14 +239,14 @@ def evaluate(recs: list[Recording], *, resolution_hz: float = 10.0, band_hz: tup
         path = rec.path
         spinning = rec.has_role("rotor")
         rec.load_roles(["ff", "error", "rotor"] if spinning else ["ff", "error"])
-        x, y = rec.role("ff"), rec.role("error")
-        rot = rec.role("rotor") if spinning else None
+        x, y, *rot = rec.together("ff", "error", *(["rotor"] if spinning else []))
+        rot = rot[0] if rot else None
         require_complete(rec, [x.topic, y.topic] + ([rot.topic] if spinning else []), "the sensitivity function",
                          max_lost)
         axis = excited_axis(x, path, input_axis)
         if axis not in y.fields:
             raise BadInputError(f"{path}: the command error ({y.topic}) has no axis {axis}")
-        n = min(len(x), len(y), len(rot) if spinning else len(x))
+        n = len(x)
         on = np.flatnonzero(x[axis][:n])  # while the test signal ran (it may start after the recording)
         span = slice(int(on[0]), int(on[-1]) + 1)
         xs, ys = x[axis][span], y[axis][span]

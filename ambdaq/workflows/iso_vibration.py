@@ -131,9 +131,9 @@ def evaluate(recs: list[Recording], *, cmin_m: float | None, band_rpm: float = 1
     for rec in recs:
         path = rec.path
         with_rotor(rec, "grading vibration per speed")
-        gap, rot = rec.role("gap"), rec.role("rotor")
+        gap, rot = rec.together("gap", "rotor")
         notes += require_complete(rec, [gap.topic, rot.topic], "ISO 14839-2 grading", max_lost)
-        m = min(len(gap), len(rot))
+        m = len(gap)
         n = int(round(WINDOW_S * gap.nominal_rate))
         if m < n:
             raise BadInputError(f"{path}: {m} samples, fewer than one {WINDOW_S:g} s window")

@@ -101,7 +101,7 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
     rotor = device = axes = None
     for rec in recs:
         rec.load_roles(["gap", "current", "rotor"])
-        gap, cur, rot = rec.role("gap"), rec.role("current"), rec.role("rotor")
+        gap, cur, rot = rec.together("gap", "current", "rotor")
         warnings += require_complete(rec, [gap.topic, cur.topic, rot.topic], "runout identification", max_lost)
         path = rec.path
         rotor, device = _rotor(rec)
@@ -110,7 +110,7 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
             raise BadInputError(f"{path}: its axes ({', '.join(here)}) are not the first recording's "
                                 f"({', '.join(axes)}): one machine's recordings are identified together")
         axes = here
-        n = min(len(gap), len(cur), len(rot))
+        n = len(gap)
         speed = rot["speed"][:n]
         w = float(np.median(speed))
         if w <= 0 or np.std(speed) > 0.01 * w:
@@ -160,8 +160,8 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
     """Per radial axis: harmonic phasors of the command error and the gap sensor (m), the error's RMS (m)."""
-    err, gap, rot = rec.role("error"), rec.role("gap"), rec.role("rotor")
-    n = min(len(err), len(gap), len(rot))
+    err, gap, rot = rec.together("error", "gap", "rotor")
+    n = len(err)
     if n < 2:
         raise BadInputError(f"{rec.path}: too short to check ({n} samples)")
     theta = rot["angle"][:n]

@@ -102,9 +102,9 @@ class Centreline:
 
 def _gap_and_angle(rec: Recording, max_lost: float, notes: list[str]):
     with_rotor(rec, "order tracking")
-    gap, rot = rec.role("gap"), rec.role("rotor")
+    gap, rot = rec.together("gap", "rotor")
     notes += require_complete(rec, [gap.topic, rot.topic], "order tracking", max_lost)
-    n = min(len(gap), len(rot))
+    n = len(gap)
     machine = rec.machine
     axes = list(machine.radial)  # the spin axis's gap: not tracked
     if not axes:
