@@ -165,9 +165,9 @@ def test_iso_vibration_and_runup_grade_and_track_the_bearings_by_their_own_names
 
 
 def test_plot_and_live_status_find_the_blowers_bearings(pairs, run_cli, tmp_path):
-    from ambdaq.cli.figures import pyplot
+    from ambdaq.figures import pyplot
     from ambdaq.live.view import LiveView
-    from ambdaq.cli.plot import draw_signal
+    from ambdaq.figures.signal import draw_signal
     from ambdaq.daq import load
 
     for machine in RENAMED:

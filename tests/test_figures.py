@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ambdaq.cli.figures import pyplot
+from ambdaq.figures import pyplot
 from ambdaq.daq import load, open_recording
 
 
@@ -53,7 +53,7 @@ def test_plot_of_ten_seconds_and_of_20_ms_reads(ten_seconds, window, run_cli, tm
     """10 s at 10 kHz: the time panel is the envelope (at most two points per bin), not 100,000
     points drawn into a band; a 20 ms window is the waveform, its time ticks in ms from the
     window's start, none on top of another; every title inside the figure."""
-    from ambdaq.cli.plot import ENVELOPE_BINS, draw_signal
+    from ambdaq.figures.signal import ENVELOPE_BINS, draw_signal
 
     start, end = window
     out = tmp_path / "p.png"
@@ -93,7 +93,7 @@ def test_runout_identification_figure_shows_x_and_y_and_keeps_its_legend_off_the
     """Each bearing's x and y are told apart (solid filled x under dashed open y), the phasor legend
     covers no angle label of any polar plot, and the orbit's second trace is not called "after":
     nothing has been pushed when runout is identified."""
-    from ambdaq.cli.runout_plots import draw_identification
+    from ambdaq.figures.runout import draw_identification
     from ambdaq.workflows.runout import identify_recordings
 
     ident = identify_recordings([open_recording(ten_seconds)], [1, 2, 3, 4], "fit")
@@ -133,7 +133,7 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli
-    from ambdaq.cli.selfsense import draw_selfsense
+    from ambdaq.figures.selfsense import draw_selfsense
     from ambdaq.workflows.selfsense import analyse
 
     files = []
@@ -170,7 +170,8 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
 
 def test_model_region_legend_hides_none_of_the_region(run_cli, tmp_path):
     """The legend stands beside the (Kp, Kd) map: it covers none of the axes, so no stable gain."""
-    from ambdaq.cli.model import EXAMPLE, draw_region, load_axis
+    from ambdaq.cli.model import EXAMPLE, load_axis
+    from ambdaq.figures.model import draw_region
     from ambdaq.analysis.cone import stable_region
 
     axis = tmp_path / "axis.toml"
@@ -199,7 +200,7 @@ def test_full_spectrum_parts_forward_and_backward_whirl_as_the_true_orbit_has_th
     panel, forward and backward either side of zero."""
     from ambdaq.analysis.runout import harmonic_fit
     from ambdaq.analysis.spectrum import full_spectrum
-    from ambdaq.cli.plot import draw_signal
+    from ambdaq.figures.signal import draw_signal
 
     rec_path = tmp_path / "truth.mcap"
     assert run_cli("sim", "generate", "--rpm", "30000", "--duration", "1.05", "--truth", "-q", "-o",

@@ -203,8 +203,8 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
     run("fleet", "trend", str(ds), "--machine", "AMB-01", "--plot", str(tmp_path / "amb01.png"))
     assert (tmp_path / "amb01.png").stat().st_size > 10_000
     # what the figure shows: dates with their year, no tick label on another, legends off the panels
-    from ambdaq.cli.figures import pyplot
-    from ambdaq.cli.fleet import draw_trend
+    from ambdaq.figures import pyplot
+    from ambdaq.figures.fleet import draw_trend
     from test_figures import overlapping_tick_labels, titles_inside
 
     fig = draw_trend(read(ds, "AMB-01"), "AMB-01")

@@ -22,7 +22,9 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
     "workflows": {"layout", "drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
     "live": {"layout", "daq", "analysis", "machines", "units"},
-    "cli": {"layout", "drivers", "daq", "analysis", "sim", "workflows", "live", "machines", "speed", "units", "errors", "loading"},
+    "figures": {"layout", "daq", "analysis", "machines", "workflows", "units", "errors"},
+    "cli": {"layout", "drivers", "daq", "analysis", "sim", "workflows", "live", "figures", "machines", "speed", "units",
+            "errors", "loading"},
 }
 
 

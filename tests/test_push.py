@@ -24,7 +24,7 @@ from ambdaq.sim.devices.canopen import SimCanController, open_network
 from ambdaq.sim.devices.controller import SimController
 from ambdaq.sim.devices.faults import FaultyPort
 from ambdaq.sim.devices.rig_server import RigServer
-from ambdaq.sim.serve import Pty
+from ambdaq.sim.served import Pty
 
 pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
 

@@ -164,8 +164,8 @@ def test_the_runup_figure_shows_the_phase_lag_unwrapped_and_both_axes_of_a_beari
     """What the figure shows, read back from it: the 1X phase is a lag that grows through the run
     without +-180 jumps (as engineers read it), and x and y of a bearing are told apart (y dashed on
     top of solid x), so equal curves of an isotropic bearing are both visible."""
-    from ambdaq.cli.figures import pyplot
-    from ambdaq.cli.runup import draw_runup
+    from ambdaq.figures import pyplot
+    from ambdaq.figures.runup import draw_runup
     from ambdaq.workflows.runup_diagnostics import analyse
 
     res = analyse(open_recording(runup / "runup.mcap"), coefficients=runup / "runout.json", orders=(1, 2))

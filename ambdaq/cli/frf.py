@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 import json
-from contextlib import nullcontext
 
 import click
-import numpy as np
 
-from ..daq.frequency_response import FrequencyResponse
-from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError
-from ..workflows.frf import COHERENT, estimate_responses, excite, summarize
-from ..workflows.speed_restore import speed_restored
-from .figures import plot_option, pyplot
-from .options import (a2l_option, excitation_option, max_lost_option, output_options, report_options, speed_option,
+from ..workflows.frf import COHERENT, estimate_responses, summarize
+from ..workflows.frf import measure as measure_frf
+from .options import (a2l_option, excitation_option, max_lost_option, output_options, plot_option, report_options,
+                      speed_option,
                       speed_restored_note)
 from .record import run_recording
 
@@ -43,11 +39,10 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
     if excitation is None:
         raise BadInputError("frf measure needs --excite AXIS:AMPLITUDE[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
     # --rpm: the speed the controller had is set again, however the run ends
-    with speed_restored(device, description, speed_restored_note(quiet)) if speed else nullcontext():
-        with Opened() as opened:
-            opened.add(open_url(device, speed=speed, description=description))
-            excited = excite(opened.sources, excitation)
-            run_recording(opened.sources, out, duration=duration, quiet=quiet, as_json=as_json)
+    excited = measure_frf(device, excitation, duration, out.path, speed=speed, description=description,
+                          on_restore=speed_restored_note(quiet),
+                          record=lambda sources: run_recording(sources, out, duration=duration, quiet=quiet,
+                                                               as_json=as_json))
     if excited.switch_off_problem:
         click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
     elif not quiet:
@@ -85,7 +80,10 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
     frf.save(output, overwrite=overwrite)
     summary = summarize(frf)
     if plot_path:
-        _bode(frf, plot_path)
+        from ..figures import save
+        from ..figures.frf import draw_bode
+
+        save(draw_bode(frf), plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(summary, indent=2))
@@ -104,26 +102,3 @@ def estimate(files, output, resolution, input_axis, input_topic, output_topic, o
         click.echo(f"-> {output}", err=True)
 
 
-def _bode(frf: FrequencyResponse, path: str) -> None:
-    plt = pyplot()
-
-    fig, (mag, ph, coh) = plt.subplots(3, 1, figsize=(9, 9), sharex=True, constrained_layout=True)
-    for axis, col in frf.columns.items():
-        h, c = col["outputs"][axis]
-        trusted = c >= COHERENT
-        db = 20 * np.log10(np.abs(h))
-        line = mag.semilogx(frf.freq_hz, np.where(trusted, db, np.nan), lw=0.8, label=f"{axis} -> {axis}")[0]
-        mag.semilogx(frf.freq_hz, np.where(trusted, np.nan, db), lw=0.5, alpha=0.3, color=line.get_color())
-        # phase only where the input explains the output, unwrapped there (noise wraps at random)
-        ph.semilogx(frf.freq_hz[trusted], np.degrees(np.unwrap(np.angle(h[trusted]))), ".", ms=1.5,
-                    color=line.get_color())
-        coh.semilogx(frf.freq_hz, c, lw=0.8, color=line.get_color())
-    coh.axhline(COHERENT, color="grey", lw=0.6, ls="--")
-    mag.set(ylabel="|T| [dB]", title=f"{frf.output_topic} per {frf.input_topic} (H1; faint: coherence < {COHERENT:g})")
-    ph.set(ylabel="phase [deg], unwrapped")
-    coh.set(ylabel="coherence", xlabel="frequency [Hz]", ylim=(0, 1.05))
-    for ax in (mag, ph, coh):
-        ax.grid(alpha=0.3, which="both")
-    mag.legend(fontsize=7)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)

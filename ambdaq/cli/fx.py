@@ -12,8 +12,7 @@ from ..daq.compensator_points import PAIRS
 from ..errors import BadInputError
 from ..machines.base_motion import PLANES
 from ..workflows import fx
-from .figures import plot_option, pyplot
-from .options import POSITIVE, max_lost_option
+from .options import POSITIVE, max_lost_option, plot_option
 
 
 def _freqs(spec: str) -> list[float]:
@@ -127,7 +126,10 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json, 
     report, freqs, costs, chosen = result.report, result.freqs, result.costs, result.report["order"]
     orders = np.arange(0, max_order + 1)
     if plot_path:
-        _bode(freqs, result.points, result.fitted, result.sample_rate, result.taps, plot_path)
+        from ..figures import save
+        from ..figures.fx import draw_compensators
+
+        save(draw_compensators(freqs, result.points, result.sample_rate, result.taps), plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))
@@ -147,28 +149,3 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json, 
         click.echo(row)
 
 
-def _bode(freqs, W, fitted, fs, taps, path) -> None:
-    plt = pyplot()
-
-    fine = np.linspace(freqs.min(), freqs.max(), 400)
-    E = np.exp(-2j * np.pi * np.outer(fine / fs, np.arange(taps.shape[-1])))
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, constrained_layout=True)
-    for p, ls in ((0, "-"), (1, "--")):
-        for k, (j, m) in enumerate(PAIRS):
-            curve = E @ taps[p, j, m]
-            c = f"C{k}"
-            axes[0, p].plot(freqs, np.abs(W[:, p, j, m]), "o", color=c, ms=4, label=f"W{j + 1}{m + 1} MFXLMS")
-            axes[0, p].plot(fine, np.abs(curve), ls, color=c, lw=1, label=f"W{j + 1}{m + 1} FIR")
-            points = np.degrees(np.unwrap(np.angle(W[:, p, j, m])))
-            line = np.degrees(np.unwrap(np.angle(curve)))
-            line += 360 * np.round((points[0] - np.interp(freqs[0], fine, line)) / 360)  # the points' branch
-            axes[1, p].plot(freqs, points, "o", color=c, ms=4)
-            axes[1, p].plot(fine, line, ls, color=c, lw=1)
-        axes[0, p].set(title=f"{PLANES[p]} plane", ylabel="|W| [V/(m/s²)]", yscale="log")
-        axes[1, p].set(xlabel="frequency [Hz]", ylabel="phase [deg], unwrapped")
-        axes[0, p].legend(fontsize=7, ncol=2)
-        for ax in axes[:, p]:
-            ax.grid(alpha=0.3, which="both")
-    fig.suptitle(f"base-motion compensators: MFXLMS points and FIR fit ({taps.shape[-1]} taps)")
-    fig.savefig(path, dpi=100)
-    plt.close(fig)

@@ -11,8 +11,7 @@ import numpy as np
 
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
-from .figures import plot_option, pyplot
-from .options import DURATION, POSITIVE, a2l_option, max_lost_option, speed_restored_note
+from .options import DURATION, POSITIVE, a2l_option, max_lost_option, plot_option, speed_restored_note
 
 
 class LimitsArg(click.ParamType):
@@ -127,9 +126,12 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
     iso.check_speeds(runs, list(speeds) or None)
     iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
     if plot_path:
-        stability_figure([{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": r.freq_hz, "gs": r.gs,
+        from ..figures import save
+        from ..figures.iso import draw_stability
+
+        save(draw_stability([{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": r.freq_hz, "gs": r.gs,
                            "coherence": r.coherence, "peak_db": r.grade.peak_db, "zone": r.grade.zone} for r in runs],
-                         limits, plot_path)
+                             limits), plot_path)
     if as_json:
         click.echo(json.dumps({"standard": "ISO 14839-3", "limits_peak_gs": limits.as_list(),
                                "runs": [r.as_dict(curves=False) for r in runs]}, indent=2))
@@ -157,73 +159,6 @@ def stability_table(runs, limits: ZoneLimits) -> str:
         lines.append(f"{r.speed_rpm:>10,.0f}  {r.axis:<9} {g.peak:>9.3f} {g.peak_db:>6.2f} {g.peak_hz:>7g} "
                      f"{g.coherence_at_peak:>9.3f}  {zone}")
     return "\n".join(lines)
-
-
-def stability_figure(curves: list[dict], limits: ZoneLimits, out) -> None:
-    """|Gs| against frequency per axis, one panel per speed, with the zone limits.
-
-    Parameters
-    ----------
-    curves : list of dict
-        Each with ``speed_rpm``, ``axis``, ``freq_hz`` (Hz), ``gs`` (complex), ``coherence``,
-        ``peak_db`` (or None) and ``zone`` (or None).
-    limits : ZoneLimits
-        Peak |Gs| at the zone boundaries.
-    out : str or file
-        Where the image goes (a path, or a binary file for PNG).
-    """
-    plt = pyplot()
-    speeds = sorted({c["speed_rpm"] for c in curves})
-    fig, axes = plt.subplots(len(speeds), 1, figsize=(9, 3.2 * len(speeds) + 0.6), squeeze=False, sharex=True,
-                             constrained_layout=True)
-    for ax, rpm in zip(axes[:, 0], speeds):
-        for c in (c for c in curves if c["speed_rpm"] == rpm):
-            trusted = np.asarray(c["coherence"]) >= 0.9
-            mag = db(np.abs(c["gs"]))
-            peak = "not graded" if c["zone"] is None else f"{c['peak_db']:.1f} dB, zone {c['zone']}"
-            line = ax.semilogx(c["freq_hz"], np.where(trusted, mag, np.nan), lw=0.9, label=f"{c['axis']}: {peak}")[0]
-            ax.semilogx(c["freq_hz"], np.where(trusted, np.nan, mag), lw=0.5, alpha=0.3, color=line.get_color())
-        for z, v in zip(("A/B", "B/C", "C/D"), limits.as_list()):
-            ax.axhline(db(v), color="grey", lw=0.7, ls="--")
-            ax.annotate(z, (1.0, db(v)), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=7)
-        ax.set(ylabel="|Gs| [dB]", title=f"sensitivity function at {rpm:,.0f} rpm (faint: coherence < 0.9)")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7, loc="lower right")
-    axes[-1, 0].set(xlabel="frequency [Hz]")
-    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
-    plt.close(fig)
-
-
-def vibration_figure(bands: list[dict], limits: ZoneLimits, cmin_um: float, out) -> None:
-    """Each bearing's graded orbit per speed band against the zone limits (as fractions of Cmin).
-
-    Parameters
-    ----------
-    bands : list of dict
-        ``iso vibration``'s bands (``bearing``, ``rpm_from``, ``rpm_to``, ``max_um``).
-    limits : ZoneLimits
-        Displacement per Cmin at the zone boundaries.
-    cmin_um : float
-        Minimum clearance, in um.
-    out : str or file
-        Where the image goes (a path, or a binary file for PNG).
-    """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(9, 4), constrained_layout=True)
-    for bearing in sorted({b["bearing"] for b in bands}):
-        rows = [b for b in bands if b["bearing"] == bearing]
-        ax.step([r["rpm_from"] for r in rows] + [rows[-1]["rpm_to"]], [r["max_um"] for r in rows] + [rows[-1]["max_um"]],
-                where="post", label=f"{bearing} bearing")
-    for z, v in zip(("A/B", "B/C", "C/D"), limits.as_list()):
-        ax.axhline(v * cmin_um, color="grey", lw=0.7, ls="--")
-        ax.annotate(f"{z} {v:g} Cmin", (1.0, v * cmin_um), xycoords=("axes fraction", "data"), ha="right", va="bottom",
-                    fontsize=7)
-    ax.set(xlabel="speed [rpm]", ylabel="orbit maximum from its centre [µm]",
-           title=f"ISO 14839-2 vibration per speed band, Cmin {cmin_um:g} µm")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower left")
-    fig.savefig(out, dpi=100, format="png" if not isinstance(out, str) else None)
-    plt.close(fig)
 
 
 @command.command("vibration")
@@ -279,6 +214,9 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
         click.echo(f"worst: {worst.bearing} {worst.max_um:.2f} um = {worst.ratio:.3f} Cmin at {worst.at_rpm:,.0f} rpm, "
                    f"zone {worst.zone}")
     if plot_path:
-        vibration_figure(doc["bands"], limits, info["cmin_um"], plot_path)
+        from ..figures import save
+        from ..figures.iso import draw_vibration
+
+        save(draw_vibration(doc["bands"], limits, info["cmin_um"]), plot_path)
     if output or plot_path:
         click.echo(f"-> {', '.join(p for p in (output, plot_path) if p)}", err=True)

@@ -8,12 +8,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import converges, convergence_radius, mu_sign, sign_changes
+from ..analysis.lms import convergence_radius, mu_sign, sign_changes
 from ..daq.coefficients import Coefficients
 from ..workflows.lms_design import grid_step, phase_table, schedule
 from ..workflows.plants import analysing, design_models, resolve_plant
-from .figures import plot_option, pyplot
-from .options import POSITIVE
+from .options import POSITIVE, plot_option
 
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
                             help="Loop to design on: the spindle's front, rear, bearings, rig; tf:NUM/DEN; ss:FILE (docs/lms.md).")
@@ -73,29 +72,11 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
                 lo, hi = rep["no_sign_converges_rpm"]
                 click.echo(f"  no sign of |mu| = {mu_max / 10:g} converges between {lo:,.0f} and {hi:,.0f} rpm")
     if plot_path:
-        _plot_map(maps, rpm, mu, harmonic, plant, compensated, plot_path)
+        from ..figures import save
+        from ..figures.lms import draw_map
+
+        save(draw_map(maps, rpm, mu, harmonic, plant, compensated), plot_path, dpi=110)
         click.echo(f"-> {plot_path}", err=True)
-
-
-def _plot_map(maps: dict, rpm: np.ndarray, mu: np.ndarray, harmonic: int, plant: str, compensated: bool,
-              path: str) -> None:
-    plt = pyplot()
-
-    from matplotlib.colors import ListedColormap
-
-    fig, axes = plt.subplots(1, len(maps), figsize=(6 * len(maps), 4.5), squeeze=False)
-    for ax, (name, r) in zip(axes[0], maps.items()):
-        ax.pcolormesh(rpm, mu, converges(r.T), shading="auto", vmin=-1, vmax=1,
-                      cmap=ListedColormap(["#f4c7c3", "#ffffff", "#b7e1cd"]))
-        ax.contour(rpm, mu, r.T, levels=[1.0], colors="k", linewidths=1.0)
-        ax.axhline(0, color="grey", lw=0.5)
-        ax.set(xlabel="speed (rpm)", ylabel="step size mu",
-               title=f"{name}: {harmonic}X, {'compensated' if compensated else 'Ro et al.'} update "
-                     "(green converges, red diverges, white holds)")
-    fig.suptitle(f"LMS convergence map, plant {plant} (Ro et al. Fig. 5)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 @command.command("schedule")

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..analysis.cone import PdLoop, force_factor, linear_gains, shape_factor, stable_region
 from ..errors import BadInputError
-from .figures import plot_option, pyplot
+from .options import plot_option
 
 EXAMPLE = """\
 # one axis of Jeong et al.'s cone-shaped AMB (Table 1; gains of the Routh-Hurwitz example)
@@ -115,7 +115,10 @@ def command(file, example, as_json, plot_path):
     if plot_path:
         if not np.isfinite(region.kp_min):
             raise BadInputError(f"{file}: no stable (Kp, Kd) region to plot")
-        _plot_region(loop, region, kp_max, plot_path)
+        from ..figures import save
+        from ..figures.model import draw_region
+
+        save(draw_region(loop, region, kp_max), plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))
@@ -137,29 +140,3 @@ def command(file, example, as_json, plot_path):
         click.echo(f"  {row['hz']:>5g} Hz  Keq {row['keq_n_per_m']:>11.4g} N/m  Ceq {row['ceq_n_s_per_m']:>9.4g} N s/m")
 
 
-def _plot_region(loop: PdLoop, region, kp_max: float, path: str) -> None:
-    plt = pyplot()
-    fig = draw_region(loop, region, kp_max)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def draw_region(loop: PdLoop, region, kp_max: float):
-    """The stable (Kp, Kd) map, wide enough to show Kp_max at the design Kd and the design point;
-    the legend beside the map, so it hides none of the stable region."""
-    plt = pyplot()
-
-    kd = np.geomspace(max(region.kd_min, 1e-7) * 0.5, region.kd_max * 2, 160)
-    top = max(region.kp_min * 20, loop.kp, kp_max if np.isfinite(kp_max) else 0.0) * 3
-    kp = np.geomspace(region.kp_min * 0.5, top, 160)
-    ok = np.array([[PdLoop(**{**loop.__dict__, "kp": p, "kd": d}).stable() for d in kd] for p in kp])
-    fig, ax = plt.subplots(figsize=(8.5, 5), constrained_layout=True)
-    ax.contourf(kd, kp, ok.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
-    ax.plot(loop.kd, loop.kp, "k*", ms=10, label="design point")
-    ax.axhline(region.kp_min, color="k", lw=0.6, ls=":", label=f"Kp_min {region.kp_min:.3g}")
-    if np.isfinite(kp_max) and kp_max > 0:
-        ax.plot(loop.kd, kp_max, "kv", ms=7, label=f"Kp_max {kp_max:.3g}\nat the design Kd")
-    ax.set(xscale="log", yscale="log", xlabel="Kd [s]", ylabel="Kp [V/V]",
-           title="stable PD gains (green), Jeong et al. eq. 22-23")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
-    return fig

@@ -231,3 +231,27 @@ def snapshot_options(command):
                      help="Keep the last SECONDS in memory and write NAME_<time>_<cause>.mcap around each trigger "
                           "instead of one recording.")(f)
     return f
+
+
+class ImagePath(click.ParamType):
+    """An image file to write: its suffix must be one matplotlib writes (png, pdf, svg ...),
+    checked before any work is done."""
+
+    name = "IMAGE"
+
+    def convert(self, value, param, ctx):
+        from ..figures import image_formats
+
+        path = Path(value)
+        if path.is_dir():
+            self.fail(f"{value!r} is a directory", param, ctx)
+        formats = image_formats()
+        if path.suffix.lstrip(".").lower() not in formats:
+            self.fail(f"{value!r}: an image needs one of the suffixes {', '.join('.' + k for k in sorted(formats))}",
+                      param, ctx)
+        return str(path)
+
+
+def plot_option(help_text: str):
+    """``--plot IMAGE``: where a command draws its figure."""
+    return click.option("--plot", "plot_path", type=ImagePath(), help=help_text)

@@ -102,16 +102,19 @@ def _figure(png: bytes, caption: str) -> str:
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def _png(draw) -> bytes:
+def _png(fig) -> bytes:
+    """A figure as PNG bytes (closed)."""
+    from ..figures import save
+
     buf = io.BytesIO()
-    draw(buf)
+    save(fig, buf)
     return buf.getvalue()
 
 
 def render(found, title: str) -> str:
     """The report page of a :class:`~ambdaq.workflows.commissioning.Commissioning`."""
-    from .iso import stability_figure, vibration_figure
-    from .runup import runup_figure
+    from ..figures.iso import draw_stability, draw_vibration
+    from ..figures.runup import draw_runup
 
     d = found.data
     parts = [f"<h1>{html.escape(title)}</h1>"]
@@ -151,7 +154,7 @@ def render(found, title: str) -> str:
                   f"A/B {limits.ab:g}, B/C {limits.bc:g}, C/D {limits.cd:g} (peak |Gs|); a grade needs a coherence "
                   f"of at least {s['min_coherence']:g} at the peak.</p>",
                   _table(["speed [rpm]", "axis", "peak |Gs|", "peak [dB]", "at [Hz]", "coherence", "zone"], rows, "stability"),
-                  _figure(_png(lambda out: stability_figure(curves, limits, out)),
+                  _figure(_png(draw_stability(curves, limits)),
                           "Sensitivity function |Gs| in dB against frequency in Hz, per axis; dashed: the zone limits.")]
     v = d["vibration"]
     if v:
@@ -168,7 +171,7 @@ def render(found, title: str) -> str:
                   f"{removed}.</p>",
                   _table(["bearing", "from [rpm]", "to [rpm]", "windows", "max [µm]", "/ Cmin", "zone", "at [rpm]"], rows,
                          "vibration"),
-                  _figure(_png(lambda out: vibration_figure(v["bands"], limits, v["cmin_um"], out)),
+                  _figure(_png(draw_vibration(v["bands"], limits, v["cmin_um"])),
                           "Orbit maximum in µm per speed band in rpm, per bearing; dashed: the zone limits.")]
     r = d["runout"]
     if r:
@@ -214,7 +217,7 @@ def render(found, title: str) -> str:
                                     "verdict", "rule"], rows, "critical-speeds")
                             if rows else '<p class="note">No critical speed predicted inside the run.</p>'))
         parts += [
-                  _figure(_png(lambda out: runup_figure(found.runup, out, Path(d["files"]["runup"]).name)),
+                  _figure(_png(draw_runup(found.runup, Path(d["files"]["runup"]).name)),
                           "Order tracking (1X, 2X amplitude in µm and 1X phase in degrees against speed in rpm), the "
                           "1X vector, and the waterfall of the gap spectrum with the order lines.")]
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'

@@ -11,8 +11,7 @@ import numpy as np
 from ..daq.recording import open_recording
 from ..errors import AmbdaqError
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
-from .figures import plot_option
-from .options import POSITIVE, max_lost_option
+from .options import POSITIVE, max_lost_option, plot_option
 
 @click.group("runout")
 def command() -> None:
@@ -43,9 +42,10 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
     coef = ident.coef
     coef.save(output, overwrite=overwrite)
     if plot_path:
-        from .runout_plots import identify_report  # matplotlib and scipy.signal: only for a figure
+        from ..figures import save  # matplotlib and scipy.signal: only for a figure
+        from ..figures.runout import draw_identification
 
-        identify_report(ident, plot_path)
+        save(draw_identification(ident), plot_path)
         click.echo(f"-> {plot_path}", err=True)
     for w in ident.warnings:
         click.echo(f"ambdaq: warning: {w}", err=True)
@@ -100,9 +100,10 @@ def check(before, after, harmonics, min_db, max_rms, plot_path, as_json, max_los
     result = check_recordings(*recs, orders, min_db=min_db, max_rms_um=max_rms, max_lost=max_lost)
     b, a, rows, failures = result.before, result.after, result.axes, result.failures
     if plot_path:
-        from .runout_plots import check_report  # matplotlib and scipy.signal: only for a figure
+        from ..figures import save  # matplotlib and scipy.signal: only for a figure
+        from ..figures.runout import draw_check
 
-        check_report(*recs, orders, plot_path)
+        save(draw_check(*recs, orders), plot_path)
         click.echo(f"-> {plot_path}", err=True)
     if as_json:
         click.echo(json.dumps({"before": b, "after": a, "axes": rows, "failures": failures}, indent=2))

@@ -1,10 +1,12 @@
 """The simulated rig profiles: name -> the module that defines it (loaded when asked for).
 
 Each profile is one module in :mod:`ambdaq.sim.rigs` with a rig class (physics, a
-:class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` saying which of its devices are served on
-transports: its controller's :class:`~ambdaq.sim.devices.firmware.Firmware` (on a serial line),
-its CANopen devices (on a CAN bus), a shaker generator (on a serial line).  A new profile is one
-module and one line here; a profile with a rotordynamic model (``modes``) is a ``runup --model``.
+:class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` listing the kinds of device it serves on
+transports (:mod:`ambdaq.sim.served`: its controller, which runs the profile's
+:class:`~ambdaq.sim.devices.firmware.Firmware`, on a serial line; its CANopen devices on a CAN bus;
+a shaker generator on a serial line).  A new profile is one module and one line here; a profile
+with a rotordynamic model (``modes``) is a ``runup --model``, one with LMS design models (``lms``)
+a ``lms --plant``.
 """
 
 from __future__ import annotations
@@ -34,12 +36,10 @@ class Profile:
     rig : type
         Its rig class.
     firmware : Firmware or None
-        What its AMB controller runs, served on a serial line; None: it serves no devices
-        (``ambdaq sim generate`` only).
-    can : bool
-        Its CANopen devices (amplifier, gap sensor, accelerometer, key-phasor) are served on a CAN bus.
-    shaker : bool
-        A two-channel SCPI generator that moves its base is served on a serial line.
+        What its AMB controller runs.
+    devices : tuple of str
+        The kinds of device it serves on transports, in order (:data:`ambdaq.sim.served.KINDS`:
+        ``controller``, ``can``, ``shaker``); empty: it serves none (``ambdaq sim generate`` only).
     modes : callable or None
         Its rotordynamic model's lightly damped modes at a speed: ``modes(rpm)`` (rpm) gives
         frequencies (Hz), damping ratios and whirl (+1 forward, -1 backward, 0 not known), each an
@@ -52,14 +52,13 @@ class Profile:
     name: str
     rig: type
     firmware: Any = None
-    can: bool = False
-    shaker: bool = False
+    devices: tuple = ()
     modes: Any = None
     lms: Any = None
 
     @property
     def served(self) -> bool:
-        return self.firmware is not None
+        return bool(self.devices)
 
     def build(self, **options: Any):
         """The rig, with keyword ``options`` (seed, speed, truth, ff_mode, noise). ``ff_mode`` other

@@ -5,8 +5,10 @@ unit, limits and rate are the device's own."""
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -17,8 +19,10 @@ from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording, same_instants
 from ..drivers.excitation import OFF, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
+from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError, DeviceError
 from ..units import RAD_S_TO_RPM
+from .speed_restore import speed_restored
 
 
 @dataclass
@@ -71,6 +75,51 @@ def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
 
     controller.before_close(switch_off)
     return state
+
+
+def measure(device: str, request: ExcitationRequest, duration_s: float, output: Path, *, speed: str | None = None,
+            description: dict | None = None, overwrite: bool = False, on_restore=None,
+            record: Callable[[list[Source]], object] | None = None) -> Excited:
+    """Record ``device`` with its test signal on (``frf measure``): opened, excited, recorded for
+    ``duration_s``, the signal switched off and the device closed however the recording ends.
+
+    Parameters
+    ----------
+    device : str
+        The controller's URL (``sim://spindle``, ``serial:///dev/ttyACM0`` ...).
+    request : ExcitationRequest
+        Axis, amplitude and frequency of the test signal, checked against what the device reports.
+    duration_s : float
+        Recording length, s.
+    output : Path
+        The recording.
+    speed : str, optional
+        A speed to set first (``--rpm``); the speed it had is set again at the end (``on_restore``
+        is told).
+    description : dict, optional
+        What the device's back-end reads beyond its URL (an XCP controller's A2L).
+    overwrite : bool
+        Replace an existing regular file.
+    record : callable, optional
+        Records the opened sources instead of a plain :class:`~ambdaq.daq.recorder.Recorder`
+        (the command line's, with its progress and status).
+
+    Returns
+    -------
+    Excited
+        What ran; its ``switch_off_problem`` says if the signal could not be switched off.
+    """
+    from ..daq.recorder import Recorder, RecordOptions
+
+    with speed_restored(device, description, on_restore) if speed else nullcontext():
+        with Opened() as opened:
+            opened.add(open_url(device, speed=speed, description=description))
+            excited = excite(opened.sources, request)
+            if record is not None:
+                record(opened.sources)
+            else:
+                Recorder(opened.sources, output, RecordOptions(duration_s=duration_s), overwrite=overwrite).run()
+    return excited
 
 
 def excited_axis(ff, path: Path, given: str | None) -> str:
@@ -148,4 +197,4 @@ def summarize(frf: FrequencyResponse) -> dict:
     return out
 
 
-__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "summarize"]
+__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "measure", "summarize"]

@@ -28,7 +28,7 @@ from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError
-from ..machines.machine import Machine
+from ..machines.machine import Bearing, Machine
 from ..units import RAD_S_TO_RPM
 from .runout import runout_at, with_rotor
 
@@ -62,6 +62,8 @@ class RunupDiagnostics:
         each measured one it does not predict (API 684); empty without a model.
     centreline : Centreline
         Each bearing's mean position per window against speed and time.
+    bearings : tuple of Bearing
+        The machine's radial bearings among the tracked axes.
     """
 
     axes: list[str]
@@ -74,6 +76,7 @@ class RunupDiagnostics:
     notes: list[str]  # what the numbers are computed over, and what to distrust in them
     centreline: Centreline
     criticals: list[CriticalCheck]
+    bearings: tuple[Bearing, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -259,7 +262,8 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
     checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max()))) \
         if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
-                            centreline(machine, axes, x, rpm, time_s, n), checks)
+                            centreline(machine, axes, x, rpm, time_s, n), checks,
+                            tuple(b for b in machine.bearings if b.x in axes and b.y in axes))
 
 
 __all__ = ["Centreline", "ModelModes", "RunupDiagnostics", "analyse", "centreline", "model_modes"]

@@ -3,6 +3,7 @@ clock and the way a run of steps becomes a :class:`~ambdaq.drivers.signals.Sampl
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -11,8 +12,10 @@ from ...drivers.signals import SampleBlock, SignalGroup
 from ...speed import SpeedProfile
 
 
-class Rig:
-    """Base of the rig classes in this package (see :mod:`.profiles`).
+class Rig(ABC):
+    """Base of the rig classes in this package (see :mod:`.profiles`): what every rig provides is
+    its signal groups, its calibration and :meth:`run`; what can act on it besides its speed it
+    declares in :attr:`inputs`.
 
     Parameters
     ----------
@@ -46,8 +49,18 @@ class Rig:
         self.step_index = 0
         self._rng = np.random.default_rng(seed)
 
-    def signal_groups(self) -> list[SignalGroup]:  # each rig names its topics
-        raise NotImplementedError
+    @abstractmethod
+    def signal_groups(self) -> list[SignalGroup]:
+        """The topics it records, in the order of its blocks' arrays (fields named after its axes)."""
+
+    @abstractmethod
+    def calibration(self) -> dict[str, str]:
+        """What its simulated devices report of the machine (``machine.*``, ``rotor.*``) and of
+        themselves, as text."""
+
+    @abstractmethod
+    def run(self, n: int) -> SampleBlock:
+        """The next ``n`` control periods of the closed loop, as one block."""
 
     def _steps(self, n: int) -> np.ndarray:
         """Indices of the next ``n`` control steps."""

@@ -484,4 +484,4 @@ FIRMWARE = Firmware(
     FirFeedforward(),
 )
 
-PROFILE = Profile("base-motion", BaseMotionRig, FIRMWARE, shaker=True)
+PROFILE = Profile("base-motion", BaseMotionRig, FIRMWARE, ("controller", "shaker"))

@@ -712,4 +712,4 @@ LMS = DesignModels(
     },
     pid=FRONT_LOOP, axes=AXES, phase_bins=PHASE_BINS, phase_bin_hz=PHASE_BIN_HZ)
 
-PROFILE = Profile("spindle", SpindleRig, FIRMWARE, can=True, modes=campbell_modes, lms=LMS)
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, ("controller", "can"), modes=campbell_modes, lms=LMS)

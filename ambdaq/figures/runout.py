@@ -1,4 +1,4 @@
-"""Figures for ``ambdaq runout``: the identification report and the before/after check."""
+"""Figures of ``ambdaq runout``: the identification report and the before/after check."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from ..units import RAD_S_TO_RPM
 from ..analysis.runout import synthesise
 from ..analysis.spectrum import amplitude_spectrum
 from ..daq.recording import Recording
-from .figures import pyplot
+from . import pyplot
 
 ORBIT_REVS = 20  # revolutions drawn in an orbit: enough to show its spread, few enough to see its shape
 
@@ -30,14 +30,6 @@ def _order_spectrum(ax, signals: dict[str, tuple[np.ndarray, float]], fs: float,
         ax.semilogy(order[keep], np.maximum(a[keep] * 1e6, 1e-4), lw=0.7, label=label, **styles.get(label, {}))
     ax.set(xlabel="order (multiples of running speed)", ylabel="amplitude [µm]", xlim=(0, max_order))
     ax.grid(alpha=0.3, which="both")
-
-
-def identify_report(ident, path: str) -> None:
-    """Write :func:`draw_identification`'s figure to ``path`` (.png, .pdf, .svg)."""
-    plt = pyplot()
-    fig = draw_identification(ident)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def draw_identification(ident):
@@ -128,8 +120,8 @@ def draw_identification(ident):
     return fig
 
 
-def check_report(before: Recording, after: Recording, harmonics: list[int], path: str) -> None:
-    """Write the before/after figure: command-error orbit and spectrum per bearing, both recordings.
+def draw_check(before: Recording, after: Recording, harmonics: list[int]):
+    """The before/after figure: command-error orbit and spectrum per bearing, both recordings.
 
     Parameters
     ----------
@@ -137,8 +129,6 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
         With the command error and the rotor angle, before and after the push.
     harmonics : list of int
         Orders marked on the spectra.
-    path : str
-        Image file (.png, .pdf, .svg).
     """
     plt = pyplot()
     runs = {}
@@ -168,5 +158,4 @@ def check_report(before: Recording, after: Recording, harmonics: list[int], path
         ax.set_title(f"{x}: command error spectrum")
         ax.legend(fontsize=7)
     fig.suptitle(f"command error before ({before.path.name}) and after ({after.path.name})")
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
