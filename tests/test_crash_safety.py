@@ -101,3 +101,24 @@ def test_kill_9_loses_only_the_last_moments(tmp_path, run_cli):
     assert 0 <= lost_s <= 2.5, lost_s
     assert report["topics"]["/amb/gap"] == {"samples": len(gap), "drops": 0, "duplicates": 0, "wraps": 0, "restarts": 0,
                                             "samples_lost": 0, "seconds_kept": len(gap) / 10000, "seconds_lost": 0.0}
+
+
+def test_a_repeated_stop_just_after_the_end_is_the_same_stop():
+    """What a stopped run leaves as the stop signal's handler: within the grace the signal does
+    nothing (a double Ctrl-C must not interrupt the closing of the devices and the summary); after
+    it, the handler there was before, and from then on that handler itself."""
+    from ambdaq.daq.acquisition import _after_stop
+
+    calls = []
+    old = lambda signum, frame: calls.append(signum)  # noqa: E731
+    previous = signal.signal(signal.SIGUSR2, signal.SIG_IGN)
+    try:
+        signal.signal(signal.SIGUSR2, _after_stop(old, time.monotonic() + 60))
+        signal.raise_signal(signal.SIGUSR2)
+        assert calls == []
+        late = _after_stop(old, time.monotonic() - 1)
+        signal.signal(signal.SIGUSR2, late)
+        signal.raise_signal(signal.SIGUSR2)
+        assert calls == [signal.SIGUSR2] and signal.getsignal(signal.SIGUSR2) is old
+    finally:
+        signal.signal(signal.SIGUSR2, previous)

@@ -13,6 +13,7 @@ from .options import (a2l_option, excitation_option, max_lost_option, output_opt
                       speed_option,
                       speed_restored_note)
 from .record import run_recording
+from ..layout import ERROR, FF
 
 
 @click.group("frf")
@@ -55,8 +56,8 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
 @click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Frequency step, Hz (10 matches the LMS phase table).")
 @click.option("--input", "input_axis", help="The excited axis; default: the one axis whose input is not zero.")
-@click.option("--input-topic", default="/amb/ff", show_default=True, help="Where the test signal is recorded.")
-@click.option("--output-topic", default="/amb/error", show_default=True,
+@click.option("--input-topic", default=FF, show_default=True, help="Where the test signal is recorded.")
+@click.option("--output-topic", default=ERROR, show_default=True,
               help="The response: /amb/error (the LMS loop), /amb/gap (base-motion secondary path).")
 @click.option("--overwrite", is_flag=True)
 @plot_option("Bode plot and coherence (.png, .pdf, .svg).")

@@ -8,11 +8,13 @@ import click
 from ..daq.recording import open_recording
 from ..errors import BadInputError
 from .options import POSITIVE, ImagePath, window_options
+from ..layout import GAP
 
 
 @click.command("plot")
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--topic", default="/amb/gap", show_default=True)
+@click.option("--topic", default=GAP, show_default=True,
+              help="A topic, or a role's (/amb/gap: the machine's gap, wherever recorded).")
 @click.option("--field", "field_name", required=True, help="Field, e.g. front_x.")
 @window_options
 @click.option("--cmin", type=POSITIVE, metavar="UM",

@@ -19,6 +19,7 @@ rig) to miss SYNCs.
 from __future__ import annotations
 
 import gc
+import os
 import queue
 import signal
 import threading
@@ -38,6 +39,10 @@ QUEUE_BLOCKS = 64  # blocks in flight between device threads and the acquisition
 STOP_WAIT_S = 0.5  # after a stop, how long the devices' last blocks are waited for
 PROVISIONAL_S = 0.5  # a device's first blocks wait for this much of its clock pairs (an offset from more than one)
 TICK_S = 0.1  # the longest the acquisition's thread waits for a block before it looks at the time
+REPEAT_GRACE_S = 2.0
+"""After a stop by Ctrl-C or SIGTERM, the same signal within this long is taken as the same stop
+repeated (a double press), not as an interrupt of what the caller does next (closing the devices,
+printing the summary): the files are whole by then.  Later ones reach the handler there was before."""
 
 
 class Sink:
@@ -122,6 +127,22 @@ class _Reader(threading.Thread):
         except Exception as err:  # report, the acquisition's thread decides
             self.q.put((self.source, err))
         self.q.put((self.source, _Ended(complete)))
+
+
+def _after_stop(old, until: float) -> Callable:
+    """The handler a stop signal gets back after a stopped run: until ``until`` (monotonic s) the
+    signal is the same stop repeated and does nothing; after it, the ``old`` handler again."""
+
+    def handler(signum, frame) -> None:
+        if time.monotonic() < until:
+            return
+        signal.signal(signum, old)  # as before, from now on
+        if callable(old):
+            old(signum, frame)
+        elif old == signal.SIG_DFL:
+            os.kill(os.getpid(), signum)
+
+    return handler
 
 
 def _freeze_heap() -> None:
@@ -270,8 +291,9 @@ class Acquisition:
                 sink.close()
             while closer.is_alive() and count[0] < 2:
                 closer.join(0.1)
+            until = time.monotonic() + REPEAT_GRACE_S
             for sig, old in handlers.items():
-                signal.signal(sig, old)
+                signal.signal(sig, _after_stop(old, until) if count[0] and sig in (signal.SIGINT, signal.SIGTERM) else old)
             gc.unfreeze()
         return failure
 

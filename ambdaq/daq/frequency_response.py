@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .sealed import read_sealed, seal, write_sealed
+from ..layout import ERROR, FF
 
 FORMAT = "ambdaq-frf"
 VERSION = 1
@@ -43,8 +44,8 @@ class FrequencyResponse:
 
     freq_hz: np.ndarray
     columns: dict
-    input_topic: str = "/amb/ff"
-    output_topic: str = "/amb/error"
+    input_topic: str = FF
+    output_topic: str = ERROR
     unit: str = "m/m"
 
     def response(self, output: str, input_: str) -> tuple[np.ndarray, np.ndarray]:

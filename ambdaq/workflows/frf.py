@@ -21,6 +21,7 @@ from ..drivers.excitation import OFF, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
 from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError, DeviceError
+from ..layout import ERROR, FF
 from ..units import RAD_S_TO_RPM
 from .speed_restore import speed_restored
 
@@ -139,7 +140,7 @@ def excited_axis(ff, path: Path, given: str | None) -> str:
 
 
 def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: str | None,
-                       input_topic: str = "/amb/ff", output_topic: str = "/amb/error",
+                       input_topic: str = FF, output_topic: str = ERROR,
                        max_lost: float = MAX_LOST) -> FrequencyResponse:
     """H1 and coherence from each recording's excited axis to every output axis (one column per
     file); a recording that lost more than ``max_lost`` of its samples (a share, 0..1) is refused:

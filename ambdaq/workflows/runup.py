@@ -18,6 +18,7 @@ from ..daq.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..speed import SpeedProfile
 from ..sim.rigs.spindle import AXES, N_HARMONICS, SPINDLE, RunoutFeedforward, SpindleRig  # the rig compared on
+from ..layout import ERROR, ROTOR
 from ..units import RAD_S_TO_RPM
 from .push import image_from
 
@@ -38,9 +39,9 @@ def _rig(image: BankImage | None, speed: SpeedProfile, seed: int) -> SpindleRig:
 
 def _components(block, window: int) -> np.ndarray:
     """Per window: mean speed (rpm), worst radial |1X|, |2X| of the command error and its RMS (m)."""
-    th = block.values["/amb/rotor"][:, 0]
-    rpm = block.values["/amb/rotor"][:, 1] * RAD_S_TO_RPM
-    e = block.values["/amb/error"][:, :4]
+    th = block.values[ROTOR][:, 0]
+    rpm = block.values[ROTOR][:, 1] * RAD_S_TO_RPM
+    e = block.values[ERROR][:, :4]
     out = []
     for i in range(0, len(th) - window + 1, window):
         s = slice(i, i + window)

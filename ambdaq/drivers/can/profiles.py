@@ -20,6 +20,7 @@ from pathlib import Path
 
 import canopen
 from canopen import objectdictionary as od
+from ...layout import ACCEL, CURRENT, GAP, ROTOR
 
 EDS_DIR = Path(__file__).parent / "eds"
 SYNC_COUNTER_MAX = 240  # 0x1019
@@ -139,7 +140,7 @@ PROFILES: dict[str, DeviceProfile] = {
     for p in (
         DeviceProfile(
             "amplifier", "ambdaq AMB power amplifier (5 axes, 8 A)", 0x0101, 0x00000191, 0x10,
-            "/amb/current", "Current",
+            CURRENT, "Current",
             (tuple(Channel(a, 0x6000 + i, od.INTEGER16, 1e-3, "A", i) for i, a in enumerate(RADIAL)),
              (Channel("axial", 0x6004, od.INTEGER16, 1e-3, "A", 4),)),
             0x6010,
@@ -148,38 +149,38 @@ PROFILES: dict[str, DeviceProfile] = {
              Parameter("current_limit", 0x2002, od.REAL32, 5.9, "rw", "A"),
              Parameter("temperature", 0x2003, od.REAL32, 35.0, "ro", "degC"),
              Parameter("temperature_limit", 0x2004, od.REAL32, 85.0, "rw", "degC")),
-            "/amb/current",
+            CURRENT,
         ),
         DeviceProfile(
             "gap_sensor", "ambdaq eddy-current gap sensor conditioner (5 axes)", 0x0102, 0x00000194, 0x20,
-            "/amb/gap", "Gap",
+            GAP, "Gap",
             (tuple(Channel(a, 0x6000 + i, od.INTEGER16, 1e-8, "m", i) for i, a in enumerate(RADIAL)),
              (Channel("axial", 0x6004, od.INTEGER16, 1e-8, "m", 4),)),
             None,
             (Parameter("sensitivity", 0x2100, od.REAL32, 1.0e4, "rw", "V/m"),
              Parameter("offset", 0x2101, od.REAL32, 0.0, "rw", "m")),
-            "/amb/gap",
+            GAP,
         ),
         DeviceProfile(
             "accelerometer", "ambdaq housing accelerometer module (3 axes)", 0x0103, 0x00000195, 0x30,
-            "/amb/accel", "Accel",
+            ACCEL, "Accel",
             ((Channel("front_x", 0x6000, od.INTEGER16, 1e-2, "m/s^2", 0),
               Channel("front_y", 0x6001, od.INTEGER16, 1e-2, "m/s^2", 1),
               Channel("axial", 0x6002, od.INTEGER16, 1e-2, "m/s^2", 4)),),
             None,
             (Parameter("range", 0x2200, od.REAL32, 300.0, "rw", "m/s^2"),),
-            "/amb/accel",
+            ACCEL,
         ),
         DeviceProfile(
             "keyphasor", "ambdaq key-phasor / tachometer", 0x0104, 0x00000196, 0x40,
-            "/amb/rotor", "Rotor",
+            ROTOR, "Rotor",
             ((Channel("angle", 0x6000, od.UNSIGNED16, 2 * 3.141592653589793 / 65536, "rad", 0),
               Channel("speed", 0x6001, od.REAL32, 1.0, "rad/s", 1),
               Channel("keyphasor", 0x6002, od.UNSIGNED8, 1.0, "1", 2)),),
             None,
             (Parameter("pulses_per_rev", 0x2300, od.UNSIGNED8, 1),
              Parameter("angle_offset", 0x2301, od.REAL32, 0.0, "rw", "rad")),
-            "/amb/rotor",
+            ROTOR,
         ),
     )
 }
