@@ -146,3 +146,49 @@ def test_a_file_without_chunks_or_summary_recovers(tmp_path, run_cli):
     np.testing.assert_array_equal(got["x"], np.arange(len(readable)))
     np.testing.assert_array_equal(got["y[1]"], 2 * np.arange(len(readable)))
     assert got.skipped == ("name (str)",)
+
+
+def test_a_protobuf_file_of_foxglove_s_sdk_holds_what_the_official_decoder_reads(tmp_path, run_cli):
+    """Protobuf, as Foxglove's SDK writes it (its own Rust writer, an independent one): every
+    numeric field of a Pose and a Log a column by its path, each equal to the official protobuf
+    decoder's; the strings listed as skipped; info, export and plot take the file."""
+    import foxglove
+    from foxglove.channels import LogChannel, PoseChannel
+    from foxglove.messages import Log, LogLevel, Pose, Quaternion, Vector3
+    from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+
+    path = tmp_path / "sdk.mcap"
+    ctx = foxglove.Context()
+    writer = foxglove.open_mcap(str(path), context=ctx)
+    pose, log = PoseChannel("/robot/pose", context=ctx), LogChannel("/log", context=ctx)
+    for i in range(200):
+        t = 1_700_000_000_000_000_000 + i * 10_000_000
+        pose.log(Pose(position=Vector3(x=0.1 * i, y=-2.5, z=np.sin(i)), orientation=Quaternion(x=0, y=0, z=0, w=1)),
+                 log_time=t)
+        log.log(Log(message=f"step {i}", level=LogLevel.Warning if i % 7 == 0 else LogLevel.Info, name="n", file="f",
+                    line=i), log_time=t)
+    writer.close()
+    with open(path, "rb") as fh:
+        msgs = {}
+        for _s, c, _m, m in make_reader(fh, decoder_factories=[ProtobufDecoders()]).iter_decoded_messages(
+                log_time_order=True):
+            msgs.setdefault(c.topic, []).append(m)
+    rec = load(path)
+    got = rec["/robot/pose"]
+    assert list(got.fields) == ["position.x", "position.y", "position.z", "orientation.x", "orientation.y",
+                                "orientation.z", "orientation.w"] and len(got) == 200
+    for column in got.fields:  # float64 in protobuf and in the column: equal, not close
+        part, name = column.split(".")
+        np.testing.assert_array_equal(got[column], [getattr(getattr(m, part), name) for m in msgs["/robot/pose"]])
+    logs = rec["/log"]
+    np.testing.assert_array_equal(logs["level"], [m.level for m in msgs["/log"]])
+    np.testing.assert_array_equal(logs["line"], [m.line for m in msgs["/log"]])
+    assert set(logs.skipped) == {"message (str)", "name (str)", "file (str)"}
+    info = run_cli("info", path)
+    assert info.exit_code == 0 and "/robot/pose" in info.output
+    r = run_cli("export", path, "--format", "csv", "--topic", "/robot/pose", "-o", tmp_path / "pose.csv")
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(tmp_path / "pose.csv")))
+    assert [float(row["position.z"]) for row in rows] == [m.position.z for m in msgs["/robot/pose"]]
+    r = run_cli("plot", path, "--topic", "/robot/pose", "--field", "position.z", "-o", tmp_path / "z.png")
+    assert r.exit_code == 0 and (tmp_path / "z.png").stat().st_size > 1000, r.output

@@ -81,6 +81,7 @@ def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
         click.echo(json.dumps({"scanned": len(report.scanned), "unchanged": report.unchanged,
                                "writing": report.writing, "errors": [{"path": p, "error": e} for p, e in report.errors],
                                "interrupted": report.interrupted, "seconds": round(report.seconds, 3),
+                               "warm_s": round(report.warm_s, 3),
                                "bytes_read": report.bytes_read}, indent=2))
     elif not quiet:
         click.echo(f"{len(report.scanned)} scanned ({report.bytes_read / 1e6:.1f} MB in {report.seconds:.1f} s), "

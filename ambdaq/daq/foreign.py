@@ -2,7 +2,9 @@
 official decoders into the same :class:`~ambdaq.daq.reader.TopicData` as ambdaq's own, so that
 ``load``, ``export`` and ``plot`` take them.
 
-A ros2msg/CDR message is decoded by ``mcap-ros2-support``, a JSON one by the standard library.
+A ros2msg/CDR message is decoded by ``mcap-ros2-support``, a protobuf one by
+``mcap-protobuf-support`` (what Foxglove's SDK and many robotics stacks write), a JSON one by the
+standard library.
 Its numeric fields (integers, floats, booleans as 0/1), nested and in arrays, become one column
 each named by its path (``pose.position.x``, ``ranges[3]``, ``new_parameters[0].value.type``);
 an element missing from a message (a shorter array) is NaN there.  Anything else (strings,
@@ -24,7 +26,7 @@ from .mcapfile import McapFile
 
 MAX_ELEMENTS = 1024  # elements of one array made columns; a longer one (an image, a point cloud) is skipped
 MAX_COLUMNS = 4096  # columns of one topic
-DECODABLE = {("ros2msg", "cdr"), ("jsonschema", "json"), ("", "json")}
+DECODABLE = {("ros2msg", "cdr"), ("protobuf", "protobuf"), ("jsonschema", "json"), ("", "json")}
 """(schema encoding, message encoding) pairs an official decoder here reads."""
 
 
@@ -55,6 +57,12 @@ def _flatten(value, path: str, out: dict[str, float], skipped: set[str]) -> None
     elif isinstance(value, dict):
         for key, item in value.items():
             _flatten(item, f"{path}.{key}" if path else str(key), out, skipped)
+    elif hasattr(value, "DESCRIPTOR") and hasattr(value, "ListFields"):  # a protobuf message: every field
+        for f in value.DESCRIPTOR.fields:
+            item = getattr(value, f.name)
+            repeated = f.is_repeated if hasattr(f, "is_repeated") else f.label == f.LABEL_REPEATED  # protobuf 7 / older
+            _flatten(list(item) if repeated else item, f"{path}.{f.name}" if path else f.name,
+                     out, skipped)
     elif hasattr(value, "__slots__") or hasattr(value, "__dict__"):
         names = getattr(value, "__slots__", None) or list(vars(value))
         for key in names:
@@ -66,6 +74,7 @@ def _flatten(value, path: str, out: dict[str, float], skipped: set[str]) -> None
 def _messages(f: McapFile, topics: list[str], lo: int | None, hi: int | None) -> Iterator[tuple]:
     """(topic, log_time, publish_time, sequence, decoded message) in file order."""
     from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
     from mcap_ros2.decoder import DecoderFactory
 
     class JsonDecoders:
@@ -73,7 +82,7 @@ def _messages(f: McapFile, topics: list[str], lo: int | None, hi: int | None) ->
             return (lambda data: json.loads(data)) if message_encoding == "json" else None
 
     with open(f.path, "rb") as fh:
-        reader = make_reader(fh, decoder_factories=[DecoderFactory(), JsonDecoders()])
+        reader = make_reader(fh, decoder_factories=[DecoderFactory(), ProtobufDecoders(), JsonDecoders()])
         try:
             for _schema, channel, message, decoded in reader.iter_decoded_messages(
                     topics=topics, start_time=lo, end_time=None if hi is None else hi + 1, log_time_order=True):

@@ -201,6 +201,14 @@ def has_footer(path: Path) -> bool:
         return fh.read() == MAGIC
 
 
+def warm() -> None:
+    """Import and compile what a row needs (numpy, scipy, numba's kernels, pyarrow) in the process
+    that runs it: once per worker, before its first file, so no file's time holds it."""
+    import pyarrow.parquet  # noqa: F401
+
+    harmonic_fit(np.zeros((64, 2)), np.linspace(0.0, 12.0, 64), HARMONICS)
+
+
 @dataclass
 class ScanReport:
     """What a scan did."""
@@ -210,7 +218,8 @@ class ScanReport:
     writing: list[str] = field(default_factory=list)  # skipped: no footer yet and recently modified
     errors: list[tuple[str, str]] = field(default_factory=list)  # (path, error), rows written
     interrupted: bool = False
-    seconds: float = 0.0
+    seconds: float = 0.0  # from the first file handed out to the last row written
+    warm_s: float = 0.0  # the workers' imports and compilation before that (Dask's start-up beside it)
     bytes_read: int = 0
 
 
@@ -314,8 +323,11 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
     from distributed import as_completed
 
     t0 = time.monotonic()
+    client.run(warm)  # every worker, before the first file (a cluster's workers: each once)
+    report_warm = time.monotonic() - t0
+    t0 = time.monotonic()
     now = time.time() if now is None else now
-    report = ScanReport()
+    report = ScanReport(warm_s=report_warm)
     known = index(dataset)
     todo = []
     for p in paths:
@@ -338,9 +350,8 @@ def scan(paths: list[Path], dataset: Path, client, *, on_row: Callable[[dict, in
     workers = max(1, len(client.scheduler_info().get("workers", {})))
     per_task = max(1, math.ceil(len(todo) / (workers * TASKS_PER_WORKER)))
     batches = [todo[i:i + per_task] for i in range(0, len(todo), per_task)]
-    # a lone worker decompresses a file's chunks on every core; several are parallel over files,
-    # and threads of their own would only contend with each other (docs/performance.md)
-    threads = READ_THREADS if workers == 1 else 1
+    # a worker reads a file on one thread: the workers are parallel over files (docs/performance.md)
+    threads = 1
     futures = client.map(scan_into, [[str(p) for p in b] for b in batches], [str(dataset.resolve())] * len(batches),
                          [[None if (o := known.get(str(p))) is None else str(o["file"]) for p in b] for b in batches],
                          [threads] * len(batches), pure=False)

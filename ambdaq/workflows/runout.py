@@ -18,10 +18,10 @@ from ..units import RAD_S_TO_RPM
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
 # a recording this slow is a slow roll for identification (the speed spec's `slowroll` is 800 rpm)
-METHODS = {
-    "fit": lambda x, th, k: harmonic_fit(x, th, k),
-    "average": lambda x, th, k: synchronous_average(x, th, harmonics=k),
-    "lms": lambda x, th, k: lms_offline(x, th, harmonics=k).phasors,
+METHODS = {  # x (samples, columns) -> phasors (harmonic, column)
+    "fit": lambda x, th, k: harmonic_fit(x, th, k),  # every column in one pass
+    "average": lambda x, th, k: np.stack([synchronous_average(c, th, harmonics=k) for c in x.T], axis=1),
+    "lms": lambda x, th, k: np.stack([lms_offline(c, th, harmonics=k).phasors for c in x.T], axis=1),
 }
 
 
@@ -118,8 +118,9 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
                                 f"{speed.min() * RAD_S_TO_RPM:.0f} to {speed.max() * RAD_S_TO_RPM:.0f} rpm")
         theta = rot["angle"][:n]
         fit = METHODS[method]
-        G = np.stack([fit(gap[a][:n], theta, harmonics) for a in axes], axis=1)  # (harmonic, axis)
-        I = np.stack([fit(cur[a][:n], theta, harmonics) for a in axes], axis=1)
+        # every axis's gap and current at once: (harmonic, axis) each
+        G, I = np.split(fit(np.column_stack([gap[a][:n] for a in axes] + [cur[a][:n] for a in axes]), theta,
+                            harmonics), 2, axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
         u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
