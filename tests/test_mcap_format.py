@@ -1,6 +1,7 @@
 """Recordings are standard MCAP: the official reader and ROS 2 decoder read exactly what we wrote."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
@@ -89,3 +90,39 @@ def test_chunks_are_cut_at_the_chunk_size_between_sample_instants(spindle_file):
     for ci in chunks:  # every chunk holds each topic's messages of the same instants
         assert ci.uncompressed_size % row == 0
         assert f.message_index(ci, gap_channel).shape[0] == ci.uncompressed_size // row
+
+
+def test_foxglove_s_own_reader_opens_every_message_and_refuses_a_file_without_message_indexes(
+        spindle_file, tmp_path_factory, tmp_path):
+    """What Foxglove opens an indexed file with (@mcap/core's McapIndexedReader, from npm): every
+    message of a recording, each topic's count as the summary says, in log-time order.  And why the
+    Message Indexes stay in ambdaq's files although they are 36 % of them (docs/performance.md):
+    the same reader refuses a file whose chunks have none (written by the official Python writer
+    without them)."""
+    import subprocess
+
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    from conftest import npm_installed
+
+    folder = npm_installed(tmp_path_factory, Path(__file__).parent / "mcap_reader_check", ("read.js",))
+
+    def read(path):
+        r = subprocess.run(["node", "read.js", str(path)], cwd=folder, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        return json.loads(r.stdout)
+
+    got = read(spindle_file)
+    f = McapFile(spindle_file)
+    counts = f.summary.statistics.channel_message_counts
+    assert got["ordered"] and got["counts"] == {ch.topic: counts[cid] for cid, ch in f.summary.channels.items()
+                                                if counts.get(cid)}
+    bare = tmp_path / "without_message_indexes.mcap"
+    with open(bare, "wb") as fh:
+        w = Writer(fh, index_types=IndexType.ALL & ~IndexType.MESSAGE, compression=CompressionType.ZSTD)
+        w.start()
+        channel = w.register_channel("/t", "json", w.register_schema("t", "jsonschema", b"{}"))
+        for i in range(10):
+            w.add_message(channel, log_time=1000 + i, publish_time=1000 + i, data=b"{}")
+        w.finish()
+    assert "without message indexes" in read(bare)["error"]
