@@ -192,3 +192,56 @@ def test_a_protobuf_file_of_foxglove_s_sdk_holds_what_the_official_decoder_reads
     assert [float(row["position.z"]) for row in rows] == [m.position.z for m in msgs["/robot/pose"]]
     r = run_cli("plot", path, "--topic", "/robot/pose", "--field", "position.z", "-o", tmp_path / "z.png")
     assert r.exit_code == 0 and (tmp_path / "z.png").stat().st_size > 1000, r.output
+
+
+FIXED = """uint8 flag
+float64 value
+int32 count
+geometry_msgs/Vector3 v
+float32[3] arr
+uint64 big
+int8 LIMIT=3
+================================================================================
+MSG: geometry_msgs/Vector3
+float64 x
+float64 y
+float64 z
+"""
+
+
+def test_a_fixed_layout_topic_of_another_writer_is_read_in_blocks_with_the_official_decoder_s_values(tmp_path):
+    """A ros2msg topic whose every member is a number, a fixed array or a nested type of such, written
+    by the official ROS 2 writer (mcap-ros2-support) beside one with a string: the fixed one is read
+    in blocks (CDR alignment: a uint8 then a float64 at 8, a float32 array after three float64, a
+    uint64 past 2**53, exact), every value the official decoder's; the other message by message."""
+    from mcap_ros2.writer import Writer
+
+    path = tmp_path / "fixed.mcap"
+    n = 3000
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        fixed = w.register_msgdef("my_pkg/msg/Mixed", FIXED)
+        note = w.register_msgdef("my_pkg/msg/Note", "string text\nfloat64 value\n")
+        for i in range(n):
+            w.write_message("/mixed", fixed, {"flag": i % 2, "value": i * 0.25 - 7, "count": -i, "arr": [0.5, 1.5, i / 3],
+                                              "v": {"x": np.sin(i), "y": 2.0, "z": -3.5}, "big": 2**63 + 7 * i},
+                            log_time=10_000 + 1000 * i, publish_time=5 + i, sequence=i)
+            if i % 10 == 0:
+                w.write_message("/note", note, {"text": f"n{i}", "value": i}, log_time=10_000 + 1000 * i)
+        w.finish()
+    msgs = official(path, "/mixed")
+    rec = load(path)
+    got = rec["/mixed"]
+    assert list(got.fields) == ["flag", "value", "count", "v.x", "v.y", "v.z", "arr[0]", "arr[1]", "arr[2]", "big"]
+    assert len(got) == n and got["big"].dtype == np.uint64  # the block reader's: 64-bit integers exact
+    assert got["big"].tolist() == [m.big for m in msgs]
+    for column, value in (("flag", lambda m: m.flag), ("value", lambda m: m.value), ("count", lambda m: m.count),
+                          ("v.x", lambda m: m.v.x), ("v.z", lambda m: m.v.z), ("arr[2]", lambda m: m.arr[2])):
+        # float32 widened to float64 as the official decoder's Python float is: equal, not close
+        np.testing.assert_array_equal(got[column], [value(m) for m in msgs])
+    np.testing.assert_array_equal(got.seq, np.arange(n))
+    np.testing.assert_array_equal(got.device_time, 5 + np.arange(n))
+    notes = rec["/note"]  # a string: the official decoder's path
+    assert notes.skipped == ("text (str)",) and notes["value"].tolist() == list(range(0, n, 10))
+    window = load(path, topics=["/mixed"], start=0.5e-3, end=1.0e-3)["/mixed"]  # the same window either path
+    assert window["count"].tolist() == [-i for i in range(500, 1001)]

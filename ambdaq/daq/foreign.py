@@ -126,3 +126,88 @@ def load_foreign(f: McapFile, topics: list[str], lo: int | None, hi: int | None)
                       "seq": np.array([r[2] for r in got], dtype=np.int64).astype(np.uint32),
                       "fields": fields, "skipped": tuple(sorted(skipped[topic]))}
     return out
+
+
+class NotFixed(Exception):
+    """A topic whose schema has a fixed layout, but whose messages the block reader cannot take as
+    they are (a chunk without a message index, a payload of another size or byte order): it is
+    read through the official decoder instead."""
+
+
+def fixed_topics(f: McapFile, own: set[str]) -> dict[str, tuple[int, np.dtype]]:
+    """Topics of ``f`` of other writers whose ros2msg schema has a fixed CDR layout
+    (:func:`~.cdr_layout.fixed_layout`): topic -> (channel id, record dtype of the payload)."""
+    from .cdr_layout import fixed_layout
+
+    out = {}
+    for cid, ch in f.summary.channels.items():
+        schema = f.summary.schemas.get(ch.schema_id)
+        if ch.topic in own or schema is None or (schema.encoding, ch.message_encoding) != ("ros2msg", "cdr"):
+            continue
+        dtype = fixed_layout(schema.name, schema.data.decode(errors="replace"))
+        if dtype is not None:
+            out[ch.topic] = (cid, dtype)
+    return out
+
+
+MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel, sequence, log time, publish time
+
+
+def load_fixed(f: McapFile, topic: str, cid: int, layout: np.dtype, lo: int | None, hi: int | None) -> dict:
+    """One fixed-layout topic of another writer read in blocks: each chunk decompressed once, its
+    message index's records gathered, every record checked (opcode, channel, length, log time,
+    CDR header) and its fields copied out by the layout; the columns as :func:`load_foreign` gives
+    them (64-bit integers exact).  NotFixed where the messages are not as the layout says."""
+    from .cdr_layout import ENCAPSULATION
+
+    head = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+                     ("log_time", "<u8"), ("publish_time", "<u8"), ("cdr", "u1", (ENCAPSULATION,))])
+    size = MESSAGE_HEAD + ENCAPSULATION + layout.itemsize
+    parts = []
+    for ci in sorted(f.summary.chunk_indexes, key=lambda c: c.message_start_time):
+        if (lo is not None and ci.message_end_time < lo) or (hi is not None and ci.message_start_time > hi):
+            continue
+        if cid not in ci.message_index_offsets:
+            if ci.message_index_length == 0:
+                raise NotFixed(f"{topic}: a chunk without message indexes")
+            continue
+        index = f.message_index(ci, cid)
+        if not index.shape[0]:
+            continue
+        records = np.frombuffer(f.chunk_records(ci), dtype=np.uint8)
+        offsets = index["offset"].astype(np.int64)
+        if int(offsets.max()) + size > records.shape[0] or int(offsets.min()) < 0:
+            raise BadInputError(f"{f.path}: a message index of {topic} points past its chunk; try: ambdaq recover")
+        rows = np.ascontiguousarray(records[offsets[:, None] + np.arange(size)])
+        h = rows[:, : head.itemsize].copy().view(head).ravel()
+        # a payload may carry up to 3 bytes of CDR padding beyond the layout (its length is aligned to 4)
+        payload = h["length"].astype(np.int64) - (MESSAGE_HEAD - 9)
+        if not (np.all(h["opcode"] == 0x05) and np.all(h["channel"] == cid)
+                and np.array_equal(h["log_time"], index["log_time"])):
+            raise BadInputError(f"{f.path}: a message index of {topic} does not point at its messages; try: ambdaq recover")
+        if np.any(payload < ENCAPSULATION + layout.itemsize) or np.any(payload > ENCAPSULATION + layout.itemsize + 3):
+            raise NotFixed(f"{topic}: a message of another size than its schema's layout")
+        if not (np.all(h["cdr"][:, 0] == 0) and np.all(h["cdr"][:, 1] == 1)):
+            raise NotFixed(f"{topic}: a message not in little-endian plain CDR")
+        parts.append((h, rows[:, MESSAGE_HEAD + ENCAPSULATION:].copy().view(layout).ravel()))
+    h = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, head)
+    values = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, layout)
+    order = np.argsort(h["log_time"], kind="stable")  # as the official reader gives them: in log time
+    h, values = h[order], values[order]
+    keep = np.ones(h.shape[0], dtype=bool)
+    if lo is not None:
+        keep &= h["log_time"] >= lo
+    if hi is not None:
+        keep &= h["log_time"] <= hi
+    h, values = h[keep], values[keep]
+    fields = {}
+    for name in layout.names:
+        column = values[name]
+        fields[name] = column.astype(column.dtype.newbyteorder("=")) if column.dtype.kind in "iu" and \
+            column.dtype.itemsize == 8 else column.astype(np.float64)
+    return {"log_time": h["log_time"].astype(np.int64), "device_time": h["publish_time"].astype(np.int64),
+            "seq": h["sequence"].astype(np.uint32), "fields": fields, "skipped": ()}
+
+
+__all__ = ["DECODABLE", "MAX_COLUMNS", "MAX_ELEMENTS", "NotFixed", "fixed_topics", "foreign_topics", "load_fixed",
+           "load_foreign"]

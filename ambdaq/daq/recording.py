@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import BadInputError
 from ..layout import ROLE_TOPICS
 from ..machines.machine import RECORD, Machine
-from .foreign import foreign_topics, load_foreign
+from .foreign import NotFixed, fixed_topics, foreign_topics, load_fixed, load_foreign
 from .mcapfile import McapFile
 from .reader import READ_THREADS, NotInRecording, TopicData, ambdaq_channels, read_fixed
 
@@ -101,6 +101,7 @@ class Recording(Mapping):
         self.metadata: dict[str, dict[str, str]] = f.metadata()  # the file's metadata records, once
         self._fixed = ambdaq_channels(f)
         self._foreign = foreign_topics(f, set(self._fixed))
+        self._foreign_fixed = fixed_topics(f, set(self._fixed))  # other writers' topics of a fixed layout
         if topics is None:  # ambdaq's topics; in a file of another writer, every topic a decoder reads
             shown = list(self._fixed) or list(self._foreign)
             if not shown:
@@ -167,8 +168,15 @@ class Recording(Mapping):
         if fixed:
             self._cache.update(read_fixed(self.file, fixed, self.start_ns, self._lo, self._hi, self.metadata,
                                           self.threads))
-        others = [t for t in todo if t not in self._fixed]
-        for topic, cols in (load_foreign(self.file, others, self._lo, self._hi) if others else {}).items():
+        others, read = [t for t in todo if t not in self._fixed], {}
+        for topic in [t for t in others if t in self._foreign_fixed]:  # in blocks, where their layout is fixed
+            try:
+                read[topic] = load_fixed(self.file, topic, *self._foreign_fixed[topic], self._lo, self._hi)
+            except NotFixed:
+                pass  # the official decoder reads it, message by message
+        others = [t for t in others if t not in read]
+        read.update(load_foreign(self.file, others, self._lo, self._hi) if others else {})
+        for topic, cols in read.items():
             n = cols["log_time"].shape[0]
             data = TopicData(topic=topic, nominal_rate=0.0, log_time=cols["log_time"], start_ns=self.start_ns,
                              device_time=cols["device_time"], seq=cols["seq"], status=np.zeros(n, dtype=np.uint32),
