@@ -38,7 +38,7 @@ def _until(predicate, timeout=1.0):
 
 def test_the_generator_moves_the_base_with_the_ratio_asked(served):
     rig = served.server.rig
-    shaker = Shaker(f"serial://{served.ptys['shaker'].path}", gain=SHAKER_GAIN)
+    shaker = Shaker(f"scpi://{served.ptys['shaker'].path}", gain=SHAKER_GAIN)
     try:
         assert shaker.identity.startswith("ambdaq,SIM-SHAKER-2CH")
         alpha = 0.7 * cmath.exp(0.6j)
@@ -72,10 +72,10 @@ def test_the_generator_moves_the_base_with_the_ratio_asked(served):
 
 def test_a_generator_that_is_gone_is_one_line(served, tmp_path):
     with pytest.raises(DeviceError, match="cannot open the shaker generator"):
-        Shaker(f"serial://{tmp_path / 'no-such-port'}", gain=SHAKER_GAIN)
-    with pytest.raises(BadInputError, match="serial:... URL"):
+        Shaker(f"scpi://{tmp_path / 'no-such-port'}", gain=SHAKER_GAIN)
+    with pytest.raises(BadInputError, match="scpi: URL"):
         Shaker("can://virtual/x?node=3", gain=SHAKER_GAIN)
-    shaker = Shaker(f"serial://{served.ptys['shaker'].path}", gain=SHAKER_GAIN)
+    shaker = Shaker(f"scpi://{served.ptys['shaker'].path}", gain=SHAKER_GAIN)
     served.devices["shaker"].stop()  # the instrument stops answering
     with pytest.raises(DeviceError, match="did not answer"):
         shaker.sine(40.0, 1.0, 1.0)
@@ -92,7 +92,7 @@ def test_campaign_drives_the_served_controller_and_shaker_in_another_process(tmp
     try:
         ports = dict(proc.stdout.readline().split() for _ in range(2))
         out = tmp_path / "camp"
-        args = ["fx", "campaign", "--device", f"serial://{ports['controller']}", "--shaker", f"serial://{ports['shaker']}",
+        args = ["fx", "campaign", "--device", f"serial://{ports['controller']}", "--shaker", f"scpi://{ports['shaker']}",
                 "--freqs", "10,60", "--amplitude", "2", "--alphas", "1,0.5-0.5j", "--seconds", "0.5", "--settle", "0.2",
                 "-o", str(out)]
         # by URL, as on hardware: the shakers' gain is the engineer's to give, no device reports it
@@ -122,9 +122,9 @@ def test_campaign_bad_input_is_one_line(run_cli, tmp_path):
         (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "-o", tmp_path / "c"), 2, "--shaker URL"),
         (("fx", "campaign", "--device", "sim://spindle", "-o", tmp_path / "c"), 2, "has no moving base"),
         (("fx", "campaign", "--amplitude", "30", "--alphas", "1,2", "-o", tmp_path / "c"), 2, "the generator gives"),
-        (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"serial://{tmp_path / 'gen'}",
+        (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"scpi://{tmp_path / 'gen'}",
           "-o", tmp_path / "c"), 2, "--shaker-gain: give your shakers'"),
-        (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"serial://{tmp_path / 'gen'}",
+        (("fx", "campaign", "--device", f"serial://{tmp_path / 'ctl'}", "--shaker", f"scpi://{tmp_path / 'gen'}",
           "--shaker-gain", "4.2", "-o", tmp_path / "c"), 1, "cannot open the shaker generator"),
     ]
     for args, code, needle in cases:

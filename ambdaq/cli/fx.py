@@ -43,8 +43,8 @@ def command() -> None:
               help="The AMB controller (streams /amb/gap and /base/accel): serial://PORT, or sim://base-motion "
                    "served in this process with its simulated shaker generator.")
 @click.option("--shaker", metavar="URL",
-              help="The two-channel SCPI generator driving the base shakers (serial:///dev/ttyUSB1, "
-                   "serial:socket://HOST:5025); default for sim://base-motion: its simulated one.")
+              help="The two-channel SCPI generator driving the base shakers (scpi:///dev/ttyUSB1, "
+                   "scpi:socket://HOST:5025); default for sim://base-motion: its simulated one.")
 @click.option("--shaker-gain", type=POSITIVE,
               help="Base acceleration per generator volt, m/s^2/V (required on hardware; a simulated rig reports "
                    "its shakers').")
@@ -66,7 +66,7 @@ def campaign(device, shaker, shaker_gain, freqs, amplitude, alphas, seconds, set
     \b
     Examples:
       ambdaq fx campaign --freqs 5:100:5 -o campaign/
-      ambdaq fx campaign --device serial:///dev/ttyUSB0 --shaker serial:socket://10.0.0.7:5025 \\
+      ambdaq fx campaign --device serial:///dev/ttyUSB0 --shaker scpi:socket://10.0.0.7:5025 \\
           --shaker-gain 4.2 --freqs 5:100:5 -o campaign/
     """
     out = fx.campaign(device, shaker, shaker_gain, _freqs(freqs), amplitude, [_alpha(a) for a in alphas.split(",")],

@@ -2,8 +2,10 @@
 
 Kang & Jung's campaign moves the base harmonically with a chosen disturbance ratio alpha = d1/d2
 (eq. A-10): channel 1 drives the shaker under base accelerometer 1, channel 2 the one under
-accelerometer 2.  The generator is reached on any pyserial URL: a USB or RS-232 port, or a LAN
-instrument's raw SCPI socket (``serial:socket://HOST:5025``).  The commands are the common SCPI
+accelerometer 2.  The generator is reached on any pyserial URL under its own scheme, ``scpi:``:
+a USB or RS-232 port (``scpi:///dev/ttyUSB1``), or a LAN instrument's raw SCPI socket
+(``scpi:socket://HOST:5025``); ``serial:`` is ambdaq's own controller protocol, another thing.
+The commands are the common SCPI
 subset of two-channel generators (docs/protocol.md, "Shaker generator"); ``ambdaq sim serve
 --profile base-motion`` serves a simulated one that moves the simulated base.
 
@@ -19,7 +21,7 @@ import math
 import serial
 
 from ..errors import BadInputError, DeviceError
-from .registry import parse_device_url
+from .url import Scheme
 
 MAX_VPP = 10.0  # the generator's output range into its shaker amplifier, V peak to peak
 MAX_ERRORS = 32  # longer than any generator's error queue
@@ -44,13 +46,17 @@ def drive_problem(d2_peak: float, ratio: complex, gain: float) -> str:
     return ""
 
 
+SCPI = Scheme("scpi", "scpi:PORT[?baud=N] (PORT: anything pyserial opens)", ("baud",), opaque=True)
+"""An SCPI instrument's URL: its own scheme, so that ``serial:`` means one protocol, ambdaq's."""
+
+
 class Shaker:
     """A two-channel SCPI generator driving the base shakers.
 
     Parameters
     ----------
     url : str
-        ``serial:...`` device URL of the generator (``?baud=`` for a serial port; default 115200).
+        ``scpi:...`` URL of the generator (``?baud=`` for a serial port; default 115200).
     gain : float
         Shaker gain, base acceleration per generator volt, in m/s^2 / V.
     timeout : float
@@ -58,10 +64,10 @@ class Shaker:
     """
 
     def __init__(self, url: str, *, gain: float, timeout: float = 1.0) -> None:
-        parsed = parse_device_url(url)
-        if parsed.scheme != "serial":
-            raise BadInputError(f"shaker {url!r}: the generator is reached on a serial:... URL "
-                                "(serial:///dev/ttyUSB0, serial:socket://HOST:5025)")
+        if not url.startswith(SCPI.name + ":"):
+            raise BadInputError(f"shaker {url!r}: the generator is reached on a scpi: URL "
+                                f"({SCPI.form}: scpi:///dev/ttyUSB1, scpi:socket://HOST:5025)")
+        parsed = SCPI.parse(url)
         if not (gain > 0 and math.isfinite(gain)):
             raise BadInputError(f"shaker gain {gain!r}: expected a positive number of m/s^2 per V")
         self.url, self.gain = url, gain

@@ -161,7 +161,7 @@ class Shaker:
     def serve(self, served, options: ServeOptions) -> None:
         served.ptys["shaker"] = Pty.open()
         served.devices["shaker"] = SimShaker(FdPort(served.ptys["shaker"].master), served.server)
-        served.urls["shaker"] = f"serial://{served.ptys['shaker'].path}"
+        served.urls["shaker"] = f"scpi://{served.ptys['shaker'].path}"
 
 
 KINDS = {kind.name: kind for kind in (Controller(), CanopenDevices(), Shaker())}

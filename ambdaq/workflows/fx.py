@@ -88,7 +88,7 @@ def campaign(device: str, shaker: str | None, shaker_gain: float | None, freqs: 
             if "controller" in ep.urls:  # a served simulated rig without a shaker generator
                 raise BadInputError(f"{device}: this rig has no moving base: no shaker generator to drive")
             raise BadInputError("--shaker URL: give the generator that drives the base shakers "
-                                "(serial:///dev/ttyUSB1, serial:socket://HOST:5025)")
+                                "(scpi:///dev/ttyUSB1, scpi:socket://HOST:5025)")
         if gain is None:
             raise BadInputError("--shaker-gain: give your shakers' base acceleration per generator volt, m/s^2/V")
         for f in freqs:
