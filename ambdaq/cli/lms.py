@@ -8,10 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.lms import convergence_radius, mu_sign, sign_changes
-from ..daq.coefficients import Coefficients
-from ..workflows.lms_design import grid_step, phase_table, schedule
-from ..workflows.plants import analysing, design_models, resolve_plant
+from ..workflows.lms_design import convergence_map, schedule
 from .options import POSITIVE, plot_option
 
 plant_option = click.option("--plant", default="bearings", show_default=True, metavar="PLANT",
@@ -40,26 +37,9 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
       ambdaq lms map --plant front --plot fig5.png
       ambdaq lms map --plant rig --harmonic 2 --json
     """
-    models = design_models()
-    loops = resolve_plant(plant, models)
-    with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
-        phase = phase_table(loops, models) if compensated else None
-        step = grid_step(loops, 50.0)
-        rpm = np.arange(step, rpm_max + step / 2, step)
-        mu = np.linspace(-mu_max, mu_max, 41)
-        report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
-        maps = {}
-        for name, (loop, axes) in loops.items():
-            ph = None if phase is None else phase.select(axes)
-            if plot_path:  # the whole map only for the picture: the report needs the signs alone
-                maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
-            signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
-            none = rpm[signs == 0]
-            report["loops"][name] = {
-                "sign_flips_rpm": sign_changes(signs, rpm),
-                "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
-                "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[:: max(1, len(rpm) // 12)], signs[:: max(1, len(rpm) // 12)])},
-            }
+    found = convergence_map(plant, harmonic=harmonic, rpm_max=rpm_max, mu_max=mu_max, compensated=compensated,
+                            radius=bool(plot_path))
+    report, rpm = found.report, found.rpm
     if as_json:
         click.echo(json.dumps(report, indent=2))
     else:
@@ -75,7 +55,7 @@ def map_command(plant, harmonic, rpm_max, mu_max, compensated, plot_path, as_jso
         from ..figures import save
         from ..figures.lms import draw_map
 
-        save(draw_map(maps, rpm, mu, harmonic, plant, compensated), plot_path, dpi=110)
+        save(draw_map(found.radius, rpm, found.mu, harmonic, plant, compensated), plot_path, dpi=110)
         click.echo(f"-> {plot_path}", err=True)
 
 
@@ -134,18 +114,10 @@ def runup_command(files, seconds, speeds, as_json):
       ambdaq lms schedule --plant rig --compensated -o comp.json
       ambdaq lms runup sign.json comp.json
     """
-    from ..workflows.runup import controller_image, run_up, time_to_converge
+    from ..workflows.runup import compare
 
-    rpms = [float(s) for s in speeds.split(",")]
-    images = {Path(f).name: controller_image(Coefficients.load(f), f) for f in files}
-    bands = [(0, 5000), (5000, 10000), (10000, 15000), (15000, 20000), (20000, 30000), (30000, 40000),
-             (40000, 50001)]
-    runs = [run_up(None, seconds=seconds, name="feedforward off")]
-    runs += [run_up(image, seconds=seconds, name=name) for name, image in images.items()]
-    conv = {name: {str(int(r)): time_to_converge(image, r) for r in rpms} for name, image in images.items()}
-    report = {"bands_rpm": bands, "runs": {r.name: [[round(v * 1e6, 3) for v in r.band(*b)] for b in bands]
-                                           for r in runs},
-              "time_to_converge_s": conv}
+    report, runs, conv = compare(list(files), seconds=seconds, speeds=[float(s) for s in speeds.split(",")])
+    rpms, bands = [float(s) for s in speeds.split(",")], report["bands_rpm"]
     if as_json:  # never converging is null
         report["time_to_converge_s"] = {n: {r: (None if np.isinf(t) else t) for r, t in c.items()}
                                         for n, c in conv.items()}

@@ -4,13 +4,13 @@ whose step-size schedule converges on the plant's map (docs/lms.md)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..analysis.lms import (DesignModels, PhaseTable, StateSpaceLoop, measured_phase_compensation,
-                            phase_compensation, sign_schedule)
+from ..analysis.lms import (DesignModels, PhaseTable, StateSpaceLoop, convergence_radius, measured_phase_compensation,
+                            mu_sign, phase_compensation, sign_changes, sign_schedule)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.frequency_response import FrequencyResponse
 from ..errors import BadInputError
@@ -112,4 +112,69 @@ def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compens
     return Coefficients(target, source, harm, weights, rows, phase_doc, lms_plant=plant)
 
 
-__all__ = ["grid_step", "measured_phase_table", "phase_table", "schedule"]
+@dataclass
+class ConvergenceMap:
+    """What :func:`convergence_map` found (``ambdaq lms map``).
+
+    Attributes
+    ----------
+    report : dict
+        Per loop: the speeds where the sign of mu must flip, where no sign converges, the sign at
+        a dozen speeds (what ``--json`` prints).
+    rpm, mu : ndarray
+        The map's speeds (rpm) and step sizes.
+    radius : dict of str to ndarray
+        Per loop, the spectral radius over (speed, mu), where asked for (the figure).
+    """
+
+    report: dict
+    rpm: np.ndarray
+    mu: np.ndarray
+    radius: dict[str, np.ndarray]
+
+
+def convergence_map(plant: str, *, harmonic: int, rpm_max: float, mu_max: float, compensated: bool = False,
+                    radius: bool = False) -> ConvergenceMap:
+    """Where Ro et al.'s LMS converges on ``plant``'s loops over speed and step size, and where the
+    sign of mu must flip (Ro et al. Fig. 5).
+
+    Parameters
+    ----------
+    plant : str
+        The loop (:func:`~.plants.plant_names`).
+    harmonic : int
+        Order k.
+    rpm_max : float
+        Top of the map, rpm.
+    mu_max : float
+        The map spans -mu_max .. +mu_max; the signs are judged at mu_max / 10.
+    compensated : bool
+        The phase-compensated update instead of Ro et al.'s.
+    radius : bool
+        Also the whole map of spectral radii (for the figure; the signs alone need far less).
+    """
+    models = design_models()
+    loops = resolve_plant(plant, models)
+    with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
+        phase = phase_table(loops, models) if compensated else None
+        step = grid_step(loops, 50.0)
+        rpm = np.arange(step, rpm_max + step / 2, step)
+        mu = np.linspace(-mu_max, mu_max, 41)
+        report = {"plant": plant, "harmonic": harmonic, "compensated": compensated, "loops": {}}
+        maps = {}
+        every = max(1, len(rpm) // 12)
+        for name, (loop, axes) in loops.items():
+            ph = None if phase is None else phase.select(axes)
+            if radius:
+                maps[name] = convergence_radius(loop, rpm, mu, harmonic, phase=ph)
+            signs = mu_sign(loop, rpm, harmonic, mu_max / 10, phase=ph)
+            none = rpm[signs == 0]
+            report["loops"][name] = {
+                "sign_flips_rpm": sign_changes(signs, rpm),
+                "no_sign_converges_rpm": [float(none.min()), float(none.max())] if none.size else [],
+                "sign_at_rpm": {str(int(n)): int(s) for n, s in zip(rpm[::every], signs[::every])},
+            }
+    return ConvergenceMap(report, rpm, mu, maps)
+
+
+__all__ = ["ConvergenceMap", "convergence_map", "grid_step", "measured_phase_table", "phase_table", "schedule"]

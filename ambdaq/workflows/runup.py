@@ -11,6 +11,7 @@ Two measures, from coefficient files as ``ambdaq push`` would load them into the
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -104,3 +105,27 @@ def time_to_converge(image: BankImage, rpm: float, *, limit_s: float = 10.0, see
     if bad[-1] == len(ok) - 1:
         return float("inf")
     return float((bad[-1] + 2) * WINDOW_S)
+
+
+BANDS_RPM = [(0, 5000), (5000, 10000), (10000, 15000), (15000, 20000), (20000, 30000), (30000, 40000), (40000, 50001)]
+
+
+def compare(files: list[Path], *, seconds: float = 10.0, speeds: list[float]) -> tuple[dict, list, dict]:
+    """Coefficient files on the simulated spindle (``ambdaq lms runup``): each file's command error
+    over a 0 -> 50,000 rpm run-up beside the feedforward off's, and its time to converge at each of
+    ``speeds`` (rpm); runs are named by the files' names.
+
+    Returns
+    -------
+    (dict, list of RunUp, dict)
+        The report (``bands_rpm``, per run the worst |1X| / |2X| / RMS in um per band,
+        ``time_to_converge_s``), the run-ups, and file -> speed -> seconds (inf: never).
+    """
+    images = {Path(f).name: controller_image(Coefficients.load(f), str(f)) for f in files}
+    runs = [run_up(None, seconds=seconds, name="feedforward off")]
+    runs += [run_up(image, seconds=seconds, name=name) for name, image in images.items()]
+    conv = {name: {str(int(r)): time_to_converge(image, r) for r in speeds} for name, image in images.items()}
+    report = {"bands_rpm": BANDS_RPM, "runs": {r.name: [[round(v * 1e6, 3) for v in r.band(*b)] for b in BANDS_RPM]
+                                               for r in runs},
+              "time_to_converge_s": conv}
+    return report, runs, conv
