@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -159,3 +160,18 @@ def third_party_rig():
     served = serve("spindle", speed=SpeedProfile(30000, 30000), third_party=True)
     yield served
     served.stop()
+
+
+@pytest.fixture(scope="session")
+def chromium():
+    """Debian's chromium; installed here if the machine lacks it and we may (root with apt-get), so
+    the README's test command works on a fresh machine."""
+    found = shutil.which("chromium")
+    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
+        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+        subprocess.run(["apt-get", "update", "-qq"], check=True, capture_output=True, env=env, timeout=600)
+        subprocess.run(["apt-get", "install", "-y", "-qq", "chromium"], check=True, capture_output=True, env=env,
+                       timeout=900)
+        found = shutil.which("chromium")
+    assert found, "the report test needs Debian's chromium: apt-get install chromium"
+    return found

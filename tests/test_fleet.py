@@ -248,3 +248,47 @@ def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, scheduler, tmp_p
     assert res["scanned"] == 12 - len(written) and res["unchanged"] == len(written)
     df = pd.read_parquet(ds)
     assert len(df) == 12 and df["path"].is_unique
+
+
+def test_every_rotor_drop_on_record_and_when_to_inspect(scheduler, build_once, tmp_path):
+    """ISO 14839-5: the drops the cone rig's snapshots caught (tests/test_touchdown.py checks each
+    against the rig's truth) are collected per machine; trend counts them, sums their impact
+    energy, and says when the touchdown bearings are due."""
+    from ambdaq.daq.recording import open_recording
+    from ambdaq.daq.touchdowns import recorded_drop
+    from test_touchdown import drop_files
+
+    drops = build_once("cone-drops", drop_files)
+    ds = tmp_path / "drops.parquet"
+    res = ambdaq("fleet", "scan", str(drops), "-o", str(ds), "--scheduler", scheduler, "--json")
+    assert res.returncode == 0, res.stderr
+    files = sorted(drops.rglob("*.mcap"))
+    assert json.loads(res.stdout)["scanned"] == len(files) == 4
+    held = [d.touchdown for f in files if (d := recorded_drop(open_recording(f).metadata)) is not None]
+    assert len(held) == 3
+    out = json.loads(run("fleet", "trend", str(ds), "--touchdown-limit", "3", "--json").stdout)
+    (summary,) = out["touchdowns"]
+    assert summary["drops"] == 3 and summary["inspect"]
+    # the energy of the drops whose impact was recorded (one began before its snapshot: none known)
+    known = [t.energy_j for t in held if t.energy_j is not None]
+    assert len(known) == 2 and summary["energy_j"] == pytest.approx(sum(known), rel=1e-12)
+    assert summary["worst_ratio_cmin"] == pytest.approx(max(t.peak_ratio for t in held), rel=1e-12)
+    text = run("fleet", "trend", str(ds), "--touchdown-limit", "3").stdout
+    assert "3 drops" in text and "inspect the touchdown bearings" in text
+    assert "inspect the touchdown bearings" not in run("fleet", "trend", str(ds), "--touchdown-limit", "4").stdout
+    by_energy = run("fleet", "trend", str(ds), "--touchdown-energy", f"{sum(known) * 0.99:.6g}").stdout
+    assert "inspect the touchdown bearings" in by_energy
+
+
+def test_a_dataset_written_with_another_row_layout_is_refused(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    old = tmp_path / "old.parquet" / "machine=AMB-01"
+    old.mkdir(parents=True)
+    pq.write_table(pa.table({"path": ["/plant/a.mcap"], "size": [1], "onex_front_x_um": [2.0]}), old / "a.parquet")
+    (tmp_path / "a.mcap").write_bytes(b"")
+    for args in (("fleet", "trend", str(tmp_path / "old.parquet")),
+                 ("fleet", "scan", str(tmp_path / "a.mcap"), "-o", str(tmp_path / "old.parquet"))):
+        res = CliRunner().invoke(cli, list(args))
+        assert res.exit_code == 2 and "laid out as another ambdaq version wrote them" in res.output, res.output

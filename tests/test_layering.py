@@ -18,7 +18,7 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "machines": {"analysis", "units", "errors", "layout"},
     "analysis": {"units", "errors"},
     "drivers": {"layout", "errors", "units", "speed", "loading"},
-    "daq": {"layout", "drivers", "machines", "errors", "units"},
+    "daq": {"layout", "drivers", "machines", "analysis", "errors", "units"},
     "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
     "workflows": {"layout", "drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
     "live": {"layout", "daq", "analysis", "machines", "units"},

@@ -4,28 +4,12 @@ errors, its tables carrying the numbers of --json, printed to PDF; and what it r
 import json
 import os
 import re
-import shutil
 import subprocess
-from html.parser import HTMLParser
 
 import pytest
 
 from ambdaq.cli.report import HEADLESS
-
-
-@pytest.fixture(scope="session")
-def chromium():
-    """Debian's chromium; installed here if the machine lacks it and we may (root with apt-get), so
-    the README's test command works on a fresh machine."""
-    found = shutil.which("chromium")
-    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
-        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-        subprocess.run(["apt-get", "update", "-qq"], check=True, capture_output=True, env=env, timeout=600)
-        subprocess.run(["apt-get", "install", "-y", "-qq", "chromium"], check=True, capture_output=True, env=env,
-                       timeout=900)
-        found = shutil.which("chromium")
-    assert found, "the report test needs Debian's chromium: apt-get install chromium"
-    return found
+from report_page import Tables
 
 
 @pytest.fixture(scope="module")
@@ -63,38 +47,6 @@ def session(tmp_path_factory):
     finally:
         del os.environ["AMBDAQ_STATE_DIR"]
     return d
-
-
-class Tables(HTMLParser):
-    """The text of every table cell, by table id."""
-
-    def __init__(self):
-        super().__init__()
-        self.tables, self._id, self._row, self._cell = {}, None, None, None
-
-    def handle_starttag(self, tag, attrs):
-        if tag == "table":
-            self._id = dict(attrs)["id"]
-            self.tables[self._id] = []
-        elif tag == "tr" and self._id:
-            self._row = []
-        elif tag == "td" and self._row is not None:
-            self._cell = ""
-
-    def handle_data(self, data):
-        if self._cell is not None:
-            self._cell += data
-
-    def handle_endtag(self, tag):
-        if tag == "td" and self._cell is not None:
-            self._row.append(self._cell)
-            self._cell = None
-        elif tag == "tr" and self._row is not None:
-            if self._row:
-                self.tables[self._id].append(self._row)
-            self._row = None
-        elif tag == "table":
-            self._id = None
 
 
 def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, chromium, tmp_path):
@@ -174,7 +126,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
 
 def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):
     r = run_cli("report", "-o", tmp_path / "r.html")
-    assert r.exit_code == 2 and "needs at least one of --stability, --runup or --before/--after" in r.output
+    assert r.exit_code == 2 and "needs at least one of --stability, --runup, --before/--after or --drops" in r.output
     r = run_cli("report", "--before", session / "before.mcap", "-o", tmp_path / "r.html")
     assert r.exit_code == 2 and "--before and --after go together" in r.output
     bad = tmp_path / "stability.json"

@@ -55,9 +55,10 @@ def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
       ambdaq fleet scan recordings/ -o fleet.parquet
       ambdaq fleet scan 'plant/**/*.mcap' -o fleet.parquet --scheduler tcp://10.0.0.5:8786
     """
-    from ..workflows.fleet import recordings, scan
+    from ..workflows.fleet import index, recordings, scan
 
     paths = recordings(inputs)
+    index(Path(dataset))  # a dataset this version cannot add to is refused before a cluster starts
     client = _client(scheduler, workers)
     try:
         progress = None
@@ -103,9 +104,14 @@ FIGURES = ("onex", "runout", "vibration")
 @click.option("--machine", help="The machine whose trend is plotted (default: every machine's summary).")
 @click.option("--threshold", type=POSITIVE, default=5.0, show_default=True, metavar="UM",
               help="List machines whose 1X, runout or orbit moved more than this from their first recording.")
+@click.option("--touchdown-limit", type=click.IntRange(min=1), default=10, show_default=True, metavar="DROPS",
+              help="Rotor drops on record after which a machine's touchdown bearings are to be inspected (take the "
+                   "bearing maker's rating).")
+@click.option("--touchdown-energy", type=POSITIVE, metavar="J",
+              help="... or after drops bringing this much impact energy in all.")
 @plot_option("Trend plot of one --machine: 1X per axis, runout per harmonic, orbit against the zones (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows and the movements as JSON.")
-def trend_command(dataset, machine, threshold, plot_path, as_json):
+def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy, plot_path, as_json):
     """Trends over a fleet dataset, and the machines whose figures moved.
 
     \b
@@ -115,9 +121,10 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
     """
     import numpy as np
 
-    from ..workflows.fleet import HARMONICS, axes_of, bearings_of, moved, read
+    from ..workflows.fleet import HARMONICS, axes_of, bearings_of, moved, read, touchdowns
 
     df = read(Path(dataset), machine)
+    drops = touchdowns(df, count_limit=touchdown_limit, energy_limit_j=touchdown_energy)
     axes = axes_of(df)
     figures = ([f"onex_{a}_um" for a in axes] + [f"runout_{a}_{k}x_um" for a in axes for k in HARMONICS]
                + [f"vibration_{b}_um" for b in bearings_of(df)])
@@ -135,7 +142,10 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
         rows = json.loads(df[cols].to_json(orient="records", date_format="iso"))
         click.echo(json.dumps({"rows": rows, "moved": [
             {"machine": m.machine, "figure": m.figure, "first_um": round(m.first, 3), "last_um": round(m.last, 3),
-             "first": m.first_start, "last": m.last_start} for m in movements]}, indent=2))
+             "first": m.first_start, "last": m.last_start} for m in movements],
+            "touchdowns": [{"machine": t.machine, "drops": t.count,
+                            "energy_j": None if np.isnan(t.energy_j) else t.energy_j, "worst_ratio_cmin": t.worst_ratio,
+                            "last": t.last, "inspect": t.inspect} for t in drops]}, indent=2))
         return
     good = df[df["error"].isna()]
     click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'drops':>6s} {'zone now':>8s} "
@@ -155,5 +165,10 @@ def trend_command(dataset, machine, threshold, plot_path, as_json):
                        f"({mv.change:+.2f}; {mv.first_start[:10]} -> {mv.last_start[:10]})")
     else:
         click.echo(f"no machine moved more than {threshold:g} um since its first recording")
-
-
+    if drops:
+        click.echo(f"rotor drops on record (ISO 14839-5; inspect at {touchdown_limit} drops"
+                   + (f" or {touchdown_energy:g} J" if touchdown_energy else "") + "):")
+        for t in drops:
+            energy = "-" if np.isnan(t.energy_j) else f"{t.energy_j:.3g} J"
+            click.echo(f"  {t.machine:10s} {t.count:4d} drops, {energy:>10s} in all, worst {t.worst_ratio:.2f} Cmin, "
+                       f"last {t.last[:19]}" + ("  -> inspect the touchdown bearings" if t.inspect else ""))

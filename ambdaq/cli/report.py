@@ -65,7 +65,8 @@ def print_pdf(page: Path, pdf: Path) -> None:
 
 FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
-    "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}",
+    "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}", "s": "{:.3f}", "m_s": "{:.3f}",
+    "j": "{:.3g}",
 }
 
 
@@ -189,6 +190,22 @@ def render(found, title: str) -> str:
                   f'and {r["after"]["rpm"]:,.0f} rpm ({html.escape(r["after"]["path"])}).</p>',
                   _table(headers + ["RMS before [µm]", "RMS after [µm]"], rows, "runout")]
     log = d["push_log"]
+    if d.get("touchdowns") is not None:
+        rows = [[_cell(Path(r["file"]).name, "text")] + ([_cell("no drop in it", "text")] + [_cell(None, kind="rpm")] * 9
+                if (t := r["drop"]) is None else [
+                    _cell(when(t["contact"]), "text"), _cell(t["speed_rpm"], kind="rpm"),
+                    _cell(("≥ " if t["began_before"] else "") + number(t["on_bearing_s"], "s"), "text"),
+                    _cell("yes" if t["relevitated"] else "no", "text"), _cell(t["peak_ratio"], kind="ratio"),
+                    _cell(t["peak_at"], "text"), _cell(t["whirl"], "text"), _cell(t["amplifier_at_limit"], kind="factor"),
+                    _cell(t["impact_speed_m_s"], kind="m_s"), _cell(t["energy_j"], kind="j")])
+                for r in d["touchdowns"]]
+        parts += ["<h2>Rotor drops, ISO 14839-5</h2>",
+                  '<p class="note">Each snapshot file\'s drop onto the touchdown bearings: the speed at the first '
+                  "contact, the time on the bearing (≥: the file began with the rotor already down), whether it "
+                  "levitated again, the peak excursion over Cmin and where, the whirl while in contact, the "
+                  "amplifier's largest output over its limit, and the impact's speed and energy.</p>",
+                  _table(["file", "first contact", "rpm", "on bearing s", "levitated again", "peak / Cmin", "at",
+                          "whirl", "amplifier / limit", "impact m/s", "energy J"], rows, "touchdowns")]
     parts.append("<h2>Push log</h2>")
     if log:
         rows = [[_cell(when(e["host_time"]), "text"), _cell(e["bank"]), _cell(e["crc32"], "text"), _cell(e["file"], "text"),
@@ -234,15 +251,18 @@ def render(found, title: str) -> str:
 @click.option("--cmin", type=POSITIVE, metavar="UM", help="Minimum clearance, um; default: what the run-up reports.")
 @click.option("--model", type=click.Choice(["spindle", "cone"]),
               help="Verify the run-up's critical speeds against this rotordynamic model's (API 684).")
+@click.option("--drops", multiple=True, type=click.Path(dir_okay=False),
+              help="A snapshot file a touchdown trigger caught (record --snapshot); repeat for each.")
 @click.option("--title", default="AMB commissioning report", show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The report (.html).")
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
-def command(stability, runup, coefficients, before, after, push_log, cmin, model, title, output, pdf, overwrite, as_json):
+def command(stability, runup, coefficients, before, after, push_log, cmin, model, drops, title, output, pdf, overwrite,
+            as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
-    push with the push log, the run-up's order tracking.
+    push with the push log, the run-up's order tracking, the rotor drops the snapshots caught (ISO 14839-5).
 
     \b
     Example:
@@ -261,7 +281,8 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     as_path = (lambda v: Path(v) if v else None)
     opened = (lambda v: open_recording(v) if v else None)
     found = gather(SessionFiles(as_path(stability), opened(runup), as_path(coefficients), opened(before),
-                                opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model))
+                                opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model,
+                                [open_recording(p) for p in drops]))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

@@ -47,11 +47,14 @@ def command() -> None:
                    "half-sine of PEAK_N newtons from 0.2 s, every EVERY_S s (default 0.5).")
 @click.option("--start", type=click.Choice(["levitated", "touchdown"]), default="levitated", show_default=True,
               help="Cone rig: start levitated, or at rest on the touchdown bearings with the amplifiers just enabled.")
+@click.option("--drop", metavar="AT_S:DURATION_S",
+              help="Cone rig: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops onto its "
+                   "touchdown bearings, then levitates again.")
 @snapshot_options
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, snapshot, out,
-             quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop, snapshot,
+             out, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -61,6 +64,8 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --profile base-motion --duration 10 --base noise:5-100:1 -o base.mcap
       ambdaq sim generate --profile cone --duration 3 --impact x:50 -o impact.mcap
       ambdaq sim generate --profile cone --start touchdown --duration 2 --snapshot 0.5s --trigger touchdown -o td.mcap
+      ambdaq sim generate --profile cone --rpm 600 --drop 0.5:0.2 --duration 2 --snapshot 0.3s --post 0.7s \
+          --trigger touchdown -o drop.mcap
     """
     source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
     try:
@@ -85,6 +90,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
 
             source.rig.set_impact(None if impact is None else Impact.parse(impact))
             source.rig.restart(start)
+        if drop is not None:
+            if "drop" not in source.rig.inputs:
+                raise BadInputError(f"--drop: the {profile} rig has no touchdown bearings to drop onto (use --profile cone)")
+            from ..sim.rigs.cone import Drop
+
+            source.rig.set_drop(Drop.parse(drop))
     except ValueError as err:
         raise BadInputError(str(err)) from None
     run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot)

@@ -27,6 +27,7 @@ from .output import check_output
 from .parts import FileParts, split_names
 from .sequence import SampleCounts
 from .snapshot import SnapshotOptions, Snapshots, check_memory, memory_bound
+from .touchdowns import DropRecords
 from .triggers import Device, Firing
 
 
@@ -292,7 +293,8 @@ class Recorder:
         """
         opts = self.options
         if opts.snapshot is not None:
-            self.snapshots = Snapshots(opts.snapshot, self.files, self.output, on_snapshot, opts.flush_interval_s)
+            drops = DropRecords(self.machine, {s.name: s.signal_groups() for s in self.sources}, opts.snapshot.cmin_m)
+            self.snapshots = Snapshots(opts.snapshot, self.files, self.output, on_snapshot, opts.flush_interval_s, drops)
             store: Sink = self.snapshots
             signals = {signal.SIGUSR1: lambda signum, frame: self.trigger("SIGUSR1")}
         else:

@@ -29,6 +29,7 @@ from ..errors import BadInputError
 from .acquisition import Acquisition, Sink
 from .files import RecordingFiles
 from .sequence import SampleCounts, Verdict
+from .touchdowns import RECORD as DROP_RECORD, DropRecords
 from .triggers import Firing, Trigger
 from .writer import RecordingWriter
 
@@ -242,6 +243,7 @@ class _Capture:
     end_ns: int
     firings: list[Firing]
     done: dict[str, int] = field(default_factory=dict)  # device -> host time of its last sample written
+    written: dict[str, list[SampleBlock]] = field(default_factory=dict)  # what it holds, for its drop
 
 
 class Snapshots(Sink):
@@ -259,13 +261,18 @@ class Snapshots(Sink):
         Called with (path, firing) when a snapshot file is opened.
     flush_interval_s : float
         Longest wall time between the open files' chunk flushes, in s.
+    drops : DropRecords, optional
+        Characterises the rotor drop in each file as it is finished (:mod:`.touchdowns`): the
+        file then holds ``ambdaq.touchdown``.
     """
 
     def __init__(self, options: SnapshotOptions, files: RecordingFiles, output: Path,
-                 on_snapshot: Callable[[Path, Firing], None] | None = None, flush_interval_s: float = 0.5) -> None:
+                 on_snapshot: Callable[[Path, Firing], None] | None = None, flush_interval_s: float = 0.5,
+                 drops: DropRecords | None = None) -> None:
         self.options = options
         self._pre_ns, self._post_ns = int(options.pre_s * 1e9), int(options.post_s * 1e9)
         self._files, self._output, self._on_snapshot = files, Path(output), on_snapshot
+        self._drops = drops if drops is not None and drops.possible else None
         self._flush_interval_s, self._last_flush = flush_interval_s, 0.0
         self._rings: dict[str, _Ring] = {}
         self._events: deque[tuple[str, int, Event]] = deque()
@@ -387,6 +394,8 @@ class Snapshots(Sink):
         for piece in self._rings[device].after(cap.done.get(device, cap.start_ns - 1), cap.end_ns):
             cap.writer.write(device, piece.block, piece.counts(device, device not in cap.done))
             cap.done[device] = int(piece.block.host_time_ns[-1])
+            if self._drops is not None and device == self._drops.device:
+                cap.written.setdefault(device, []).append(piece.block)
 
     def _evict(self) -> None:
         for ring in self._rings.values():
@@ -420,6 +429,9 @@ class Snapshots(Sink):
                 "triggers": "; ".join(f"{f.cause} at {f.t_ns}: {f.detail}" for f in cap.firings),
                 "pre_s": f"{self.options.pre_s:g}", "post_s": f"{self.options.post_s:g}",
                 "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns)}
+        drop = self._drops.record(cap.written) if self._drops is not None else None
+        if drop is not None:
+            cap.writer.add_metadata(DROP_RECORD, drop)
         self._files.finish(cap.writer, "ambdaq.snapshot", meta)
         self.finished_bytes += cap.writer.path.stat().st_size
 

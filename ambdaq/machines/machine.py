@@ -39,10 +39,12 @@ CURRENT_LIMIT_KEY = "machine.current_limit_a"  # the amplifier's current limit, 
 VOLTAGE_LIMIT_KEY = "machine.voltage_limit_v"  # the amplifier's supply: the coil voltage's limit, V
 SENSOR_GAIN_KEY = "machine.sensor_gain_v_per_m"  # the gap sensors' gain, V/m
 AXIAL_KEY = "machine.axial_axes"  # the gap axes along the spin axis, comma-separated (the cone's "x")
+BEARINGS_KEY = "machine.bearings"  # the radial bearings' axes where not NAME_x/NAME_y: "NAME=X/Y, ..." (the cone's)
 ID_KEY = "machine.id"  # the machine's identity in a fleet (a rig file's [device.calibration] or [machine] id)
 RECORD = "ambdaq.machine"  # the metadata record a recording describes its machine in
+MASS_KEY = "machine.rotor_mass_kg"  # the rotor's mass, kg, where no rigid rotor is described
 LIMITS = {"min_clearance_m": CMIN_KEY, "current_limit_a": CURRENT_LIMIT_KEY, "voltage_limit_v": VOLTAGE_LIMIT_KEY,
-          "sensor_gain_v_per_m": SENSOR_GAIN_KEY}  # a [machine] key -> its calibration entry
+          "sensor_gain_v_per_m": SENSOR_GAIN_KEY, "rotor_mass_kg": MASS_KEY}  # a [machine] key -> its calibration entry
 TABLE_KEYS = ("id", "bearings", "axial", "rigid_rotor", *LIMITS, *ROLE_TOPICS)
 
 
@@ -116,6 +118,8 @@ class Machine:
         The amplifier's supply, the coil voltage's limit, V.
     sensor_gain_v_per_m : float or None
         The gap sensors' gain, V/m.
+    rotor_mass_kg : float or None
+        The rotor's mass, kg (the rigid rotor's where described).
     rotor : RigidRotor or None
         The rigid rotor on its bearings, where the description gives its constants.
     roles : mapping of str to Role
@@ -132,6 +136,7 @@ class Machine:
     current_limit_a: float | None = None
     voltage_limit_v: float | None = None
     sensor_gain_v_per_m: float | None = None
+    rotor_mass_kg: float | None = None
     rotor: RigidRotor | None = None
     roles: Mapping[str, Role] = field(default_factory=dict)
     id: str | None = None
@@ -183,6 +188,8 @@ class Machine:
 
         if "bearings" in table:
             bearings = tuple(_bearings(table["bearings"], axes, where))
+        elif first(BEARINGS_KEY) is not None:
+            bearings = tuple(_declared_bearings(first(BEARINGS_KEY), axes))
         else:
             bearings = tuple(radial_bearings(axes))
         paired = {a for b in bearings for a in (b.x, b.y)}
@@ -204,9 +211,10 @@ class Machine:
             limits[key] = None if value is None else _positive(value, key, where)
         rotor = _rotor(table["rigid_rotor"], where) if "rigid_rotor" in table else _rotor_of(calibrations)
         ident = table.get("id", first(ID_KEY))
+        mass = rotor.mass if rotor is not None else limits["rotor_mass_kg"]
         return cls(tuple(axes), bearings, axial, tuple(a for a in axes if a not in axial), limits["min_clearance_m"],
-                   limits["current_limit_a"], limits["voltage_limit_v"], limits["sensor_gain_v_per_m"], rotor, roles,
-                   None if ident is None else str(ident))
+                   limits["current_limit_a"], limits["voltage_limit_v"], limits["sensor_gain_v_per_m"], mass, rotor,
+                   roles, None if ident is None else str(ident))
 
     @classmethod
     def from_record(cls, record: Mapping[str, str]) -> Machine:
@@ -221,8 +229,8 @@ class Machine:
         except (KeyError, ValueError, TypeError, AttributeError) as err:
             raise BadInputError(f"the recording's machine description ({RECORD}) is damaged ({err})") from None
         return cls(axes, bearings, axial, tuple(a for a in axes if a not in axial), limits["min_clearance_m"],
-                   limits["current_limit_a"], limits["voltage_limit_v"], limits["sensor_gain_v_per_m"], rotor, roles,
-                   record.get("id") or None)
+                   limits["current_limit_a"], limits["voltage_limit_v"], limits["sensor_gain_v_per_m"],
+                   limits["rotor_mass_kg"], rotor, roles, record.get("id") or None)
 
     def record(self) -> dict[str, str]:
         """This description as the ``ambdaq.machine`` metadata record (strings; docs/data-format.md)."""
@@ -291,6 +299,18 @@ def _bearings(entries, axes: Sequence[str], where: str) -> list[Bearing]:
     return out
 
 
+def _declared_bearings(text: str, axes: Sequence[str]) -> list[Bearing]:
+    """A device's ``machine.bearings`` (``"1=y1/z1, 2=y2/z2"``): the pairs among ``axes``; a pair
+    naming an axis not recorded is left out."""
+    out = []
+    for item in text.split(","):
+        name, _, pair = item.strip().partition("=")
+        x, _, y = pair.partition("/")
+        if name and x in axes and y in axes:
+            out.append(Bearing(name.strip(), x.strip(), y.strip()))
+    return out
+
+
 def _positive(value, key: str, where: str) -> float:
     try:
         v = float(value)
@@ -326,5 +346,5 @@ def _rotor_of(calibrations: Sequence[Mapping[str, str]]) -> RigidRotor | None:
     return None
 
 
-__all__ = ["AXIAL_KEY", "Bearing", "CMIN_KEY", "CURRENT_LIMIT_KEY", "ID_KEY", "Machine", "RECORD", "Role",
+__all__ = ["AXIAL_KEY", "BEARINGS_KEY", "Bearing", "CMIN_KEY", "CURRENT_LIMIT_KEY", "ID_KEY", "Machine", "RECORD", "Role",
            "SENSOR_GAIN_KEY", "VOLTAGE_LIMIT_KEY", "orbit_partner", "radial_bearings"]

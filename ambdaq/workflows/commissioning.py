@@ -6,11 +6,13 @@ its tables and prints with ``--json``; the figures are drawn from the same objec
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 from ..daq.coefficients import file_sha256
 from ..daq.recording import Recording, open_recording
+from ..daq.touchdowns import recorded_drop
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .push import push_log_entries
@@ -40,6 +42,9 @@ class SessionFiles:
     model : str or None
         The rotordynamic model whose critical speeds the run-up verifies (``spindle``, ``cone``:
         :func:`~ambdaq.workflows.runup_diagnostics.model_modes`); None: not verified.
+    drops : list of Recording
+        Snapshot files a touchdown trigger caught (``record --snapshot``): the rotor drop each holds
+        (ISO 14839-5, :mod:`ambdaq.daq.touchdowns`).
     """
 
     stability: Path | None = None
@@ -50,6 +55,7 @@ class SessionFiles:
     push_log: Path | None = None
     cmin_m: float | None = None
     model: str | None = None
+    drops: list[Recording] = field(default_factory=list)
 
 
 def machine_identity(recs: list[Recording]) -> dict:
@@ -99,12 +105,12 @@ class Commissioning:
 
 def gather(files: SessionFiles) -> Commissioning:
     """Read and evaluate a session's files (see :class:`SessionFiles`)."""
-    if not any((files.stability, files.runup, files.before)):
-        raise BadInputError("a report needs at least one of --stability, --runup or --before/--after")
+    if not any((files.stability, files.runup, files.before, files.drops)):
+        raise BadInputError("a report needs at least one of --stability, --runup, --before/--after or --drops")
     if (files.before is None) != (files.after is None):
         raise BadInputError("--before and --after go together: the runout check compares the two")
     doc = iso_stability.load_results(files.stability) if files.stability else None
-    inputs = {r.path.resolve(): r for r in (files.runup, files.before, files.after) if r is not None}
+    inputs = {r.path.resolve(): r for r in (files.runup, files.before, files.after, *files.drops) if r is not None}
     for run in doc.runs if doc else []:  # each once; runs moved away are not read
         path = Path(run.source.get("path") or "")
         if run.source.get("path") and path.is_file() and path.resolve() not in inputs:
@@ -139,12 +145,28 @@ def gather(files: SessionFiles) -> Commissioning:
         out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
     else:
         out["runout"] = None
+    out["touchdowns"] = touchdowns(files.drops) if files.drops else None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})
     out["files"] = {k: str(v.path if isinstance(v, Recording) else v) for k, v in vars(files).items()
                     if isinstance(v, (Path, Recording))}
+    if files.drops:
+        out["files"]["drops"] = [str(r.path) for r in files.drops]
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag)
+
+
+def touchdowns(snapshots: list[Recording]) -> list[dict]:
+    """Each snapshot file's rotor drop (ISO 14839-5), in the order given: the file, the first
+    contact's time, and what :class:`~ambdaq.analysis.touchdown.Touchdown` says of it; ``drop`` is
+    None for a file in which the rotor never reached its touchdown bearing."""
+    rows = []
+    for rec in snapshots:
+        found = recorded_drop(rec.metadata)
+        rows.append({"file": str(rec.path), "drop": None if found is None else {
+            "contact": datetime.fromtimestamp(found.contact_ns / 1e9, timezone.utc).isoformat(),
+            "cmin_um": round(found.cmin_m * 1e6, 3), **asdict(found.touchdown)}})
+    return rows
 
 
 ZONE_MEANING = {"A": "newly commissioned machines", "B": "unrestricted long-term operation",
@@ -213,9 +235,28 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
         lines.append({"check": "runout (command error 1X)", "standard": "Ro et al. runout feedforward", "zone": None,
                       "result": f"{worst[0]} {h['before_um']:.2f} -> {h['after_um']:.2f} µm ({h['change_db']:+.1f} dB), "
                                 f"the worst axis after, at {r['after']['rpm']:,.0f} rpm"})
+    t = data.get("touchdowns")
+    if t is not None:
+        drops = [row["drop"] for row in t if row["drop"] is not None]
+        worst = max(drops, key=lambda d: d["peak_ratio"], default=None)
+        result = f"{len(drops)} drop{'s' * (len(drops) != 1)} in {len(t)} snapshot file{'s' * (len(t) != 1)}"
+        if worst is not None:
+            result += f"; worst {worst['peak_ratio']:.2f} Cmin at {worst['peak_at']}, {worst['whirl']} whirl"
+        lines.append({"check": "rotor drops", "standard": "ISO 14839-5", "zone": None, "result": result})
+        for row in t:
+            d, name = row["drop"], Path(row["file"]).name
+            if d is None:
+                continue
+            if not d["relevitated"]:
+                open_items.append(f"ISO 14839-5: {name}: the rotor did not levitate again within the snapshot")
+            if d["began_before"]:
+                open_items.append(f"ISO 14839-5: {name}: the rotor was on its touchdown bearing when the snapshot "
+                                  "began: its time on the bearing is a lower bound (record with a longer --pre)")
+            if d["whirl"] == "backward":
+                open_items.append(f"ISO 14839-5: {name}: backward whirl on the touchdown bearing: inspect it")
     if pushed and not data["push_log"]:
         open_items.append("the coefficient file is not in the push log: was it pushed from this host?")
     return {"lines": lines, "open_items": open_items + notes}
 
 
-__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity", "verdict"]
+__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity", "touchdowns", "verdict"]

@@ -26,7 +26,7 @@ import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -52,6 +52,10 @@ AXIS_FIELDS = ("onex_um", "onex_deg", *(f"runout_{k}x_{u}" for k in HARMONICS fo
 """What a row says of each gap axis (beside its name and bearing): the 1X vector from the
 key-phasor, and the sensor runout per harmonic (``runout identify``)."""
 BEARING_FIELDS = ("vibration_um", "ratio")  # and "zone": the worst band of ``iso vibration`` per bearing
+TOUCHDOWN_NUMBERS = ("speed_rpm", "on_bearing_s", "peak_ratio", "amplifier_at_limit", "impact_speed_m_s", "energy_j")
+TOUCHDOWN_TEXT = ("peak_at", "whirl")
+"""What a row says of each rotor drop a snapshot file holds (``ambdaq.touchdown``, :mod:`ambdaq.daq.touchdowns`),
+beside its time and whether the rotor levitated again."""
 
 
 def _counts(rec: Recording) -> tuple[int, int]:
@@ -63,12 +67,28 @@ def _counts(rec: Recording) -> tuple[int, int]:
     return sum(d for d, _ in per_device.values()), sum(u for _, u in per_device.values())
 
 
+def _touchdowns(rec: Recording) -> list[dict]:
+    """The rotor drop a snapshot file characterised (its ``ambdaq.touchdown``), as a row's list."""
+    from dataclasses import asdict
+
+    from ..daq.touchdowns import recorded_drop
+
+    drop = recorded_drop(rec.metadata)
+    if drop is None:
+        return []
+    found = asdict(drop.touchdown)
+    return [{"time": datetime.fromtimestamp(drop.contact_ns / 1e9, timezone.utc), "relevitated": found["relevitated"],
+             "began_before": found["began_before"], **{k: math.nan if found[k] is None else found[k]
+                                                       for k in TOUCHDOWN_NUMBERS},
+             **{k: found[k] for k in TOUCHDOWN_TEXT}}]
+
+
 def empty_row(path: Path) -> dict:
     """A row with only the file's identity: what an unreadable file gets, beside its error."""
     st = path.stat()
     row = {c: None if c in TEXT or c == "start" else 0 if c in INTEGER else math.nan for c in columns()}
     row.update({"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns, PARTITION: "unknown",
-                "axes": [], "bearings": []})
+                "axes": [], "bearings": [], "touchdowns": []})
     return row
 
 
@@ -101,6 +121,7 @@ def scan_recording(path: str | Path, read_threads: int = READ_THREADS) -> dict:
         row["drops"], row["duplicates"] = _counts(rec)
         row["coefficients_sha256"] = next((d.identity[COEFFICIENTS_KEY] for d in rec.devices.values()
                                            if d.identity.get(COEFFICIENTS_KEY)), None)
+        row["touchdowns"] = _touchdowns(rec)
         # read once, for the 1X here and the runout and zones below (without current: no runout)
         rec.load_roles(["gap", "rotor", "current"])
         gap, rot = rec.together("gap", "rotor")
@@ -173,6 +194,11 @@ def schema():
         elif name == "bearings":
             kind = pa.list_(pa.struct([("bearing", pa.string()), *((f, pa.float64()) for f in BEARING_FIELDS),
                                        ("zone", pa.string())]))
+        elif name == "touchdowns":
+            kind = pa.list_(pa.struct([("time", pa.timestamp("us", tz="UTC")), ("relevitated", pa.bool_()),
+                                       ("began_before", pa.bool_()),
+                                       *((f, pa.float64()) for f in TOUCHDOWN_NUMBERS),
+                                       *((f, pa.string()) for f in TOUCHDOWN_TEXT)]))
         else:
             kind = pa.float64()
         fields.append(pa.field(name, kind))
@@ -183,7 +209,7 @@ def columns():
     """The row's columns, in order."""
     yield from ("path", "size", "mtime_ns", "sha256", PARTITION, "start", "duration_s", "part", "rpm_min", "rpm_max",
                 "samples", "drops", "duplicates", "coefficients_sha256", "cmin_um", "zone", "error", "note", "axes",
-                "bearings")
+                "bearings", "touchdowns")
 
 
 def _key(path: str) -> str:
@@ -249,11 +275,20 @@ def index(dataset: Path) -> dict[str, dict]:
     """The rows a dataset holds, by path: their size, time, hash, and the file that holds each."""
     if not dataset.exists():
         return {}
+    table = _dataset(dataset).to_table(columns=["path", "size", "mtime_ns", "sha256", PARTITION])
+    return {r["path"]: {**r, "file": _part_file(dataset, str(r[PARTITION]), r["path"])} for r in table.to_pylist()}
+
+
+def _dataset(dataset: Path):
+    """The Parquet dataset, refused where its rows are not laid out as this version writes them
+    (an older ambdaq's): a column read under a layout it was not written in is a wrong number."""
     import pyarrow.dataset as ds
 
-    table = ds.dataset(dataset, format="parquet", partitioning="hive").to_table(
-        columns=["path", "size", "mtime_ns", "sha256", PARTITION])
-    return {r["path"]: {**r, "file": _part_file(dataset, str(r[PARTITION]), r["path"])} for r in table.to_pylist()}
+    d = ds.dataset(dataset, format="parquet", partitioning="hive", exclude_invalid_files=True)
+    if d.files and [(f.name, f.type) for f in d.schema if f.name != PARTITION] != [(f.name, f.type) for f in schema()]:
+        raise BadInputError(f"{dataset}: its rows are laid out as another ambdaq version wrote them; "
+                            "scan into a new dataset folder")
+    return d
 
 
 def _replace(table, target: Path) -> None:
@@ -400,7 +435,7 @@ def read(dataset: Path, machine: str | None = None):
 
     if not dataset.exists():
         raise BadInputError(f"{dataset}: no such dataset (ambdaq fleet scan writes it)")
-    d = ds.dataset(dataset, format="parquet", partitioning="hive", exclude_invalid_files=True)
+    d = _dataset(dataset)
     table = d.to_table(filter=None if machine is None else ds.field(PARTITION) == machine)
     df = table.to_pandas()
     if machine is not None and df.empty:
@@ -444,6 +479,37 @@ def bearings_of(df) -> list[str]:
 
 
 @dataclass(frozen=True)
+class TouchdownSummary:
+    """One machine's rotor drops on record (ISO 14839-5): how many, how hard, and whether its
+    touchdown bearings are due for inspection (more than the limit asks, by count or energy)."""
+
+    machine: str
+    count: int
+    energy_j: float  # the sum of the drops' impact energies, where known (NaN: none known)
+    worst_ratio: float  # the largest excursion over Cmin
+    last: str  # the last drop's time
+    inspect: bool
+
+
+def touchdowns(df, *, count_limit: int, energy_limit_j: float | None = None) -> list[TouchdownSummary]:
+    """Per machine of ``df`` (:func:`read`'s rows), its drops on record and whether its touchdown
+    bearings need inspecting: ``count_limit`` drops or more, or (given) a summed impact energy of
+    ``energy_limit_j`` J or more."""
+    out = []
+    for machine, rows in df.groupby(PARTITION):
+        events = [t for ts in rows["touchdowns"] if ts is not None for t in ts]
+        if not events:
+            continue
+        energy = [t["energy_j"] for t in events if t["energy_j"] is not None and math.isfinite(t["energy_j"])]
+        total = float(sum(energy)) if energy else math.nan
+        out.append(TouchdownSummary(str(machine), len(events), total, float(max(t["peak_ratio"] for t in events)),
+                                    str(max(t["time"] for t in events)),
+                                    len(events) >= count_limit
+                                    or (energy_limit_j is not None and total >= energy_limit_j)))
+    return out
+
+
+@dataclass(frozen=True)
 class Movement:
     """A machine whose figure moved between its first and its last recordings."""
 
@@ -477,5 +543,6 @@ def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
     return out
 
 
-__all__ = ["HARMONICS", "ScanReport", "Movement", "axes_of", "bearings_of", "flat", "has_footer", "index", "moved", "read",
+__all__ = ["HARMONICS", "ScanReport", "Movement", "TouchdownSummary", "touchdowns", "axes_of", "bearings_of", "flat",
+           "has_footer", "index", "moved", "read",
            "recordings", "scan", "scan_into", "scan_recording"]

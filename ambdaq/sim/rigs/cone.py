@@ -3,9 +3,11 @@
 The rotor is :class:`~ambdaq.analysis.cone_rotor.ConeRotor`: five rigid-body degrees of freedom
 with gyroscopic coupling, eight magnets with the nonlinear force law F = k i_e^2 / g^2 (eq. 3) on
 gaps that follow the rotor (eq. 2), gravity along the axis, and touchdown bearings with a
-clearance of half the air gap.  The controller is the paper's analogue one, integrated with the
-rotor: per bearing coordinate (x, y1, y2, z1, z2) a PD with filtered derivative on the gap-sensor
-signal (eq. 11), distributed to the coils by eq. 9, each coil driven by a current-feedback
+clearance of half the air gap: round at each radial bearing (the orbit's radius stops at the
+clearance: a contact force along the normal, with damping; no friction, as if the bearing's inner
+race turned with the journal at once, so this rig's drops do not whip), an axial stop on x.
+The controller is the paper's analogue one, integrated with the rotor: per bearing coordinate
+(x, y1, y2, z1, z2) a PD with filtered derivative on the gap-sensor signal (eq. 11), distributed to the coils by eq. 9, each coil driven by a current-feedback
 amplifier with a 25 V supply (eq. 13-15: below the limit a first-order current loop of gain
 Kc and time constant tau_c; at the limit the coil's own L/R), the force lagging the current by the
 eddy-current time constant tau_e (eq. 16).  The rotor's weight is carried by a constant axial
@@ -50,7 +52,7 @@ class ConeParams:
     control: ConeControl = ConeControl(ks=2000.0, kc=0.36)
     resistance: float = 2.0  # coil, ohm
     supply: float = 25.0  # V (Table 1)
-    clearance: float = 0.25e-3  # touchdown bearings, m
+    clearance: float = 0.25e-3  # touchdown bearings (round, radial; and the axial stop), m
     contact_stiffness: float = 2e7  # N/m
     contact_damping: float = 400.0  # N s/m
     gap_noise: float = 0.1e-6  # m RMS
@@ -107,10 +109,12 @@ class Impact:
 
 
 @njit(cache=True, fastmath=True, nogil=True)
-def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl, out_pos):
+def _simulate(s, hammer_t, enabled, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl, out_pos):
     """Advance state ``s`` (N_STATE) over len(hammer_t) samples.  ``hammer_t`` (n, SUBSTEPS) is
-    the hammer force on bearing coordinate int(c[12]) at each substep; ``noise`` (n, 5) the gap
-    sensors' noise (m); ``c`` the constants in the order ConeRig._constants lists them."""
+    the hammer force on bearing coordinate int(c[12]) at each substep; ``enabled`` (n,) 1 where
+    the amplifiers run, 0 where they are off (a drop: no output, the coil currents decay through
+    R/L); ``noise`` (n, 5) the gap sensors' noise (m); ``c`` the constants in the order
+    ConeRig._constants lists them."""
     hs = c[0] / SUBSTEPS
     ks, tau, kc, ka, kf, res, ind, vs = c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
     kforce, g0, shape = c[9], c[10], c[11]
@@ -153,7 +157,10 @@ def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur
                 v = ka * (vref - kf * i)
                 if sub == 0:
                     out_cur[k, j] = i
-                if v > vs or v < -vs:
+                if enabled[k] < 0.5:  # the amplifier off: no output, the current decays through R/L
+                    v = 0.0
+                    i = i * e_lr
+                elif v > vs or v < -vs:
                     v = vs if v > 0 else -vs
                     iss = v / res
                     i = iss + (i - iss) * e_lr
@@ -180,11 +187,21 @@ def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur
                 f = kforce * s[23 + j] * s[23 + j] / (g * g)
                 for a in range(5):
                     Q[a] += f * A[j, a]
-            for a in range(5):
-                over = abs(qb[a]) - clr
-                fb[a] = 0.0
+            fb[:] = 0.0
+            over = abs(qb[0]) - clr  # the axial stop
+            if over > 0:
+                fb[0] = -kcon * over * (1.0 if qb[0] > 0 else -1.0) - ccon * vb[0]
+            for a, b in ((1, 3), (2, 4)):  # each round radial touchdown bearing, (y, z) of its plane
+                r = np.sqrt(qb[a] * qb[a] + qb[b] * qb[b])
+                over = r - clr
                 if over > 0:
-                    fb[a] = -kcon * over * (1.0 if qb[a] > 0 else -1.0) - ccon * vb[a]
+                    ny = qb[a] / r
+                    nz = qb[b] / r
+                    normal = kcon * over + ccon * (vb[a] * ny + vb[b] * nz)
+                    if normal < 0.0:
+                        normal = 0.0
+                    fb[a] -= normal * ny
+                    fb[b] -= normal * nz
             fb[axis_hit] += hammer_t[k, sub]
             for a in range(5):  # bearing-coordinate forces act on q_g through T^T
                 for b in range(5):
@@ -203,6 +220,31 @@ def _simulate(s, hammer_t, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur
                     out_pos[k, a] = qb[a]
                     out_gap[k, a] = qb[a] + noise[k, a]
                     out_ctl[k, a] = vc[a]
+
+
+@dataclass(frozen=True)
+class Drop:
+    """A rotor drop: the amplifiers off from ``at_s`` for ``duration_s`` (a power loss, a tripped
+    amplifier), the rotor falling onto its touchdown bearings, then enabled again (it levitates
+    from where it lies, as from the touchdown start)."""
+
+    at_s: float
+    duration_s: float
+
+    @classmethod
+    def parse(cls, spec: str) -> "Drop":
+        """``AT_S:DURATION_S``."""
+        try:
+            at, duration = (float(x) for x in spec.split(":"))
+        except ValueError:
+            raise BadInputError(f"bad drop {spec!r}: expected AT_S:DURATION_S, e.g. 0.3:0.2") from None
+        if not (np.isfinite(at) and np.isfinite(duration) and at >= 0 and 0 < duration <= 10):
+            raise BadInputError(f"bad drop {spec!r}: AT_S >= 0 and 0 < DURATION_S <= 10")
+        return cls(at, duration)
+
+    def enabled(self, t: np.ndarray) -> np.ndarray:
+        """1 where the amplifiers run at times ``t`` (s), 0 where they are off."""
+        return np.where((t >= self.at_s) & (t < self.at_s + self.duration_s), 0.0, 1.0)
 
 
 class ConeRig(Rig):
@@ -228,13 +270,14 @@ class ConeRig(Rig):
     """
 
     profile = "cone"
-    inputs = frozenset({"impact"})
+    inputs = frozenset({"impact", "drop"})
 
     def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
                  truth: bool = False, noise: bool = True, start: str = "levitated",
                  impact: Impact | None = None) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
+        self.drop: Drop | None = None
         self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)
         r = params.rotor
         self._Minv = np.linalg.inv(r.mass_matrix())
@@ -266,6 +309,10 @@ class ConeRig(Rig):
         """Strike with the hammer from now on (None: stop)."""
         self.impact = impact
 
+    def set_drop(self, drop: Drop | None) -> None:
+        """Drop the rotor as ``drop`` says (None: the amplifiers always on)."""
+        self.drop = drop
+
     def _constants(self) -> np.ndarray:
         p, r, c = self.params, self.params.rotor, self.params.control
         return np.array([self.h, c.ks, c.tau, c.kc, p.amp_gain, p.current_feedback, p.resistance, r.inductance,
@@ -294,7 +341,9 @@ class ConeRig(Rig):
                 "sensor_gain_v_per_m": f"{p.control.ks:g}", "supply_v": f"{p.supply:g}",
                 "start": self.start, "modes": modes, "units": "SI: m, A, V, N",
                 "machine.min_clearance_m": repr(p.clearance), "machine.voltage_limit_v": repr(p.supply),
-                "machine.axial_axes": "x"}  # the spin axis (AXIAL_KEY): its gap has no orbit
+                "machine.axial_axes": "x",  # the spin axis (AXIAL_KEY): its gap has no orbit
+                "machine.bearings": "1=y1/z1, 2=y2/z2",  # each cone bearing's two radial axes (BEARINGS_KEY)
+                "machine.rotor_mass_kg": repr(r.mass)}
 
     def run(self, n: int) -> SampleBlock:
         """Advance by ``n`` samples and return them."""
@@ -306,7 +355,8 @@ class ConeRig(Rig):
             noise[:] = 0.0
         _, omega = self.speed.angle_speed(np.array([self.step_index * self.h]))
         outs = [np.empty((n, 5)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 5)), np.empty((n, 5))]
-        _simulate(self.state, hammer, noise[:, :5] * self.params.gap_noise, float(omega[0]), self._constants(),
+        enabled = self.drop.enabled(steps * self.h) if self.drop else np.ones(n)
+        _simulate(self.state, hammer, enabled, noise[:, :5] * self.params.gap_noise, float(omega[0]), self._constants(),
                   self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
         self.step_index += n
         force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise
@@ -337,7 +387,7 @@ class ConeRig(Rig):
             for sign in (1.0, -1.0):
                 s = s0.copy()
                 s[i] += sign * scale[i]
-                _simulate(s, z, nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+                _simulate(s, z, np.ones(1), nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
                 cols.append(s)
             Jac[:, i] = (cols[0] - cols[1]) / (2 * scale[i])
         return Jac

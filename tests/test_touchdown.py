@@ -1,0 +1,146 @@
+"""Every rotor drop on record (issue 30, item 5; ISO 14839-5): the simulated cone rig's amplifiers
+are switched off for a known time at a known speed, the rotor drops onto its touchdown bearings, a
+``--snapshot --trigger touchdown`` catches it, and the snapshot's ``ambdaq.touchdown`` record is
+checked against the rig's true rotor position (``/truth/position``), then shown by the report."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ambdaq.analysis.orders import WHIRL_RATIO
+from ambdaq.analysis.touchdown import AT_CLEARANCE, IMPACT_WINDOW_S
+from ambdaq.daq.recording import load, open_recording
+from ambdaq.daq.touchdowns import recorded_drop
+from report_page import Tables
+
+RATE_HZ = 10_000.0  # the cone rig's sample rate
+DROPS = {  # name: (rpm, amplifiers off at s, for s, snapshot's pre-trigger time s)
+    "short": (600, 0.5, 0.1, 0.4),
+    "long": (1200, 0.5, 0.3, 0.5),
+    "late": (600, 0.5, 0.2, 0.1),  # the trigger (re-levitation at 0.7 s) keeps 0.1 s: the rotor is down already
+}
+
+
+def drop_files(d):
+    """One snapshot file per drop of DROPS in ``d/NAME/``, and a levitated recording ``d/calm.mcap``."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    def run(*args):
+        r = CliRunner().invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+
+    for name, (rpm, at, lasting, pre) in DROPS.items():
+        (d / name).mkdir()
+        run("sim", "generate", "--profile", "cone", "--rpm", rpm, "--drop", f"{at}:{lasting}", "--truth",
+            "--duration", at + lasting + 0.6, "--snapshot", f"{pre}s", "--post", "0.5s", "--trigger", "touchdown",
+            "-q", "-o", d / name / "drop.mcap")
+    run("sim", "generate", "--profile", "cone", "--duration", "0.3", "-q", "-o", d / "calm.mcap")
+
+
+@pytest.fixture(scope="module")
+def drops(build_once):
+    d = build_once("cone-drops", drop_files)
+    return {name: next((d / name).glob("drop_*_touchdown.mcap")) for name in DROPS} | {"calm": d / "calm.mcap"}
+
+
+def truth_of(path):
+    """What really happened in a drop file: the true radius at each bearing, then the true |gap| of
+    each other axis (the axial), over Cmin; the times (s from the file's first sample), the rig's own
+    clock (s since the run began), the machine and the true positions."""
+    rec = open_recording(path)
+    m = rec.machine
+    cmin = m.cmin_m
+    data = load(path, ["/truth/position"])["/truth/position"]
+    pos = {a: np.asarray(data[a]) for a in data.fields}
+    radii = np.column_stack([np.hypot(pos[b.x], pos[b.y]) for b in m.bearings]
+                            + [np.abs(pos[a]) for a in m.axes if a not in m.bearing_axes]) / cmin
+    return radii, np.asarray(data.time), np.asarray(data.device_time) * 1e-9, m, pos
+
+
+@pytest.mark.parametrize("name", ["short", "long"])
+def test_a_drop_is_characterised_as_the_rotor_really_fell(drops, name):
+    rpm, at, lasting, _ = DROPS[name]
+    rec = open_recording(drops[name])
+    drop = recorded_drop(rec.metadata)
+    assert drop is not None and drop.device == "rig"
+    t = drop.touchdown
+    radii, time_s, rig_s, machine, pos = truth_of(drops[name])
+    worst = radii.max(axis=1)
+    on = np.flatnonzero(worst >= AT_CLEARANCE)
+    first, last = on[0], on[on < on[0] + int(lasting * RATE_HZ) + 1000].max()
+    # the first contact where the true rotor reached 0.9 Cmin: the gap sensor's noise (about 1 um
+    # against a rotor falling 5 um a sample) moves it by at most 2 samples
+    assert abs(t.contact_s - time_s[first]) <= 2.5 / RATE_HZ
+    assert at < rig_s[first] < at + 0.05  # after the amplifiers went off: the current decays, the rotor falls
+    assert abs(t.on_bearing_s - (time_s[last] - time_s[first])) <= 2.5 / RATE_HZ
+    # on the bearing about as long as the amplifiers were off (less the fall, plus the lift)
+    assert t.on_bearing_s == pytest.approx(lasting, rel=0.15)
+    assert t.relevitated and not t.began_before
+    assert t.speed_rpm == pytest.approx(rpm, abs=0.5)
+    # the peak and where: the true radius's peak (sensor noise: within 2 % of Cmin)
+    place = int(np.argmax(radii[first:last + 1].max(axis=0)))
+    names = [b.name for b in machine.bearings] + [a for a in machine.axes if a not in machine.bearing_axes]
+    assert t.peak_at == names[place]
+    # the stops hold the rotor within Cmin plus the contact's give (the weight on 2e7 N/m: about 5 % of Cmin)
+    assert t.peak_ratio == pytest.approx(radii[first:last + 1, place].max(), abs=0.02) and t.peak_ratio < 1.2
+    # the whirl at the radial bearing that went furthest: the true orbit's full spectrum says the same
+    b = machine.bearings[int(np.argmax(radii[first:last + 1, :len(machine.bearings)].max(axis=0)))]
+    z = pos[b.x][first:last + 1] + 1j * pos[b.y][first:last + 1]
+    spectrum = np.fft.fft((z - z.mean()) * np.hanning(z.shape[0]))
+    freq = np.fft.fftfreq(z.shape[0], 1 / RATE_HZ)
+    fwd, bwd = np.sum(np.abs(spectrum[freq > 0]) ** 2), np.sum(np.abs(spectrum[freq < 0]) ** 2)
+    assert t.whirl == ("forward" if fwd > WHIRL_RATIO * bwd else "backward" if bwd > WHIRL_RATIO * fwd else "mixed")
+    # the impact: the true radius's speed over the 2 ms before the first contact (noise: within 10 %)
+    k = int(round(IMPACT_WINDOW_S * RATE_HZ))
+    true_speed = (worst[first] - worst[first - k]) * machine.cmin_m / (k / RATE_HZ)
+    assert t.impact_speed_m_s == pytest.approx(true_speed, rel=0.10)
+    assert t.energy_j == pytest.approx(0.5 * machine.rotor_mass_kg * t.impact_speed_m_s**2, rel=1e-12)
+    # the amplifiers come back on against a rotor on its bearing: the output at its limit
+    assert 0.99 <= t.amplifier_at_limit <= 1.0 + 1e-9
+
+
+def test_a_drop_that_began_before_the_snapshot_says_its_time_is_a_lower_bound(drops):
+    t = recorded_drop(open_recording(drops["late"]).metadata).touchdown
+    radii, time_s, rig_s, _, _ = truth_of(drops["late"])
+    assert radii.max(axis=1)[0] >= AT_CLEARANCE  # the truth: down at the file's first sample
+    assert t.began_before and t.contact_s == 0.0
+    assert t.impact_speed_m_s is None and t.energy_j is None  # the impact was not recorded: not guessed
+    assert t.on_bearing_s < DROPS["late"][2]
+
+
+def test_a_recording_without_a_drop_holds_no_touchdown_record(drops):
+    assert recorded_drop(open_recording(drops["calm"]).metadata) is None
+
+
+def test_the_report_lists_each_drop_with_the_numbers_of_json(drops, run_cli, chromium, tmp_path):
+    import subprocess
+
+    from ambdaq.cli.report import HEADLESS
+
+    page = tmp_path / "drops.html"
+    files = [drops[n] for n in ("short", "long", "late", "calm")]
+    r = run_cli("report", *[a for f in files for a in ("--drops", f)], "-o", page, "--json")
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    dom = subprocess.run([chromium, *HEADLESS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", page.as_uri()],
+                         capture_output=True, text=True, timeout=120)
+    assert dom.returncode == 0
+    tables = Tables()
+    tables.feed(dom.stdout)
+    rows = tables.tables["touchdowns"]
+    assert [row[0] for row in rows] == [f.name for f in files]
+    for cells, entry in zip(rows, data["touchdowns"]):
+        t = entry["drop"]
+        if t is None:
+            assert cells[1] == "no drop in it"
+            continue
+        assert cells[2:8] == [f"{t['speed_rpm']:,.0f}", ("≥ " if t["began_before"] else "") + f"{t['on_bearing_s']:.3f}",
+                              "yes" if t["relevitated"] else "no", f"{t['peak_ratio']:.3f}", t["peak_at"], t["whirl"]]
+        assert cells[10] == ("–" if t["energy_j"] is None else f"{t['energy_j']:.3g}")
+    line = next(v for v in data["verdict"]["lines"] if v["standard"] == "ISO 14839-5")
+    assert line["result"].startswith("3 drops in 4 snapshot files")
+    late = [i for i in data["verdict"]["open_items"] if drops["late"].name in i and "lower bound" in i]
+    assert len(late) == 1
