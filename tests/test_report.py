@@ -53,7 +53,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     page, pdf = tmp_path / "report.html", tmp_path / "report.pdf"
     r = run_cli("report", "--stability", session / "stability.json", "--runup", session / "runup.mcap",
                 "--coefficients", session / "coef.json", "--before", session / "before.mcap", "--after",
-                session / "after.mcap", "--push-log", session / "state" / "push.log", "--model", "spindle", "-o", page,
+                session / "after.mcap", "--push-log", session / "state" / "push.log", "--model", "spindle", "--operating", "1000:20000", "-o", page,
                 "--pdf", pdf, "--json")
     assert r.exit_code == 0, r.output
     data = json.loads(r.stdout)
@@ -100,7 +100,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
         [f"{c['predicted_rpm']:,.0f}", f"{c['predicted_amplification']:.2f}", c["whirl"] or "–",
          "–" if c["measured_rpm"] is None else f"{c['measured_rpm']:,.0f}", c["axis"] or "–",
          "–" if c["measured_amplification"] is None else f"{c['measured_amplification']:.2f}",
-         "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
+         f"{c['margin']:.1%} / {c['margin_required']:.1%}", "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
@@ -129,6 +129,11 @@ def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):
     assert r.exit_code == 2 and "needs at least one of --stability, --runup, --before/--after or --drops" in r.output
     r = run_cli("report", "--before", session / "before.mcap", "-o", tmp_path / "r.html")
     assert r.exit_code == 2 and "--before and --after go together" in r.output
+    r = run_cli("report", "--runup", session / "runup.mcap", "--operating", "1000:20000", "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "--operating checks the critical speeds of a --model" in r.output
+    r = run_cli("report", "--runup", session / "runup.mcap", "--model", "spindle", "--operating", "20000:1000",
+                "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "expected FROM:TO in rpm, FROM below TO" in r.output
     bad = tmp_path / "stability.json"
     bad.write_text((session / "stability.json").read_text().replace('"zone": "A"', '"zone": "B"', 1))
     r = run_cli("report", "--stability", bad, "-o", tmp_path / "r.html")

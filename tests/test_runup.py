@@ -288,3 +288,41 @@ def test_critical_speeds_are_verified_as_api_684_has_it():
     assert damped.passed and not missing.passed and not unexplained.passed
     (outside, ) = [c for c in check((50000.0, 6.0), (18100.0, 6.0))]  # 50,000 rpm is beyond the run
     assert outside.passed and outside.predicted.rpm == 18100.0
+
+
+def test_a_critical_speed_keeps_api_617s_separation_margin():
+    """API 617's separation margins (as API 684 explains them): none for a critically damped mode,
+    5 % below / 15 % above the operating range up to an amplification of 3.55, then 16 - 6/(AF - 3)
+    and 26 - 6/(AF - 3) %; the measured critical speed of amplification 5 at 18,000 rpm against four
+    operating ranges, and a critically damped mode inside the range, which needs none."""
+    from ambdaq.analysis.orders import PredictedCritical, separation_margin, verify_criticals
+
+    assert separation_margin(2.0) == (0.0, 0.0)
+    assert separation_margin(3.0) == separation_margin(3.55) == (0.05, 0.15)
+    assert separation_margin(3.56) == pytest.approx((0.16 - 0.06 / 0.56, 0.26 - 0.06 / 0.56))  # ~5.3 %, ~15.3 %
+    assert separation_margin(5.0) == pytest.approx((0.13, 0.23))
+    assert separation_margin(9.0) == pytest.approx((0.15, 0.25))
+
+    rpm = np.linspace(1000, 40000, 800)
+    r = rpm / 18000
+    v = 10e-6 * r**2 / ((1 - r**2) + 0.2j * r)  # zeta 0.1: amplification 5
+    (peak,) = one_x_peaks(rpm, v)
+    below, above = separation_margin(peak.amplification)
+
+    def check(operating, predicted=(18300.0, 6.0)):
+        p, af = predicted
+        return verify_criticals([PredictedCritical(p, p / 60, 1 / (2 * af), af, 1)], {"front_x": [peak]},
+                                (1000.0, 40000.0), operating_rpm=operating)[0]  # the prediction's check
+
+    far_above = check((2000.0, 14000.0))  # the critical speed 28 % above the maximum continuous speed
+    assert far_above.margin.actual == pytest.approx((peak.rpm - 14000) / 14000, rel=1e-12)
+    assert far_above.margin.required == above and far_above.passed
+    assert not check((2000.0, 15500.0)).passed  # 16 % above: less than the ~23 % asked
+    near_below = check((20000.0, 30000.0))  # 10 % below the minimum operating speed, ~13 % asked
+    assert near_below.margin.actual == pytest.approx((20000 - peak.rpm) / 20000, rel=1e-12)
+    assert near_below.margin.required == below and not near_below.passed
+    assert check((22000.0, 30000.0)).passed
+    inside = check((10000.0, 25000.0))
+    assert inside.margin.actual < 0 and not inside.passed
+    damped = check((10000.0, 40000.0), predicted=(30000.0, 1.5))  # amplification 1.5 inside the range
+    assert damped.margin.required == 0.0 and damped.passed

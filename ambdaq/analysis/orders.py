@@ -243,6 +243,72 @@ def predicted_criticals(rpm: np.ndarray, freq_hz: np.ndarray, damping: np.ndarra
     return sorted(out, key=lambda c: c.rpm)
 
 
+def separation_margin(amplification: float) -> tuple[float, float]:
+    """The separation margin a critical speed needs from the operating range (API 617's rule, as
+    API 684 explains it): none below an amplification factor of 2.5 (critically damped); 5 % below
+    the minimum operating speed and 15 % above the maximum continuous speed up to 3.55; above that
+    16 - 6/(AF - 3) % below and 26 - 6/(AF - 3) % above (continuous at 3.55).
+
+    Parameters
+    ----------
+    amplification : float
+        The mode's amplification factor (half-power), dimensionless.
+
+    Returns
+    -------
+    (float, float)
+        The margins below the minimum operating speed and above the maximum continuous speed, as
+        fractions of those speeds.
+    """
+    if amplification < CRITICAL_AMPLIFICATION:
+        return 0.0, 0.0
+    if amplification <= 3.55:
+        return 0.05, 0.15
+    step = 6.0 / (amplification - 3.0)
+    return (16.0 - step) / 100.0, (26.0 - step) / 100.0
+
+
+@dataclass(frozen=True)
+class Margin:
+    """A critical speed's separation from the operating range against what API 617 asks.
+
+    Attributes
+    ----------
+    rpm : float
+        The critical speed taken (the measured one where measured, else the predicted), rpm.
+    amplification : float
+        Its amplification factor (measured where measured).
+    actual : float
+        Its distance from the operating range, as a fraction of the range's nearer end (below the
+        minimum speed: of the minimum; above the maximum: of the maximum); negative inside it.
+    required : float
+        What :func:`separation_margin` asks on that side.
+    """
+
+    rpm: float
+    amplification: float
+    actual: float
+    required: float
+
+    @property
+    def passed(self) -> bool:
+        """Far enough from the operating range (a critically damped mode needs no margin)."""
+        return self.required == 0.0 or self.actual >= self.required
+
+
+def margin_from(rpm: float, amplification: float, operating_rpm: tuple[float, float]) -> Margin:
+    """A critical speed's :class:`Margin` from the operating range ``operating_rpm`` (minimum
+    operating speed, maximum continuous speed; rpm)."""
+    lo, hi = operating_rpm
+    below, above = separation_margin(amplification)
+    if rpm <= lo:
+        return Margin(rpm, amplification, (lo - rpm) / lo, below)
+    if rpm >= hi:
+        return Margin(rpm, amplification, (rpm - hi) / hi, above)
+    inside = -min(rpm - lo, hi - rpm) / (lo if rpm - lo < hi - rpm else hi)
+    return Margin(rpm, amplification, inside, below if rpm - lo < hi - rpm else above)
+
+
 @dataclass(frozen=True)
 class CriticalCheck:
     """A predicted critical speed against what the run-up measured, or a measured one the model
@@ -258,6 +324,8 @@ class CriticalCheck:
     passed : bool
     rule : str
         What was applied, in words, with its source.
+    margin : Margin or None
+        Its separation from the operating range, where one was given.
     """
 
     predicted: PredictedCritical | None
@@ -265,6 +333,7 @@ class CriticalCheck:
     axis: str | None
     passed: bool
     rule: str
+    margin: Margin | None = None
 
     def as_dict(self) -> dict:
         """As ``runup --json`` and the report give it: speeds to 0.1 rpm, factors to 0.01."""
@@ -276,12 +345,14 @@ class CriticalCheck:
                 "measured_rpm": None if m is None else round(m.rpm, 1), "axis": self.axis,
                 "measured_amplification": None if m is None else round(m.amplification, 2),
                 "deviation": None if p is None or m is None else round((m.rpm - p.rpm) / p.rpm, 4),
+                "margin": None if self.margin is None else round(self.margin.actual, 4),
+                "margin_required": None if self.margin is None else round(self.margin.required, 4),
                 "passed": self.passed, "rule": self.rule}
 
 
 def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["OneXPeak"]], rpm_range: tuple[float, float],
-                     *, tolerance: float = SPEED_TOLERANCE, min_amplification: float = CRITICAL_AMPLIFICATION
-                     ) -> list[CriticalCheck]:
+                     *, tolerance: float = SPEED_TOLERANCE, min_amplification: float = CRITICAL_AMPLIFICATION,
+                     operating_rpm: tuple[float, float] | None = None) -> list[CriticalCheck]:
     """Each predicted critical speed inside the run against the 1X peaks it measured (API 684).
 
     A mode the model amplifies less than ``min_amplification`` is critically damped: it passes
@@ -300,6 +371,9 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
         The relative speed difference within which a peak is the predicted one.
     min_amplification : float
         API 684's amplification factor below which a mode is critically damped.
+    operating_rpm : (float, float), optional
+        The minimum operating and maximum continuous speeds, rpm: each critical speed (measured
+        where measured) must also keep :func:`separation_margin` from them.
     """
     lo, hi = rpm_range
     checks, explained = [], set()
@@ -318,12 +392,21 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
             ok = peak is not None and peak.is_critical(min_amplification) and peak.amplification <= p.amplification
             rule = (f"API 684: measured within {tolerance:.0%} of the predicted speed, amplified no more than "
                     f"predicted ({p.amplification:.2f})")
-        checks.append(CriticalCheck(p, peak, axis, ok, rule))
+        margin = None
+        if operating_rpm is not None:
+            seen = peak is not None and peak.is_critical(min_amplification)
+            margin = margin_from(peak.rpm if seen else p.rpm, peak.amplification if seen else p.amplification,
+                                 operating_rpm)
+            ok = ok and margin.passed
+            rule += f"; API 617 separation margin {margin.required:.1%} from {operating_rpm[0]:,.0f}-" \
+                    f"{operating_rpm[1]:,.0f} rpm"
+        checks.append(CriticalCheck(p, peak, axis, ok, rule, margin))
     for a, ps in peaks.items():
         for k in ps:
             if k.is_critical(min_amplification) and (a, k.rpm) not in explained:
+                margin = None if operating_rpm is None else margin_from(k.rpm, k.amplification, operating_rpm)
                 checks.append(CriticalCheck(None, k, a, False, f"a critical speed (amplification {k.amplification:.2f}) "
-                                                                "the model does not predict"))
+                                                                "the model does not predict", margin))
     return checks
 
 
@@ -383,5 +466,5 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
     return f[keep][idx], zeta[keep][idx], whirl
 
 
-__all__ = ["CRITICAL_AMPLIFICATION", "SPEED_TOLERANCE", "WHIRL_RATIO", "CriticalCheck", "OneXPeak", "OrderTrack",
-           "PredictedCritical", "loop_modes", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]
+__all__ = ["CRITICAL_AMPLIFICATION", "SPEED_TOLERANCE", "WHIRL_RATIO", "CriticalCheck", "Margin", "OneXPeak",
+           "OrderTrack", "PredictedCritical", "loop_modes", "margin_from", "separation_margin", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]

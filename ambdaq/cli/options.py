@@ -30,6 +30,26 @@ POSITIVE = FinitePositive()
 """The type of every option that takes a duration, an amplitude or a limit above 0."""
 
 
+class SpeedRange(click.ParamType):
+    """A speed range ``FROM:TO`` in rpm, 0 <= FROM < TO."""
+
+    name = "FROM:TO"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            lo, hi = (float(v) for v in value.split(":"))
+            if not 0 <= lo < hi < 1e6:
+                raise ValueError
+        except ValueError:
+            self.fail(f"{value!r}: expected FROM:TO in rpm, FROM below TO, e.g. 0:50000", param, ctx)
+        return lo, hi
+
+
+SPEED_RANGE = SpeedRange()
+
+
 class ByteSize(click.ParamType):
     """A size in bytes: ``500000``, ``100M``, ``1G``, ``64MiB``."""
 

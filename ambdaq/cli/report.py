@@ -22,7 +22,7 @@ import numpy as np
 
 from ..analysis.iso14839 import ZoneLimits
 from ..errors import BadInputError
-from .options import POSITIVE
+from .options import POSITIVE, SPEED_RANGE
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
@@ -226,12 +226,14 @@ def render(found, title: str) -> str:
         if u["model"]:
             rows = [[_cell(c["predicted_rpm"], kind="rpm"), _cell(c["predicted_amplification"], kind="factor"),
                      _cell(c["whirl"] or "–", "text"), _cell(c["measured_rpm"], kind="rpm"), _cell(c["axis"] or "–", "text"),
-                     _cell(c["measured_amplification"], kind="factor"), _cell("pass" if c["passed"] else "FAIL", "text"),
+                     _cell(c["measured_amplification"], kind="factor"),
+                     _cell("–" if c["margin"] is None else f"{c['margin']:.1%} / {c['margin_required']:.1%}", "text"),
+                     _cell("pass" if c["passed"] else "FAIL", "text"),
                      _cell(c["rule"], "text")] for c in u["critical_speeds"]]
             parts.append(f'<p class="note">Critical speeds of the {html.escape(u["model"])} model (forward modes on '
                          "the 1X line) against the run's 1X peaks, by API 684's practice.</p>"
                          + (_table(["predicted rpm", "predicted AF", "whirl", "measured rpm", "axis", "measured AF",
-                                    "verdict", "rule"], rows, "critical-speeds")
+                                    "margin / required", "verdict", "rule"], rows, "critical-speeds")
                             if rows else '<p class="note">No critical speed predicted inside the run.</p>'))
         parts += [
                   _figure(_png(draw_runup(found.runup, Path(d["files"]["runup"]).name)),
@@ -251,6 +253,9 @@ def render(found, title: str) -> str:
 @click.option("--cmin", type=POSITIVE, metavar="UM", help="Minimum clearance, um; default: what the run-up reports.")
 @click.option("--model", type=click.Choice(["spindle", "cone"]),
               help="Verify the run-up's critical speeds against this rotordynamic model's (API 684).")
+@click.option("--operating", type=SPEED_RANGE,
+              help="The operating range, minimum operating to maximum continuous speed, rpm: with --model, each critical "
+                   "speed must keep API 617's separation margin from it.")
 @click.option("--drops", multiple=True, type=click.Path(dir_okay=False),
               help="A snapshot file a touchdown trigger caught (record --snapshot); repeat for each.")
 @click.option("--title", default="AMB commissioning report", show_default=True)
@@ -258,8 +263,8 @@ def render(found, title: str) -> str:
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
-def command(stability, runup, coefficients, before, after, push_log, cmin, model, drops, title, output, pdf, overwrite,
-            as_json):
+def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, drops, title, output, pdf,
+            overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
     push with the push log, the run-up's order tracking, the rotor drops the snapshots caught (ISO 14839-5).
@@ -272,6 +277,8 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     from ..daq.recording import open_recording
     from ..workflows.commissioning import SessionFiles, gather
 
+    if operating is not None and model is None:
+        raise BadInputError("--operating checks the critical speeds of a --model: give one (spindle or cone)")
     out = Path(output)
     for target in (out, Path(pdf) if pdf else None):
         if target is not None and target.exists() and not overwrite:
@@ -282,7 +289,7 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     opened = (lambda v: open_recording(v) if v else None)
     found = gather(SessionFiles(as_path(stability), opened(runup), as_path(coefficients), opened(before),
                                 opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model,
-                                [open_recording(p) for p in drops]))
+                                [open_recording(p) for p in drops], operating))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..analysis.orders import CRITICAL_AMPLIFICATION
 from ..errors import BadInputError
-from .options import max_lost_option, plot_option
+from .options import SPEED_RANGE, max_lost_option, plot_option
 
 
 def _orders(value: str) -> tuple[int, ...]:
@@ -23,18 +23,6 @@ def _orders(value: str) -> tuple[int, ...]:
     return out
 
 
-def _speeds(value: str | None) -> tuple[float, float] | None:
-    if value is None:
-        return None
-    try:
-        lo, hi = (float(v) for v in value.split(":"))
-        if not 0 <= lo < hi < 1e6:
-            raise ValueError
-    except ValueError:
-        raise BadInputError(f"--speeds {value!r}: expected FROM:TO in rpm, e.g. 0:50000") from None
-    return lo, hi
-
-
 @click.command("runup")
 @click.argument("recording", type=click.Path(dir_okay=False))
 @click.option("--coefficients", type=click.Path(dir_okay=False),
@@ -44,15 +32,18 @@ def _speeds(value: str | None) -> tuple[float, float] | None:
 @click.option("--orders", default="1,2", show_default=True, help="Orders to track.")
 @click.option("--revolutions", type=click.IntRange(1, 1000), default=8, show_default=True,
               help="Revolutions per tracking window.")
-@click.option("--speeds", metavar="FROM:TO", help="Speed range the run must cover, rpm.")
+@click.option("--speeds", type=SPEED_RANGE, help="Speed range the run must cover, rpm.")
+@click.option("--operating", type=SPEED_RANGE,
+              help="The operating range, minimum operating to maximum continuous speed, rpm: with --model, each critical "
+                   "speed must also keep API 617's separation margin from it.")
 @click.option("--model", type=click.Choice(["spindle", "cone"]),
               help="Overlay the modes this model's loop predicts (Campbell): the spindle's or the cone rotor's.")
 @click.option("--waterfall-axis", help="Gap axis of the waterfall; default: the first radial one.")
 @plot_option("Bode, polar, waterfall with order lines (and Campbell with --model) (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the tracked vectors and peaks as JSON.")
 @max_lost_option
-def command(recording, coefficients, slow_roll, orders, revolutions, speeds, model, waterfall_axis, plot_path, as_json,
-            max_lost):
+def command(recording, coefficients, slow_roll, orders, revolutions, speeds, operating, model, waterfall_axis, plot_path,
+            as_json, max_lost):
     """Order tracking of a run-up or coast-down on the key-phasor: 1X (and NX) amplitude and phase
     against speed, 1X peaks with their amplification factor (critical speeds, API 684), a waterfall.
 
@@ -64,9 +55,12 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, mod
     from ..daq.recording import open_recording
     from ..workflows.runup_diagnostics import analyse
 
+    if operating is not None and model is None:
+        raise BadInputError("--operating checks the critical speeds of a --model: give one (spindle or cone)")
     res = analyse(open_recording(recording), coefficients=Path(coefficients) if coefficients else None,
                   slow_roll=open_recording(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
-                  speeds=_speeds(speeds), waterfall_axis=waterfall_axis, model=model, max_lost=max_lost)
+                  speeds=speeds, waterfall_axis=waterfall_axis, model=model, operating_rpm=operating,
+                  max_lost=max_lost)
     for note in res.notes:
         click.echo(f"ambdaq: warning: {note}", err=True)
     t = res.track
@@ -132,6 +126,8 @@ def _print_table(res) -> None:
                 if c.predicted else "not predicted")
         seen = (f"measured {row['measured_rpm']:,.0f} rpm on {c.axis} (amplification {row['measured_amplification']:.2f})"
                 if c.measured else "no peak measured")
-        click.echo(f"critical speed: {said}; {seen}: {'pass' if c.passed else 'FAIL'} ({c.rule})")
+        margin = ("" if c.margin is None else
+                  f"; {c.margin.actual:.1%} from the operating range, {c.margin.required:.1%} required")
+        click.echo(f"critical speed: {said}; {seen}{margin}: {'pass' if c.passed else 'FAIL'} ({c.rule})")
 
 

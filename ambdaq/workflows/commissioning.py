@@ -45,6 +45,9 @@ class SessionFiles:
     drops : list of Recording
         Snapshot files a touchdown trigger caught (``record --snapshot``): the rotor drop each holds
         (ISO 14839-5, :mod:`ambdaq.daq.touchdowns`).
+    operating_rpm : (float, float) or None
+        Minimum operating and maximum continuous speed, rpm: with ``model``, the critical speeds'
+        API 617 separation margins are checked against them.
     """
 
     stability: Path | None = None
@@ -56,6 +59,7 @@ class SessionFiles:
     cmin_m: float | None = None
     model: str | None = None
     drops: list[Recording] = field(default_factory=list)
+    operating_rpm: tuple[float, float] | None = None
 
 
 def machine_identity(recs: list[Recording]) -> dict:
@@ -128,7 +132,8 @@ def gather(files: SessionFiles) -> Commissioning:
         out["vibration"] = {**{k: info[k] for k in ("cmin_um", "cmin_from", "limits_ratio_cmin", "band_rpm",
                                                     "runout_removed")},
                             "bands": [g.as_dict() for g in grades]}
-        diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2), model=files.model)
+        diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2), model=files.model,
+                                         operating_rpm=files.operating_rpm)
         notes += info["notes"] + diag.notes
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,

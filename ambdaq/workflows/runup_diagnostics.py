@@ -188,7 +188,8 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
 
 def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Recording | None = None, orders=(1, 2),
             revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
-            model: str | None = None, max_lost: float = MAX_LOST) -> RunupDiagnostics:
+            model: str | None = None, operating_rpm: tuple[float, float] | None = None,
+            max_lost: float = MAX_LOST) -> RunupDiagnostics:
     """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
 
     Parameters
@@ -209,6 +210,9 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
         Gap axis of the waterfall; default: the first radial one.
     model : str, optional
         ``spindle`` or ``cone``: its loop's modes over the run's speeds (the Campbell diagram).
+    operating_rpm : (float, float), optional
+        Minimum operating and maximum continuous speed, rpm: with ``model``, each critical speed
+        must keep API 617's separation margin from them (:func:`~ambdaq.analysis.orders.separation_margin`).
     max_lost : float
         The share of samples (0..1) a recording may have lost (:mod:`ambdaq.daq.quality`).
     """
@@ -259,8 +263,8 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
                 for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
     modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
-    checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max()))) \
-        if modes is not None and peaks else []
+    checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max())),
+                              operating_rpm=operating_rpm) if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
                             centreline(machine, axes, x, rpm, time_s, n), checks,
                             tuple(b for b in machine.bearings if b.x in axes and b.y in axes))
