@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import click
@@ -11,7 +10,7 @@ import numpy as np
 
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
-from .options import DURATION, POSITIVE, a2l_option, max_lost_option, plot_option, speed_restored_note
+from .options import DURATION, POSITIVE, RangeArg, a2l_option, max_lost_option, plot_option, speed_restored_note
 
 
 class LimitsArg(click.ParamType):
@@ -34,23 +33,6 @@ class LimitsArg(click.ParamType):
                       f"({err})", param, ctx)
 
 
-class BandArg(click.ParamType):
-    """``LO:HI`` in Hz."""
-
-    name = "LO:HI"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        try:
-            lo, hi = (float(v) for v in str(value).split(":"))
-            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
-                raise ValueError
-            return lo, hi
-        except ValueError:
-            self.fail(f"{value!r}: expected LO:HI in Hz with 0 <= LO < HI, e.g. 10:2000", param, ctx)
-
-
 @click.group("iso")
 def command() -> None:
     """ISO 14839 evaluations: stability margin (part 3), vibration zones (part 2)."""
@@ -71,7 +53,7 @@ def command() -> None:
 @click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
               help="Where the measured recordings go; default: beside -o, in NAME_runs/.")
 @click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True, help="Frequency step, Hz.")
-@click.option("--band", type=BandArg(), help="Band searched for the peak, Hz; default: every measured frequency.")
+@click.option("--band", type=RangeArg("LO:HI", "Hz", "10:2000"), help="Band searched for the peak, Hz; default: every measured frequency.")
 @click.option("--limits", type=LimitsArg(), default=",".join(f"{v:g}" for v in STABILITY_LIMITS.as_list()), show_default=True,
               help="Peak |Gs| at the zone boundaries A/B, B/C, C/D (gains, or e.g. 9.5dB,12dB,14dB).")
 @click.option("--min-coherence", type=click.FloatRange(0.0, 1.0), default=0.9, show_default=True,

@@ -30,24 +30,26 @@ POSITIVE = FinitePositive()
 """The type of every option that takes a duration, an amplitude or a limit above 0."""
 
 
-class SpeedRange(click.ParamType):
-    """A speed range ``FROM:TO`` in rpm, 0 <= FROM < TO."""
+class RangeArg(click.ParamType):
+    """A range ``LO:HI`` of finite numbers, 0 <= LO < HI, in ``unit``."""
 
-    name = "FROM:TO"
+    def __init__(self, name: str, unit: str, example: str) -> None:
+        self.name, self.unit, self.example = name, unit, example
 
     def convert(self, value, param, ctx):
         if isinstance(value, tuple):
             return value
         try:
-            lo, hi = (float(v) for v in value.split(":"))
-            if not 0 <= lo < hi < 1e6:
+            lo, hi = (float(v) for v in str(value).split(":"))
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
                 raise ValueError
         except ValueError:
-            self.fail(f"{value!r}: expected FROM:TO in rpm, FROM below TO, e.g. 0:50000", param, ctx)
+            self.fail(f"{value!r}: expected {self.name} in {self.unit}, {self.name.split(':')[0]} below "
+                      f"{self.name.split(':')[1]}, e.g. {self.example}", param, ctx)
         return lo, hi
 
 
-SPEED_RANGE = SpeedRange()
+SPEED_RANGE = RangeArg("FROM:TO", "rpm", "0:50000")
 
 
 class ByteSize(click.ParamType):
