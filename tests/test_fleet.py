@@ -251,31 +251,32 @@ def test_ctrl_c_leaves_a_dataset_the_next_scan_completes(fleet, scheduler, tmp_p
 
 
 def test_every_rotor_drop_on_record_and_when_to_inspect(scheduler, build_once, tmp_path):
-    """ISO 14839-5: the drops the cone rig's snapshots caught (tests/test_touchdown.py checks each
-    against the rig's truth) are collected per machine; trend counts them, sums their impact
+    """ISO 14839-5: the drops the simulated rigs' snapshots caught (tests/test_touchdown.py checks
+    each against the rig's truth) are collected per machine; trend counts them, sums their impact
     energy, and says when the touchdown bearings are due."""
     from ambdaq.daq.recording import open_recording
     from ambdaq.daq.touchdowns import recorded_drop
-    from test_touchdown import drop_files
+    from test_touchdown import DROPS, drop_files
 
-    drops = build_once("cone-drops", drop_files)
+    drops = build_once("rotor-drops", drop_files)
     ds = tmp_path / "drops.parquet"
     res = ambdaq("fleet", "scan", str(drops), "-o", str(ds), "--scheduler", scheduler, "--json")
     assert res.returncode == 0, res.stderr
     files = sorted(drops.rglob("*.mcap"))
-    assert json.loads(res.stdout)["scanned"] == len(files) == 4
+    assert json.loads(res.stdout)["scanned"] == len(files) == len(DROPS) + 1  # and one without a drop
     held = [d.touchdown for f in files if (d := recorded_drop(open_recording(f).metadata)) is not None]
-    assert len(held) == 3
-    out = json.loads(run("fleet", "trend", str(ds), "--touchdown-limit", "3", "--json").stdout)
-    (summary,) = out["touchdowns"]
-    assert summary["drops"] == 3 and summary["inspect"]
+    n = len(held)
+    assert n == len(DROPS)
+    out = json.loads(run("fleet", "trend", str(ds), "--touchdown-limit", str(n), "--json").stdout)
+    (summary,) = out["touchdowns"]  # one machine: the rigs name none, so both are this host's
+    assert summary["drops"] == n and summary["inspect"]
     # the energy of the drops whose impact was recorded (one began before its snapshot: none known)
     known = [t.energy_j for t in held if t.energy_j is not None]
-    assert len(known) == 2 and summary["energy_j"] == pytest.approx(sum(known), rel=1e-12)
+    assert len(known) == n - 1 and summary["energy_j"] == pytest.approx(sum(known), rel=1e-12)
     assert summary["worst_ratio_cmin"] == pytest.approx(max(t.peak_ratio for t in held), rel=1e-12)
-    text = run("fleet", "trend", str(ds), "--touchdown-limit", "3").stdout
-    assert "3 drops" in text and "inspect the touchdown bearings" in text
-    assert "inspect the touchdown bearings" not in run("fleet", "trend", str(ds), "--touchdown-limit", "4").stdout
+    text = run("fleet", "trend", str(ds), "--touchdown-limit", str(n)).stdout
+    assert f"{n} drops" in text and "inspect the touchdown bearings" in text
+    assert "inspect the touchdown bearings" not in run("fleet", "trend", str(ds), "--touchdown-limit", str(n + 1)).stdout
     by_energy = run("fleet", "trend", str(ds), "--touchdown-energy", f"{sum(known) * 0.99:.6g}").stdout
     assert "inspect the touchdown bearings" in by_energy
 

@@ -48,8 +48,8 @@ def command() -> None:
 @click.option("--start", type=click.Choice(["levitated", "touchdown"]), default="levitated", show_default=True,
               help="Cone rig: start levitated, or at rest on the touchdown bearings with the amplifiers just enabled.")
 @click.option("--drop", metavar="AT_S:DURATION_S",
-              help="Cone rig: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops onto its "
-                   "touchdown bearings, then levitates again.")
+              help="Cone and spindle rigs: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops "
+                   "onto its touchdown bearings, then levitates again.")
 @snapshot_options
 @output_options
 @report_options
@@ -92,8 +92,9 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             source.rig.restart(start)
         if drop is not None:
             if "drop" not in source.rig.inputs:
-                raise BadInputError(f"--drop: the {profile} rig has no touchdown bearings to drop onto (use --profile cone)")
-            from ..sim.rigs.cone import Drop
+                raise BadInputError(f"--drop: the {profile} rig has no touchdown bearings to drop onto "
+                                    "(the cone and spindle rigs have)")
+            from ..sim.rigs.drop import Drop
 
             source.rig.set_drop(Drop.parse(drop))
     except ValueError as err:

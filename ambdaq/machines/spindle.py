@@ -130,6 +130,12 @@ class SpindleParams:
     # assumed: Ro et al. gives no touchdown bearings; their radial clearance is commonly half the
     # magnetic air gap (0.3 mm, Table 1)
     min_clearance: float = 0.15e-3  # m, Cmin of ISO 14839-2
+    # assumed, the touchdown bearings themselves (round radial ones and an axial stop at Cmin): a
+    # ball bearing's stiffness (its mode 5.8 krad/s on the tilt mode's 1.5 kg, 0.03 rad in one of
+    # the 5 us steps the rig takes in contact), damped at about 0.2
+    contact_stiffness: float = 5e7  # N/m
+    contact_damping: float = 4000.0  # N s/m
+    coil_time_constant: float = 0.005  # s, L/R: how fast the bias decays with the amplifiers off
 
     @property
     def axes(self) -> tuple[BearingAxis, ...]:

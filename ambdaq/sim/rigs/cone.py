@@ -33,6 +33,7 @@ from ...errors import BadInputError
 from ...drivers.signals import SampleBlock, SignalGroup
 from ..profiles import Profile
 from .base import Rig
+from .drop import Drop
 from ...speed import RPM_TO_RAD_S, SpeedProfile
 
 SUBSTEPS = 50  # 2 us steps: the kernel's modes within 0.2% (frequency) and 2.5% (damping) of the continuous model
@@ -220,31 +221,6 @@ def _simulate(s, hammer_t, enabled, noise, speed, c, Minv, A, Tm, D, V0, out_gap
                     out_pos[k, a] = qb[a]
                     out_gap[k, a] = qb[a] + noise[k, a]
                     out_ctl[k, a] = vc[a]
-
-
-@dataclass(frozen=True)
-class Drop:
-    """A rotor drop: the amplifiers off from ``at_s`` for ``duration_s`` (a power loss, a tripped
-    amplifier), the rotor falling onto its touchdown bearings, then enabled again (it levitates
-    from where it lies, as from the touchdown start)."""
-
-    at_s: float
-    duration_s: float
-
-    @classmethod
-    def parse(cls, spec: str) -> "Drop":
-        """``AT_S:DURATION_S``."""
-        try:
-            at, duration = (float(x) for x in spec.split(":"))
-        except ValueError:
-            raise BadInputError(f"bad drop {spec!r}: expected AT_S:DURATION_S, e.g. 0.3:0.2") from None
-        if not (np.isfinite(at) and np.isfinite(duration) and at >= 0 and 0 < duration <= 10):
-            raise BadInputError(f"bad drop {spec!r}: AT_S >= 0 and 0 < DURATION_S <= 10")
-        return cls(at, duration)
-
-    def enabled(self, t: np.ndarray) -> np.ndarray:
-        """1 where the amplifiers run at times ``t`` (s), 0 where they are off."""
-        return np.where((t >= self.at_s) & (t < self.at_s + self.duration_s), 0.0, 1.0)
 
 
 class ConeRig(Rig):

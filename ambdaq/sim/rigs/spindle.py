@@ -29,6 +29,12 @@ Physics (all SI):
 * Mass unbalance per bearing plane, force U Omega^2 at angle theta + phase; gravity on y.
 * Housing accelerometers read the bearing reaction force on an effective housing mass (the housing
   on soft mounts, above their resonance): a = -(F_mag - F_static)/M_h.
+* Touchdown bearings (assumed; Ro et al. has none): round at each radial bearing and an axial
+  stop, at the clearance Cmin; a contact force along the normal with damping, no friction.  A
+  drop (:class:`~.drop.Drop`) switches the amplifiers off: no output, and the bias decays with
+  the coils' L/R; as the bias b goes, the force constant goes with b and the negative stiffness
+  with b^2 (the linear plant holds Kx at the full bias, so the difference (1 - b^2) Kx x is
+  taken back).  The controller runs on; when the amplifiers return it lifts the rotor.
 
 The axial bearing is not described in Ro et al.; its values here are assumptions, marked below.
 """
@@ -50,6 +56,7 @@ from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
 from .base import Rig
+from .drop import Drop
 from .excitation import ExcitationInput
 from ...machines.spindle import (AXES, FRONT_LOOP, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
                                   PHASE_BIN_HZ, PHASE_BINS, REAR_LOOP, SPINDLE, BearingAxis, SpindleParams)
@@ -154,16 +161,51 @@ def _converter(v, full_scale, lsb, inv_lsb):
     return v
 
 
+CONTACT_SUBSTEPS = 20  # 5 us steps while on a touchdown bearing: its contact mode (5.8 krad/s) 0.03 rad a step
+
+
+@njit(cache=True, inline="always")
+def _near_touchdown(z, within):
+    """Whether a radial bearing's orbit radius or the axial gap is beyond ``within`` (m)."""
+    return (z[0] * z[0] + z[1] * z[1] > within * within or z[2] * z[2] + z[3] * z[3] > within * within
+            or abs(z[4]) > within)
+
+
+@njit(cache=True, inline="always")
+def _contact(z, clr, kcon, ccon, fc):
+    """The touchdown bearings' forces on the rotor in bearing coordinates (N) into ``fc``: round at
+    each radial bearing, an axial stop; stiffness ``kcon`` along the normal past the clearance
+    ``clr``, damping ``ccon``, pushing only."""
+    for a in range(5):
+        fc[a] = 0.0
+    for a, b in ((0, 1), (2, 3)):
+        r = np.sqrt(z[a] * z[a] + z[b] * z[b])
+        if r > clr:
+            na = z[a] / r
+            nb = z[b] / r
+            normal = kcon * (r - clr) + ccon * (z[5 + a] * na + z[5 + b] * nb)
+            if normal > 0.0:
+                fc[a] = -normal * na
+                fc[b] = -normal * nb
+    if abs(z[4]) > clr:
+        sgn = 1.0 if z[4] > 0 else -1.0
+        normal = kcon * (abs(z[4]) - clr) + ccon * z[9] * sgn
+        if normal > 0.0:
+            fc[4] = -normal * sgn
+
+
 @njit(cache=True, fastmath=True, nogil=True)
 def _simulate(
-    theta, omega, noise, noise_sd,  # per-step inputs; noise: unit normals, gap 0:5, current 5:10, accel 10:15
-    z, amp, ctl, w, st,  # state (modified in place)
-    Phi, Gam, Pa, Ga,  # discretised plant and amplifiers
+    theta, omega, enabled, noise, noise_sd,  # per-step inputs; enabled: 1 amplifiers on, 0 off (a drop);
+    # noise: unit normals, gap 0:5, current 5:10, accel 10:15
+    z, amp, ctl, w, st,  # state (modified in place); st: [revolution count, bias level 0..1]
+    Phi, Gam, Ac, Bc, Pa, Ga,  # the plant discretised and continuous (in contact), the amplifiers
     ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
     mu_tab, ph_cos, ph_sin, ff_mode, exc, c,  # exc: excitation added to r_c per step and axis; c: constants
     out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
 ):
-    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax, phase_bin_hz]
+    # c = [h, Ks, adc_lsb, adc_range, dac_lsb, dac_range, imax, phase_bin_hz, clearance, contact k, contact c,
+    #      exp(-h / coil time constant)]
     h = c[0]
     ks = c[1]
     adc_lsb = c[2]
@@ -172,6 +214,11 @@ def _simulate(
     dac_rng = c[5]
     imax = c[6]
     phase_bin = c[7]
+    clr = c[8]
+    kcon = c[9]
+    ccon = c[10]
+    e_coil = c[11]
+    fc = np.empty(5)
     inv_ks = 1.0 / ks
     inv_adc = 1.0 / adc_lsb if adc_lsb > 0.0 else 0.0
     inv_dac = 1.0 / dac_lsb if dac_lsb > 0.0 else 0.0
@@ -202,6 +249,10 @@ def _simulate(
         if mbin >= mu_tab.shape[1]:
             mbin = mu_tab.shape[1] - 1
         th_mid = th + 0.5 * h * om
+        on = enabled[k] >= 0.5
+        level = st[1]  # the bias, as a share of its own, over this step
+        st[1] = (1.0 if on else 0.0) + (level - (1.0 if on else 0.0)) * e_coil
+        lost_kx = 1.0 - level * level  # the negative stiffness goes with the bias squared
         for a in range(5):
             pos = z[a]
             r = 0.0
@@ -240,19 +291,21 @@ def _simulate(
             ctl[a, 1] = deriv
             ctl[a, 2] = ev
             u = _converter(-(pid_p[a] * ev + integ + deriv), dac_rng, dac_lsb, inv_dac)
+            if not on:
+                u = 0.0  # the amplifier off: the controller's output goes nowhere
             # amplifier step and the differential coil-current law with 0..imax per coil
             i0 = amp[a, 0]
             i1 = Pa[a, 0, 0] * i0 + Pa[a, 0, 1] * amp[a, 1] + Ga[a, 0] * u
             amp[a, 1] = Pa[a, 1, 0] * i0 + Pa[a, 1, 1] * amp[a, 1] + Ga[a, 1] * u
             amp[a, 0] = i1
-            b0 = bias[a]
+            b0 = bias[a] * level
             hi0 = min(max(b0 + i0, 0.0), imax)
             lo0 = min(max(b0 - i0, 0.0), imax)
             hi1 = min(max(b0 + i1, 0.0), imax)
             lo1 = min(max(b0 - i1, 0.0), imax)
             ieff0 = (hi0 * hi0 - lo0 * lo0) * inv_4b[a]
             ieff1 = (hi1 * hi1 - lo1 * lo1) * inv_4b[a]
-            fmag = kx[a] * pos + ki[a] * ieff0
+            fmag = (1.0 - lost_kx) * kx[a] * pos + ki[a] * ieff0
             # unbalance: x axes cos, y axes sin of (theta + phase), evaluated mid-step
             fu = unb[a] * om * om * np.cos(th_mid + unb_ph[a])
             F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
@@ -263,15 +316,34 @@ def _simulate(
             out_acc[k, a] = -(fmag - fstat[a]) * inv_mh[a] + noise_sd[2] * noise[k, 10 + a]
             out_run[k, a] = r
             out_pos[k, a] = pos
-        for i in range(10):
-            acc = 0.0
-            for j in range(10):
-                acc += Phi[i, j] * z[j]
-            for j in range(5):
-                acc += Gam[i, j] * F[j]
-            znew[i] = acc
-        for i in range(10):
-            z[i] = znew[i]
+        if lost_kx > 1e-3 or _near_touchdown(z, 0.8 * clr):
+            # on (or about to reach) a touchdown bearing, or the bias not all there: the contact is
+            # stiff and switches, and the plant's Kx is not the bias's, so the rotor is integrated
+            # through the step in CONTACT_SUBSTEPS semi-implicit Euler steps of its continuous model
+            # (Ac, Bc), the contact force and the negative stiffness lost with the bias at each
+            hs = h / CONTACT_SUBSTEPS
+            for _ in range(CONTACT_SUBSTEPS):
+                _contact(z, clr, kcon, ccon, fc)
+                for i in range(5, 10):
+                    acc = 0.0
+                    for j in range(10):
+                        acc += Ac[i, j] * z[j]
+                    for j in range(5):
+                        acc += Bc[i, j] * (F[j] + fc[j] - lost_kx * kx[j] * z[j])
+                    znew[i] = z[i] + hs * acc
+                for i in range(5):
+                    z[5 + i] = znew[5 + i]
+                    z[i] += hs * z[5 + i]
+        else:
+            for i in range(10):
+                acc = 0.0
+                for j in range(10):
+                    acc += Phi[i, j] * z[j]
+                for j in range(5):
+                    acc += Gam[i, j] * F[j]
+                znew[i] = acc
+            for i in range(10):
+                z[i] = znew[i]
 
 
 def _groups(truth: bool) -> list[SignalGroup]:
@@ -314,7 +386,7 @@ class SpindleRig(Rig, ExcitationInput):
     """
 
     profile = "spindle"
-    inputs = frozenset({"excitation", "feedforward"})
+    inputs = frozenset({"excitation", "feedforward", "drop"})
     excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
     excitation_unit = "m"
     excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal
@@ -341,8 +413,9 @@ class SpindleRig(Rig, ExcitationInput):
         self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
         self._theta0 = 0.0  # ... and this angle (rad)
-        self._rotor_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._rotor_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._linear: tuple | None = None  # loop_matrices' standstill probe
+        self.drop: Drop | None = None
         self._init_constants()
         self._init_state()
 
@@ -375,7 +448,8 @@ class SpindleRig(Rig, ExcitationInput):
         adc_lsb = 2 * p.adc_range / 2**p.adc_bits if self.noise else 0.0
         dac_lsb = 2 * p.dac_range / 2**p.dac_bits if self.noise else 0.0
         self._c = np.array([h, p.sensor_gain, adc_lsb, p.adc_range, dac_lsb, p.dac_range, p.coil_max_current,
-                            PHASE_BIN_HZ])
+                            PHASE_BIN_HZ, p.min_clearance, p.contact_stiffness, p.contact_damping,
+                            np.exp(-h / p.coil_time_constant)])
         self._noise_sd = np.array([p.gap_noise, p.current_noise, p.accel_noise]) * (1.0 if self.noise else 0.0)
 
     def _init_state(self) -> None:
@@ -389,7 +463,7 @@ class SpindleRig(Rig, ExcitationInput):
         self._ctl[:, 0] = -i_static / amp_gain  # u = -integral at zero error
         self._w = np.zeros((5, N_HARMONICS, 2))
         theta0, _ = self.speed.angle_speed(np.zeros(1))
-        self._st = np.array([np.floor(theta0[0] / (2 * np.pi))])
+        self._st = np.array([np.floor(theta0[0] / (2 * np.pi)), 1.0])  # revolutions, bias level
 
     def set_feedforward(self, mode: str, table: np.ndarray | None = None) -> None:
         """Switch the controller's feedforward.
@@ -410,6 +484,11 @@ class SpindleRig(Rig, ExcitationInput):
             self._w[:] = 0.0
             self._w[:, : t.shape[1], :] = t
         self._ff_mode = FF_MODES[mode]
+
+    def set_drop(self, drop: Drop | None) -> None:
+        """Drop the rotor as ``drop`` says (None: the amplifiers always on); its times are the
+        rig's, from the start of the run."""
+        self.drop = drop
 
     def command_speed(self, speed: SpeedProfile) -> None:
         """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous."""
@@ -495,9 +574,15 @@ class SpindleRig(Rig, ExcitationInput):
 
     def _discrete_rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray]:
         """ZOH rotor matrices at the bucketed speed ``omega_q`` (rad/s), cached per rig."""
+        return self._rotor(omega_q)[:2]
+
+    def _rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The rotor's ZOH matrices and its continuous ones at the bucketed speed ``omega_q`` (rad/s),
+        cached per rig."""
         key = round(omega_q / SPEED_BUCKET_RAD_S)
         if key not in self._rotor_cache:
-            self._rotor_cache[key] = zoh(*rotor_matrices(self.params, omega_q), self.h)
+            A, B = rotor_matrices(self.params, omega_q)
+            self._rotor_cache[key] = (*zoh(A, B, self.h), A, B)
         return self._rotor_cache[key]
 
     def run(self, n: int) -> SampleBlock:
@@ -511,6 +596,7 @@ class SpindleRig(Rig, ExcitationInput):
         if not self.noise:
             noise[:] = 0.0
         exc = self.excitation_block(steps)
+        enabled = self.drop.enabled(t) if self.drop is not None else np.ones(n)
         outs = [np.empty((n, 5)) for _ in range(4)] + [np.empty((n, 5)), np.empty((n, 3))]
         out_run = np.empty((n, 5))
         out_pos = np.empty((n, 5))
@@ -520,12 +606,12 @@ class SpindleRig(Rig, ExcitationInput):
         for lo, hi in zip(edges[:-1], edges[1:]):
             if hi <= lo:
                 continue
-            Phi, Gam = self._discrete_rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
+            Phi, Gam, Ac, Bc = self._rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
             sl = slice(lo, hi)
             _simulate(
-                theta[sl], omega[sl], noise[sl], self._noise_sd,
+                theta[sl], omega[sl], enabled[sl], noise[sl], self._noise_sd,
                 self._z, self._amp, self._ctl, self._w, self._st,
-                Phi, Gam, self._Pa, self._Ga,
+                Phi, Gam, Ac, Bc, self._Pa, self._Ga,
                 self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
                 self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
                 self._mu, self._ph_cos, self._ph_sin, self._ff_mode, exc[sl], self._c,
