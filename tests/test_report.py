@@ -101,6 +101,14 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
          "–" if c["measured_rpm"] is None else f"{c['measured_rpm']:,.0f}", c["axis"] or "–",
          "–" if c["measured_amplification"] is None else f"{c['measured_amplification']:.2f}",
          f"{c['margin']:.1%} / {c['margin_required']:.1%}", "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
+    # APHT of the run after the push: the LMS adapting from zero, its command error's 1X falling
+    a = data["apht"]
+    assert a["windows"] == 4 and a["window_s"] == 0.5 and a["rpm"] == pytest.approx(30000, abs=1)
+    assert tables.tables["apht"] == [[row["axis"], *(f"{row[k]['um']:.2f}" if u == "um" else f"{row[k]['deg']:.1f}"
+                                                     for k in ("gap_first", "gap_last", "error_first", "error_last")
+                                                     for u in ("um", "deg"))] for row in a["rows"]]
+    for row in a["rows"]:
+        assert row["error_last"]["um"] < 0.2 * row["error_first"]["um"], row
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]

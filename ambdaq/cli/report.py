@@ -66,7 +66,7 @@ def print_pdf(page: Path, pdf: Path) -> None:
 FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
     "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}", "s": "{:.3f}", "m_s": "{:.3f}",
-    "j": "{:.3g}",
+    "j": "{:.3g}", "deg": "{:.1f}",
 }
 
 
@@ -114,6 +114,7 @@ def _png(fig) -> bytes:
 
 def render(found, title: str) -> str:
     """The report page of a :class:`~ambdaq.workflows.commissioning.Commissioning`."""
+    from ..figures.apht import draw_apht
     from ..figures.iso import draw_stability, draw_vibration
     from ..figures.runup import draw_runup
 
@@ -189,6 +190,24 @@ def render(found, title: str) -> str:
                   f'<p class="note">Command error at {r["before"]["rpm"]:,.0f} rpm ({html.escape(r["before"]["path"])}) '
                   f'and {r["after"]["rpm"]:,.0f} rpm ({html.escape(r["after"]["path"])}).</p>',
                   _table(headers + ["RMS before [µm]", "RMS after [µm]"], rows, "runout")]
+    a = d.get("apht")
+    if a is not None:
+        def vec(v) -> list[str]:
+            return [_cell(v["um"], kind="um"), _cell(v["deg"], kind="deg")]
+
+        rows = [[_cell(row["axis"], "text"), *vec(row["gap_first"]), *vec(row["gap_last"]),
+                 *(vec(row["error_first"]) + vec(row["error_last"]) if "error_first" in row else [_cell(None, kind="um")] * 4)]
+                for row in a["rows"]]
+        parts += ["<h2>APHT after the push</h2>",
+                  f'<p class="note">1X amplitude and phase against time at {a["rpm"]:,.0f} rpm '
+                  f'({html.escape(Path(a["recording"]).name)}, {a["windows"]} windows of {a["window_s"]} s; gap '
+                  f'compensation: {html.escape(a["compensation"])}): the first window and the last. An LMS '
+                  "converging shows as a command error whose 1X falls; a thermal bow as a gap 1X that turns and "
+                  "grows.</p>",
+                  _table(["axis", "gap 1X first [µm]", "[°]", "gap 1X last [µm]", "[°]", "error 1X first [µm]", "[°]",
+                          "error 1X last [µm]", "[°]"], rows, "apht"),
+                  _figure(_png(draw_apht(found.apht)), "APHT: 1X amplitude and phase of the gap, the command error "
+                          "and the feedforward per axis against time.")]
     log = d["push_log"]
     if d.get("touchdowns") is not None:
         rows = [[_cell(Path(r["file"]).name, "text")] + ([_cell("no drop in it", "text")] + [_cell(None, kind="rpm")] * 9
@@ -267,7 +286,8 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
             overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
-    push with the push log, the run-up's order tracking, the rotor drops the snapshots caught (ISO 14839-5).
+    push with the push log and the APHT of the run after it, the run-up's order tracking, the rotor drops
+    the snapshots caught (ISO 14839-5).
 
     \b
     Example:

@@ -10,11 +10,14 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
+
 from ..daq.coefficients import file_sha256
 from ..daq.recording import Recording, open_recording
 from ..daq.touchdowns import recorded_drop
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
+from .apht import Apht, apht
 from .push import push_log_entries
 from .runout import check_recordings, with_rotor
 
@@ -100,11 +103,14 @@ class Commissioning:
         The results file, with its curves, for the figure.
     runup : RunupDiagnostics or None
         The run-up's order tracking, for the figures.
+    apht : Apht or None
+        The APHT of the recording after the push, for its figure.
     """
 
     data: dict
     stability: object | None
     runup: runup_diagnostics.RunupDiagnostics | None
+    apht: Apht | None = None
 
 
 def gather(files: SessionFiles) -> Commissioning:
@@ -148,8 +154,15 @@ def gather(files: SessionFiles) -> Commissioning:
         check = check_recordings(files.before, files.after, [1, 2])
         notes += check.notes
         out["runout"] = {"before": check.before, "after": check.after, "axes": check.axes}
+        try:  # how the 1X moved through the run after the push (the LMS converging, a thermal bow)
+            after = apht(files.after, coefficients=files.coefficients)
+        except BadInputError as err:
+            after = None
+            notes.append(f"no APHT of the run after the push: {err}")
+        out["apht"] = None if after is None else aphts(after, files.after)
     else:
-        out["runout"] = None
+        out["runout"] = out["apht"] = None
+        after = None
     out["touchdowns"] = touchdowns(files.drops) if files.drops else None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})
@@ -158,7 +171,25 @@ def gather(files: SessionFiles) -> Commissioning:
     if files.drops:
         out["files"]["drops"] = [str(r.path) for r in files.drops]
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
-    return Commissioning(out, doc, diag)
+    return Commissioning(out, doc, diag, after)
+
+
+def aphts(res: Apht, rec: Recording) -> dict:
+    """The report's APHT table: per radial axis, the 1X of the gap (runout out where the
+    coefficients were given) and of the command error in the first and the last window, µm and
+    degrees."""
+    def vector(v) -> dict:
+        return {"um": round(float(abs(v)) * 1e6, 3), "deg": round(float(np.degrees(np.angle(v))), 1)}
+
+    rows = []
+    for j, axis in enumerate(res.axes):
+        row = {"axis": axis, "gap_first": vector(res.gap[0, 0, j]), "gap_last": vector(res.gap[-1, 0, j])}
+        if res.error is not None:
+            row |= {"error_first": vector(res.error[0, 0, j]), "error_last": vector(res.error[-1, 0, j])}
+        rows.append(row)
+    return {"recording": str(rec.path), "rpm": round(res.rpm, 1), "windows": int(res.time_s.shape[0]),
+            "window_s": round(float(res.time_s[1] - res.time_s[0]), 3) if res.time_s.shape[0] > 1 else None,
+            "compensation": res.compensation, "rows": rows}
 
 
 def touchdowns(snapshots: list[Recording]) -> list[dict]:
@@ -264,4 +295,4 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
     return {"lines": lines, "open_items": open_items + notes}
 
 
-__all__ = ["Commissioning", "SessionFiles", "gather", "machine_identity", "touchdowns", "verdict"]
+__all__ = ["Commissioning", "SessionFiles", "aphts", "gather", "machine_identity", "touchdowns", "verdict"]
