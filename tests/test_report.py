@@ -101,6 +101,16 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
          "–" if c["measured_rpm"] is None else f"{c['measured_rpm']:,.0f}", c["axis"] or "–",
          "–" if c["measured_amplification"] is None else f"{c['measured_amplification']:.2f}",
          f"{c['margin']:.1%} / {c['margin_required']:.1%}", "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
+    # the runout pushed, with the uncertainty runout identify stated for each harmonic (its scatter
+    # against that bound: tests/test_runout.py)
+    c = data["coefficients"]
+    assert tables.tables["coefficients"] == [
+        [axis] + [f"{h[key]:{fmt}}" for h in hs[:2] for key, fmt in (("um", ".2f"), ("deg", ".1f"), ("u_um", ".3f"))]
+        for axis, hs in c["axes"].items()]
+    slow = json.loads((session / "coef.json").read_text())["source"]["uncertainty_m"]
+    for axis, hs in c["axes"].items():
+        assert [h["u_um"] for h in hs] == [round(u * 1e6, 4) for u in slow[axis]]
+        assert all(0 < h["u_um"] < 0.1 * h["um"] for h in hs[:2])  # 800 rpm slow roll, 2 s: well measured
     # APHT of the run after the push: the LMS adapting from zero, its command error's 1X falling
     a = data["apht"]
     assert a["windows"] == 4 and a["window_s"] == 0.5 and a["rpm"] == pytest.approx(30000, abs=1)

@@ -66,7 +66,7 @@ def print_pdf(page: Path, pdf: Path) -> None:
 FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
     "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}", "s": "{:.3f}", "m_s": "{:.3f}",
-    "j": "{:.3g}", "deg": "{:.1f}",
+    "j": "{:.3g}", "deg": "{:.1f}", "u": "{:.3f}",
 }
 
 
@@ -190,6 +190,19 @@ def render(found, title: str) -> str:
                   f'<p class="note">Command error at {r["before"]["rpm"]:,.0f} rpm ({html.escape(r["before"]["path"])}) '
                   f'and {r["after"]["rpm"]:,.0f} rpm ({html.escape(r["after"]["path"])}).</p>',
                   _table(headers + ["RMS before [µm]", "RMS after [µm]"], rows, "runout")]
+    c = d.get("coefficients")
+    if c is not None:
+        shown = [1, 2]  # the largest: Ro et al.'s runout is 1X and 2X dominant
+        def harmonic(hs: list[dict], k: int) -> list[str]:
+            h = next((h for h in hs if h["harmonic"] == k), {"um": None, "deg": None, "u_um": None})
+            return [_cell(h["um"], kind="um"), _cell(h["deg"], kind="deg"), _cell(h["u_um"], kind="u")]
+
+        rows = [[_cell(axis, "text")] + [cell for k in shown for cell in harmonic(hs, k)] for axis, hs in c["axes"].items()]
+        parts += ["<h2>Runout pushed</h2>",
+                  f'<p class="note">The sensor runout in {html.escape(Path(c["file"]).name)} ({html.escape(c["method"])}'
+                  "), 1X and 2X per axis, each with the standard uncertainty <code>runout identify</code> stated "
+                  "for it (the Cramér-Rao bound from the noise it measured; – where the file does not say).</p>",
+                  _table(["axis", "1X [µm]", "[°]", "u [µm]", "2X [µm]", "[°]", "u [µm]"], rows, "coefficients")]
     a = d.get("apht")
     if a is not None:
         def vec(v) -> list[str]:

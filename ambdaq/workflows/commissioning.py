@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..daq.coefficients import file_sha256
+from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
 from ..daq.touchdowns import recorded_drop
 from ..errors import BadInputError
@@ -163,6 +163,7 @@ def gather(files: SessionFiles) -> Commissioning:
     else:
         out["runout"] = out["apht"] = None
         after = None
+    out["coefficients"] = None if files.coefficients is None else pushed_runout(files.coefficients)
     out["touchdowns"] = touchdowns(files.drops) if files.drops else None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})
@@ -190,6 +191,21 @@ def aphts(res: Apht, rec: Recording) -> dict:
     return {"recording": str(rec.path), "rpm": round(res.rpm, 1), "windows": int(res.time_s.shape[0]),
             "window_s": round(float(res.time_s[1] - res.time_s[0]), 3) if res.time_s.shape[0] > 1 else None,
             "compensation": res.compensation, "rows": rows}
+
+
+def pushed_runout(path: Path) -> dict:
+    """The runout a coefficient file pushes, per axis and harmonic: amplitude and phase (µm,
+    degrees, for R sin(k theta + phi)) and the standard uncertainty ``runout identify`` stated
+    (µm; None where the file does not say)."""
+    coef = Coefficients.load(path)
+    stated = coef.source.get("uncertainty_m") or {}
+    axes = {}
+    for axis, rows in coef.weights.items():
+        u = stated.get(axis) or [None] * len(rows)
+        axes[axis] = [{"harmonic": k, "um": round(float(np.hypot(*w)) * 1e6, 3),
+                       "deg": round(float(np.degrees(np.arctan2(w[1], w[0]))), 1),
+                       "u_um": None if ui is None else round(ui * 1e6, 4)} for k, w, ui in zip(coef.harmonics, rows, u)]
+    return {"file": str(path), "method": coef.source.get("method", ""), "axes": axes}
 
 
 def touchdowns(snapshots: list[Recording]) -> list[dict]:
@@ -295,4 +311,5 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
     return {"lines": lines, "open_items": open_items + notes}
 
 
-__all__ = ["Commissioning", "SessionFiles", "aphts", "gather", "machine_identity", "touchdowns", "verdict"]
+__all__ = ["Commissioning", "SessionFiles", "aphts", "gather", "machine_identity", "pushed_runout", "touchdowns",
+           "verdict"]

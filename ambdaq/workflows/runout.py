@@ -152,7 +152,10 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
     coef = Coefficients(
         target={"rig": identity.get("profile", identity.get("model", "")), "device": device.name if device else "",
                 "serial": identity.get("serial", ""), "axes": list(axes)},
-        source={"recordings": sources, "method": method, "created": now_iso()},
+        source={"recordings": sources, "method": method, "created": now_iso(),
+                # each harmonic's standard uncertainty per axis, m (None: not estimated or not propagated)
+                "uncertainty_m": {axis: [None if not np.isfinite(u[i, a]) else float(u[i, a])
+                                         for i in range(len(harmonics))] for a, axis in enumerate(axes)}},
         harmonics=list(harmonics),
         weights=weights,
     )
