@@ -155,3 +155,14 @@ def test_the_report_lists_each_drop_with_the_numbers_of_json(drops, run_cli, chr
     assert line["result"].startswith("3 drops in 4 snapshot files")
     late = [i for i in data["verdict"]["open_items"] if drops["late"].name in i and "lower bound" in i]
     assert len(late) == 1
+
+
+def test_a_drops_record_is_kept_within_the_memory_stated_before_recording(run_cli, tmp_path):
+    """What a file keeps for its drop (only the gap device's columns the record needs, from just
+    before the first contact) is bounded before recording, printed, and never exceeded."""
+    r = run_cli("sim", "generate", "--profile", "cone", "--rpm", "1000", "--drop", "0.5:0.2", "--duration", "1.6",
+                "--snapshot", "0.4s", "--post", "0.5s", "--trigger", "touchdown", "-o", tmp_path / "d.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    snap = json.loads(r.stdout)["snapshot"]
+    assert 0 < snap["drop_memory_peak_bytes"] <= snap["drop_memory_bound_bytes"]
+    assert f"and {snap['drop_memory_bound_bytes'] / 1e6:.1f} MB for a rotor drop's record" in r.stderr

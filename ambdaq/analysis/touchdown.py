@@ -39,8 +39,8 @@ IMPACT_WINDOW_S = 0.002  # the gap's speed just before the first contact is take
 
 @dataclass(frozen=True)
 class Touchdown:
-    """One drop (see the module docstring).  Times in s from the first sample given, lengths as
-    ratios of Cmin, speeds in rpm and m/s, energy in J."""
+    """One drop (see the module docstring).  The contact's time in s in the time base it was given,
+    lengths as ratios of Cmin, speeds in rpm and m/s, energy in J."""
 
     contact_s: float
     speed_rpm: float | None
@@ -76,11 +76,10 @@ class Touchdown:
                    number("impact_speed_m_s"), number("energy_j"))
 
 
-def excursions(gap: np.ndarray, pairs: list[tuple[int, int]], single: list[int]) -> tuple[np.ndarray, list[int]]:
+def excursions(gap: np.ndarray, pairs, single) -> np.ndarray:
     """Per sample and place, each radial bearing's orbit radius (columns ``pairs``) then each other
     axis's |gap| (columns ``single``), in the unit of ``gap``: shape (n, places)."""
-    cols = [np.hypot(gap[:, i], gap[:, j]) for i, j in pairs] + [np.abs(gap[:, i]) for i in single]
-    return np.column_stack(cols), list(range(len(cols)))
+    return np.column_stack([np.hypot(gap[:, i], gap[:, j]) for i, j in pairs] + [np.abs(gap[:, i]) for i in single])
 
 
 def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: list[tuple[int, int]],
@@ -92,7 +91,7 @@ def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: l
     Parameters
     ----------
     time_s : ndarray, shape (n,)
-        Sample times, s.
+        Sample times, s (the contact's time is given in their base: from a file's first sample).
     gap : ndarray, shape (n, axes)
         The gap at the sensors, m.
     cmin_m : float
@@ -116,7 +115,7 @@ def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: l
     if n < 2:
         return None
     dt = float(np.median(np.diff(time_s)))
-    r, _ = excursions(gap, pairs, single)
+    r = excursions(gap, pairs, single)
     ratio = r / cmin_m
     worst = ratio.max(axis=1)
     on = worst >= AT_CLEARANCE
@@ -155,7 +154,7 @@ def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: l
     if amplifier is not None and limit:
         at_limit = float(np.max(np.abs(amplifier[span])) / limit)
     return Touchdown(
-        contact_s=float(time_s[first] - time_s[0]),
+        contact_s=float(time_s[first]),
         speed_rpm=None if speed_rad_s is None else float(speed_rad_s[first] * 60.0 / (2 * np.pi)),
         on_bearing_s=float(time_s[last] - time_s[first]),
         relevitated=relevitated,

@@ -35,7 +35,9 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
     if snapshot is not None and not quiet:
         manual = "SIGUSR1" + (" or Enter" if sys.stdin.isatty() else "")
         click.echo(f"ambdaq: snapshot: the last {snapshot.pre_s:g} s in memory (at most "
-                   f"{recorder.snapshot_bound / 1e6:.1f} MB), {snapshot.post_s:g} s after each trigger: "
+                   f"{recorder.snapshot_bound / 1e6:.1f} MB"
+                   + (f", and {recorder.drop_bound / 1e6:.1f} MB for a rotor drop's record" if recorder.drop_bound else "")
+                   + f"), {snapshot.post_s:g} s after each trigger: "
                    f"{', '.join(t.text for t in snapshot.triggers)}; {manual} fires one (pid {os.getpid()})", err=True)
     if snapshot is not None and sys.stdin.isatty():
         threading.Thread(target=_enter_fires, args=(recorder,), name="enter-trigger", daemon=True).start()

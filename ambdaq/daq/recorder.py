@@ -26,7 +26,7 @@ from .mcapfile import CHUNK_SIZE
 from .output import check_output
 from .parts import FileParts, split_names
 from .sequence import SampleCounts
-from .snapshot import SnapshotOptions, Snapshots, check_memory, memory_bound
+from .snapshot import SnapshotOptions, Snapshots, check_memory, drop_bound, memory_bound
 from .touchdowns import DropRecords
 from .triggers import Device, Firing
 
@@ -248,7 +248,13 @@ class Recorder:
                 self.snapshot_bound = memory_bound([(s.sample_rate, s.signal_groups()) for s in sources], snap)
             else:  # frames as they come: only the byte limit holds them
                 self.snapshot_bound = snap.max_bytes
-            check_memory(self.snapshot_bound, snap)
+            # a rotor drop's record: kept within a bound stated here, so only from a gap of known rate
+            self.touchdowns: DropRecords | None = DropRecords(self.machine, armed, snap.cmin_m)
+            gap_rate = next((s.sample_rate for s in sources if s.name == self.touchdowns.device), None)
+            if not (self.touchdowns.possible and gap_rate):
+                self.touchdowns = None
+            self.drop_bound = 0 if self.touchdowns is None else drop_bound(self.touchdowns, gap_rate, snap)
+            check_memory(self.snapshot_bound + self.drop_bound, snap)
         else:
             check_output(split_names(self.output, split)(0), overwrite)
 
@@ -293,8 +299,8 @@ class Recorder:
         """
         opts = self.options
         if opts.snapshot is not None:
-            drops = DropRecords(self.machine, {s.name: s.signal_groups() for s in self.sources}, opts.snapshot.cmin_m)
-            self.snapshots = Snapshots(opts.snapshot, self.files, self.output, on_snapshot, opts.flush_interval_s, drops)
+            self.snapshots = Snapshots(opts.snapshot, self.files, self.output, on_snapshot, opts.flush_interval_s,
+                                       self.touchdowns)
             store: Sink = self.snapshots
             signals = {signal.SIGUSR1: lambda signum, frame: self.trigger("SIGUSR1")}
         else:
@@ -337,6 +343,7 @@ class Recorder:
             snapshot=None if self.snapshots is None else {
                 "pre_s": snap.pre_s, "post_s": snap.post_s,
                 "memory_bound_bytes": self.snapshot_bound, "memory_peak_bytes": self.snapshots.peak_bytes,
+                "drop_memory_bound_bytes": self.drop_bound, "drop_memory_peak_bytes": self.snapshots.drop_peak_bytes,
                 "evicted_early": self.snapshots.evicted_early, "files": len(self.snapshots.files)},
         )
 

@@ -29,7 +29,7 @@ from ..errors import BadInputError
 from .acquisition import Acquisition, Sink
 from .files import RecordingFiles
 from .sequence import SampleCounts, Verdict
-from .touchdowns import RECORD as DROP_RECORD, DropRecords
+from .touchdowns import RECORD as DROP_RECORD, TAIL_S, DropRecords, DropSamples
 from .triggers import Firing, Trigger
 from .writer import RecordingWriter
 
@@ -70,6 +70,15 @@ class SnapshotOptions:
     max_bytes: int
     triggers: list[Trigger]
     cmin_m: float | None = None
+
+
+def drop_bound(drops: DropRecords, rate_hz: float, options: SnapshotOptions) -> int:
+    """The most bytes the snapshot files hold at once for their drops (:class:`DropSamples`), the gap's
+    device sampling at ``rate_hz`` (Hz): a file keeps them from its first contact (and ``TAIL_S``
+    and one ring segment before it) to its span's end, ``pre_s + post_s``; a file still being
+    finished and the next overlap by at most ``pre_s`` and ``LATE_S``."""
+    span = 2 * options.pre_s + options.post_s + LATE_S + TAIL_S + SEGMENT_S
+    return int(np.ceil(rate_hz * span)) * drops.bytes_per_sample
 
 
 def memory_bound(rated: list[tuple[float, list[SignalGroup]]], options: SnapshotOptions) -> int:
@@ -243,7 +252,7 @@ class _Capture:
     end_ns: int
     firings: list[Firing]
     done: dict[str, int] = field(default_factory=dict)  # device -> host time of its last sample written
-    written: dict[str, list[SampleBlock]] = field(default_factory=dict)  # what it holds, for its drop
+    drop: DropSamples | None = None  # what it holds of the gap's device, as its drop needs it
 
 
 class Snapshots(Sink):
@@ -282,6 +291,7 @@ class Snapshots(Sink):
         self.files: list[Path] = []
         self.finished_bytes = 0
         self.peak_bytes = 0
+        self.drop_peak_bytes = 0  # bytes the open files held of their drops (DropSamples), at most
         self.evicted_early = 0  # segments dropped for the byte limit before they were pre_s old
 
     def trigger(self, cause: str = "manual") -> None:
@@ -354,8 +364,9 @@ class Snapshots(Sink):
         else:
             path = snapshot_name(self._output, firing, lambda p: p.exists() or p in self.files)
             start = firing.t_ns - self._pre_ns
-            cap = _Capture(self._files.open(path, start, f"snapshot {len(self.files)}"), start,
-                           firing.t_ns + self._post_ns, [firing])
+            end = firing.t_ns + self._post_ns
+            cap = _Capture(self._files.open(path, start, f"snapshot {len(self.files)}"), start, end, [firing],
+                           drop=None if self._drops is None else self._drops.samples(end))
             self.files.append(path)
             self._open.append(cap)
             for device, t, ev in self._events:
@@ -394,8 +405,8 @@ class Snapshots(Sink):
         for piece in self._rings[device].after(cap.done.get(device, cap.start_ns - 1), cap.end_ns):
             cap.writer.write(device, piece.block, piece.counts(device, device not in cap.done))
             cap.done[device] = int(piece.block.host_time_ns[-1])
-            if self._drops is not None and device == self._drops.device:
-                cap.written.setdefault(device, []).append(piece.block)
+            if cap.drop is not None and device == self._drops.device:
+                cap.drop.add(piece.block)
 
     def _evict(self) -> None:
         for ring in self._rings.values():
@@ -410,6 +421,7 @@ class Snapshots(Sink):
             oldest.nbytes -= oldest.segments.popleft().nbytes
             self.evicted_early += 1
         self.peak_bytes = max(self.peak_bytes, held)
+        self.drop_peak_bytes = max(self.drop_peak_bytes, sum(c.drop.nbytes for c in self._open if c.drop is not None))
         newest = max((r.newest_ns for r in self._rings.values() if r.newest_ns is not None), default=None)
         while self._events and newest is not None and self._events[0][1] < newest - self._pre_ns - LATE_S * 1e9:
             self._events.popleft()
@@ -429,7 +441,7 @@ class Snapshots(Sink):
                 "triggers": "; ".join(f"{f.cause} at {f.t_ns}: {f.detail}" for f in cap.firings),
                 "pre_s": f"{self.options.pre_s:g}", "post_s": f"{self.options.post_s:g}",
                 "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns)}
-        drop = self._drops.record(cap.written) if self._drops is not None else None
+        drop = self._drops.record(cap.drop) if cap.drop is not None else None
         if drop is not None:
             cap.writer.add_metadata(DROP_RECORD, drop)
         self._files.finish(cap.writer, "ambdaq.snapshot", meta)
@@ -449,11 +461,12 @@ def snapshot_name(output: Path, firing: Firing, taken: Callable[[Path], bool]) -
 
 
 def check_memory(bound: int, options: SnapshotOptions) -> None:
-    """BadInputError (exit 2, before recording) if ``pre_s`` of the devices need more than ``max_bytes``."""
+    """BadInputError (exit 2, before recording) if ``pre_s`` of the devices (and the files' drops)
+    need more than ``max_bytes``."""
     if bound > options.max_bytes:
         raise BadInputError(f"--snapshot {options.pre_s:g}s of these devices needs up to {bound / 1e6:.0f} MB, more "
                             f"than --snapshot-memory {options.max_bytes / 1e6:.0f} MB: give a shorter snapshot "
                             "or more memory")
 
 
-__all__ = ["SnapshotOptions", "Snapshots", "memory_bound", "sample_bytes", "snapshot_name", "check_memory"]
+__all__ = ["SnapshotOptions", "Snapshots", "drop_bound", "memory_bound", "sample_bytes", "snapshot_name", "check_memory"]

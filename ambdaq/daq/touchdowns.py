@@ -15,11 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..analysis.touchdown import Touchdown, characterise
-from ..drivers.signals import SampleBlock, SignalGroup
+from ..analysis.touchdown import AT_CLEARANCE, IMPACT_WINDOW_S, Touchdown, characterise
+from ..drivers.signals import SampleBlock
 from ..machines.machine import Machine
+from .triggers import Device, GapLayout, amplifier_outputs
 
 RECORD = "ambdaq.touchdown"  # the metadata record of a snapshot file's drop
+TAIL_S = 2 * IMPACT_WINDOW_S  # what is kept before a first contact: the impact's window, and a margin
 
 
 class DropRecords:
@@ -30,62 +32,98 @@ class DropRecords:
     machine : Machine
         Where the gap, the rotor angle and the amplifier outputs are recorded, the bearings, Cmin
         and the limits.
-    groups : dict of str to list of SignalGroup
-        Each device's signal groups.
+    devices : list of Device
+        The recording's devices and their signal groups.
     cmin_m : float, optional
         Minimum clearance, m, where given (``--cmin``); else the machine's.
     """
 
-    def __init__(self, machine: Machine, groups: dict[str, list[SignalGroup]], cmin_m: float | None = None) -> None:
-        self.machine, self.cmin_m = machine, cmin_m if cmin_m is not None else machine.cmin_m
-        gap = machine.role("gap")
-        self.device = next((d for d, gs in groups.items() if gap is not None and any(g.topic == gap.topic for g in gs)),
-                           None)
-        fields = {g.topic: list(g.fields) for g in groups.get(self.device, [])}
-        self.gap = None
-        if self.device is not None:
-            cols = {axis: fields[gap.topic].index(f) for axis, f in gap.fields.items()}
-            self.gap = (gap.topic, [cols[a] for a in machine.axes])
-            self.pairs = [(machine.axes.index(b.x), machine.axes.index(b.y)) for b in machine.bearings]
-            self.single = [machine.axes.index(a) for a in machine.axes if a not in machine.bearing_axes]
-            self.names = [b.name for b in machine.bearings] + [machine.axes[i] for i in self.single]
+    def __init__(self, machine: Machine, devices: list[Device], cmin_m: float | None = None) -> None:
+        self.cmin_m = cmin_m if cmin_m is not None else machine.cmin_m
+        found = next(((d, g) for d in devices if (g := GapLayout.of(d, machine)) is not None), (None, None))
+        device, self.layout = found
+        self.device = None if device is None else device.name
+        self.names = [b.name for b in machine.bearings] + [a for a in machine.axes if a not in machine.bearing_axes]
         rotor = machine.role("rotor")
-        self.speed = (rotor.topic, fields[rotor.topic].index(rotor.fields["speed"])) \
-            if rotor is not None and rotor.topic in fields else None
-        self.amplifier = None
-        for role, limit in (("current", machine.current_limit_a), ("voltage", machine.voltage_limit_v)):
-            r = machine.role(role)
-            if r is not None and limit is not None and r.topic in fields:
-                self.amplifier = (r.topic, [fields[r.topic].index(f) for f in r.fields.values()], limit)
-                break
+        column = None if device is None or rotor is None or "speed" not in rotor.fields else \
+            device.field(rotor.topic, rotor.fields["speed"])
+        self.speed = None if column is None else (rotor.topic, column)
+        self.amplifier = None if device is None else amplifier_outputs(device, machine)
+        self._gap_fields = 0 if device is None else len(device.fields(self.layout.topic))
         self.mass_kg = machine.rotor_mass_kg
 
     @property
     def possible(self) -> bool:
         """A drop can be characterised: the gap is recorded and Cmin known."""
-        return self.gap is not None and self.cmin_m is not None
+        return self.layout is not None and self.cmin_m is not None
 
-    def record(self, blocks: dict[str, list[SampleBlock]]) -> dict[str, str] | None:
-        """The ``ambdaq.touchdown`` record of a file's samples (device -> its blocks, in order), or
-        None where the rotor never reached its touchdown bearing in them."""
-        mine = [b for b in blocks.get(self.device, []) if len(b)] if self.possible else []
-        if not mine:
+    @property
+    def bytes_per_sample(self) -> int:
+        """What a file keeps per sample of the gap's device for its drop (:class:`DropSamples`)."""
+        if not self.possible:
+            return 0
+        return 8 * (1 + self._gap_fields + (self.speed is not None) + (0 if self.amplifier is None else len(self.amplifier[1])))
+
+    def samples(self, end_ns: int) -> "DropSamples":
+        """The drop samples of a file whose span ends at ``end_ns`` on the host clock."""
+        return DropSamples(self, end_ns)
+
+    def record(self, held: "DropSamples") -> dict[str, str] | None:
+        """The ``ambdaq.touchdown`` record of a file's drop samples, or None where the rotor never
+        reached its touchdown bearing in them."""
+        if not held.parts:
             return None
-        t_ns = np.concatenate([b.host_time_ns for b in mine])
-        topic, cols = self.gap
-        gap = np.concatenate([b.values[topic][:, cols] for b in mine])
-        speed = None if self.speed is None or any(self.speed[0] not in b.values for b in mine) else \
-            np.concatenate([b.values[self.speed[0]][:, self.speed[1]] for b in mine])
-        amp = limit = None
-        if self.amplifier is not None and all(self.amplifier[0] in b.values for b in mine):
-            amp = np.concatenate([b.values[self.amplifier[0]][:, self.amplifier[1]] for b in mine])
-            limit = self.amplifier[2]
-        found = characterise((t_ns - t_ns[0]) * 1e-9, gap, self.cmin_m, pairs=self.pairs, single=self.single,
-                             names=self.names, speed_rad_s=speed, amplifier=amp, limit=limit, mass_kg=self.mass_kg)
+        t_ns = np.concatenate([p[0] for p in held.parts])
+        gap = np.concatenate([p[1] for p in held.parts])
+        speed = None if self.speed is None else np.concatenate([p[2] for p in held.parts])
+        amp = None if self.amplifier is None else np.concatenate([p[3] for p in held.parts])
+        found = characterise((t_ns - held.first_ns) * 1e-9, gap, self.cmin_m, pairs=self.layout.pairs,
+                             single=self.layout.single, names=self.names, speed_rad_s=speed, amplifier=amp,
+                             limit=None if self.amplifier is None else self.amplifier[2], mass_kg=self.mass_kg)
         if found is None:
             return None
-        return {**found.record(), "contact_ns": str(int(t_ns[0] + round(found.contact_s * 1e9))),
+        return {**found.record(), "contact_ns": str(int(held.first_ns + round(found.contact_s * 1e9))),
                 "device": self.device, "cmin_m": repr(self.cmin_m)}
+
+
+class DropSamples:
+    """One snapshot file's samples of the gap's device, as few as its drop needs: only the columns
+    :func:`characterise` reads (time, gap, speed, amplifier outputs), only up to the end of the
+    file's span as first opened (a file extended by later triggers characterises its first drop),
+    and before the first contact only the last ``TAIL_S`` (the impact's window)."""
+
+    def __init__(self, records: DropRecords, end_ns: int) -> None:
+        self._records, self._end_ns = records, end_ns
+        self.first_ns: int | None = None  # the file's first sample of the device: times are from it
+        self.parts: list[tuple] = []
+        self.nbytes = 0  # what the parts hold
+        self._contact = False
+
+    def add(self, block: SampleBlock) -> None:
+        """Keep what ``block`` (the device's next samples written to the file) holds of the drop."""
+        r = self._records
+        t = block.host_time_ns
+        n = int(np.searchsorted(t, self._end_ns, "left"))
+        if n == 0 or r.layout.topic not in block.values:
+            return
+        if self.first_ns is None:
+            self.first_ns = int(t[0])
+        raw = block.values[r.layout.topic][:n]
+        part = (t[:n].copy(), raw.copy(),
+                None if r.speed is None else block.values[r.speed[0]][:n, r.speed[1]].copy(),
+                None if r.amplifier is None else block.values[r.amplifier[0]][:n][:, r.amplifier[1]])
+        self.parts.append(part)
+        self.nbytes += _nbytes(part)
+        if not self._contact:
+            self._contact = bool(np.any(r.layout.radii(raw) >= AT_CLEARANCE * r.cmin_m))
+            if not self._contact:  # nothing on the bearing yet: only the impact's window is kept
+                keep_from = int(t[n - 1]) - int(TAIL_S * 1e9)
+                while self.parts[0][0][-1] < keep_from:
+                    self.nbytes -= _nbytes(self.parts.pop(0))
+
+
+def _nbytes(part: tuple) -> int:
+    return sum(a.nbytes for a in part if a is not None)
 
 
 @dataclass(frozen=True)
@@ -118,4 +156,4 @@ def recorded_drop(metadata: dict[str, dict[str, str]]) -> RecordedDrop | None:
     return RecordedDrop(Touchdown.from_record(found), int(found["contact_ns"]), found["device"], float(found["cmin_m"]))
 
 
-__all__ = ["DropRecords", "RECORD", "RecordedDrop", "recorded_drop"]
+__all__ = ["DropRecords", "DropSamples", "RECORD", "RecordedDrop", "recorded_drop"]

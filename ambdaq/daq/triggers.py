@@ -28,12 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..analysis.touchdown import AT_CLEARANCE, excursions
 from ..machines.machine import CMIN_KEY, CURRENT_LIMIT_KEY, VOLTAGE_LIMIT_KEY, Machine, Role
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
 AT_LIMIT = 0.98  # an amplifier output this close to its limit is saturated
-AT_CLEARANCE = 0.9  # a gap this close to the clearance is on the touchdown bearing
 TOUCHDOWN_WINDOW_NS = 20_000_000  # saturation and contact this close together are one touchdown
 NEVER = -(2**62)  # "no such sample yet", as a time in ns
 REARM_NS = 250_000_000  # a condition must have been false this long before it fires again: a revolution
@@ -158,7 +158,7 @@ def _cmin(machine: Machine, cmin_m: float | None, what: str) -> float:
 
 
 @dataclass(frozen=True)
-class _GapLayout:
+class GapLayout:
     """Where the machine's gap is in one device's samples: its topic, each radial bearing's (x, y)
     columns and every other axis's column, worked out once when armed, not for every block."""
 
@@ -167,7 +167,7 @@ class _GapLayout:
     single: tuple[int, ...]
 
     @classmethod
-    def of(cls, device: Device, machine: Machine) -> "_GapLayout | None":
+    def of(cls, device: Device, machine: Machine) -> "GapLayout | None":
         role = machine.role("gap")
         names = device.fields(role.topic) if role is not None else ()
         if not names:
@@ -178,8 +178,20 @@ class _GapLayout:
 
     def radii(self, gap: np.ndarray) -> np.ndarray:
         """Per sample, the largest of each radial bearing's orbit radius and each other axis's |gap|, in m."""
-        cols = [np.hypot(gap[:, i], gap[:, j]) for i, j in self.pairs] + [np.abs(gap[:, i]) for i in self.single]
-        return np.max(np.column_stack(cols), axis=1)
+        return np.max(excursions(gap, self.pairs, self.single), axis=1)
+
+
+def amplifier_outputs(device: Device, machine: Machine, given: tuple[str, float] | None = None
+                      ) -> tuple[str, list[int], float] | None:
+    """(topic, columns, limit) of the amplifier outputs ``device`` records and their limit: ``given``
+    (a role, ``current`` or ``voltage``, and its limit in A or V), else the coil currents against
+    the machine's current limit, else the coil voltages against its supply; None if neither."""
+    known = (("current", machine.current_limit_a), ("voltage", machine.voltage_limit_v))
+    for role, limit in [given] if given is not None else known:
+        where = _role_columns(device, machine.role(role))
+        if where is not None and limit is not None:
+            return (*where, limit)
+    return None
 
 
 def _role_columns(device: Device, role: Role | None) -> tuple[str, list[int]] | None:
@@ -198,10 +210,10 @@ class ExcursionTrigger(Trigger):
             raise BadInputError(f"--trigger {text}: the fraction of Cmin must be in (0, 1.5], not {fraction:g}")
         self.fraction, self.text = fraction, text
         self._edges = _Edges()
-        self._gaps: dict[str, _GapLayout] = {}
+        self._gaps: dict[str, GapLayout] = {}
 
     def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
-        self._gaps = {d.name: g for d in devices if (g := _GapLayout.of(d, machine)) is not None}
+        self._gaps = {d.name: g for d in devices if (g := GapLayout.of(d, machine)) is not None}
         if not self._gaps:
             raise BadInputError(f"--trigger {self.text}: no device records the gap (/amb/gap, or the rig file's "
                                 "[machine] gap)")
@@ -234,20 +246,13 @@ class TouchdownTrigger(Trigger):
         self._edges = _Edges()
         self._last_contact: int | None = None  # host time of the last sample at the clearance, ns
         self._last_saturation: int | None = None  # and of the last at an amplifier limit
-        self._gaps: dict[str, _GapLayout] = {}
+        self._gaps: dict[str, GapLayout] = {}
 
     def arm(self, devices: list[Device], machine: Machine, cmin_m: float | None) -> None:
         self.clearance_m = _cmin(machine, cmin_m, self.text)
-        self._gaps = {d.name: g for d in devices if (g := _GapLayout.of(d, machine)) is not None}
+        self._gaps = {d.name: g for d in devices if (g := GapLayout.of(d, machine)) is not None}
         # device -> (topic, columns, limit): the amplifier outputs (current or voltage) and their limit
-        self._limits: dict[str, tuple[str, list[int], float]] = {}
-        known = (("current", machine.current_limit_a), ("voltage", machine.voltage_limit_v))
-        for d in devices:
-            for role, limit in [self._given] if self._given is not None else known:
-                where = _role_columns(d, machine.role(role))
-                if where is not None and limit is not None:
-                    self._limits[d.name] = (*where, limit)
-                    break
+        self._limits = {d.name: found for d in devices if (found := amplifier_outputs(d, machine, self._given))}
         if not self._limits:
             raise BadInputError(f"--trigger {self.text}: no amplifier limit in the devices' calibration "
                                 f"({CURRENT_LIMIT_KEY} with the coil currents, or {VOLTAGE_LIMIT_KEY} with the coil "
@@ -374,5 +379,5 @@ def parse_trigger(text: str) -> Trigger:
     raise BadInputError(f"--trigger {text!r} does not parse: give one of {FORMS}")
 
 
-__all__ = ["Device", "Firing", "Trigger", "parse_trigger", "FaultTrigger", "ManualTrigger", "ExcursionTrigger",
+__all__ = ["Device", "Firing", "GapLayout", "Trigger", "amplifier_outputs", "parse_trigger", "FaultTrigger", "ManualTrigger", "ExcursionTrigger",
            "TouchdownTrigger", "SpeedTrigger", "ThresholdTrigger"]
