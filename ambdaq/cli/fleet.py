@@ -55,10 +55,10 @@ def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
       ambdaq fleet scan recordings/ -o fleet.parquet
       ambdaq fleet scan 'plant/**/*.mcap' -o fleet.parquet --scheduler tcp://10.0.0.5:8786
     """
-    from ..workflows.fleet import index, recordings, scan
+    from ..workflows.fleet import check_layout, recordings, scan
 
     paths = recordings(inputs)
-    index(Path(dataset))  # a dataset this version cannot add to is refused before a cluster starts
+    check_layout(Path(dataset))  # a dataset this version cannot add to is refused before a cluster starts
     client = _client(scheduler, workers)
     try:
         progress = None

@@ -200,10 +200,6 @@ class Recording(Mapping):
                                       self.metadata.get(LINK + dev, {}))
         return dict(sorted(out.items()))
 
-    def device_of(self, topic: str) -> DeviceInfo | None:
-        """The device that recorded ``topic``, or None."""
-        return next((d for d in self.devices.values() if topic in d.topics), None)
-
     @property
     def session(self) -> Mapping[str, str]:
         """The recording session: start time, command, host, part ..."""

@@ -144,11 +144,6 @@ class Machine:
     # --- building one -----------------------------------------------------------------------------
 
     @classmethod
-    def from_axes(cls, axes: Sequence[str], calibrations: Sequence[Mapping[str, str]] = ()) -> Machine:
-        """The machine of gap ``axes`` (field names of ``/amb/gap``) and its devices' ``calibrations``."""
-        return cls.describe({ROLE_TOPICS["gap"]: tuple(axes)}, calibrations)
-
-    @classmethod
     def describe(cls, topics: Mapping[str, Sequence[str]], calibrations: Sequence[Mapping[str, str]] = (),
                  table: Mapping | None = None, where: str = "[machine]") -> Machine:
         """The machine the devices declare, with a rig file's ``[machine]`` table over it.

@@ -279,6 +279,13 @@ def index(dataset: Path) -> dict[str, dict]:
     return {r["path"]: {**r, "file": _part_file(dataset, str(r[PARTITION]), r["path"])} for r in table.to_pylist()}
 
 
+def check_layout(dataset: Path) -> None:
+    """Refuse (BadInputError) a dataset whose rows another ambdaq version laid out (:func:`_dataset`):
+    its first file's schema only, before a scan starts a cluster."""
+    if dataset.exists():
+        _dataset(dataset)
+
+
 def _dataset(dataset: Path):
     """The Parquet dataset, refused where its rows are not laid out as this version writes them
     (an older ambdaq's): a column read under a layout it was not written in is a wrong number."""
@@ -544,5 +551,5 @@ def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
 
 
 __all__ = ["HARMONICS", "ScanReport", "Movement", "TouchdownSummary", "touchdowns", "axes_of", "bearings_of", "flat",
-           "has_footer", "index", "moved", "read",
+           "check_layout", "has_footer", "index", "moved", "read",
            "recordings", "scan", "scan_into", "scan_recording"]

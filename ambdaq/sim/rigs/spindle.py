@@ -572,10 +572,6 @@ class SpindleRig(Rig, ExcitationInput):
 
     # --- stepping --------------------------------------------------------------------------
 
-    def _discrete_rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray]:
-        """ZOH rotor matrices at the bucketed speed ``omega_q`` (rad/s), cached per rig."""
-        return self._rotor(omega_q)[:2]
-
     def _rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The rotor's ZOH matrices and its continuous ones at the bucketed speed ``omega_q`` (rad/s),
         cached per rig."""
@@ -653,14 +649,14 @@ class SpindleRig(Rig, ExcitationInput):
         """
         if self._linear is None:
             M0, B0, C = self.probe_loop(0.0)
-            Phi0, Gam0 = self._discrete_rotor(0.0)
+            Phi0, Gam0, _, _ = self._rotor(0.0)
             rotor0 = np.hstack([Phi0, np.zeros((10, 25))])
             # the rotor rows are Phi x_rotor + Gamma F(x, r_c): solve for F's Jacobian
             dF = np.linalg.lstsq(Gam0, np.hstack([M0[:10] - rotor0, B0[:10]]), rcond=None)[0]
             self._linear = (M0, B0, C, dF)
         M0, B0, C, dF = self._linear
         omega = rpm * RPM_TO_RAD_S
-        Phi, Gam = self._discrete_rotor(float(np.round(omega / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S))
+        Phi, Gam, _, _ = self._rotor(float(np.round(omega / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S))
         M, B = M0.copy(), B0.copy()
         M[:10] = np.hstack([Phi, np.zeros((10, 25))]) + Gam @ dF[:, :35]
         B[:10] = Gam @ dF[:, 35:]
