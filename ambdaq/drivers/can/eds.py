@@ -24,8 +24,10 @@ late, inside the next SYNC's window, where time alone would file it under the wr
 device answers its SYNCs in order, one TPDO each, so such a lag shows as a SYNC without a reply
 followed, once the device catches up, by a SYNC with two (both in its window, or one in it and one
 after it closed). Rows are therefore held for HOLD_CYCLES SYNCs before they are handed on; a second
-reply of one TPDO after one SYNC withdraws every held row back to the last SYNC that had none
-(``ambiguous_cycles``; they count as lost).
+reply of one TPDO after one SYNC withdraws every held row back to the first SYNC that had none
+since the last such withdrawal (``ambiguous_cycles``; they count as lost): while the host's SYNCs
+run late, a lagging reply can fall outside every window and leave a second SYNC unanswered
+inside one lag run, and the run reaches back to the first.
 A lag longer than the hold cannot be withdrawn: it is counted (``unverified_cycles``) and an
 event names the cycles. A late reply whose successor is lost leaves no trace at all; only a
 device that keeps its synchronous window rules that out, and the metadata says whether it does.
@@ -321,7 +323,11 @@ class EdsDevice(Source):
         self._rows = RowQueue(max(1.0, 20 / self.sample_rate))  # (cycle, time ns, raw values)
         self._parts: list = [None] * len(self.tpdos)
         self._replied = [-1] * len(self.tpdos)  # per TPDO: the newest cycle it answered
-        self._silent = [-1] * len(self.tpdos)  # per TPDO: the newest cycle it left unanswered
+        # per TPDO: the first cycle it left unanswered since its last lag was resolved (a second reply
+        # after one SYNC): a lag run can leave more than one SYNC unanswered (the host's SYNCs
+        # running late file a lagging reply outside every window), and it reaches back to the first
+        self._silent = [-1] * len(self.tpdos)
+        self._resolved = [-1] * len(self.tpdos)  # per TPDO: the cycle of its last second reply
         self._held: deque[tuple[int, int, list]] = deque()  # complete rows, HOLD_CYCLES before handed on
         self._handed = -1  # the newest cycle handed on
         self._withdrawn = -1  # the newest cycle withdrawn (a late row for it must not come back)
@@ -462,9 +468,11 @@ class EdsDevice(Source):
                 # earlier SYNC (the device was a SYNC behind)
                 self._parts[i] = None
                 self._withdraw(self._silent[i], c)
+                self._resolved[i] = c
                 return
-            if c > self._replied[i] + 1:
-                self._silent[i] = c - 1
+            if 0 <= self._replied[i] < c - 1 and (self._silent[i] <= self._resolved[i]
+                                                   or self._silent[i] < c - HOLD_CYCLES):
+                self._silent[i] = c - 1  # the first since the last lag resolved (one past the hold is moot)
             self._replied[i] = c  # a reply came after SYNC c, kept or not: a second one is a lag
             self.hub.answered = c
             if t_ns - cycle.time_ns > self.window_ns or (before is not None and t_ns - before.time_ns <= self.window_ns):
