@@ -115,6 +115,9 @@ MACHINES = {"spindle": (lambda s: s, None), "blower": (Blower, None), "foreign":
             "one": (OneBearing, None)}
 
 
+pytestmark = pytest.mark.xdist_group("any-machine")  # one worker builds the module's files; the other runs other tests
+
+
 @pytest.fixture(scope="module")
 def pairs(tmp_path_factory):
     """Recordings of the same physics on each machine: a steady run, a slow roll, a run-up."""

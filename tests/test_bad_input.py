@@ -10,7 +10,7 @@ from mcap.writer import Writer
 from ambdaq.daq import load
 from ambdaq.errors import BadInputError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 
 def one_line_error(result, *needles):

@@ -87,6 +87,10 @@ def test_fir_fit_and_knee():
             assert np.abs(E @ taps / Wstar[:, j, m] - 1).max() < 0.01, (j, m, k)
 
 
+CHAIN_WORKER = pytest.mark.xdist_group("base-motion-chain")
+"""The tests of the chain run on one worker: the other does not wait idle while it is built."""
+
+
 @pytest.fixture(scope="module")
 def chain(build_once):
     """The engineer's chain, every step a CLI command: secondary path (broadband test signal per
@@ -119,6 +123,7 @@ def chain(build_once):
     return d, json.loads((d / "fit.json").read_text()), run
 
 
+@CHAIN_WORKER
 def test_secondary_path_coherence_is_reported_over_the_band_it_holds(chain):
     """White noise to 5 kHz on each amplifier input: the gap answers above the sensor noise up to
     several hundred Hz.  The summary names that band and its coherence, not a median over the
@@ -130,6 +135,7 @@ def test_secondary_path_coherence_is_reported_over_the_band_it_holds(chain):
         assert s["median_coherence_in_band"] > 0.95 and s["median_coherence"] < s["median_coherence_in_band"], axis
 
 
+@CHAIN_WORKER
 def test_fitted_compensator_against_the_exact_one(chain):
     d, report, _ = chain
     assert 1 <= report["taps"] <= 25
@@ -137,6 +143,7 @@ def test_fitted_compensator_against_the_exact_one(chain):
     assert (d / "fir.png").stat().st_size > 30_000
 
 
+@CHAIN_WORKER
 @pytest.mark.parametrize("f_hz", [5.0, 20.0, 40.0, 70.0, 100.0])
 def test_campaign_frequencies_fall_by_20_db(chain, f_hz):
     d, _, run = chain
@@ -151,6 +158,7 @@ def test_campaign_frequencies_fall_by_20_db(chain, f_hz):
     assert drop.min() >= 20.0, drop
 
 
+@CHAIN_WORKER
 def test_broadband_base_motion_falls_by_10_db_rms(chain):
     d, _, run = chain
     rms = {}
@@ -192,7 +200,8 @@ def test_bad_input_is_one_line_and_exit_2(run_cli, tmp_path, spindle_file):
     assert r.exit_code == 2 and "no base-motion FIR for plane" in r.output
 
 
-@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+@CHAIN_WORKER
+@pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_push_the_fir_to_the_served_controller(chain, tmp_path):
     """``ambdaq sim serve --profile base-motion --base sine:40:1`` in its own process; from another,
     record, push the fitted FIR (verified, logged), record again: the controller applies u = W d

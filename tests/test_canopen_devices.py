@@ -21,7 +21,7 @@ from ambdaq.sim.devices.canopen import open_network, serve_can
 from ambdaq.sim.devices.rig_server import RigServer
 from ambdaq.errors import BadInputError, DeviceError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 _channels = itertools.count()
 

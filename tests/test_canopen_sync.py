@@ -24,7 +24,7 @@ from ambdaq.daq.mcapfile import McapFile
 sys.path.insert(0, str(Path(__file__).parent))
 from eds_gateway import recordable, synchronous_tpdos, value_of  # noqa: E402
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 E35 = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds" / "e35.eds"
 SAMPLE = Path(__file__).parent / "data" / "canopen_sample.eds"  # python-canopen's test/sample.eds, as shipped

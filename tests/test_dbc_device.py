@@ -17,7 +17,7 @@ from mcap_ros2.decoder import DecoderFactory
 from ambdaq.daq import load
 from ambdaq.sim.devices.probes import DBC_PATH, VENDOR_ID
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 
 @pytest.fixture

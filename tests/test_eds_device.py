@@ -17,7 +17,7 @@ from mcap_ros2.decoder import DecoderFactory
 from ambdaq.daq import load
 from ambdaq.sim.devices.vendor_drive import EDS_PATH, PHASES
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 RATE = 200  # Hz: the drive's synchronous window is then 2.5 ms
 

@@ -12,7 +12,7 @@ import pytest
 
 from ambdaq.daq import load
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 PLUGIN = '''
 """tone://NAME?hz=F: a 1 kHz source of a 1 um sine on one gap channel (a test back-end)."""

@@ -95,7 +95,7 @@ def test_a_recording_without_excitation_is_refused(spindle_file, run_cli, tmp_pa
     assert r.exit_code == 2 and "0 axes carry a feedforward input" in r.output
 
 
-@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+@pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_measure_through_the_served_controller(tmp_path):
     """``frf measure`` sets the controller's test signal over the serial line, records, and switches
     it off; the controller refuses an out-of-range signal."""

@@ -48,7 +48,7 @@ def strip(text: str) -> str:
     return re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", text)
 
 
-@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+@pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_a_terminal_shows_the_live_status(tmp_path):
     out = tmp_path / "live.mcap"
     master, slave = pty.openpty()

@@ -36,7 +36,7 @@ def start_recording(url: str, out: Path, *extra: str) -> tuple[subprocess.Popen,
     raise AssertionError(proc.communicate())
 
 
-@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+@pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_a_foxglove_client_receives_the_topics_and_a_slow_one_costs_no_samples(node_client, served, tmp_path):
     """The spindle at 30,000 rpm served in its own process (as a controller would be), recorded over
     its serial line with --live, two Node clients connected."""

@@ -26,7 +26,7 @@ from ambdaq.sim.devices.faults import FaultyPort
 from ambdaq.sim.devices.rig_server import RigServer
 from ambdaq.sim.served import Pty
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 AXES = ["front_x", "front_y", "rear_x", "rear_y", "axial"]
 _channels = itertools.count()

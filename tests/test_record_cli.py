@@ -11,7 +11,7 @@ from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Progress, Recorder, RecordOptions, print_progress
 from ambdaq.drivers.registry import open_url
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 
 def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
@@ -249,7 +249,7 @@ def test_the_heap_is_frozen_out_of_garbage_collection_while_recording(tmp_path):
     assert gc.get_freeze_count() == 0  # let back in
 
 
-def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(served, tmp_path):
+def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(served, tmp_path, run_cli):
     """`kill -9` at 0.5, 1, 2, 3 and 5 s into a recording of the controller served in another
     process (its own clock, mapped to the host's): `recover` gets its samples up to the last
     0.5 s, plus what a loaded host delays the loop (docs/cli.md: 1.6 s at most measured), the
@@ -274,9 +274,8 @@ def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(ser
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         fixed = tmp_path / f"fixed{k}.mcap"
-        r = subprocess.run([sys.executable, "-m", "ambdaq", "recover", str(out), "-o", str(fixed)],
-                           capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0, r.stderr
+        r = run_cli("recover", out, "-o", fixed)
+        assert r.exit_code == 0, r.output
         gap = load(fixed).get("/amb/gap")  # its channel is in the file from the start
         last = int(gap.log_time[-1]) if gap is not None and len(gap) else started
         assert (killed - last) / 1e9 <= 1.6, (after, (killed - last) / 1e9)

@@ -10,7 +10,7 @@ import pytest
 
 from ambdaq.daq import load
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 RUNS, SECONDS = 3, 2.0
 

@@ -38,7 +38,7 @@ def test_slow_roll_recording(tmp_path, run_cli):
     assert doc["source"]["recordings"][0]["speed_rpm"] == 800.0 and len(doc["source"]["recordings"][0]["sha256"]) == 64
 
 
-@pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+@pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_over_the_real_drivers(tmp_path, run_cli):
     """sim:// records through the serial controller driver (float32 on the wire): same accuracy."""
     rec = tmp_path / "live.mcap"

@@ -12,7 +12,7 @@ import pytest
 
 from ambdaq.daq import load
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 RADIAL = ("front_x", "front_y", "rear_x", "rear_y")
 

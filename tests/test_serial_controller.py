@@ -20,7 +20,7 @@ from ambdaq.sim.devices.rig_server import DeviceClock, RigServer
 from ambdaq.sim.served import Pty
 from ambdaq.errors import DeviceError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 
 class Bench:

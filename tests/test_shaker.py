@@ -19,7 +19,7 @@ from ambdaq.sim.serve import serve
 from ambdaq.sim.devices.shaker import SHAKER_GAIN
 from ambdaq.errors import BadInputError, DeviceError
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 
 @pytest.fixture

@@ -22,7 +22,7 @@ from ambdaq.daq.mcapfile import McapFile
 sys.path.insert(0, str(Path(__file__).parent))
 from eds_gateway import recordable, value_of  # noqa: E402
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds"
 EDS_FILES = sorted(CORPUS.glob("*.eds"))

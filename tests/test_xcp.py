@@ -25,7 +25,7 @@ from ambdaq.errors import DeviceError
 from ambdaq.sim.serve import serve
 from ambdaq.speed import SpeedProfile
 
-pytestmark = pytest.mark.realtime  # devices run in real time: one at a time (conftest.py)
+pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
 pyxcp = pytest.importorskip("pyxcp")  # the xcp extra, in the test extras
 RADIAL = ("front_x", "front_y", "rear_x", "rear_y")

@@ -35,11 +35,15 @@ class Source(ABC):
         Whether a recording's duration is counted in its sample periods (a device that samples at
         its stated rate, every period numbered); False where the rate is only declared (an XCP
         event's cycle: the ECU task may run slower or skip) and the host clock ends the recording.
+    paced : bool
+        Whether it runs against the wall clock, so that a pause of the host's reading loses its
+        samples (every device; not a simulation run as fast as it goes, which waits for the host).
     """
 
     name: str
     sample_rate: float | None
     duration_in_samples = True
+    paced = True
     _notes: dict[str, str] | None = None
     _released = False
     _close_hooks: list | None = None

@@ -13,7 +13,7 @@ FF_CHOICES = ("off", "table", "lms")
 
 
 class SimSource(Source):
-    """The rig of ``profile``, unpaced.
+    """The rig of ``profile``, unpaced (it waits for the recorder: nothing of it is lost to a pause).
 
     Parameters
     ----------
@@ -52,6 +52,8 @@ class SimSource(Source):
         self.sample_rate = self.rig.params.sample_rate
         self.block = max(1, int(round(block_s * self.sample_rate)))
         self._remaining: int | None = None
+
+    paced = False
 
     def signal_groups(self) -> list[SignalGroup]:
         return self.rig.signal_groups()
