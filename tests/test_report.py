@@ -1,6 +1,7 @@
 """The commissioning report: rendered by a real headless browser (Debian's chromium) with no console
 errors, its tables carrying the numbers of --json, printed to PDF; and what it refuses."""
 
+import html
 import json
 import os
 import re
@@ -10,6 +11,9 @@ import pytest
 
 from ambdaq.cli.report import HEADLESS
 from report_page import Tables
+
+
+pytestmark = pytest.mark.xdist_group("report-session")  # one worker builds the module's files; the other runs other tests
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +98,10 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
                            for k in ("before_um", "after_um", "change_db")]
         assert cells == expect + [f"{row['rms_before_um']:.2f}", f"{row['rms_after_um']:.2f}"]
         assert row["harmonics"][0]["change_db"] < -20  # the LMS took the runout out of the command error
-    # the run-up's critical speeds against the spindle model (API 684): speeds whole, factors to 0.01
+    # the run-up's critical speeds against the spindle model (API 684): speeds whole, factors to 0.01;
+    # the page says which gains the model's loop holds (the recording's own)
+    assert data["runup"]["model_basis"].startswith("the PID gains the recording's controller ran (pid.p 1.6")
+    assert html.escape(data["runup"]["model_basis"], quote=False) in dom.stdout
     crit = data["runup"]["critical_speeds"]
     assert len(crit) >= 1 and tables.tables["critical-speeds"] == [
         [f"{c['predicted_rpm']:,.0f}", f"{c['predicted_amplification']:.2f}", c["whirl"] or "–",

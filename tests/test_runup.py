@@ -23,6 +23,12 @@ def test_one_x_peak_of_a_resonance_of_known_speed_and_damping(zeta, critical):
     assert peak.phase_change_deg > 60
     if zeta <= 0.15:  # the half-power width of an r^2-forced mode is 2 zeta to first order: 15 % at 0.15
         assert peak.amplification == pytest.approx(1 / (2 * zeta), rel=0.15)
+        # and the curve's own half-power factor, its edges found on a 100x finer grid: the edges
+        # interpolated between windows 98.5 rpm apart are within 1 % of it
+        fine = np.linspace(1000, 60000, 60000)
+        a = np.abs(10e-6 * (fine / 18000) ** 2 / ((1 - (fine / 18000) ** 2) + 2j * zeta * fine / 18000))
+        band = fine[a >= a.max() / np.sqrt(2)]
+        assert peak.amplification == pytest.approx(fine[np.argmax(a)] / (band[-1] - band[0]), rel=0.01)
     assert peak.is_critical() is critical and (peak.amplification >= CRITICAL_AMPLIFICATION) is critical
 
 
@@ -282,6 +288,9 @@ def test_critical_speeds_are_verified_as_api_684_has_it():
     assert ok.passed and ok.measured is peak and ok.axis == "front_x"
     (less,) = check((18300.0, 3.0))
     assert not less.passed  # measured more amplified than predicted
+    # up to 5 % more amplified than predicted passes (AMPLIFICATION_TOLERANCE), 6 % more fails
+    assert check((18300.0, peak.amplification / 1.04))[0].passed
+    assert not check((18300.0, peak.amplification / 1.06))[0].passed
     off, unexplained = check((18000 * 1.08, 6.0))
     assert not off.passed and off.measured is None and not unexplained.passed and unexplained.predicted is None
     damped, missing, unexplained = check((30000.0, 1.5), (35000.0, 4.0))
@@ -326,3 +335,77 @@ def test_a_critical_speed_keeps_api_617s_separation_margin():
     assert inside.margin.actual < 0 and not inside.passed
     damped = check((10000.0, 40000.0), predicted=(30000.0, 1.5))  # amplification 1.5 inside the range
     assert damped.margin.required == 0.0 and damped.passed
+
+
+DETUNED_D = (0.00075, 0.00075, 0.001, 0.001, 0.002)  # s: Ro et al.'s radial D halved, the axial kept
+
+
+def test_a_detuned_loops_amplified_critical_speed_is_where_the_model_at_its_recorded_gains_puts_it(runup, run_cli,
+                                                                                                   tmp_path):
+    """API 684's check on a mode amplified past 2.5: the spindle's radial D halved (`sim generate
+    --param pid.d=...`, what `controller param pid.d` writes on the served controller) leaves its
+    forward tilt mode near 180 Hz with zeta 0.13. The recording states the gains its controller ran,
+    `runup --model spindle` builds the loop at them, and the run-up 3,000-15,000 rpm measures that
+    critical speed within 5 % of the prediction and amplified as the model's own 1X response is.
+    Ground truth: the crossing found from the model by bisection, and the true rotor's 1X."""
+    from ambdaq.analysis.orders import loop_modes, verify_criticals
+    from ambdaq.sim.rigs.spindle import SpindleRig
+    from ambdaq.workflows.runup_diagnostics import model_modes
+
+    rec = tmp_path / "detuned.mcap"
+    r = run_cli("sim", "generate", "--rpm", "3000:15000:6", "--duration", "6", "--truth", "-q", "-o", rec,
+                "--param", "pid.d=" + ",".join(map(str, DETUNED_D)))
+    assert r.exit_code == 0, r.output
+    stated = load(rec).metadata["ambdaq.calibration.rig"]["controller.pid.d"]
+    assert [float(v) for v in stated.split(",")] == pytest.approx(DETUNED_D, rel=1e-12)
+    r = run_cli("runup", rec, "--coefficients", runup / "runout.json", "--model", "spindle", "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert not out["model_modes"]["assumed"] and "pid.d 0.00075, 0.00075, 0.001" in out["model_modes"]["basis"]
+    (crit,) = [c for c in out["critical_speeds"] if c["predicted_amplification"] >= CRITICAL_AMPLIFICATION]
+    assert crit["passed"] and crit["whirl"] == "forward" and crit["predicted_amplification_from"] == "response"
+    assert abs(crit["deviation"]) < 0.05 and crit["measured_amplification"] > 3.5
+    # the prediction: where the loop's forward mode at these gains meets 1X, by bisection (to 1 rpm)
+    model = SpindleRig()
+    p, i, _ = model.pid_gains
+    model.set_pid(p, i, np.array(DETUNED_D))
+
+    def forward(rpm: float) -> float:
+        M, _B, C = model.loop_matrices(rpm)
+        f, _z, whirl = loop_modes(M, model.h, fmax_hz=2000.0, outputs=C, pairs=((0, 1), (2, 3)))
+        return float(f[whirl == 1][np.argmin(np.abs(f[whirl == 1] - rpm / 60))])
+
+    lo, hi = 9000.0, 13000.0
+    while hi - lo > 1.0:
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if forward(mid) > mid / 60.0 else (lo, mid)
+    assert crit["predicted_rpm"] == pytest.approx(lo, rel=0.005)  # the Campbell grid interpolates it
+    # the measurement: the true rotor's 1X peak, tracked alike, is where and as amplified as the gap's
+    # (the identified runout is 0.07 um off the true one against a 72 um peak)
+    data = load(rec)
+    truth, rot = data["/truth/position"], data["/amb/rotor"]
+    true = order_track(np.column_stack([truth[a] for a in out["axes"]]), rot["angle"], rot["speed"] * 60 / (2 * np.pi))
+    k = list(out["axes"]).index(crit["axis"])
+    (peak,) = [q for q in one_x_peaks(true.rpm, true.order(1)[:, k]) if q.is_critical()]
+    assert crit["measured_rpm"] == pytest.approx(peak.rpm, abs=0.1)
+    assert crit["measured_amplification"] == pytest.approx(peak.amplification, rel=0.01)
+    # the model's own 1X response (its unbalance and runout through the loop) is the rotor's: the
+    # peak amplitude within 1 % (the run-up sweeps through the mode; the model is steady)
+    resp = out["model_modes"]["response_1x"]
+    assert max(resp[crit["axis"]]["amplitude_um"]) == pytest.approx(peak.amplitude * 1e6, rel=0.01)
+    # at Ro et al.'s gains the model puts its forward mode near 19,000 rpm, critically damped: this
+    # run's critical speed is one it does not explain
+    default = model_modes("spindle", 3000.0, 15000.0, {}, ("front_x", "front_y", "rear_x", "rear_y"))
+    assert default.assumed
+    peaks = {a: one_x_peaks(true.rpm, true.order(1)[:, j]) for j, a in enumerate(out["axes"])}
+    checks = verify_criticals(default.criticals(), peaks, (3000.0, 15000.0))
+    assert any(c.predicted is None and not c.passed for c in checks)
+
+
+def test_what_sim_generate_param_refuses_is_one_line_exit_2(run_cli, tmp_path):
+    for spec, said in (("pid.d=0.001,0.001", "expected 5 values"), ("pid.q=1", "NAME=VALUES with a writable"),
+                       ("pid.d", "NAME=VALUES"), ("pid.p=0,1,1,1,1", "within"), ("ff.mode=1", "read-only"),
+                       ("pid.d=a,b,c,d,e", "comma-separated numbers")):
+        r = run_cli("sim", "generate", "--duration", "0.1", "--param", spec, "-q", "-o", tmp_path / "x.mcap")
+        assert r.exit_code == 2 and said in r.output and len(r.output.strip().splitlines()) == 1, (spec, r.output)
+    assert not (tmp_path / "x.mcap").exists()

@@ -12,7 +12,7 @@ measured from the key-phasor mark).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -109,7 +109,8 @@ class OneXPeak:
     amplitude : float
         1X amplitude there, in the signal's unit.
     band_rpm : tuple of float
-        The half-power band (amplitude above peak / sqrt 2), in rpm.
+        The half-power band (amplitude above peak / sqrt 2), in rpm: each edge interpolated
+        linearly between the two windows around it.
     phase_change_deg : float
         Phase change across that band, in degrees.
     amplification : float
@@ -165,14 +166,31 @@ def one_x_peaks(rpm: np.ndarray, vector: np.ndarray, *, significance: float = 5.
         lo, hi = int(below[-1]), i + 1 + int(above[0])
         if np.any(amp[lo:hi + 1] > amp[i]):  # a higher peak inside: this one is its shoulder
             continue
-        peaks.append(OneXPeak(float(r[i]), float(amp[i]), (float(r[lo]), float(r[hi])),
-                              float(abs(phase[hi] - phase[lo])), float(r[i] / max(r[hi] - r[lo], 1e-9))))
+        # each edge where the amplitude crosses the half-power level, linear between the two windows
+        # around it (the windows alone would place it up to one window's speed step outside)
+        low = _crossing(r[lo], r[lo + 1], amp[lo], amp[lo + 1], half)
+        high = _crossing(r[hi - 1], r[hi], amp[hi - 1], amp[hi], half)
+        peaks.append(OneXPeak(float(r[i]), float(amp[i]), (low, high), float(abs(phase[hi] - phase[lo])),
+                              float(r[i] / max(high - low, 1e-9))))
     return peaks
+
+
+def _crossing(r0: float, r1: float, a0: float, a1: float, level: float) -> float:
+    """The speed (rpm) between ``r0`` and ``r1`` where the amplitude, ``a0`` and ``a1`` there, crosses
+    ``level``, taken linear between them."""
+    return float(r0 + (level - a0) / (a1 - a0) * (r1 - r0)) if a1 != a0 else float(r0)
 
 
 SPEED_TOLERANCE = 0.05
 """A measured critical speed agrees with a predicted one within 5 % of it (the acceptance the
 machinery practice of API 684 applies to a run-up against the rotordynamic model)."""
+
+AMPLIFICATION_TOLERANCE = 0.05
+"""A measured amplification factor is "no more than predicted" up to 5 % above it.  It rests on two
+half-power edges read off a run-up, which sweeps through the mode instead of dwelling on it: the
+simulated spindle with D halved measures 4.03 where its model's steady response gives 4.025, on
+the true rotor as on the gap.  5 %, the tolerance the speed has, keeps a run that reproduces its
+model from failing on that, and fails one a tenth more amplified (AF 4.4 against 4.0)."""
 
 
 @dataclass(frozen=True)
@@ -188,12 +206,14 @@ class PredictedCritical:
     damping : float
         Its damping ratio there.
     amplification : float
-        The amplification factor it predicts, ``1 / (2 zeta)`` (the half-power factor of a
-        single mode, what the run-up's peaks are measured by).
+        The amplification factor it predicts: ``1 / (2 zeta)``, a single mode's half-power factor;
+        or, from :func:`from_response`, the half-power factor of the model's own 1X response.
     whirl : int
         +1 forward, 0 not known (planar or not given by the model).
     order : int
         The order line (1: 1X, the unbalance response).
+    amplification_from : str
+        ``"damping"`` (``1 / (2 zeta)``) or ``"response"`` (the model's 1X response).
     """
 
     rpm: float
@@ -202,6 +222,7 @@ class PredictedCritical:
     amplification: float
     whirl: int
     order: int = 1
+    amplification_from: str = "damping"
 
 
 def predicted_criticals(rpm: np.ndarray, freq_hz: np.ndarray, damping: np.ndarray, whirl: np.ndarray, *,
@@ -241,6 +262,34 @@ def predicted_criticals(rpm: np.ndarray, freq_hz: np.ndarray, damping: np.ndarra
             out.append(PredictedCritical(speed, order * speed / 60.0, zeta, 1.0 / (2.0 * max(zeta, 1e-9)),
                                          int(max(whirl[i, m], whirl[i + 1, m])), order))
     return sorted(out, key=lambda c: c.rpm)
+
+
+def from_response(predicted: list[PredictedCritical], rpm: np.ndarray, response: dict[str, np.ndarray], *,
+                  tolerance: float = SPEED_TOLERANCE) -> list[PredictedCritical]:
+    """Each 1X critical speed's amplification from the model's own 1X response where that shows
+    the mode: the most amplified half-power peak (:func:`one_x_peaks`, the method the run is
+    measured by) of any axis's response within ``tolerance`` of the crossing (API 684's unbalance
+    response analysis); the others keep ``1 / (2 zeta)``.  ``1 / (2 zeta)`` is a single mode's
+    factor: a loop's 1X response can be sharper or broader (the neighbouring modes, the forcing
+    growing with the speed squared, the controller's damping changing with frequency; the
+    spindle's loop with D halved: 4.03 in its response against 3.81).
+
+    Parameters
+    ----------
+    predicted : list of PredictedCritical
+    rpm : ndarray, shape (s,)
+        Speeds the response was computed at, ascending, in rpm.
+    response : dict of str to ndarray of complex, shape (s,)
+        The model's 1X per axis at those speeds, any unit.
+    tolerance : float
+        The relative speed difference within which a response peak is the mode's.
+    """
+    peaks = [k for v in response.values() for k in one_x_peaks(rpm, v)]
+    out = []
+    for p in predicted:
+        near = [k.amplification for k in peaks if p.order == 1 and abs(k.rpm - p.rpm) <= tolerance * p.rpm]
+        out.append(replace(p, amplification=max(near), amplification_from="response") if near else p)
+    return out
 
 
 def separation_margin(amplification: float) -> tuple[float, float]:
@@ -341,6 +390,7 @@ class CriticalCheck:
         return {"predicted_rpm": None if p is None else round(p.rpm, 1),
                 "predicted_hz": None if p is None else round(p.frequency_hz, 2),
                 "predicted_amplification": None if p is None else round(p.amplification, 2),
+                "predicted_amplification_from": None if p is None else p.amplification_from,
                 "whirl": None if p is None or p.whirl <= 0 else "forward",
                 "measured_rpm": None if m is None else round(m.rpm, 1), "axis": self.axis,
                 "measured_amplification": None if m is None else round(m.amplification, 2),
@@ -357,7 +407,8 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
 
     A mode the model amplifies less than ``min_amplification`` is critically damped: it passes
     when no measured peak near it is a critical speed. One amplified more must be measured within
-    ``tolerance`` of the prediction and no more amplified than predicted. A measured critical speed
+    ``tolerance`` of the prediction and no more amplified than predicted (up to
+    :data:`AMPLIFICATION_TOLERANCE`). A measured critical speed
     (a peak amplified at least ``min_amplification``) that no prediction explains fails.
 
     Parameters
@@ -389,9 +440,10 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
             rule = (f"API 684: amplification {p.amplification:.2f} < {min_amplification:g}, critically damped: no "
                     f"critical speed within {tolerance:.0%}")
         else:
-            ok = peak is not None and peak.is_critical(min_amplification) and peak.amplification <= p.amplification
+            ok = (peak is not None and peak.is_critical(min_amplification)
+                  and peak.amplification <= p.amplification * (1 + AMPLIFICATION_TOLERANCE))
             rule = (f"API 684: measured within {tolerance:.0%} of the predicted speed, amplified no more than "
-                    f"predicted ({p.amplification:.2f})")
+                    f"predicted ({p.amplification:.2f}, {AMPLIFICATION_TOLERANCE:.0%} allowed)")
         margin = None
         if operating_rpm is not None:
             seen = peak is not None and peak.is_critical(min_amplification)

@@ -263,7 +263,8 @@ def render(found, title: str) -> str:
                      _cell("pass" if c["passed"] else "FAIL", "text"),
                      _cell(c["rule"], "text")] for c in u["critical_speeds"]]
             parts.append(f'<p class="note">Critical speeds of the {html.escape(u["model"])} model (forward modes on '
-                         "the 1X line) against the run's 1X peaks, by API 684's practice.</p>"
+                         f"the 1X line; its loop at {html.escape(u['model_basis'])}) against the run's 1X peaks, by "
+                         "API 684's practice.</p>"
                          + (_table(["predicted rpm", "predicted AF", "whirl", "measured rpm", "axis", "measured AF",
                                     "margin / required", "verdict", "rule"], rows, "critical-speeds")
                             if rows else '<p class="note">No critical speed predicted inside the run.</p>'))

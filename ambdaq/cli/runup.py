@@ -81,6 +81,11 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
                            "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
                                         for b, (x, y) in res.centreline.bearings.items()}},
             "model_modes": None if res.modes is None else {
+                "basis": res.modes.basis, "assumed": res.modes.assumed,
+                "response_1x": {"rpm": res.modes.response_rpm.round(1).tolist(),
+                                **{a: {"amplitude_um": np.round(np.abs(v) * 1e6, 4).tolist(),
+                                       "phase_deg": np.round(np.degrees(np.angle(v)), 2).tolist()}
+                                   for a, v in res.modes.response.items()}},
                 "rpm": res.modes.rpm.round(1).tolist(),
                 "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes.freq_hz],
                 "damping": [[None if np.isnan(z) else round(float(z), 4) for z in row] for row in res.modes.damping],
@@ -120,6 +125,8 @@ def _print_table(res) -> None:
             click.echo(f"{a}: 1X peak {p.amplitude * 1e6:.2f} um at {p.rpm:,.0f} rpm, half-power band "
                        f"{p.band_rpm[0]:,.0f}-{p.band_rpm[1]:,.0f} rpm, phase turns {p.phase_change_deg:.0f}°, "
                        f"amplification {p.amplification:.1f}: {verdict}")
+    if res.modes is not None:
+        click.echo(f"model: its loop at {res.modes.basis}")
     for c in res.criticals:  # the model's critical speeds against the run (API 684)
         row = c.as_dict()
         said = (f"predicted {row['predicted_rpm']:,.0f} rpm (amplification {row['predicted_amplification']:.2f})"

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+import numpy as np
 
 from ..daq.coefficients import Coefficients, fir_array
 from ..machines.base_motion import PLANES
@@ -50,11 +51,15 @@ def command() -> None:
 @click.option("--drop", metavar="AT_S:DURATION_S",
               help="Cone and spindle rigs: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops "
                    "onto its touchdown bearings, then levitates again.")
+@click.option("--param", "params", metavar="NAME=VALUES", multiple=True,
+              help="Write a parameter of the rig's controller before the run, as `ambdaq controller param NAME VALUES` "
+                   "does on the served one: VALUES comma-separated (e.g. pid.d=0.00075,0.00075,0.001,0.001,0.002). "
+                   "Repeat for more.")
 @snapshot_options
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop, snapshot,
-             out, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop, params,
+             snapshot, out, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -66,6 +71,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --profile cone --start touchdown --duration 2 --snapshot 0.5s --trigger touchdown -o td.mcap
       ambdaq sim generate --profile cone --rpm 600 --drop 0.5:0.2 --duration 2 --snapshot 0.3s --post 0.7s \
           --trigger touchdown -o drop.mcap
+      ambdaq sim generate --rpm 3000:15000:6 --duration 6 --param pid.d=0.00075,0.00075,0.001,0.001,0.002 -o detuned.mcap
     """
     source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
     try:
@@ -97,6 +103,8 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             from ..sim.rigs.drop import Drop
 
             source.rig.set_drop(Drop.parse(drop))
+        for spec in params:
+            _write_param(source.rig, profile, spec)
     except ValueError as err:
         raise BadInputError(str(err)) from None
     run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot)
@@ -220,6 +228,28 @@ def a2l(profile, truth, out):
     else:
         with open(out, "w") as fh:
             fh.write(text)
+
+
+def _write_param(rig, profile: str, spec: str) -> None:
+    """``--param NAME=VALUES``: write the controller parameter NAME of the rig's firmware, checked as
+    the served controller checks a PARAM_WRITE (docs/protocol.md)."""
+    name, sep, text = spec.partition("=")
+    firmware = rig_profile(profile).firmware
+    param = None if firmware is None else firmware.parameters.get(name)
+    if not sep or param is None:
+        known = "none" if firmware is None else ", ".join(n for n, p in sorted(firmware.parameters.items()) if p.write)
+        raise BadInputError(f"--param {spec!r}: NAME=VALUES with a writable parameter of the {profile} rig's "
+                            f"controller ({known})")
+    if param.write is None:
+        raise BadInputError(f"--param {name}: read-only")
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise BadInputError(f"--param {name}: {text!r} is not comma-separated numbers") from None
+    problem = param.check(rig, values)
+    if problem:
+        raise BadInputError(f"--param {name}: {problem}")
+    param.write(rig, values)
 
 
 def _base_motion(profile: str, spec: str) -> BaseExcitation:

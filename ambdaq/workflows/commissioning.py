@@ -146,7 +146,8 @@ def gather(files: SessionFiles) -> Commissioning:
                         "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
                                           "amplification": round(p.amplification, 2), "critical": p.is_critical()}
                                          for p in ps] for a, ps in diag.peaks.items()},
-                        "model": files.model, "critical_speeds": [c.as_dict() for c in diag.criticals]}
+                        "model": files.model, "model_basis": None if diag.modes is None else diag.modes.basis,
+                        "critical_speeds": [c.as_dict() for c in diag.criticals]}
     else:
         diag = None
         out["vibration"] = out["runup"] = None

@@ -15,12 +15,13 @@ Two compensations, one at a time:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, one_x_peaks,
+from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, from_response, one_x_peaks,
                                order_track, predicted_criticals, verify_criticals)
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
@@ -34,6 +35,7 @@ from .runout import runout_at, with_rotor
 
 WATERFALL_S = 0.1  # one spectrum per 0.1 s of the run: 10 Hz bins at 10 kHz
 MODEL_SPEEDS = 26  # speeds the model's modes are computed at over the run
+RESPONSE_SPEEDS = 400  # and its 1X response: 30 rpm apart over 3,000-15,000 rpm, a tenth of a mode's half-power band
 
 
 @dataclass
@@ -143,19 +145,36 @@ class ModelModes:
         where a speed has fewer modes.
     whirl : ndarray of int, shape (s, m)
         +1 forward, -1 backward, 0 not known (planar, or a model that does not give it).
+    basis : str
+        The controller gains the model's loop holds, in words (:class:`~ambdaq.sim.profiles.LoopModel`).
+    assumed : bool
+        Those gains are the model's own, not what the recording says its controller ran.
+    response_rpm : ndarray, shape (r,)
+        Speeds of :attr:`response`, in rpm (empty where the model gives none).
+    response : dict of str to ndarray of complex, shape (r,)
+        The model's own 1X per radial axis (m, as ``a + j b`` of ``a sin theta + b cos theta``)
+        from its unbalance and runout (API 684's unbalance response analysis); empty where the
+        model gives none.
     """
 
     rpm: np.ndarray
     freq_hz: np.ndarray
     damping: np.ndarray
     whirl: np.ndarray
+    basis: str
+    assumed: bool
+    response_rpm: np.ndarray
+    response: dict[str, np.ndarray]
 
     def criticals(self, order: int = 1) -> list[PredictedCritical]:
-        """The critical speeds these modes predict on the ``order`` line."""
-        return predicted_criticals(self.rpm, self.freq_hz, self.damping, self.whirl, order=order)
+        """The critical speeds these modes predict on the ``order`` line, each amplified as the
+        model's own 1X response shows it where it does (:func:`from_response`)."""
+        found = predicted_criticals(self.rpm, self.freq_hz, self.damping, self.whirl, order=order)
+        return from_response(found, self.response_rpm, self.response) if self.response else found
 
 
-def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
+def model_modes(model: str, rpm_from: float, rpm_to: float, calibration: Mapping[str, str] | None = None,
+                axes: tuple[str, ...] = ()) -> ModelModes:
     """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
     and which whirl forward and which backward (the spindle's; the cone model gives its modes'
     frequencies only), found through the rig profile of that name.
@@ -168,6 +187,11 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
         PD control, current loop and eddy-current lag (eq. 10-16).
     rpm_from, rpm_to : float
         Speed range, in rpm.
+    calibration : mapping, optional
+        The calibration of the recording's controller: the loop is built at the gains it states
+        (the spindle's ``controller.pid.*``), else at the model's own.
+    axes : tuple of str
+        The radial axes whose 1X response the model gives, where it gives one (the run's).
     """
     from ..sim.profiles import PROFILES, profile
 
@@ -175,15 +199,27 @@ def model_modes(model: str, rpm_from: float, rpm_to: float) -> ModelModes:
     if found is None or found.modes is None:
         known = ", ".join(n for n in PROFILES if profile(n).modes is not None)
         raise BadInputError(f"--model {model!r}: the models known here are the rig profiles' ({known})")
+    loop = found.modes(calibration or {})
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
-    rows = [found.modes(float(r)) for r in speeds]  # per speed: frequencies, damping, whirl
+    rows = [loop.at(float(r)) for r in speeds]  # per speed: frequencies, damping, whirl
     width = max(len(f) for f, _z, _w in rows)
     table = np.full((speeds.shape[0], width), np.nan)
     damping = np.full((speeds.shape[0], width), np.nan)
     whirl = np.zeros((speeds.shape[0], width), dtype=int)
     for i, (f, z, w) in enumerate(rows):
         table[i, : len(f)], damping[i, : len(f)], whirl[i, : len(f)] = f, z, w
-    return ModelModes(speeds, table, damping, whirl)
+    response_rpm, response = np.empty(0), {}
+    if loop.response is not None and axes:
+        response_rpm = np.linspace(rpm_from, rpm_to, RESPONSE_SPEEDS)
+        rows = [loop.response(float(r)) for r in response_rpm]
+        response = {a: np.array([row[a] for row in rows]) for a in axes if a in rows[0]}
+    return ModelModes(speeds, table, damping, whirl, loop.basis, loop.assumed, response_rpm, response)
+
+
+def _loop_calibration(rec: Recording) -> Mapping[str, str]:
+    """The calibration of the device that records the gap: the controller whose loop it is."""
+    gap = rec.machine.role("gap")
+    return next((d.calibration for d in rec.devices.values() if gap is not None and gap.topic in d.topics), {})
 
 
 def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Recording | None = None, orders=(1, 2),
@@ -262,7 +298,12 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
         rows = [(float(rpm[s:s + n].mean()), amplitude_spectrum(col[s:s + n], fs=fs))
                 for s in range(0, x.shape[0] - n + 1, n)]
     waterfall = (np.array([r for r, _ in rows]), rows[0][1][0], np.array([a for _, (_, a) in rows]))
-    modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max())) if model else None
+    modes = None
+    if model:
+        modes = model_modes(model, float(track.rpm.min()), float(track.rpm.max()), _loop_calibration(rec), tuple(axes))
+        if modes.assumed:
+            notes.append(f"--model {model}: the loop at {modes.basis}; a controller retuned from them has other "
+                         "critical speeds")
     checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max())),
                               operating_rpm=operating_rpm) if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,

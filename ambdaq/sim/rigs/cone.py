@@ -23,6 +23,7 @@ linearisation, the ground truth for ``ambdaq identify modal``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +32,7 @@ from numba import njit
 from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor, controlled_eigenvalues
 from ...errors import BadInputError
 from ...drivers.signals import SampleBlock, SignalGroup
-from ..profiles import Profile
+from ..profiles import LoopModel, Profile
 from .base import Rig
 from .drop import Drop
 from ...speed import RPM_TO_RAD_S, SpeedProfile
@@ -393,4 +394,11 @@ def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return f[keep][order], zeta[keep][order], np.zeros(int(keep.sum()), dtype=int)
 
 
-PROFILE = Profile("cone", ConeRig, modes=campbell_modes)  # served on no transport: ambdaq sim generate only
+def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
+    """Jeong et al.'s loop (:func:`campbell_modes`): the simulated cone rig's controller has no
+    gains to retune, so a recording's calibration changes nothing."""
+    return LoopModel(campbell_modes, "Jeong et al.'s PD control, current loop and eddy-current lag (eq. 10-16)",
+                     assumed=False)
+
+
+PROFILE = Profile("cone", ConeRig, modes=loop_model)  # served on no transport: ambdaq sim generate only

@@ -42,6 +42,7 @@ The axial bearing is not described in Ro et al.; its values here are assumptions
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -51,10 +52,11 @@ from scipy.linalg import expm
 from ...analysis.lms import DesignModels, StateSpaceLoop
 from ...analysis.orders import loop_modes
 from ...drivers.signals import SampleBlock, SignalGroup
+from ...errors import BadInputError
 from ...machines.machine import radial_bearings
 from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
-from ..profiles import Profile
+from ..profiles import LoopModel, Profile
 from .base import Rig
 from .drop import Drop
 from .excitation import ExcitationInput
@@ -568,6 +570,9 @@ class SpindleRig(Rig, ExcitationInput):
             # the control current at which one coil of a pair stops conducting: the force saturates
             "machine.current_limit_a": repr(min(ax.bias for ax in p.axes)),
             **p.rotor_metadata(),
+            # the gains the loop runs at now (a retune through `controller param` included): what
+            # `runup --model spindle` predicts the critical speeds at
+            **{GAIN_KEYS[k]: ",".join(repr(float(v)) for v in g) for k, g in enumerate(self.pid_gains)},
         }
 
     # --- stepping --------------------------------------------------------------------------
@@ -662,6 +667,32 @@ class SpindleRig(Rig, ExcitationInput):
         B[:10] = Gam @ dF[:, 35:]
         return M, B, C
 
+    def unbalance_response(self, rpm: float) -> np.ndarray:
+        """The rotor's steady 1X at ``rpm`` (rpm): its position at each bearing axis as a phasor
+        ``a + j b`` of ``a sin theta + b cos theta`` (m; as :func:`~ambdaq.analysis.runout.harmonic_fit`
+        gives a recording's 1X), from the loop linearised there
+        (:meth:`loop_matrices`) driven by the rig's own unbalance (a force ``U Omega^2`` per plane,
+        held over each step from its mid-step angle, as the kernel applies it) and its 1X sensor
+        runout (which the loop sees as a feedforward of the opposite sign): the unbalance response
+        analysis of API 684 on this model.
+
+        Returns
+        -------
+        ndarray of complex, shape (5,)
+            In ``AXES`` order.
+        """
+        M, B, _C = self.loop_matrices(rpm)
+        omega = float(np.round(rpm * RPM_TO_RAD_S / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S)
+        _Phi, Gam, _, _ = self._rotor(omega)
+        step = np.exp(1j * rpm * RPM_TO_RAD_S * self.h)  # the angle advances this much per step
+        force = self._unb * (rpm * RPM_TO_RAD_S) ** 2 * np.exp(1j * self._unb_ph) * np.sqrt(step)
+        runout = self._run_c[:, 0] - 1j * self._run_s[:, 0]  # A sin + B cos = Re((B - jA) exp(j theta))
+        drive = np.zeros(M.shape[0], dtype=complex)
+        drive[:10] = Gam @ force
+        drive -= B @ runout
+        state = np.linalg.solve(step * np.eye(M.shape[0]) - M, drive)
+        return 1j * state[:5]  # Re(P exp(j theta)) = a sin theta + b cos theta with a + j b = j P
+
     def probe_loop(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`loop_matrices` at ``rpm`` by stepping the kernel from every unit perturbation
         (35 + 5 one-step runs): the reference the fast path is built on and tested against."""
@@ -731,6 +762,10 @@ class RunoutFeedforward(Feedforward):
         rig.set_feedforward(image.mode, image.weights)
 
 
+FIRMWARE_GAIN_LEAST = (1e-6, 0.0, 1e-6)
+"""The least P (V/V), I (1/s) and D (s) the controller takes."""
+
+
 def _set_pid(which: int):
     def write(rig, values):
         gains = list(rig.pid_gains)
@@ -749,9 +784,13 @@ FIRMWARE = Firmware(
     "AMB controller (simulated, Ro et al. spindle)",
     ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"),  # /amb/accel: a CANopen device
     {
-        "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), 0.0, 100.0, "proportional gain per axis, V/V"),
-        "pid.i": Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), 0.0, 1e4, "integral gain per axis, 1/s"),
-        "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), 1e-6, 1.0, "derivative gain per axis, s"),
+        # P and D above zero: the derivative filter's time constant is D / P / Nd
+        "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), FIRMWARE_GAIN_LEAST[0], 100.0,
+                       "proportional gain per axis, V/V"),
+        "pid.i": Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), FIRMWARE_GAIN_LEAST[1], 1e4,
+                       "integral gain per axis, 1/s"),
+        "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), FIRMWARE_GAIN_LEAST[2], 1.0,
+                       "derivative gain per axis, s"),
         # the feedforward is read here and changed only through the coefficient banks (BANK_*)
         "ff.mode": Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]), doc="feedforward: 0 off, 1 table, 2 LMS"),
         "ff.table": Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
@@ -763,19 +802,63 @@ FIRMWARE = Firmware(
     RunoutFeedforward(),
 )
 
-def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The spindle's own linearised loop at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5,
-    below 2 kHz), damping and whirl from their shape at the bearings (:func:`loop_modes`)."""
-    rig = _model_rig()
-    M, _B, C = rig.loop_matrices(float(rpm))
+GAIN_KEYS = ("controller.pid.p", "controller.pid.i", "controller.pid.d")
+"""The calibration entries that state the PID gains the controller ran (its parameters ``pid.p``,
+``pid.i``, ``pid.d``: V/V, 1/s, s), one value per axis in ``AXES`` order, comma-separated."""
+
+
+def recorded_gains(calibration: Mapping[str, str]) -> tuple[tuple[float, ...], ...] | None:
+    """The PID gains a recording's calibration states (:data:`GAIN_KEYS`), or None where it states
+    none; BadInputError, naming the entry, where one is missing, not one per axis, not finite, or
+    below what the controller's own parameters accept (:data:`FIRMWARE_GAIN_LEAST`)."""
+    given = [calibration.get(k) for k in GAIN_KEYS]
+    if all(v is None for v in given):
+        return None
+    gains = []
+    for key, text, least in zip(GAIN_KEYS, given, FIRMWARE_GAIN_LEAST):
+        try:
+            values = tuple(float(v) for v in (text or "").split(","))
+        except ValueError:
+            values = ()
+        if len(values) != N_AXES or not all(np.isfinite(v) and least <= v for v in values):
+            raise BadInputError(f"the recording's {key} is {text!r}: {N_AXES} gains, one per axis "
+                                f"({', '.join(AXES)}), each finite and at least {least:g}")
+        gains.append(values)
+    return tuple(gains)
+
+
+def loop_model(calibration: Mapping[str, str]) -> LoopModel:
+    """The spindle's own linearised loop (:meth:`SpindleRig.loop_matrices`) at the PID gains the
+    recording's controller ran (:func:`recorded_gains`), or at Ro et al.'s (Table 1) where the
+    recording does not say: its lightly damped modes (ζ <= 0.5, below 2 kHz) at each speed, with
+    their damping and whirl from their shape at the bearings (:func:`loop_modes`)."""
+    gains = recorded_gains(calibration)
+    rig = _model_rig(gains)
     pairs = tuple((AXES.index(b.x), AXES.index(b.y)) for b in radial_bearings(AXES))
-    return loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
+
+    def at(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        M, _B, C = rig.loop_matrices(float(rpm))
+        return loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
+
+    def response(rpm: float) -> dict[str, complex]:
+        return dict(zip(AXES, rig.unbalance_response(float(rpm))))
+
+    if gains is None:
+        return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
+                             f"({', '.join(GAIN_KEYS)})", assumed=True, response=response)
+    return LoopModel(at, "the PID gains the recording's controller ran (" + "; ".join(
+        f"{k.removeprefix('controller.')} {', '.join(f'{v:g}' for v in g)}" for k, g in zip(GAIN_KEYS, gains)) + ")",
+        assumed=False, response=response)
 
 
-@functools.lru_cache(maxsize=1)
-def _model_rig() -> "SpindleRig":
-    """One rig for the model: its standstill probe is made once (:meth:`SpindleRig.loop_matrices`)."""
-    return SpindleRig()
+@functools.lru_cache(maxsize=4)
+def _model_rig(gains: tuple[tuple[float, ...], ...] | None = None) -> "SpindleRig":
+    """One rig for the model at ``gains`` (P, I, D per axis; None: the defaults): its standstill
+    probe is made once (:meth:`SpindleRig.loop_matrices`)."""
+    rig = SpindleRig()
+    if gains is not None:
+        rig.set_pid(*(np.array(g) for g in gains))
+    return rig
 
 
 @functools.lru_cache(maxsize=1)
@@ -794,4 +877,4 @@ LMS = DesignModels(
     },
     pid=FRONT_LOOP, axes=AXES, phase_bins=PHASE_BINS, phase_bin_hz=PHASE_BIN_HZ)
 
-PROFILE = Profile("spindle", SpindleRig, FIRMWARE, ("controller", "can"), modes=campbell_modes, lms=LMS)
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, ("controller", "can"), modes=loop_model, lms=LMS)
