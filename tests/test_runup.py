@@ -409,3 +409,24 @@ def test_what_sim_generate_param_refuses_is_one_line_exit_2(run_cli, tmp_path):
         r = run_cli("sim", "generate", "--duration", "0.1", "--param", spec, "-q", "-o", tmp_path / "x.mcap")
         assert r.exit_code == 2 and said in r.output and len(r.output.strip().splitlines()) == 1, (spec, r.output)
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_recordings_malformed_gains_are_refused_in_one_line_when_the_model_needs_them(run_cli, tmp_path):
+    """A controller's calibration that states its gains wrongly (one D for five axes, a P of zero:
+    a rig file's [device.calibration] can say anything) is one line, exit 2, under --model spindle;
+    without --model nothing needs them and the run-up is tracked."""
+    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.sim.source import SimSource
+    from ambdaq.speed import SpeedProfile
+
+    for key, text, said in (("controller.pid.d", "0.001", "5 gains, one per axis"),
+                            ("controller.pid.p", "0,1.6,1.6,1.6,1.6", "at least 1e-06"),
+                            ("controller.pid.i", "1,1,1,1,nan", "each finite")):
+        source = SimSource("spindle", speed=SpeedProfile(3000, 12000, 1.0))
+        source.add_calibration({key: text})
+        path = tmp_path / f"{key}.mcap"
+        Recorder([source], path, RecordOptions(duration_s=1.0, fsync=False)).run()
+        r = run_cli("runup", path, "--model", "spindle")
+        assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+        assert f"the recording's {key} is {text!r}" in r.output and said in r.output, r.output
+        assert run_cli("runup", path, "--json").exit_code == 0
