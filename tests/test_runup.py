@@ -430,3 +430,41 @@ def test_a_recordings_malformed_gains_are_refused_in_one_line_when_the_model_nee
         assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
         assert f"the recording's {key} is {text!r}" in r.output and said in r.output, r.output
         assert run_cli("runup", path, "--json").exit_code == 0
+
+
+def test_the_cone_with_an_unbalance_whirls_forward_through_critically_damped_modes(run_cli, tmp_path):
+    """The cone rig with a mass unbalance (`sim generate --unbalance`; Jeong et al. give none) run
+    up to 6,000 rpm: its 1X is the true rotor's, it whirls forward at both bearings (z 90 degrees
+    behind y, as the spin turns y towards z), and `--model cone` verifies it as API 684 asks of a
+    loop whose radial modes are all critically damped: no critical speed predicted or measured, on
+    the gap as on the true rotor. The model's 57 Hz mode is axial (no whirl at the bearings), so it
+    is no 1X critical speed; its radial modes split forward and backward as the rotor spins up."""
+    rec = tmp_path / "unbalanced.mcap"
+    r = run_cli("sim", "generate", "--profile", "cone", "--rpm", "0:6000:3", "--duration", "3", "--truth",
+                "--unbalance", "2e-5:2e-5", "-q", "-o", rec)
+    assert r.exit_code == 0, r.output
+    r = run_cli("runup", rec, "--model", "cone", "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    axes = list(out["axes"])
+    data = load(rec)
+    truth, rot = data["/truth/position"], data["/amb/rotor"]
+    true = order_track(np.column_stack([truth[a] for a in axes]), rot["angle"], rot["speed"] * 60 / (2 * np.pi))
+    rpm = np.array(out["rpm"])
+    for i, a in enumerate(axes):
+        got = np.array(out["axes"][a]["1X"]["amplitude_um"]) * np.exp(1j * np.radians(out["axes"][a]["1X"]["phase_deg"]))
+        # the sensors' 0.1 um RMS noise over 8 revolutions, and the 4-decimal rounding: 0.1 um
+        assert np.abs(got - true.order(1)[:, i] * 1e6).max() < 0.1, a
+        assert np.abs(got[-1]) > 10  # tens of um at 6,000 rpm: an unbalance response, not noise
+        assert one_x_peaks(true.rpm, true.order(1)[:, i]) == [] or not any(
+            p.is_critical() for p in one_x_peaks(true.rpm, true.order(1)[:, i]))
+    for y, z in (("y1", "z1"), ("y2", "z2")):
+        lag = (np.array(out["axes"][z]["1X"]["phase_deg"]) - np.array(out["axes"][y]["1X"]["phase_deg"]) + 180) % 360 - 180
+        assert np.all(np.abs(lag[rpm > 1000] + 90) < 2), (y, z)
+    assert not any(p["critical"] for peaks in out["peaks_1x"].values() for p in peaks)
+    assert all(c["passed"] for c in out["critical_speeds"])
+    modes = out["model_modes"]
+    axial = [w for f, w in zip(modes["freq_hz"][0], modes["whirl"][0]) if f and abs(f - 57.1) < 0.5]
+    assert axial == [None]  # 57 Hz, no whirl: not on the 1X line's list
+    assert {w for w in modes["whirl"][-1] if w} == {"forward", "backward"}
+    assert all(abs(c["predicted_hz"] - 57.1) > 0.5 for c in out["critical_speeds"])

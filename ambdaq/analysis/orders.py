@@ -466,6 +466,11 @@ WHIRL_RATIO = 1.5
 """A mode whirls forward (backward) when its forward circular part outweighs its backward one
 (the reverse) by this much in energy; between, it is close to planar and not marked."""
 
+RADIAL_SHARE = 1e-6
+"""A mode whose radial bearings hold no more than this share of its energy at the sensors is not
+radial (an axial mode), and whirls neither way: rounding leaves about 1e-30 there, a mode that
+couples axial and radial motion (a cone bearing's) far more."""
+
 
 def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: float | None = None,
                outputs: np.ndarray | None = None, pairs: tuple[tuple[int, int], ...] = ()
@@ -515,8 +520,13 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
         forward = sum(np.abs(shape[i] + 1j * shape[j]) ** 2 for i, j in pairs)
         backward = sum(np.abs(shape[i] - 1j * shape[j]) ** 2 for i, j in pairs)
         whirl = np.where(forward > WHIRL_RATIO * backward, 1, np.where(backward > WHIRL_RATIO * forward, -1, 0))
+        # a mode that hardly moves the radial bearings (an axial mode: its radial parts are the
+        # eigensolver's rounding) whirls neither way
+        radial = (forward + backward) / 2
+        whirl[radial <= RADIAL_SHARE * np.sum(np.abs(shape) ** 2, axis=0)] = 0
     return f[keep][idx], zeta[keep][idx], whirl
 
 
-__all__ = ["CRITICAL_AMPLIFICATION", "SPEED_TOLERANCE", "WHIRL_RATIO", "CriticalCheck", "Margin", "OneXPeak",
-           "OrderTrack", "PredictedCritical", "loop_modes", "margin_from", "separation_margin", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]
+__all__ = ["AMPLIFICATION_TOLERANCE", "CRITICAL_AMPLIFICATION", "RADIAL_SHARE", "SPEED_TOLERANCE", "WHIRL_RATIO",
+           "CriticalCheck", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical", "from_response", "loop_modes",
+           "margin_from", "separation_margin", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]

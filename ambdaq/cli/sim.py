@@ -51,6 +51,9 @@ def command() -> None:
 @click.option("--drop", metavar="AT_S:DURATION_S",
               help="Cone and spindle rigs: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops "
                    "onto its touchdown bearings, then levitates again.")
+@click.option("--unbalance", metavar="UPPER_KGM:LOWER_KGM[:DEG]",
+              help="Cone rig: a mass unbalance at its two bearing planes, kg m, the lower one DEG ahead (Jeong et al. "
+                   "give none, so the rig has none unless asked).")
 @click.option("--param", "params", metavar="NAME=VALUES", multiple=True,
               help="Write a parameter of the rig's controller before the run, as `ambdaq controller param NAME VALUES` "
                    "does on the served one: VALUES comma-separated (e.g. pid.d=0.00075,0.00075,0.001,0.001,0.002). "
@@ -58,8 +61,8 @@ def command() -> None:
 @snapshot_options
 @output_options
 @report_options
-def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop, params,
-             snapshot, out, quiet, as_json):
+def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop,
+             unbalance, params, snapshot, out, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -103,6 +106,12 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             from ..sim.rigs.drop import Drop
 
             source.rig.set_drop(Drop.parse(drop))
+        if unbalance is not None:
+            if "unbalance" not in source.rig.inputs:
+                raise BadInputError(f"--unbalance: the {profile} rig's unbalance is its own (use --profile cone)")
+            from ..sim.rigs.cone import Unbalance
+
+            source.rig.set_unbalance(Unbalance.parse(unbalance))
         for spec in params:
             _write_param(source.rig, profile, spec)
     except ValueError as err:

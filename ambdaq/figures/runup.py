@@ -95,8 +95,8 @@ def draw_runup(res, name: str):
     if res.modes is not None:
         speeds, table, whirl = res.modes.rpm, res.modes.freq_hz, res.modes.whirl
         # points: a mode may enter or leave the damping limit over the run. Forward whirl up, backward
-        # down; in the full spectrum each on its own side (a mode whose whirl the model does not give:
-        # on both, hollow)
+        # down; in the full spectrum each on its own side (a mode that whirls neither way, axial or
+        # planar, or whose whirl the model does not give: on both, hollow)
         for direction, marker, label in ((1, "^", "model modes, forward"), (-1, "v", "model modes, backward"),
                                          (0, "o", "model modes")):
             f = np.where(whirl == direction, table, np.nan)

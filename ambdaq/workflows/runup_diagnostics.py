@@ -176,8 +176,7 @@ class ModelModes:
 def model_modes(model: str, rpm_from: float, rpm_to: float, calibration: Mapping[str, str] | None = None,
                 axes: tuple[str, ...] = ()) -> ModelModes:
     """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
-    and which whirl forward and which backward (the spindle's; the cone model gives its modes'
-    frequencies only), found through the rig profile of that name.
+    and which whirl forward and which backward, found through the rig profile of that name.
 
     Parameters
     ----------

@@ -28,8 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy.linalg import expm
 
-from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor, controlled_eigenvalues
+from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor, closed_loop_state_space
+from ...analysis.orders import loop_modes
 from ...errors import BadInputError
 from ...drivers.signals import SampleBlock, SignalGroup
 from ..profiles import LoopModel, Profile
@@ -110,10 +112,51 @@ class Impact:
         return np.where(on, self.peak * np.sin(np.pi * np.clip(phase, 0, IMPACT_S) / IMPACT_S), 0.0)
 
 
+@dataclass(frozen=True)
+class Unbalance:
+    """A mass unbalance at the two bearing planes: ``upper`` and ``lower`` kg m (mass times its
+    eccentricity) at bearings 1 and 2, the lower one ``lower_phase_deg`` ahead in the spin.  It
+    pushes with ``U Omega^2`` along the rotor angle: ``y = cos``, ``z = sin`` (the spin turns y
+    towards z, the forward whirl of the bearings' y/z pairs)."""
+
+    upper: float
+    lower: float
+    lower_phase_deg: float = 0.0
+
+    @classmethod
+    def parse(cls, spec: str) -> "Unbalance":
+        """``UPPER_KGM:LOWER_KGM[:LOWER_PHASE_DEG]``."""
+        parts = spec.split(":")
+        try:
+            if len(parts) not in (2, 3):
+                raise ValueError
+            u = cls(*(float(v) for v in parts))
+        except ValueError:
+            raise BadInputError(f"bad unbalance {spec!r}: expected UPPER_KGM:LOWER_KGM[:LOWER_PHASE_DEG]") from None
+        if not all(np.isfinite(v) for v in (u.upper, u.lower, u.lower_phase_deg)) or not (
+                0 <= u.upper <= MAX_UNBALANCE and 0 <= u.lower <= MAX_UNBALANCE):
+            raise BadInputError(f"bad unbalance {spec!r}: each between 0 and {MAX_UNBALANCE:g} kg m")
+        return u
+
+    def forces(self, theta: np.ndarray, spin: np.ndarray) -> np.ndarray:
+        """Forces (N) on the bearing coordinates y1, y2, z1, z2 at rotor angles ``theta`` (rad) and
+        spins ``spin`` (rad/s): shape (n, 4)."""
+        lower = theta + np.deg2rad(self.lower_phase_deg)
+        push = spin**2
+        return np.column_stack([self.upper * push * np.cos(theta), self.lower * push * np.cos(lower),
+                                self.upper * push * np.sin(theta), self.lower * push * np.sin(lower)])
+
+
+MAX_UNBALANCE = 1e-3
+"""kg m: 1 g at 1 m, or 100 g at the core's 10 mm: far beyond any balance grade of a 1.7 kg rotor."""
+
+
 @njit(cache=True, fastmath=True, nogil=True)
-def _simulate(s, hammer_t, enabled, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl, out_pos):
+def _simulate(s, hammer_t, unb, enabled, noise, speed, c, Minv, A, Tm, D, V0, out_gap, out_cur, out_volt, out_ctl,
+              out_pos):
     """Advance state ``s`` (N_STATE) over len(hammer_t) samples.  ``hammer_t`` (n, SUBSTEPS) is
-    the hammer force on bearing coordinate int(c[12]) at each substep; ``enabled`` (n,) 1 where
+    the hammer force on bearing coordinate int(c[12]) at each substep; ``unb`` (n, 5) the
+    unbalance force on each bearing coordinate, held over each sample; ``enabled`` (n,) 1 where
     the amplifiers run, 0 where they are off (a drop: no output, the coil currents decay through
     R/L); ``noise`` (n, 5) the gap sensors' noise (m); ``c`` the constants in the order
     ConeRig._constants lists them."""
@@ -205,6 +248,8 @@ def _simulate(s, hammer_t, enabled, noise, speed, c, Minv, A, Tm, D, V0, out_gap
                     fb[a] -= normal * ny
                     fb[b] -= normal * nz
             fb[axis_hit] += hammer_t[k, sub]
+            for a in range(5):
+                fb[a] += unb[k, a]
             for a in range(5):  # bearing-coordinate forces act on q_g through T^T
                 for b in range(5):
                     Q[b] += Tm[a, b] * fb[a]
@@ -244,16 +289,19 @@ class ConeRig(Rig):
         the coil currents zero.
     impact : Impact, optional
         Hammer strikes.
+    unbalance : Unbalance, optional
+        A mass unbalance (Jeong et al. give none: the rig has none unless asked).
     """
 
     profile = "cone"
-    inputs = frozenset({"impact", "drop"})
+    inputs = frozenset({"impact", "drop", "unbalance"})
 
     def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
                  truth: bool = False, noise: bool = True, start: str = "levitated",
-                 impact: Impact | None = None) -> None:
+                 impact: Impact | None = None, unbalance: "Unbalance | None" = None) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
+        self.unbalance = unbalance
         self.drop: Drop | None = None
         self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)
         r = params.rotor
@@ -289,6 +337,10 @@ class ConeRig(Rig):
     def set_drop(self, drop: Drop | None) -> None:
         """Drop the rotor as ``drop`` says (None: the amplifiers always on)."""
         self.drop = drop
+
+    def set_unbalance(self, unbalance: "Unbalance | None") -> None:
+        """Spin with this mass unbalance from now on (None: a balanced rotor)."""
+        self.unbalance = unbalance
 
     def _constants(self) -> np.ndarray:
         p, r, c = self.params, self.params.rotor, self.params.control
@@ -333,13 +385,16 @@ class ConeRig(Rig):
         _, omega = self.speed.angle_speed(np.array([self.step_index * self.h]))
         outs = [np.empty((n, 5)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 5)), np.empty((n, 5))]
         enabled = self.drop.enabled(steps * self.h) if self.drop else np.ones(n)
-        _simulate(self.state, hammer, enabled, noise[:, :5] * self.params.gap_noise, float(omega[0]), self._constants(),
-                  self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+        theta, spin = self.speed.angle_speed(steps * self.h)
+        unb = np.zeros((n, 5))
+        if self.unbalance is not None:
+            unb[:, 1:] = self.unbalance.forces(theta + spin * self.h / 2, spin)  # at mid-sample
+        _simulate(self.state, hammer, unb, enabled, noise[:, :5] * self.params.gap_noise, float(omega[0]),
+                  self._constants(), self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
         self.step_index += n
         force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise
         # the spin as the spindle's controller reports it: angle in [0, 2 pi), speed, a key-phasor
         # pulse at the sample where a revolution begins
-        theta, spin = self.speed.angle_speed(steps * self.h)
         rev = np.floor(theta / (2 * np.pi))
         pulse = np.diff(np.concatenate(([self._last_rev], rev))) > 0
         self._last_rev = float(rev[-1])
@@ -364,7 +419,7 @@ class ConeRig(Rig):
             for sign in (1.0, -1.0):
                 s = s0.copy()
                 s[i] += sign * scale[i]
-                _simulate(s, z, np.ones(1), nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+                _simulate(s, z, nz, np.ones(1), nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
                 cols.append(s)
             Jac[:, i] = (cols[0] - cols[1]) / (2 * scale[i])
         return Jac
@@ -381,17 +436,19 @@ class ConeRig(Rig):
         return sorted(out)
 
 
+BEARING_PAIRS = ((AXES.index("y1"), AXES.index("z1")), (AXES.index("y2"), AXES.index("z2")))
+"""Each bearing's (x, y) of the full spectrum in ``AXES``: the spin turns y towards z."""
+
+
 def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Jeong et al.'s coupled 5-DOF cone rotor under its PD control, current loop and eddy-current
-    lag (eq. 10-16) at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5, below 2 kHz) and their
-    damping; their whirl is not given (0)."""
-    s = controlled_eigenvalues(CONE.rotor, CONE.control, float(rpm) * RPM_TO_RAD_S)
-    s = s[s.imag > 0]
-    zeta = -s.real / np.abs(s)
-    f = s.imag / (2 * np.pi)
-    keep = (zeta <= 0.5) & (f <= 2000.0)
-    order = np.argsort(f[keep])
-    return f[keep][order], zeta[keep][order], np.zeros(int(keep.sum()), dtype=int)
+    lag (eq. 10-16) at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5, below 2 kHz), their
+    damping, and their whirl from their shape at the two bearings (:func:`loop_modes`, on the loop
+    sampled at the rig's rate): the axial mode whirls neither way, and is no 1X critical speed."""
+    M, C, K, Kib = CONE.rotor.bearing_model(float(rpm) * RPM_TO_RAD_S)
+    A, _B, Cq = closed_loop_state_space(M, C, K, Kib, CONE.control)
+    h = 1.0 / CONE.sample_rate
+    return loop_modes(expm(A * h), h, fmax_hz=2000.0, outputs=Cq, pairs=BEARING_PAIRS)
 
 
 def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
