@@ -237,10 +237,11 @@ def test_fleet_scan_holds_each_machines_own_axes(pairs, tmp_path):
     from ambdaq.workflows.fleet import read, scan
 
     paths = [pairs[m, "steady"] for m in MACHINES]
-    # threads in this process, on TCP bound to loopback (the in-process default, inproc://, still
-    # opens its HTTP servers on every interface)
+    # threads in this process, on TCP bound to loopback (the in-process default, inproc://, opens its
+    # HTTP servers on every interface), the scheduler's HTTP server on a free port (it opens one
+    # even without a dashboard; 8787 may be another test's)
     with Client(processes=False, n_workers=1, threads_per_worker=1, protocol="tcp://", host="127.0.0.1",
-                dashboard_address=None, worker_dashboard_address=None) as client:
+                dashboard_address="127.0.0.1:0", worker_dashboard_address=None) as client:
         report = scan(paths, tmp_path / "fleet.parquet", client)
     assert len(report.scanned) == 4 and not report.errors
     rows = {r["path"].rsplit("/", 1)[-1].split("_")[0]: r for r in read(tmp_path / "fleet.parquet").to_dict("records")}

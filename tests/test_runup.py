@@ -393,6 +393,18 @@ def test_a_detuned_loops_amplified_critical_speed_is_where_the_model_at_its_reco
     # peak amplitude within 1 % (the run-up sweeps through the mode; the model is steady)
     resp = out["model_modes"]["response_1x"]
     assert max(resp[crit["axis"]]["amplitude_um"]) == pytest.approx(peak.amplitude * 1e6, rel=0.01)
+    # the limits are options (API 684's by default): a speed tolerance of 0.1 % is tighter than the
+    # 0.3 % this run is off, so the prediction is not met and the measured one is unexplained; a
+    # machine whose specification calls modes critically damped below 5 has none here
+    tight = json.loads(run_cli("runup", rec, "--coefficients", runup / "runout.json", "--model", "spindle", "--json",
+                               "--critical-tolerance", "0.1").stdout)["critical_speeds"]
+    missed = [c for c in tight if c["predicted_rpm"] == crit["predicted_rpm"]]
+    assert [c["passed"] for c in missed] == [False] and missed[0]["measured_rpm"] is None
+    assert any(c["predicted_rpm"] is None and not c["passed"] for c in tight)
+    damped = json.loads(run_cli("runup", rec, "--coefficients", runup / "runout.json", "--model", "spindle", "--json",
+                                "--critically-damped", "5").stdout)
+    assert all(c["passed"] and "critically damped" in c["rule"] for c in damped["critical_speeds"])
+    assert not any(p["critical"] for peaks in damped["peaks_1x"].values() for p in peaks)
     # at Ro et al.'s gains the model puts its forward mode near 19,000 rpm, critically damped: this
     # run's critical speed is one it does not explain
     default = model_modes("spindle", 3000.0, 15000.0, {}, ("front_x", "front_y", "rear_x", "rear_y"))

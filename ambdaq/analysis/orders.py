@@ -400,16 +400,38 @@ class CriticalCheck:
                 "passed": self.passed, "rule": self.rule}
 
 
+@dataclass(frozen=True)
+class CriticalLimits:
+    """The limits a run-up's critical speeds are verified by (``runup`` and ``report`` options).
+
+    Attributes
+    ----------
+    speed : float
+        A measured critical speed is the predicted one within this share of its speed
+        (:data:`SPEED_TOLERANCE`, API 684's 5 %).
+    amplification : float
+        How much more amplified than predicted, as a share, a measured one may be
+        (:data:`AMPLIFICATION_TOLERANCE`).
+    critically_damped : float
+        The amplification factor below which a mode is critically damped
+        (:data:`CRITICAL_AMPLIFICATION`, API 684's 2.5).
+    """
+
+    speed: float = SPEED_TOLERANCE
+    amplification: float = AMPLIFICATION_TOLERANCE
+    critically_damped: float = CRITICAL_AMPLIFICATION
+
+
 def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["OneXPeak"]], rpm_range: tuple[float, float],
-                     *, tolerance: float = SPEED_TOLERANCE, min_amplification: float = CRITICAL_AMPLIFICATION,
+                     *, limits: CriticalLimits = CriticalLimits(),
                      operating_rpm: tuple[float, float] | None = None) -> list[CriticalCheck]:
     """Each predicted critical speed inside the run against the 1X peaks it measured (API 684).
 
-    A mode the model amplifies less than ``min_amplification`` is critically damped: it passes
-    when no measured peak near it is a critical speed. One amplified more must be measured within
-    ``tolerance`` of the prediction and no more amplified than predicted (up to
-    :data:`AMPLIFICATION_TOLERANCE`). A measured critical speed
-    (a peak amplified at least ``min_amplification``) that no prediction explains fails.
+    A mode the model amplifies less than ``limits.critically_damped`` is critically damped: it
+    passes when no measured peak near it is a critical speed. One amplified more must be measured
+    within ``limits.speed`` of the prediction and no more amplified than predicted (up to
+    ``limits.amplification``). A measured critical speed (a peak amplified at least
+    ``limits.critically_damped``) that no prediction explains fails.
 
     Parameters
     ----------
@@ -418,15 +440,14 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
         Each axis's measured 1X peaks.
     rpm_range : (float, float)
         The run's speeds, in rpm: predictions outside it are not checked.
-    tolerance : float
-        The relative speed difference within which a peak is the predicted one.
-    min_amplification : float
-        API 684's amplification factor below which a mode is critically damped.
+    limits : CriticalLimits
+        The speed and amplification tolerances (shares) and the critically damped factor.
     operating_rpm : (float, float), optional
         The minimum operating and maximum continuous speeds, rpm: each critical speed (measured
         where measured) must also keep :func:`separation_margin` from them.
     """
     lo, hi = rpm_range
+    tolerance, min_amplification = limits.speed, limits.critically_damped
     checks, explained = [], set()
     for p in predicted:
         if not lo <= p.rpm <= hi:
@@ -438,12 +459,12 @@ def verify_criticals(predicted: list[PredictedCritical], peaks: dict[str, list["
         if p.amplification < min_amplification:
             ok = peak is None or not peak.is_critical(min_amplification)
             rule = (f"API 684: amplification {p.amplification:.2f} < {min_amplification:g}, critically damped: no "
-                    f"critical speed within {tolerance:.0%}")
+                    f"critical speed within {tolerance * 100:g}%")
         else:
             ok = (peak is not None and peak.is_critical(min_amplification)
-                  and peak.amplification <= p.amplification * (1 + AMPLIFICATION_TOLERANCE))
-            rule = (f"API 684: measured within {tolerance:.0%} of the predicted speed, amplified no more than "
-                    f"predicted ({p.amplification:.2f}, {AMPLIFICATION_TOLERANCE:.0%} allowed)")
+                  and peak.amplification <= p.amplification * (1 + limits.amplification))
+            rule = (f"API 684: measured within {tolerance * 100:g}% of the predicted speed, amplified no more than "
+                    f"predicted ({p.amplification:.2f}, {limits.amplification * 100:g}% allowed)")
         margin = None
         if operating_rpm is not None:
             seen = peak is not None and peak.is_critical(min_amplification)
@@ -528,5 +549,5 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
 
 
 __all__ = ["AMPLIFICATION_TOLERANCE", "CRITICAL_AMPLIFICATION", "RADIAL_SHARE", "SPEED_TOLERANCE", "WHIRL_RATIO",
-           "CriticalCheck", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical", "from_response", "loop_modes",
+           "CriticalCheck", "CriticalLimits", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical", "from_response", "loop_modes",
            "margin_from", "separation_margin", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]

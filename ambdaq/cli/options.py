@@ -277,3 +277,27 @@ class ImagePath(click.ParamType):
 def plot_option(help_text: str):
     """``--plot IMAGE``: where a command draws its figure."""
     return click.option("--plot", "plot_path", type=ImagePath(), help=help_text)
+
+
+def critical_limits_options(command):
+    """--critical-tolerance, --af-tolerance, --critically-damped: how a run-up's critical speeds are
+    verified against a --model, handed to the command as one ``limits: CriticalLimits`` (the
+    defaults API 684's, docs/iso.md)."""
+    from ..analysis.orders import AMPLIFICATION_TOLERANCE, CRITICAL_AMPLIFICATION, SPEED_TOLERANCE, CriticalLimits
+
+    @functools.wraps(command)
+    def bundled(*args, critical_tolerance, af_tolerance, critically_damped, **kwargs):
+        return command(*args, limits=CriticalLimits(critical_tolerance / 100, af_tolerance / 100, critically_damped),
+                       **kwargs)
+
+    f = click.option("--critically-damped", type=click.FloatRange(1.0, 100.0), default=CRITICAL_AMPLIFICATION,
+                     show_default=True, metavar="AF",
+                     help="Amplification factor below which a mode is critically damped and a 1X peak no critical "
+                          "speed (API 684).")(bundled)
+    f = click.option("--af-tolerance", type=click.FloatRange(0.0, 100.0), default=AMPLIFICATION_TOLERANCE * 100,
+                     show_default=True, metavar="PCT",
+                     help="How much more amplified than the model predicts a measured critical speed may be, %.")(f)
+    return click.option("--critical-tolerance", type=click.FloatRange(0.0, 50.0, min_open=True),
+                        default=SPEED_TOLERANCE * 100, show_default=True, metavar="PCT",
+                        help="A measured critical speed is the predicted one within this much of its speed, % "
+                             "(API 684's run-up against the model).")(f)

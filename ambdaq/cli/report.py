@@ -22,7 +22,7 @@ import numpy as np
 
 from ..analysis.iso14839 import ZoneLimits
 from ..errors import BadInputError
-from .options import POSITIVE, SPEED_RANGE
+from .options import POSITIVE, SPEED_RANGE, critical_limits_options
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
@@ -289,6 +289,7 @@ def render(found, title: str) -> str:
 @click.option("--operating", type=SPEED_RANGE,
               help="The operating range, minimum operating to maximum continuous speed, rpm: with --model, each critical "
                    "speed must keep API 617's separation margin from it.")
+@critical_limits_options
 @click.option("--drops", multiple=True, type=click.Path(dir_okay=False),
               help="A snapshot file a touchdown trigger caught (record --snapshot); repeat for each.")
 @click.option("--title", default="AMB commissioning report", show_default=True)
@@ -296,8 +297,8 @@ def render(found, title: str) -> str:
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
-def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, drops, title, output, pdf,
-            overwrite, as_json):
+def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, limits, drops, title, output,
+            pdf, overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
     push with the push log and the APHT of the run after it, the run-up's order tracking, the rotor drops
@@ -323,7 +324,7 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     opened = (lambda v: open_recording(v) if v else None)
     found = gather(SessionFiles(as_path(stability), opened(runup), as_path(coefficients), opened(before),
                                 opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model,
-                                [open_recording(p) for p in drops], operating))
+                                [open_recording(p) for p in drops], operating, limits))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

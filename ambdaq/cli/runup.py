@@ -8,9 +8,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.orders import CRITICAL_AMPLIFICATION
 from ..errors import BadInputError
-from .options import SPEED_RANGE, max_lost_option, plot_option
+from .options import SPEED_RANGE, critical_limits_options, max_lost_option, plot_option
 
 
 def _orders(value: str) -> tuple[int, ...]:
@@ -38,12 +37,13 @@ def _orders(value: str) -> tuple[int, ...]:
                    "speed must also keep API 617's separation margin from it.")
 @click.option("--model", type=click.Choice(["spindle", "cone"]),
               help="Overlay the modes this model's loop predicts (Campbell): the spindle's or the cone rotor's.")
+@critical_limits_options
 @click.option("--waterfall-axis", help="Gap axis of the waterfall; default: the first radial one.")
 @plot_option("Bode, polar, waterfall with order lines (and Campbell with --model) (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the tracked vectors and peaks as JSON.")
 @max_lost_option
-def command(recording, coefficients, slow_roll, orders, revolutions, speeds, operating, model, waterfall_axis, plot_path,
-            as_json, max_lost):
+def command(recording, coefficients, slow_roll, orders, revolutions, speeds, operating, model, limits, waterfall_axis,
+            plot_path, as_json, max_lost):
     """Order tracking of a run-up or coast-down on the key-phasor: 1X (and NX) amplitude and phase
     against speed, 1X peaks with their amplification factor (critical speeds, API 684), a waterfall.
 
@@ -59,7 +59,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
         raise BadInputError("--operating checks the critical speeds of a --model: give one (spindle or cone)")
     res = analyse(open_recording(recording), coefficients=Path(coefficients) if coefficients else None,
                   slow_roll=open_recording(slow_roll) if slow_roll else None, orders=_orders(orders), revolutions=revolutions,
-                  speeds=speeds, waterfall_axis=waterfall_axis, model=model, operating_rpm=operating,
+                  speeds=speeds, waterfall_axis=waterfall_axis, model=model, operating_rpm=operating, limits=limits,
                   max_lost=max_lost)
     for note in res.notes:
         click.echo(f"ambdaq: warning: {note}", err=True)
@@ -73,7 +73,8 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
                          for k in t.orders} for i, a in enumerate(res.axes)},
             "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
                               "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
-                              "amplification": round(p.amplification, 2), "critical": p.is_critical()} for p in peaks]
+                              "amplification": round(p.amplification, 2),
+                              "critical": p.is_critical(res.limits.critically_damped)} for p in peaks]
                          for a, peaks in res.peaks.items()},
             "centreline": {"rpm": np.round(res.centreline.rpm, 1).tolist(),
                            "time_s": np.round(res.centreline.time_s, 4).tolist(),
@@ -120,8 +121,8 @@ def _print_table(res) -> None:
             click.echo(f"{a}: no 1X peak that stands out of the scatter with its half-power band inside the run: "
                        "no critical speed")
         for p in peaks:
-            verdict = ("a critical speed" if p.is_critical() else
-                       f"critically damped (amplification < {CRITICAL_AMPLIFICATION:g}, API 684)")
+            verdict = ("a critical speed" if p.is_critical(res.limits.critically_damped) else
+                       f"critically damped (amplification < {res.limits.critically_damped:g}, API 684)")
             click.echo(f"{a}: 1X peak {p.amplitude * 1e6:.2f} um at {p.rpm:,.0f} rpm, half-power band "
                        f"{p.band_rpm[0]:,.0f}-{p.band_rpm[1]:,.0f} rpm, phase turns {p.phase_change_deg:.0f}°, "
                        f"amplification {p.amplification:.1f}: {verdict}")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis.orders import CriticalLimits
 from ..daq.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
 from ..daq.touchdowns import recorded_drop
@@ -51,6 +52,8 @@ class SessionFiles:
     operating_rpm : (float, float) or None
         Minimum operating and maximum continuous speed, rpm: with ``model``, the critical speeds'
         API 617 separation margins are checked against them.
+    limits : CriticalLimits
+        What the critical speeds are verified by (API 684's by default).
     """
 
     stability: Path | None = None
@@ -63,6 +66,7 @@ class SessionFiles:
     model: str | None = None
     drops: list[Recording] = field(default_factory=list)
     operating_rpm: tuple[float, float] | None = None
+    limits: CriticalLimits = CriticalLimits()
 
 
 def machine_identity(recs: list[Recording]) -> dict:
@@ -139,12 +143,13 @@ def gather(files: SessionFiles) -> Commissioning:
                                                     "runout_removed")},
                             "bands": [g.as_dict() for g in grades]}
         diag = runup_diagnostics.analyse(runup, coefficients=files.coefficients, orders=(1, 2), model=files.model,
-                                         operating_rpm=files.operating_rpm)
+                                         operating_rpm=files.operating_rpm, limits=files.limits)
         notes += info["notes"] + diag.notes
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
                         "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
-                                          "amplification": round(p.amplification, 2), "critical": p.is_critical()}
+                                          "amplification": round(p.amplification, 2),
+                                          "critical": p.is_critical(diag.limits.critically_damped)}
                                          for p in ps] for a, ps in diag.peaks.items()},
                         "model": files.model, "model_basis": None if diag.modes is None else diag.modes.basis,
                         "critical_speeds": [c.as_dict() for c in diag.criticals]}

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.orders import (CriticalCheck, OneXPeak, OrderTrack, PredictedCritical, from_response, one_x_peaks,
-                               order_track, predicted_criticals, verify_criticals)
+from ..analysis.orders import (SPEED_TOLERANCE, CriticalCheck, CriticalLimits, OneXPeak, OrderTrack, PredictedCritical,
+                               from_response, one_x_peaks, order_track, predicted_criticals, verify_criticals)
 from ..analysis.runout import harmonic_fit
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.coefficients import Coefficients
@@ -66,6 +66,9 @@ class RunupDiagnostics:
         Each bearing's mean position per window against speed and time.
     bearings : tuple of Bearing
         The machine's radial bearings among the tracked axes.
+    limits : CriticalLimits
+        What the critical speeds were verified by (a peak is a critical speed when amplified at
+        least ``limits.critically_damped``).
     """
 
     axes: list[str]
@@ -79,6 +82,7 @@ class RunupDiagnostics:
     centreline: Centreline
     criticals: list[CriticalCheck]
     bearings: tuple[Bearing, ...] = ()
+    limits: CriticalLimits = CriticalLimits()
 
 
 @dataclass(frozen=True)
@@ -166,11 +170,13 @@ class ModelModes:
     response_rpm: np.ndarray
     response: dict[str, np.ndarray]
 
-    def criticals(self, order: int = 1) -> list[PredictedCritical]:
+    def criticals(self, order: int = 1, tolerance: float = SPEED_TOLERANCE) -> list[PredictedCritical]:
         """The critical speeds these modes predict on the ``order`` line, each amplified as the
-        model's own 1X response shows it where it does (:func:`from_response`)."""
+        model's own 1X response shows it where it does, within ``tolerance`` of its speed
+        (:func:`from_response`)."""
         found = predicted_criticals(self.rpm, self.freq_hz, self.damping, self.whirl, order=order)
-        return from_response(found, self.response_rpm, self.response) if self.response else found
+        return (from_response(found, self.response_rpm, self.response, tolerance=tolerance) if self.response
+                else found)
 
 
 def model_modes(model: str, rpm_from: float, rpm_to: float, calibration: Mapping[str, str] | None = None,
@@ -224,6 +230,7 @@ def _loop_calibration(rec: Recording) -> Mapping[str, str]:
 def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Recording | None = None, orders=(1, 2),
             revolutions: int = 8, speeds: tuple[float, float] | None = None, waterfall_axis: str | None = None,
             model: str | None = None, operating_rpm: tuple[float, float] | None = None,
+            limits: CriticalLimits = CriticalLimits(),
             max_lost: float = MAX_LOST) -> RunupDiagnostics:
     """Order tracking, 1X peaks, waterfall and Campbell lines of a run-up or coast-down.
 
@@ -245,6 +252,8 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
         Gap axis of the waterfall; default: the first radial one.
     model : str, optional
         ``spindle`` or ``cone``: its loop's modes over the run's speeds (the Campbell diagram).
+    limits : CriticalLimits
+        The limits the critical speeds are verified by (API 684's by default).
     operating_rpm : (float, float), optional
         Minimum operating and maximum continuous speed, rpm: with ``model``, each critical speed
         must keep API 617's separation margin from them (:func:`~ambdaq.analysis.orders.separation_margin`).
@@ -303,11 +312,12 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
         if modes.assumed:
             notes.append(f"--model {model}: the loop at {modes.basis}; a controller retuned from them has other "
                          "critical speeds")
-    checks = verify_criticals(modes.criticals(), peaks, (float(track.rpm.min()), float(track.rpm.max())),
+    checks = verify_criticals(modes.criticals(tolerance=limits.speed), peaks,
+                              (float(track.rpm.min()), float(track.rpm.max())), limits=limits,
                               operating_rpm=operating_rpm) if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
                             centreline(machine, axes, x, rpm, time_s, n), checks,
-                            tuple(b for b in machine.bearings if b.x in axes and b.y in axes))
+                            tuple(b for b in machine.bearings if b.x in axes and b.y in axes), limits)
 
 
 __all__ = ["Centreline", "ModelModes", "RunupDiagnostics", "analyse", "centreline", "model_modes"]
