@@ -11,6 +11,9 @@ unpaced.  Baselines, measured in the same run:
 * the official MCAP reader's ``iter_decoded_messages`` with the official ROS 2 decoder, on the
   first 3 s of the same recording (it decodes one message per Python call).
 
+* the limit: zstd alone inflating the same chunks into a reused buffer (``zstandard``'s
+  ``stream_reader``, no ambdaq code), on one thread and on two, the work ``load`` cannot avoid.
+
 Then how the chunk compression and size trade file size, write speed and read speed.
 
     python benchmarks/bench_read.py [--seconds 30]
@@ -71,6 +74,33 @@ def first_read(setup: str, path: Path) -> float:
     return float(out.split()[-1])
 
 
+def inflate(path: Path, threads: int) -> float:
+    """Best of 3 (s): zstd inflating every chunk of ``path`` into one reused buffer per thread."""
+    import zstandard
+    from concurrent.futures import ThreadPoolExecutor
+
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as f:  # the chunks as the official reader finds them, still compressed
+        frames = [(r.data, r.uncompressed_size) for r in StreamReader(f, emit_chunks=True).records
+                  if isinstance(r, Chunk)]
+    largest = max(size for _, size in frames)
+    buffers = {}
+
+    def one(frame) -> None:
+        import threading
+
+        buf = buffers.setdefault(threading.get_ident(), bytearray(largest))
+        packed, size = frame
+        reader, got, view = zstandard.ZstdDecompressor().stream_reader(packed), 0, memoryview(buf)
+        while got < size:
+            got += reader.readinto(view[got:size])
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        return best_of(lambda: list(pool.map(one, frames)), repeat=3)
+
+
 def parquet_read(path: Path) -> dict[str, np.ndarray]:
     table = pq.read_table(path)
     return {name: col.to_numpy() for name, col in zip(table.column_names, table.columns)}
@@ -122,6 +152,18 @@ def main() -> None:
                   f"{parquet.stat().st_size / 1e6:.1f} MB file, baseline"))
         print(f"ratio load / Parquet read time: best/best {t_load / t_pq:.2f}, per round "
               f"{ratios[0]:.2f}-{ratios[-1]:.2f}, median {ratios[len(ratios) // 2]:.2f} (target <= 1)")
+        # like against like: load on one thread against zstd on one, on two against two; rounds
+        # alternate them, so a busy moment of the machine falls on both
+        pairs = {n: [(best_of(lambda: load(path, threads=n), repeat=3), inflate(path, n)) for _ in range(3)]
+                 for n in (1, 2)}
+        for n, runs in pairs.items():
+            t_ours, t_zstd = min(a for a, _ in runs), min(b for _, b in runs)
+            print(row(f"ambdaq.daq.load on {n} thread{'s' if n > 1 else ''}", t_ours * 1e3, "ms"))
+            print(row(f"zstd alone inflating the chunks on {n} thread{'s' if n > 1 else ''}", t_zstd * 1e3, "ms",
+                      "limit"))
+            ratios = sorted(a / b for a, b in runs)
+            print(f"ratio load / inflation on {n}: best/best {t_ours / t_zstd:.2f}, per round {ratios[0]:.2f}-"
+                  f"{ratios[-1]:.2f} (target <= 1.5)")
 
         # a script that reads one file: the first read in a fresh process (the file in the page
         # cache), each reader's imports done before the clock starts
