@@ -94,6 +94,15 @@ def test_identity_parameters_and_refusals(bench):
             open_device(f"serial://{pty.path}")
     finally:
         drv.close()
+    # the next program to open it (a recording) is told the gains it runs now, in its calibration
+    # (what `runup --model spindle` builds its loop at)
+    again = open_device(f"serial://{pty.path}")
+    try:
+        stated = again.device_calibration()["controller.pid.d"]
+        np.testing.assert_allclose([float(v) for v in stated.split(",")], [0.0016, 0.0016, 0.0021, 0.0021, 0.002],
+                                   rtol=1e-12)
+    finally:
+        again.close()
 
 
 def test_record_two_controllers_with_drifting_clocks_aligns_them(bench, tmp_path):
