@@ -549,5 +549,6 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
 
 
 __all__ = ["AMPLIFICATION_TOLERANCE", "CRITICAL_AMPLIFICATION", "RADIAL_SHARE", "SPEED_TOLERANCE", "WHIRL_RATIO",
-           "CriticalCheck", "CriticalLimits", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical", "from_response", "loop_modes",
-           "margin_from", "separation_margin", "one_x_peaks", "order_track", "predicted_criticals", "verify_criticals"]
+           "CriticalCheck", "CriticalLimits", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical",
+           "from_response", "loop_modes", "margin_from", "separation_margin", "one_x_peaks", "order_track",
+           "predicted_criticals", "verify_criticals"]

@@ -419,7 +419,8 @@ class ConeRig(Rig):
             for sign in (1.0, -1.0):
                 s = s0.copy()
                 s[i] += sign * scale[i]
-                _simulate(s, z, nz, np.ones(1), nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
+                _simulate(s, z, nz, np.ones(1), nz, omega, c, self._Minv, self._A, self._T, DISTRIBUTION, self._V0,
+                          *outs)
                 cols.append(s)
             Jac[:, i] = (cols[0] - cols[1]) / (2 * scale[i])
         return Jac
