@@ -26,7 +26,9 @@ def _client(scheduler: str | None, workers: int):
             return Client(address, timeout="10s")
         except (OSError, TimeoutError) as err:
             raise DeviceError(f"--scheduler {address}: cannot reach the Dask scheduler ({err})") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+    # on loopback only; the scheduler opens an HTTP server even without a dashboard, on a free port
+    # here (on 8787, a second scan beside the first was told "Port 8787 is already in use")
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                            host="127.0.0.1")
     return Client(cluster)
 
