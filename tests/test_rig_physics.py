@@ -17,7 +17,7 @@ def quiet_params(**kw):
 @pytest.mark.parametrize("rpm", [0, 6000, 10000, 20000, 30000, 40000, 50000])
 def test_linearised_closed_loop_is_stable(rpm):
     # the Jacobian of the simulation step itself; stable iff every eigenvalue is inside the unit circle
-    M = SpindleRig().closed_loop_matrix(rpm)
+    M = SpindleRig().loop_matrices(rpm)[0]
     radius = np.abs(np.linalg.eigvals(M)).max()
     assert radius < 1.0
     # the slowest pole is the integrator; everything else is well inside
@@ -36,7 +36,7 @@ def test_fast_linearisation_is_the_kernels_own_at_every_speed(rpm):
 
 def test_least_damped_mode_is_reasonably_damped_over_speed():
     for rpm in (0, 25000, 50000):
-        s = np.log(np.linalg.eigvals(SpindleRig().closed_loop_matrix(rpm)).astype(complex)) / 1e-4
+        s = np.log(np.linalg.eigvals(SpindleRig().loop_matrices(rpm)[0]).astype(complex)) / 1e-4
         osc = s[np.abs(s.imag) > 2 * np.pi * 5]
         zeta = -osc.real / np.abs(osc)
         assert zeta.min() > 0.2, (rpm, zeta.min())

@@ -210,23 +210,3 @@ def stable_region(loop: PdLoop) -> StableRegion:
     ka_lo = loop.ky * (loop.tau + loop.tau_c) / g
     ka_hi = (loop.tau + loop.tau_c) * loop.m / (loop.tau * loop.tau_c * g)
     return StableRegion(ka_lo - kp_min * loop.tau, ka_hi - kp_min * loop.tau, kp_min)
-
-
-def load_limits(*, area: float, b_max: float, beta: float, diameter: float, spacing: float) -> tuple[float, float]:
-    """Fmax = A Bmax^2 / mu0 (N) and Mmax = Fmax (D sin beta - l cos beta) (N m) (Jeong et al. eq. 24-25).
-
-    Parameters
-    ----------
-    area : float
-        Pole face area, in m^2.
-    b_max : float
-        Saturation flux density of the core, in T.
-    beta : float
-        Cone angle, in rad.
-    diameter : float
-        Mean rotor core diameter D = 2 R_m, in m.
-    spacing : float
-        Distance l between the two bearings, in m.
-    """
-    fmax = area * b_max**2 / MU0
-    return fmax, fmax * (diameter * np.sin(beta) - spacing * np.cos(beta))

@@ -624,15 +624,6 @@ class SpindleRig(Rig, ExcitationInput):
 
     # --- linear analysis of the simulated loop --------------------------------------------------
 
-    def closed_loop_matrix(self, rpm: float) -> np.ndarray:
-        """One-step transition matrix of the simulated closed loop, linearised at ``rpm`` (rpm).
-
-        Obtained by stepping the simulation kernel itself from unit perturbations of its state
-        with noise, runout, unbalance, gravity and quantisation off, so it is the Jacobian of the
-        code that runs, not of a separate model.  The loop is stable iff its spectral radius < 1.
-        """
-        return self.loop_matrices(rpm)[0]
-
     def loop_matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The simulated loop linearised at ``rpm`` (rpm), at the present PID gains, with the
         feedforward as its input:
