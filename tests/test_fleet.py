@@ -200,6 +200,12 @@ def test_trend_lists_the_machines_that_moved_and_plots_one(scanned, tmp_path):
     assert moved and all(abs(m["last_um"] - m["first_um"]) > 3 for m in out["moved"])
     text = run("fleet", "trend", str(ds), "--threshold", "3").stdout
     assert "moved more than 3 um" in text and all(m in text for m in moved)
+    # the samples each machine's recordings lost, headed "lost" (not "drops": those are rotor drops)
+    assert text.splitlines()[0].split()[4] == "lost"
+    lost = read(ds).groupby("machine")["drops"].sum()
+    for machine, count in lost.items():
+        (line,) = [x for x in text.splitlines() if x.startswith(f"{machine} ")]
+        assert int(line[58:64]) == count, line  # the columns' widths: 10, 10, 17, 17, then 6
     run("fleet", "trend", str(ds), "--machine", "AMB-01", "--plot", str(tmp_path / "amb01.png"))
     assert (tmp_path / "amb01.png").stat().st_size > 10_000
     # what the figure shows: dates with their year, no tick label on another, legends off the panels

@@ -150,7 +150,8 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
                             "last": t.last, "inspect": t.inspect} for t in drops]}, indent=2))
         return
     good = df[df["error"].isna()]
-    click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'drops':>6s} {'zone now':>8s} "
+    # "lost": the samples the recordings lost (the dataset's drops column), not the rotor drops below
+    click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'lost':>6s} {'zone now':>8s} "
                f"{'largest 1X now':>22s} {'errors':>6s}")
     for m, rows in df.groupby("machine"):
         ok = good[good["machine"] == m].sort_values("start")
