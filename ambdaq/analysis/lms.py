@@ -22,7 +22,6 @@ from collections.abc import Mapping
 from typing import Callable
 
 import numpy as np
-from scipy.signal import cont2discrete, tf2ss
 
 from ..units import RPM_TO_RAD_S
 from .amb import pid_z
@@ -56,6 +55,9 @@ class OneAxis:
         wn = 2 * np.pi * self.amp_wn_hz
         num = np.array([self.amp_gain * wn**2 * self.ki * self.ks])
         den = np.polymul([1, 2 * self.amp_zeta * wn, wn**2], [self.m, 0, -self.kx])
+        from scipy.signal import cont2discrete  # here: scipy.signal takes 0.65 s to import, and
+        # every served rig (which imports this module) would pay it at start-up for nothing
+
         nz, dz, _ = cont2discrete((num, den), self.h, method="zoh")
         return np.trim_zeros(np.atleast_1d(np.squeeze(nz)), "f"), dz
 
@@ -86,6 +88,8 @@ class PlantLoop(OneAxis):
     den: tuple[float, ...] = (1.0,)
 
     def plant_z(self) -> tuple[np.ndarray, np.ndarray]:
+        from scipy.signal import cont2discrete  # imported when used (OneAxis.plant_z)
+
         nz, dz, _ = cont2discrete((np.array(self.num, float), np.array(self.den, float)), self.h, method="zoh")
         return np.trim_zeros(np.atleast_1d(np.squeeze(nz)), "f"), dz
 
@@ -248,6 +252,8 @@ def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
         n_axes = loop.at(float(rpm[0]))[1].shape[1]
         return np.array([_radius_state_space(loop, float(n), mu, harmonic, g_at(n, n_axes)) for n in rpm])
     # e = S (r - r_c): the sensitivity in state space, its input u = -r_c
+    from scipy.signal import tf2ss  # imported when used (OneAxis.plant_z)
+
     A, B, C, D = tf2ss(*loop.sensitivity_z())
     return np.array([_radius(A, B, C, D, mu, harmonic * n * RPM_TO_RAD_S * loop.h, g_at(n, 1)) for n in rpm])
 
