@@ -287,7 +287,7 @@ def from_response(predicted: list[PredictedCritical], rpm: np.ndarray, response:
     peaks = [k for v in response.values() for k in one_x_peaks(rpm, v)]
     out = []
     for p in predicted:
-        near = [k.amplification for k in peaks if p.order == 1 and abs(k.rpm - p.rpm) <= tolerance * p.rpm]
+        near = [k.amplification for k in peaks if abs(k.rpm - p.rpm) <= tolerance * p.rpm] if p.order == 1 else []
         out.append(replace(p, amplification=max(near), amplification_from="response") if near else p)
     return out
 

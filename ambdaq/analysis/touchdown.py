@@ -25,11 +25,13 @@ What is measured, per drop:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from .orders import WHIRL_RATIO
+from .spectrum import full_spectrum
 
 AT_CLEARANCE = 0.9  # an excursion this close to Cmin is on the touchdown bearing (the touchdown trigger's)
 LEVITATED = 0.5  # within this share of Cmin the rotor is levitated again ...
@@ -82,8 +84,8 @@ def excursions(gap: np.ndarray, pairs, single) -> np.ndarray:
     return np.column_stack([np.hypot(gap[:, i], gap[:, j]) for i, j in pairs] + [np.abs(gap[:, i]) for i in single])
 
 
-def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: list[tuple[int, int]],
-                 single: list[int], names: list[str], speed_rad_s: np.ndarray | None = None,
+def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: Sequence[tuple[int, int]],
+                 single: Sequence[int], names: Sequence[str], speed_rad_s: np.ndarray | None = None,
                  amplifier: np.ndarray | None = None, limit: float | None = None,
                  mass_kg: float | None = None) -> Touchdown | None:
     """The first drop in a record, or None if the rotor never reached its touchdown bearing.
@@ -96,11 +98,11 @@ def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: l
         The gap at the sensors, m.
     cmin_m : float
         Minimum clearance, m.
-    pairs : list of (int, int)
+    pairs : sequence of (int, int)
         The columns of each radial bearing's x and y.
-    single : list of int
+    single : sequence of int
         The columns of the other (axial) axes.
-    names : list of str
+    names : sequence of str
         The name of each place: the bearings, then the axial axes.
     speed_rad_s : ndarray, shape (n,), optional
         Rotor speed at the same instants, rad/s.
@@ -137,11 +139,8 @@ def characterise(time_s: np.ndarray, gap: np.ndarray, cmin_m: float, *, pairs: l
     whirl = "none"
     if pairs and last > first + 4:
         i, j = pairs[int(np.argmax(ratio[span, :len(pairs)].max(axis=0)))]
-        z = gap[span, i] + 1j * gap[span, j]
-        spectrum = np.fft.fft((z - z.mean()) * np.hanning(z.shape[0]))
-        freq = np.fft.fftfreq(z.shape[0], dt)
-        power = np.abs(spectrum) ** 2
-        forward, backward = float(power[freq > 0].sum()), float(power[freq < 0].sum())
+        freq, amplitude = full_spectrum(gap[span, i], gap[span, j], fs=1.0 / dt)
+        forward, backward = float(np.sum(amplitude[freq > 0] ** 2)), float(np.sum(amplitude[freq < 0] ** 2))
         whirl = "forward" if forward > WHIRL_RATIO * backward else "backward" if backward > WHIRL_RATIO * forward \
             else "mixed"
     began_before = first == 0

@@ -43,7 +43,6 @@ class DropRecords:
         found = next(((d, g) for d in devices if (g := GapLayout.of(d, machine)) is not None), (None, None))
         device, self.layout = found
         self.device = None if device is None else device.name
-        self.names = [b.name for b in machine.bearings] + [a for a in machine.axes if a not in machine.bearing_axes]
         rotor = machine.role("rotor")
         column = None if device is None or rotor is None or "speed" not in rotor.fields else \
             device.field(rotor.topic, rotor.fields["speed"])
@@ -78,7 +77,7 @@ class DropRecords:
         speed = None if self.speed is None else np.concatenate([p[2] for p in held.parts])
         amp = None if self.amplifier is None else np.concatenate([p[3] for p in held.parts])
         found = characterise((t_ns - held.first_ns) * 1e-9, gap, self.cmin_m, pairs=self.layout.pairs,
-                             single=self.layout.single, names=self.names, speed_rad_s=speed, amplifier=amp,
+                             single=self.layout.single, names=self.layout.names, speed_rad_s=speed, amplifier=amp,
                              limit=None if self.amplifier is None else self.amplifier[2], mass_kg=self.mass_kg)
         if found is None:
             return None

@@ -160,11 +160,13 @@ def _cmin(machine: Machine, cmin_m: float | None, what: str) -> float:
 @dataclass(frozen=True)
 class GapLayout:
     """Where the machine's gap is in one device's samples: its topic, each radial bearing's (x, y)
-    columns and every other axis's column, worked out once when armed, not for every block."""
+    columns and every other axis's column, worked out once when armed, not for every block; and
+    the name of each of those places (the bearings, then the other axes)."""
 
     topic: str
     pairs: tuple[tuple[int, int], ...]
     single: tuple[int, ...]
+    names: tuple[str, ...]
 
     @classmethod
     def of(cls, device: Device, machine: Machine) -> "GapLayout | None":
@@ -173,8 +175,9 @@ class GapLayout:
         if not names:
             return None
         col = {axis: names.index(f) for axis, f in role.fields.items()}
-        return cls(role.topic, tuple((col[b.x], col[b.y]) for b in machine.bearings),
-                   tuple(col[a] for a in machine.axes if a not in machine.bearing_axes))
+        others = [a for a in machine.axes if a not in machine.bearing_axes]
+        return cls(role.topic, tuple((col[b.x], col[b.y]) for b in machine.bearings), tuple(col[a] for a in others),
+                   tuple(b.name for b in machine.bearings) + tuple(others))
 
     def radii(self, gap: np.ndarray) -> np.ndarray:
         """Per sample, the largest of each radial bearing's orbit radius and each other axis's |gap|, in m."""

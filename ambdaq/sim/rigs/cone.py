@@ -382,14 +382,14 @@ class ConeRig(Rig):
         noise = self._rng.standard_normal((n, 6))
         if not self.noise:
             noise[:] = 0.0
-        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h]))
         outs = [np.empty((n, 5)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 5)), np.empty((n, 5))]
         enabled = self.drop.enabled(steps * self.h) if self.drop else np.ones(n)
         theta, spin = self.speed.angle_speed(steps * self.h)
         unb = np.zeros((n, 5))
         if self.unbalance is not None:
             unb[:, 1:] = self.unbalance.forces(theta + spin * self.h / 2, spin)  # at mid-sample
-        _simulate(self.state, hammer, unb, enabled, noise[:, :5] * self.params.gap_noise, float(omega[0]),
+        # the gyroscopic term at the block's first spin
+        _simulate(self.state, hammer, unb, enabled, noise[:, :5] * self.params.gap_noise, float(spin[0]),
                   self._constants(), self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)
         self.step_index += n
         force = hammer[:, :1] + noise[:, 5:6] * self.params.hammer_noise

@@ -577,12 +577,12 @@ class SpindleRig(Rig, ExcitationInput):
 
     # --- stepping --------------------------------------------------------------------------
 
-    def _rotor(self, omega_q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The rotor's ZOH matrices and its continuous ones at the bucketed speed ``omega_q`` (rad/s),
+    def _rotor(self, omega: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The rotor's ZOH matrices and its continuous ones at the speed bucket of ``omega`` (rad/s),
         cached per rig."""
-        key = round(omega_q / SPEED_BUCKET_RAD_S)
+        key = round(omega / SPEED_BUCKET_RAD_S)
         if key not in self._rotor_cache:
-            A, B = rotor_matrices(self.params, omega_q)
+            A, B = rotor_matrices(self.params, key * SPEED_BUCKET_RAD_S)
             self._rotor_cache[key] = (*zoh(A, B, self.h), A, B)
         return self._rotor_cache[key]
 
@@ -607,7 +607,7 @@ class SpindleRig(Rig, ExcitationInput):
         for lo, hi in zip(edges[:-1], edges[1:]):
             if hi <= lo:
                 continue
-            Phi, Gam, Ac, Bc = self._rotor(float(bucket[lo] * SPEED_BUCKET_RAD_S))
+            Phi, Gam, Ac, Bc = self._rotor(float(omega[lo]))
             sl = slice(lo, hi)
             _simulate(
                 theta[sl], omega[sl], enabled[sl], noise[sl], self._noise_sd,
@@ -651,8 +651,7 @@ class SpindleRig(Rig, ExcitationInput):
             dF = np.linalg.lstsq(Gam0, np.hstack([M0[:10] - rotor0, B0[:10]]), rcond=None)[0]
             self._linear = (M0, B0, C, dF)
         M0, B0, C, dF = self._linear
-        omega = rpm * RPM_TO_RAD_S
-        Phi, Gam, _, _ = self._rotor(float(np.round(omega / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S))
+        Phi, Gam, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
         M, B = M0.copy(), B0.copy()
         M[:10] = np.hstack([Phi, np.zeros((10, 25))]) + Gam @ dF[:, :35]
         B[:10] = Gam @ dF[:, 35:]
@@ -673,8 +672,7 @@ class SpindleRig(Rig, ExcitationInput):
             In ``AXES`` order.
         """
         M, B, _C = self.loop_matrices(rpm)
-        omega = float(np.round(rpm * RPM_TO_RAD_S / SPEED_BUCKET_RAD_S) * SPEED_BUCKET_RAD_S)
-        _Phi, Gam, _, _ = self._rotor(omega)
+        _Phi, Gam, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
         step = np.exp(1j * rpm * RPM_TO_RAD_S * self.h)  # the angle advances this much per step
         force = self._unb * (rpm * RPM_TO_RAD_S) ** 2 * np.exp(1j * self._unb_ph) * np.sqrt(step)
         runout = self._run_c[:, 0] - 1j * self._run_s[:, 0]  # A sin + B cos = Re((B - jA) exp(j theta))
