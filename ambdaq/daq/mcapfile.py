@@ -190,7 +190,7 @@ class BlockWriter:
         self._counts: dict[int, int] = defaultdict(int)
         self._start = 2**64 - 1
         self._end = 0
-        self._chunk = _OpenChunk()
+        self._chunks: dict[tuple[int, ...], _OpenChunk] = {}  # open chunks, one per row of channels
         self._finished = False
         self._out.write(MAGIC)
         self._write_record(Header(profile=profile, library=LIBRARY))
@@ -254,6 +254,10 @@ class BlockWriter:
     def add_messages(self, records: np.ndarray, layout: list[tuple[int, int, int]], log_time: np.ndarray) -> None:
         """Append a block of Message records, interleaved by sample instant.
 
+        Rows of one layout go into a chunk of their own (a device's chunks hold its rows and
+        nothing else), so that a reader sees one constant stride through all of a device's chunks
+        and can hand out its fields as views of the inflated records (docs/data-format.md).
+
         Parameters
         ----------
         records : ndarray of uint8, shape (n, row_size)
@@ -265,18 +269,22 @@ class BlockWriter:
             Log time of each row, in ns (non-decreasing).
         """
         n, row = records.shape
+        key = tuple(cid for cid, _offset, _size in layout)
+        chunk = self._chunks.setdefault(key, _OpenChunk())
         # a block larger than a chunk's room is split at an instant: chunks stay near chunk_size
-        while n > 0 and self._chunk.size + n * row > self._chunk_size:
-            take = max(1, -(-(self._chunk_size - self._chunk.size) // row))
-            self._add_rows(records[:take], layout, log_time[:take])
+        while n > 0 and chunk.size + n * row > self._chunk_size:
+            take = max(1, -(-(self._chunk_size - chunk.size) // row))
+            self._add_rows(key, records[:take], layout, log_time[:take])
             records, log_time, n = records[take:], log_time[take:], n - take
+            chunk = self._chunks.setdefault(key, _OpenChunk())
         if n:
-            self._add_rows(records, layout, log_time)
+            self._add_rows(key, records, layout, log_time)
 
-    def _add_rows(self, records: np.ndarray, layout: list[tuple[int, int, int]], log_time: np.ndarray) -> None:
-        """Append rows to the open chunk; close it once it reaches chunk_size."""
+    def _add_rows(self, key: tuple[int, ...], records: np.ndarray, layout: list[tuple[int, int, int]],
+                  log_time: np.ndarray) -> None:
+        """Append rows to the open chunk of their layout; close it once it reaches chunk_size."""
         n, row = records.shape
-        chunk = self._chunk
+        chunk = self._chunks[key]
         base = chunk.size
         rows = base + np.arange(n, dtype=np.uint64) * np.uint64(row)
         for cid, offset, _size in layout:
@@ -290,7 +298,7 @@ class BlockWriter:
         chunk.start = min(chunk.start, int(log_time[0]))
         chunk.end = max(chunk.end, int(log_time[-1]))
         if chunk.size >= self._chunk_size:
-            self.close_chunk()
+            self._close(key)
 
     def add_message(self, channel_id: int, sequence: int, log_time: int, payload: bytes) -> None:
         """Append one Message record (the path for rare messages such as events)."""
@@ -299,16 +307,18 @@ class BlockWriter:
         row = np.frombuffer(record, dtype=np.uint8).reshape(1, -1)
         self.add_messages(row, [(channel_id, 0, len(record))], np.array([log_time], dtype=np.uint64))
 
-    def close_chunk(self) -> None:
-        """Compress and write the open chunk and its message indexes, then flush to the OS (with
-        no open chunk, what is written so far: the header and the records before any message)."""
-        chunk = self._chunk
-        if chunk.size == 0:
-            self._out.flush()
-            return
-        data = b"".join(chunk.parts)
-        self._write_chunk(data, chunk.start, chunk.end, {cid: np.concatenate(p) for cid, p in chunk.index.items()})
-        self._chunk = _OpenChunk()
+    def close_chunks(self) -> None:
+        """Compress and write every open chunk and its message indexes, earliest first, then flush
+        to the OS (with no open chunk, what is written so far: the header and the records before
+        any message)."""
+        for key in sorted(self._chunks, key=lambda k: self._chunks[k].start):
+            self._close(key)
+        self._out.flush()
+
+    def _close(self, key: tuple[int, ...]) -> None:
+        chunk = self._chunks.pop(key)
+        self._write_chunk(b"".join(chunk.parts), chunk.start, chunk.end,
+                          {cid: np.concatenate(p) for cid, p in chunk.index.items()})
 
     def _write_chunk(self, data: bytes, start: int, end: int, index: dict[int, np.ndarray]) -> None:
         method = self._compression
@@ -370,7 +380,7 @@ class BlockWriter:
         if self._finished:
             return
         self._finished = True
-        self.close_chunk()
+        self.close_chunks()
         self._write_record(DataEnd(data_section_crc=0))
         summary_start = self._out.tell()
         builder = RecordBuilder()

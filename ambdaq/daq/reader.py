@@ -20,11 +20,11 @@ import numpy as np
 
 from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
+from . import memory
 from .mcapfile import McapFile, message_view
 from .schema import TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
-HUGE_PAGE = 2 << 20  # x86-64 and arm64 Linux transparent huge pages, bytes
 
 
 class NotInRecording(BadInputError, KeyError):
@@ -178,13 +178,11 @@ def ambdaq_channels(f: McapFile) -> dict[str, tuple[int, SignalGroup]]:
 def _topic_arrays(n: int, fields: int, typed: bool) -> dict[str, np.ndarray]:
     """One topic's output arrays for ``n`` samples: the header columns and one (fields, samples)
     array whose rows are the fields (float64; raw 8-byte words where the topic has integer
-    fields, each row viewed as its field's type once the rows are in place), all carved from one allocation that starts on a huge page.
-    numpy asks the kernel for huge pages on allocations of 4 MiB and more, so the first write
-    faults 2 MiB in at a time rather than 4 KiB; separate 2.4 MB header arrays were under that
-    threshold (with no huge pages at all, bench_read.py's load took 1.4x as long)."""
+    fields, each row viewed as its field's type once the rows are in place), all carved from one
+    block of :mod:`.memory` (separate 2.4 MB header arrays were under numpy's huge-page
+    threshold)."""
     size = 8 * n * (2 + fields) + 4 * n * 2
-    block = np.empty(size + HUGE_PAGE, dtype=np.uint8)  # starts on a huge page, so all of it can be one
-    block = block[-block.ctypes.data % HUGE_PAGE :][:size]
+    block = memory.take(size)
     parts, at = {}, 0
     for name, dtype, shape in (("log_time", np.int64, (n,)), ("device_time", np.int64, (n,)),
                                ("values", np.uint64 if typed else np.float64, (fields, n)), ("seq", np.uint32, (n,)), ("status", np.uint32, (n,))):
@@ -194,9 +192,48 @@ def _topic_arrays(n: int, fields: int, typed: bool) -> dict[str, np.ndarray]:
     return parts
 
 
+Row = tuple[tuple[tuple[int, int], ...], int]
+"""A chunk of rows: each channel's record offset in the row, in row order, and the row's size (bytes)."""
+
+
+def _row_layout(size: int, here: dict[int, np.ndarray], message_sizes: dict[int, int]) -> Row | None:
+    """What the message indexes ``here`` (every channel of a chunk of ``size`` uncompressed bytes)
+    say of its records, where they are rows: every channel a fixed-layout one with as many messages
+    as the others, each channel's first record where the one before it in the row ends, and the
+    chunk exactly that many rows long (how the writer leaves a device's chunks,
+    :meth:`~.mcapfile.BlockWriter.add_messages`).  ``None`` for any other chunk.  The stride is
+    proven against the records as each chunk is read (:func:`~.mcapfile.message_view`)."""
+    counts = {idx.shape[0] for idx in here.values()}
+    if not here or len(counts) != 1 or 0 in counts or any(cid not in message_sizes for cid in here):
+        return None
+    firsts = {cid: int(idx["offset"][0]) for cid, idx in here.items()}
+    places, at = [], 0
+    for cid in sorted(here, key=firsts.__getitem__):
+        if firsts[cid] != at:
+            return None
+        places.append((cid, at))
+        at += message_sizes[cid]
+    return (tuple(places), at) if size == counts.pop() * at else None
+
+
+def _fields(view: np.ndarray, group: SignalGroup) -> dict[str, np.ndarray]:
+    """One array per field of the records ``view`` (strided views, no copy)."""
+    values = view["values"]
+    if values.dtype.names:
+        return {name: values[name].view(FIELD_TYPES[t]) for name, t in zip(group.fields, group.field_types)}
+    return {name: values[:, i] for i, name in enumerate(group.fields)}
+
+
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
                metadata: dict[str, dict[str, str]], threads: int = READ_THREADS) -> dict[str, TopicData]:
     """Read fixed-layout topics of ``f`` in one pass over its chunks.
+
+    A device whose chunks are all rows of the same records (what ambdaq writes: one chunk, one
+    device, one row per sample instant) has its chunks inflated one after the other into one
+    buffer, and its fields come back as strided views of it: nothing is copied after zstd, so
+    ``load`` takes little more than the inflation itself.  Other chunks (another writer's, ambdaq's
+    before 0.9, a recovered file's) are inflated into a reused buffer and each field copied out.
+    Either way every record is checked against its message index (:func:`~.mcapfile.message_view`).
 
     Parameters
     ----------
@@ -217,46 +254,74 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     chunks = sorted(f.summary.chunk_indexes, key=lambda ci: ci.message_start_time)
     chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
     by_id = {cid: (topic, TopicLayout(group)) for topic, (cid, group) in wanted.items()}
-    # sizes from the message index headers, so each field is copied once, into place
-    counts = {cid: 0 for cid in by_id}
-    plan = []
-    for ci in chunks:
-        here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets if cid in by_id}
-        if here:
-            plan.append((ci, here))
-            for cid, idx in here.items():
-                counts[cid] += idx.shape[0]
-    out = {cid: _topic_arrays(counts[cid], len(layout.group.fields), bool(layout.group.types))
-           for cid, (_topic, layout) in by_id.items()}
-    jobs, pos = [], {cid: 0 for cid in by_id}
-    for ci, here in plan:  # where each chunk's messages go in the output, known before any is read
-        jobs.append((ci, {cid: (idx, pos[cid]) for cid, idx in here.items()}))
-        for cid, idx in here.items():
-            pos[cid] += idx.shape[0]
-
     dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
-    largest = max((ci.uncompressed_size for ci, _ in jobs), default=0)
+    message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in ambdaq_channels(f).values()}
+    plan = []  # each chunk that holds a wanted channel: its index, every channel's message index, its rows
+    for ci in chunks:
+        if any(cid in by_id for cid in ci.message_index_offsets):
+            here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
+            plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes)))
+
+    # a wanted channel is read in place where every chunk that holds it is rows of one layout, and
+    # the wanted records fill half of each row or more (else copying them out keeps less memory)
+    layouts: dict[int, set] = {cid: set() for cid in by_id}
+    for _ci, here, rows in plan:
+        for cid in here.keys() & by_id.keys():
+            layouts[cid].add(rows)
+    in_place: dict[Row, list[int]] = {}
+    for cid, seen in layouts.items():
+        if len(seen) == 1 and None not in seen:
+            in_place.setdefault(next(iter(seen)), []).append(cid)
+    in_place = {rows: cids for rows, cids in in_place.items() if 2 * sum(message_sizes[c] for c in cids) >= rows[1]}
+    placed = {cid for cids in in_place.values() for cid in cids}
+
+    # where each chunk's records or messages go, known before any is read
+    buffers = {rows: memory.take(sum(ci.uncompressed_size for ci, _h, r in plan if r == rows)) for rows in in_place}
+    filled = {rows: 0 for rows in in_place}
+    counts = {cid: 0 for cid in by_id}
+    jobs = []
+    for ci, here, rows in plan:
+        mine = {cid: (idx, counts[cid]) for cid, idx in here.items() if cid in by_id}
+        for cid, (idx, _p) in mine.items():
+            counts[cid] += idx.shape[0]
+        if rows in in_place:
+            jobs.append((ci, mine, rows, filled[rows]))
+            filled[rows] += ci.uncompressed_size
+        else:
+            jobs.append((ci, mine, None, 0))
+    out = {cid: _topic_arrays(counts[cid], len(layout.group.fields), bool(layout.group.types))
+           for cid, (_topic, layout) in by_id.items() if cid not in placed}
+    largest = max((ci.uncompressed_size for ci, _m, rows, _a in jobs if rows is None), default=0)
     local = threading.local()
     unordered: set[int] = set()  # channels with a message logged before the one in front of it
 
     def read_chunk(job) -> None:
-        """Decompress one chunk (into this thread's buffer) and copy its fields into place: both
-        release the GIL, so chunks are read on every core at once."""
-        ci, places = job
-        if not hasattr(local, "buffer"):
-            local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
-        records = f.chunk_records(ci, local.buffer)
+        """Decompress one chunk (into its place in its device's buffer, or into this thread's
+        buffer, and then copy its fields into place): both release the GIL, so chunks are read on
+        every core at once."""
+        ci, places, rows, at = job
+        if rows is not None:
+            records = f.chunk_records(ci, buffers[rows][at : at + ci.uncompressed_size])
+        else:
+            if not hasattr(local, "buffer"):
+                local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
+            records = f.chunk_records(ci, local.buffer)
         for cid, (idx, p) in places.items():
             try:
                 view = message_view(records, idx, dtypes[cid], cid)
+                if rows is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
+                    raise BadInputError("message index does not step from row to row")
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
+            times = view["log_time"]  # the record's, which the index repeats
+            if view.shape[0] > 1 and np.any(times[1:] < times[:-1]):
+                unordered.add(cid)
+            if rows is not None:
+                continue  # read where it lies
             n = view.shape[0]
             cols = out[cid]
-            cols["log_time"][p : p + n] = times = view["log_time"]  # the record's, which the index repeats
-            if n > 1 and np.any(times[1:] < times[:-1]):
-                unordered.add(cid)
+            cols["log_time"][p : p + n] = times
             for name in HEADER_FIELDS:
                 cols[name][p : p + n] = view[name]
             values = view["values"]
@@ -269,34 +334,47 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
             pass
-    for cid in by_id:  # where one chunk's messages meet the next's
-        starts = np.array([places[cid][1] for _, places in jobs if cid in places and places[cid][1] > 0], dtype=np.int64)
-        if starts.size and np.any(out[cid]["log_time"][starts] < out[cid]["log_time"][starts - 1]):
-            unordered.add(cid)
+
+    columns: dict[int, dict[str, np.ndarray]] = {}  # per channel: the header columns and field:<name>
+    for rows, cids in in_place.items():
+        places, stride = rows
+        n = buffers[rows].shape[0] // stride
+        for cid, at in places:
+            if cid not in cids:
+                continue
+            view = np.ndarray(shape=(n,), dtype=dtypes[cid], buffer=buffers[rows], offset=at, strides=(stride,))
+            columns[cid] = {"log_time": view["log_time"].view(np.int64), **{h: view[h] for h in HEADER_FIELDS}}
+            columns[cid].update({"field:" + k: v for k, v in _fields(view, by_id[cid][1].group).items()})
+    for cid, cols in out.items():
+        g = by_id[cid][1].group
+        columns[cid] = {"log_time": cols["log_time"], **{h: cols[h] for h in HEADER_FIELDS}}
+        columns[cid].update({"field:" + name: cols["values"][i].view(FIELD_TYPES[t])
+                             for i, (name, t) in enumerate(zip(g.fields, g.field_types))})
+    for _ci, places, _rows, _at in jobs:  # where one chunk's messages meet the next's
+        for cid, (_idx, p) in places.items():
+            if p > 0 and columns[cid]["log_time"][p] < columns[cid]["log_time"][p - 1]:
+                unordered.add(cid)
     result = {}
     for cid, (topic, layout) in by_id.items():
-        cols = out[cid]
-        lt = cols["log_time"]
+        cols = columns[cid]
         if cid in unordered:
-            order = np.argsort(lt, kind="stable")
-            cols = {k: v[..., order] for k, v in cols.items()}
-            lt = cols["log_time"]
+            order = np.argsort(cols["log_time"], kind="stable")
+            cols = {k: v[order] for k, v in cols.items()}
         if lo is not None or hi is not None:
+            lt = cols["log_time"]
             a = 0 if lo is None else int(np.searchsorted(lt, lo, "left"))
             b = lt.shape[0] if hi is None else int(np.searchsorted(lt, hi, "right"))
-            cols = {k: v[..., a:b] for k, v in cols.items()}
-            lt = cols["log_time"]
+            cols = {k: v[a:b] for k, v in cols.items()}
         g = layout.group
         result[topic] = TopicData(
             topic=topic,
             nominal_rate=0.0,
-            log_time=lt,
+            log_time=cols["log_time"],
             start_ns=t0,
             device_time=cols["device_time"],
             seq=cols["seq"],
             status=cols["status"],
-            fields={name: cols["values"][i].view(FIELD_TYPES[t])
-                    for i, (name, t) in enumerate(zip(g.fields, g.field_types))},
+            fields={name: cols["field:" + name] for name in g.fields},
             units=dict(zip(g.fields, g.units)),
             names=_device_names(metadata, topic, g.fields),
         )

@@ -159,10 +159,10 @@ class RecordingWriter:
         self._w.add_message(self._event_channels[topic], n, log_time, payload)
 
     def flush(self) -> None:
-        """Close the open chunk and hand it to the OS (a killed process loses nothing written so
+        """Close the open chunks and hand them to the OS (a killed process loses nothing written so
         far), then have it forced to the disk on the sync thread (a power cut loses nothing
         written before that sync ends)."""
-        self._w.close_chunk()
+        self._w.close_chunks()
         if self._fsync:
             self._sync_wanted.set()
 
@@ -197,7 +197,7 @@ class RecordingWriter:
         if self._file.closed:
             return
         try:
-            self._w.close_chunk()
+            self._w.close_chunks()
             self._w.add_metadata("ambdaq.statistics", {t: st.as_json() for t, st in self.statistics().items()})
             self._w.finish()
             self._file.flush()
