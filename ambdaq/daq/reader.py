@@ -234,6 +234,10 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     ``load`` takes little more than the inflation itself.  Other chunks (another writer's, ambdaq's
     before 0.9, a recovered file's) are inflated into a reused buffer and each field copied out.
     Either way every record is checked against its message index (:func:`~.mcapfile.message_view`).
+    Read in place, a device's order is judged from its message indexes' log times (a contiguous
+    pass, half the time of one over the records' at their stride): message_view has checked them
+    against the records at both ends, and a damaged entry can only make ordered records look
+    unordered, which costs a sort by the records' own times, never a wrong sample.
 
     Parameters
     ----------
@@ -314,14 +318,15 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
-            times = view["log_time"]  # the record's, which the index repeats
-            if view.shape[0] > 1 and np.any(times[1:] < times[:-1]):
-                unordered.add(cid)
-            if rows is not None:
-                continue  # read where it lies
+            if rows is not None:  # read where it lies; in order where its index is (below)
+                if idx.shape[0] > 1 and np.any(idx["log_time"][1:] < idx["log_time"][:-1]):
+                    unordered.add(cid)
+                continue
             n = view.shape[0]
             cols = out[cid]
-            cols["log_time"][p : p + n] = times
+            cols["log_time"][p : p + n] = times = view["log_time"]  # the record's, which the index repeats
+            if n > 1 and np.any(times[1:] < times[:-1]):
+                unordered.add(cid)
             for name in HEADER_FIELDS:
                 cols[name][p : p + n] = view[name]
             values = view["values"]
