@@ -106,12 +106,12 @@ def parquet_read(path: Path) -> dict[str, np.ndarray]:
     return {name: col.to_numpy() for name, col in zip(table.column_names, table.columns)}
 
 
-def rewrite(rec, path: Path, compression: str, chunk_size: int) -> float:
+def rewrite(rec, path: Path, compression: str, chunk_size: int, index: bool = True) -> float:
     """Write ``rec``'s samples again, as one device's, through the recorder's writer; returns the
     seconds it took (encoding, compression, the file; no simulation)."""
     path.unlink(missing_ok=True)
     t = time.perf_counter()
-    w = RecordingWriter(path, compression=compression, chunk_size=chunk_size, fsync=False)
+    w = RecordingWriter(path, compression=compression, chunk_size=chunk_size, fsync=False, index=index)
     d0 = next(iter(rec.values()))
     w.add_device("rig", [SignalGroup(d.topic, d.topic.strip("/").replace("/", "_"), tuple(d.fields),
                                      tuple(d.units.values())) for d in rec.values()], {}, {})
@@ -152,18 +152,25 @@ def main() -> None:
                   f"{parquet.stat().st_size / 1e6:.1f} MB file, baseline"))
         print(f"ratio load / Parquet read time: best/best {t_load / t_pq:.2f}, per round "
               f"{ratios[0]:.2f}-{ratios[-1]:.2f}, median {ratios[len(ratios) // 2]:.2f} (target <= 1)")
+        # the same samples without indexes (--no-index): the file against Parquet's
+        bare = tmp / "run_no_index.mcap"
+        rewrite(rec, bare, "zstd", 4 << 20, index=False)
+        print(f"file sizes: indexed {path.stat().st_size / 1e6:.1f} MB ({path.stat().st_size / parquet.stat().st_size:.2f}x"
+              f" Parquet), --no-index {bare.stat().st_size / 1e6:.1f} MB ({bare.stat().st_size / parquet.stat().st_size:.2f}x"
+              f" Parquet), Parquet {parquet.stat().st_size / 1e6:.1f} MB (target <= 1)")
         # like against like: load on one thread against zstd on one, on two against two; rounds
         # alternate them, so a busy moment of the machine falls on both
-        pairs = {n: [(best_of(lambda: load(path, threads=n), repeat=3), inflate(path, n)) for _ in range(3)]
-                 for n in (1, 2)}
-        for n, runs in pairs.items():
-            t_ours, t_zstd = min(a for a, _ in runs), min(b for _, b in runs)
-            print(row(f"ambdaq.daq.load on {n} thread{'s' if n > 1 else ''}", t_ours * 1e3, "ms"))
-            print(row(f"zstd alone inflating the chunks on {n} thread{'s' if n > 1 else ''}", t_zstd * 1e3, "ms",
-                      "limit"))
-            ratios = sorted(a / b for a, b in runs)
-            print(f"ratio load / inflation on {n}: best/best {t_ours / t_zstd:.2f}, per round {ratios[0]:.2f}-"
-                  f"{ratios[-1]:.2f} (target <= 1.5)")
+        for name, f in (("indexed", path), ("--no-index", bare)):
+            pairs = {n: [(best_of(lambda: load(f, threads=n), repeat=3), inflate(f, n)) for _ in range(3)]
+                     for n in (1, 2)}
+            for n, runs in pairs.items():
+                t_ours, t_zstd = min(a for a, _ in runs), min(b for _, b in runs)
+                print(row(f"ambdaq.daq.load, {name}, on {n} thread{'s' if n > 1 else ''}", t_ours * 1e3, "ms"))
+                print(row(f"zstd alone inflating its chunks on {n} thread{'s' if n > 1 else ''}", t_zstd * 1e3, "ms",
+                          "limit"))
+                ratios = sorted(a / b for a, b in runs)
+                print(f"ratio load / inflation, {name}, on {n}: best/best {t_ours / t_zstd:.2f}, per round "
+                      f"{ratios[0]:.2f}-{ratios[-1]:.2f} (target <= 1.5)")
 
         # a script that reads one file: the first read in a fresh process (the file in the page
         # cache), each reader's imports done before the clock starts
@@ -185,15 +192,17 @@ def main() -> None:
         print(f"ratio load / official decoder: {ours / theirs:.0f}x")
 
         print("\nchunk compression and size (the same samples rewritten; write: encoding and file, no simulation)")
-        print(f"{'compression':<12}{'chunk':>8}{'chunks':>8}{'file MB':>10}{'write MB/s':>12}{'load ms':>10}"
+        print(f"{'compression':<20}{'chunk':>8}{'chunks':>8}{'file MB':>10}{'write MB/s':>12}{'load ms':>10}"
               f"{'load / Parquet':>16}")
-        for compression, chunk in (("zstd", 4 << 20), ("zstd", 1 << 20), ("zstd", 2 << 20), ("zstd", 8 << 20),
-                                   ("lz4", 4 << 20), ("none", 4 << 20)):
-            out = tmp / f"re_{compression}_{chunk}.mcap"
-            t_write = min(rewrite(rec, out, compression, chunk) for _ in range(2))
+        for compression, chunk, index in (("zstd", 4 << 20, True), ("zstd", 4 << 20, False), ("zstd", 1 << 20, True),
+                                          ("zstd", 2 << 20, True), ("zstd", 8 << 20, True), ("lz4", 4 << 20, True),
+                                          ("none", 4 << 20, True)):
+            out = tmp / f"re_{compression}_{chunk}_{index}.mcap"
+            t_write = min(rewrite(rec, out, compression, chunk, index) for _ in range(2))
             t, t_base = best_of(lambda: load(out), repeat=5), best_of(lambda: parquet_read(parquet), repeat=5)
-            chunks = len(McapFile(out).summary.chunk_indexes)
-            print(f"{compression:<12}{chunk >> 10:>6}Ki{chunks:>8}{out.stat().st_size / 1e6:>10.1f}{values_mb / t_write:>12.0f}"
+            chunks = len(McapFile(out).chunks)
+            label = compression + ("" if index else ", no index")
+            print(f"{label:<20}{chunk >> 10:>6}Ki{chunks:>8}{out.stat().st_size / 1e6:>10.1f}{values_mb / t_write:>12.0f}"
                   f"{t * 1e3:>10.0f}{t / t_base:>16.2f}")
 
 

@@ -245,3 +245,28 @@ def test_a_fixed_layout_topic_of_another_writer_is_read_in_blocks_with_the_offic
     assert notes.skipped == ("text (str)",) and notes["value"].tolist() == list(range(0, n, 10))
     window = load(path, topics=["/mixed"], start=0.5e-3, end=1.0e-3)["/mixed"]  # the same window either path
     assert window["count"].tolist() == [-i for i in range(500, 1001)]
+
+
+def test_a_file_of_another_writer_without_chunk_indexes_loads_every_message(tmp_path):
+    """The official writer without indexes (the MCAP specification makes them optional): its
+    chunks are found by walking the file.  ambdaq 0.1 loaded no sample of such a file and said
+    nothing."""
+    import struct
+
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    path = tmp_path / "no_indexes.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, index_types=IndexType.NONE, compression=CompressionType.ZSTD, chunk_size=512)
+        w.start("ros2", "test")
+        sid = w.register_schema("pkg/msg/Pair", "ros2msg", b"float64 x\nint32 n")
+        cid = w.register_channel("/pair", "cdr", sid)
+        for i in range(100):  # CDR: the encapsulation header, the float64, the int32
+            w.add_message(cid, log_time=1000 + i, publish_time=1000 + i, data=struct.pack("<4sdi", b"\0\1\0\0", i / 2, i))
+        w.finish()
+    with open(path, "rb") as fh:
+        assert make_reader(fh).get_summary().chunk_indexes == []
+    pair = load(path)["/pair"]
+    np.testing.assert_array_equal(pair["x"], np.arange(100) / 2)
+    np.testing.assert_array_equal(pair["n"], np.arange(100))
+    np.testing.assert_array_equal(pair.log_time, 1000 + np.arange(100))

@@ -4,6 +4,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -92,16 +93,12 @@ def test_chunks_are_cut_at_the_chunk_size_between_sample_instants(spindle_file):
         assert f.message_index(ci, gap_channel).shape[0] == ci.uncompressed_size // row
 
 
-def test_foxglove_s_own_reader_opens_every_message_and_refuses_a_file_without_message_indexes(
-        spindle_file, tmp_path_factory, tmp_path):
-    """What Foxglove opens an indexed file with (@mcap/core's McapIndexedReader, from npm): every
-    message of a recording, each topic's count as the summary says, in log-time order.  And why the
-    Message Indexes stay in ambdaq's files although they are 36 % of them (docs/performance.md):
-    the same reader refuses a file whose chunks have none (written by the official Python writer
-    without them)."""
+@pytest.fixture(scope="module")
+def foxglove(tmp_path_factory):
+    """``foxglove(path)``: what Foxglove reads of a file (tests/mcap_reader_check/read.js, @mcap/core
+    from npm): which of its readers it takes, each topic's messages and the sum of their first
+    field."""
     import subprocess
-
-    from mcap.writer import CompressionType, IndexType, Writer
 
     from conftest import npm_installed
 
@@ -112,11 +109,23 @@ def test_foxglove_s_own_reader_opens_every_message_and_refuses_a_file_without_me
         assert r.returncode == 0, r.stderr
         return json.loads(r.stdout)
 
-    got = read(spindle_file)
+    return read
+
+
+def test_foxglove_s_own_reader_opens_every_message_and_refuses_a_file_without_message_indexes(
+        spindle_file, foxglove, tmp_path):
+    """What Foxglove opens an indexed file with (@mcap/core's McapIndexedReader, from npm): every
+    message of a recording, each topic's count as the summary says, in log-time order.  And why a
+    file without indexes has none at all (docs/data-format.md): the same reader refuses a file
+    whose chunks have no message indexes but are listed in chunk indexes (written by the official
+    Python writer so)."""
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    got = foxglove(spindle_file)
     f = McapFile(spindle_file)
     counts = f.summary.statistics.channel_message_counts
-    assert got["ordered"] and got["counts"] == {ch.topic: counts[cid] for cid, ch in f.summary.channels.items()
-                                                if counts.get(cid)}
+    assert got["reader"] == "indexed" and got["ordered"]
+    assert got["counts"] == {ch.topic: counts[cid] for cid, ch in f.summary.channels.items() if counts.get(cid)}
     bare = tmp_path / "without_message_indexes.mcap"
     with open(bare, "wb") as fh:
         w = Writer(fh, index_types=IndexType.ALL & ~IndexType.MESSAGE, compression=CompressionType.ZSTD)
@@ -125,4 +134,137 @@ def test_foxglove_s_own_reader_opens_every_message_and_refuses_a_file_without_me
         for i in range(10):
             w.add_message(channel, log_time=1000 + i, publish_time=1000 + i, data=b"{}")
         w.finish()
-    assert "without message indexes" in read(bare)["error"]
+    assert "without message indexes" in foxglove(bare)["error"]
+
+
+@pytest.fixture(scope="module")
+def unindexed_file(tmp_path_factory) -> Path:
+    """``spindle_file``'s recording (the same command, the same seeds) written with --no-index."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    out = tmp_path_factory.mktemp("rec") / "spindle_no_index.mcap"
+    result = CliRunner().invoke(
+        cli, ["sim", "generate", "--duration", "2", "--rpm", "30000", "--truth", "--no-index", "-q", "-o", str(out)],
+        catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_a_file_without_indexes_holds_the_same_samples_in_less_than_parquet_s_size(spindle_file, unindexed_file,
+                                                                                   tmp_path):
+    """--no-index: no Message Index after any chunk and no Chunk Index in the summary (the official
+    reader's view of the file), every sample as the indexed file holds it, and the file smaller
+    than zstd Parquet of the same columns (what a user would otherwise keep them in)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from mcap.records import MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    with open(unindexed_file, "rb") as fh:
+        assert make_reader(fh).get_summary().chunk_indexes == []
+    with open(unindexed_file, "rb") as fh:
+        assert not any(isinstance(r, MessageIndex) for r in StreamReader(fh, skip_magic=False).records)
+    ours, indexed = load(unindexed_file), load(spindle_file)
+    columns = {}
+    for topic, data in ours.items():
+        ref = indexed[topic]
+        np.testing.assert_array_equal(data.log_time - ours.start_ns, ref.log_time - indexed.start_ns)
+        np.testing.assert_array_equal(data.device_time, ref.device_time)
+        np.testing.assert_array_equal(data.seq, ref.seq)
+        for name in data.fields:
+            np.testing.assert_array_equal(data[name], ref[name])
+            columns[f"{topic}/{name}"] = data[name]
+        columns.update({f"{topic}/log_time": data.log_time, f"{topic}/device_time": data.device_time,
+                        f"{topic}/seq": data.seq, f"{topic}/status": data.status})
+    parquet = tmp_path / "same.parquet"
+    pq.write_table(pa.table(columns), parquet, compression="zstd")
+    assert unindexed_file.stat().st_size < parquet.stat().st_size < spindle_file.stat().st_size
+
+
+def test_the_official_reader_and_foxglove_read_every_sample_of_a_file_without_indexes(unindexed_file, foxglove):
+    """The official reader (streaming the file: it has no chunk index to seek by) decodes every
+    message with the values load gives; Foxglove takes its stream reader (the file has no chunk
+    indexes) and reads every message, each topic's first field summing to what load holds."""
+    import math
+
+    rec = load(unindexed_file)
+    seen = {t: [] for t in SPINDLE_TOPICS}
+    with open(unindexed_file, "rb") as fh:
+        for _schema, channel, message, decoded in make_reader(
+                fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(log_time_order=False):
+            seen[channel.topic].append((message.log_time, decoded))
+    for topic, msgs in seen.items():
+        data = rec[topic]
+        assert len(msgs) == len(data) == 20000
+        order = np.argsort([t for t, _ in msgs], kind="stable")
+        first = next(iter(data.fields))
+        np.testing.assert_array_equal(np.array([getattr(msgs[i][1], first) for i in order]), data[first])
+        np.testing.assert_array_equal(np.array([msgs[i][0] for i in order]), data.log_time)
+    got = foxglove(unindexed_file)
+    assert got["reader"] == "stream"
+    assert got["counts"] == {t: 20000 for t in SPINDLE_TOPICS}
+    for topic in SPINDLE_TOPICS:
+        x = rec[topic][next(iter(rec[topic].fields))]
+        # Foxglove's side adds in file order; a sum of n terms differs from the exact one by at
+        # most n * eps * sum |x| (recursive summation)
+        bound = len(x) * np.finfo(float).eps * float(np.abs(x).sum())
+        assert abs(got["sums"][topic] - math.fsum(x)) <= bound
+
+
+def test_a_file_without_indexes_whose_rows_change_is_refused_in_one_line(tmp_path):
+    """A chunk without message indexes is read by the rows its first records begin: one whose
+    later rows hold the same sizes in another order (as no ambdaq file does) is refused, never
+    read with a value under another channel's name."""
+    import struct
+
+    from ambdaq.daq.mcapfile import BlockWriter
+    from ambdaq.daq.schema import CDR_LE_HEADER, TopicLayout
+    from ambdaq.drivers.signals import SignalGroup
+    from ambdaq.errors import BadInputError
+
+    path = tmp_path / "swapped.mcap"
+    with open(path, "wb") as fh:
+        w = BlockWriter(fh, profile="ambdaq", index=False)
+        ids = {}
+        for topic in ("/a", "/b"):
+            layout = TopicLayout(SignalGroup(topic, "Pair", ("x", "y"), ("m", "m")))
+            sid = w.add_schema(layout.schema_name, "ros2msg", layout.schema_text.encode())
+            ids[topic] = w.add_channel(topic, sid, "cdr", {"device": "d"})
+
+        def record(topic, i):
+            payload = struct.pack("<IqIIdd", CDR_LE_HEADER, i, i, 0, float(i), -float(i))
+            return struct.pack("<BQHIQQ", 5, 22 + len(payload), ids[topic], i, 1000 + i, 1000 + i) + payload
+
+        w.add_chunk_records(record("/a", 0) + record("/b", 0) + record("/a", 1) + record("/b", 1)
+                            + record("/b", 2) + record("/a", 2))
+        w.finish()
+    with pytest.raises(BadInputError, match="not one per row"):
+        load(path)
+
+
+def test_a_damaged_record_of_a_file_without_indexes_is_one_line_and_recover_keeps_the_rest(
+        unindexed_file, tmp_path, run_cli):
+    """With no chunk index, the chunks are found by walking the records: a record length damaged
+    so that it runs past the data section stops the walk, which is said (exit 2, naming
+    recover), never a file read as if it ended there; recover, which finds chunks by their
+    headers, not the length fields, keeps every sample."""
+    import struct
+
+    chunks = McapFile(unindexed_file).chunks
+    damaged = tmp_path / "damaged.mcap"
+    data = bytearray(unindexed_file.read_bytes())
+    struct.pack_into("<Q", data, chunks[1].chunk_start_offset + 1, len(data))
+    damaged.write_bytes(bytes(data))
+    r = run_cli("info", damaged)
+    assert r.exit_code == 2 and "runs past the data section" in r.output and "ambdaq recover" in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    fixed = tmp_path / "fixed.mcap"
+    r = run_cli("recover", damaged, "-o", fixed)
+    assert r.exit_code == 0, r.output
+    assert len(McapFile(fixed).chunks) == len(chunks)
+    ours, original = load(fixed), load(unindexed_file)
+    for topic, data in original.items():
+        for name in data.fields:
+            np.testing.assert_array_equal(ours[topic][name], data[name])

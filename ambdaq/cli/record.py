@@ -28,7 +28,8 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
     around each trigger instead of one recording; ``rig``: the rig file they came from (attached,
     its [machine] described)."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
-                            compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot)
+                            compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot,
+                            index=out.index)
     recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig.path if rig else None,
                         overwrite=out.overwrite, machine_table=rig.machine if rig else None)
     tty = sys.stderr.isatty()

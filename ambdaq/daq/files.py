@@ -32,7 +32,7 @@ class RecordingFiles:
         The rig file, attached to every file.
     requested_duration_s : float or None
         What was asked for, in s (session metadata).
-    compression, chunk_size, fsync
+    compression, chunk_size, fsync, index
         The writer's (:class:`~.writer.RecordingWriter`).
     overwrite : bool
         Replace an existing regular file (:func:`~.output.check_output`).
@@ -40,17 +40,19 @@ class RecordingFiles:
 
     def __init__(self, acquisition: Acquisition, machine: Machine, *, command: str = "", rig_file: Path | None = None,
                  requested_duration_s: float | None = None, compression: str = "zstd", chunk_size: int,
-                 fsync: bool = True, overwrite: bool = False) -> None:
+                 fsync: bool = True, overwrite: bool = False, index: bool = True) -> None:
         self.acquisition, self.machine = acquisition, machine
         self.command, self.rig_file, self.requested_duration_s = command, rig_file, requested_duration_s
         self.compression, self.chunk_size, self.fsync, self.overwrite = compression, chunk_size, fsync, overwrite
+        self.index = index
 
     def open(self, path: Path, start_ns: int, part: str) -> RecordingWriter:
         """A new file at ``path`` with the session (its part label), every device, the machine and
         the rig file, on disk at once: a crash keeps who recorded what."""
         if check_output(path, self.overwrite).exists():
             path.unlink()
-        w = RecordingWriter(path, compression=self.compression, chunk_size=self.chunk_size, fsync=self.fsync)
+        w = RecordingWriter(path, compression=self.compression, chunk_size=self.chunk_size, fsync=self.fsync,
+                            index=self.index)
         sources = self.acquisition.sources
         try:
             w.add_metadata("ambdaq.session", {

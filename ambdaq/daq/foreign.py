@@ -164,7 +164,7 @@ def load_fixed(f: McapFile, topic: str, cid: int, layout: np.dtype, lo: int | No
                      ("log_time", "<u8"), ("publish_time", "<u8"), ("cdr", "u1", (ENCAPSULATION,))])
     size = MESSAGE_HEAD + ENCAPSULATION + layout.itemsize
     parts = []
-    for ci in sorted(f.summary.chunk_indexes, key=lambda c: c.message_start_time):
+    for ci in sorted(f.chunks, key=lambda c: c.message_start_time):
         if (lo is not None and ci.message_end_time < lo) or (hi is not None and ci.message_start_time > hi):
             continue
         if cid not in ci.message_index_offsets:

@@ -50,8 +50,9 @@ def describe(path: str | Path) -> dict:
         "end_ns": end,
         "duration_s": round(duration, 6),
         "messages": st.message_count if st else 0,
-        "chunks": len(s.chunk_indexes),
-        "compression": sorted({ci.compression or "none" for ci in s.chunk_indexes}),
+        "chunks": len(f.chunks),
+        "compression": sorted({ci.compression or "none" for ci in f.chunks}),
+        "indexed": bool(s.chunk_indexes),
         "topics": topics,
         "metadata": {k: v for k, v in meta.items() if k != "ambdaq.statistics"},
         "attachments": [a.name for a in s.attachment_indexes],
@@ -63,7 +64,8 @@ def format_text(d: dict) -> str:
     lines = [
         f"file:        {d['path']} ({d['size_bytes'] / 1e6:.1f} MB)",
         f"duration:    {d['duration_s']:.3f} s",
-        f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'})",
+        f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'}"
+        f"{'' if d['indexed'] else '; no indexes: Foxglove reads it whole'})",
         "",
         f"{'topic':<18} {'messages':>10} {'rate Hz':>10} {'drops':>7} {'dups':>5} {'wraps':>5} {'restarts':>8}  fields",
     ]

@@ -21,6 +21,7 @@ import struct
 import zlib
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
@@ -52,7 +53,7 @@ MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = f"ambdaq/{__version__}"
 COMPRESSIONS = ("zstd", "lz4", "none")
 FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
-_INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])  # a Message Index entry
 _MESSAGE_HEAD = struct.Struct("<BQHIQ")  # opcode, length, channel id, sequence, log time
 
 
@@ -172,10 +173,16 @@ class BlockWriter:
         Close a chunk when its uncompressed records reach this many bytes.
     profile : str
         MCAP profile string of the header.
+    index : bool
+        Write each chunk's Message Indexes and the summary's Chunk Indexes (the MCAP
+        specification makes both optional).  Without them a file is 0.63x the size
+        (docs/performance.md): readers find the chunks by walking the file (:attr:`McapFile.chunks`)
+        and Foxglove reads it whole before it shows it, as it does any file without chunk indexes.
     """
 
     def __init__(
-        self, stream: BinaryIO, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, profile: str = ""
+        self, stream: BinaryIO, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, profile: str = "",
+        index: bool = True,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise BadInputError(f"compression must be one of {', '.join(COMPRESSIONS)}, not {compression!r}")
@@ -184,7 +191,8 @@ class BlockWriter:
         self._chunk_size = chunk_size
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._index = index
+        self._chunk_indexes: list[ChunkIndex] = []  # every chunk's, written to the summary only with index
         self._attachment_indexes: list[AttachmentIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: dict[int, int] = defaultdict(int)
@@ -288,7 +296,7 @@ class BlockWriter:
         base = chunk.size
         rows = base + np.arange(n, dtype=np.uint64) * np.uint64(row)
         for cid, offset, _size in layout:
-            idx = np.empty(n, dtype=_INDEX_DTYPE)
+            idx = np.empty(n, dtype=INDEX_DTYPE)
             idx["log_time"] = log_time
             idx["offset"] = rows + np.uint64(offset)
             chunk.index[cid].append(idx)
@@ -333,7 +341,7 @@ class BlockWriter:
         chunk_length = self._out.tell() - offset
         index_start = self._out.tell()
         index_offsets = {}
-        for cid, idx in index.items():
+        for cid, idx in index.items() if self._index else ():
             index_offsets[cid] = self._out.tell()
             body = idx.tobytes()
             self._out.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid, len(body)))
@@ -368,7 +376,7 @@ class BlockWriter:
                 self._counts[cid] += 1
         if not index:
             return
-        arrays = {cid: np.array(rows, dtype=np.uint64).view(_INDEX_DTYPE).ravel() for cid, rows in index.items()}
+        arrays = {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in index.items()}
         start = min(int(a["log_time"].min()) for a in arrays.values())
         end = max(int(a["log_time"].max()) for a in arrays.values())
         self._write_chunk(data, start, end, arrays)
@@ -408,7 +416,7 @@ class BlockWriter:
         group(Opcode.SCHEMA, self._schemas.values())
         group(Opcode.CHANNEL, self._channels.values())
         group(Opcode.STATISTICS, [stats])
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes if self._index else ())
         group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
         group(Opcode.METADATA_INDEX, self._metadata_indexes)
         summary_offset_start = summary_start + builder.count
@@ -497,6 +505,7 @@ class McapFile:
             if calc != crc:
                 raise BadInputError(f"{self.path}: MCAP summary is corrupted (CRC mismatch); try: ambdaq recover")
         self.summary = self._read_summary(summary_start, fpos)
+        self._summary_start = summary_start
 
     def _read_summary(self, start: int, end: int) -> Summary:
         s = Summary({}, {}, None, [], [], [])
@@ -519,6 +528,40 @@ class McapFile:
         except Exception as err:  # any parse failure of the summary is a corrupted file
             raise BadInputError(f"{self.path}: MCAP summary is corrupted ({err}); try: ambdaq recover") from None
         return s
+
+    @cached_property
+    def chunks(self) -> list[ChunkIndex]:
+        """Every chunk of the file, as its Chunk Index describes it: the summary's, or where the
+        summary lists none (a file written without indexes: ``--no-index``, or by another writer)
+        what a walk of the data section finds, each with no message indexes.  A record that
+        runs past the summary is a damaged file (BadInputError naming ``ambdaq recover``), never
+        a file that silently ends there."""
+        if self.summary.chunk_indexes:
+            return self.summary.chunk_indexes
+        data, end, pos, found = self._data, self._summary_start, len(MAGIC), []
+        while pos < end:
+            if pos + 9 > end:
+                break
+            op, length = struct.unpack_from("<BQ", data, pos)
+            if op == Opcode.DATA_END:
+                return found
+            if pos + 9 + length > end:
+                break
+            if op == Opcode.CHUNK:
+                h = chunk_header(data, pos)
+                if h is None or h.data_end > pos + 9 + length:
+                    break
+                start_time, end_time = struct.unpack_from("<QQ", data, pos + 9)
+                found.append(ChunkIndex(
+                    message_start_time=start_time, message_end_time=end_time, chunk_start_offset=pos,
+                    chunk_length=9 + length, message_index_offsets={}, message_index_length=0,
+                    compression=h.compression,
+                    compressed_size=h.data_end - h.data_start, uncompressed_size=h.uncompressed_size))
+            pos += 9 + length
+        if pos == end:
+            return found  # no Data End record: the specification makes it optional
+        raise BadInputError(f"{self.path}: the record at byte {pos} is damaged (it runs past the data section); "
+                            "try: ambdaq recover")
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """All metadata records, name -> map."""
@@ -559,13 +602,35 @@ class McapFile:
         except Exception as err:
             raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
 
+    def chunk_head(self, ci: ChunkIndex, nbytes: int) -> bytes:
+        """The first ``nbytes`` (at most) of one chunk's decompressed records: what its first records
+        are, without inflating all of it (zstd, none; an lz4 chunk is inflated whole)."""
+        pos = ci.chunk_start_offset
+        h = chunk_header(self._data, pos)
+        if h is None:
+            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted (not a chunk); try: ambdaq recover")
+        packed = memoryview(self._data)[h.data_start : h.data_end]
+        try:
+            if h.compression == "zstd":
+                reader, parts, got = zstandard.ZstdDecompressor().stream_reader(packed), [], 0
+                while got < min(nbytes, h.uncompressed_size):
+                    part = reader.read(nbytes - got)
+                    if not part:
+                        break
+                    parts.append(part)
+                    got += len(part)
+                return b"".join(parts)
+            return bytes(decompress(packed, h.compression, h.uncompressed_size)[:nbytes])
+        except Exception as err:
+            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
+
     def message_index(self, ci: ChunkIndex, channel_id: int) -> np.ndarray:
         """(log_time, offset) of a channel's messages in one chunk, from its Message Index."""
         pos = ci.message_index_offsets[channel_id]
         op, _length, cid, nbytes = struct.unpack_from("<BQHI", self._data, pos)
         if op != Opcode.MESSAGE_INDEX or cid != channel_id:
             raise BadInputError(f"{self.path}: message index at byte {pos} is corrupted; try: ambdaq recover")
-        return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
+        return np.frombuffer(self._data, dtype=INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
 
 
 def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, message_dtype: np.dtype,

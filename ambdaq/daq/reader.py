@@ -8,8 +8,8 @@ per field; nothing is decoded message by message.
 from __future__ import annotations
 
 import json
-
 import os
+import struct
 import threading
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from mcap.records import ChunkIndex
 
 from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
 from . import memory
-from .mcapfile import McapFile, message_view
-from .schema import TopicLayout, parse_schema
+from .mcapfile import INDEX_DTYPE, McapFile, message_view
+from .schema import MESSAGE_OPCODE, TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
 
@@ -224,6 +225,65 @@ def _fields(view: np.ndarray, group: SignalGroup) -> dict[str, np.ndarray]:
     return {name: values[:, i] for i, name in enumerate(group.fields)}
 
 
+def _first_row(f: McapFile, ci: ChunkIndex, message_sizes: dict[int, int]) -> Row | None:
+    """The layout of a chunk without message indexes, from its first records, where they begin a
+    run of rows that fills it: fixed-layout Message records of distinct channels up to the first
+    channel seen again, and the chunk a whole number of such rows.  Only the head of the chunk is
+    inflated; every row is checked against the first when the chunk is read (:func:`_check_rows`).
+    ``None`` for any other chunk."""
+    size = ci.uncompressed_size
+    for want in (16 << 10, 1 << 20, size):
+        head = f.chunk_head(ci, want)
+        places, at, seen = [], 0, set()
+        while at + 11 <= len(head):
+            op, length, cid = struct.unpack_from("<BQH", head, at)
+            if cid in seen:
+                break
+            if op != MESSAGE_OPCODE or message_sizes.get(cid) != 9 + length:
+                return None
+            seen.add(cid)
+            places.append((cid, at))
+            at += 9 + length
+        else:
+            if len(head) < size:
+                continue  # the first row runs past what was inflated
+        return (tuple(places), at) if places and at <= size and size % at == 0 else None
+    return None
+
+
+def _walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
+    """Each channel's (log time, offset) in a chunk without message indexes whose records are not
+    rows, found by walking its records: what its message indexes would have said."""
+    records = f.chunk_records(ci)
+    found: dict[int, list[tuple[int, int]]] = {}
+    pos = 0
+    while pos < len(records):
+        if pos + 9 > len(records):
+            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
+        op, length = struct.unpack_from("<BQ", records, pos)
+        if pos + 9 + length > len(records):
+            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
+        if op == MESSAGE_OPCODE and length >= 22:
+            cid, _sequence, log_time = struct.unpack_from("<HIQ", records, pos + 9)
+            found.setdefault(cid, []).append((log_time, pos))
+        pos += 9 + length
+    return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
+
+
+_RECORD_HEAD = 0xFFFFFF  # of a record's second 8 bytes: the length's last byte and the channel id
+
+
+def _check_rows(records: np.ndarray, rows: Row) -> None:
+    """Every row of a chunk without message indexes holds the records its first row holds: each
+    record's opcode, length and channel (its first 11 bytes) as in row 0.  BadInputError if not."""
+    places, stride = rows
+    n = records.shape[0] // stride
+    for cid, at in places:
+        words = np.ndarray((n, 2), dtype="<u8", buffer=records, offset=at, strides=(stride, 8))
+        if not (np.all(words[:, 0] == words[0, 0]) and np.all((words[:, 1] & _RECORD_HEAD) == (words[0, 1] & _RECORD_HEAD))):
+            raise BadInputError(f"the records of channel {cid} are not one per row")
+
+
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
                metadata: dict[str, dict[str, str]], threads: int = READ_THREADS) -> dict[str, TopicData]:
     """Read fixed-layout topics of ``f`` in one pass over its chunks.
@@ -255,21 +315,37 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         Chunks decompressed at once (zstd lets go of the GIL); 1 where the caller is already
         parallel over files (``fleet scan``).
     """
-    chunks = sorted(f.summary.chunk_indexes, key=lambda ci: ci.message_start_time)
+    chunks = sorted(f.chunks, key=lambda ci: ci.message_start_time)
     chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
     by_id = {cid: (topic, TopicLayout(group)) for topic, (cid, group) in wanted.items()}
     dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
     message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in ambdaq_channels(f).values()}
-    plan = []  # each chunk that holds a wanted channel: its index, every channel's message index, its rows
+    # each chunk that holds a wanted channel: its index, every channel's message index (or where a
+    # chunk has none: the offsets its rows imply, log times unknown, or those its records give),
+    # its rows, and whether those are implied (every row then checked against the first)
+    plan = []
     for ci in chunks:
-        if any(cid in by_id for cid in ci.message_index_offsets):
-            here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
-            plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes)))
+        if ci.message_index_offsets:
+            if any(cid in by_id for cid in ci.message_index_offsets):
+                here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
+                plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
+        elif ci.uncompressed_size:
+            rows = _first_row(f, ci, message_sizes)
+            if rows is None:
+                here = _walked(f, ci)
+                if here.keys() & by_id.keys():
+                    plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
+            elif any(cid in by_id for cid, _at in rows[0]):
+                # each channel's first record, repeated as many times as there are rows (a broadcast:
+                # no memory); only its count and first offset are used, the rows give the rest
+                n = ci.uncompressed_size // rows[1]
+                here = {cid: np.broadcast_to(np.array((0, at), dtype=INDEX_DTYPE), (n,)) for cid, at in rows[0]}
+                plan.append((ci, here, rows, True))
 
     # a wanted channel is read in place where every chunk that holds it is rows of one layout, and
     # the wanted records fill half of each row or more (else copying them out keeps less memory)
     layouts: dict[int, set] = {cid: set() for cid in by_id}
-    for _ci, here, rows in plan:
+    for _ci, here, rows, _implied in plan:
         for cid in here.keys() & by_id.keys():
             layouts[cid].add(rows)
     in_place: dict[Row, list[int]] = {}
@@ -280,22 +356,22 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     placed = {cid for cids in in_place.values() for cid in cids}
 
     # where each chunk's records or messages go, known before any is read
-    buffers = {rows: memory.take(sum(ci.uncompressed_size for ci, _h, r in plan if r == rows)) for rows in in_place}
+    buffers = {rows: memory.take(sum(ci.uncompressed_size for ci, _h, r, _i in plan if r == rows)) for rows in in_place}
     filled = {rows: 0 for rows in in_place}
     counts = {cid: 0 for cid in by_id}
     jobs = []
-    for ci, here, rows in plan:
+    for ci, here, rows, implied in plan:
         mine = {cid: (idx, counts[cid]) for cid, idx in here.items() if cid in by_id}
         for cid, (idx, _p) in mine.items():
             counts[cid] += idx.shape[0]
         if rows in in_place:
-            jobs.append((ci, mine, rows, filled[rows]))
+            jobs.append((ci, mine, rows, implied, filled[rows]))
             filled[rows] += ci.uncompressed_size
         else:
-            jobs.append((ci, mine, None, 0))
+            jobs.append((ci, mine, rows if implied else None, implied, None))
     out = {cid: _topic_arrays(counts[cid], len(layout.group.fields), bool(layout.group.types))
            for cid, (_topic, layout) in by_id.items() if cid not in placed}
-    largest = max((ci.uncompressed_size for ci, _m, rows, _a in jobs if rows is None), default=0)
+    largest = max((ci.uncompressed_size for ci, _m, _r, _i, at in jobs if at is None), default=0)
     local = threading.local()
     unordered: set[int] = set()  # channels with a message logged before the one in front of it
 
@@ -303,23 +379,33 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         """Decompress one chunk (into its place in its device's buffer, or into this thread's
         buffer, and then copy its fields into place): both release the GIL, so chunks are read on
         every core at once."""
-        ci, places, rows, at = job
-        if rows is not None:
+        ci, places, rows, implied, at = job
+        if at is not None:
             records = f.chunk_records(ci, buffers[rows][at : at + ci.uncompressed_size])
         else:
             if not hasattr(local, "buffer"):
                 local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
             records = f.chunk_records(ci, local.buffer)
+        try:
+            if implied:
+                _check_rows(np.frombuffer(records, dtype=np.uint8), rows)
+        except BadInputError as err:
+            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err}; try: ambdaq recover") from None
         for cid, (idx, p) in places.items():
             try:
-                view = message_view(records, idx, dtypes[cid], cid)
-                if rows is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
-                    raise BadInputError("message index does not step from row to row")
+                if implied:  # every row checked: the records lie where the rows put them
+                    view = np.ndarray(shape=idx.shape, dtype=dtypes[cid], buffer=records, offset=int(idx["offset"][0]),
+                                      strides=(rows[1],))
+                else:
+                    view = message_view(records, idx, dtypes[cid], cid)
+                    if at is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
+                        raise BadInputError("message index does not step from row to row")
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
-            if rows is not None:  # read where it lies; in order where its index is (below)
-                if idx.shape[0] > 1 and np.any(idx["log_time"][1:] < idx["log_time"][:-1]):
+            if at is not None:  # read where it lies; in order where its index is (below)
+                times = view["log_time"] if implied else idx["log_time"]
+                if times.shape[0] > 1 and np.any(times[1:] < times[:-1]):
                     unordered.add(cid)
                 continue
             n = view.shape[0]
@@ -355,7 +441,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         columns[cid] = {"log_time": cols["log_time"], **{h: cols[h] for h in HEADER_FIELDS}}
         columns[cid].update({"field:" + name: cols["values"][i].view(FIELD_TYPES[t])
                              for i, (name, t) in enumerate(zip(g.fields, g.field_types))})
-    for _ci, places, _rows, _at in jobs:  # where one chunk's messages meet the next's
+    for _ci, places, _rows, _implied, _at in jobs:  # where one chunk's messages meet the next's
         for cid, (_idx, p) in places.items():
             if p > 0 and columns[cid]["log_time"][p] < columns[cid]["log_time"][p - 1]:
                 unordered.add(cid)

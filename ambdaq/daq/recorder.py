@@ -45,6 +45,8 @@ class RecordOptions:
         Start a new file every this many seconds on the host clock, from the recording's start.
     compression : str
         Chunk compression: "zstd", "lz4" or "none".
+    index : bool
+        Write message and chunk indexes (:class:`~.mcapfile.BlockWriter`).
     flush_interval_s : float
         Longest wall time between chunk flushes (and disk syncs), in s.
     chunk_size : int
@@ -67,6 +69,7 @@ class RecordOptions:
     split_size: int | None = None
     split_duration_s: float | None = None
     compression: str = "zstd"
+    index: bool = True
     flush_interval_s: float = 0.5
     chunk_size: int = CHUNK_SIZE
     reconnect: bool = False
@@ -232,7 +235,7 @@ class Recorder:
         self.acquisition = Acquisition(sources, duration_s=options.duration_s, reconnect=options.reconnect,
                                        start_ns=options.start_ns)
         self.files = RecordingFiles(self.acquisition, self.machine, command=command, rig_file=rig_file,
-                                    requested_duration_s=options.duration_s, compression=options.compression,
+                                    requested_duration_s=options.duration_s, compression=options.compression, index=options.index,
                                     chunk_size=options.chunk_size, fsync=options.fsync, overwrite=overwrite)
         split = options.split_size is not None or options.split_duration_s is not None
         snap = options.snapshot

@@ -117,7 +117,7 @@ class Recording(Mapping):
         self._shown = list(dict.fromkeys(shown))
         stats = f.summary.statistics
         self.start_ns = stats.message_start_time if stats is not None and stats.message_count else min(
-            (ci.message_start_time for ci in f.summary.chunk_indexes), default=0)
+            (ci.message_start_time for ci in f.chunks), default=0)
         self._lo = None if start is None else self.start_ns + int(start * 1e9)
         self._hi = None if end is None else self.start_ns + int(end * 1e9)
         self._cache: dict[str, TopicData] = {}

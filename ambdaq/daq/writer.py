@@ -53,9 +53,12 @@ class RecordingWriter:
         Uncompressed chunk size limit, in bytes.
     fsync : bool
         Force every flushed chunk to the disk (on a thread of its own), and the finished file.
+    index : bool
+        Write message and chunk indexes (:class:`~.mcapfile.BlockWriter`).
     """
 
-    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, fsync: bool = True) -> None:
+    def __init__(self, path: Path, *, compression: str = "zstd", chunk_size: int = CHUNK_SIZE, fsync: bool = True,
+                 index: bool = True) -> None:
         self.path = Path(path)
         self._file = _RecordingFile(self.path)
         self._fsync = fsync
@@ -63,7 +66,7 @@ class RecordingWriter:
         self._closing = False
         self._syncer = threading.Thread(target=self._sync_loop, name=f"fsync-{self.path.name}", daemon=True)
         self._syncer.start()
-        self._w = BlockWriter(self._file, compression=compression, chunk_size=chunk_size, profile=PROFILE)
+        self._w = BlockWriter(self._file, compression=compression, chunk_size=chunk_size, profile=PROFILE, index=index)
         self._devices: dict[str, _Device] = {}
         self._topics: dict[str, str] = {}
         self.first_time: int | None = None
