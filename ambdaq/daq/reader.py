@@ -270,18 +270,17 @@ def _walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
     return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
 
 
-_RECORD_HEAD = 0xFFFFFF  # of a record's second 8 bytes: the length's last byte and the channel id
-
-
 def _check_rows(records: np.ndarray, rows: Row) -> None:
     """Every row of a chunk without message indexes holds the records its first row holds: each
-    record's opcode, length and channel (its first 11 bytes) as in row 0.  BadInputError if not."""
+    record's opcode, length and channel (its first 11 bytes, read as two overlapping 8-byte words
+    at bytes 0 and 3) as in row 0.  BadInputError if not."""
     places, stride = rows
     n = records.shape[0] // stride
     for cid, at in places:
-        words = np.ndarray((n, 2), dtype="<u8", buffer=records, offset=at, strides=(stride, 8))
-        if not (np.all(words[:, 0] == words[0, 0]) and np.all((words[:, 1] & _RECORD_HEAD) == (words[0, 1] & _RECORD_HEAD))):
-            raise BadInputError(f"the records of channel {cid} are not one per row")
+        for start in (at, at + 3):
+            word = np.ndarray((n,), dtype="<u8", buffer=records, offset=start, strides=(stride,))
+            if not np.all(word == word[0]):
+                raise BadInputError(f"the records of channel {cid} are not one per row")
 
 
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
@@ -321,8 +320,11 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
     message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in ambdaq_channels(f).values()}
     # each chunk that holds a wanted channel: its index, every channel's message index (or where a
-    # chunk has none: the offsets its rows imply, log times unknown, or those its records give),
+    # chunk has none: the count of its records its rows imply, or the index its records give),
     # its rows, and whether those are implied (every row then checked against the first)
+    unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size]
+    with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
+        first_rows = dict(zip((id(ci) for ci in unindexed), pool.map(lambda ci: _first_row(f, ci, message_sizes), unindexed)))
     plan = []
     for ci in chunks:
         if ci.message_index_offsets:
@@ -330,17 +332,14 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
                 plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
         elif ci.uncompressed_size:
-            rows = _first_row(f, ci, message_sizes)
+            rows = first_rows[id(ci)]
             if rows is None:
                 here = _walked(f, ci)
                 if here.keys() & by_id.keys():
                     plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
             elif any(cid in by_id for cid, _at in rows[0]):
-                # each channel's first record, repeated as many times as there are rows (a broadcast:
-                # no memory); only its count and first offset are used, the rows give the rest
-                n = ci.uncompressed_size // rows[1]
-                here = {cid: np.broadcast_to(np.array((0, at), dtype=INDEX_DTYPE), (n,)) for cid, at in rows[0]}
-                plan.append((ci, here, rows, True))
+                n = ci.uncompressed_size // rows[1]  # each channel's count: one record per row
+                plan.append((ci, {cid: n for cid, _at in rows[0]}, rows, True))
 
     # a wanted channel is read in place where every chunk that holds it is rows of one layout, and
     # the wanted records fill half of each row or more (else copying them out keeps less memory)
@@ -363,7 +362,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     for ci, here, rows, implied in plan:
         mine = {cid: (idx, counts[cid]) for cid, idx in here.items() if cid in by_id}
         for cid, (idx, _p) in mine.items():
-            counts[cid] += idx.shape[0]
+            counts[cid] += idx if implied else idx.shape[0]
         if rows in in_place:
             jobs.append((ci, mine, rows, implied, filled[rows]))
             filled[rows] += ci.uncompressed_size
@@ -394,7 +393,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         for cid, (idx, p) in places.items():
             try:
                 if implied:  # every row checked: the records lie where the rows put them
-                    view = np.ndarray(shape=idx.shape, dtype=dtypes[cid], buffer=records, offset=int(idx["offset"][0]),
+                    view = np.ndarray(shape=(idx,), dtype=dtypes[cid], buffer=records, offset=dict(rows[0])[cid],
                                       strides=(rows[1],))
                 else:
                     view = message_view(records, idx, dtypes[cid], cid)
