@@ -12,7 +12,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from ambdaq.daq.mcapfile import McapFile
 from ambdaq.daq.recorder import Recorder, RecordOptions
@@ -22,14 +22,15 @@ from ambdaq.speed import SpeedProfile
 from _common import best_of, row
 
 
-def record(out: Path, seconds: float, truth: bool, fsync: bool = True) -> None:
+def record(out: Path, seconds: float, truth: bool, fsync: bool = True, index: bool = True) -> None:
     out.unlink(missing_ok=True)
     src = SimSource("spindle", speed=SpeedProfile(30000.0, 30000.0), truth=truth)
-    Recorder([src], out, RecordOptions(duration_s=seconds, fsync=fsync)).run()
+    Recorder([src], out, RecordOptions(duration_s=seconds, fsync=fsync, index=index)).run()
 
 
-def official_writer(src: Path, out: Path, limit: int) -> tuple[int, float]:
-    """Copy the first ``limit`` messages of ``src`` through Writer.add_message: (count, best time in s)."""
+def official_writer(src: Path, out: Path, limit: int, index: bool = True) -> tuple[int, float]:
+    """Copy the first ``limit`` messages of ``src`` (an indexed file) through Writer.add_message, with
+    every index or none: (count, best time in s)."""
     f = McapFile(src)
     msgs = []
     for ci in sorted(f.summary.chunk_indexes, key=lambda c: c.message_start_time):
@@ -46,7 +47,7 @@ def official_writer(src: Path, out: Path, limit: int) -> tuple[int, float]:
 
     def write() -> None:
         with open(out, "wb") as fh:
-            w = Writer(fh, compression=CompressionType.ZSTD)
+            w = Writer(fh, compression=CompressionType.ZSTD, index_types=IndexType.ALL if index else IndexType.NONE)
             w.start(profile="ambdaq")
             for sid, schema in f.summary.schemas.items():
                 w.register_schema(schema.name, schema.encoding, schema.data)
@@ -75,6 +76,14 @@ def main() -> None:
             print(row(f"ambdaq sim -> MCAP ({label})", ours, "instants/s", f"{ours * topics:,.0f} msgs/s"))
             print(row(f"Writer.add_message, same messages ({label})", theirs, "instants/s", "baseline"))
             print(f"ratio ambdaq / add_message ({label}): {ours / theirs:.1f}x (target >= 5x, >= 200,000 instants/s)")
+        # --no-index against the official writer without indexes either (out: the last indexed run's)
+        n, t_off = official_writer(out, Path(tmp) / "official.mcap", limit=600_000, index=False)
+        bare = Path(tmp) / "bare.mcap"
+        ours = args.seconds * 10_000 / best_of(lambda: record(bare, args.seconds, True, index=False))
+        theirs = n / 8 / t_off
+        print(row("ambdaq sim -> MCAP, --no-index (8 topics)", ours, "instants/s"))
+        print(row("Writer.add_message, no indexes, same messages", theirs, "instants/s", "baseline"))
+        print(f"ratio ambdaq / add_message, no indexes: {ours / theirs:.1f}x (target >= 5x)")
         t_sync = best_of(lambda: record(out, args.seconds, False, fsync=True))
         t_nosync = best_of(lambda: record(out, args.seconds, False, fsync=False))
         print(row("ambdaq sim -> MCAP, fsync after every flush", args.seconds * 10_000 / t_sync, "instants/s"))

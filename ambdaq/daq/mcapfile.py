@@ -1,15 +1,16 @@
-"""MCAP at block speed: a chunk writer that encodes whole blocks with numpy, and a reader that
-decodes whole chunks through the message index.
+"""MCAP at block speed: a chunk writer that encodes whole blocks with numpy (a chunk per device),
+and a memory-mapped reader of chunks, message indexes and the summary.
 
 The file is standard MCAP (https://mcap.dev/spec): magic, header, schemas and channels, chunks
-each followed by their message indexes, metadata and attachments, data end, summary (schemas,
-channels, statistics, chunk/attachment/metadata indexes, summary offsets), footer, magic.  The
-non-hot records are serialised by the official ``mcap`` package's record classes; only Message
-records, Chunks and Message Indexes are built here, from numpy arrays.
+each followed by their message indexes (unless written without indexes), metadata and
+attachments, data end, summary (schemas, channels, statistics, chunk/attachment/metadata
+indexes, summary offsets), footer, magic.  The non-hot records are serialised by the official
+``mcap`` package's record classes; only Message records, Chunks and Message Indexes are built
+here, from numpy arrays.
 
 Crash safety: every chunk is written and flushed to the OS as soon as it closes, and the
-recorder closes one at least twice a second, so a killed writer leaves a file whose complete
-chunks :func:`scan_records` recovers.
+recorder closes them at least twice a second, so a killed writer leaves a file whose complete
+chunks ``ambdaq recover`` (:mod:`.recover`) keeps.
 """
 
 from __future__ import annotations
@@ -136,9 +137,9 @@ def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray
 
 CHUNK_SIZE = 4 << 20
 """Uncompressed chunk size limit, bytes (a block larger than a chunk's room is split at a sample
-instant).  ``load`` pays a fixed cost per chunk and topic under the GIL, so smaller chunks read
-slower on two cores (1 MiB: 1.3x, 2 MiB: 1.2x, 4 MiB: 0.9x Parquet's time; 8 MiB 1.0x, outgrowing
-the cache), while the file size does not change (bench_read.py).  A damaged chunk
+instant).  ``load`` pays a fixed cost per chunk and topic, so smaller chunks read slower (1 MiB:
+1.01x, 2 MiB: 0.79x, 4 MiB: 0.55x Parquet's time; 8 MiB 0.56x), while the file size does not
+change (bench_read.py, 2026-11-27).  A damaged chunk
 costs 0.6 s of the spindle with ground truth.  A paced recording closes its chunks at the flush
 interval anyway (0.5 s of the spindle: 2.7 MB, with ground truth 3.6 MB)."""
 ZSTD_LEVEL = -1
