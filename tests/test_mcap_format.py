@@ -216,20 +216,22 @@ def test_the_official_reader_and_foxglove_read_every_sample_of_a_file_without_in
         assert abs(got["sums"][topic] - math.fsum(x)) <= bound
 
 
-def test_a_file_without_indexes_whose_rows_change_is_refused_in_one_line(tmp_path):
-    """A chunk without message indexes is read by the rows its first records begin: one whose
-    later rows hold the same sizes in another order (as no ambdaq file does) is refused, never
-    read with a value under another channel's name."""
+@pytest.mark.parametrize("index", [False, True])
+def test_records_that_begin_rows_they_do_not_keep_are_read_by_the_records(tmp_path, index):
+    """A chunk is read in place where its first records (without message indexes) or its message
+    indexes' counts and first entries say it is rows; one whose later records hold the same sizes
+    in another order (as no ambdaq file does) is read again with its fields copied out, found by
+    its message indexes or by walking its records: every value under its own channel's name,
+    never under the other's."""
     import struct
 
     from ambdaq.daq.mcapfile import BlockWriter
     from ambdaq.daq.schema import CDR_LE_HEADER, TopicLayout
     from ambdaq.drivers.signals import SignalGroup
-    from ambdaq.errors import BadInputError
 
     path = tmp_path / "swapped.mcap"
     with open(path, "wb") as fh:
-        w = BlockWriter(fh, profile="ambdaq", index=False)
+        w = BlockWriter(fh, profile="ambdaq", index=index)
         ids = {}
         for topic in ("/a", "/b"):
             layout = TopicLayout(SignalGroup(topic, "Pair", ("x", "y"), ("m", "m")))
@@ -237,37 +239,15 @@ def test_a_file_without_indexes_whose_rows_change_is_refused_in_one_line(tmp_pat
             ids[topic] = w.add_channel(topic, sid, "cdr", {"device": "d"})
 
         def record(topic, i):
-            payload = struct.pack("<IqIIdd", CDR_LE_HEADER, i, i, 0, float(i), -float(i))
+            sign = 1.0 if topic == "/a" else -1.0
+            payload = struct.pack("<IqIIdd", CDR_LE_HEADER, i, i, 0, sign * i, sign * 10 * i)
             return struct.pack("<BQHIQQ", 5, 22 + len(payload), ids[topic], i, 1000 + i, 1000 + i) + payload
 
         w.add_chunk_records(record("/a", 0) + record("/b", 0) + record("/a", 1) + record("/b", 1)
                             + record("/b", 2) + record("/a", 2))
         w.finish()
-    with pytest.raises(BadInputError, match="not one per row"):
-        load(path)
-
-
-def test_a_damaged_record_of_a_file_without_indexes_is_one_line_and_recover_keeps_the_rest(
-        unindexed_file, tmp_path, run_cli):
-    """With no chunk index, the chunks are found by walking the records: a record length damaged
-    so that it runs past the data section stops the walk, which is said (exit 2, naming
-    recover), never a file read as if it ended there; recover, which finds chunks by their
-    headers, not the length fields, keeps every sample."""
-    import struct
-
-    chunks = McapFile(unindexed_file).chunks
-    damaged = tmp_path / "damaged.mcap"
-    data = bytearray(unindexed_file.read_bytes())
-    struct.pack_into("<Q", data, chunks[0].chunk_start_offset + 1, len(data))
-    damaged.write_bytes(bytes(data))
-    r = run_cli("info", damaged)
-    assert r.exit_code == 2 and "runs past the data section" in r.output and "ambdaq recover" in r.output
-    assert len(r.output.strip().splitlines()) == 1
-    fixed = tmp_path / "fixed.mcap"
-    r = run_cli("recover", damaged, "-o", fixed)
-    assert r.exit_code == 0, r.output
-    assert len(McapFile(fixed).chunks) == len(chunks)
-    ours, original = load(fixed), load(unindexed_file)
-    for topic, data in original.items():
-        for name in data.fields:
-            np.testing.assert_array_equal(ours[topic][name], data[name])
+    rec = load(path)
+    for topic, sign in (("/a", 1.0), ("/b", -1.0)):
+        np.testing.assert_array_equal(rec[topic]["x"], sign * np.arange(3))
+        np.testing.assert_array_equal(rec[topic]["y"], sign * 10 * np.arange(3))
+        np.testing.assert_array_equal(rec[topic].seq, np.arange(3))

@@ -270,29 +270,42 @@ def _walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
     return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
 
 
-def _check_rows(records: np.ndarray, rows: Row) -> None:
-    """Every row of a chunk without message indexes holds the records its first row holds: each
-    record's opcode, length and channel (its first 11 bytes, read as two overlapping 8-byte words
-    at bytes 0 and 3) as in row 0.  BadInputError if not."""
+class _NotRows(Exception):
+    """A chunk that looked like rows (its message indexes, or its first records where it has none)
+    and is not: the read is planned again with its fields copied out."""
+
+    def __init__(self, offset: int) -> None:
+        super().__init__(offset)
+        self.offset = offset
+
+
+def _rows_hold(records: np.ndarray, rows: Row) -> bool:
+    """Whether every row of a chunk without message indexes holds the records its first row
+    holds: each record's opcode, length and channel (its first 11 bytes, read as two overlapping
+    8-byte words at bytes 0 and 3) as in row 0."""
     places, stride = rows
     n = records.shape[0] // stride
-    for cid, at in places:
+    for _cid, at in places:
         for start in (at, at + 3):
             word = np.ndarray((n,), dtype="<u8", buffer=records, offset=start, strides=(stride,))
             if not np.all(word == word[0]):
-                raise BadInputError(f"the records of channel {cid} are not one per row")
+                return False
+    return True
 
 
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
-               metadata: dict[str, dict[str, str]], threads: int = READ_THREADS) -> dict[str, TopicData]:
+               metadata: dict[str, dict[str, str]], threads: int = READ_THREADS,
+               not_rows: frozenset[int] = frozenset()) -> dict[str, TopicData]:
     """Read fixed-layout topics of ``f`` in one pass over its chunks.
 
     A device whose chunks are all rows of the same records (what ambdaq writes: one chunk, one
     device, one row per sample instant) has its chunks inflated one after the other into one
     buffer, and its fields come back as strided views of it: nothing is copied after zstd, so
-    ``load`` takes little more than the inflation itself.  Other chunks (another writer's, ambdaq's
-    before 0.9, a recovered file's) are inflated into a reused buffer and each field copied out.
-    Either way every record is checked against its message index (:func:`~.mcapfile.message_view`).
+    ``load`` takes little more than the inflation itself.  Other chunks (another writer's, those of
+    ambdaq before 0.2) are inflated into a reused buffer and each field copied out.  Either way
+    every record is checked against its message index (:func:`~.mcapfile.message_view`); a chunk
+    without one (``--no-index``) by the rows its first records begin, every row checked against
+    the first as it is inflated, or, where they are not rows, by walking its records.
     Read in place, a device's order is judged from its message indexes' log times (a contiguous
     pass, half the time of one over the records' at their stride): message_view has checked them
     against the records at both ends, and a damaged entry can only make ordered records look
@@ -313,6 +326,9 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     threads : int
         Chunks decompressed at once (zstd lets go of the GIL); 1 where the caller is already
         parallel over files (``fleet scan``).
+    not_rows : frozenset of int
+        Chunks (by their offset) that looked like rows and are not: their fields are copied out,
+        found by their message indexes or, without any, by walking their records.
     """
     chunks = sorted(f.chunks, key=lambda ci: ci.message_start_time)
     chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
@@ -322,7 +338,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     # each chunk that holds a wanted channel: its index, every channel's message index (or where a
     # chunk has none: the count of its records its rows imply, or the index its records give),
     # its rows, and whether those are implied (every row then checked against the first)
-    unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size]
+    unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size
+                 and ci.chunk_start_offset not in not_rows]
     with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
         first_rows = dict(zip((id(ci) for ci in unindexed), pool.map(lambda ci: _first_row(f, ci, message_sizes), unindexed)))
     plan = []
@@ -330,13 +347,14 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         if ci.message_index_offsets:
             if any(cid in by_id for cid in ci.message_index_offsets):
                 here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
-                plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
+                rows = _row_layout(ci.uncompressed_size, here, message_sizes)
+                plan.append((ci, here, None if ci.chunk_start_offset in not_rows else rows, False))
         elif ci.uncompressed_size:
-            rows = first_rows[id(ci)]
+            rows = first_rows.get(id(ci))
             if rows is None:
                 here = _walked(f, ci)
                 if here.keys() & by_id.keys():
-                    plan.append((ci, here, _row_layout(ci.uncompressed_size, here, message_sizes), False))
+                    plan.append((ci, here, None, False))
             elif any(cid in by_id for cid, _at in rows[0]):
                 n = ci.uncompressed_size // rows[1]  # each channel's count: one record per row
                 plan.append((ci, {cid: n for cid, _at in rows[0]}, rows, True))
@@ -385,11 +403,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
             if not hasattr(local, "buffer"):
                 local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
             records = f.chunk_records(ci, local.buffer)
-        try:
-            if implied:
-                _check_rows(np.frombuffer(records, dtype=np.uint8), rows)
-        except BadInputError as err:
-            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err}; try: ambdaq recover") from None
+        if implied and not _rows_hold(np.frombuffer(records, dtype=np.uint8), rows):
+            raise _NotRows(ci.chunk_start_offset)
         for cid, (idx, p) in places.items():
             try:
                 if implied:  # every row checked: the records lie where the rows put them
@@ -398,7 +413,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 else:
                     view = message_view(records, idx, dtypes[cid], cid)
                     if at is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
-                        raise BadInputError("message index does not step from row to row")
+                        raise _NotRows(ci.chunk_start_offset)
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
@@ -421,9 +436,12 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
             else:  # one call for every field: numpy walks the records once, writing each field's row
                 np.copyto(cols["values"][:, p : p + n].T, values)
 
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
-            pass
+    try:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
+                pass
+    except _NotRows as err:  # planned again: that chunk read by its records
+        return read_fixed(f, wanted, t0, lo, hi, metadata, threads, not_rows | {err.offset})
 
     columns: dict[int, dict[str, np.ndarray]] = {}  # per channel: the header columns and field:<name>
     for rows, cids in in_place.items():
