@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import struct
 import threading
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -17,13 +16,13 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from mcap.records import ChunkIndex
 
 from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
 from . import memory
-from .mcapfile import INDEX_DTYPE, McapFile, message_view
-from .schema import MESSAGE_OPCODE, TopicLayout, parse_schema
+from .mcapfile import McapFile, message_view
+from .chunk_rows import NotRows, Row, first_row, row_layout, rows_hold, walked
+from .schema import TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
 
@@ -193,104 +192,12 @@ def _topic_arrays(n: int, fields: int, typed: bool) -> dict[str, np.ndarray]:
     return parts
 
 
-Row = tuple[tuple[tuple[int, int], ...], int]
-"""A chunk of rows: each channel's record offset in the row, in row order, and the row's size (bytes)."""
-
-
-def _row_layout(size: int, here: dict[int, np.ndarray], message_sizes: dict[int, int]) -> Row | None:
-    """What the message indexes ``here`` (every channel of a chunk of ``size`` uncompressed bytes)
-    say of its records, where they are rows: every channel a fixed-layout one with as many messages
-    as the others, each channel's first record where the one before it in the row ends, and the
-    chunk exactly that many rows long (how the writer leaves a device's chunks,
-    :meth:`~.mcapfile.BlockWriter.add_messages`).  ``None`` for any other chunk.  The stride is
-    proven against the records as each chunk is read (:func:`~.mcapfile.message_view`)."""
-    counts = {idx.shape[0] for idx in here.values()}
-    if not here or len(counts) != 1 or 0 in counts or any(cid not in message_sizes for cid in here):
-        return None
-    firsts = {cid: int(idx["offset"][0]) for cid, idx in here.items()}
-    places, at = [], 0
-    for cid in sorted(here, key=firsts.__getitem__):
-        if firsts[cid] != at:
-            return None
-        places.append((cid, at))
-        at += message_sizes[cid]
-    return (tuple(places), at) if size == counts.pop() * at else None
-
-
 def _fields(view: np.ndarray, group: SignalGroup) -> dict[str, np.ndarray]:
     """One array per field of the records ``view`` (strided views, no copy)."""
     values = view["values"]
     if values.dtype.names:
         return {name: values[name].view(FIELD_TYPES[t]) for name, t in zip(group.fields, group.field_types)}
     return {name: values[:, i] for i, name in enumerate(group.fields)}
-
-
-def _first_row(f: McapFile, ci: ChunkIndex, message_sizes: dict[int, int]) -> Row | None:
-    """The layout of a chunk without message indexes, from its first records, where they begin a
-    run of rows that fills it: fixed-layout Message records of distinct channels up to the first
-    channel seen again, and the chunk a whole number of such rows.  Only the head of the chunk is
-    inflated; every row is checked against the first when the chunk is read (:func:`_check_rows`).
-    ``None`` for any other chunk."""
-    size = ci.uncompressed_size
-    for want in (16 << 10, 1 << 20, size):
-        head = f.chunk_head(ci, want)
-        places, at, seen = [], 0, set()
-        while at + 11 <= len(head):
-            op, length, cid = struct.unpack_from("<BQH", head, at)
-            if cid in seen:
-                break
-            if op != MESSAGE_OPCODE or message_sizes.get(cid) != 9 + length:
-                return None
-            seen.add(cid)
-            places.append((cid, at))
-            at += 9 + length
-        else:
-            if len(head) < size:
-                continue  # the first row runs past what was inflated
-        return (tuple(places), at) if places and at <= size and size % at == 0 else None
-    return None
-
-
-def _walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
-    """Each channel's (log time, offset) in a chunk without message indexes whose records are not
-    rows, found by walking its records: what its message indexes would have said."""
-    records = f.chunk_records(ci)
-    found: dict[int, list[tuple[int, int]]] = {}
-    pos = 0
-    while pos < len(records):
-        if pos + 9 > len(records):
-            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
-        op, length = struct.unpack_from("<BQ", records, pos)
-        if pos + 9 + length > len(records):
-            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
-        if op == MESSAGE_OPCODE and length >= 22:
-            cid, _sequence, log_time = struct.unpack_from("<HIQ", records, pos + 9)
-            found.setdefault(cid, []).append((log_time, pos))
-        pos += 9 + length
-    return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
-
-
-class _NotRows(Exception):
-    """A chunk that looked like rows (its message indexes, or its first records where it has none)
-    and is not: the read is planned again with its fields copied out."""
-
-    def __init__(self, offset: int) -> None:
-        super().__init__(offset)
-        self.offset = offset
-
-
-def _rows_hold(records: np.ndarray, rows: Row) -> bool:
-    """Whether every row of a chunk without message indexes holds the records its first row
-    holds: each record's opcode, length and channel (its first 11 bytes, read as two overlapping
-    8-byte words at bytes 0 and 3) as in row 0."""
-    places, stride = rows
-    n = records.shape[0] // stride
-    for _cid, at in places:
-        for start in (at, at + 3):
-            word = np.ndarray((n,), dtype="<u8", buffer=records, offset=start, strides=(stride,))
-            if not np.all(word == word[0]):
-                return False
-    return True
 
 
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
@@ -341,18 +248,18 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size
                  and ci.chunk_start_offset not in not_rows]
     with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
-        first_rows = dict(zip((id(ci) for ci in unindexed), pool.map(lambda ci: _first_row(f, ci, message_sizes), unindexed)))
+        first_rows = dict(zip((id(ci) for ci in unindexed), pool.map(lambda ci: first_row(f, ci, message_sizes), unindexed)))
     plan = []
     for ci in chunks:
         if ci.message_index_offsets:
             if any(cid in by_id for cid in ci.message_index_offsets):
                 here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
-                rows = _row_layout(ci.uncompressed_size, here, message_sizes)
+                rows = row_layout(ci.uncompressed_size, here, message_sizes)
                 plan.append((ci, here, None if ci.chunk_start_offset in not_rows else rows, False))
         elif ci.uncompressed_size:
             rows = first_rows.get(id(ci))
             if rows is None:
-                here = _walked(f, ci)
+                here = walked(f, ci)
                 if here.keys() & by_id.keys():
                     plan.append((ci, here, None, False))
             elif any(cid in by_id for cid, _at in rows[0]):
@@ -403,8 +310,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
             if not hasattr(local, "buffer"):
                 local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
             records = f.chunk_records(ci, local.buffer)
-        if implied and not _rows_hold(np.frombuffer(records, dtype=np.uint8), rows):
-            raise _NotRows(ci.chunk_start_offset)
+        if implied and not rows_hold(np.frombuffer(records, dtype=np.uint8), rows):
+            raise NotRows(ci.chunk_start_offset)
         for cid, (idx, p) in places.items():
             try:
                 if implied:  # every row checked: the records lie where the rows put them
@@ -413,7 +320,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 else:
                     view = message_view(records, idx, dtypes[cid], cid)
                     if at is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
-                        raise _NotRows(ci.chunk_start_offset)
+                        raise NotRows(ci.chunk_start_offset)
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
@@ -440,7 +347,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         with ThreadPoolExecutor(max_workers=threads) as pool:
             for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
                 pass
-    except _NotRows as err:  # planned again: that chunk read by its records
+    except NotRows as err:  # planned again: that chunk read by its records
         return read_fixed(f, wanted, t0, lo, hi, metadata, threads, not_rows | {err.offset})
 
     columns: dict[int, dict[str, np.ndarray]] = {}  # per channel: the header columns and field:<name>
