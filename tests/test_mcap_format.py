@@ -165,6 +165,10 @@ def test_a_file_without_indexes_holds_the_same_samples_in_less_than_parquet_s_si
 
     with open(unindexed_file, "rb") as fh:
         assert make_reader(fh).get_summary().chunk_indexes == []
+    from ambdaq.daq.info import describe
+
+    assert describe(unindexed_file)["indexed"] is False and describe(spindle_file)["indexed"] is True
+    assert describe(unindexed_file)["chunks"] == len(McapFile(unindexed_file).chunks) >= 1
     with open(unindexed_file, "rb") as fh:
         assert not any(isinstance(r, MessageIndex) for r in StreamReader(fh, skip_magic=False).records)
     ours, indexed = load(unindexed_file), load(spindle_file)
