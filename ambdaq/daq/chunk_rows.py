@@ -86,15 +86,6 @@ def walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
     return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
 
 
-class NotRows(Exception):
-    """A chunk that looked like rows (its message indexes, or its first records where it has none)
-    and is not: the read is planned again with its fields copied out."""
-
-    def __init__(self, offset: int) -> None:
-        super().__init__(offset)
-        self.offset = offset
-
-
 def rows_hold(records: np.ndarray, rows: Row) -> bool:
     """Whether every row of a chunk without message indexes holds the records its first row
     holds: each record's opcode, length and channel (its first 11 bytes, read as two overlapping
@@ -109,4 +100,4 @@ def rows_hold(records: np.ndarray, rows: Row) -> bool:
     return True
 
 
-__all__ = ["NotRows", "Row", "first_row", "row_layout", "rows_hold", "walked"]
+__all__ = ["Row", "first_row", "row_layout", "rows_hold", "walked"]

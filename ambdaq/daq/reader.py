@@ -21,7 +21,7 @@ from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
 from . import memory
 from .mcapfile import McapFile, message_view
-from .chunk_rows import NotRows, Row, first_row, row_layout, rows_hold, walked
+from .chunk_rows import Row, first_row, row_layout, rows_hold, walked
 from .schema import TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
@@ -298,6 +298,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     largest = max((ci.uncompressed_size for ci, _m, _r, _i, at in jobs if at is None), default=0)
     local = threading.local()
     unordered: set[int] = set()  # channels with a message logged before the one in front of it
+    looked_like_rows: set[int] = set()  # chunks that are not the rows they seemed (read again, copied)
 
     def read_chunk(job) -> None:
         """Decompress one chunk (into its place in its device's buffer, or into this thread's
@@ -311,7 +312,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
             records = f.chunk_records(ci, local.buffer)
         if implied and not rows_hold(np.frombuffer(records, dtype=np.uint8), rows):
-            raise NotRows(ci.chunk_start_offset)
+            looked_like_rows.add(ci.chunk_start_offset)
+            return
         for cid, (idx, p) in places.items():
             try:
                 if implied:  # every row checked: the records lie where the rows put them
@@ -320,7 +322,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 else:
                     view = message_view(records, idx, dtypes[cid], cid)
                     if at is not None and view.shape[0] > 1 and view.strides[0] != rows[1]:
-                        raise NotRows(ci.chunk_start_offset)
+                        looked_like_rows.add(ci.chunk_start_offset)
+                        return
             except BadInputError as err:
                 raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: {err} ({by_id[cid][0]}); "
                                     f"try: ambdaq recover") from None
@@ -343,12 +346,11 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
             else:  # one call for every field: numpy walks the records once, writing each field's row
                 np.copyto(cols["values"][:, p : p + n].T, values)
 
-    try:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
-                pass
-    except NotRows as err:  # planned again: that chunk read by its records
-        return read_fixed(f, wanted, t0, lo, hi, metadata, threads, not_rows | {err.offset})
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
+            pass
+    if looked_like_rows:  # planned again once, those chunks' fields copied out
+        return read_fixed(f, wanted, t0, lo, hi, metadata, threads, not_rows | looked_like_rows)
 
     columns: dict[int, dict[str, np.ndarray]] = {}  # per channel: the header columns and field:<name>
     for rows, cids in in_place.items():
