@@ -294,13 +294,14 @@ class BlockWriter:
         """Append rows to the open chunk of their layout; close it once it reaches chunk_size."""
         n, row = records.shape
         chunk = self._chunks[key]
-        base = chunk.size
-        rows = base + np.arange(n, dtype=np.uint64) * np.uint64(row)
-        for cid, offset, _size in layout:
-            idx = np.empty(n, dtype=INDEX_DTYPE)
-            idx["log_time"] = log_time
-            idx["offset"] = rows + np.uint64(offset)
-            chunk.index[cid].append(idx)
+        if self._index:  # each channel's entries computed: its record sits at one offset in every row
+            rows = chunk.size + np.arange(n, dtype=np.uint64) * np.uint64(row)
+            for cid, offset, _size in layout:
+                idx = np.empty(n, dtype=INDEX_DTYPE)
+                idx["log_time"] = log_time
+                idx["offset"] = rows + np.uint64(offset)
+                chunk.index[cid].append(idx)
+        for cid, _offset, _size in layout:
             self._counts[cid] += n
         chunk.parts.append(records.tobytes())
         chunk.size += n * row
