@@ -7,10 +7,10 @@ and single loads spread from 140 to 670 ms.  A process that reads file after fil
 scan``, a script over a folder) pays that on every file unless the memory of a recording it is
 done with is used again, as pyarrow's memory pool does for Parquet.
 
-A block is free again when nothing but this pool refers to it: every array ``load`` hands out is
-a view whose ``base`` is the block itself (numpy resolves a view of a view to the array that owns
-the memory), so a live array, a memoryview of one or a field of one holds a reference, and
-``sys.getrefcount`` sees it.  The pool keeps at most :data:`KEEP` bytes: a long-lived process holds
+A block is free again when nothing but this pool refers to the array that owns its memory: every
+array ``load`` hands out is a view whose ``base`` is that array (numpy resolves a view of a view
+to the array that owns the memory), so a live array, a memoryview of one or a field of one holds
+a reference to it, and ``sys.getrefcount`` sees it.  The pool keeps at most :data:`KEEP` bytes: a long-lived process holds
 that much after its last load, no more.
 """
 

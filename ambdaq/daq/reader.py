@@ -1,8 +1,9 @@
 """Fast reading of ambdaq's fixed-layout topics into numpy arrays (what a
 :class:`~ambdaq.daq.recording.Recording` loads a topic with).
 
-Whole chunks are decompressed and decoded through their message indexes with one strided copy
-per field; nothing is decoded message by message.
+Whole chunks are inflated on every core; a device whose chunks are rows of its records has its
+fields handed out as strided views of them, others are copied out with one strided copy per
+field; nothing is decoded message by message.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ import numpy as np
 from ..drivers.signals import FIELD_TYPES, HEADER_FIELDS, SignalGroup
 from ..errors import BadInputError
 from . import memory
-from .mcapfile import McapFile, message_view
 from .chunk_rows import Row, first_row, row_layout, rows_hold, walked
+from .mcapfile import McapFile, message_view
 from .schema import TopicLayout, parse_schema
 
 READ_THREADS = max(2, os.cpu_count() or 2)  # chunks decompressed and copied at once
