@@ -255,3 +255,32 @@ def test_records_that_begin_rows_they_do_not_keep_are_read_by_the_records(tmp_pa
         np.testing.assert_array_equal(rec[topic]["x"], sign * np.arange(3))
         np.testing.assert_array_equal(rec[topic]["y"], sign * 10 * np.arange(3))
         np.testing.assert_array_equal(rec[topic].seq, np.arange(3))
+
+
+def test_a_damaged_record_of_a_file_without_indexes_is_one_line_and_recover_keeps_the_rest(
+        unindexed_file, tmp_path, run_cli):
+    """With no chunk index, the chunks are found by walking the records: a record length damaged
+    so that it runs past the data section stops the walk, which is said (exit 2, naming
+    recover), never a file read as if it ended there; recover, which finds chunks by their
+    headers, not the length fields, keeps every sample, with the indexes or, asked, without."""
+    import struct
+
+    chunks = McapFile(unindexed_file).chunks
+    damaged = tmp_path / "damaged.mcap"
+    data = bytearray(unindexed_file.read_bytes())
+    struct.pack_into("<Q", data, chunks[0].chunk_start_offset + 1, len(data))
+    damaged.write_bytes(bytes(data))
+    r = run_cli("info", damaged)
+    assert r.exit_code == 2 and "runs past the data section" in r.output and "ambdaq recover" in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    original = load(unindexed_file)
+    for index in ("--index", "--no-index"):  # the indexes written back, or kept out as recorded
+        fixed = tmp_path / f"fixed{index}.mcap"
+        r = run_cli("recover", damaged, "-o", fixed, index)
+        assert r.exit_code == 0, r.output
+        f = McapFile(fixed)
+        assert len(f.chunks) == len(chunks) and bool(f.summary.chunk_indexes) == (index == "--index")
+        ours = load(fixed)
+        for topic, data in original.items():
+            for name in data.fields:
+                np.testing.assert_array_equal(ours[topic][name], data[name])

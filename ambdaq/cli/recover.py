@@ -1,4 +1,4 @@
-"""``ambdaq recover``: rebuild an indexed file from a crashed or damaged recording."""
+"""``ambdaq recover``: rebuild a finished file from a crashed or damaged recording."""
 
 from __future__ import annotations
 
@@ -13,11 +13,15 @@ from ..daq.recover import recover
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The rebuilt file.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--index/--no-index", default=True, show_default=True,
+              help="Write the message and chunk indexes (as record does); a file recorded with --no-index "
+                   "gets them here to be opened in Foxglove at any length.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable report.")
-def command(file, output, overwrite, as_json):
-    """Recover every intact chunk of FILE, wherever the damage, into a finished, indexed OUTPUT;
-    say per topic the samples and seconds kept and lost (docs/data-format.md, "Recovery")."""
-    report = recover(file, output, overwrite=overwrite)
+def command(file, output, overwrite, index, as_json):
+    """Recover every intact chunk of FILE, wherever the damage, into a finished OUTPUT (indexed
+    unless --no-index); say per topic the samples and seconds kept and lost (docs/data-format.md,
+    "Recovery")."""
+    report = recover(file, output, overwrite=overwrite, index=index)
     if as_json:
         click.echo(json.dumps(report.as_dict(), indent=2))
     else:

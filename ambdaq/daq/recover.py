@@ -102,8 +102,8 @@ def _looks_like_a_chunk(data: bytes, pos: int) -> int:
     return int(h is not None and pos + 9 + h.record_length == h.data_end)
 
 
-def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> RecoveryReport:
-    """Recover the readable part of ``src`` into a new, finished, indexed file ``dst``.
+def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False, index: bool = True) -> RecoveryReport:
+    """Recover the readable part of ``src`` into a new, finished file ``dst``.
 
     Parameters
     ----------
@@ -113,6 +113,9 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
         The file to write; must not exist unless ``overwrite``.
     overwrite : bool
         Replace an existing ``dst``.
+    index : bool
+        Write message and chunk indexes (:class:`~.mcapfile.BlockWriter`): also what indexes a
+        file recorded with ``--no-index``.
     """
     src, dst = Path(src), Path(dst)
     if not src.is_file():
@@ -142,7 +145,7 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> Rec
     messages = orphans = 0
     per_channel: dict[int, int] = {}
     with open(tmp, "wb") as out:
-        w = BlockWriter(out, profile=PROFILE)
+        w = BlockWriter(out, profile=PROFILE, index=index)
         for s in schemas.values():
             w.add_schema(s.name, s.encoding, s.data, schema_id=s.id)
         for c in channels.values():
