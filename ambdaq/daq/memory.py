@@ -30,22 +30,29 @@ GRAIN = 16 << 20
 KEEP = 1 << 30
 """Bytes of blocks the pool keeps, in use or free (the newest first)."""
 
-_IDLE_REFS = 3  # the pool's entry, the comprehension's name and getrefcount's own argument
+Block = tuple[np.ndarray, int, int]
+"""The array that owns a block's memory, where its huge-page-aligned part starts, that part's size."""
+
+
+def _references(blocks: list[Block]) -> list[int]:
+    """``sys.getrefcount`` of each block's owner, taken the one way the pool takes it: what an idle
+    block shows depends on the interpreter (borrowed references, comprehension scopes), so it is
+    measured once, by this same function, on a block no one else holds (:class:`_Pool`)."""
+    return [sys.getrefcount(owner) for owner, _start, _size in blocks]
 
 
 class _Pool:
     def __init__(self) -> None:
-        # newest first: (the array that owns the memory, where its huge-page-aligned part starts,
-        # that part's size); the owner is what every view of it refers to
-        self._blocks: list[tuple[np.ndarray, int, int]] = []
+        self._blocks: list[Block] = []  # newest first
         self._lock = threading.Lock()
+        self._idle = _references([(np.empty(1, dtype=np.uint8), 0, 1)])[0]
 
     def take(self, nbytes: int) -> np.ndarray:
         """``nbytes`` of memory (uint8) that starts on a huge page: a block no array refers to any
         more, or a fresh one."""
         with self._lock:
-            free = [i for i, (owner, _start, size) in enumerate(self._blocks)
-                    if nbytes <= size <= nbytes + nbytes // 4 + GRAIN and sys.getrefcount(owner) == _IDLE_REFS]
+            free = [i for i, ((_owner, _start, size), refs) in enumerate(zip(self._blocks, _references(self._blocks)))
+                    if nbytes <= size <= nbytes + nbytes // 4 + GRAIN and refs == self._idle]
             if free:  # the smallest that fits, so that a larger block stays for a larger request
                 owner, start, size = block = self._blocks.pop(min(free, key=lambda i: self._blocks[i][2]))
                 self._blocks.insert(0, block)
