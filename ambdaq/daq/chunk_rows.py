@@ -14,7 +14,7 @@ import numpy as np
 from mcap.records import ChunkIndex
 
 from ..errors import BadInputError
-from .mcapfile import INDEX_DTYPE, McapFile
+from .mcapfile import McapFile, message_indexes_of
 from .schema import MESSAGE_OPCODE
 
 Row = tuple[tuple[tuple[int, int], ...], int]
@@ -71,19 +71,10 @@ def walked(f: McapFile, ci: ChunkIndex) -> dict[int, np.ndarray]:
     """Each channel's (log time, offset) in a chunk without message indexes whose records are not
     rows, found by walking its records: what its message indexes would have said."""
     records = f.chunk_records(ci)
-    found: dict[int, list[tuple[int, int]]] = {}
-    pos = 0
-    while pos < len(records):
-        if pos + 9 > len(records):
-            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
-        op, length = struct.unpack_from("<BQ", records, pos)
-        if pos + 9 + length > len(records):
-            raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
-        if op == MESSAGE_OPCODE and length >= 22:
-            cid, _sequence, log_time = struct.unpack_from("<HIQ", records, pos + 9)
-            found.setdefault(cid, []).append((log_time, pos))
-        pos += 9 + length
-    return {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in found.items()}
+    found, end = message_indexes_of(records)
+    if end != len(records):
+        raise BadInputError(f"{f.path}: chunk at byte {ci.chunk_start_offset}: a record runs past its end")
+    return found
 
 
 def rows_hold(records: np.ndarray, rows: Row) -> bool:

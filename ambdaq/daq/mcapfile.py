@@ -54,7 +54,7 @@ MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = f"ambdaq/{__version__}"
 COMPRESSIONS = ("zstd", "lz4", "none")
 FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
-INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])  # a Message Index entry
+_INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])  # a Message Index entry
 _MESSAGE_HEAD = struct.Struct("<BQHIQ")  # opcode, length, channel id, sequence, log time
 
 
@@ -297,7 +297,7 @@ class BlockWriter:
         if self._index:  # each channel's entries computed: its record sits at one offset in every row
             rows = chunk.size + np.arange(n, dtype=np.uint64) * np.uint64(row)
             for cid, offset, _size in layout:
-                idx = np.empty(n, dtype=INDEX_DTYPE)
+                idx = np.empty(n, dtype=_INDEX_DTYPE)
                 idx["log_time"] = log_time
                 idx["offset"] = rows + np.uint64(offset)
                 chunk.index[cid].append(idx)
@@ -370,15 +370,11 @@ class BlockWriter:
 
         Used by recovery to re-emit the messages of chunks from a damaged file.
         """
-        index: dict[int, list[tuple[int, int]]] = defaultdict(list)
-        for op, pos, body in iter_records(data, 0):
-            if op == MESSAGE_OPCODE:
-                cid, _seq, log_time = struct.unpack_from("<HIQ", body, 0)
-                index[cid].append((log_time, pos))
-                self._counts[cid] += 1
-        if not index:
+        arrays, _end = message_indexes_of(data)
+        if not arrays:
             return
-        arrays = {cid: np.array(rows, dtype=np.uint64).view(INDEX_DTYPE).ravel() for cid, rows in index.items()}
+        for cid, idx in arrays.items():
+            self._counts[cid] += idx.shape[0]
         start = min(int(a["log_time"].min()) for a in arrays.values())
         end = max(int(a["log_time"].max()) for a in arrays.values())
         self._write_chunk(data, start, end, arrays)
@@ -449,6 +445,20 @@ def iter_records(data, pos: int, end: int | None = None) -> Iterator[tuple[int, 
             return
         yield op, pos, view[pos + 9 : pos + 9 + length]
         pos += 9 + length
+
+
+def message_indexes_of(data) -> tuple[dict[int, np.ndarray], int]:
+    """What the Message Indexes of the chunk records ``data`` would say, found by walking them:
+    each channel's (log time, offset) entries (log time and offset, 16 bytes), and the offset where the
+    walk stopped (``len(data)`` unless a record runs past the end: :func:`iter_records`)."""
+    found: dict[int, list[tuple[int, int]]] = defaultdict(list)
+    end = 0
+    for op, pos, body in iter_records(data, 0):
+        if op == MESSAGE_OPCODE and len(body) >= 22:
+            cid, _seq, log_time = struct.unpack_from("<HIQ", body, 0)
+            found[cid].append((log_time, pos))
+        end = pos + 9 + len(body)
+    return {cid: np.array(rows, dtype=np.uint64).view(_INDEX_DTYPE).ravel() for cid, rows in found.items()}, end
 
 
 def _read(cls, body: memoryview):
@@ -590,28 +600,30 @@ class McapFile:
             out[idx.name] = self._indexed(Attachment, idx.offset, idx.name).data
         return out
 
+    def _chunk_data(self, ci: ChunkIndex) -> tuple[ChunkHeader, memoryview]:
+        """The header of the chunk ``ci`` names and its compressed data; BadInputError if no chunk is there."""
+        h = chunk_header(self._data, ci.chunk_start_offset)
+        if h is None:
+            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted (not a chunk); "
+                                "try: ambdaq recover")
+        return h, memoryview(self._data)[h.data_start : h.data_end]
+
     def chunk_records(self, ci: ChunkIndex, into: bytearray | np.ndarray | None = None) -> bytes | memoryview:
         """The decompressed records of one chunk (into ``into`` where it can: see :func:`decompress`)."""
-        pos = ci.chunk_start_offset
-        h = chunk_header(self._data, pos)
-        if h is None:
-            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted (not a chunk); try: ambdaq recover")
-        packed, usize = memoryview(self._data)[h.data_start : h.data_end], h.uncompressed_size
+        h, packed = self._chunk_data(ci)
+        usize = h.uncompressed_size
         try:
             return decompress(packed, h.compression, usize, into if into is not None and len(into) >= usize else None)
         except BadInputError:
             raise
         except Exception as err:
-            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
+            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted ({err}); "
+                                "try: ambdaq recover") from None
 
     def chunk_head(self, ci: ChunkIndex, nbytes: int) -> bytes:
         """The first ``nbytes`` (at most) of one chunk's decompressed records: what its first records
         are, without inflating all of it (zstd, none; an lz4 chunk is inflated whole)."""
-        pos = ci.chunk_start_offset
-        h = chunk_header(self._data, pos)
-        if h is None:
-            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted (not a chunk); try: ambdaq recover")
-        packed = memoryview(self._data)[h.data_start : h.data_end]
+        h, packed = self._chunk_data(ci)
         try:
             if h.compression == "zstd":
                 reader, parts, got = zstandard.ZstdDecompressor().stream_reader(packed), [], 0
@@ -624,7 +636,8 @@ class McapFile:
                 return b"".join(parts)
             return bytes(decompress(packed, h.compression, h.uncompressed_size)[:nbytes])
         except Exception as err:
-            raise BadInputError(f"{self.path}: chunk at byte {pos} is corrupted ({err}); try: ambdaq recover") from None
+            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted ({err}); "
+                                "try: ambdaq recover") from None
 
     def message_index(self, ci: ChunkIndex, channel_id: int) -> np.ndarray:
         """(log_time, offset) of a channel's messages in one chunk, from its Message Index."""
@@ -632,7 +645,7 @@ class McapFile:
         op, _length, cid, nbytes = struct.unpack_from("<BQHI", self._data, pos)
         if op != Opcode.MESSAGE_INDEX or cid != channel_id:
             raise BadInputError(f"{self.path}: message index at byte {pos} is corrupted; try: ambdaq recover")
-        return np.frombuffer(self._data, dtype=INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
+        return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
 
 
 def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, message_dtype: np.dtype,

@@ -201,9 +201,9 @@ def _fields(view: np.ndarray, group: SignalGroup) -> dict[str, np.ndarray]:
     return {name: values[:, i] for i, name in enumerate(group.fields)}
 
 
-def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int, lo: int | None, hi: int | None,
-               metadata: dict[str, dict[str, str]], threads: int = READ_THREADS,
-               not_rows: frozenset[int] = frozenset()) -> dict[str, TopicData]:
+def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: dict[str, tuple[int, SignalGroup]],
+               t0: int, lo: int | None, hi: int | None, metadata: dict[str, dict[str, str]],
+               threads: int = READ_THREADS, not_rows: frozenset[int] = frozenset()) -> dict[str, TopicData]:
     """Read fixed-layout topics of ``f`` in one pass over its chunks.
 
     A device whose chunks are all rows of the same records (what ambdaq writes: one chunk, one
@@ -225,6 +225,8 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         The file, opened.
     wanted : dict of str to (int, SignalGroup)
         Topic -> its channel id and group (:func:`ambdaq_channels`).
+    fixed : dict of str to (int, SignalGroup)
+        Every fixed-layout channel of the file (:func:`ambdaq_channels`): what a row may hold.
     t0 : int
         Host time where the recording's ``time`` starts, ns.
     lo, hi : int or None
@@ -242,14 +244,17 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
     chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
     by_id = {cid: (topic, TopicLayout(group)) for topic, (cid, group) in wanted.items()}
     dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
-    message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in ambdaq_channels(f).values()}
+    message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in fixed.values()}
     # each chunk that holds a wanted channel: its index, every channel's message index (or where a
     # chunk has none: the count of its records its rows imply, or the index its records give),
     # its rows, and whether those are implied (every row then checked against the first)
     unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size
                  and ci.chunk_start_offset not in not_rows]
-    with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
-        first_rows = dict(zip((id(ci) for ci in unindexed), pool.map(lambda ci: first_row(f, ci, message_sizes), unindexed)))
+    first_rows = {}
+    if unindexed:
+        with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
+            heads = pool.map(lambda ci: first_row(f, ci, message_sizes), unindexed)
+            first_rows = {ci.chunk_start_offset: rows for ci, rows in zip(unindexed, heads)}
     plan = []
     for ci in chunks:
         if ci.message_index_offsets:
@@ -258,7 +263,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
                 rows = row_layout(ci.uncompressed_size, here, message_sizes)
                 plan.append((ci, here, None if ci.chunk_start_offset in not_rows else rows, False))
         elif ci.uncompressed_size:
-            rows = first_rows.get(id(ci))
+            rows = first_rows.get(ci.chunk_start_offset)
             if rows is None:
                 here = walked(f, ci)
                 if here.keys() & by_id.keys():
@@ -351,7 +356,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], t0: int,
         for _ in pool.map(read_chunk, jobs):  # in order; an error in any chunk surfaces here
             pass
     if looked_like_rows:  # planned again once, those chunks' fields copied out
-        return read_fixed(f, wanted, t0, lo, hi, metadata, threads, not_rows | looked_like_rows)
+        return read_fixed(f, wanted, fixed, t0, lo, hi, metadata, threads, not_rows | looked_like_rows)
 
     columns: dict[int, dict[str, np.ndarray]] = {}  # per channel: the header columns and field:<name>
     for rows, cids in in_place.items():

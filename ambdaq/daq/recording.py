@@ -166,7 +166,7 @@ class Recording(Mapping):
         todo = [t for t in dict.fromkeys(topics) if t not in self._cache]
         fixed = {t: self._fixed[t] for t in todo if t in self._fixed}
         if fixed:
-            self._cache.update(read_fixed(self.file, fixed, self.start_ns, self._lo, self._hi, self.metadata,
+            self._cache.update(read_fixed(self.file, fixed, self._fixed, self.start_ns, self._lo, self._hi, self.metadata,
                                           self.threads))
         others, read = [t for t in todo if t not in self._fixed], {}
         for topic in [t for t in others if t in self._foreign_fixed]:  # in blocks, where their layout is fixed
