@@ -138,7 +138,7 @@ def test_64_bit_integer_fields_are_exact_in_every_reader_and_export(tmp_path):
     from asammdf import MDF
 
     mdf = MDF(tmp_path / "c.mf4")  # asammdf, as CANape and INCA users open it: integer channels
-    assert mdf.get("up").samples.tolist() == up and mdf.get("down").samples.tolist() == down
+    assert mdf.get("tone.count.up").samples.tolist() == up and mdf.get("tone.count.down").samples.tolist() == down
     mdf.close()
     cut = tmp_path / "cut.mcap"  # the file as a crash would leave it: no summary, no footer
     cut.write_bytes(out.read_bytes()[: int(out.stat().st_size * 0.8)])

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from damage import without_data_crc
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -270,6 +271,9 @@ def test_a_damaged_record_of_a_file_without_indexes_is_one_line_and_recover_keep
     data = bytearray(unindexed_file.read_bytes())
     struct.pack_into("<Q", data, chunks[0].chunk_start_offset + 1, len(data))
     damaged.write_bytes(bytes(data))
+    r = run_cli("info", damaged)  # the data section's CRC sees it first
+    assert r.exit_code == 2 and "fails its CRC-32" in r.output and "ambdaq recover" in r.output
+    damaged.write_bytes(without_data_crc(data))  # as a writer without that CRC leaves it: the walk stops
     r = run_cli("info", damaged)
     assert r.exit_code == 2 and "runs past the data section" in r.output and "ambdaq recover" in r.output
     assert len(r.output.strip().splitlines()) == 1

@@ -149,8 +149,11 @@ def test_a_workflow_takes_a_recording_already_loaded(spindle_file):
 
 
 def test_export_mf4_reads_back_with_asammdf(spindle_file, tmp_path, run_cli):
-    """MDF 4 for the XCP world: every topic a channel group with its units, every value what the
-    recording holds, the recording's metadata attached; read back by asammdf (its own reader)."""
+    """MDF 4 for the XCP world, as CANape, INCA and asammdf show it: every topic a channel group
+    named after it, whose source is the device that recorded it; every channel's name unique in
+    the file (``amb.gap.front_x`` beside ``amb.current.front_x``), so that ``get(name)`` finds each
+    and ``to_dataframe()`` has no ``_0``/``_1`` suffixes; units and values what the recording holds,
+    its metadata attached; read back by asammdf (its own reader)."""
     import json
 
     asammdf = pytest.importorskip("asammdf")
@@ -158,15 +161,22 @@ def test_export_mf4_reads_back_with_asammdf(spindle_file, tmp_path, run_cli):
     r = run_cli("export", spindle_file, "--format", "mf4", "--end", "0.2", "-o", tmp_path / "run.mf4")
     assert r.exit_code == 0, r.output
     with asammdf.MDF(tmp_path / "run.mf4") as mdf:
-        groups = {g.channel_group.comment: i for i, g in enumerate(mdf.groups)}
+        groups = {g.channel_group.acq_name: g for g in mdf.groups}
         assert set(groups) == set(full)
+        names = [ch.name for g in mdf.groups for ch in g.channels]
+        masters = [n for n in names if n == "time"]  # each group's time channel
+        assert len(set(names) - {"time"}) == len(names) - len(masters)  # every other name once
         for topic, data in full.items():
+            assert groups[topic].channel_group.acq_source.name == "rig"  # sim://spindle: one device, "rig"
+            prefix = topic.strip("/").replace("/", ".")
             for field in data.fields:
-                sig = mdf.get(field, group=groups[topic])
+                sig = mdf.get(f"{prefix}.{field}")  # by name alone: no "Multiple occurrences"
                 np.testing.assert_array_equal(sig.samples, data[field])
-                assert sig.unit == data.units[field]
+                assert sig.unit == data.units[field] and sig.comment == f"{topic} {field}"
                 # time: s since the recording's first message, to the ns the file keeps
                 np.testing.assert_allclose(sig.timestamps, data.time, atol=1e-9)
-            np.testing.assert_array_equal(mdf.get("seq", group=groups[topic]).samples, data.seq)
+            np.testing.assert_array_equal(mdf.get(f"{prefix}.seq").samples, data.seq)
+        frame = mdf.to_dataframe(time_from_zero=False)
+        assert not [c for c in frame.columns if c[-2:] in ("_0", "_1")] and "amb.gap.front_x" in frame.columns
         (attachment, _name, _md5), = [mdf.extract_attachment(i) for i in range(len(mdf.attachments))]
         assert json.loads(attachment)["ambdaq.session"]["ambdaq_version"]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from .mcapfile import McapFile
 from .reader import ambdaq_channels
+from .recording import statistics_entry
 
 
 def describe(path: str | Path) -> dict:
@@ -19,9 +19,9 @@ def describe(path: str | Path) -> dict:
     """
     f = McapFile(path)
     s = f.summary
-    st = s.statistics
+    st = f.statistics
     meta = f.metadata()
-    per_topic = {t: json.loads(v) for t, v in meta.get("ambdaq.statistics", {}).items()}
+    per_topic = {t: statistics_entry(f.path, t, v) for t, v in meta.get("ambdaq.statistics", {}).items()}
     start = st.message_start_time if st else 0
     end = st.message_end_time if st else 0
     duration = (end - start) * 1e-9
@@ -50,9 +50,12 @@ def describe(path: str | Path) -> dict:
         "end_ns": end,
         "duration_s": round(duration, 6),
         "messages": st.message_count if st else 0,
-        "chunks": len(f.chunks),
-        "compression": sorted({ci.compression or "none" for ci in f.chunks}),
-        "indexed": bool(s.chunk_indexes),
+        "chunks": st.chunk_count if st else 0,
+        "compression": sorted({ci.compression or "none" for ci in f.chunks if not f.is_loose(ci)}),
+        "indexed": bool(s.chunk_indexes) or not f.chunks,
+        "summary": f.has_summary,
+        "unchunked_messages": f.unchunked,
+        "data_crc": bool(f.data_crc),
         "topics": topics,
         "metadata": {k: v for k, v in meta.items() if k != "ambdaq.statistics"},
         "attachments": [a.name for a in s.attachment_indexes],
@@ -65,7 +68,10 @@ def format_text(d: dict) -> str:
         f"file:        {d['path']} ({d['size_bytes'] / 1e6:.1f} MB)",
         f"duration:    {d['duration_s']:.3f} s",
         f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'}"
-        f"{'' if d['indexed'] else '; no indexes: Foxglove reads it whole'})",
+        f"{'' if d['indexed'] else '; no indexes: Foxglove reads it whole'}"
+        f"{'' if d['summary'] else '; no summary: read by walking its records'}"
+        f"{'; some outside chunks' if d['unchunked_messages'] else ''})",
+        "checked:     " + ("data section CRC-32" if d["data_crc"] else "no data section CRC: its metadata is unprotected"),
         "",
         f"{'topic':<18} {'messages':>10} {'rate Hz':>10} {'drops':>7} {'dups':>5} {'wraps':>5} {'restarts':>8}  fields",
     ]

@@ -19,16 +19,13 @@ import io
 import mmap
 import os
 import struct
-import zlib
 from collections import defaultdict
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
-import lz4.frame
 import numpy as np
-import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
@@ -48,11 +45,12 @@ from mcap.records import (
 
 from .. import __version__
 from ..errors import BadInputError
+from .codec import (COMPRESSIONS, CorruptChunk, compress, crc32, crc32_parallel, inflate, inflate_head, inflate_into,
+                    size_problem)
 from .schema import MESSAGE_OPCODE
 
 MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = f"ambdaq/{__version__}"
-COMPRESSIONS = ("zstd", "lz4", "none")
 FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])  # a Message Index entry
 _MESSAGE_HEAD = struct.Struct("<BQHIQ")  # opcode, length, channel id, sequence, log time
@@ -98,43 +96,6 @@ def chunk_header(data, pos: int) -> ChunkHeader | None:
     return ChunkHeader(length, usize, crc, method, start, start + clen)
 
 
-def compress(data: bytes | memoryview, method: str) -> bytes:
-    """Compress chunk records with ``method`` ("zstd", "lz4" or "none")."""
-    if method == "zstd":
-        return _ZSTD_C.compress(data)
-    if method == "lz4":
-        return lz4.frame.compress(data, compression_level=0, content_checksum=True)
-    return bytes(data)
-
-
-def decompress(data: bytes | memoryview, method: str, size: int, into: bytearray | np.ndarray | None = None) -> bytes | memoryview:
-    """Decompress chunk records; ``size`` is the uncompressed size in bytes.
-
-    With ``into`` (a buffer of at least ``size`` bytes) a zstd chunk is decompressed into it and a
-    view of its first ``size`` bytes comes back: a reader that reuses one buffer per thread spares
-    the page faults of a fresh buffer per chunk (40% of the decompression time here).
-    """
-    if method == "zstd":
-        if into is None:
-            return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        out = memoryview(into)[:size]
-        reader = zstandard.ZstdDecompressor().stream_reader(data)
-        got = 0
-        while got < size:
-            n = reader.readinto(out[got:])
-            if n == 0:
-                raise ValueError(f"zstd frame holds {got} bytes, the chunk says {size}")
-            got += n
-        if reader.read(1):  # the frame must end here (its checksum is checked on the way)
-            raise ValueError(f"zstd frame holds more than the chunk's {size} bytes")
-        return out
-    if method == "lz4":
-        return lz4.frame.decompress(data)
-    if method == "":
-        return data
-    raise BadInputError(f"unsupported chunk compression {method!r}")
-
-
 CHUNK_SIZE = 4 << 20
 """Uncompressed chunk size limit, bytes (a block larger than a chunk's room is split at a sample
 instant).  ``load`` pays a fixed cost per chunk and topic, so smaller chunks read slower (1 MiB:
@@ -142,14 +103,6 @@ instant).  ``load`` pays a fixed cost per chunk and topic, so smaller chunks rea
 change (bench_read.py, 2026-11-27).  A damaged chunk
 costs 0.6 s of the spindle with ground truth.  A paced recording closes its chunks at the flush
 interval anyway (0.5 s of the spindle: 2.7 MB, with ground truth 3.6 MB)."""
-ZSTD_LEVEL = -1
-"""zstd's fastest level that still compresses our records as well as level 1 (ratio 0.305 against
-0.309 on the spindle): the negative levels store literals without Huffman coding, which buys
-nothing on sensor noise and costs 30% of the decompression time (benchmarks/bench_read.py)."""
-# with a frame checksum: corruption is caught on decompression at xxhash speed
-_ZSTD_C = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
-
-
 @dataclass
 class _OpenChunk:
     """Messages of the chunk being built: record bytes and per-channel index pieces."""
@@ -201,17 +154,25 @@ class BlockWriter:
         self._end = 0
         self._chunks: dict[tuple[int, ...], _OpenChunk] = {}  # open chunks, one per row of channels
         self._finished = False
-        self._out.write(MAGIC)
+        self._data_crc: int | None = 0  # CRC-32 of the data section so far; None once Data End is written
+        self._emit(MAGIC)
         self._write_record(Header(profile=profile, library=LIBRARY))
 
     # --- records outside chunks ---------------------------------------------------------------
+
+    def _emit(self, data: bytes | memoryview) -> None:
+        """Write ``data``; before Data End, also into the data section's CRC-32 (MCAP's
+        ``data_section_crc``: every byte from the magic up to the Data End record)."""
+        if self._data_crc is not None:
+            self._data_crc = crc32(data, self._data_crc)
+        self._out.write(data)
 
     def _write_record(self, record) -> int:
         builder = RecordBuilder()
         record.write(builder)
         data = builder.end()
         offset = self._out.tell()
-        self._out.write(data)
+        self._emit(data)
         return offset
 
     def add_schema(self, name: str, encoding: str, data: bytes, schema_id: int | None = None) -> int:
@@ -336,18 +297,18 @@ class BlockWriter:
         name = b"" if method == "none" else method.encode()
         offset = self._out.tell()
         header = struct.pack(
-            "<BQQQQI", Opcode.CHUNK, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(packed), start, end, len(data), zlib.crc32(data)
+            "<BQQQQI", Opcode.CHUNK, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(packed), start, end, len(data), crc32(data)
         ) + struct.pack("<I", len(name)) + name + struct.pack("<Q", len(packed))
-        self._out.write(header)
-        self._out.write(packed)
+        self._emit(header)
+        self._emit(packed)
         chunk_length = self._out.tell() - offset
         index_start = self._out.tell()
         index_offsets = {}
         for cid, idx in index.items() if self._index else ():
             index_offsets[cid] = self._out.tell()
             body = idx.tobytes()
-            self._out.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid, len(body)))
-            self._out.write(body)
+            self._emit(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid, len(body)))
+            self._emit(body)
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start,
@@ -387,7 +348,8 @@ class BlockWriter:
             return
         self._finished = True
         self.close_chunks()
-        self._write_record(DataEnd(data_section_crc=0))
+        crc, self._data_crc = self._data_crc, None
+        self._write_record(DataEnd(data_section_crc=crc))
         summary_start = self._out.tell()
         builder = RecordBuilder()
         offsets: list[SummaryOffset] = []
@@ -421,8 +383,8 @@ class BlockWriter:
         for o in offsets:
             o.write(builder)
         summary = builder.end()
-        crc = zlib.crc32(summary)
-        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+        crc = crc32(summary)
+        crc = crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
         self._out.write(summary)
         self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
         self._out.write(MAGIC)
@@ -477,11 +439,34 @@ class Summary:
     metadata_indexes: list[MetadataIndex]
 
 
+@dataclass
+class _Walk:
+    """What a walk of the data section found (:meth:`McapFile._walk`)."""
+
+    chunks: list[ChunkIndex] = field(default_factory=list)
+    data_end: int | None = None  # where the Data End record starts (None: the file has none)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    metadata: list[MetadataIndex] = field(default_factory=list)
+    attachments: list[AttachmentIndex] = field(default_factory=list)
+
+
 class McapFile:
     """A finished MCAP file opened for fast reading (memory-mapped).
 
-    Raises :class:`~ambdaq.errors.BadInputError` for anything that is not a complete MCAP file,
-    naming ``ambdaq recover`` when the file looks like an unfinished recording.
+    Any valid MCAP file opens: with a summary and its indexes (ambdaq's files, rosbag2's), without
+    chunk or message indexes (``--no-index``), without a summary at all, with its messages outside
+    chunks; a file without a summary, or without chunk indexes, is walked record by record as the
+    official stream reader does (:meth:`_walk`), and its messages outside chunks are read as if
+    each run of them were an uncompressed chunk.
+
+    What is checked on opening (docs/data-format.md, "What is checked"): the footer, the summary's
+    CRC-32 and the data section's (every byte from the magic to Data End: schemas, channels,
+    chunks, indexes, metadata, attachments) where the writer stored them, and every chunk's header
+    against its index before any memory is sized from it (:meth:`chunks`).
+
+    Raises :class:`~ambdaq.errors.BadInputError` for anything that is not a complete, intact MCAP
+    file, naming ``ambdaq recover`` when the file looks like an unfinished or damaged recording.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -508,16 +493,30 @@ class McapFile:
             )
         fpos = len(data) - len(MAGIC) - FOOTER_SIZE
         op, length, summary_start, summary_offset_start, crc = struct.unpack_from("<BQQQI", data, fpos)
-        if op != Opcode.FOOTER or length != 20 or summary_start == 0 or summary_start > fpos:
-            raise BadInputError(
-                f"{self.path}: MCAP file has no usable summary; rebuild it with: ambdaq recover {self.path} -o FIXED.mcap"
-            )
-        if crc != 0:
-            calc = zlib.crc32(data[summary_start : fpos + 1 + 8 + 16])
-            if calc != crc:
+        if op != Opcode.FOOTER or length != 20 or summary_start > fpos or 0 < summary_start < len(MAGIC):
+            raise BadInputError(f"{self.path}: the footer is damaged; try: ambdaq recover {self.path} -o FIXED.mcap")
+        self._loose: dict[int, ChunkHeader] = {}  # runs of messages outside chunks, read as chunks
+        self._walked: _Walk | None = None
+        if summary_start == 0:  # no summary (the specification allows it): everything from a walk
+            self._summary_start = fpos
+            walk = self._walk()
+            self._definitions_in_chunks(walk)
+            self.summary = Summary(walk.schemas, walk.channels, None, [], walk.attachments, walk.metadata)
+            data_end = walk.data_end
+        else:
+            if crc != 0 and crc32(data[summary_start : fpos + 1 + 8 + 16]) != crc:
                 raise BadInputError(f"{self.path}: MCAP summary is corrupted (CRC mismatch); try: ambdaq recover")
-        self.summary = self._read_summary(summary_start, fpos)
-        self._summary_start = summary_start
+            self.summary = self._read_summary(summary_start, fpos)
+            self._summary_start = summary_start
+            data_end = summary_start - 13  # where ambdaq's and the official writer put Data End
+            if not (data_end >= len(MAGIC) and data[data_end] == Opcode.DATA_END
+                    and struct.unpack_from("<Q", data, data_end + 1)[0] == 4):
+                data_end = self._walk().data_end
+        self.data_crc = struct.unpack_from("<I", data, data_end + 9)[0] if data_end is not None else 0
+        """The data section's CRC-32 as written (0: the writer stored none), checked on opening."""
+        if self.data_crc and crc32_parallel(memoryview(data)[:data_end]) != self.data_crc:
+            raise BadInputError(f"{self.path}: the data section fails its CRC-32: a byte of it (metadata, a chunk, "
+                                "an index) is not what was written; try: ambdaq recover")
 
     def _read_summary(self, start: int, end: int) -> Summary:
         s = Summary({}, {}, None, [], [], [])
@@ -541,39 +540,147 @@ class McapFile:
             raise BadInputError(f"{self.path}: MCAP summary is corrupted ({err}); try: ambdaq recover") from None
         return s
 
+    def _walk(self) -> _Walk:
+        """The data section walked record by record, as the official stream reader reads a file:
+        its chunks (each with the Message Indexes that follow it), runs of messages outside chunks
+        (each read as an uncompressed chunk of their records), schemas and channels (also those a
+        writer such as rosbag2's put inside chunks), metadata and attachments, and where Data End
+        is.  Walked once, when first needed.  A record that runs past the data section is a damaged
+        file (BadInputError naming ``ambdaq recover``), never a file that silently ends there."""
+        if self._walked is not None:
+            return self._walked
+        data, end, pos, w = self._data, self._summary_start, len(MAGIC), _Walk()
+        run: list[int] = []  # the run of loose messages being collected: first offset, log times
+        times: list[int] = []
+
+        def close_run(at: int) -> None:
+            if run:
+                start = run[0]
+                self._loose[start] = ChunkHeader(at - start, at - start, 0, "", start, at)
+                w.chunks.append(ChunkIndex(
+                    message_start_time=min(times), message_end_time=max(times), chunk_start_offset=start,
+                    chunk_length=at - start, message_index_offsets={}, message_index_length=0, compression="",
+                    compressed_size=at - start, uncompressed_size=at - start))
+                run.clear()
+                times.clear()
+
+        try:
+            while pos + 9 <= end:
+                op, length = struct.unpack_from("<BQ", data, pos)
+                if pos + 9 + length > end:
+                    break
+                body = memoryview(data)[pos + 9 : pos + 9 + length]
+                if op != MESSAGE_OPCODE:
+                    close_run(pos)
+                if op == Opcode.DATA_END:
+                    w.data_end = pos
+                    break
+                if op == Opcode.CHUNK:
+                    h = chunk_header(data, pos)
+                    if h is None or h.data_end > pos + 9 + length:
+                        break
+                    start_time, end_time = struct.unpack_from("<QQ", data, pos + 9)
+                    w.chunks.append(ChunkIndex(
+                        message_start_time=start_time, message_end_time=end_time, chunk_start_offset=pos,
+                        chunk_length=9 + length, message_index_offsets={}, message_index_length=0,
+                        compression=h.compression,
+                        compressed_size=h.data_end - h.data_start, uncompressed_size=h.uncompressed_size))
+                elif op == Opcode.MESSAGE_INDEX and w.chunks and w.chunks[-1].chunk_start_offset not in self._loose:
+                    last = w.chunks[-1]
+                    if last.chunk_start_offset + last.chunk_length + last.message_index_length == pos:
+                        last.message_index_offsets[struct.unpack_from("<H", body, 0)[0]] = pos
+                        last.message_index_length += 9 + length
+                elif op == MESSAGE_OPCODE and length >= 22:
+                    if not run:
+                        run.append(pos)
+                    times.append(struct.unpack_from("<Q", body, 6)[0])
+                elif op == Opcode.SCHEMA:
+                    r = _read(Schema, body)
+                    w.schemas[r.id] = r
+                elif op == Opcode.CHANNEL:
+                    r = _read(Channel, body)
+                    w.channels[r.id] = r
+                elif op == Opcode.METADATA:
+                    w.metadata.append(MetadataIndex(offset=pos, length=9 + length, name=_read(Metadata, body).name))
+                elif op == Opcode.ATTACHMENT:
+                    a = _read(Attachment, body)
+                    w.attachments.append(AttachmentIndex(
+                        offset=pos, length=9 + length, log_time=a.log_time, create_time=a.create_time,
+                        data_size=len(a.data), name=a.name, media_type=a.media_type))
+                pos += 9 + length
+        except Exception as err:  # a record the record classes cannot parse
+            raise BadInputError(f"{self.path}: the record at byte {pos} is damaged ({err}); "
+                                "try: ambdaq recover") from None
+        close_run(pos)
+        if not (pos == end or w.data_end is not None):
+            raise BadInputError(f"{self.path}: the record at byte {pos} is damaged (it runs past the data section); "
+                                "try: ambdaq recover")
+        self._walked = w
+        return w
+
+    def _definitions_in_chunks(self, w: _Walk) -> None:
+        """Schemas and channels that a writer such as rosbag2's put inside chunks, where no summary
+        repeats them (every chunk inflated once)."""
+        for ci in w.chunks:
+            if ci.chunk_start_offset in self._loose:
+                continue
+            try:
+                for op, _pos, body in iter_records(self.chunk_records(ci), 0):
+                    if op == Opcode.SCHEMA:
+                        r = _read(Schema, body)
+                        w.schemas.setdefault(r.id, r)
+                    elif op == Opcode.CHANNEL:
+                        r = _read(Channel, body)
+                        w.channels.setdefault(r.id, r)
+            except BadInputError:
+                raise
+            except Exception as err:
+                raise self.damaged_chunk(ci, f"a schema or channel record in it does not parse ({err})") from None
+
     @cached_property
     def chunks(self) -> list[ChunkIndex]:
         """Every chunk of the file, as its Chunk Index describes it: the summary's, or where the
-        summary lists none (a file written without indexes: ``--no-index``, or by another writer)
-        what a walk of the data section finds, each with no message indexes.  A record that
-        runs past the summary is a damaged file (BadInputError naming ``ambdaq recover``), never
-        a file that silently ends there."""
-        if self.summary.chunk_indexes:
-            return self.summary.chunk_indexes
-        data, end, pos, found = self._data, self._summary_start, len(MAGIC), []
-        while pos < end:
-            if pos + 9 > end:
-                break
-            op, length = struct.unpack_from("<BQ", data, pos)
-            if op == Opcode.DATA_END:
-                return found
-            if pos + 9 + length > end:
-                break
-            if op == Opcode.CHUNK:
-                h = chunk_header(data, pos)
-                if h is None or h.data_end > pos + 9 + length:
-                    break
-                start_time, end_time = struct.unpack_from("<QQ", data, pos + 9)
-                found.append(ChunkIndex(
-                    message_start_time=start_time, message_end_time=end_time, chunk_start_offset=pos,
-                    chunk_length=9 + length, message_index_offsets={}, message_index_length=0,
-                    compression=h.compression,
-                    compressed_size=h.data_end - h.data_start, uncompressed_size=h.uncompressed_size))
-            pos += 9 + length
-        if pos == end:
-            return found  # no Data End record: the specification makes it optional
-        raise BadInputError(f"{self.path}: the record at byte {pos} is damaged (it runs past the data section); "
-                            "try: ambdaq recover")
+        summary lists none (a file written without indexes, ``--no-index``, a file without a
+        summary, another writer's unchunked messages) what a walk of the data section finds
+        (:meth:`_walk`).  Each is checked against its own header before anything is sized from it."""
+        found = self.summary.chunk_indexes or self._walk().chunks
+        for ci in found:
+            self._chunk_data(ci)
+        return found
+
+    @cached_property
+    def statistics(self) -> Statistics | None:
+        """The file's Statistics record, or where it has none, the same counted from its messages
+        (every chunk inflated once); None for a file without messages or channels."""
+        if self.summary.statistics is not None:
+            return self.summary.statistics
+        counts: dict[int, int] = defaultdict(int)
+        start, end = 2**64 - 1, 0
+        for ci in self.chunks:
+            found, _stop = message_indexes_of(self.chunk_records(ci))
+            for cid, idx in found.items():
+                counts[cid] += idx.shape[0]
+                start, end = min(start, int(idx["log_time"].min())), max(end, int(idx["log_time"].max()))
+        s = self.summary
+        return Statistics(message_count=sum(counts.values()), schema_count=len(s.schemas),
+                          channel_count=len(s.channels), attachment_count=len(s.attachment_indexes),
+                          metadata_count=len(s.metadata_indexes), chunk_count=len(self.chunks) - len(self._loose),
+                          message_start_time=start if counts else 0, message_end_time=end,
+                          channel_message_counts=dict(counts))
+
+    @property
+    def unchunked(self) -> bool:
+        """Whether messages lie outside chunks (read as uncompressed chunks of their records)."""
+        return bool(self.chunks) and bool(self._loose)
+
+    def is_loose(self, ci: ChunkIndex) -> bool:
+        """Whether ``ci`` is a run of messages outside chunks rather than a chunk record."""
+        return ci.chunk_start_offset in self._loose
+
+    @property
+    def has_summary(self) -> bool:
+        """Whether the file has a summary section (else it was walked, :meth:`_walk`)."""
+        return self._summary_start != len(self._data) - len(MAGIC) - FOOTER_SIZE
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """All metadata records, name -> map."""
@@ -601,51 +708,75 @@ class McapFile:
         return out
 
     def _chunk_data(self, ci: ChunkIndex) -> tuple[ChunkHeader, memoryview]:
-        """The header of the chunk ``ci`` names and its compressed data; BadInputError if no chunk is there."""
-        h = chunk_header(self._data, ci.chunk_start_offset)
-        if h is None:
-            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted (not a chunk); "
-                                "try: ambdaq recover")
-        return h, memoryview(self._data)[h.data_start : h.data_end]
+        """The header of the chunk ``ci`` names and its compressed data, as the index describes them
+        (:meth:`_check_chunk`); BadInputError otherwise."""
+        h = self._loose.get(ci.chunk_start_offset) or chunk_header(self._data, ci.chunk_start_offset)
+        problem = "not a chunk" if h is None else _disagreement(ci, h)
+        if problem is None:
+            packed = memoryview(self._data)[h.data_start : h.data_end]
+            problem = size_problem(packed, h.compression, h.uncompressed_size)
+        if problem is not None:
+            raise self.damaged_chunk(ci, problem)
+        return h, packed
 
-    def chunk_records(self, ci: ChunkIndex, into: bytearray | np.ndarray | None = None) -> bytes | memoryview:
-        """The decompressed records of one chunk (into ``into`` where it can: see :func:`decompress`)."""
+    def damaged_chunk(self, ci: ChunkIndex, problem: str) -> BadInputError:
+        """The one line that refuses the chunk ``ci``: the file, the chunk, what is wrong."""
+        return BadInputError(f"{self.path}: the chunk at byte {ci.chunk_start_offset} is damaged: {problem}; "
+                             "try: ambdaq recover")
+
+    def chunk_records(self, ci: ChunkIndex) -> np.ndarray:
+        """The records of one chunk, inflated into new memory and checked (:func:`.codec.inflate`)."""
         h, packed = self._chunk_data(ci)
-        usize = h.uncompressed_size
         try:
-            return decompress(packed, h.compression, usize, into if into is not None and len(into) >= usize else None)
-        except BadInputError:
-            raise
-        except Exception as err:
-            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted ({err}); "
-                                "try: ambdaq recover") from None
+            return inflate(packed, h.compression, h.uncompressed_size, h.crc)
+        except CorruptChunk as err:
+            raise self.damaged_chunk(ci, str(err)) from None
+
+    def inflate_into(self, ci: ChunkIndex, dest: np.ndarray) -> None:
+        """Inflate one chunk's records into ``dest`` (uint8, exactly its uncompressed size), every
+        byte, checked (:func:`.codec.inflate_into`); BadInputError naming the chunk otherwise."""
+        h, packed = self._chunk_data(ci)
+        try:
+            inflate_into(packed, h.compression, h.uncompressed_size, dest, h.crc)
+        except CorruptChunk as err:
+            raise self.damaged_chunk(ci, str(err)) from None
 
     def chunk_head(self, ci: ChunkIndex, nbytes: int) -> bytes:
-        """The first ``nbytes`` (at most) of one chunk's decompressed records: what its first records
-        are, without inflating all of it (zstd, none; an lz4 chunk is inflated whole)."""
+        """The first ``nbytes`` (at most) of one chunk's records, unchecked: what its first records
+        are, without inflating all of it (:func:`.codec.inflate_head`)."""
         h, packed = self._chunk_data(ci)
         try:
-            if h.compression == "zstd":
-                reader, parts, got = zstandard.ZstdDecompressor().stream_reader(packed), [], 0
-                while got < min(nbytes, h.uncompressed_size):
-                    part = reader.read(nbytes - got)
-                    if not part:
-                        break
-                    parts.append(part)
-                    got += len(part)
-                return b"".join(parts)
-            return bytes(decompress(packed, h.compression, h.uncompressed_size)[:nbytes])
-        except Exception as err:
-            raise BadInputError(f"{self.path}: chunk at byte {ci.chunk_start_offset} is corrupted ({err}); "
-                                "try: ambdaq recover") from None
+            return inflate_head(packed, h.compression, h.uncompressed_size, nbytes)
+        except CorruptChunk as err:
+            raise self.damaged_chunk(ci, str(err)) from None
 
     def message_index(self, ci: ChunkIndex, channel_id: int) -> np.ndarray:
-        """(log_time, offset) of a channel's messages in one chunk, from its Message Index."""
+        """(log_time, offset) of a channel's messages in one chunk, from its Message Index; the
+        record must lie within the chunk's message indexes and hold whole entries."""
         pos = ci.message_index_offsets[channel_id]
-        op, _length, cid, nbytes = struct.unpack_from("<BQHI", self._data, pos)
-        if op != Opcode.MESSAGE_INDEX or cid != channel_id:
-            raise BadInputError(f"{self.path}: message index at byte {pos} is corrupted; try: ambdaq recover")
+        first = ci.chunk_start_offset + ci.chunk_length
+        if not first <= pos <= first + ci.message_index_length - 15 or pos + 15 > self._summary_start:
+            raise BadInputError(f"{self.path}: the message index at byte {pos} lies outside its chunk's indexes; "
+                                "try: ambdaq recover")
+        op, length, cid, nbytes = struct.unpack_from("<BQHI", self._data, pos)
+        if (op != Opcode.MESSAGE_INDEX or cid != channel_id or length != 6 + nbytes or nbytes % 16
+                or pos + 15 + nbytes > first + ci.message_index_length):
+            raise BadInputError(f"{self.path}: the message index at byte {pos} is damaged; try: ambdaq recover")
         return np.frombuffer(self._data, dtype=_INDEX_DTYPE, count=nbytes // 16, offset=pos + 15)
+
+
+def _disagreement(ci: ChunkIndex, h: ChunkHeader) -> str | None:
+    """How a chunk's own header disagrees with its Chunk Index (None where it does not): the
+    summary is CRC-checked, the header is not, so a size it states is taken only where both agree."""
+    if h.compression != ci.compression:
+        return f"its header says compression {h.compression or 'none'!r}, its index {ci.compression or 'none'!r}"
+    if h.uncompressed_size != ci.uncompressed_size:
+        return f"its header says {h.uncompressed_size} bytes of records, its index {ci.uncompressed_size}"
+    if h.data_end - h.data_start != ci.compressed_size:
+        return f"its header says {h.data_end - h.data_start} compressed bytes, its index {ci.compressed_size}"
+    if h.data_end > ci.chunk_start_offset + ci.chunk_length:
+        return "its data runs past the record its index describes"
+    return None
 
 
 def message_view(records: bytes | memoryview | np.ndarray, index: np.ndarray, message_dtype: np.dtype,

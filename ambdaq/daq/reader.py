@@ -312,12 +312,13 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: d
         every core at once."""
         ci, places, rows, implied, at = job
         if at is not None:
-            records = f.chunk_records(ci, buffers[rows][at : at + ci.uncompressed_size])
+            records = buffers[rows][at : at + ci.uncompressed_size]
         else:
             if not hasattr(local, "buffer"):
                 local.buffer = np.empty(largest, dtype=np.uint8)  # numpy asks for huge pages from 4 MiB
-            records = f.chunk_records(ci, local.buffer)
-        if implied and not rows_hold(np.frombuffer(records, dtype=np.uint8), rows):
+            records = local.buffer[: ci.uncompressed_size]
+        f.inflate_into(ci, records)  # every byte of records written and checked, or BadInputError
+        if implied and not rows_hold(records, rows):
             looked_like_rows.add(ci.chunk_start_offset)
             return
         for cid, (idx, p) in places.items():

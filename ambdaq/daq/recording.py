@@ -115,7 +115,7 @@ class Recording(Mapping):
                     raise NotInRecording(f"{f.path}: no ambdaq topic {t}; topics: {known}")
                 shown.append(t)
         self._shown = list(dict.fromkeys(shown))
-        stats = f.summary.statistics
+        stats = f.statistics
         self.start_ns = stats.message_start_time if stats is not None and stats.message_count else min(
             (ci.message_start_time for ci in f.chunks), default=0)
         self._lo = None if start is None else self.start_ns + int(start * 1e9)
@@ -209,7 +209,7 @@ class Recording(Mapping):
         """The counts the recorder wrote for ``topic`` (samples, drops, duplicates ...), or None in a
         file without them (another writer's, a recovered one)."""
         text = self.metadata.get("ambdaq.statistics", {}).get(topic)
-        return json.loads(text) if text else None
+        return statistics_entry(self.path, topic, text) if text else None
 
     @cached_property
     def machine(self) -> Machine:
@@ -269,6 +269,19 @@ class Recording(Mapping):
         """Decode the topics of roles ``names`` in one pass (a role it lacks is left for :meth:`role` to name)."""
         topics = [r.topic for n in names if (r := self.machine.role(n)) is not None and r.topic in self._shown]
         return self.load(topics)
+
+
+def statistics_entry(path: Path, topic: str, text: str) -> dict:
+    """One topic's ``ambdaq.statistics`` entry (JSON), or one line saying it is damaged (a file
+    whose data section has no CRC to catch a changed byte: another writer's, or ambdaq's before 0.3)."""
+    try:
+        entry = json.loads(text)
+        if isinstance(entry, dict):
+            return entry
+    except ValueError:
+        pass
+    raise BadInputError(f"{path}: the ambdaq.statistics metadata of {topic} is damaged (not a JSON object); "
+                        "try: ambdaq recover")
 
 
 def same_instants(data: list[TopicData], labels: list[str], where: Path) -> list[TopicData]:
@@ -347,4 +360,4 @@ def load(path: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None
     return rec
 
 
-__all__ = ["DeviceInfo", "Recording", "load", "open_recording", "same_instants"]
+__all__ = ["DeviceInfo", "Recording", "load", "open_recording", "same_instants", "statistics_entry"]

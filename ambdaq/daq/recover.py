@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,13 +34,13 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
-from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, decompress, iter_records
+from .codec import CorruptChunk, crc32, declared_size, inflate
+from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, iter_records
 from .output import check_output
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
 from .writer import PROFILE
 
-MAX_UNCOMPRESSED = 1 << 31  # a chunk is MiBs: a damaged size hint is never taken beyond this
 KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
@@ -67,14 +66,16 @@ def chunk_at(data: bytes, pos: int) -> tuple[bytes, int] | None:
     h = chunk_header(data, pos)
     if h is None:
         return None
-    try:  # the size is a hint (a zstd frame states its own): the CRC says whether the data is whole
-        records = bytes(decompress(bytes(data[h.data_start : h.data_end]), h.compression,
-                                   min(h.uncompressed_size, MAX_UNCOMPRESSED)))
-    except Exception:  # whatever the codec says about damaged data
+    packed = data[h.data_start : h.data_end]
+    # the header's size is a hint where the frame states its own: the CRC says whether the data is whole
+    size = declared_size(packed, h.compression) or h.uncompressed_size
+    try:
+        records = inflate(packed, h.compression, size, h.crc)
+    except CorruptChunk:  # whatever the codec says about damaged data
         return None
-    if (zlib.crc32(records) != h.crc) if h.crc else len(records) != h.uncompressed_size:
+    if (crc32(records) != h.crc) if h.crc else size != h.uncompressed_size:
         return None
-    return records, h.data_end
+    return records.tobytes(), h.data_end
 
 
 def find_chunks(data: bytes, start: int) -> tuple[list[tuple[int, int, bytes]], int]:
