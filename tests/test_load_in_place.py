@@ -123,3 +123,127 @@ def test_memory_a_caller_holds_is_never_handed_out_again(tmp_path):
     np.testing.assert_array_equal(held, kept)
     np.testing.assert_array_equal(again, np.sin(np.arange(200 * PER_BLOCK) / 7.0))
     assert not np.shares_memory(held, again)
+
+
+def _held_forms(rec) -> dict:
+    """One recording's arrays kept every way a user keeps them, and a copy of what each held."""
+    import threading
+
+    import pyarrow as pa
+
+    gap, rotor = rec["/amb/gap"], rec["/amb/rotor"]
+    x = gap["front_x"]
+    forms = {
+        "field": gap["front_y"],
+        "slice": gap["rear_x"][5:-5:3],
+        "asarray": np.asarray(gap["rear_y"]),
+        "view as bytes": gap["front_x"].view(np.uint64)[::2],
+        "memoryview": memoryview(rotor["speed"]),
+        "frombuffer": np.frombuffer(memoryview(np.ascontiguousarray(x[:10])), dtype=np.float64),
+        "pandas": gap.to_pandas(),
+        "pandas column": gap.to_pandas()["front_x"],
+        "pyarrow array": pa.array(rotor["angle"]),
+        "pyarrow table": pa.table({"x": gap["front_x"], "t": gap.log_time}),
+        "log times": gap.log_time,
+        "topic": rec["/amb/current"],
+        "dict": {"x": rec["/amb/current"]["front_x"][100:]},
+    }
+    forms["closure"] = (lambda a: (lambda: a))(rec["/amb/error"]["front_x"])
+    box: dict = {}
+    ready, done = threading.Event(), threading.Event()
+
+    def hold() -> None:  # a thread that holds an array in a local while the main thread loads
+        local = rec["/amb/error"]["rear_y"]
+        box["copy"] = local.copy()
+        ready.set()
+        done.wait()
+        box["after"] = local.copy()
+
+    thread = threading.Thread(target=hold)
+    thread.start()
+    ready.wait()
+    forms["thread"] = (thread, done, box)
+    return forms
+
+
+def _snapshot(forms: dict) -> dict:
+    import pyarrow as pa
+
+    out = {}
+    for name, v in forms.items():
+        if name == "thread":
+            continue
+        if isinstance(v, dict):
+            v = v["x"]
+        elif callable(v):
+            v = v()
+        elif isinstance(v, memoryview):
+            v = np.asarray(v)
+        elif isinstance(v, pa.Table):
+            v = np.stack([c.to_numpy() for c in v.columns]).astype(np.float64)
+        elif isinstance(v, pa.Array):
+            v = v.to_numpy(zero_copy_only=False)
+        elif hasattr(v, "fields") and hasattr(v, "topic"):  # a TopicData: every field
+            v = np.stack(list(v.fields.values()))
+        elif hasattr(v, "to_numpy"):
+            v = v.to_numpy()
+        out[name] = np.array(v, copy=True)
+    return out
+
+
+def test_arrays_a_user_holds_never_change_whatever_is_loaded_after(tmp_path, run_cli):
+    """The memory ``load`` uses again is only memory no array refers to: a user's arrays of one
+    load, held as fields, slices, views, ``np.asarray``, memoryviews, pandas frames and columns,
+    pyarrow arrays and buffers, in a dict, a closure or another thread's locals, hold the same
+    values through loads of other recordings of the same size (whose blocks would fit) and of
+    the same file again."""
+    files = []
+    for seed in (1, 2, 3):
+        f = tmp_path / f"s{seed}.mcap"
+        assert run_cli("sim", "generate", "--duration", "0.6", "--seed", seed, "-q", "-o", f).exit_code == 0
+        files.append(f)
+    rec = load(files[0])
+    forms = _held_forms(rec)
+    before = _snapshot(forms)
+    del rec
+    for _round in range(3):
+        for f in files:  # the same file again, and others after it (their values last in any reused block)
+            other = load(f)
+            for t in other:  # touch every topic, as a user would
+                for name in other[t]:
+                    assert other[t][name].shape[0] > 0
+            del other
+    thread, done, box = forms["thread"]
+    done.set()
+    thread.join()
+    after = _snapshot(forms)
+    for name, values in before.items():
+        np.testing.assert_array_equal(after[name], values, err_msg=name)
+    np.testing.assert_array_equal(box["after"], box["copy"], err_msg="thread")
+
+
+def test_the_memory_kept_between_loads_is_bounded_and_can_be_given_back(tmp_path, run_cli, monkeypatch):
+    """At most KEEP bytes are kept for the next load (a larger block is never kept: its memory goes
+    when its arrays do), and ``release_memory`` gives back what no array refers to."""
+    import gc
+    import tracemalloc
+
+    from ambdaq.daq import memory, release_memory
+
+    f = tmp_path / "s.mcap"
+    assert run_cli("sim", "generate", "--duration", "0.6", "-q", "-o", f).exit_code == 0
+    gc.collect()  # what earlier tests of this process let go
+    release_memory()
+    tracemalloc.start()
+    rec = load(f)
+    loaded = tracemalloc.get_traced_memory()[0]
+    del rec
+    kept = tracemalloc.get_traced_memory()[0]
+    assert memory.kept() > 0 and kept > loaded / 2  # kept for the next load
+    assert release_memory() > 0 and memory.kept() == 0
+    assert tracemalloc.get_traced_memory()[0] < loaded / 10  # given back
+    monkeypatch.setattr(memory, "KEEP", 1 << 20)  # below this recording's columns
+    rec = load(f)
+    del rec
+    assert memory.kept() <= 1 << 20 and tracemalloc.get_traced_memory()[0] < loaded / 10
+    tracemalloc.stop()

@@ -109,6 +109,12 @@ class AmbdaqGroup(click.Group):
                 raise
             click.echo(f"ambdaq: error: {err}", err=True)
             ctx.exit(1)
+        except MemoryError as err:  # a runtime failure (exit 1): the machine, not the input
+            if ctx.meta.get("ambdaq.debug"):
+                raise
+            click.echo(f"ambdaq: error: out of memory ({err or 'no detail'}): take fewer topics (--topic) or a "
+                       "shorter stretch (--start, --end)", err=True)
+            ctx.exit(1)
         except Exception as err:  # a bug: one line, the traceback with --debug
             if ctx.meta.get("ambdaq.debug"):
                 raise

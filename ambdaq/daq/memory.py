@@ -49,7 +49,7 @@ class _Pool:
 
     def take(self, nbytes: int) -> np.ndarray:
         """``nbytes`` of memory (uint8) that starts on a huge page: a block no array refers to any
-        more, or a fresh one."""
+        more, or a fresh one (kept for later only where it fits :data:`KEEP`)."""
         with self._lock:
             free = [i for i, ((_owner, _start, size), refs) in enumerate(zip(self._blocks, _references(self._blocks)))
                     if nbytes <= size <= nbytes + nbytes // 4 + GRAIN and refs == self._idle]
@@ -60,13 +60,26 @@ class _Pool:
             size = -(-nbytes // GRAIN) * GRAIN if nbytes >= GRAIN else nbytes
             owner = np.empty(size + HUGE_PAGE, dtype=np.uint8)
             start = -owner.ctypes.data % HUGE_PAGE
-            kept, total = [(owner, start, size)], size
-            for block in self._blocks:  # the newest blocks stay, up to KEEP bytes
+            kept, total = [], 0
+            for block in [(owner, start, size), *self._blocks]:  # the newest blocks stay, up to KEEP bytes
                 if total + block[2] <= KEEP:
                     kept.append(block)
                     total += block[2]
             self._blocks = kept
             return owner[start : start + nbytes]
+
+    def release(self) -> int:
+        """Let go of every block no array refers to; the bytes let go."""
+        with self._lock:
+            refs = _references(self._blocks)
+            gone = sum(b[2] for b, r in zip(self._blocks, refs) if r == self._idle)
+            self._blocks = [b for b, r in zip(self._blocks, refs) if r != self._idle]
+            return gone
+
+    @property
+    def kept(self) -> int:
+        """Bytes of the blocks the pool keeps, in use or free."""
+        return sum(b[2] for b in self._blocks)
 
 
 _POOL = _Pool()
@@ -84,4 +97,16 @@ def take(nbytes: int) -> np.ndarray:
     return _POOL.take(nbytes)
 
 
-__all__ = ["HUGE_PAGE", "take"]
+def release_memory() -> int:
+    """Give back to the system the memory ``load`` keeps for the next load (at most :data:`KEEP`
+    bytes, of recordings no array refers to any more); returns the bytes given back.  Arrays still
+    held keep theirs."""
+    return _POOL.release()
+
+
+def kept() -> int:
+    """Bytes the pool keeps now (blocks in use by arrays, and free ones), at most :data:`KEEP`."""
+    return _POOL.kept
+
+
+__all__ = ["HUGE_PAGE", "KEEP", "kept", "release_memory", "take"]
