@@ -11,8 +11,12 @@ unpaced.  Baselines, measured in the same run:
 * the official MCAP reader's ``iter_decoded_messages`` with the official ROS 2 decoder, on the
   first 3 s of the same recording (it decodes one message per Python call).
 
-* the limit: zstd alone inflating the same chunks into a reused buffer (``zstandard``'s
-  ``stream_reader``, no ambdaq code), on one thread and on two, the work ``load`` cannot avoid.
+* the limit: the codec alone inflating the same chunks into a reused buffer (``zstandard``'s
+  ``stream_reader``; lz4's ``decompress``; for uncompressed chunks a copy of the records; no ambdaq
+  code), on one thread and on two, the work ``load`` cannot avoid; zstd (the default), lz4 and
+  none, indexed, and zstd without indexes;
+* ``load`` repeated with and without the memory it keeps between loads (``daq/memory.py``): what
+  the pool pays on a process that reads file after file.
 
 Then how the chunk compression and size trade file size, write speed and read speed.
 
@@ -75,7 +79,10 @@ def first_read(setup: str, path: Path) -> float:
 
 
 def inflate(path: Path, threads: int) -> float:
-    """Best of 3 (s): zstd inflating every chunk of ``path`` into one reused buffer per thread."""
+    """Best of 3 (s): the chunks' codec alone inflating every chunk of ``path`` into one reused
+    buffer per thread, no ambdaq code: zstd's ``stream_reader``, lz4's ``decompress`` (new bytes,
+    lz4 inflates into nothing else), for an uncompressed chunk a copy of its records."""
+    import lz4.frame
     import zstandard
     from concurrent.futures import ThreadPoolExecutor
 
@@ -83,19 +90,24 @@ def inflate(path: Path, threads: int) -> float:
     from mcap.stream_reader import StreamReader
 
     with open(path, "rb") as f:  # the chunks as the official reader finds them, still compressed
-        frames = [(r.data, r.uncompressed_size) for r in StreamReader(f, emit_chunks=True).records
+        frames = [(r.compression, r.data, r.uncompressed_size) for r in StreamReader(f, emit_chunks=True).records
                   if isinstance(r, Chunk)]
-    largest = max(size for _, size in frames)
+    largest = max(size for *_, size in frames)
     buffers = {}
 
     def one(frame) -> None:
         import threading
 
         buf = buffers.setdefault(threading.get_ident(), bytearray(largest))
-        packed, size = frame
-        reader, got, view = zstandard.ZstdDecompressor().stream_reader(packed), 0, memoryview(buf)
-        while got < size:
-            got += reader.readinto(view[got:size])
+        codec, packed, size = frame
+        if codec == "zstd":
+            reader, got, view = zstandard.ZstdDecompressor().stream_reader(packed), 0, memoryview(buf)
+            while got < size:
+                got += reader.readinto(view[got:size])
+        elif codec == "lz4":
+            lz4.frame.decompress(packed)
+        else:
+            np.copyto(np.frombuffer(buf, dtype=np.uint8, count=size), np.frombuffer(packed, dtype=np.uint8))
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
         return best_of(lambda: list(pool.map(one, frames)), repeat=3)
@@ -158,19 +170,36 @@ def main() -> None:
         print(f"file sizes: indexed {path.stat().st_size / 1e6:.1f} MB ({path.stat().st_size / parquet.stat().st_size:.2f}x"
               f" Parquet), --no-index {bare.stat().st_size / 1e6:.1f} MB ({bare.stat().st_size / parquet.stat().st_size:.2f}x"
               f" Parquet), Parquet {parquet.stat().st_size / 1e6:.1f} MB (target <= 1)")
-        # like against like: load on one thread against zstd on one, on two against two; rounds
+        # like against like: load on one thread against the codec on one, on two against two; rounds
         # alternate them, so a busy moment of the machine falls on both
-        for name, f in (("indexed", path), ("--no-index", bare)):
+        for codec in ("lz4", "none"):
+            rewrite(rec, tmp / f"run_{codec}.mcap", codec, 4 << 20)
+        for name, f in (("zstd, indexed", path), ("zstd, --no-index", bare), ("lz4, indexed", tmp / "run_lz4.mcap"),
+                        ("none, indexed", tmp / "run_none.mcap")):
             pairs = {n: [(best_of(lambda: load(f, threads=n), repeat=3), inflate(f, n)) for _ in range(3)]
                      for n in (1, 2)}
             for n, runs in pairs.items():
                 t_ours, t_zstd = min(a for a, _ in runs), min(b for _, b in runs)
                 print(row(f"ambdaq.daq.load, {name}, on {n} thread{'s' if n > 1 else ''}", t_ours * 1e3, "ms"))
-                print(row(f"zstd alone inflating its chunks on {n} thread{'s' if n > 1 else ''}", t_zstd * 1e3, "ms",
-                          "limit"))
+                print(row(f"{name.split(',')[0]} alone inflating its chunks on {n} thread{'s' if n > 1 else ''}",
+                          t_zstd * 1e3, "ms", "limit"))
                 ratios = sorted(a / b for a, b in runs)
                 print(f"ratio load / inflation, {name}, on {n}: best/best {t_ours / t_zstd:.2f}, per round "
-                      f"{ratios[0]:.2f}-{ratios[-1]:.2f} (target <= 1.5)")
+                      f"{ratios[0]:.2f}-{ratios[-1]:.2f}{' (target <= 1.5)' if name.startswith('zstd') else ''}")
+
+        # the memory kept between loads (daq/memory.py) against fresh memory for every load
+        import ambdaq.daq.memory as memory
+
+        pooled = [best_of(lambda: load(path), repeat=3) for _ in range(3)]
+        take = memory._POOL.take
+        memory._POOL.take = lambda nbytes: np.empty(nbytes, dtype=np.uint8)
+        try:
+            fresh = [best_of(lambda: load(path), repeat=3) for _ in range(3)]
+        finally:
+            memory._POOL.take = take
+        print(row("ambdaq.daq.load again, memory kept between loads", min(pooled) * 1e3, "ms"))
+        print(row("ambdaq.daq.load again, fresh memory each load", min(fresh) * 1e3, "ms", "baseline"))
+        print(f"ratio fresh / kept: {min(fresh) / min(pooled):.2f}")
 
         # a script that reads one file: the first read in a fresh process (the file in the page
         # cache), each reader's imports done before the clock starts

@@ -285,3 +285,46 @@ def test_a_feedforward_mode_for_a_rig_without_one_is_one_line(profile, run_cli, 
     r = run_cli("sim", "generate", "--profile", profile, "--ff", "lms", "--duration", "0.1", "-o", tmp_path / "x.mcap")
     assert r.exit_code == 2 and f"the {profile} rig has no runout feedforward" in r.output, r.output
     assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("codec", ["zstd", "lz4", "none"])
+@pytest.mark.parametrize("data_crc", [True, False], ids=["data CRC", "no data CRC"])
+def test_a_flipped_byte_anywhere_is_refused_or_changes_nothing(codec, data_crc, tmp_path, run_cli):
+    """One bit flipped at 80 places drawn over the whole file (chunk headers and data, indexes,
+    metadata, summary, footer): ``load`` refuses the file in one BadInputError or returns every
+    value bit for bit as written, never another value; with the data section's CRC, every flip is
+    refused.  Without it (a writer that stores none), a flip inside a chunk is still refused: the
+    zstd or lz4 frame checksum, or the chunk's CRC-32 of an uncompressed one."""
+    import random
+
+    import numpy as np
+
+    from ambdaq.daq.mcapfile import McapFile
+
+    path = tmp_path / "f.mcap"
+    assert run_cli("sim", "generate", "--duration", "0.03", "--compression", codec, "-q", "-o", path).exit_code == 0
+    data = bytes(path.read_bytes() if data_crc else without_data_crc(path.read_bytes()))
+    path.write_bytes(data)
+    chunks = [(ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length) for ci in McapFile(path).chunks]
+    ref = load(path)
+    want = {(t, n): np.array(ref[t][n]).view(np.uint64) for t in ref for n in ref[t].fields}
+    rnd = random.Random(f"{codec}{data_crc}")
+    flipped = tmp_path / "flipped.mcap"
+    outcomes = {"refused": 0, "unchanged": 0}
+    for _ in range(80):
+        at = rnd.randrange(len(data))
+        b = bytearray(data)
+        b[at] ^= 1 << rnd.randrange(8)
+        flipped.write_bytes(b)
+        try:
+            got = load(flipped)
+        except BadInputError as err:
+            assert "\n" not in str(err) and str(flipped) in str(err)
+            outcomes["refused"] += 1
+            continue
+        in_chunk = any(a <= at < e for a, e in chunks)
+        assert not data_crc and not in_chunk, f"a flip at byte {at} was not seen"
+        for (t, n), v in want.items():
+            assert np.array_equal(np.array(got[t][n]).view(np.uint64), v), f"byte {at} changed {t}.{n}"
+        outcomes["unchanged"] += 1
+    assert outcomes["refused"] > 40, outcomes

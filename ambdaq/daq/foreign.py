@@ -32,14 +32,29 @@ DECODABLE = {("ros2msg", "cdr"), ("protobuf", "protobuf"), ("jsonschema", "json"
 
 def foreign_topics(f: McapFile, own: set[str]) -> dict[str, int]:
     """Topics of ``f`` that are not in ambdaq's layout (``own``) and that an official decoder reads:
-    topic -> channel id."""
+    topic -> channel id.  A ros2msg schema the official decoder cannot parse (a service's
+    definition with its ``---``, say) leaves its topic out, as the official reader could not
+    decode it either."""
     out = {}
     for cid, ch in f.summary.channels.items():
         schema = f.summary.schemas.get(ch.schema_id)
         encoding = schema.encoding if schema is not None else ""
-        if ch.topic not in own and (encoding, ch.message_encoding) in DECODABLE:
+        if ch.topic not in own and (encoding, ch.message_encoding) in DECODABLE and _parses(schema, ch.message_encoding):
             out[ch.topic] = cid
     return out
+
+
+def _parses(schema, message_encoding: str) -> bool:
+    """Whether the official decoder builds a decoder for ``schema`` (ros2msg; the others parse
+    their schemas per message)."""
+    if schema is None or schema.encoding != "ros2msg":
+        return True
+    from mcap_ros2.decoder import DecoderFactory
+
+    try:
+        return DecoderFactory().decoder_for(message_encoding, schema) is not None
+    except Exception:  # whatever the ROS 2 message parser says of a definition it cannot read
+        return False
 
 
 def _flatten(value, path: str, out: dict[str, float], skipped: set[str]) -> None:

@@ -508,6 +508,14 @@ class McapFile:
                 raise BadInputError(f"{self.path}: MCAP summary is corrupted (CRC mismatch); try: ambdaq recover")
             self.summary = self._read_summary(summary_start, fpos)
             self._summary_start = summary_start
+            if self._definitions_missing():  # the summary need not repeat them (the specification)
+                walk = self._walk()
+                if self._definitions_missing():
+                    self._definitions_in_chunks(walk)
+                for cid, ch in walk.channels.items():
+                    self.summary.channels.setdefault(cid, ch)
+                for sid, sc in walk.schemas.items():
+                    self.summary.schemas.setdefault(sid, sc)
             data_end = summary_start - 13  # where ambdaq's and the official writer put Data End
             if not (data_end >= len(MAGIC) and data[data_end] == Opcode.DATA_END
                     and struct.unpack_from("<Q", data, data_end + 1)[0] == 4):
@@ -517,6 +525,17 @@ class McapFile:
         if self.data_crc and crc32_parallel(memoryview(data)[:data_end]) != self.data_crc:
             raise BadInputError(f"{self.path}: the data section fails its CRC-32: a byte of it (metadata, a chunk, "
                                 "an index) is not what was written; try: ambdaq recover")
+
+    def _definitions_missing(self) -> bool:
+        """Whether a channel that messages are counted or indexed on, or a schema a channel names,
+        is missing from the summary (or, with chunks and no count, there is no channel at all)."""
+        s = self.summary
+        used = set(s.statistics.channel_message_counts) if s.statistics is not None else set()
+        for ci in s.chunk_indexes:
+            used.update(ci.message_index_offsets)
+        if used - s.channels.keys() or any(c.schema_id and c.schema_id not in s.schemas for c in s.channels.values()):
+            return True
+        return bool(s.chunk_indexes) and not s.channels
 
     def _read_summary(self, start: int, end: int) -> Summary:
         s = Summary({}, {}, None, [], [], [])

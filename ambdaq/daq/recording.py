@@ -86,8 +86,8 @@ class Recording(Mapping):
     source : str, Path or McapFile
         The file (any MCAP: ambdaq's, or another writer's).
     topics : list of str, optional
-        The topics it shows; default every ambdaq topic (in a file of another writer, every
-        topic an official decoder reads).  A topic the file lacks is one line (exit 2).
+        The topics it shows; default every ambdaq topic and every other topic an official decoder
+        reads.  A topic the file lacks is one line (exit 2).
     start, end : float, optional
         Time window, in s since the first message of the file.
     threads : int
@@ -102,8 +102,8 @@ class Recording(Mapping):
         self._fixed = ambdaq_channels(f)
         self._foreign = foreign_topics(f, set(self._fixed))
         self._foreign_fixed = fixed_topics(f, set(self._fixed))  # other writers' topics of a fixed layout
-        if topics is None:  # ambdaq's topics; in a file of another writer, every topic a decoder reads
-            shown = list(self._fixed) or list(self._foreign)
+        if topics is None:  # ambdaq's topics and every other topic a decoder reads
+            shown = list(self._fixed) + list(self._foreign)
             if not shown:
                 raise NotInRecording(f"{f.path}: no topic ambdaq or an official decoder reads (topics: "
                                      f"{', '.join(sorted(c.topic for c in f.summary.channels.values())) or 'none'})")
@@ -336,8 +336,8 @@ def load(path: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None
         An MCAP file: ambdaq's (fixed layouts, read block by block) or another writer's (its topics
         through the official decoders, numeric fields as columns by path).
     topics : list of str, optional
-        Topics to load; default all ambdaq topics in the file (in another writer's, every topic
-        a decoder reads).
+        Topics to load; default all ambdaq topics in the file and every other topic an official
+        decoder reads.
     start, end : float, optional
         Time window, in s since the first message of the file.
     threads : int
