@@ -64,6 +64,7 @@ class Recipe:
     crcs: bool = True  # official writer: chunk and data CRCs
     corpus: str = ""
     cut: float | None = None  # cut at this fraction of the file (a killed writer), then recovered
+    summary: bool = True  # False: the summary left out (a valid MCAP: the footer's summary start 0)
 
 
 @st.composite
@@ -85,6 +86,8 @@ def recipes(draw) -> Recipe:
         r.corpus = draw(st.sampled_from(CORPUS_FILES))
     if writer in ("sim", "devices") and draw(st.integers(0, 3)) == 0:
         r.cut = draw(st.floats(0.3, 0.95))
+    elif draw(st.integers(0, 4)) == 0:
+        r.summary = False
     return r
 
 
@@ -118,6 +121,8 @@ def write(r: Recipe, folder: Path) -> list[Path]:
     else:
         _official_writer(r, path)
         paths = [path]
+    if not r.summary:
+        paths = [_without_summary(p) for p in paths]
     if r.cut is not None:  # as a killed writer leaves it: no summary, no footer, a chunk cut short
         cut = paths[0].with_name("cut.mcap")
         data = paths[0].read_bytes()
@@ -126,6 +131,20 @@ def write(r: Recipe, folder: Path) -> list[Path]:
         recover(cut, fixed, index=r.index)
         paths = [fixed]
     return paths
+
+
+def _without_summary(path: Path) -> Path:
+    """``path`` as a writer that writes no summary leaves it (MCAP allows it): the data section up
+    to and with Data End, then a Footer whose summary start and CRC are 0, and the magic."""
+    import struct
+
+    from damage import data_end
+
+    data = path.read_bytes()
+    end = data_end(data) + 13
+    bare = path.with_name(f"bare-{path.name}")
+    bare.write_bytes(data[:end] + struct.pack("<BQQQI", 0x02, 20, 0, 0, 0) + data[:8])
+    return bare
 
 
 def _devices(r: Recipe, path: Path) -> None:
@@ -396,6 +415,8 @@ EXAMPLES = [  # every writer, codec, index choice, split and recovery at least o
     Recipe("official", "zstd", True, 16, chunking=True, crcs=True, seed=6),
     Recipe("official", "lz4", False, 64, chunking=True, crcs=False, seed=7),
     Recipe("official", "none", False, 16, chunking=False, crcs=False, seed=9),
+    Recipe("sim", "lz4", False, 64, "spindle", 0.1, 10, summary=False),
+    Recipe("devices", "zstd", True, 16, devices=[(1000, 2, 1, 50), (100, 1, 0, 7)], seed=11, summary=False),
 ]
 
 

@@ -288,3 +288,27 @@ def test_a_damaged_record_of_a_file_without_indexes_is_one_line_and_recover_keep
         for topic, data in original.items():
             for name in data.fields:
                 np.testing.assert_array_equal(ours[topic][name], data[name])
+
+
+def test_a_file_without_a_summary_is_read_by_walking_it(unindexed_file, tmp_path, run_cli):
+    """A valid MCAP file need not have a summary (its footer's summary start 0; the official
+    stream reader reads it): info, export, plot and load read it by walking its records, with the
+    same samples as the file with one, and info says so; only a damaged file names recover."""
+    import struct
+
+    from damage import data_end
+
+    data = unindexed_file.read_bytes()
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(data[: data_end(data) + 13] + struct.pack("<BQQQI", 0x02, 20, 0, 0, 0) + data[:8])
+    r = run_cli("info", bare)
+    assert r.exit_code == 0 and "no summary: read by walking its records" in r.output, r.output
+    assert "recover" not in r.output
+    original, walked = load(unindexed_file), load(bare)
+    for topic, got in original.items():
+        for name in got.fields:
+            np.testing.assert_array_equal(walked[topic][name], got[name])
+    r = run_cli("export", bare, "--format", "csv", "--topic", "/amb/gap", "-o", tmp_path / "gap.csv")
+    assert r.exit_code == 0, r.output
+    r = run_cli("plot", bare, "--topic", "/amb/gap", "--field", "front_x", "-o", tmp_path / "gap.png")
+    assert r.exit_code == 0 and (tmp_path / "gap.png").stat().st_size > 10_000, r.output
