@@ -45,8 +45,8 @@ nothing on sensor noise and costs 30% of the decompression time (benchmarks/benc
 _ZSTD_C = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
 
 
-PIECE = 32 << 20
-"""Bytes per thread of :func:`crc32_parallel` (below two pieces one thread does it all)."""
+PIECE = 4 << 20
+"""Bytes: :func:`crc32_parallel` splits what holds two or more (below, one thread does it all)."""
 
 
 def crc32_parallel(data: memoryview, threads: int = max(2, os.cpu_count() or 2)) -> int:

@@ -743,11 +743,17 @@ class McapFile:
         return BadInputError(f"{self.path}: the chunk at byte {ci.chunk_start_offset} is damaged: {problem}; "
                              "try: ambdaq recover")
 
+    def _crc(self, h: ChunkHeader) -> int:
+        """The CRC-32 a chunk's records are still to be checked against: none where the data
+        section's CRC, checked on opening, already covered its bytes as stored (an uncompressed
+        chunk's are its records; a compressed one's inflate to one result only)."""
+        return 0 if self.data_crc else h.crc
+
     def chunk_records(self, ci: ChunkIndex) -> np.ndarray:
         """The records of one chunk, inflated into new memory and checked (:func:`.codec.inflate`)."""
         h, packed = self._chunk_data(ci)
         try:
-            return inflate(packed, h.compression, h.uncompressed_size, h.crc)
+            return inflate(packed, h.compression, h.uncompressed_size, self._crc(h))
         except CorruptChunk as err:
             raise self.damaged_chunk(ci, str(err)) from None
 
@@ -756,7 +762,7 @@ class McapFile:
         byte, checked (:func:`.codec.inflate_into`); BadInputError naming the chunk otherwise."""
         h, packed = self._chunk_data(ci)
         try:
-            inflate_into(packed, h.compression, h.uncompressed_size, dest, h.crc)
+            inflate_into(packed, h.compression, h.uncompressed_size, dest, self._crc(h))
         except CorruptChunk as err:
             raise self.damaged_chunk(ci, str(err)) from None
 
