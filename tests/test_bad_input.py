@@ -328,3 +328,21 @@ def test_a_flipped_byte_anywhere_is_refused_or_changes_nothing(codec, data_crc, 
             assert np.array_equal(np.array(got[t][n]).view(np.uint64), v), f"byte {at} changed {t}.{n}"
         outcomes["unchanged"] += 1
     assert outcomes["refused"] > 40, outcomes
+
+
+@pytest.mark.parametrize("byte", [0, 3, 7], ids=["low byte", "middle byte", "high byte"])
+def test_a_chunk_size_that_cannot_be_is_refused_before_memory_is_sized_from_it(byte, tmp_path, run_cli):
+    """A chunk's uncompressed size changed in a file without indexes and without the data CRC (so
+    nothing but the chunk itself can tell): refused in one line, exit 2, before any memory is sized
+    from it (the high byte once asked numpy for 7.75 PiB); export writes nothing."""
+    from ambdaq.daq.mcapfile import McapFile
+
+    path = tmp_path / "n.mcap"
+    assert run_cli("sim", "generate", "--duration", "0.05", "--no-index", "-q", "-o", path).exit_code == 0
+    first = McapFile(path).chunks[0].chunk_start_offset
+    data = without_data_crc(path.read_bytes())
+    data[first + 9 + 16 + byte] ^= 0x40  # opcode, length; message start and end times; then the size
+    path.write_bytes(bytes(data))
+    r = run_cli("export", path, "--format", "csv", "-o", tmp_path / "out")
+    one_line_error(r, "the chunk at byte", "declares", "ambdaq recover")
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
