@@ -1,3 +1,3 @@
 """ambdaq: hardware bridge and data acquisition for active magnetic bearing machines."""
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
