@@ -497,6 +497,7 @@ class McapFile:
             raise BadInputError(f"{self.path}: the footer is damaged; try: ambdaq recover {self.path} -o FIXED.mcap")
         self._loose: dict[int, ChunkHeader] = {}  # runs of messages outside chunks, read as chunks
         self._walked: _Walk | None = None
+        self.data_crc = 0  # until the data section's CRC is checked below, no chunk relies on it
         if summary_start == 0:  # no summary (the specification allows it): everything from a walk
             self._summary_start = fpos
             walk = self._walk()
@@ -520,11 +521,12 @@ class McapFile:
             if not (data_end >= len(MAGIC) and data[data_end] == Opcode.DATA_END
                     and struct.unpack_from("<Q", data, data_end + 1)[0] == 4):
                 data_end = self._walk().data_end
-        self.data_crc = struct.unpack_from("<I", data, data_end + 9)[0] if data_end is not None else 0
-        """The data section's CRC-32 as written (0: the writer stored none), checked on opening."""
-        if self.data_crc and crc32_parallel(memoryview(data)[:data_end]) != self.data_crc:
+        crc = struct.unpack_from("<I", data, data_end + 9)[0] if data_end is not None else 0
+        if crc and crc32_parallel(memoryview(data)[:data_end]) != crc:
             raise BadInputError(f"{self.path}: the data section fails its CRC-32: a byte of it (metadata, a chunk, "
                                 "an index) is not what was written; try: ambdaq recover")
+        self.data_crc = crc
+        """The data section's CRC-32 as written and checked on opening (0: the writer stored none)."""
 
     def _definitions_missing(self) -> bool:
         """Whether a channel that messages are counted or indexed on, or a schema a channel names,
