@@ -364,7 +364,7 @@ def test_devices_asks_an_address_for_an_xcp_slave(served, a2l, tmp_path, run_cli
     (slave,) = json.loads(r.stdout)["xcp"]
     assert slave == {"url": served.url, "asap2_name": "AMBDAQ_SPINDLE", "max_cto": "255", "max_dto": "1024",
                      "byte_order": "INTEL", "resources": "calpag,daq", "protected": "calpag",
-                     "event_0": "control (every 100 us)"}
+                     "event_0": "control (every 100 us)", "lacks": "none of the optional commands asked"}
     # nothing listening there: one line, exit 1, for asking and for recording alike
     for args in (("devices", "--ask-xcp", "xcp+tcp://127.0.0.1:9"),
                  ("record", "--device", "xcp+tcp://127.0.0.1:9", "--a2l", a2l, "--duration", "1", "-o", tmp_path / "x.mcap")):

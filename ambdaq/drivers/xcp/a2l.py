@@ -49,7 +49,8 @@ BYTE_ORDERS = {"MSB_LAST": "<", "LITTLE_ENDIAN": "<", "MSB_FIRST": ">", "BIG_END
 KEEP = frozenset({"PROJECT", "MODULE", "MOD_COMMON", "MEASUREMENT", "CHARACTERISTIC", "AXIS_PTS", "COMPU_METHOD", "COMPU_TAB",
                   "COMPU_VTAB", "COMPU_VTAB_RANGE", "RECORD_LAYOUT", "ANNOTATION", "ANNOTATION_TEXT", "IF_DATA",
                   "DAQ_EVENT", "FIXED_EVENT_LIST", "DEFAULT_EVENT_LIST", "DAQ", "EVENT", "INSTANCE", "TYPEDEF_STRUCTURE",
-                  "STRUCTURE_COMPONENT", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC", "AXIS_DESCR", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR"})
+                  "STRUCTURE_COMPONENT", "TYPEDEF_MEASUREMENT", "TYPEDEF_CHARACTERISTIC", "AXIS_DESCR", "MEMORY_SEGMENT", "SEGMENT", "CHECKSUM", "PAGE", "MOD_PAR",
+                  "TIMESTAMP_SUPPORTED", "DAQ_LIST"})
 DEFAULT_ALIGNMENT = {"UBYTE": 1, "SBYTE": 1, "UWORD": 2, "SWORD": 2, "ULONG": 4, "SLONG": 4, "A_UINT64": 8,
                      "A_INT64": 8, "FLOAT16_IEEE": 2, "FLOAT32_IEEE": 4, "FLOAT64_IEEE": 8}
 """Alignment of each data type in ECU memory where MOD_COMMON does not say (ASAM MCD-2 MC: ALIGNMENT_*)."""
@@ -250,6 +251,40 @@ class A2lEvent:
 
 
 @dataclass(frozen=True)
+class A2lDaqList:
+    """A static DAQ_LIST of the A2L's IF_DATA XCP DAQ block (ASAM MCD-1 XCP Part 2, the A2ML of
+    XCP): its number, type, room, and the event it is fixed to (None: any)."""
+
+    number: int
+    daq: bool
+    predefined: bool
+    max_odt: int
+    max_odt_entries: int
+    fixed_event: int | None
+
+
+@dataclass(frozen=True)
+class A2lDaq:
+    """What the A2L's IF_DATA XCP DAQ block declares of the slave's DAQ processor: what
+    GET_DAQ_PROCESSOR_INFO and GET_DAQ_RESOLUTION_INFO would answer, for a slave that lacks them
+    (both are optional in ASAM XCP).  Timestamp ``size`` 0: no TIMESTAMP_SUPPORTED."""
+
+    dynamic: bool
+    max_daq: int
+    max_event: int
+    min_daq: int
+    address_extension: str  # "free", "odt", "daq"
+    identification: int  # 0 absolute, 1 relative byte, 2 relative word, 3 relative word aligned
+    granularity: int  # bytes
+    max_entry_size: int  # granules
+    overload: str  # "none", "pid", "event"
+    timestamp_size: int
+    timestamp_ns: int
+    timestamp_fixed: bool
+    lists: tuple[A2lDaqList, ...] = ()
+
+
+@dataclass(frozen=True)
 class A2lFile:
     """An A2L file's project name and what ambdaq reads of it."""
 
@@ -261,6 +296,7 @@ class A2lFile:
     parameters: dict[str, A2lParameter]
     events: tuple[A2lEvent, ...] = ()
     segments: tuple[A2lSegment, ...] = ()
+    daq: A2lDaq | None = None
 
     def segment_of(self, param: A2lParameter) -> A2lSegment | None:
         """The calibration segment that holds ``param``, if the A2L describes one."""
@@ -310,7 +346,7 @@ def read_a2l(path: str | Path) -> A2lFile:
         raise BadInputError(f"A2L file {path}: {project.where()}: the PROJECT has no MODULE")
     reader = _ModuleReader(path, modules[0])
     return A2lFile(path, sha, _word(project, 0, ""), reader.measurements(), reader.blobs(), reader.parameters(),
-                   reader.events(), reader.segments())
+                   reader.events(), reader.segments(), reader.daq())
 
 
 def _word(block: Block, index: int, default: str | None = None) -> str:
@@ -696,6 +732,18 @@ class _ModuleReader:
                             continue
         return tuple(out)
 
+    def daq(self) -> A2lDaq | None:
+        """The module's IF_DATA XCP DAQ block (:class:`A2lDaq`), where it has one that reads."""
+        for data in self.module.children("IF_DATA"):
+            if data.items[:1] == ["XCP"]:
+                try:
+                    found = _daq(data)
+                except BadInputError:
+                    continue
+                if found is not None:
+                    return found
+        return None
+
     def events(self) -> tuple[A2lEvent, ...]:
         out = []
         for data in self.module.children("IF_DATA"):
@@ -709,6 +757,53 @@ class _ModuleReader:
                         out.append(A2lEvent(str(e.items[0]), _integer(e, e.items[2], "event number"),
                                             cycle * 10 ** unit if 0 <= unit <= 9 else 0))
         return tuple(out)
+
+
+_IDENTIFICATION = {"IDENTIFICATION_FIELD_TYPE_ABSOLUTE": 0, "IDENTIFICATION_FIELD_TYPE_RELATIVE_BYTE": 1,
+                   "IDENTIFICATION_FIELD_TYPE_RELATIVE_WORD": 2, "IDENTIFICATION_FIELD_TYPE_RELATIVE_WORD_ALIGNED": 3}
+_GRANULARITY = {"GRANULARITY_ODT_ENTRY_SIZE_DAQ_BYTE": 1, "GRANULARITY_ODT_ENTRY_SIZE_DAQ_WORD": 2,
+                "GRANULARITY_ODT_ENTRY_SIZE_DAQ_DWORD": 4, "GRANULARITY_ODT_ENTRY_SIZE_DAQ_DLONG": 8}
+_TIMESTAMP_SIZE = {"NO_TIME_STAMP": 0, "SIZE_BYTE": 1, "SIZE_WORD": 2, "SIZE_DWORD": 4}
+_TIME_UNIT = {f"UNIT_{n}{u}": 10 ** (k + 3 * j) for j, u in enumerate(("NS", "US", "MS")) for k, n in
+              enumerate(("1", "10", "100"))} | {"UNIT_1S": 10**9}
+"""XCP's DAQ_TIMESTAMP_UNIT_* as the A2ML of XCP spells them, in ns."""
+
+
+def _daq(data: Block) -> A2lDaq | None:
+    """The IF_DATA XCP DAQ block's declaration (:class:`A2lDaq`), or None where it has none."""
+    daq = data.child("DAQ")
+    if daq is None or len(daq.items) < 9:
+        return None
+    words = daq.items
+    (count, events, minimum), entry = (_integer(daq, w, "DAQ count") for w in words[1:4]), 0xFF
+    flags = set(words[4:])
+    for w in words[7:]:
+        if re.fullmatch(r"0[xX][0-9a-fA-F]+|\d+", w):
+            entry = _integer(daq, w, "MAX_ODT_ENTRY_SIZE_DAQ")
+            break
+    stamp = daq.child("TIMESTAMP_SUPPORTED")
+    size, tick_ns, fixed = 0, 1, False
+    if stamp is not None and stamp.items:
+        ticks = _integer(stamp, stamp.items[0], "timestamp ticks")
+        size = next((v for k, v in _TIMESTAMP_SIZE.items() if k in stamp.items), 0)
+        tick_ns = ticks * next((v for k, v in _TIME_UNIT.items() if k in stamp.items), 1)
+        fixed = "TIMESTAMP_FIXED" in stamp.items
+    lists = []
+    for b in daq.children("DAQ_LIST"):
+        kv = {b.items[i]: b.items[i + 1] for i in range(1, len(b.items) - 1)}
+        lists.append(A2lDaqList(_integer(b, b.items[0], "DAQ list number"), kv.get("DAQ_LIST_TYPE", "DAQ") != "STIM",
+                                "PREDEFINED" in b.items, _integer(b, kv.get("MAX_ODT", "0"), "MAX_ODT"),
+                                _integer(b, kv.get("MAX_ODT_ENTRIES", "0"), "MAX_ODT_ENTRIES"),
+                                _integer(b, kv["EVENT_FIXED"], "EVENT_FIXED") if "EVENT_FIXED" in kv else None))
+    return A2lDaq(
+        dynamic=words[0] == "DYNAMIC", max_daq=count, max_event=events, min_daq=minimum,
+        address_extension="odt" if "ADDRESS_EXTENSION_ODT" in flags else "daq" if "ADDRESS_EXTENSION_DAQ" in flags
+        else "free",
+        identification=next((v for k, v in _IDENTIFICATION.items() if k in flags), 0),
+        granularity=next((v for k, v in _GRANULARITY.items() if k in flags), 1), max_entry_size=entry,
+        overload="pid" if "OVERLOAD_INDICATION_PID" in flags else "event" if "OVERLOAD_INDICATION_EVENT" in flags
+        else "none",
+        timestamp_size=size, timestamp_ns=tick_ns, timestamp_fixed=fixed, lists=tuple(lists))
 
 
 def _daq_events(b: Block) -> tuple[tuple[int, ...], tuple[int, ...]]:

@@ -89,23 +89,32 @@ def _capabilities(a2l: A2lFile, control_rate_hz: Callable[[], float]) -> Capabil
 
 
 def ask_slave(url: str, link: LinkFactory) -> dict[str, str]:
-    """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS and every DAQ
-    event with its name and cycle; DeviceError if nothing does."""
+    """Who answers XCP at ``url``: CONNECT, GET_ID (the A2L project), GET_STATUS, every DAQ event
+    with its name and cycle, and the optional commands (:data:`~.master.OPTIONAL`) it lacks;
+    DeviceError if nothing does.  The session ends with DISCONNECT."""
     master = XcpMaster(link(), url)
     try:
         got = master.connect()
+        if got.optional_comm_mode:
+            master.get_comm_mode_info()
         out = {"url": url, "asap2_name": _identifier(master), "max_cto": str(got.max_cto), "max_dto": str(got.max_dto),
                "byte_order": "INTEL" if got.byte_order == "<" else "MOTOROLA",
                "resources": ",".join(k for k, bit in RESOURCES.items() if got.resources & bit),
                "protected": ",".join(k for k, bit in RESOURCES.items() if master.get_status()[1] & bit)}
         if got.resources & RES_DAQ:
-            processor = master.daq_processor()
-            for n in range(min(processor.max_event, 256)):
+            try:
+                events = master.daq_processor().max_event
+            except DeviceError:  # lacking GET_DAQ_PROCESSOR_INFO or _RESOLUTION_INFO: the events still answer
+                events = 256
+            for n in range(min(events, 256)):
                 try:
                     e = master.event_channel(n)
                 except XcpRefused:  # MAX_EVENT_CHANNEL may count more than the slave created
                     break
+                if "GET_DAQ_EVENT_INFO" in master.lacking:
+                    break
                 out[f"event_{n}"] = f"{e.name} ({_cycle_text(e)})"
+        out["lacks"] = ", ".join(master.lacking) or "none of the optional commands asked"
         master.disconnect()
     finally:
         master.close()
@@ -158,10 +167,12 @@ def _cycle_text(event: EventChannel) -> str:
 
 
 def _identifier(master: XcpMaster) -> str:
+    """The ASAM MC2 name GET_ID gives, or "" where the slave lacks or refuses it."""
     try:
-        return master.get_id(1).decode("latin-1").rstrip("\0")
+        got = master.get_id(1)
     except XcpRefused:
         return ""
+    return "" if got is None else got.decode("latin-1").rstrip("\0")
 
 
 class _Stream:
@@ -314,7 +325,7 @@ class XcpController(Controller, CalibrationPages):
                 self.info = self._master.connect()
                 if self.info.optional_comm_mode:
                     self._master.get_comm_mode_info()
-                self.project = _identifier(self._master)
+                self.project = _identifier(self._master) or a2l.project
             self._constants = {n: ",".join(repr(float(v)) for v in self._read_values(p)[0])
                                for n, p in a2l.constants.items()}
             if record:
@@ -378,7 +389,7 @@ class XcpController(Controller, CalibrationPages):
         master, url = self._master, self.url
         if not self.info.resources & RES_DAQ:
             raise DeviceError(f"{url}: the slave offers no DAQ (CONNECT's resources)")
-        processor = master.daq_processor()
+        processor = master.daq_processor(self.a2l.daq)
         if prescaler > 1 and not processor.prescaler:
             raise BadInputError(f"{url}: the slave has no DAQ prescaler (GET_DAQ_PROCESSOR_INFO): drop prescaler=")
         channels: dict[int, EventChannel] = {}
@@ -386,7 +397,7 @@ class XcpController(Controller, CalibrationPages):
         def channel(n: int) -> EventChannel:
             if n not in channels:
                 try:
-                    channels[n] = master.event_channel(n)
+                    channels[n] = master.event_channel(n, self.a2l.events)
                 except XcpRefused as err:
                     raise DeviceError(f"{url}: event {n}: the slave answered {err}") from None
             return channels[n]
@@ -453,8 +464,10 @@ class XcpController(Controller, CalibrationPages):
             counter_element = counters[e]
             layout[e] = ([counter_element] if counter_element else []) + fields_in_order
             streams[e] = (groups, columns, fields_in_order)
+        declared = self.a2l.daq.lists if self.a2l.daq is not None else ()
         static = None if processor.dynamic else [  # a bounded look, whatever MAX_DAQ a slave claims
-            master.daq_list_info(n) for n in range(processor.min_daq, min(processor.max_daq, processor.min_daq + 256))]
+            info for n in range(processor.min_daq, min(processor.max_daq, processor.min_daq + 256))
+            if (info := master.daq_list_info(n, declared)) is not None]
         plans = plan_lists(layout, channels, processor, self.info.max_dto, prescaler=prescaler, counters=counters,
                            url=url, static_lists=static)
         if bus_bitrate is not None:
@@ -487,7 +500,7 @@ class XcpController(Controller, CalibrationPages):
         if self._streams and self._streams[0].sample_rate:
             return self._streams[0].sample_rate * self._plans[0].prescaler
         with self._errors("read event 0"):
-            e = self._master.event_channel(0)
+            e = self._master.event_channel(0, self.a2l.events)
         return 1e9 / e.cycle_ns if e.cycle_ns else 0.0
 
     def event_sources(self) -> list["XcpEventSource"]:
@@ -507,6 +520,8 @@ class XcpController(Controller, CalibrationPages):
     def identity(self) -> dict[str, str]:
         base = {"url": self.url, "kind": "xcp controller", "model": self.project, "a2l": self.a2l.path.name,
                 "a2l_sha256": self.a2l.sha256, "loss_detection": self._loss_detection()}
+        if self._master.lacking:  # what the A2L's IF_DATA XCP answered in the slave's stead
+            base["optional_commands_lacking"] = ", ".join(self._master.lacking)
         return {**base, **(self._streams[0].identity() if self._streams else {})}
 
     def _loss_detection(self) -> str:

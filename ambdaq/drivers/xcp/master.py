@@ -27,6 +27,7 @@ EV_CMD_PENDING, EV_DAQ_OVERLOAD, EV_SESSION_TERMINATED = 0x05, 0x06, 0x07
 SERV_TEXT = 0x01
 TIMEOUT_S = 1.0  # a command unanswered this long is a timeout (ASAM XCP Part 2's T1, 1 s as slaves commonly set it)
 PENDING_S = 5.0  # how long EV_CMD_PENDING may extend it, in all
+DISCONNECT_S = 0.5  # how long the DISCONNECT of a session ended by an error waits for its answer
 
 # resources (CONNECT, GET_STATUS, GET_SEED)
 RES_CALPAG, RES_DAQ, RES_STIM, RES_PGM = 0x01, 0x04, 0x08, 0x10
@@ -35,11 +36,18 @@ RESOURCES = {"calpag": RES_CALPAG, "daq": RES_DAQ, "stim": RES_STIM, "pgm": RES_
 # command codes (Part 2, table of commands)
 CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
 SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF9, 0xF8, 0xF7, 0xF6, 0xF5, 0xF4, 0xF3
-DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO, COPY_CAL_PAGE = 0xF0, 0xEB, 0xEA, 0xE9, 0xE4
+DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, COPY_CAL_PAGE = 0xF0, 0xEB, 0xEA, 0xE4
 SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
 GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDA, 0xD9, 0xD7
 GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST = 0xD8, 0xE3
 FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
+
+ERR_CMD_UNKNOWN = 0x20
+OPTIONAL = {GET_COMM_MODE_INFO: "GET_COMM_MODE_INFO", GET_ID: "GET_ID", GET_DAQ_PROCESSOR_INFO: "GET_DAQ_PROCESSOR_INFO", GET_DAQ_RESOLUTION_INFO: "GET_DAQ_RESOLUTION_INFO",
+            GET_DAQ_EVENT_INFO: "GET_DAQ_EVENT_INFO", GET_DAQ_LIST_INFO: "GET_DAQ_LIST_INFO"}
+"""The commands ambdaq asks that ASAM XCP Part 2 makes optional and whose answers an A2L can give
+instead (its IF_DATA XCP): a slave that answers one with ERR_CMD_UNKNOWN is asked no more, and the
+master says so (:attr:`XcpMaster.lacking`)."""
 
 XCP_ERRORS = {
     # ASAM MCD-1 XCP Part 2, the error codes of a negative response, and what each means
@@ -163,6 +171,8 @@ class XcpMaster:
         self.overload_events = 0
         self.service_texts: list[str] = []
         self.unexpected = 0  # packets that were neither an awaited response nor a DTO of a list
+        self.lacking: list[str] = []  # optional commands the slave answered ERR_CMD_UNKNOWN (OPTIONAL)
+        self._connected = False
         self._responses: queue.Queue[bytes] = queue.Queue()
         self._pending = threading.Event()
         self._lock = threading.Lock()
@@ -244,6 +254,20 @@ class XcpMaster:
                               f"where at least {expect} are due")
         return response
 
+    def optional(self, code: int, *body: int | bytes, expect: int = 1) -> bytes | None:
+        """An optional command (:data:`OPTIONAL`): its response, or None where the slave lacks it
+        (ERR_CMD_UNKNOWN, remembered in :attr:`lacking`, not asked again)."""
+        name = OPTIONAL[code]
+        if name in self.lacking:
+            return None
+        try:
+            return self.command(code, *body, expect=expect)
+        except XcpRefused as err:
+            if err.code != ERR_CMD_UNKNOWN:
+                raise
+            self.lacking.append(name)
+            return None
+
     def _u16(self, value: int) -> bytes:
         return struct.pack(self.order + "H", value)
 
@@ -267,9 +291,12 @@ class XcpMaster:
                               "ambdaq speaks to byte-addressed slaves (ADDRESS_GRANULARITY_BYTE)")
         self.info, self.order = info, order
         self.link.max_packet = max(info.max_cto, info.max_dto)
+        self._connected = True
         return info
 
     def disconnect(self) -> None:
+        """End the session (DISCONNECT): a slave that serves one master at a time takes the next."""
+        self._connected = False
         self.command(DISCONNECT)
 
     def get_status(self) -> tuple[int, int]:
@@ -278,12 +305,14 @@ class XcpMaster:
         return r[1], r[2]
 
     def get_comm_mode_info(self) -> None:
-        self.command(GET_COMM_MODE_INFO, expect=1)
+        self.optional(GET_COMM_MODE_INFO, expect=1)
 
-    def get_id(self, kind: int) -> bytes:
+    def get_id(self, kind: int) -> bytes | None:
         """GET_ID of ``kind`` (1: the ASAM MC 2 file name without extension, 4: the A2L file):
-        in the response, or uploaded."""
-        r = self.command(GET_ID, kind, expect=8)
+        in the response, or uploaded; None where the slave lacks GET_ID."""
+        r = self.optional(GET_ID, kind, expect=8)
+        if r is None:
+            return None
         (length,) = self.unpack("I", r, 4)
         if r[1] & 0x01:
             return bytes(r[8 : 8 + length])
@@ -357,48 +386,74 @@ class XcpMaster:
     def copy_cal_page(self, src: tuple[int, int], dst: tuple[int, int]) -> None:
         self.command(COPY_CAL_PAGE, src[0], src[1], dst[0], dst[1])
 
-    def get_pag_processor_info(self) -> int:
-        """The number of segments."""
-        return self.command(GET_PAG_PROCESSOR_INFO, expect=2)[1]
-
     # --- DAQ --------------------------------------------------------------------------------------
 
-    def daq_processor(self) -> DaqProcessor:
-        r = self.command(GET_DAQ_PROCESSOR_INFO, expect=8)
-        props = r[1]
-        max_daq, max_event = self.unpack("HH", r, 2)
-        key = r[7]
-        res = self.command(GET_DAQ_RESOLUTION_INFO, expect=8)
-        mode = res[5]
-        (ticks,) = self.unpack("H", res, 6)
-        unit = mode >> 4
-        if unit not in TIME_UNITS_NS:
-            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names timestamp unit {unit}, which ASAM XCP 1.x "
-                              "does not define")
-        size = mode & 0x07
+    def daq_processor(self, declared=None) -> DaqProcessor:
+        """GET_DAQ_PROCESSOR_INFO and GET_DAQ_RESOLUTION_INFO; where the slave lacks either
+        (optional in ASAM XCP), what ``declared`` (the A2L's IF_DATA XCP DAQ block,
+        :class:`~.a2l.A2lDaq`) says instead, as ASAM MCD-2 MC makes the A2L the description of a
+        slave.  DeviceError where neither says."""
+        r = self.optional(GET_DAQ_PROCESSOR_INFO, expect=8)
+        res = self.optional(GET_DAQ_RESOLUTION_INFO, expect=8)
+        if (r is None or res is None) and declared is None:
+            lacks = " and ".join(n for n in ("GET_DAQ_PROCESSOR_INFO", "GET_DAQ_RESOLUTION_INFO") if n in self.lacking)
+            raise DeviceError(f"{self.url}: the slave lacks {lacks} (optional in ASAM XCP) and the A2L declares no "
+                              "IF_DATA XCP DAQ block to read instead")
+        if r is not None:
+            props, key = r[1], r[7]
+            max_daq, max_event = self.unpack("HH", r, 2)
+            dynamic, prescaler, timestamps = bool(props & 0x01), bool(props & 0x02), bool(props & 0x10)
+            overload, min_daq = {0: "none", 1: "pid", 2: "event"}.get(props >> 6, "none"), r[6]
+            extension, identification = {0: "free", 1: "odt", 3: "daq"}.get((key >> 4) & 0x03, "daq"), key >> 6
+        else:
+            d = declared
+            dynamic, prescaler, timestamps = d.dynamic, False, d.timestamp_size > 0
+            overload, min_daq, max_daq, max_event = d.overload, d.min_daq, d.max_daq, d.max_event
+            extension, identification = d.address_extension, d.identification
+        if res is not None:
+            mode = res[5]
+            (ticks,) = self.unpack("H", res, 6)
+            unit = mode >> 4
+            if unit not in TIME_UNITS_NS:
+                raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names timestamp unit {unit}, which ASAM XCP "
+                                  "1.x does not define")
+            size, fixed, tick_ns = mode & 0x07, bool(mode & 0x08), TIME_UNITS_NS[unit] * max(ticks, 1)
+            granularity, max_entry = res[1], res[2]
+        else:
+            size, fixed, tick_ns = declared.timestamp_size, declared.timestamp_fixed, declared.timestamp_ns
+            granularity, max_entry = declared.granularity, declared.max_entry_size
         if size not in (0, 1, 2, 4):
-            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names a {size}-byte timestamp (0, 1, 2 or 4)")
-        granularity = res[1]
+            raise DeviceError(f"{self.url}: a {size}-byte DAQ timestamp (0, 1, 2 or 4)")
         if granularity not in (1, 2, 4, 8):
-            raise DeviceError(f"{self.url}: GET_DAQ_RESOLUTION_INFO names ODT entry granularity {granularity}")
-        return DaqProcessor(
-            dynamic=bool(props & 0x01), prescaler=bool(props & 0x02), timestamps=bool(props & 0x10),
-            overload={0: "none", 1: "pid", 2: "event"}.get(props >> 6, "none"),
-            max_daq=max_daq, max_event=max_event, min_daq=r[6],
-            address_extension={0: "free", 1: "odt", 3: "daq"}.get((key >> 4) & 0x03, "daq"),
-            identification=key >> 6, granularity=granularity, max_entry_size=res[2],
-            timestamp_size=size, timestamp_fixed=bool(mode & 0x08), timestamp_ns=TIME_UNITS_NS[unit] * max(ticks, 1))
+            raise DeviceError(f"{self.url}: ODT entry granularity {granularity} (1, 2, 4 or 8)")
+        return DaqProcessor(dynamic=dynamic, prescaler=prescaler, timestamps=timestamps, overload=overload,
+                            max_daq=max_daq, max_event=max_event, min_daq=min_daq, address_extension=extension,
+                            identification=identification, granularity=granularity, max_entry_size=max_entry,
+                            timestamp_size=size, timestamp_fixed=fixed, timestamp_ns=tick_ns)
 
-    def event_channel(self, number: int) -> EventChannel:
-        r = self.command(GET_DAQ_EVENT_INFO, 0, self._u16(number), expect=7)
+    def event_channel(self, number: int, declared=()) -> EventChannel:
+        """GET_DAQ_EVENT_INFO of event ``number``; where the slave lacks it, the A2L's EVENT of that
+        number among ``declared`` (:class:`~.a2l.A2lEvent`), else an event named ``event_N`` whose
+        cycle is not known (sporadic)."""
+        r = self.optional(GET_DAQ_EVENT_INFO, 0, self._u16(number), expect=7)
+        if r is None:
+            e = next((e for e in declared if e.number == number), None)
+            return EventChannel(number, e.name if e is not None else f"event_{number}",
+                                e.cycle_ns if e is not None else 0, 255, True)
         props, max_lists, name_length, cycle, unit = r[1], r[2], r[3], r[4], r[5]
         name = self.upload(name_length).decode("latin-1") if name_length else ""
         if cycle and unit not in TIME_UNITS_NS:
             raise DeviceError(f"{self.url}: event {number} names time unit {unit}, which ASAM XCP 1.x does not define")
         return EventChannel(number, name.rstrip("\0"), cycle * TIME_UNITS_NS.get(unit, 0), max_lists, bool(props & 0x04))
 
-    def daq_list_info(self, number: int) -> DaqListInfo:
-        r = self.command(GET_DAQ_LIST_INFO, 0, self._u16(number), expect=6)
+    def daq_list_info(self, number: int, declared=()) -> DaqListInfo | None:
+        """GET_DAQ_LIST_INFO of static list ``number``; where the slave lacks it, the A2L's DAQ_LIST
+        of that number among ``declared`` (:class:`~.a2l.A2lDaqList`), else None."""
+        r = self.optional(GET_DAQ_LIST_INFO, 0, self._u16(number), expect=6)
+        if r is None:
+            d = next((d for d in declared if d.number == number), None)
+            return None if d is None else DaqListInfo(number, d.predefined, d.fixed_event, d.daq, d.max_odt,
+                                                      d.max_odt_entries)
         props = r[1]
         (fixed,) = self.unpack("H", r, 4)
         return DaqListInfo(number, bool(props & 0x01), fixed if props & 0x02 else None, bool(props & 0x04) or
@@ -437,7 +492,20 @@ class XcpMaster:
         self.command(START_STOP_SYNCH, mode)
 
     def close(self) -> None:
-        """Stop the receive thread and release the link."""
+        """End the session and release the link: a session still open is ended with DISCONNECT
+        however the command ends (an error, Ctrl-C, a peer's garbage), since a slave that serves one
+        master at a time answers no other CONNECT until it hears one.  Where the link still frames
+        answers, DISCONNECT is asked and its answer awaited briefly; where it does not, it is sent
+        all the same.  Safe to call twice."""
+        if self._connected:
+            self._connected = False
+            try:
+                if self.failure is None:
+                    self.command(DISCONNECT, timeout_s=DISCONNECT_S)
+                else:
+                    self.link.send(bytes([DISCONNECT]))
+            except (DeviceError, OSError):
+                pass  # the slave is gone or refuses: nothing more to end
         self._stop.set()
         self.link.close()
         self._thread.join(timeout=2)
