@@ -180,13 +180,16 @@ def test_a_float64_parameter_read_written_and_read_back(run_cli):
 
 def test_a_master_that_asks_otherwise_meets_a_silent_slave(tmp_path, run_cli):
     """The replay answers only what the session holds: a prescaler the slave lacks is refused after
-    GET_DAQ_RESOLUTION_INFO, in one line, before anything is configured, and nothing is guessed."""
+    GET_DAQ_RESOLUTION_INFO, in one line, before anything is configured, and nothing is guessed;
+    the session then ends with DISCONNECT, which the recorded one never sent there."""
     _session, replay = replayed("hello_tcp_record_all")
     with replay:
         r = run_cli("record", "--device", f"{replay.url}?prescaler=2", "--a2l", CORPUS / "hello_xcp_hello.a2l",
                     "--measure", "*", "--duration", "1", "-o", tmp_path / "p.mcap")
     assert r.exit_code == 2 and "no DAQ prescaler" in r.output and len(r.output.strip().splitlines()) == 1, r.output
     assert replay.answered == 5 and not (tmp_path / "p.mcap").exists()
+    # and it ends its session: DISCONNECT where the recorded master went on to GET_DAQ_EVENT_INFO
+    assert replay.mismatch == (5, bytes([0xFE]), bytes.fromhex("d7000000")), replay.explain()
 
 
 def test_ambdaqs_decoder_on_pyxcps_own_packing():
