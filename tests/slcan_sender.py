@@ -4,7 +4,7 @@ interface: the way CAN crosses a process boundary on a machine without ``vcan``.
 
     python tests/slcan_sender.py FRAMES.json SECONDS
 
-FRAMES.json holds ``[[frame id, data hex, is FD], ...]``; they are sent in order, round after round,
+FRAMES.json holds ``[[frame id, data hex, is FD, is extended], ...]``; they are sent in order, round after round,
 every 10 ms, for SECONDS. The first line printed is the pseudo-terminal's path.
 """
 
@@ -20,8 +20,8 @@ from ambdaq.sim.devices.slcan import SimSlcanAdapter
 
 
 def main() -> None:
-    frames = [can.Message(arbitration_id=i, data=bytes.fromhex(h), is_extended_id=i > 0x7FF, is_fd=fd)
-              for i, h, fd in json.loads(open(sys.argv[1]).read())]
+    frames = [can.Message(arbitration_id=i, data=bytes.fromhex(h), is_extended_id=ext, is_fd=fd)
+              for i, h, fd, ext in json.loads(open(sys.argv[1]).read())]
     seconds = float(sys.argv[2])
     channel = f"slcan-sender-{os.getpid()}"
     master, slave = pty.openpty()

@@ -49,7 +49,7 @@ def _ways(tree: list) -> list[dict]:
 
 def _frames(db) -> list[tuple]:
     """Three frames per message and multiplexer page, each signal at a value of its own range:
-    (topic suffix, frame id, data, FD, the values cantools decodes from the data)."""
+    (topic suffix, frame id, data, FD, the values cantools decodes from the data, 29-bit id)."""
     out = []
     for msg in db.messages:
         for way in _ways(msg.signal_tree):
@@ -63,7 +63,8 @@ def _frames(db) -> list[tuple]:
                     values[s.name] = raw * s.scale + s.offset if not s.is_float else 1.5 * (k + 1)
                 data = msg.encode(values, scaling=True, strict=False)
                 suffix = msg.name + "".join(f"/m{v}" for v in way.values())
-                out.append((suffix, msg.frame_id, data, msg.is_fd, msg.decode(data, decode_choices=False)))
+                out.append((suffix, msg.frame_id, data, msg.is_fd, msg.decode(data, decode_choices=False),
+                            msg.is_extended_frame))
     return out
 
 
@@ -97,9 +98,9 @@ def sending(channel: str, frames: list[tuple[int, bytes, bool]], period_s: float
         bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         try:
             while not stop.is_set():
-                for frame_id, data, fd in frames:
-                    bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id > 0x7FF,
-                                         is_fd=fd))
+                for frame_id, data, fd, *extended in frames:  # the format: as given, else what the id needs
+                    bus.send(can.Message(arbitration_id=frame_id, data=data, is_fd=fd,
+                                         is_extended_id=extended[0] if extended else frame_id > 0x7FF))
                 time.sleep(period_s)
         finally:
             bus.shutdown()
@@ -150,7 +151,7 @@ def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual", parse
     out = tmp_path / "corpus.mcap"
     if via == "slcan":
         listing = tmp_path / "frames.json"
-        listing.write_text(json.dumps([[frame_id, data.hex(), fd] for _s, frame_id, data, fd, _d in frames]))
+        listing.write_text(json.dumps([[frame_id, data.hex(), fd, ext] for _s, frame_id, data, fd, _d, ext in frames]))
         sender = subprocess.Popen([sys.executable, str(Path(__file__).with_name("slcan_sender.py")), str(listing), "8"],
                                   stdout=subprocess.PIPE, text=True)
         try:
@@ -162,13 +163,13 @@ def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual", parse
             sender.wait(timeout=10)
     else:
         channel = f"corpus-{path.name}"
-        with sending(channel, [(frame_id, data, fd) for _s, frame_id, data, fd, _d in frames], 0.01):
+        with sending(channel, [(frame_id, data, fd, ext) for _s, frame_id, data, fd, _d, ext in frames], 0.01):
             r = run_cli("record", "--device", f"can://virtual/{channel}?dbc={path}", "--duration", "1", "-q", "-o", out)
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()
     sent_by_topic: dict[str, list[dict]] = {}
-    for suffix, _id, _data, _fd, decoded in frames:
+    for suffix, _id, _data, _fd, decoded, _ext in frames:
         sent_by_topic.setdefault(f"/{path.stem}/{suffix}", []).append(decoded)
     assert set(rec) == set(sent_by_topic)
     for topic, sent in sent_by_topic.items():
@@ -324,6 +325,27 @@ def test_a_64_bit_integer_is_recorded_exactly_as_int64(tmp_path, run_cli):
         official = [m.s64 for _s, c, _m, m in make_reader(fh, decoder_factories=[DecoderFactory()])
                     .iter_decoded_messages(topics=["/signed/Message64"])]
     assert official == got.tolist()
+
+def test_an_extended_frame_is_not_the_standard_message_of_the_same_number(tmp_path, run_cli):
+    """motohawk.dbc's ExampleMessage is the 11-bit frame 0x1F0; a 29-bit frame 0x000001F0 on the
+    same bus is another frame (ISO 11898): it is not decoded as ExampleMessage, and is recorded
+    among the unknown frames, its format with it."""
+    path = CORPUS / "motohawk.dbc"
+    msg = cantools.database.load_file(str(path)).get_message_by_name("ExampleMessage")
+    assert msg.frame_id == 0x1F0 and not msg.is_extended_frame
+    ours = msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 250.1})
+    theirs = msg.encode({"Enable": 0, "AverageRadius": 1.7, "Temperature": 240.0})
+    out = tmp_path / "ext.mcap"
+    with sending("corpus-extended", [(0x1F0, ours, False, False), (0x1F0, theirs, False, True)], 0.005):
+        r = run_cli("record", "--device", f"can://virtual/corpus-extended?dbc={path}&raw=1", "--duration", "0.5",
+                    "-q", "-o", out)
+    assert r.exit_code == 0, r.output
+    rec = load(out)
+    got = rec["/motohawk/ExampleMessage"]
+    assert len(got) > 10 and set(got["average_radius"]) == {0.5} and set(got["enable"]) == {1.0}
+    raw = rec["/can/raw"]
+    assert len(raw) > 10 and set(raw["arbitration_id"]) == {0x1F0} and set(raw["extended"]) == {1.0}
+
 
 HEADER_CLASH = '''VERSION ""
 BO_ 256 Health: 3 Vector__XXX

@@ -134,7 +134,7 @@ class CanHub:
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
             raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
         self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
-        self._fast: dict[int, Callable[[bytearray, float], None]] = {}
+        self._fast: dict[tuple[int, bool], Callable[[bytearray, float], None]] = {}  # (id, extended)
         self._unknown: list[Callable[[can.Message], None]] = []  # frames nothing on the bus claims
         self.error_frames = 0
         self.malformed_frames = 0  # lines or records the interface could not parse: counted, skipped
@@ -154,7 +154,7 @@ class CanHub:
         self.skipped_syncs = 0
         self.failure: str | None = None
         self._state = getattr(bus, "state", can.BusState.ACTIVE)
-        self._fast[SYNC_COB_ID] = self._on_sync
+        self._fast[(SYNC_COB_ID, False)] = self._on_sync
         self._rx = threading.Thread(target=self._receive, name=f"can-rx-{channel}", daemon=True)
         self._rx.start()
         self._watch = threading.Thread(target=self._watch_state, name=f"can-state-{channel}", daemon=True)
@@ -225,9 +225,12 @@ class CanHub:
         """Native id of the bus receive thread (for CPU accounting)."""
         return self._rx.native_id
 
-    def on_frame(self, cob_id: int, handler: Callable[[bytearray, float], None]) -> None:
-        """Route frames of ``cob_id`` (process data) straight to ``handler(data, timestamp)``."""
-        self._fast[cob_id] = handler
+    def on_frame(self, cob_id: int, handler: Callable[[bytearray, float], None], extended: bool | None = None) -> None:
+        """Route frames of ``cob_id`` (process data) straight to ``handler(data, timestamp)``: only
+        frames of that identifier **and format** (ISO 11898: an 11-bit and a 29-bit identifier of the
+        same value are two identifiers); ``extended`` None: the format the value needs (29-bit
+        above 0x7FF, else 11-bit, as CANopen's COB-IDs and XCP on CAN's are)."""
+        self._fast[(cob_id, cob_id > 0x7FF if extended is None else extended)] = handler
 
     def _receive(self) -> None:
         """Drain the bus, then wait RX_POLL_S: one wake-up per burst (a SYNC and its PDOs) rather
@@ -278,14 +281,14 @@ class CanHub:
                 self.events.put(Event(int(msg.timestamp * 1e9), "error-frame", msg.arbitration_id,
                                       f"CAN {self.channel} error frame, data {bytes(msg.data).hex()}", BUS_TOPIC))
                 continue
-            handler = fast.get(msg.arbitration_id)
+            handler = fast.get((msg.arbitration_id, msg.is_extended_id))
             if handler is not None:
                 if timed:  # process data is timed by its stamp: one that cannot be the gateway's is not kept
                     handler(msg.data, msg.timestamp)
             elif msg.is_remote_frame:
                 continue
-            elif msg.arbitration_id in subscribers:  # SDO, EMCY, NMT: their answers count, not their time
-                notify(msg.arbitration_id, msg.data, msg.timestamp)
+            elif msg.arbitration_id in subscribers and msg.is_extended_id == (msg.arbitration_id > 0x7FF):
+                notify(msg.arbitration_id, msg.data, msg.timestamp)  # SDO, EMCY, NMT: 11-bit COB-IDs
             elif timed:
                 for cb in unknown:
                     cb(msg)

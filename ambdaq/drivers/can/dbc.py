@@ -231,9 +231,9 @@ class DbcReceiver:
         self.undecodable = 0
         self.raw_stream = _Stream(SignalGroup(RAW_TOPIC, "RawFrame", RAW_FIELDS,
                                               ("", "byte", "", *("byte",) * 8)), None, 0, None) if request.raw else None
-        known = {m.frame_id for m in db.messages}
-        for frame_id in self.decoders:
-            hub.on_frame(frame_id, self._on_frame(frame_id))
+        known = {(m.frame_id, m.is_extended_frame) for m in db.messages}
+        for frame_id, (msg, _counter, _fields) in self.decoders.items():
+            hub.on_frame(frame_id, self._on_frame(frame_id), extended=msg.is_extended_frame)
         hub.on_unknown(lambda msg: self._on_unknown(msg, known))
 
     @staticmethod
@@ -276,8 +276,8 @@ class DbcReceiver:
 
         return on_frame
 
-    def _on_unknown(self, msg, known: set[int]) -> None:
-        if msg.arbitration_id in known:
+    def _on_unknown(self, msg, known: set[tuple[int, bool]]) -> None:
+        if (msg.arbitration_id, msg.is_extended_id) in known:
             return  # a DBC message the rig file did not ask for
         self.unknown += 1
         if self.raw_stream is not None:
