@@ -257,3 +257,72 @@ def test_conversions_types_orders_masks_and_arrays_of_one_address(tmp_path, run_
                 "--duration", "1", "-o", tmp_path / "t.mcap")
     assert r.exit_code == 2 and "measurement text" in r.output and "ASCII" in r.output, r.output
     assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "t.mcap").exists()
+
+
+def test_a_datagram_delivered_twice_is_recorded_once(tmp_path, run_cli):
+    """XCP on UDP: the network may deliver a datagram twice. A slave here whose every DTO arrives
+    twice (the same CTR) is recorded with each tick once, none lost and none twice, at the event's
+    own rate; the duplicates are dropped and counted in the link statistics."""
+    a2l = tmp_path / "hostile.a2l"
+    a2l.write_text(A2L)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        ctr, entries, peer = 0, [], None
+        sock.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                data, peer = sock.recvfrom(2048)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            cmd = data[4:]
+            if cmd[0] == 0xE1:
+                entries.append((cmd[2], struct.unpack_from("<I", cmd, 4)[0]))
+            sock.sendto(struct.pack("<HH", len(r := HostileSlave._answer(cmd)), ctr) + r, peer)
+            ctr += 1
+            if cmd[0] == 0xDD and cmd[1] == 1:  # started: every DTO twice, until stopped
+                k = 0
+                sock.setblocking(False)
+                while not stop.is_set():
+                    memory = {0x1000 + i: b for i, b in enumerate(struct.pack("<I", k))}
+                    dto = struct.pack("<BI", 0, 1000 * k) + bytes(memory.get(a + i, 0) for s, a in entries
+                                                                   for i in range(s))
+                    datagram = struct.pack("<HH", len(dto), ctr & 0xFFFF) + dto
+                    sock.sendto(datagram, peer)
+                    sock.sendto(datagram, peer)  # delivered again, as a network may
+                    ctr, k = ctr + 1, k + 1
+                    try:
+                        data, peer = sock.recvfrom(2048)
+                        cmd = data[4:]
+                        sock.sendto(struct.pack("<HH", len(r := HostileSlave._answer(cmd)), ctr) + r, peer)
+                        ctr += 1
+                        if cmd[0] in (0xDD, 0xFE):
+                            break
+                    except BlockingIOError:
+                        pass
+                    time.sleep(0.001)
+                sock.settimeout(0.2)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        out = tmp_path / "u.mcap"
+        r = run_cli("record", "--device", f"xcp+udp://127.0.0.1:{sock.getsockname()[1]}", "--a2l", a2l,
+                    "--measure", "ticks", "--duration", "1", "--json", "-o", out)
+        assert r.exit_code == 0, r.output
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        sock.close()
+    got = load(out)["/xcp/tick"]
+    ticks = got["ticks"].astype(np.int64)
+    assert len(ticks) > 100 and np.array_equal(ticks, np.arange(ticks[0], ticks[0] + len(ticks)))  # once each
+    assert np.all(np.diff(got.device_time) == 1_000_000)  # 1 ms apart, never 0
+    link = McapFile(out).metadata()["ambdaq.link.controller"]
+    assert int(link["transport_duplicates"]) >= len(ticks) and link["transport_lost_packets"] == "0"
+    stats = json.loads(McapFile(out).metadata()["ambdaq.statistics"]["/xcp/tick"])
+    assert stats["duplicates"] == 0 and stats["rate_hz"] < 1100  # the event's own rate, not twice it

@@ -541,7 +541,8 @@ class XcpController(Controller, CalibrationPages):
     def link_statistics(self) -> dict[str, str]:
         link, master = self._master.link, self._master
         out = {"transport_packets": str(link.received), "transport_lost_packets": str(link.lost_packets),
-               "transport_malformed": str(link.malformed), "overload_events": str(master.overload_events)}
+               "transport_duplicates": str(link.duplicates), "transport_malformed": str(link.malformed),
+               "overload_events": str(master.overload_events)}
         if self._streams:
             out["dto_unknown"] = str(self._assembler.unknown)
             for s in self._streams:

@@ -30,6 +30,7 @@ HEADER = struct.Struct("<HH")  # LEN, CTR (Part 3: Ethernet, SxI LEN_CTR_WORD)
 LINK_MAX = 0xFFFF  # the largest LEN a header can state; before CONNECT the slave's limit is unknown
 READ_WAIT_S = 0.05  # how long one receive waits, so that a closed link is noticed
 MAX_BUFFER = 4 << 20  # bytes held of a stream that does not frame: a slave sending garbage is cut off
+SEEN = 1024  # CTRs remembered to tell a datagram delivered twice (the CTR turns every 65,536 packets)
 
 
 class Link(ABC):
@@ -42,11 +43,14 @@ class Link(ABC):
         The longest packet accepted, in bytes: MAX(CTO, DTO) once connected.
     lost_packets : int
         Packets the slave's CTR says were sent and never arrived.
+    duplicates : int
+        Packets that arrived twice (the same CTR among the last ones), dropped.
     malformed : int
         Messages that did not parse and were skipped (UDP, CAN).
     """
 
     has_counter = True
+    datagrams = False  # True where the network may deliver a packet twice (UDP)
     max_packet = LINK_MAX
 
     def __init__(self, url: str) -> None:
@@ -54,7 +58,10 @@ class Link(ABC):
         self.lost_packets = 0
         self.malformed = 0
         self.received = 0
+        self.duplicates = 0
         self._ctr: int | None = None
+        self._seen: deque[int] = deque()  # the CTRs of the last SEEN packets, and as a set
+        self._seen_set: set[int] = set()
         self._tx_ctr = 0
         self._tx_lock = threading.Lock()
 
@@ -65,15 +72,28 @@ class Link(ABC):
             self._tx_ctr = (ctr + 1) & 0xFFFF
         return HEADER.pack(len(packet), ctr) + packet
 
-    def count(self, ctr: int) -> None:
-        """Learn the slave's CTR of one packet: a gap is packets lost on the way."""
+    def count(self, ctr: int) -> bool:
+        """Learn the slave's CTR of one packet: a gap is packets lost on the way.  False for a
+        packet whose CTR came already among the last :data:`SEEN` (a datagram the network
+        delivered twice: UDP may): it is dropped and counted (:attr:`duplicates`), never taken for
+        a sample of its own."""
+        if self.datagrams:  # a byte stream (TCP, SxI) delivers each packet once
+            if ctr in self._seen_set:
+                self.duplicates += 1
+                return False
+            self._seen.append(ctr)
+            self._seen_set.add(ctr)
+            if len(self._seen) > SEEN:
+                self._seen_set.discard(self._seen.popleft())
         if self._ctr is not None:
             gap = (ctr - self._ctr - 1) & 0xFFFF
-            if gap and gap < 0x8000:  # a step back (a duplicated or reordered datagram) is no loss
+            if gap and gap < 0x8000:
                 self.lost_packets += gap
-            if gap >= 0x8000:
-                return
+            if gap >= 0x8000:  # a late datagram (reordered): not lost, and not the newest
+                self.lost_packets = max(0, self.lost_packets - 1)
+                return True
         self._ctr = ctr
+        return True
 
     @abstractmethod
     def send(self, packet: bytes) -> None:
@@ -206,6 +226,8 @@ class SerialLink(_StreamLink):
 class UdpLink(_SocketSend, Link):
     """XCP on UDP to ``host``:``port``: each datagram holds one or more LEN CTR PACKET messages."""
 
+    datagrams = True
+
     def __init__(self, url: str, host: str, port: int) -> None:
         super().__init__(url)
         try:
@@ -250,8 +272,8 @@ class UdpLink(_SocketSend, Link):
             if not 0 < length <= self.max_packet or end > len(data):
                 self.malformed += 1  # the rest of this datagram cannot be framed
                 return
-            self.count(ctr)
-            out.append((now, data[at + HEADER.size : end]))
+            if self.count(ctr):
+                out.append((now, data[at + HEADER.size : end]))
             at = end
         if at != len(data) and any(data[at:]):
             self.malformed += 1  # trailing bytes that are no message (zero fill is allowed)
