@@ -1,6 +1,7 @@
 """Online clock mapping against known offset, drift and latency."""
 
 import numpy as np
+import pytest
 
 from ambdaq.daq.clock import ClockMap
 
@@ -83,3 +84,28 @@ def test_revision_states_what_a_stretch_of_lifted_pairs_cost_the_written_times()
         assert fit.uncertainty_ns >= fit.revision_ns
         # the statement covers what happened: the worst error beyond the least latency (100 us)
         assert np.abs(errors - 100_000).max() <= fit.uncertainty_ns + 100_000, (np.abs(errors).max(), fit)
+
+
+@pytest.mark.parametrize("ppm, stall_s, refused", [
+    (200, 0.0, False), (-900, 0.8, False), (0, 2.0, False),  # crystals, a loaded host's stall of up to 2 s
+    (5000, 0.0, True), (-500_000, 0.0, True), (1_000_000, 0.0, True)])  # no crystal: an RC clock, half, twice
+def test_a_clock_beyond_a_crystals_drift_is_refused(ppm, stall_s, refused):
+    """Pairs every 10 ms for 20 s, the latency exponential (2 ms mean), 20 pairs in a row late by
+    ``stall_s``: a clock within 1,000 ppm is a clock, whatever the stalls; one beyond is refused
+    with the reason, as soon as its drift is fitted (3 s of its own time)."""
+    from ambdaq.daq.clock import ClockMap
+
+    cm, rng = ClockMap(), np.random.default_rng(1)
+    first = None
+    for k in range(2000):
+        device = k * 10_000_000
+        host = 5_000_000_000 + int(device / (1 + ppm * 1e-6)) + int(rng.exponential(2e6))
+        host += int(stall_s * 1e9) if 700 <= k < 720 else 0
+        cm.update(device, host)
+        if cm.problem and first is None:
+            first = device * 1e-9
+    assert (cm.problem is not None) == refused, cm.problem
+    if not refused:
+        assert abs(cm.fit().drift_ppm + ppm) < 20  # the fit's sign: host = device (1 + drift)
+    if refused:
+        assert "ppm against the host's" in cm.problem and first <= 3.5  # at the first fit after 3 s of pairs

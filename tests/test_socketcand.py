@@ -18,6 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
 from ambdaq.daq.mcapfile import McapFile
+from ambdaq.errors import BadInputError
 
 sys.path.insert(0, str(Path(__file__).parent))
 from eds_gateway import recordable, value_of  # noqa: E402
@@ -269,3 +270,60 @@ def test_a_time_stamp_that_cannot_be_the_gateways_clock_is_not_recorded(tmp_path
     assert kept == [t for i, t in enumerate(sent) if i not in (70, 71)][-len(kept):]  # every other one, in order
     assert McapFile(out).metadata()["ambdaq.link.motohawk.ExampleMessage"]["implausible_time"] == "2"
     assert before < got.log_time[0] and got.log_time[-1] < time.time_ns()
+
+
+@pytest.mark.parametrize("clock", ["twice as fast", "walks 0.9 s a frame", "half as fast"])
+def test_a_gateway_clock_that_cannot_be_a_clock_is_refused_never_squeezed(clock, tmp_path, run_cli):
+    """A gateway whose time stamps run at twice the host's rate, walk 0.9 s per 10 ms frame, or run
+    at half the rate, cannot be timing its frames by a crystal (which keeps within 1,000 ppm): once
+    its drift is fitted (3 s of its time) the recording stops with one line naming the device and
+    its clock's drift (exit 1); the file is finished and flags the frames timed before by the offset
+    alone (the device's clock metadata says why), and a workflow refuses to compute from them."""
+    import socket
+    import threading
+
+    import cantools
+
+    dbc = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc" / "motohawk.dbc"
+    if not dbc.is_file():
+        pytest.skip("../shared/corpus/dbc/motohawk.dbc is not beside the clone")
+    msg = cantools.database.load_file(str(dbc)).get_message_by_name("ExampleMessage")
+    data = msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 230.0}).hex().upper()
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    stop = threading.Event()
+
+    def serve() -> None:
+        with raw_mode_client(server) as conn:
+            t0, k = time.time(), 0
+            while not stop.is_set():
+                now = time.time()
+                stamp = {"twice as fast": t0 + 2 * (now - t0), "walks 0.9 s a frame": t0 + 0.9 * k,
+                         "half as fast": t0 + 0.5 * (now - t0)}[clock]
+                try:
+                    conn.sendall(f"< frame {msg.frame_id:03X} {stamp:.6f} {data} >".encode())
+                except OSError:
+                    return
+                k += 1
+                time.sleep(0.01)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    out = tmp_path / "c.mcap"
+    try:
+        r = run_cli("record", "--device", f"can://socketcand/can0?host=127.0.0.1&port={port}&dbc={dbc}",
+                    "--duration", "12", "-q", "-o", out)
+    finally:
+        stop.set()
+        thread.join(5)
+        server.close()
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "time stamps cannot be its clock" in r.output and "motohawk.ExampleMessage" in r.output, r.output
+    meta = McapFile(out).metadata()  # finished, and it says why
+    assert "refused" in meta["ambdaq.clock.motohawk.ExampleMessage"]
+    assert "ppm against the host's" in meta["ambdaq.clock.motohawk.ExampleMessage"]["refused"]
+    rec = load(out)
+    from ambdaq.daq.quality import require_complete
+
+    with pytest.raises(BadInputError, match="could not be its clock"):
+        require_complete(rec, ["/motohawk/ExampleMessage"], "a fit")

@@ -32,7 +32,7 @@ import numpy as np
 from ..drivers.interfaces import Source
 from ..drivers.signals import Event, SampleBlock
 from ..errors import AmbdaqError, DeviceError
-from .clock import ClockMap
+from .clock import MAX_DRIFT_PPM, ClockMap
 from .sequence import SampleCounts, SequenceTracker, Verdict
 
 QUEUE_BLOCKS = 64  # blocks in flight between device threads and the acquisition's thread
@@ -43,6 +43,11 @@ REPEAT_GRACE_S = 2.0
 """After a stop by Ctrl-C or SIGTERM, the same signal within this long is taken as the same stop
 repeated (a double press), not as an interrupt of what the caller does next (closing the devices,
 printing the summary): the files are whole by then.  Later ones reach the handler there was before."""
+
+
+class ClockRefused(DeviceError):
+    """A device whose time stamps cannot be its clock (:attr:`.clock.ClockMap.problem`): its
+    samples are not timed by them, and the recording stops with this line."""
 
 
 class Sink:
@@ -187,6 +192,7 @@ class Acquisition:
                     else None for s in sources}
         self.totals = {name: SampleCounts(name) for name in self.names}
         self.clocks: dict[str, ClockMap] = {}
+        self.refused: dict[str, str] = {}  # devices whose time stamps are no clock, and why
         self.host_clocked: set[str] = set()
         self.events = 0
         self.stopped_by_user = False
@@ -265,7 +271,11 @@ class Acquisition:
                     live -= 1
                     self._end_device(source.name, self.due[source.name] if item.complete else None)
                 else:
-                    self._take(source, item)
+                    try:
+                        self._take(source, item)
+                    except ClockRefused as err:
+                        failure = err
+                        break
                 now = time.monotonic()
                 if by_time and self.duration_s is not None and now - self.t0 >= self.duration_s:
                     for s in by_time:
@@ -337,8 +347,11 @@ class Acquisition:
                 source, item = q.get_nowait()
             except queue.Empty:
                 return
-            if isinstance(item, SampleBlock) and len(item):
-                self._ingest(source, item)
+            if isinstance(item, SampleBlock) and len(item) and source.name not in self.refused:
+                try:
+                    self._ingest(source, item)
+                except ClockRefused:
+                    pass  # said once, where it was found
 
     # --- clocks ----------------------------------------------------------------------------------
 
@@ -367,6 +380,12 @@ class Acquisition:
         pairs = source.clock_pairs()
         for d, h in pairs if pairs is not None else [(int(block.device_time_ns[-1]), block.received_ns)]:
             cm.update(d, h)
+        if cm.problem is not None:  # never squeezed onto the host clock: not recorded, and said
+            lost = sum(len(b) for b in self._held.pop(device, [])) + len(block)
+            self.refused[device] = cm.problem
+            raise ClockRefused(f"{device}: its time stamps cannot be its clock ({cm.problem}; a crystal keeps "
+                               f"within {MAX_DRIFT_PPM:,.0f} ppm): its last {lost} samples are not recorded and "
+                               "the recording stops")
         latency = source.clock_latency_ns()
         if latency is not None:
             cm.latency_ns = latency
@@ -436,6 +455,10 @@ class Acquisition:
                          "uncertainty_us": round(fit.uncertainty_ns * 1e-3, 3),
                          "revision_us": round(fit.revision_ns * 1e-3, 3), "points": fit.points,
                          "latency_us": round(fit.latency_ns * 1e-3, 3)}
+            if cm.backwards:
+                out[name]["backwards"] = cm.backwards
+            if name in self.refused:
+                out[name]["refused"] = self.refused[name]
         for name in self.host_clocked:
             out[name] = {"host_clock": True, "uncertainty_us": 0.0}
         return out
@@ -460,4 +483,4 @@ class Acquisition:
         return now
 
 
-__all__ = ["Acquisition", "PROVISIONAL_S", "QUEUE_BLOCKS", "STOP_WAIT_S", "Sink"]
+__all__ = ["Acquisition", "ClockRefused", "PROVISIONAL_S", "QUEUE_BLOCKS", "STOP_WAIT_S", "Sink"]

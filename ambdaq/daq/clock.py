@@ -33,6 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MAX_DRIFT_PPM = 1000.0
+"""The most a device's clock may run fast or slow against the host's: a quartz crystal stays within
+about +-100 ppm over temperature and age (an RC oscillator can reach +-1 %, and is not a clock to
+time samples by).  A fitted drift beyond this is not a clock: the map refuses it (:attr:`ClockMap.problem`)
+as soon as the drift is fitted (``SETTLE_S`` of pairs); the samples timed before by the offset alone
+are flagged with it, in the recording's clock metadata."""
 SPAN_S = 10.0  # fit over the last 10 s of pairs
 SETTLE_S = 3.0  # pairs spanning this long before drift is estimated
 BIN_S = 0.25  # the fastest pair of each bin of device time
@@ -101,6 +107,8 @@ class ClockMap:
         self._latency = 0  # one-way latency of the fastest pairs, subtracted when known
         self._written: deque[tuple[int, int]] = deque()  # (device ns, host ns written) of the last SPAN_S
         self._revision = 0.0  # the most a refit moved a written time, ns
+        self.backwards = 0  # pairs whose device time ran back (dropped: a clock does not)
+        self.problem: str | None = None  # why these are not a clock's times, once they are not
 
     @property
     def ready(self) -> bool:
@@ -124,7 +132,8 @@ class ClockMap:
         dd = int(device_ns) - self._d0
         x = dd * 1e-9
         if self._x and x <= self._x[-1]:
-            return  # pairs must advance in device time
+            self.backwards += x < self._x[-1]  # pairs must advance in device time
+            return
         self._x.append(x)
         self._y.append(float(int(host_ns) - self._h0 - dd))
         while self._x[0] < x - SPAN_S:
@@ -141,6 +150,8 @@ class ClockMap:
         if x >= self._next_fit:
             self._next_fit = x + REFIT_S
             self._a, self._b, self._spread = floor_line(np.asarray(self._x), np.asarray(self._y))
+            if abs(self._b) * 1e-3 > MAX_DRIFT_PPM and self.problem is None:
+                self.problem = f"its clock runs {self._b * -1e-3:+,.0f} ppm against the host's"
             while self._written and self._written[0][0] < device_ns - SPAN_S * 1e9:
                 self._written.popleft()
             if self._written:

@@ -94,6 +94,11 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
     """
     lossy: dict[tuple[int, int], list[str]] = {}  # the topics of one device lose the same samples
     restarted: dict[int, list[str]] = {}
+    for name, device in rec.devices.items():  # time stamps that were no clock: nothing computes over them
+        refused = device.clock.get("refused")
+        if refused and set(device.topics) & set(topics):
+            raise BadInputError(f"{rec.path}: {name}'s time stamps could not be its clock ({refused}): {purpose} "
+                                "would compute over times that are not; record it again")
     for topic in topics:
         c = topic_counts(rec, topic)
         if c.lost_fraction > max_lost:
