@@ -35,7 +35,8 @@ SIGNALS_PER_TPDO, TPDOS = 2, 2
 def raw_mode_client(server):
     """The connection of the client a hand-written hostile gateway serves: ambdaq's reachability
     check accepted and closed first, then socketcand's handshake (hi, open, rawmode) answered."""
-    conn, _ = server.accept()  # ambdaq's reachability check
+    conn, _ = server.accept()  # ambdaq's reachability check: greeted, as socketcand greets every client
+    conn.sendall(b"< hi >")
     conn.close()
     conn, _ = server.accept()
     with conn:
@@ -327,3 +328,38 @@ def test_a_gateway_clock_that_cannot_be_a_clock_is_refused_never_squeezed(clock,
 
     with pytest.raises(BadInputError, match="could not be its clock"):
         require_complete(rec, ["/motohawk/ExampleMessage"], "a fit")
+
+
+@pytest.mark.parametrize("after", ["silent", "greets once"])
+def test_a_gateway_that_never_finishes_its_handshake_is_one_line(after, tmp_path, run_cli):
+    """A gateway that accepts the connection and never says '< hi >', or greets the first client
+    and then answers nothing: one line naming it after the handshake's timeout, exit 1, no file
+    (it hung the recording until the peer closed)."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    held = []
+
+    def serve() -> None:
+        for k in range(3):
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            held.append(conn)  # kept open, and silent
+            if after == "greets once" and k == 0:
+                conn.sendall(b"< hi >")
+
+    threading.Thread(target=serve, daemon=True).start()
+    t0 = time.monotonic()
+    dbc = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc" / "motohawk.dbc"
+    r = run_cli("record", "--device", f"can://socketcand/can0?host=127.0.0.1&port={port}&dbc={dbc}", "--duration",
+                "1", "-q", "-o", tmp_path / "g.mcap")
+    server.close()
+    for conn in held:
+        conn.close()
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"127.0.0.1:{port}" in r.output and ("said nothing" in r.output or "handshake" in r.output), r.output
+    assert time.monotonic() - t0 < 15 and not (tmp_path / "g.mcap").exists()

@@ -100,6 +100,52 @@ class SyncCycle(NamedTuple):
     time_ns: int = 0
 
 
+def _greets(interface: str, host: str, port: int) -> None:
+    """That a gateway answers at ``host``:``port`` and greets a client within GATEWAY_TIMEOUT_S
+    (socketcand: ``< hi >``); one line naming it otherwise."""
+    where = f"the {interface} gateway at {host}:{port}"
+    try:
+        with socket.create_connection((host, port), timeout=GATEWAY_TIMEOUT_S) as conn:
+            if interface == "socketcand":
+                greeting = conn.recv(64)
+                if not greeting.startswith(b"< hi >"):
+                    raise DeviceError(f"{where} greeted with {greeting[:20]!r}, not socketcand's '< hi >'")
+    except socket.timeout:
+        raise DeviceError(f"{where} accepted the connection but said nothing in {GATEWAY_TIMEOUT_S:g} s "
+                          "(socketcand greets with '< hi >')") from None
+    except OSError as err:
+        raise DeviceError(f"cannot reach {where}: {err.strerror or err}") from None
+
+
+def _opened(interface: str, channel: str, bitrate: int, options: dict) -> can.BusABC:
+    """python-can's bus, opened within GATEWAY_TIMEOUT_S where it talks to a gateway (its socketcand
+    client waits for each handshake line without a timeout: a gateway that stops answering would
+    hang the command); one DeviceError line otherwise."""
+    result: list = []
+
+    def open_bus() -> None:
+        try:
+            result.append(can.Bus(interface=interface, channel=channel, bitrate=bitrate, **options))
+        except BaseException as err:  # handed to the caller as it is
+            result.append(err)
+
+    if "host" not in options:
+        open_bus()
+    else:
+        opener = threading.Thread(target=open_bus, name=f"open-{interface}", daemon=True)
+        opener.start()
+        opener.join(GATEWAY_TIMEOUT_S)
+        if not result:
+            raise DeviceError(f"CAN {interface}/{channel}: the gateway at {options['host']}:{options['port']} did not "
+                              f"finish its handshake in {GATEWAY_TIMEOUT_S:g} s")
+    got = result[0]
+    if isinstance(got, (can.CanError, ValueError, ImportError, OSError, NotImplementedError)):
+        raise DeviceError(f"cannot open CAN {interface}/{channel}: {got}") from None
+    if isinstance(got, BaseException):
+        raise got
+    return got
+
+
 class CanHub:
     """A shared CAN bus (see the module docstring); get one with :meth:`acquire`."""
 
@@ -124,15 +170,8 @@ class CanHub:
                 quiet.addHandler(logging.NullHandler())
                 quiet.propagate = False
         if "host" in bus_options:  # a gateway: python-can's client retries a refused connection for 10 s
-            try:
-                socket.create_connection((bus_options["host"], bus_options["port"]), timeout=GATEWAY_TIMEOUT_S).close()
-            except OSError as err:
-                raise DeviceError(f"cannot reach the {interface} gateway at {bus_options['host']}:{bus_options['port']}: "
-                                  f"{err.strerror or err}") from None
-        try:
-            bus = can.Bus(interface=interface, channel=channel, bitrate=bitrate, **bus_options)
-        except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as err:
-            raise DeviceError(f"cannot open CAN {interface}/{channel}: {err}") from None
+            _greets(interface, bus_options["host"], bus_options["port"])
+        bus = _opened(interface, channel, bitrate, bus_options)
         self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
         self._fast: dict[tuple[int, bool], Callable[[bytearray, float], None]] = {}  # (id, extended)
         self._unknown: list[Callable[[can.Message], None]] = []  # frames nothing on the bus claims
