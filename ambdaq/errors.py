@@ -26,3 +26,8 @@ class DeviceError(AmbdaqError):
 
 class DeviceTimeout(DeviceError):
     """A device did not answer a request in time (it may or may not have acted on it)."""
+
+
+class AmbdaqWarning(UserWarning):
+    """Something the user should know and that did not stop the command (a DBC file read with
+    cantools' checks relaxed): the command line prints it as one ``ambdaq: warning:`` line."""

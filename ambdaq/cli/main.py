@@ -20,7 +20,7 @@ import click
 
 from ..loading import load_object
 from .. import __version__
-from ..errors import AmbdaqError
+from ..errors import AmbdaqError, AmbdaqWarning
 
 
 COMMANDS = {
@@ -88,6 +88,7 @@ class AmbdaqGroup(click.Group):
             formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context):
+        _say_warnings()
         try:
             return super().invoke(ctx)
         except click.exceptions.UsageError as err:  # one line, like every other error, with where to look
@@ -120,6 +121,22 @@ class AmbdaqGroup(click.Group):
                 raise
             click.echo(f"ambdaq: internal error: {type(err).__name__}: {err} (run with --debug for the traceback)", err=True)
             ctx.exit(1)
+
+
+def _say_warnings() -> None:
+    """Print each :class:`~ambdaq.errors.AmbdaqWarning` as one ``ambdaq: warning:`` line on stderr
+    (once per place it comes from); other warnings as Python shows them."""
+    import warnings
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        if issubclass(category, AmbdaqWarning):
+            click.echo(f"ambdaq: warning: {message}", err=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
 
 
 def _quiet_stdout() -> None:

@@ -77,6 +77,9 @@ def format_text(d: dict) -> str:
     ]
     for t in d["topics"]:
         n = {k: "-" if t.get(k) is None else str(t[k]) for k in ("drops", "duplicates", "wraps", "restarts")}
+        if not t["messages"]:  # a message or page that never came: no drop counts it, so say it
+            lines.append(f"{t['topic']:<18} {'never received':>21}  {'':>7} {'':>5} {'':>5} {'':>8}  {', '.join(t['fields'])}")
+            continue
         lines.append(f"{t['topic']:<18} {t['messages']:>10} {t['rate_hz']:>10.1f} {n['drops']:>7} {n['duplicates']:>5} "
                      f"{n['wraps']:>5} {n['restarts']:>8}  {', '.join(t['fields'])}")
     for name, meta in d["metadata"].items():

@@ -143,9 +143,21 @@ class RecordResult:
     snapshot: dict | None = None  # a snapshot recording's memory figures and triggers fired
     devices: dict[str, dict] = field(default_factory=dict)  # per device: samples, drops, duplicates
 
+    def never_received(self) -> list[str]:
+        """The topics that recorded nothing: a message or page that never came (no drop counts it)."""
+        return [t for t, c in self.topics.items() if not c.get("samples")]
+
     def counts_line(self) -> str:
         """What each device wrote and lost, in words: the totals mean different things (``samples``
-        is the most any device wrote, ``drops`` the sum), so with several devices each is named."""
+        is the most any device wrote, ``drops`` the sum), so with several devices each is named; a
+        topic that recorded nothing is named as never received, so that "0 drops" hides none."""
+        empty = self.never_received()
+        if empty:
+            names = ", ".join(empty[:5]) + (f" and {len(empty) - 5} more" if len(empty) > 5 else "")
+            return f"{self._counts()}; never received: {len(empty)} of {len(self.topics)} topics ({names})"
+        return self._counts()
+
+    def _counts(self) -> str:
         dups = f", {self.duplicates} duplicates dropped" if self.duplicates else ""
         if len(self.devices) <= 1:
             return f"{self.samples} samples, {self.drops} drops{dups}"
@@ -169,6 +181,7 @@ class RecordResult:
             "stopped_by_user": self.stopped_by_user,
             "devices": self.devices,
             "topics": self.topics,
+            "never_received": self.never_received(),
             "clocks": self.clocks,
             "alignment_us": self.alignment_us,
             "snapshot": self.snapshot,

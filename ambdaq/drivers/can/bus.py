@@ -174,6 +174,7 @@ class CanHub:
         bus = _opened(interface, channel, bitrate, bus_options)
         self.network = canopen.Network(bus)  # no notifier: our receive thread feeds it
         self._fast: dict[tuple[int, bool], Callable[[bytearray, float], None]] = {}  # (id, extended)
+        self._last_frame = time.monotonic()
         self._unknown: list[Callable[[can.Message], None]] = []  # frames nothing on the bus claims
         self.error_frames = 0
         self.malformed_frames = 0  # lines or records the interface could not parse: counted, skipped
@@ -264,6 +265,10 @@ class CanHub:
         """Native id of the bus receive thread (for CPU accounting)."""
         return self._rx.native_id
 
+    def silent_s(self) -> float:
+        """Seconds since the last frame of any identifier (or since the bus opened)."""
+        return time.monotonic() - self._last_frame
+
     def on_frame(self, cob_id: int, handler: Callable[[bytearray, float], None], extended: bool | None = None) -> None:
         """Route frames of ``cob_id`` (process data) straight to ``handler(data, timestamp)``: only
         frames of that identifier **and format** (ISO 11898: an 11-bit and a 29-bit identifier of the
@@ -311,6 +316,7 @@ class CanHub:
                     time.sleep(RX_POLL_S)
                 continue
             wait = 0.0
+            self._last_frame = time.monotonic()
             timed = self.host_clock or self._plausible(msg)
             while own:  # a SYNC we sent while waiting comes before any reply to it
                 counter, sent = own.popleft()

@@ -19,12 +19,13 @@ from __future__ import annotations
 import json
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ...errors import BadInputError
+from ...errors import AmbdaqWarning, BadInputError
 from ..interfaces import Source
 from ..signals import SampleBlock, SignalGroup, ros_field, ros_type
 from .bus import CanHub
@@ -60,13 +61,22 @@ def load_dbc(path: str | Path):
         line = text.count("\n", 0, long.start()) + 1
         raise BadInputError(f"{path}: line {line}: a string or word of {len(long.group()):,} characters (at most "
                             f"{MAX_TOKEN:,}; cantools takes some 200 bytes of memory per character)")
-    try:
-        return cantools.database.load_string(text, database_format="dbc", strict=True)
-    except (cantools.database.errors.ParseError, cantools.database.UnsupportedDatabaseFormatError) as err:
-        text = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise BadInputError(f"{path}: not a valid DBC file: {text}") from None
-    except (UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError) as err:
-        raise BadInputError(f"{path}: not a valid DBC file ({type(err).__name__}: {err})") from None
+    strict = None  # why cantools' checks refused it, where they did
+    for checked in (True, False):  # cantools' strict checks (overlapping signals, a signal past the frame ...)
+        try:
+            db = cantools.database.load_string(text, database_format="dbc", strict=checked)
+        except (cantools.database.errors.ParseError, cantools.database.UnsupportedDatabaseFormatError,
+                UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError) as err:
+            said = (str(err).splitlines()[0] if str(err) else type(err).__name__).removeprefix("DBC: ").strip('"')
+            if checked:
+                strict = said
+                continue
+            raise BadInputError(f"{path}: not a valid DBC file: {said}") from None
+        if strict is not None:
+            warnings.warn(f"{path}: read with cantools' checks relaxed (strict=False), as cantools reads it: "
+                          f"{strict}", AmbdaqWarning, stacklevel=2)
+        return db
+    raise AssertionError("unreachable")
 
 
 @dataclass
@@ -122,7 +132,7 @@ class _Stream:
         self.choices = choices or {}  # field -> its value table (value -> text)
         self.counter = counter
         self.modulus = 1 << counter_bits if counter else 0
-        self.queue = RowQueue(2.0 if rate_hz else float("inf"))  # frames of unknown ids may never come
+        self.queue = RowQueue(float("inf"))  # a message a DBC describes may never come: the bus's silence ends it
         self.received = 0  # frames, or the unwrapped counter
         self.last_counter: int | None = None
         self.rounded = 0  # recorded integer values beyond 2**53 in float64 fields, which hold them rounded
@@ -222,8 +232,11 @@ class DbcReceiver:
                 group = SignalGroup(topic, f"Dbc{ros_type(name)}" + "".join(f"M{v}" for _m, v in key),
                                     tuple(fields[s.name] for s in signals), tuple(s.unit or "" for s in signals),
                                     tuple(_field_type(s) for s in signals))
+                paged = len(keys) > 1  # a page comes when its frame does: its rate is measured, and the
+                # message's counter counts the message's frames, not the page's
                 self.streams[(msg.frame_id, key)] = _Stream(
-                    group, counter, bits, None if rate is None else rate / len(keys), source,  # pages take turns
+                    group, None if paged else counter, 0 if paged else bits, None if paged else rate,
+                    f"a page of {name}, measured ({source.split(':')[0]} is the message's)" if paged else source,
                     {fields[s.name]: s.name for s in signals},
                     {fields[s.name]: {f"{int(v)}": str(t) for v, t in s.choices.items()} for s in signals if s.choices})
             self.decoders[msg.frame_id] = (msg, counter, {k: [s.name for s in sig] for k, sig in keys.items()})
@@ -286,8 +299,18 @@ class DbcReceiver:
                                 [float(msg.arbitration_id), float(msg.dlc), float(msg.is_extended_id), *data], None)
 
 
+BUS_SILENT_S = 2.0
+"""Seconds without any frame on the bus after which a DBC device's recording ends: a DBC
+describes more messages than one bus carries, so one message that never comes ends nothing (its
+topic is said to be never received); a bus with no frame at all is gone."""
+
+
 class DbcMessageSource(Source):
-    """One topic of a DBC device, as a recorder source (see the module docstring)."""
+    """One topic of a DBC device, as a recorder source (see the module docstring).  Its duration is
+    the host clock's: a message's declared cycle is what it should do, not what it does (a page of
+    a multiplexed message comes when its frame does)."""
+
+    duration_in_samples = False
 
     def __init__(self, receiver: DbcReceiver, stream: _Stream, *, name: str, url: str) -> None:
         self.receiver, self.stream = receiver, stream
@@ -318,10 +341,16 @@ class DbcMessageSource(Source):
 
     def read(self) -> SampleBlock | None:
         hub = self.receiver.hub
-        taken = self.stream.queue.take(
-            lambda: None if hub.failure is None else f"{self.name} ({self.url}): {hub.failure}",
-            lambda silent: f"{self.name} ({self.url}): no {self.stream.group.topic.rsplit('/', 1)[-1]} frame "
-                           f"for {silent:.1f} s")
+
+        def failure() -> str | None:
+            if hub.failure is not None:
+                return f"{self.name} ({self.url}): {hub.failure}"
+            silent = hub.silent_s()
+            if silent > BUS_SILENT_S:
+                return f"{self.name} ({self.url}): no frame at all on the bus for {silent:.1f} s: the bus went silent"
+            return None
+
+        taken = self.stream.queue.take(failure, lambda silent: f"{self.name} ({self.url}): silent for {silent:.1f} s")
         if taken is None:
             return None
         got, seq = taken
