@@ -122,3 +122,56 @@ def test_a_broken_conversion_table_refuses_only_what_uses_it(tmp_path, run_cli):
     problems = {m["name"]: m["problem"] for m in json.loads(r.stdout)["measurements"]}
     assert problems["speed"] == "" and "fewer entries than its count, 3" in problems["mode"], problems
     assert "t.a2l: line 6: COMPU_VTAB CM.T.REF" in problems["mode"]  # where the table is
+
+
+CORPUS = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "corpus"
+A2L_FILES = sorted([*CORPUS.glob("a2l/*.a2l"), *CORPUS.glob("a2l/*.A2L"), *CORPUS.glob("xcp/*.a2l")])
+
+
+def _declared(path) -> dict[str, set[str]]:
+    """The names a file declares, read with a regular expression of the test's own (not ambdaq's
+    parser): MEASUREMENT, CHARACTERISTIC, AXIS_PTS and INSTANCE blocks, ``/begin`` in any case,
+    and those of the files it includes."""
+    import re
+
+    text = path.read_text(encoding="latin-1")
+    for included in re.findall(r'/include\s+"?([^"\s]+)"?', text, re.I):
+        target = path.parent / included
+        if target.suffix.lower() != ".aml" and target.is_file():
+            text += target.read_text(encoding="latin-1")
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    return {kind: set(re.findall(rf"/begin\s+{kind}\s+([^\s\"]+)", text, re.I))
+            for kind in ("MEASUREMENT", "CHARACTERISTIC", "AXIS_PTS", "INSTANCE")}
+
+
+@pytest.mark.parametrize("path", A2L_FILES, ids=[p.name for p in A2L_FILES])
+def test_every_object_of_a_real_a2l_is_listed_or_said_why_not(path, tmp_path, run_cli):
+    """Each A2L of ../shared/corpus as shipped: ``xcp list`` lists every MEASUREMENT, CHARACTERISTIC
+    (ASCII, VAL_BLK, CURVE, MAP, CUBOID, CUBE_4 ...) and AXIS_PTS the file declares, and every
+    component of every INSTANCE; one it cannot read or write is listed with the reason, never left
+    out (ASAM's own demo file had lost four of its 52 in silence)."""
+    r = run_cli("xcp", "list", path, "--json")
+    assert r.exit_code == 0, r.output
+    found = json.loads(r.stdout[r.stdout.index("{"):])
+    declared = _declared(path)
+    measurements = {m["name"] for m in found["measurements"]}
+    parameters = {p["name"]: p for p in found["parameters"]}
+    assert declared["MEASUREMENT"] <= measurements
+    assert declared["CHARACTERISTIC"] | declared["AXIS_PTS"] <= set(parameters)
+    for inst in declared["INSTANCE"]:  # its components, by the instance's name
+        assert any(n.startswith(inst + ".") for n in measurements | set(parameters)), inst
+    if not declared["INSTANCE"]:  # nothing more than the file declares, either
+        assert measurements == declared["MEASUREMENT"]
+        assert set(parameters) == declared["CHARACTERISTIC"] | declared["AXIS_PTS"]
+    for p in parameters.values():
+        assert not p["problem"] or p["problem"].startswith("not read: "), p
+
+
+def test_an_upper_case_include_is_read(tmp_path, run_cli):
+    """``/INCLUDE`` is the keyword ``/include`` (files write both): the included MODULE is read."""
+    (tmp_path / "mod.a2l").write_text('/begin MODULE M ""\n/begin MEASUREMENT x "" UBYTE NO_COMPU_METHOD 0 0 0 255 '
+                                      "ECU_ADDRESS 0x10 /end MEASUREMENT\n/end MODULE\n")
+    (tmp_path / "top.a2l").write_text('ASAP2_VERSION 1 71\n/begin PROJECT P ""\n  /INCLUDE "mod.a2l"\n/end PROJECT\n')
+    r = run_cli("xcp", "list", tmp_path / "top.a2l", "--json")
+    assert r.exit_code == 0, r.output
+    assert [m["name"] for m in json.loads(r.stdout)["measurements"]] == ["x"]

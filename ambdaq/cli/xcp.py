@@ -52,8 +52,9 @@ def list_command(a2l, device, pattern, as_json):
     if as_json:
         click.echo(json.dumps(found, indent=2))
         return
+    unread = sum(1 for p in found["parameters"] if p["problem"])
     click.echo(f"{found['file']}: project {found['project']}, {len(found['measurements'])} measurements, "
-               f"{len(found['parameters'])} parameters")
+               f"{len(found['parameters'])} parameters" + (f" ({unread} not read: see below)" if unread else ""))
     click.echo("events:" if found["events"] else "events: none declared in the A2L (ambdaq devices --ask-xcp URL asks the slave)")
     for e in found["events"]:
         click.echo(f"  {e['number']:>4}  {e['name']:<24} {'every %g us' % (e['cycle_ns'] / 1e3) if e['cycle_ns'] else 'sporadic'}")
@@ -66,6 +67,9 @@ def list_command(a2l, device, pattern, as_json):
                    f"{m['conversion']:<18} event {events}{note}")
     click.echo("parameters:")
     for p in found["parameters"]:
+        if p["problem"]:
+            click.echo(f"  {p['name']:<32} {p['type']:<16} {p['problem']}")
+            continue
         shape = f"[{p['count']}]" if p["count"] > 1 else ""
         click.echo(f"  {p['name']:<32} {p['type'] + shape:<16} {p['unit'] or '-':<8} {p['address']:<14} "
                    f"{p['limits'][0]:g} .. {p['limits'][1]:g}{'' if p['writable'] else '  read-only'}")

@@ -34,10 +34,11 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ...errors import BadInputError
+from ...errors import AmbdaqWarning, BadInputError
 from .a2l_syntax import Block, Text, read_tree
 
 TYPES = {"UBYTE": ("u", 1), "SBYTE": ("i", 1), "UWORD": ("u", 2), "SWORD": ("i", 2), "ULONG": ("u", 4),
@@ -297,6 +298,7 @@ class A2lFile:
     events: tuple[A2lEvent, ...] = ()
     segments: tuple[A2lSegment, ...] = ()
     daq: A2lDaq | None = None
+    unread: dict[str, str] = field(default_factory=dict)  # characteristics not read: name -> "KIND: why"
 
     def segment_of(self, param: A2lParameter) -> A2lSegment | None:
         """The calibration segment that holds ``param``, if the A2L describes one."""
@@ -328,7 +330,9 @@ def catalogue(a2l: A2lFile) -> dict:
                          for m in a2l.measurements.values()],
         "parameters": [{"name": p.name, "type": p.datatype, "count": p.count, "unit": p.conversion.unit,
                         "address": where(p.extension, p.address), "limits": [p.lower, p.upper],
-                        "writable": not p.read_only} for p in a2l.parameters.values()],
+                        "writable": not p.read_only, "problem": ""} for p in a2l.parameters.values()]
+        + [{"name": name, "type": why.split(":")[0], "count": 0, "unit": "", "address": "-", "limits": [None, None],
+            "writable": False, "problem": f"not read: {why.split(': ', 1)[1]}"} for name, why in a2l.unread.items()],
         "events": [{"number": e.number, "name": e.name, "cycle_ns": e.cycle_ns} for e in a2l.events],
     }
 
@@ -342,11 +346,18 @@ def read_a2l(path: str | Path) -> A2lFile:
     if project is None:
         raise BadInputError(f"A2L file {path}: no /begin PROJECT (is it an A2L file?)")
     modules = project.children("MODULE")
+    nested = next((p for p in project.children("PROJECT") if p.children("MODULE")), None)
+    if not modules and nested is not None:  # an /include of a whole A2L file: its PROJECT inside this one
+        warnings.warn(f"A2L file {path}: {project.where()}: PROJECT {_word(project, 0, '')} holds no MODULE of its "
+                      f"own but includes a whole A2L ({nested.where()}, PROJECT {_word(nested, 0, '')}): its MODULE "
+                      "is read", AmbdaqWarning, stacklevel=2)
+        modules = nested.children("MODULE")
     if not modules:
         raise BadInputError(f"A2L file {path}: {project.where()}: the PROJECT has no MODULE")
     reader = _ModuleReader(path, modules[0])
-    return A2lFile(path, sha, _word(project, 0, ""), reader.measurements(), reader.blobs(), reader.parameters(),
-                   reader.events(), reader.segments(), reader.daq())
+    parameters, unread = reader.parameters()
+    return A2lFile(path, sha, _word(project, 0, ""), reader.measurements(), reader.blobs(), parameters,
+                   reader.events(), reader.segments(), reader.daq(), unread)
 
 
 def _word(block: Block, index: int, default: str | None = None) -> str:
@@ -656,8 +667,10 @@ class _ModuleReader:
     def blobs(self) -> dict[str, tuple[int, int]]:
         return {name: (address, count) for name, _b, address, _e, _o, count, *_rest in self._characteristics()}
 
-    def parameters(self) -> dict[str, A2lParameter]:
-        out = {}
+    def parameters(self) -> tuple[dict[str, A2lParameter], dict[str, str]]:
+        """The characteristics and axis points ambdaq reads and writes, and every other one with
+        the reason it is not read (``name -> "KIND: why"``): none is left out in silence."""
+        out, unread = {}, {}
         for name, b, address, ext, options, count, kind, layout, method, lower, upper in self._characteristics():
             datatype, only_values = self.layouts.get(layout, ("", False))
             axes = b.children("AXIS_DESCR")  # STD_AXIS: Attribute InputQuantity Conversion MaxAxisPoints ...
@@ -672,16 +685,27 @@ class _ModuleReader:
                     out[name] = A2lParameter(name, address, ext, values.datatype, order, values.count,
                                              _number(b, lower, "lower limit"), _number(b, upper, "upper limit"),
                                              self.conversion(method), True, ambdaq_note(b), *record)
+                else:
+                    unread[name] = f"{kind}: its byte order is not one ambdaq reads"
                 continue
-            if kind in ("CURVE", "MAP", "CUBOID", "CUBE_4", "CUBE_5") and only_values:
+            dims = {"CURVE": 1, "MAP": 2, "CUBOID": 3, "CUBE_4": 4, "CUBE_5": 5}.get(kind)
+            axes = b.children("AXIS_DESCR")
+            if dims is not None and only_values and len(axes) == dims:
                 # its axes are not in its record (FIX_AXIS, COM_AXIS ...): MaxAxisPoints of each axis values
                 count = 1
-                for axis in b.children("AXIS_DESCR"):  # Attribute InputQuantity Conversion MaxAxisPoints ...
+                for axis in axes:  # Attribute InputQuantity Conversion MaxAxisPoints ...
                     count *= max(_integer(axis, _word(axis, 3), "MaxAxisPoints"), 1)
+            elif dims is not None:
+                unread[name] = (f"{kind}: {len(axes)} AXIS_DESCR of its {dims}, its size is not known" if len(axes) != dims
+                                else f"{kind}: its axis points are in a record layout ambdaq does not read ({layout})")
+                continue
             elif kind not in ("VALUE", "VAL_BLK"):
+                unread[name] = f"{kind}: not a number ambdaq reads or writes" + (" (text)" if kind == "ASCII" else "")
                 continue
             order = self._order(options)
             if datatype not in TYPES or not order:
+                unread[name] = (f"{kind}: record layout {layout} is not one value of a plain type"
+                                if datatype not in TYPES else f"{kind}: its byte order is not one ambdaq reads")
                 continue
             out[name] = A2lParameter(name, address, ext, datatype, order, count, _number(b, lower, "lower limit"),
                                      _number(b, upper, "upper limit"), self.conversion(method), "READ_ONLY" in options,
@@ -691,11 +715,14 @@ class _ModuleReader:
             datatype = self.axis_layouts.get(_word(b, 4, ""), "")
             options = _options(b, 10)
             if not self._order(options) or len(b.items) < 10:
+                unread[_word(b, 0)] = ("AXIS_PTS: its byte order is not one ambdaq reads" if len(b.items) >= 10
+                                       else f"AXIS_PTS: {len(b.items)} of its 10 values")
                 continue
             record: tuple = ()
             if datatype not in TYPES:  # its count in the record beside the points: read, never written
                 found = self._record(_word(b, 4), [(_integer(b, _word(b, 7), "MaxAxisPoints"), _word(b, 6))], False)
                 if found is None:
+                    unread[_word(b, 0)] = f"AXIS_PTS: record layout {_word(b, 4)} is not one ambdaq reads"
                     continue
                 record = found
                 datatype = next(r.datatype for r in found[0] if r.kind == "AXIS_PTS")
@@ -705,7 +732,7 @@ class _ModuleReader:
                                             _number(b, _word(b, 8), "lower limit"), _number(b, _word(b, 9), "upper limit"),
                                             self.conversion(_word(b, 6)), "READ_ONLY" in options or bool(record),
                                             ambdaq_note(b), *record)
-        return out
+        return out, unread
 
     def segments(self) -> tuple[A2lSegment, ...]:
         """The calibration segments; one the file describes badly is left out (it is needed only to

@@ -169,8 +169,8 @@ class _Reader:
                 stack.pop()
                 pending = None
                 continue
-            if kind == "word" and token in ("/begin", "/end", "/include"):
-                pending = token
+            if kind == "word" and token.lower() in ("/begin", "/end", "/include"):
+                pending = token.lower()  # the keywords as written: /include and /INCLUDE alike
                 continue
             block = stack[-1]
             if block.keyword in self.keep:
