@@ -25,8 +25,8 @@ from eds_gateway import recordable, value_of  # noqa: E402
 
 pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "eds"
-EDS_FILES = sorted(CORPUS.glob("*.eds"))
+CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus"
+EDS_FILES = sorted([*CORPUS.glob("eds/*.eds"), *CORPUS.glob("eds-more/*.eds")])
 NODE, RATE, OFFSET_S = 9, 100, 37.25
 SIGNALS_PER_TPDO, TPDOS = 2, 2
 

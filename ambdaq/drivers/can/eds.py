@@ -43,7 +43,7 @@ import struct
 import time
 import warnings
 from collections import defaultdict, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import canopen
@@ -237,9 +237,28 @@ def parse_signals(d: od.ObjectDictionary, entries, device: str, where: str) -> l
     return out
 
 
+def mapping_capacity(d: od.ObjectDictionary, n: int) -> int:
+    """How many objects TPDO ``n`` (1..4) can carry, as its EDS describes it (CiA 301): the highest
+    sub-index of its mapping record 0x1A00 + n - 1, no more than its sub-index 0's upper limit
+    where the EDS gives one; 0 where the device has no such TPDO (no 0x1800 + n - 1 or no mapping
+    record)."""
+    comm, mapping = 0x1800 + n - 1, 0x1A00 + n - 1
+    if comm not in d or mapping not in d:
+        return 0
+    record = d[mapping]
+    subs = getattr(record, "subindices", {})
+    highest = max((k for k in subs if k > 0), default=0)
+    limit = getattr(subs.get(0), "max", None)
+    return min(highest, int(limit)) if isinstance(limit, (int, float)) and limit >= 0 else highest
+
+
 def check_mapping(signals: list[EdsSignal], d: od.ObjectDictionary, path: Path) -> list[list[EdsSignal]]:
-    """The signals packed into TPDOs (in order, or as each names), refused as the EDS forbids."""
+    """The signals packed into TPDOs, each into the first whose room is left (64 bits, and the
+    entries its mapping record holds: :func:`mapping_capacity`), or into the one it names; refused
+    in one line naming the object and the TPDO where it does not fit or the EDS forbids it, before
+    anything is written to the device."""
     tpdos: list[list[EdsSignal]] = [[] for _ in range(MAX_TPDOS)]
+    capacity = [mapping_capacity(d, n + 1) for n in range(MAX_TPDOS)]
     for s in signals:
         where = f"{path}: object 0x{s.index:04X}.{s.subindex} ({s.name})"
         if not s.var.pdo_mappable:
@@ -247,17 +266,23 @@ def check_mapping(signals: list[EdsSignal], d: od.ObjectDictionary, path: Path) 
         _recordable(s.var, path)
         bits = 8 * struct.calcsize("<" + _STRUCT[s.var.data_type])
         if s.tpdo is not None:
-            tpdos[s.tpdo - 1].append(s)
-        else:
-            n = next((k for k, t in enumerate(tpdos) if _bits(t) + bits <= 64), None)
-            if n is None:
-                raise BadInputError(f"{where} does not fit: {MAX_TPDOS} TPDOs of 64 bits are full")
+            n = s.tpdo - 1
+            if not capacity[n]:
+                raise BadInputError(f"{where}: the device has no TPDO{s.tpdo} (no objects 0x{0x1800 + n:04X} and "
+                                    f"0x{0x1A00 + n:04X} in the EDS)")
+            if len(tpdos[n]) >= capacity[n]:
+                raise BadInputError(f"{where} does not fit TPDO{s.tpdo}: its mapping record 0x{0x1A00 + n:04X} holds "
+                                    f"{capacity[n]} objects")
+            if _bits(tpdos[n]) + bits > 64:
+                raise BadInputError(f"{where} does not fit TPDO{s.tpdo}: it would carry {_bits(tpdos[n]) + bits} bits; "
+                                    "a CAN frame holds 64")
             tpdos[n].append(s)
-    for n, t in enumerate(tpdos):
-        if _bits(t) > 64:
-            raise BadInputError(f"{path}: TPDO{n + 1} would carry {_bits(t)} bits; a CAN frame holds 64")
-        if t and 0x1800 + n not in d:
-            raise BadInputError(f"{path}: the device has no TPDO{n + 1} (no object 0x{0x1800 + n:04X})")
+            continue
+        n = next((k for k, t in enumerate(tpdos) if _bits(t) + bits <= 64 and len(t) < capacity[k]), None)
+        if n is None:
+            room = ", ".join(f"TPDO{k + 1} {capacity[k]} objects" for k in range(MAX_TPDOS) if capacity[k]) or "none"
+            raise BadInputError(f"{where} does not fit: the TPDOs are full (64 bits each; {room})")
+        tpdos[n].append(s)
     return tpdos
 
 
@@ -388,6 +413,7 @@ class EdsDevice(Source):
         self.node.tpdo.read()
         named = {(s.index, s.subindex): s for s in wanted or ()}
         out = []
+        seen: set[tuple[int, int]] = set()
         for n in range(1, MAX_TPDOS + 1):
             if 0x1800 + n - 1 not in self.node.object_dictionary:
                 continue
@@ -402,6 +428,9 @@ class EdsDevice(Source):
                     _recordable(var, self.eds)
                     s = EdsSignal(v.index, v.subindex, var.name, f"/{self.name}", ros_field(var.name),
                                   float(var.factor or 1.0), 0.0, var.unit or "", n, var)
+                if (v.index, v.subindex) in seen:  # mapped in an earlier TPDO too: a field that says which PDO
+                    s = replace(s, field=f"{s.field}_tpdo{n}", tpdo=n)
+                seen.add((v.index, v.subindex))
                 sigs.append(s)
             out.append((pdo.cob_id, struct.Struct("<" + "".join(_STRUCT[s.var.data_type] for s in sigs)), sigs))
         return out
