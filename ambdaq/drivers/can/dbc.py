@@ -224,6 +224,7 @@ class DbcReceiver:
             by_name = {s.name: s for s in msg.signals}
             muxes = {s.name for s in msg.signals if s.is_multiplexer}
             keys = {path: [by_name[n] for n in names if n not in muxes and n != counter]
+                    or [by_name[m] for m, _v in path]  # a page of no signal of its own: its multiplexer's value
                     for path, names in _pages(msg.signal_tree).items()}
             rate, source = self._rate(msg, request)
             fields = _field_names(request.path, msg, list({s.name: s for sig in keys.values() for s in sig}.values()))
