@@ -128,7 +128,7 @@ def test_existing_mapping_with_sync_from_another_master(drive, tmp_path, run_cli
     ('object = "0x2300"', "0x2300.0 (Firmware build) is not PDO-mappable"),
     ('object = "0x6079"', "no object 0x6079 in the EDS"),
     ("".join(f'object = "0x2210.{i}"\ntpdo = 1\n[[device.signal]]\n' for i in (1, 2, 3, 4)) + 'object = "0x2201"\ntpdo = 1',
-     "TPDO1 would carry 80 bits; a CAN frame holds 64"),
+     "does not fit TPDO1: it would carry 80 bits; a CAN frame holds 64"),
 ])
 def test_a_mapping_the_eds_forbids_is_refused_before_the_device_is_touched(drive, tmp_path, run_cli, signal, says):
     _served, channel_url, sim = drive
