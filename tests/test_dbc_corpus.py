@@ -482,7 +482,7 @@ def test_a_dbc_of_a_car_or_radar_project_records_what_was_sent(path, tmp_path, r
                    f"messages = {json.dumps(sorted(names))}\n")
     out = tmp_path / "more.mcap"
     with sending(f"more-{path.stem}", [(frame_id, data, fd, ext) for _s, frame_id, data, fd, _d, ext in frames], 0.01):
-        r = run_cli("record", "--rig", rig, "--duration", "1", "-q", "-o", out)
+        r = run_cli("record", "--rig", rig, "--duration", "0.5", "-q", "-o", out)
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()

@@ -250,7 +250,7 @@ def test_the_heap_is_frozen_out_of_garbage_collection_while_recording(tmp_path):
 
 
 def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(served, tmp_path, run_cli):
-    """`kill -9` at 0.5, 1, 2, 3 and 5 s into a recording of the controller served in another
+    """`kill -9` at 0.5, 2 and 4 s into a recording of the controller served in another
     process (its own clock, mapped to the host's): `recover` gets its samples up to the last
     0.5 s, plus what a loaded host delays the loop (docs/cli.md: 1.6 s at most measured), the
     first seconds included (they had waited 3 s for the clock map, and were all lost)."""
@@ -260,7 +260,7 @@ def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(ser
     import sys
     import time
 
-    for k, after in enumerate((0.5, 1.0, 2.0, 3.0, 5.0)):
+    for k, after in enumerate((0.5, 2.0, 4.0)):  # before the clock map's drift fit (3 s), and after it
         out = tmp_path / f"killed{k}.mcap"
         proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", served, "--duration", "60",
                                  "-q", "-o", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

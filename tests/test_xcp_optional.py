@@ -175,7 +175,7 @@ def test_a_lacking_optional_command_is_read_from_the_a2l_and_the_slave_is_left_f
     slave = OneMasterSlave(lacks)
     try:
         out = tmp_path / "o.mcap"
-        r = run_cli("record", "--device", slave.url, "--a2l", a2l, "--measure", "ticks", "--duration", "1",
+        r = run_cli("record", "--device", slave.url, "--a2l", a2l, "--measure", "ticks", "--duration", "0.5",
                     "-o", out)
         assert r.exit_code == 0, r.output
         data = load(out)["/xcp/tick"]

@@ -203,6 +203,23 @@ def inflate(packed, method: str, size: int, crc: int = 0) -> np.ndarray:
     return dest
 
 
+def first_frame(packed, method: str) -> bytes | None:
+    """What the first zstd or lz4 frame of ``packed`` inflates to, whatever follows it (None where
+    it does not inflate, or for "none"): for ``recover``, where a chunk's stated compressed size
+    may be the damaged field and its frame whole.  Unchecked beyond the frame's own checksum: the
+    caller checks the chunk's CRC."""
+    try:
+        if method == "zstd":
+            return zstandard.ZstdDecompressor().decompressobj().decompress(bytes(packed))
+        if method == "lz4":
+            d = lz4.frame.LZ4FrameDecompressor()
+            out = d.decompress(bytes(packed))
+            return out if d.eof else None
+    except Exception:  # whatever the codec says of damaged data
+        return None
+    return None
+
+
 def inflate_head(packed, method: str, size: int, nbytes: int) -> bytes:
     """The first ``nbytes`` (at most ``size``) of a chunk's records, without inflating all of a
     zstd chunk: what its first records are.  Unchecked (a checksum needs the whole), so a caller
@@ -228,5 +245,5 @@ def inflate_head(packed, method: str, size: int, nbytes: int) -> bytes:
         raise CorruptChunk(f"its {method} data is damaged ({err})") from None
 
 
-__all__ = ["COMPRESSIONS", "CorruptChunk", "MAX_CHUNK", "checked_by", "compress", "crc32", "crc32_parallel", "declared_size", "inflate", "inflate_head",
+__all__ = ["COMPRESSIONS", "CorruptChunk", "MAX_CHUNK", "checked_by", "compress", "crc32", "crc32_parallel", "declared_size", "first_frame", "inflate", "inflate_head",
            "inflate_into", "size_problem"]

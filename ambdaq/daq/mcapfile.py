@@ -326,12 +326,14 @@ class BlockWriter:
         self._end = max(self._end, end)
         self._out.flush()
 
-    def add_chunk_records(self, data: bytes) -> None:
-        """Write already-built chunk records (Message records only), indexing them by a scan.
+    def add_chunk_records(self, data: bytes, arrays: dict[int, np.ndarray] | None = None) -> None:
+        """Write already-built chunk records (Message records only), indexed by ``arrays`` (each
+        channel's message index entries) or by a scan (:func:`message_indexes_of`).
 
         Used by recovery to re-emit the messages of chunks from a damaged file.
         """
-        arrays, _end = message_indexes_of(data)
+        if arrays is None:
+            arrays, _end = message_indexes_of(data)
         if not arrays:
             return
         for cid, idx in arrays.items():
@@ -409,10 +411,46 @@ def iter_records(data, pos: int, end: int | None = None) -> Iterator[tuple[int, 
         pos += 9 + length
 
 
+def rows_index(data) -> dict[int, np.ndarray] | None:
+    """:func:`message_indexes_of` in one numpy pass where the chunk's records are rows (every
+    chunk ambdaq writes: the same channels' Message records in the same order and of the same
+    lengths, one row per sample instant), each row's opcode, length and channel checked against the
+    first's; None where they are not."""
+    buf = np.frombuffer(data, dtype=np.uint8)
+    places, at, seen = [], 0, set()
+    while at + 25 <= buf.shape[0]:  # the first row: records up to the first channel seen again
+        op, length, cid = struct.unpack_from("<BQH", buf, at)
+        if op != MESSAGE_OPCODE or length < 22 or cid in seen:
+            break
+        seen.add(cid)
+        places.append((cid, at))
+        at += 9 + length
+    stride = at
+    if not places or buf.shape[0] % stride:
+        return None
+    n = buf.shape[0] // stride
+    for _cid, at in places:
+        for start in (at, at + 3):  # opcode, length and channel: two overlapping 8-byte words
+            word = np.ndarray((n,), dtype="<u8", buffer=buf, offset=start, strides=(stride,))
+            if not np.all(word == word[0]):
+                return None
+    out = {}
+    for cid, at in places:
+        idx = np.empty(n, dtype=_INDEX_DTYPE)
+        idx["log_time"] = np.ndarray((n,), dtype="<u8", buffer=buf, offset=at + 15, strides=(stride,))
+        idx["offset"] = at + stride * np.arange(n, dtype=np.uint64)
+        out[cid] = idx
+    return out
+
+
 def message_indexes_of(data) -> tuple[dict[int, np.ndarray], int]:
-    """What the Message Indexes of the chunk records ``data`` would say, found by walking them:
-    each channel's (log time, offset) entries (log time and offset, 16 bytes), and the offset where the
-    walk stopped (``len(data)`` unless a record runs past the end: :func:`iter_records`)."""
+    """What the Message Indexes of the chunk records ``data`` would say: each channel's (log time,
+    offset) entries (16 bytes), and the offset where the records stopped (``len(data)`` unless a
+    record runs past the end: :func:`iter_records`).  Rows of records are indexed in one numpy
+    pass (:func:`rows_index`); any other chunk is walked record by record."""
+    rows = rows_index(data)
+    if rows is not None:
+        return rows, len(data)
     found: dict[int, list[tuple[int, int]]] = defaultdict(list)
     end = 0
     for op, pos, body in iter_records(data, 0):

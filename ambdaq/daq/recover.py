@@ -34,8 +34,8 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
-from .codec import CorruptChunk, crc32, declared_size, inflate
-from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, iter_records
+from .codec import CorruptChunk, crc32, declared_size, first_frame, inflate
+from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, iter_records, message_indexes_of, rows_index
 from .output import check_output
 from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
@@ -70,12 +70,14 @@ def chunk_at(data: bytes, pos: int) -> tuple[bytes, int] | None:
     # the header's size is a hint where the frame states its own: the CRC says whether the data is whole
     size = declared_size(packed, h.compression) or h.uncompressed_size
     try:
-        records = inflate(packed, h.compression, size, h.crc)
-    except CorruptChunk:  # whatever the codec says about damaged data
-        return None
+        records = inflate(packed, h.compression, size, h.crc).tobytes()
+    except CorruptChunk:  # damaged data, or a damaged compressed size around a whole frame
+        records = first_frame(packed, h.compression)
+        if records is None or not h.crc:  # the CRC alone can then say the records are whole
+            return None
     if (crc32(records) != h.crc) if h.crc else size != h.uncompressed_size:
         return None
-    return records.tobytes(), h.data_end
+    return records, h.data_end
 
 
 def find_chunks(data: bytes, start: int) -> tuple[list[tuple[int, int, bytes]], int]:
@@ -168,8 +170,9 @@ def recover(src: str | Path, dst: str | Path, *, overwrite: bool = False, index:
         for _pos, _end, records in chunks:
             records, lost = _known_only(records, known)
             orphans += lost
-            messages += _count(records, layouts, stats, trackers, per_channel)
-            w.add_chunk_records(records)
+            found = message_indexes_of(records)[0]  # once per chunk: counted here, indexed by the writer
+            messages += _count(records, found, layouts, stats, trackers, per_channel)
+            w.add_chunk_records(records, found)
         rates = _declared_rates(metadata)
         written = _written_samples(metadata)
         topics = {}
@@ -267,7 +270,9 @@ def _next_record(data: bytes, pos: int, end: int) -> int:
 
 def _chunk_definitions(records: bytes, schemas: dict, channels: dict) -> None:
     """The Schema and Channel records a chunk holds (MCAP allows them there), for the messages
-    after them."""
+    after them (none in a chunk of rows of messages)."""
+    if rows_index(records) is not None:
+        return
     for op, pos, body in iter_records(records, 0):
         if op in (Opcode.SCHEMA, Opcode.CHANNEL):
             got = _record_at(records, pos, pos + 9 + len(body))
@@ -278,6 +283,9 @@ def _chunk_definitions(records: bytes, schemas: dict, channels: dict) -> None:
 
 def _known_only(records: bytes, known: set[int]) -> tuple[bytes, int]:
     """``records`` without the messages on channels not in ``known``, and how many those were."""
+    rows = rows_index(records)
+    if rows is not None and rows.keys() <= known:
+        return records, 0
     keep, lost, clean = [], 0, True
     for op, pos, body in iter_records(records, 0):
         if op == MESSAGE_OPCODE and struct.unpack_from("<H", body, 0)[0] not in known:
@@ -331,26 +339,17 @@ def _declared_rates(metadata: list[Metadata]) -> dict[str, float]:
     return out
 
 
-def _count(records: bytes, layouts: dict[int, TopicLayout], stats: dict[int, SampleCounts],
-           trackers: dict[int, SequenceTracker], per_channel: dict[int, int]) -> int:
-    """Count messages of one chunk, per channel too, and update each ambdaq topic's counts from
-    the CDR seq (a recording never holds a duplicate: the recorder dropped them, so here they
-    only count)."""
-    n = 0
-    seqs: dict[int, list[int]] = {}
-    times: dict[int, list[int]] = {}
-    for op, pos, body in iter_records(records, 0):
-        if op != MESSAGE_OPCODE:
-            continue
-        n += 1
-        cid, _s, log_time = struct.unpack_from("<HIQ", body, 0)
-        per_channel[cid] = per_channel.get(cid, 0) + 1
-        if cid in layouts:
-            # payload: cdr header u32, device_time i64, seq u32
-            (seq,) = struct.unpack_from("<I", body, MESSAGE_HEADER_SIZE - 9 + 12)
-            seqs.setdefault(cid, []).append(seq)
-            times.setdefault(cid, []).append(log_time)
-    for cid, sq in seqs.items():
-        seq, t = np.array(sq, dtype=np.uint32), np.array(times[cid], dtype=np.int64)
-        stats[cid].add(trackers[cid].admit(seq, t).counts(stats[cid].device, slice(0, seq.shape[0]), seq, t))
-    return n
+def _count(records: bytes, found: dict[int, np.ndarray], layouts: dict[int, TopicLayout],
+           stats: dict[int, SampleCounts], trackers: dict[int, SequenceTracker], per_channel: dict[int, int]) -> int:
+    """Count the messages of one chunk (``found``: its message index entries), per channel too,
+    and update each ambdaq topic's counts from the CDR seq (a recording never holds a duplicate:
+    the recorder dropped them, so here they only count)."""
+    buf = np.frombuffer(records, dtype=np.uint8)
+    for cid, idx in found.items():
+        per_channel[cid] = per_channel.get(cid, 0) + idx.shape[0]
+        if cid in layouts:  # payload: cdr header u32, device_time i64, seq u32
+            at = idx["offset"].astype(np.int64) + MESSAGE_HEADER_SIZE + 12
+            seq = buf[at[:, None] + np.arange(4)].copy().view("<u4").ravel()
+            t = idx["log_time"].astype(np.int64)
+            stats[cid].add(trackers[cid].admit(seq, t).counts(stats[cid].device, slice(0, seq.shape[0]), seq, t))
+    return sum(idx.shape[0] for idx in found.values())
