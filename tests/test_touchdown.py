@@ -106,8 +106,11 @@ def test_a_drop_is_characterised_as_the_rotor_really_fell(drops, name):
     fwd, bwd = np.sum(np.abs(spectrum[freq > 0]) ** 2), np.sum(np.abs(spectrum[freq < 0]) ** 2)
     if runout == 0.0 or max(fwd / bwd, bwd / fwd) > 2 * WHIRL_RATIO:
         assert t.whirl == ("forward" if fwd > WHIRL_RATIO * bwd else "backward" if bwd > WHIRL_RATIO * fwd else "mixed")
-    # the impact: the true excursion's speed over the 2 ms before the first contact (within 10 %)
-    assert t.impact_speed_m_s == pytest.approx(true_speed, rel=0.10)
+    # the impact: the true excursion's speed over the 2 ms before the first contact, within 10 %
+    # and, on the spindle, what its gap sensors' runout adds to the speed they see (its whirl at
+    # 20,000 rpm moves the sensed radius at up to 2 pi f r: as fast as the fall itself)
+    spin_hz = rpm / 60.0
+    assert abs(t.impact_speed_m_s - true_speed) <= 0.10 * true_speed + 2 * np.pi * spin_hz * runout * machine.cmin_m
     assert t.energy_j == pytest.approx(0.5 * machine.rotor_mass_kg * t.impact_speed_m_s**2, rel=1e-12)
     # the amplifiers come back on against a rotor on its bearing: the output near its limit
     assert t.amplifier_at_limit > 0.5

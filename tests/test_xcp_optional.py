@@ -175,12 +175,12 @@ def test_a_lacking_optional_command_is_read_from_the_a2l_and_the_slave_is_left_f
     slave = OneMasterSlave(lacks)
     try:
         out = tmp_path / "o.mcap"
-        r = run_cli("record", "--device", slave.url, "--a2l", a2l, "--measure", "ticks", "--duration", "0.5",
+        r = run_cli("record", "--device", slave.url, "--a2l", a2l, "--measure", "ticks", "--duration", "1",
                     "-o", out)
         assert r.exit_code == 0, r.output
         data = load(out)["/xcp/tick"]
         ticks = data["ticks"].astype(np.int64)
-        assert len(ticks) >= 10 and np.all(np.diff(ticks) == 1)  # every tick, each its own value (the rate is the host's sleep)
+        assert len(ticks) >= 5 and np.all(np.diff(ticks) == 1)  # every tick, each its own value (the rate is the host's sleep)
         # time from the DTO timestamps (1 us ticks, from the slave or its A2L): 1 ms apart exactly
         np.testing.assert_array_equal(np.diff(data.device_time), 1_000_000)
         device = load(out).metadata["ambdaq.device.controller"]
