@@ -123,8 +123,11 @@ def draw_signal(rec: Recording, topic: str, field_name: str, clearance_m: float 
     ax.grid(alpha=0.3, which="both")
     if partner:
         ax = axes[2]
-        ax.plot(y * scale, data[partner] * scale, lw=0.4)
-        ax.set(xlabel=f"{field_name} [{unit}]", ylabel=f"{partner} [{unit}]", title="orbit")
+        # the bearing's x across and its y up, whichever of them was asked: the orbit as the rotor
+        # whirls (x against y turns counter-clockwise for a forward whirl), never mirrored
+        ox, oy = (bearing.x, bearing.y) if bearing is not None else (field_name, partner)
+        ax.plot(data[ox] * scale, data[oy] * scale, lw=0.4)
+        ax.set(xlabel=f"{ox} [{unit}]", ylabel=f"{oy} [{unit}]", title=f"orbit: {ox} across, {oy} up")
         if clearance_m is not None and data.units[field_name] == "m":
             circle = np.linspace(0, 2 * np.pi, 361)
             ax.plot(clearance_m * scale * np.cos(circle), clearance_m * scale * np.sin(circle), color="k", lw=0.8,

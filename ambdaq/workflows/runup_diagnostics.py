@@ -23,7 +23,7 @@ import numpy as np
 
 from ..analysis.orders import (SPEED_TOLERANCE, CriticalCheck, CriticalLimits, OneXPeak, OrderTrack, PredictedCritical,
                                from_response, one_x_peaks, order_track, predicted_criticals, verify_criticals)
-from ..analysis.runout import harmonic_fit
+from ..analysis.runout import harmonic_fit, synthesise
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
@@ -122,17 +122,35 @@ def _gap_and_angle(rec: Recording, max_lost: float, notes: list[str]):
     return axes, x, rot["angle"][:n], rot["speed"][:n] * RAD_S_TO_RPM, gap.nominal_rate, machine, gap.time[:n]
 
 
+CENTRELINE_ORDERS = (1, 2, 3, 4)
+"""Orders fitted beside the DC of each centreline window: a window is not a whole number of
+revolutions, and a plain mean lets the 1X (tens of um) leak into the DC by up to a third of a um."""
+CENTRELINE_MIN_REVS = 4
+"""Revolutions a window must hold for its orders to be fitted beside the DC (fewer, over a speed
+that changes within the window, and the fit cannot tell them apart: a plain mean is taken)."""
+
+
 def centreline(machine: Machine, axes: list[str], x: np.ndarray, rpm: np.ndarray, time_s: np.ndarray,
-               window: int) -> Centreline:
-    """Each bearing's mean position per ``window`` samples (:class:`Centreline`); ``x`` (m) holds
-    ``axes`` column by column, ``rpm`` and ``time_s`` the speed and time of each sample."""
+               window: int, theta: np.ndarray) -> Centreline:
+    """Each bearing's position per ``window`` samples (:class:`Centreline`): the DC term of a
+    least-squares fit of the DC and the first four orders in the rotor angle ``theta`` (rad),
+    which no order leaks into whatever the window's share of a revolution (a plain mean where the
+    rotor turned fewer than :data:`CENTRELINE_MIN_REVS` revolutions in the window: the orders cannot
+    be told from the DC there);
+    ``x`` (m) holds ``axes`` column by column, ``rpm`` and ``time_s`` the speed and time of each
+    sample."""
     starts = np.arange(0, x.shape[0] - window + 1, window)
-
-    def means(v: np.ndarray) -> np.ndarray:
-        return np.add.reduceat(v[: starts[-1] + window], starts) / window if starts.size else np.empty(0)
-
-    return Centreline(means(rpm), time_s[starts] if starts.size else np.empty(0),
-                      {b.name: (means(x[:, axes.index(b.x)]), means(x[:, axes.index(b.y)]))
+    dc = np.empty((starts.size, x.shape[1]))
+    for i, s in enumerate(starts):
+        xs, th = x[s:s + window], theta[s:s + window]
+        if abs(float(th[-1] - th[0])) < 2 * np.pi * CENTRELINE_MIN_REVS:
+            dc[i] = xs.mean(axis=0)
+        else:  # the LS fit's DC: the mean of what its orders do not explain (the constant is a regressor)
+            phasors = harmonic_fit(xs, th, CENTRELINE_ORDERS)
+            dc[i] = (xs - synthesise(phasors, list(CENTRELINE_ORDERS), th)).mean(axis=0)
+    rpm_means = np.add.reduceat(rpm[: starts[-1] + window], starts) / window if starts.size else np.empty(0)
+    return Centreline(rpm_means, time_s[starts] if starts.size else np.empty(0),
+                      {b.name: (dc[:, axes.index(b.x)], dc[:, axes.index(b.y)])
                        for b in machine.bearings if b.x in axes and b.y in axes}, machine.cmin_m)
 
 
@@ -316,7 +334,7 @@ def analyse(rec: Recording, *, coefficients: Path | None = None, slow_roll: Reco
                               (float(track.rpm.min()), float(track.rpm.max())), limits=limits,
                               operating_rpm=operating_rpm) if modes is not None and peaks else []
     return RunupDiagnostics(axes, track, compensation, peaks, waterfall, w_axis, modes, notes,
-                            centreline(machine, axes, x, rpm, time_s, n), checks,
+                            centreline(machine, axes, x, rpm, time_s, n, np.unwrap(theta)), checks,
                             tuple(b for b in machine.bearings if b.x in axes and b.y in axes), limits)
 
 
