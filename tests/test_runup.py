@@ -2,6 +2,7 @@
 resonance of known speed and damping, and what cannot be tracked."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -61,7 +62,7 @@ def test_order_tracking_with_the_runout_out_is_the_true_rotor(runup, run_cli):
     np.testing.assert_allclose(out["rpm"], true.rpm, atol=0.05)
     for i, a in enumerate(axes):
         for k in (1, 2):
-            got = np.array(out["axes"][a][f"{k}X"]["amplitude_um"]) * np.exp(1j * np.radians(out["axes"][a][f"{k}X"]["phase_deg"]))
+            got = np.array(out["axes"][a][f"{k}X"]["amplitude_um"]) * np.exp(-1j * np.radians(out["axes"][a][f"{k}X"]["phase_lag_deg"]))
             # the identified runout is within 0.07 um of the true one; the sensor noise (0.2 um RMS)
             # over 8 revolutions adds about 0.05 um: 0.3 um
             assert np.abs(got - true.order(k)[:, i] * 1e6).max() < 0.3, (a, k)
@@ -202,6 +203,34 @@ def test_the_runup_figure_shows_the_phase_lag_unwrapped_and_both_axes_of_a_beari
             assert x[1] == "-" and y[1] == "--" and y[2] > x[2]  # y dashed, drawn over x
     finally:
         pyplot().close(fig)
+
+
+def test_the_runup_table_json_and_figure_give_one_phase(runup, run_cli):
+    """One phase convention in every output of ``runup``: the lag behind the key-phasor, unwrapped
+    along the run.  The JSON's numbers are the figure's lines to their 2-decimal rounding, and the
+    table's cells (to the degree) are the JSON's at the speeds it prints (they had the opposite
+    sign)."""
+    from ambdaq.figures import pyplot
+    from ambdaq.figures.runup import draw_runup
+    from ambdaq.workflows.runup_diagnostics import analyse
+
+    out = json.loads(run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json", "--json").stdout)
+    res = analyse(open_recording(runup / "runup.mcap"), coefficients=runup / "runout.json", orders=(1, 2))
+    fig = draw_runup(res, "runup.mcap")
+    try:
+        for line in fig.axes[1].get_lines():
+            axis = line.get_label().split()[0]
+            np.testing.assert_allclose(out["axes"][axis]["1X"]["phase_lag_deg"], line.get_ydata(), atol=0.006)
+    finally:
+        pyplot().close(fig)
+    table = run_cli("runup", runup / "runup.mcap", "--coefficients", runup / "runout.json").stdout.splitlines()
+    speeds = np.linspace(min(out["rpm"]), max(out["rpm"]), 5)
+    at = [int(np.argmin(np.abs(np.array(out["rpm"]) - r))) for r in speeds]
+    row = next(ln for ln in table if ln.startswith("rear_x") and " 1X " in ln)
+    printed = [float(c) for c in re.findall(r"(-?\d+)°", row)]
+    lag = np.array(out["axes"]["rear_x"]["1X"]["phase_lag_deg"])[at]
+    np.testing.assert_allclose(printed, lag, atol=0.51)
+    assert lag[-1] - lag[0] > 90  # a lag that grows through the modes: the sign is the figure's
 
 
 def test_the_shaft_centreline_is_the_rotors_mean_position(runup, run_cli):
@@ -474,14 +503,14 @@ def test_the_cone_with_an_unbalance_whirls_forward_through_critically_damped_mod
     true = order_track(np.column_stack([truth[a] for a in axes]), rot["angle"], rot["speed"] * 60 / (2 * np.pi))
     rpm = np.array(out["rpm"])
     for i, a in enumerate(axes):
-        got = np.array(out["axes"][a]["1X"]["amplitude_um"]) * np.exp(1j * np.radians(out["axes"][a]["1X"]["phase_deg"]))
+        got = np.array(out["axes"][a]["1X"]["amplitude_um"]) * np.exp(-1j * np.radians(out["axes"][a]["1X"]["phase_lag_deg"]))
         # the sensors' 0.1 um RMS noise over 8 revolutions, and the 4-decimal rounding: 0.1 um
         assert np.abs(got - true.order(1)[:, i] * 1e6).max() < 0.1, a
         assert np.abs(got[-1]) > 10  # tens of um at 6,000 rpm: an unbalance response, not noise
         assert one_x_peaks(true.rpm, true.order(1)[:, i]) == [] or not any(
             p.is_critical() for p in one_x_peaks(true.rpm, true.order(1)[:, i]))
     for y, z in (("y1", "z1"), ("y2", "z2")):
-        lag = (np.array(out["axes"][z]["1X"]["phase_deg"]) - np.array(out["axes"][y]["1X"]["phase_deg"]) + 180) % 360 - 180
+        lag = (np.array(out["axes"][y]["1X"]["phase_lag_deg"]) - np.array(out["axes"][z]["1X"]["phase_lag_deg"]) + 180) % 360 - 180
         assert np.all(np.abs(lag[rpm > 1000] + 90) < 2), (y, z)
     assert not any(p["critical"] for peaks in out["peaks_1x"].values() for p in peaks)
     assert all(c["passed"] for c in out["critical_speeds"])

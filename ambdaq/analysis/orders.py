@@ -56,6 +56,27 @@ class OrderTrack:
         return OrderTrack(self.rpm, self.orders, self.vectors - reference[None, :, :])
 
 
+def phase_lag_deg(vector: np.ndarray) -> np.ndarray:
+    """A vector's phase as engineers read it against speed: the lag behind the key-phasor.
+
+    One convention for the run-up's table, its JSON and its Bode plot: the lag is ``-phi`` of
+    ``R exp(j phi)``, in degrees, unwrapped along the run (it grows through each critical speed
+    instead of jumping at +-180) and starting within 0..360.
+
+    Parameters
+    ----------
+    vector : ndarray of complex, shape (w,)
+        One order's vector per window along the run, in any unit.
+
+    Returns
+    -------
+    ndarray, shape (w,)
+        The lag, in degrees.
+    """
+    lag = -np.degrees(np.unwrap(np.angle(vector)))
+    return lag - 360.0 * np.floor(lag[0] / 360.0) if lag.size else lag
+
+
 def order_track(x: np.ndarray, theta: np.ndarray, speed_rpm: np.ndarray, *, orders=(1, 2), revolutions: int = 8,
                 min_rpm: float = 60.0) -> OrderTrack:
     """Track the vectors of ``orders`` over windows of ``revolutions`` whole revolutions.
@@ -551,4 +572,4 @@ def loop_modes(M: np.ndarray, h: float, *, max_damping: float = 0.5, fmax_hz: fl
 __all__ = ["AMPLIFICATION_TOLERANCE", "CRITICAL_AMPLIFICATION", "RADIAL_SHARE", "SPEED_TOLERANCE", "WHIRL_RATIO",
            "CriticalCheck", "CriticalLimits", "Margin", "OneXPeak", "OrderTrack", "PredictedCritical",
            "from_response", "loop_modes", "margin_from", "separation_margin", "one_x_peaks", "order_track",
-           "predicted_criticals", "verify_criticals"]
+           "phase_lag_deg", "predicted_criticals", "verify_criticals"]

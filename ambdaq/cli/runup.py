@@ -52,6 +52,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
       ambdaq runup runup.mcap --coefficients coef.json --model spindle --plot runup.png
       ambdaq runup coastdown.mcap --slow-roll slow.mcap --orders 1,2,3 --json
     """
+    from ..analysis.orders import phase_lag_deg
     from ..daq.recording import open_recording
     from ..workflows.runup_diagnostics import analyse
 
@@ -69,7 +70,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
             "recording": recording, "compensation": res.compensation, "notes": res.notes, "revolutions": revolutions,
             "rpm": np.round(t.rpm, 1).tolist(),
             "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
-                                   "phase_deg": np.round(np.degrees(np.angle(t.order(k)[:, i])), 2).tolist()}
+                                   "phase_lag_deg": np.round(phase_lag_deg(t.order(k)[:, i]), 2).tolist()}
                          for k in t.orders} for i, a in enumerate(res.axes)},
             "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
                               "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
@@ -85,7 +86,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
                 "basis": res.modes.basis, "assumed": res.modes.assumed,
                 "response_1x": {"rpm": res.modes.response_rpm.round(1).tolist(),
                                 **{a: {"amplitude_um": np.round(np.abs(v) * 1e6, 4).tolist(),
-                                       "phase_deg": np.round(np.degrees(np.angle(v)), 2).tolist()}
+                                       "phase_lag_deg": np.round(phase_lag_deg(v), 2).tolist()}
                                    for a, v in res.modes.response.items()}},
                 "rpm": res.modes.rpm.round(1).tolist(),
                 "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes.freq_hz],
@@ -105,16 +106,19 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
 
 
 def _print_table(res) -> None:
+    from ..analysis.orders import phase_lag_deg
+
     t = res.track
     lo, hi = float(t.rpm.min()), float(t.rpm.max())
     at = np.linspace(lo, hi, 5)
     idx = [int(np.argmin(np.abs(t.rpm - r))) for r in at]
     click.echo(f"run {lo:,.0f}-{hi:,.0f} rpm, {t.rpm.shape[0]} windows; compensation: {res.compensation}")
+    click.echo("amplitude and phase lag behind the key-phasor (unwrapped along the run, as the Bode plot draws it)")
     click.echo(f"{'axis':<9} order " + "".join(f"{t.rpm[i]:>17,.0f} rpm" for i in idx))
     for j, a in enumerate(res.axes):
         for k in t.orders:
-            v = t.order(k)[:, j]
-            cells = "".join(f"{abs(v[i]) * 1e6:>11.2f} um {np.degrees(np.angle(v[i])):>5.0f}°" for i in idx)
+            v, lag = t.order(k)[:, j], phase_lag_deg(t.order(k)[:, j])
+            cells = "".join(f"{abs(v[i]) * 1e6:>11.2f} um {lag[i]:>5.0f}°" for i in idx)
             click.echo(f"{a:<9} {k:>4}X {cells}")
     for a, peaks in res.peaks.items():
         if not peaks:

@@ -7,15 +7,8 @@ import textwrap
 
 import numpy as np
 
+from ..analysis.orders import phase_lag_deg
 from . import pyplot
-
-
-def phase_lag_deg(vector: np.ndarray) -> np.ndarray:
-    """A vector's phase as engineers read it against speed: the lag behind the key-phasor, in
-    degrees, unwrapped along the run (it grows through each critical speed instead of jumping at
-    +-180), starting within 0..360."""
-    lag = -np.degrees(np.unwrap(np.angle(vector)))
-    return lag - 360.0 * np.floor(lag[0] / 360.0) if lag.size else lag
 
 
 def _draw_centreline(ax, line) -> None:
