@@ -85,6 +85,27 @@ def test_plot_of_ten_seconds_and_of_20_ms_reads(ten_seconds, window, run_cli, tm
         pyplot().close(fig)
 
 
+@pytest.mark.parametrize("field", ["rear_x", "rear_y"])
+def test_the_orbit_is_the_bearings_x_across_and_y_up_whichever_field_is_asked(ten_seconds, field):
+    """The orbit panel draws the bearing's x horizontally and its y vertically for either field of
+    the bearing (asked for rear_y it had put rear_y across: the orbit mirrored, its whirl
+    reversed); its axis labels and title say so."""
+    from ambdaq.figures.signal import draw_signal
+
+    rec = load(ten_seconds, topics=["/amb/gap", "/amb/rotor"], start=1.0, end=1.05)
+    fig = draw_signal(rec, "/amb/gap", field, None)
+    try:
+        orbit = fig.axes[2]
+        (line,) = orbit.get_lines()
+        gap = rec["/amb/gap"]
+        np.testing.assert_array_equal(line.get_xdata(), gap["rear_x"] * 1e6)
+        np.testing.assert_array_equal(line.get_ydata(), gap["rear_y"] * 1e6)
+        assert orbit.get_xlabel().startswith("rear_x") and orbit.get_ylabel().startswith("rear_y")
+        assert orbit.get_title() == "orbit: rear_x across, rear_y up"
+    finally:
+        pyplot().close(fig)
+
+
 def _boxes_overlap(a, b) -> bool:
     return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
 
