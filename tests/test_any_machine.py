@@ -180,7 +180,8 @@ def test_plot_and_live_status_find_the_blowers_bearings(pairs, run_cli, tmp_path
         fig = draw_signal(rec, "/amb/gap", "nde_y", 150e-6)  # the gap, wherever the machine records it
         try:
             orbit = fig.axes[2]
-            assert (orbit.get_xlabel(), orbit.get_ylabel()) == ("nde_y [µm]", "nde_x [µm]")
+            # the bearing's x across and y up, though its y was the field asked for
+            assert (orbit.get_xlabel(), orbit.get_ylabel()) == ("nde_x [µm]", "nde_y [µm]")
         finally:
             pyplot().close(fig)
     # the live status: its bearings and their 1X from blocks of each machine's device

@@ -247,6 +247,7 @@ class Acquisition:
                 sink.start(self)
             for s in self.sources:
                 s.start(self.due[s.name])
+            self.t0 = time.monotonic()  # a device closed by host time gets the whole duration, however long starting took
         except BaseException:  # nothing recorded: every device is closed, nothing empty is left
             gc.unfreeze()
             self._close_sources()
@@ -459,6 +460,8 @@ class Acquisition:
                 out[name]["backwards"] = cm.backwards
             if name in self.refused:
                 out[name]["refused"] = self.refused[name]
+            elif cm.suspect is not None:
+                out[name]["suspect"] = cm.suspect
         for name in self.host_clocked:
             out[name] = {"host_clock": True, "uncertainty_us": 0.0}
         return out

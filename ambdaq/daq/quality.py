@@ -85,7 +85,8 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
     Returns
     -------
     list of str
-        A note for each topic that lost fewer, but some: what the result is computed over.
+        A note for each topic that lost fewer, but some: what the result is computed over; and
+        one for each device whose clock drift was suspect (:attr:`.clock.ClockMap.suspect`).
 
     Raises
     ------
@@ -99,6 +100,8 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
         if refused and set(device.topics) & set(topics):
             raise BadInputError(f"{rec.path}: {name}'s time stamps could not be its clock ({refused}): {purpose} "
                                 "would compute over times that are not; record it again")
+    suspect = [f"{rec.path.name}: {name}'s {device.clock['suspect']}; its times were fitted with that drift"
+               for name, device in rec.devices.items() if device.clock.get("suspect") and set(device.topics) & set(topics)]
     for topic in topics:
         c = topic_counts(rec, topic)
         if c.lost_fraction > max_lost:
@@ -109,7 +112,7 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
             lossy.setdefault((c.drops, c.samples + c.drops), []).append(topic)
         if c.restarts:
             restarted.setdefault(c.restarts, []).append(topic)
-    notes = [f"{rec.path.name}: {', '.join(names)} lost {drops:,} of {total:,} samples ({_share(drops / total)}), "
+    notes = suspect + [f"{rec.path.name}: {', '.join(names)} lost {drops:,} of {total:,} samples ({_share(drops / total)}), "
              f"within the {_share(max_lost)} limit" for (drops, total), names in lossy.items()]
     # a restart is a device that began counting again (a reconnect, a reboot): no loss is counted
     # across it, so the computation spans a gap of unknown length
