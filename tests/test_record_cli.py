@@ -44,6 +44,13 @@ def test_record_sim_is_paced_in_real_time(tmp_path, run_cli):
     kinds = {json.loads(v)["device"] for v in McapFile(out).metadata()["ambdaq.statistics"].values()}
     assert kinds == {"rig", "rig-amplifier", "rig-gap_sensor", "rig-accelerometer", "rig-keyphasor"}
     assert 0.5 * 800 * 1.5 < len(rec["/amb/accel"]) <= 800 * 1.5 + 1  # SYNC at 800 Hz
+    # one duration of one file, wherever it is read: first to last message, any topic (the devices
+    # start apart, so it is more than the 1.5 s asked; the summary had said 1.500, info 1.58x and
+    # the Python repr the longest topic's own span)
+    described = json.loads(run_cli("info", out, "--json").stdout)["duration_s"]
+    first, last = McapFile(out).span_ns
+    assert summary["duration_s"] == described == round((last - first) * 1e-9, 6) and described > 1.5
+    assert f"{described:.3f} s" in repr(rec) and rec.duration_s == pytest.approx(described, abs=1e-6)
 
 
 def test_sim_generate_is_the_same_data_unpaced(tmp_path, run_cli):

@@ -22,8 +22,7 @@ def describe(path: str | Path) -> dict:
     st = f.statistics
     meta = f.metadata()
     per_topic = {t: statistics_entry(f.path, t, v) for t, v in meta.get("ambdaq.statistics", {}).items()}
-    start = st.message_start_time if st else 0
-    end = st.message_end_time if st else 0
+    start, end = f.span_ns
     duration = (end - start) * 1e-9
     ours = ambdaq_channels(f)
     topics = []
@@ -66,7 +65,7 @@ def format_text(d: dict) -> str:
     """``describe``'s dict as the human-readable text ``ambdaq info`` prints."""
     lines = [
         f"file:        {d['path']} ({d['size_bytes'] / 1e6:.1f} MB)",
-        f"duration:    {d['duration_s']:.3f} s",
+        f"duration:    {d['duration_s']:.3f} s (first to last message)",
         f"messages:    {d['messages']} in {d['chunks']} chunks ({', '.join(d['compression']) or 'none'}"
         f"{'' if d['indexed'] else '; no indexes: Foxglove reads it whole'}"
         f"{'' if d['summary'] else '; no summary: read by walking its records'}"

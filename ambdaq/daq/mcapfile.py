@@ -728,6 +728,14 @@ class McapFile:
                           channel_message_counts=dict(counts))
 
     @property
+    def span_ns(self) -> tuple[int, int]:
+        """The log times of its first message and its last, any topic, in ns ((0, 0) without messages):
+        the span every duration ambdaq states of a file is (``info``, the record summary, a
+        :class:`~ambdaq.daq.recording.Recording`)."""
+        st = self.statistics
+        return (st.message_start_time, st.message_end_time) if st is not None and st.message_count else (0, 0)
+
+    @property
     def unchunked(self) -> bool:
         """Whether messages lie outside chunks (read as uncompressed chunks of their records)."""
         return bool(self.chunks) and bool(self._loose)

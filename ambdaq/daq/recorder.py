@@ -22,7 +22,7 @@ from ..errors import BadInputError, DeviceError
 from ..machines.machine import Machine
 from .acquisition import Acquisition, Sink
 from .files import RecordingFiles
-from .mcapfile import CHUNK_SIZE
+from .mcapfile import CHUNK_SIZE, McapFile
 from .output import check_output
 from .parts import FileParts, split_names
 from .sequence import SampleCounts
@@ -123,9 +123,10 @@ class Progress:
 class RecordResult:
     """Summary of a finished recording.
 
-    ``duration_s`` is the longest time any device covered: its sample periods (samples plus
-    drops) over its sample rate, or the host clock's time where no device's duration is counted
-    in samples (:attr:`Source.duration_in_samples`); ``samples`` is the most any device wrote; ``drops`` and
+    ``duration_s`` is from the first message written to the last, any topic, over all its files
+    (what ``ambdaq info`` states of each file and :attr:`.recording.Recording.duration_s` of a
+    loaded one: devices start apart, so it is a little more than ``--duration``); of a snapshot
+    recording, the host time it watched. ``samples`` is the most any device wrote; ``drops`` and
     ``duplicates`` are summed over devices (a device's count is the same on each of its topics);
     ``devices`` has each device's own.
     """
@@ -336,8 +337,6 @@ class Recorder:
     def _result(self) -> RecordResult:
         acq = self.acquisition
         totals = acq.totals
-        rate = {s.name: s.sample_rate for s in self.sources if acq.by_samples[s.name]}
-        rated = [(t.samples + t.drops) / rate[n] for n, t in totals.items() if n in rate]
         topics = {}
         for s in self.sources:
             for g in s.signal_groups():
@@ -346,7 +345,7 @@ class Recorder:
         snap = self.options.snapshot
         return RecordResult(
             files=list(self.paths),
-            duration_s=max(rated) if rated else acq.elapsed_s,
+            duration_s=acq.elapsed_s if self.snapshots is not None else _span_s(self.paths),
             samples=max(t.samples for t in totals.values()),
             drops=sum(t.drops for t in totals.values()),
             duplicates=sum(t.duplicates for t in totals.values()),
@@ -362,6 +361,14 @@ class Recorder:
                 "drop_memory_bound_bytes": self.drop_bound, "drop_memory_peak_bytes": self.snapshots.drop_peak_bytes,
                 "evicted_early": self.snapshots.evicted_early, "files": len(self.snapshots.files)},
         )
+
+
+def _span_s(paths: list[Path]) -> float:
+    """From the first message of the files to their last, any topic, s (a recording's duration,
+    as ``info`` states it of each file: :attr:`.mcapfile.McapFile.span_ns`)."""
+    spans = [McapFile(p).span_ns for p in paths]
+    spans = [s for s in spans if s[1] > 0]
+    return (max(e for _, e in spans) - min(b for b, _ in spans)) * 1e-9 if spans else 0.0
 
 
 def print_progress(p: Progress, stream=None) -> None:

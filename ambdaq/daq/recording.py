@@ -142,9 +142,19 @@ class Recording(Mapping):
 
     def __repr__(self) -> str:
         loaded = [self._cache[t] for t in self._shown if t in self._cache]
-        span = max((t.duration for t in loaded), default=0.0)
         parts = "; ".join(f"{t.topic} {len(t)} samples at {t.nominal_rate:g} Hz" for t in loaded)
-        return f"<Recording {self.path.name}: {len(self)} topic{'s' if len(self) != 1 else ''}, {span:.3f} s; {parts}>"
+        return (f"<Recording {self.path.name}: {len(self)} topic{'s' if len(self) != 1 else ''}, "
+                f"{self.duration_s:.3f} s; {parts}>")
+
+    @property
+    def duration_s(self) -> float:
+        """From its first message to its last, any topic (as ``ambdaq info`` and the record summary
+        say), within the ``start``/``end`` it was opened with, s.  A topic's own first-to-last
+        sample is :attr:`TopicData.duration`."""
+        first, last = self.file.span_ns
+        lo = first if self._lo is None else max(first, self._lo)
+        hi = last if self._hi is None else min(last, self._hi)
+        return max(hi - lo, 0) * 1e-9
 
     @property
     def topics(self) -> dict[str, TopicData]:
