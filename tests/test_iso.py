@@ -139,6 +139,36 @@ def test_stability_over_xcp_writes_the_gain_speed_and_test_signal_the_a2l_names(
         proc.wait(timeout=10)
 
 
+@pytest.mark.realtime
+def test_stability_with_the_feedforward_running_names_its_own_axis(run_cli, tmp_path):
+    """The controller's LMS on at 30,000 rpm: every axis's /amb/ff carries the feedforward, so the
+    data cannot say which axis was excited (it had measured for the whole run, then failed asking
+    for an --input iso stability does not have). The run says it in its metadata; the grade is the
+    loop's: within 0.5 dB of the linearisation (the test's other bound; the LMS's notches sit on the
+    rotor's orders, which are taken out and skipped). A recording's own word beats --input."""
+    r = run_cli("iso", "stability", "--device", "sim://spindle?ff=lms&rpm=30000", "--axes", "front_x",
+                "--duration", "1.5", "-o", tmp_path / "lms.json", "--json")
+    assert r.exit_code == 0, r.output
+    (got,) = json.loads(r.stdout)["runs"]
+    model = model_peak_db(30000.0)[0]
+    assert got["axis"] == "front_x" and abs(got["peak_db"] - model) < 0.5 and got["zone"] in zones_within(model, 0.5), (got, model)
+    run = tmp_path / "lms_runs" / "gs_front_x.mcap"
+    ff = load(run)["/amb/ff"]
+    assert all(np.count_nonzero(ff[a]) > 0.9 * len(ff) for a in AXES)  # no axis is the plain one
+    said = json.loads(run_cli("info", run, "--json").stdout)["metadata"]["ambdaq.test_signal"]
+    assert said["axis"] == "front_x" and said["signal"] == "white noise" and float(said["amplitude"]) == 2e-6
+    r = run_cli("frf", "estimate", run, "--input", "rear_x", "-o", tmp_path / "f.json")
+    assert r.exit_code == 2 and "was recorded with the test signal on front_x" in r.output, r.output
+    # a simulated recording with the test signal says it too, and grades the same way
+    gen = tmp_path / "gen.mcap"
+    assert run_cli("sim", "generate", "--excite", "front_x:2", "--ff", "lms", "--rpm", "30000", "--duration", "1.5",
+                   "-q", "-o", gen).exit_code == 0
+    r = run_cli("iso", "stability", gen, "-o", tmp_path / "gen.json", "--json")
+    assert r.exit_code == 0, r.output
+    (offline,) = json.loads(r.stdout)["runs"]
+    assert offline["axis"] == "front_x" and abs(offline["peak_db"] - model) < 0.5, (offline, model)
+
+
 def test_an_excitation_too_weak_is_not_graded(run_cli, tmp_path):
     rec = tmp_path / "weak.mcap"
     assert run_cli("sim", "generate", "--excite", "front_x:0.05", "--duration", "2", "-q", "-o", rec).exit_code == 0

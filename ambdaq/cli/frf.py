@@ -42,8 +42,8 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
     # --rpm: the speed the controller had is set again, however the run ends
     excited = measure_frf(device, excitation, duration, out.path, speed=speed, description=description,
                           on_restore=speed_restored_note(quiet),
-                          record=lambda sources: run_recording(sources, out, duration=duration, quiet=quiet,
-                                                               as_json=as_json))
+                          record=lambda sources, records: run_recording(sources, out, duration=duration, quiet=quiet,
+                                                                        as_json=as_json, records=records))
     if excited.switch_off_problem:
         click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
     elif not quiet:

@@ -58,6 +58,8 @@ def command() -> None:
               help="Peak |Gs| at the zone boundaries A/B, B/C, C/D (gains, or e.g. 9.5dB,12dB,14dB).")
 @click.option("--min-coherence", type=click.FloatRange(0.0, 1.0), default=0.9, show_default=True,
               help="Least coherence at the peak for a grade.")
+@click.option("--input", "input_axis", metavar="AXIS",
+              help="The excited axis of RECORDINGS that do not say it (another tool's); ambdaq's own say it.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Results file (JSON).")
 @click.option("--overwrite", is_flag=True)
 @plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")
@@ -65,7 +67,7 @@ def command() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
 @max_lost_option
 def stability(recordings, device, description, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
-              min_coherence, output, overwrite, plot_path, as_json, quiet, max_lost):
+              min_coherence, input_axis, output, overwrite, plot_path, as_json, quiet, max_lost):
     """ISO 14839-3: peak of the sensitivity function per axis and speed, and its zone.
 
     Measures with --device (white noise at the sensor summing point, one axis at a time, at each
@@ -83,6 +85,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         raise BadInputError("iso stability takes either --device URL (measure) or recordings to grade, not both or neither")
     if description and not device:
         raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
+    if input_axis and device:
+        raise BadInputError("--input names the excited axis of recordings; with --device the runs say it (--axes)")
     out = Path(output)
     if out.exists() and not overwrite:
         raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
@@ -103,8 +107,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         paths = [Path(p) for p in recordings]
     from ..daq.recording import open_recording
 
-    runs = iso.evaluate([open_recording(p) for p in paths], resolution_hz=resolution, band_hz=band, limits=limits, min_coherence=min_coherence,
-                        max_lost=max_lost)
+    runs = iso.evaluate([open_recording(p) for p in paths], resolution_hz=resolution, band_hz=band, limits=limits,
+                        min_coherence=min_coherence, input_axis=input_axis, max_lost=max_lost)
     iso.check_speeds(runs, list(speeds) or None)
     iso.save(out, runs, limits=limits, min_coherence=min_coherence, resolution_hz=resolution, overwrite=overwrite)
     if plot_path:

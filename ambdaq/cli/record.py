@@ -22,14 +22,15 @@ from .options import (DURATION, POSITIVE, Output, a2l_option, measure_option, ou
 
 def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFile | None = None,
                   reconnect: bool = False, live: "LiveOptions | None" = None,
-                  snapshot: SnapshotOptions | None = None) -> None:
+                  snapshot: SnapshotOptions | None = None, records: dict[str, dict[str, str]] | None = None) -> None:
     """Run the recorder over opened ``sources`` and report on the terminal (shared by record and sim);
     with ``live``, serve the topics to Foxglove while recording; with ``snapshot``, write a file
     around each trigger instead of one recording; ``rig``: the rig file they came from (attached,
-    its [machine] described)."""
+    its [machine] described); ``records``: more metadata records for every file (what the
+    workflow did to the machine: :class:`~ambdaq.daq.recorder.RecordOptions`)."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
                             compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot,
-                            index=out.index)
+                            index=out.index, records=records or {})
     recorder = Recorder(sources, out.path, options, command=" ".join(sys.argv), rig_file=rig.path if rig else None,
                         overwrite=out.overwrite, machine_table=rig.machine if rig else None)
     tty = sys.stderr.isatty()

@@ -11,6 +11,7 @@ import click
 import numpy as np
 
 from ..daq.coefficients import Coefficients, fir_array
+from ..drivers.excitation import TEST_SIGNAL_RECORD
 from ..machines.base_motion import PLANES
 from ..errors import BadInputError
 from ..sim.profiles import PROFILES, profile as rig_profile
@@ -77,11 +78,15 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
       ambdaq sim generate --rpm 3000:15000:6 --duration 6 --param pid.d=0.00075,0.00075,0.001,0.001,0.002 -o detuned.mcap
     """
     source = SimSource(profile, seed=seed, speed=SpeedProfile.parse(speed or "0"), truth=truth, ff_mode=ff, noise=noise)
+    records = {}  # the test signal, said in the file as frf measure says it
     try:
         if excitation is not None:
             if "excitation" not in source.rig.inputs:
                 raise BadInputError(f"--excite: the {profile} rig has no test-signal input")
-            source.rig.set_excitation(excitation.resolve(source.rig.excitation_spec()))
+            spec = source.rig.excitation_spec()
+            resolved = excitation.resolve(spec)
+            source.rig.set_excitation(resolved)
+            records[TEST_SIGNAL_RECORD] = resolved.record(source.name, spec)
         if base is not None:
             motion = _base_motion(profile, base)  # refused before the rig is asked
             source.rig.set_base_motion(motion)
@@ -116,7 +121,7 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             _write_param(source.rig, profile, spec)
     except ValueError as err:
         raise BadInputError(str(err)) from None
-    run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot)
+    run_recording([source], out, duration=duration, quiet=quiet, as_json=as_json, snapshot=snapshot, records=records)
 
 
 @command.command("fleet")

@@ -40,8 +40,10 @@ class RecordingFiles:
 
     def __init__(self, acquisition: Acquisition, machine: Machine, *, command: str = "", rig_file: Path | None = None,
                  requested_duration_s: float | None = None, compression: str = "zstd", chunk_size: int,
-                 fsync: bool = True, overwrite: bool = False, index: bool = True) -> None:
+                 fsync: bool = True, overwrite: bool = False, index: bool = True,
+                 records: dict[str, dict[str, str]] | None = None) -> None:
         self.acquisition, self.machine = acquisition, machine
+        self.records = dict(records or {})
         self.command, self.rig_file, self.requested_duration_s = command, rig_file, requested_duration_s
         self.compression, self.chunk_size, self.fsync, self.overwrite = compression, chunk_size, fsync, overwrite
         self.index = index
@@ -67,6 +69,8 @@ class RecordingFiles:
             for s in sources:
                 w.add_device(s.name, s.signal_groups(), s.identity(), s.calibration())
             w.add_metadata(MACHINE_RECORD, self.machine.record())
+            for name, record in self.records.items():
+                w.add_metadata(name, record)
             if self.rig_file is not None:
                 w.add_attachment(self.rig_file.name, "application/toml", self.rig_file.read_bytes(), start_ns)
             w.flush()

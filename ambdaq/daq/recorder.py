@@ -63,6 +63,9 @@ class RecordOptions:
         The recording's start on the host clock, ns since the epoch; default: now.  Only for
         sources that share the host clock without stamping it (a generated recording dated in a
         simulated past: ``sim fleet``).
+    records : dict, optional
+        More metadata records for every file, name -> {key: text}: what the workflow that records
+        did to the machine while it ran (``ambdaq.test_signal``: the axis it excited).
     """
 
     duration_s: float | None = None
@@ -76,6 +79,7 @@ class RecordOptions:
     fsync: bool = True
     snapshot: SnapshotOptions | None = None
     start_ns: int | None = None
+    records: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 
@@ -250,7 +254,8 @@ class Recorder:
                                        start_ns=options.start_ns)
         self.files = RecordingFiles(self.acquisition, self.machine, command=command, rig_file=rig_file,
                                     requested_duration_s=options.duration_s, compression=options.compression, index=options.index,
-                                    chunk_size=options.chunk_size, fsync=options.fsync, overwrite=overwrite)
+                                    chunk_size=options.chunk_size, fsync=options.fsync, overwrite=overwrite,
+                                    records=options.records)
         split = options.split_size is not None or options.split_duration_s is not None
         snap = options.snapshot
         self.parts: FileParts | None = None

@@ -16,6 +16,10 @@ import numpy as np
 from .interfaces import ExcitationSpec
 
 OFF = (-1.0, 0.0, 0.0)  # the parameter's values for "no test signal"
+TEST_SIGNAL_RECORD = "ambdaq.test_signal"
+"""The metadata record of a recording made with the test signal on: the device, the excited axis,
+the signal and its amplitude, as the workflow that switched it on wrote them (:meth:`Excitation.record`).
+With a feedforward running every axis's input is not zero: this, not the data, says which was excited."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,13 @@ class Excitation:
         if not 0 <= self.freq_hz < spec.sample_rate_hz / 2:
             return f"frequency must be 0 (noise) or below {spec.sample_rate_hz / 2:g} Hz, not {self.freq_hz:g} Hz"
         return ""
+
+    def record(self, device: str, spec: ExcitationSpec) -> dict[str, str]:
+        """What runs, as the :data:`TEST_SIGNAL_RECORD` metadata record: device, axis name,
+        signal, amplitude and frequency in the spec's units."""
+        return {"device": device, "axis": spec.axes[self.axis],
+                "signal": f"sine at {self.freq_hz:g} Hz" if self.freq_hz else "white noise",
+                "amplitude": f"{self.amplitude:.6g}", "unit": spec.unit, "freq_hz": f"{self.freq_hz:g}"}
 
     def values(self) -> list[float]:
         """The parameter's values: [axis, amplitude, frequency]."""

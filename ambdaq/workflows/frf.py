@@ -17,7 +17,7 @@ from ..daq.coefficients import file_sha256
 from ..daq.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording, same_instants
-from ..drivers.excitation import OFF, Excitation, ExcitationRequest
+from ..drivers.excitation import OFF, TEST_SIGNAL_RECORD, Excitation, ExcitationRequest
 from ..drivers.interfaces import Controller, Source
 from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError, DeviceError
@@ -43,6 +43,11 @@ class Excited:
     controller: Controller
     excitation: Excitation
     switch_off_problem: str | None = None
+
+    def records(self) -> dict[str, dict[str, str]]:
+        """The metadata the recording made while it runs carries (:data:`TEST_SIGNAL_RECORD`)."""
+        spec = self.controller.capabilities.excitation
+        return {TEST_SIGNAL_RECORD: self.excitation.record(self.controller.name, spec)}
 
 
 def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
@@ -80,7 +85,7 @@ def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
 
 def measure(device: str, request: ExcitationRequest, duration_s: float, output: Path, *, speed: str | None = None,
             description: dict | None = None, overwrite: bool = False, on_restore=None,
-            record: Callable[[list[Source]], object] | None = None) -> Excited:
+            record: Callable[[list[Source], dict[str, dict[str, str]]], object] | None = None) -> Excited:
     """Record ``device`` with its test signal on (``frf measure``): opened, excited, recorded for
     ``duration_s``, the signal switched off and the device closed however the recording ends.
 
@@ -102,8 +107,9 @@ def measure(device: str, request: ExcitationRequest, duration_s: float, output: 
     overwrite : bool
         Replace an existing regular file.
     record : callable, optional
-        Records the opened sources instead of a plain :class:`~ambdaq.daq.recorder.Recorder`
-        (the command line's, with its progress and status).
+        Records the opened sources, with the metadata records it is given (the test signal's),
+        instead of a plain :class:`~ambdaq.daq.recorder.Recorder` (the command line's, with its
+        progress and status).
 
     Returns
     -------
@@ -117,15 +123,26 @@ def measure(device: str, request: ExcitationRequest, duration_s: float, output: 
             opened.add(open_url(device, speed=speed, description=description))
             excited = excite(opened.sources, request)
             if record is not None:
-                record(opened.sources)
+                record(opened.sources, excited.records())
             else:
-                Recorder(opened.sources, output, RecordOptions(duration_s=duration_s), overwrite=overwrite).run()
+                Recorder(opened.sources, output, RecordOptions(duration_s=duration_s, records=excited.records()),
+                         overwrite=overwrite).run()
     return excited
 
 
-def excited_axis(ff, path: Path, given: str | None) -> str:
-    """The input axis: ``given``, or the one axis whose feedforward input is not zero (for at least
-    a tenth of the recording)."""
+def excited_axis(rec: Recording, ff, given: str | None) -> str:
+    """The input axis: what the recording's :data:`TEST_SIGNAL_RECORD` says the workflow excited
+    (``given`` must agree), else ``given``, else, in a recording without it (another tool's, an
+    older ambdaq's), the one axis whose feedforward input is not zero for at least a tenth of it."""
+    path = rec.path
+    said = rec.metadata.get(TEST_SIGNAL_RECORD, {}).get("axis")
+    if said is not None:
+        if said not in ff.fields:
+            raise BadInputError(f"{path}: its test signal ran on {said}, an axis {ff.topic} does not have "
+                                f"({', '.join(ff.fields)})")
+        if given and given != said:
+            raise BadInputError(f"--input {given}: {path} was recorded with the test signal on {said}")
+        return said
     if given:
         if given not in ff.fields:
             raise BadInputError(f"--input {given!r}: {path} has {', '.join(ff.fields)}")
@@ -157,7 +174,7 @@ def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: 
         require_complete(rec, [x_data.topic, y_data.topic] + ([rot.topic] if spinning else []),
                          "the frequency response", max_lost)
         n = len(x_data)
-        axis = excited_axis(x_data, path, input_axis)
+        axis = excited_axis(rec, x_data, input_axis)
         x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
         if axis in columns:
             raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")

@@ -145,7 +145,8 @@ def _measure_runs(device: str, speeds_rpm: list[float] | None, axes: list[str] |
                 if on_run is not None:
                     on_run(axis, rpm, path)
                 excited = excite(opened.sources, ExcitationRequest(axis, amplitude))
-                result = Recorder(opened.sources, path, RecordOptions(duration_s=duration_s), overwrite=overwrite).run()
+                result = Recorder(opened.sources, path, RecordOptions(duration_s=duration_s, records=excited.records()),
+                                  overwrite=overwrite).run()
             if excited.switch_off_problem:
                 raise DeviceError(f"could not switch the test signal off after {path}: {excited.switch_off_problem}")
             if result.stopped_by_user:  # Ctrl-C stops the whole measurement, not only this run
@@ -243,7 +244,7 @@ def evaluate(recs: list[Recording], *, resolution_hz: float = 10.0, band_hz: tup
         rot = rot[0] if rot else None
         require_complete(rec, [x.topic, y.topic] + ([rot.topic] if spinning else []), "the sensitivity function",
                          max_lost)
-        axis = excited_axis(x, path, input_axis)
+        axis = excited_axis(rec, x, input_axis)
         if axis not in y.fields:
             raise BadInputError(f"{path}: the command error ({y.topic}) has no axis {axis}")
         n = len(x)
