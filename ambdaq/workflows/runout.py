@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, separate_unbalance,
+from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, sampling_bound,
+                               separate_unbalance,
                                synchronous_average, synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
@@ -83,6 +84,7 @@ class Identification:
     spins: np.ndarray  # rad/s, per recording
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
     uncertainty: np.ndarray  # m, (harmonic, axis): each part's standard uncertainty (NaN: not propagated)
+    sampling_bound: np.ndarray  # m, (harmonic, axis): a bound on the error the currents' sampling adds (NaN: not propagated)
 
 
 def identify_recordings(recs: list[Recording], harmonics: list[int], method: str, *,
@@ -97,7 +99,7 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
     (:mod:`ambdaq.daq.quality`). Each harmonic's standard uncertainty is estimated unless
     ``uncertainty`` is False (then NaN: a caller that does not report it skips its spectra).
     """
-    per_file, warnings, sources, u_file = [], [], [], []
+    per_file, warnings, sources, u_file, b_file = [], [], [], [], []
     rotor = device = axes = None
     for rec in recs:
         rec.load_roles(["gap", "current", "rotor"])
@@ -118,11 +120,17 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
                                 f"{speed.min() * RAD_S_TO_RPM:.0f} to {speed.max() * RAD_S_TO_RPM:.0f} rpm")
         theta = rot["angle"][:n]
         fit = METHODS[method]
-        # every axis's gap and current at once: (harmonic, axis) each
-        G, I = np.split(fit(np.column_stack([gap[a][:n] for a in axes] + [cur[a][:n] for a in axes]), theta,
-                            harmonics), 2, axis=1)
+        # every axis's gap and current at once: (harmonic, axis) each. Every order up to the highest
+        # asked is in the fit: an order left out of it (the 1X, 18 um on a slow roll, when 2X-6X are
+        # asked) leaks into the others over a recording that is not whole revolutions (306 nm, 74
+        # standard errors, on a 1 s slow roll)
+        orders = sorted(set(range(1, max(harmonics) + 1)) | set(harmonics))
+        fitted = fit(np.column_stack([gap[a][:n] for a in axes] + [cur[a][:n] for a in axes]), theta, orders)
+        G, I = np.split(fitted[[orders.index(k) for k in harmonics]], 2, axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
+        b_file.append(np.array([sampling_bound(rotor.motion_from_currents(I[i], k * w, w), k * w / (2 * np.pi),
+                                               gap.nominal_rate) for i, k in enumerate(harmonics)]))
         u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
                                          np.column_stack([cur[a][:n] for a in axes]), theta, gap.nominal_rate, w,
                                          list(harmonics), rotor) if uncertainty
@@ -133,15 +141,17 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
     est = np.mean([r for _, r in per_file], axis=0)  # (harmonic, axis)
     # the mean of independent estimates: its uncertainty is the root sum of squares over their count
     u = np.sqrt(np.sum(np.square(u_file), axis=0)) / len(u_file)
+    bound = np.mean(b_file, axis=0)  # a bound on each estimate's error from the currents' sampling bounds their mean's
     if 1 in harmonics:
         i1 = harmonics.index(1)
         slow = [i for i, (w, _r) in enumerate(per_file) if w * RAD_S_TO_RPM <= UNBALANCE_NEGLIGIBLE_RPM]
         if slow:
             est[i1] = np.mean([per_file[i][1][i1] for i in slow], axis=0)
             u[i1] = np.sqrt(np.sum([u_file[i][i1] ** 2 for i in slow], axis=0)) / len(slow)
+            bound[i1] = np.mean([b_file[i][i1] for i in slow], axis=0)
         elif len(set(np.round(spins))) >= 2:
             est[i1] = separate_unbalance(np.array([r[i1] for _, r in per_file]), spins, rotor).runout
-            u[i1] = np.nan  # not propagated through the separation of runout and unbalance
+            u[i1] = bound[i1] = np.nan  # not propagated through the separation of runout and unbalance
         else:
             warnings.append(f"1X at {spins[0] * RAD_S_TO_RPM:.0f} rpm also holds the rotor's unbalance response "
                             "(right for feedforward at this speed); add a slow roll (--rpm slowroll) or recordings "
@@ -155,11 +165,16 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
         source={"recordings": sources, "method": method, "created": now_iso(),
                 # each harmonic's standard uncertainty per axis, m (None: not estimated or not propagated)
                 "uncertainty_m": {axis: [None if not np.isfinite(u[i, a]) else float(u[i, a])
-                                         for i in range(len(harmonics))] for a, axis in enumerate(axes)}},
+                                         for i in range(len(harmonics))] for a, axis in enumerate(axes)},
+                # each harmonic's bound on the error from the currents' sampling per axis, m
+                # (analysis.runout.SAMPLING_BOUND; None: not propagated)
+                "sampling_bound_m": {axis: [None if not np.isfinite(bound[i, a]) else float(bound[i, a])
+                                            for i in range(len(harmonics))] for a, axis in enumerate(axes)}},
         harmonics=list(harmonics),
         weights=weights,
     )
-    return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]), u)
+    return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]), u,
+                          bound)
 
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:

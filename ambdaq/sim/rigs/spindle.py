@@ -110,13 +110,43 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
     return E[:n, :n].copy(), E[:n, n:].copy()
 
 
+def amplifier_continuous(ax: BearingAxis) -> tuple[np.ndarray, np.ndarray]:
+    """The amplifier G_A (Ro et al. eq. 2) in continuous time: state [i, di/dt], input in V."""
+    wn = 2 * np.pi * ax.amp_wn_hz
+    return np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]]), np.array([[0.0], [wn**2 * ax.amp_gain]])
+
+
 def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarray]:
     """ZOH-discretised amplifier G_A (Ro et al. eq. 2): state [i, di/dt], input in V, step h (s)."""
-    wn = 2 * np.pi * ax.amp_wn_hz
-    A = np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]])
-    B = np.array([[0.0], [wn**2 * ax.amp_gain]])
-    Phi, Gam = zoh(A, B, h)
+    Phi, Gam = zoh(*amplifier_continuous(ax), h)
     return Phi, Gam[:, 0]
+
+
+def rotor_through_amplifiers(A: np.ndarray, B: np.ndarray, p: SpindleParams, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """What one step does to the rotor through the coil currents as they move within it.
+
+    The controller's output u is held over the step (its DAC); each amplifier's current follows
+    it continuously and the magnet's force ``ki i(t)`` with it. Holding the current's average
+    over the step instead (what the kernel did) is a force low-passed by cos(w h / 2) sinc(w h / 2):
+    6 % short at 1 kHz, 24 % at 2 kHz at 10 kHz, and the rotor's 2X-4X at 30,000 rpm was then
+    not what its currents say (a runout estimate 90 nm off the truth). The exact ZOH of rotor and
+    amplifiers together (state [rotor (10), amplifiers 2 per axis (10)], input u):
+
+        z[n+1] = Phi z[n] + Psi_q q[n] + Psi_u u[n] (+ Gamma F_other[n])
+
+    Returns ``Psi_q`` (10, 10), on the amplifier states in the kernel's order (axis-major
+    [i, di/dt]), and ``Psi_u`` (10, 5), on u in V."""
+    n = 20
+    Af = np.zeros((n, n))
+    Bu = np.zeros((n, 5))
+    Af[:10, :10] = A
+    for a, ax in enumerate(p.axes):
+        Aa, Ba = amplifier_continuous(ax)
+        Af[10 + 2 * a:12 + 2 * a, 10 + 2 * a:12 + 2 * a] = Aa
+        Bu[10 + 2 * a:12 + 2 * a, a] = Ba[:, 0]
+        Af[:10, 10 + 2 * a] = B[:, a] * ax.ki  # the force of the coil current, ki i
+    Phi, Gam = zoh(Af, Bu, h)
+    return Phi[:10, 10:].copy(), Gam[:10].copy()
 
 
 Schedule = dict[int, tuple[tuple[float, float, float], ...]]
@@ -201,7 +231,8 @@ def _simulate(
     theta, omega, enabled, noise, noise_sd,  # per-step inputs; enabled: 1 amplifiers on, 0 off (a drop);
     # noise: unit normals, gap 0:5, current 5:10, accel 10:15
     z, amp, ctl, w, st,  # state (modified in place); st: [revolution count, bias level 0..1]
-    Phi, Gam, Ac, Bc, Pa, Ga,  # the plant discretised and continuous (in contact), the amplifiers
+    Phi, Gam, Psq, Psu, Ac, Bc, Pa, Ga,  # the plant discretised (through the amplifiers: Psq, Psu) and
+    # continuous (in contact), the amplifiers
     ki, kx, bias, pid_p, pid_i, ad, bd, mh, fstat, fgrav, unb, unb_ph, run_s, run_c,
     mu_tab, ph_cos, ph_sin, ff_mode, exc, c,  # exc: excitation added to r_c per step and axis; c: constants
     out_gap, out_cur, out_err, out_ff, out_acc, out_rot, out_run, out_pos,
@@ -230,6 +261,9 @@ def _simulate(
     sk = np.empty(nh)
     ck = np.empty(nh)
     F = np.empty(5)
+    Fo = np.empty(5)  # the forces the currents' step (Psq, Psu) does not hold: unbalance, gravity, the coils' law
+    q0 = np.empty(10)  # the amplifiers' states at the step's start, axis-major [i, di/dt]
+    uu = np.empty(5)  # the controller's outputs held over the step, V
     znew = np.empty(10)
     two_pi = 2.0 * np.pi
     for k in range(theta.shape[0]):
@@ -297,6 +331,9 @@ def _simulate(
                 u = 0.0  # the amplifier off: the controller's output goes nowhere
             # amplifier step and the differential coil-current law with 0..imax per coil
             i0 = amp[a, 0]
+            q0[2 * a] = i0
+            q0[2 * a + 1] = amp[a, 1]
+            uu[a] = u
             i1 = Pa[a, 0, 0] * i0 + Pa[a, 0, 1] * amp[a, 1] + Ga[a, 0] * u
             amp[a, 1] = Pa[a, 1, 0] * i0 + Pa[a, 1, 1] * amp[a, 1] + Ga[a, 1] * u
             amp[a, 0] = i1
@@ -311,6 +348,9 @@ def _simulate(
             # unbalance: x axes cos, y axes sin of (theta + phase), evaluated mid-step
             fu = unb[a] * om * om * np.cos(th_mid + unb_ph[a])
             F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
+            # through Psq and Psu the rotor sees the linear coil current as it moves within the
+            # step; what the coils' law (clipping, a bias decaying) takes from it is held over it
+            Fo[a] = ki[a] * 0.5 * ((ieff0 - i0) + (ieff1 - i1)) + fu + fgrav[a]
             out_gap[k, a] = s_meas
             out_cur[k, a] = i0 + noise_sd[1] * noise[k, 5 + a]
             out_err[k, a] = e
@@ -342,7 +382,9 @@ def _simulate(
                 for j in range(10):
                     acc += Phi[i, j] * z[j]
                 for j in range(5):
-                    acc += Gam[i, j] * F[j]
+                    acc += Gam[i, j] * Fo[j] + Psu[i, j] * uu[j]
+                for j in range(10):
+                    acc += Psq[i, j] * q0[j]
                 znew[i] = acc
             for i in range(10):
                 z[i] = znew[i]
@@ -602,13 +644,14 @@ class SpindleRig(Rig, ExcitationInput):
 
     # --- stepping --------------------------------------------------------------------------
 
-    def _rotor(self, omega: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The rotor's ZOH matrices and its continuous ones at the speed bucket of ``omega`` (rad/s),
-        cached per rig."""
+    def _rotor(self, omega: float) -> tuple[np.ndarray, ...]:
+        """The rotor's ZOH matrices (Phi, Gamma), its step through the amplifiers (Psi_q, Psi_u:
+        :func:`rotor_through_amplifiers`) and its continuous matrices at the speed bucket of
+        ``omega`` (rad/s), cached per rig."""
         key = round(omega / SPEED_BUCKET_RAD_S)
         if key not in self._rotor_cache:
             A, B = rotor_matrices(self.params, key * SPEED_BUCKET_RAD_S)
-            self._rotor_cache[key] = (*zoh(A, B, self.h), A, B)
+            self._rotor_cache[key] = (*zoh(A, B, self.h), *rotor_through_amplifiers(A, B, self.params, self.h), A, B)
         return self._rotor_cache[key]
 
     def run(self, n: int) -> SampleBlock:
@@ -632,12 +675,12 @@ class SpindleRig(Rig, ExcitationInput):
         for lo, hi in zip(edges[:-1], edges[1:]):
             if hi <= lo:
                 continue
-            Phi, Gam, Ac, Bc = self._rotor(float(omega[lo]))
+            Phi, Gam, Psq, Psu, Ac, Bc = self._rotor(float(omega[lo]))
             sl = slice(lo, hi)
             _simulate(
                 theta[sl], omega[sl], enabled[sl], noise[sl], self._noise_sd,
                 self._z, self._amp, self._ctl, self._w, self._st,
-                Phi, Gam, Ac, Bc, self._Pa, self._Ga,
+                Phi, Gam, Psq, Psu, Ac, Bc, self._Pa, self._Ga,
                 self._ki, self._kx, self._bias, self._pid_p, self._pid_i, self._ad, self._bd,
                 self._mh, self._fstat, self._fgrav, self._unb, self._unb_ph, self._run_s, self._run_c,
                 self._mu, self._ph_cos, self._ph_sin, self._ff_mode, exc[sl], self._c,
@@ -658,9 +701,10 @@ class SpindleRig(Rig, ExcitationInput):
         feedforward per axis (m, subtracted from the sensor signal, Ro et al. eq. 10) and ``e`` the
         command error per axis (m).  Found by stepping the simulation kernel itself from unit
         perturbations, with noise, runout, unbalance, gravity and quantisation off (at standstill,
-        once per rig); only the rotor's ZOH matrices depend on the speed (gyroscopics), so at
-        other speeds the rotor rows are Phi(Omega) [I 0] + Gamma(Omega) dF/dx, with the bearing
-        forces' Jacobian dF/dx taken from the standstill probe.
+        once per rig); only the rotor's step depends on the speed (gyroscopics), so at other speeds
+        the rotor rows are [Phi(Omega) Psi_q(Omega) 0] + Psi_u(Omega) du/dx
+        (:func:`rotor_through_amplifiers`), with the controller output's Jacobian du/dx taken from
+        the standstill probe's amplifier rows.
 
         Returns
         -------
@@ -670,16 +714,19 @@ class SpindleRig(Rig, ExcitationInput):
         """
         if self._linear is None:
             M0, B0, C = self.probe_loop(0.0)
-            Phi0, Gam0, _, _ = self._rotor(0.0)
-            rotor0 = np.hstack([Phi0, np.zeros((10, 25))])
-            # the rotor rows are Phi x_rotor + Gamma F(x, r_c): solve for F's Jacobian
-            dF = np.linalg.lstsq(Gam0, np.hstack([M0[:10] - rotor0, B0[:10]]), rcond=None)[0]
-            self._linear = (M0, B0, C, dF)
-        M0, B0, C, dF = self._linear
-        Phi, Gam, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
+            # the amplifier rows are Pa q + Ga u(x, r_c): solve for the controller output's Jacobian
+            Pa, Ga = np.zeros((10, 10)), np.zeros((10, 5))
+            for a in range(N_AXES):
+                Pa[2 * a:2 * a + 2, 2 * a:2 * a + 2] = self._Pa[a]
+                Ga[2 * a:2 * a + 2, a] = self._Ga[a]
+            amp0 = np.hstack([np.zeros((10, 10)), Pa, np.zeros((10, 15))])
+            dU = np.linalg.lstsq(Ga, np.hstack([M0[10:20] - amp0, B0[10:20]]), rcond=None)[0]
+            self._linear = (M0, B0, C, dU)
+        M0, B0, C, dU = self._linear
+        Phi, _Gam, Psq, Psu, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
         M, B = M0.copy(), B0.copy()
-        M[:10] = np.hstack([Phi, np.zeros((10, 25))]) + Gam @ dF[:, :35]
-        B[:10] = Gam @ dF[:, 35:]
+        M[:10] = np.hstack([Phi, Psq, np.zeros((10, 15))]) + Psu @ dU[:, :35]
+        B[:10] = Psu @ dU[:, 35:]
         return M, B, C
 
     def unbalance_response(self, rpm: float) -> np.ndarray:
@@ -697,7 +744,7 @@ class SpindleRig(Rig, ExcitationInput):
             In ``AXES`` order.
         """
         M, B, _C = self.loop_matrices(rpm)
-        _Phi, Gam, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
+        Gam = self._rotor(rpm * RPM_TO_RAD_S)[1]
         step = np.exp(1j * rpm * RPM_TO_RAD_S * self.h)  # the angle advances this much per step
         force = self._unb * (rpm * RPM_TO_RAD_S) ** 2 * np.exp(1j * self._unb_ph) * np.sqrt(step)
         runout = self._run_c[:, 0] - 1j * self._run_s[:, 0]  # A sin + B cos = Re((B - jA) exp(j theta))
