@@ -8,6 +8,7 @@ import hashlib
 import itertools
 import json
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -332,3 +333,79 @@ def test_a_base_motion_fir_is_refused_by_a_controller_that_runs_none(ctl, tmp_pa
     r = run("push", path, "--device", ctl.serial_url, "--key", DEFAULT_UNLOCK_KEY, "--yes")
     assert r.exit_code == 2 and "this controller runs no FIR feedforward" in r.output
     assert ctl.active()[2] == before[2]
+
+
+@pytest.mark.parametrize("port", ["serial", "can"])
+def test_rollback_puts_back_what_the_push_replaced_bit_for_bit(ctl, tmp_path, port):
+    """Two pushes, then --rollback twice: each puts back the bank the push before it replaced, read
+    back from the controller byte for byte (its CRC-32 and the bank's bytes); a third rollback
+    undoes the second; a rollback when the controller runs what no push of ours wrote is refused
+    with nothing written."""
+    url = ctl.serial_url if port == "serial" else ctl.can_url
+    first = runout_file(tmp_path / "first.json", ctl.rig)
+    second = runout_file(tmp_path / "second.json", ctl.rig, scale=0.5)
+    def bank() -> tuple[str, bytes]:  # what the controller runs, read over its serial line
+        drv = ControllerDriver(SerialLink(ctl.pty.path))
+        try:
+            st = drv.bank_status()
+            return st["active_crc32"], drv.read_bank("active", st["active_length"])
+        finally:
+            drv.close()
+
+    stock = bank()
+    key = ("--key", DEFAULT_UNLOCK_KEY)
+    r = run("push", "--rollback", "--device", url, *key, "--yes")
+    assert r.exit_code == 2 and "nothing to roll back" in r.output, r.output
+    assert run("push", first, "--device", url, *key, "--yes").exit_code == 0
+    pushed_first = bank()
+    assert run("push", second, "--device", url, *key, "--yes").exit_code == 0
+    r = run("push", "--rollback", "--device", url, *key, "--dry-run")
+    assert r.exit_code == 0 and "the bank before second.json" in r.output and "dry run" in r.output, r.output
+    r = run("push", "--rollback", "--device", url, *key, "--yes")
+    assert r.exit_code == 0 and "rolled back" in r.output and "device-verified" in r.output, r.output
+    assert bank() == pushed_first
+    mode, table, _ = ctl.active()
+    assert mode == 1 and np.allclose(table, expected_table(ctl.rig), atol=1e-15)  # first.json's, not half of it
+    r = run("push", "--rollback", "--device", url, *key, "--yes")  # the rollback itself is undone
+    assert r.exit_code == 0 and bank()[0] != pushed_first[0]
+    np.testing.assert_allclose(ctl.active()[1], expected_table(ctl.rig, 0.5), atol=1e-15)
+    assert run("push", "--rollback", "--device", url, *key, "--yes").exit_code == 0
+    assert bank() == pushed_first
+    # each push's entry names what it replaced, kept byte for byte
+    log = [json.loads(line) for line in (tmp_path / "state" / "push.log").read_text().splitlines()]
+    assert log[0]["replaced_crc32"] == stock[0]
+    assert (tmp_path / "state" / "banks" / f"{stock[0]}.bin").read_bytes() == stock[1]
+    # another host changed the bank since: refused, nothing written
+    other = runout_file(tmp_path / "other.json", ctl.rig, scale=0.25)
+    monkey_state = tmp_path / "elsewhere"
+    r = run("push", other, "--device", url, *key, "--yes", env={"AMBDAQ_STATE_DIR": str(monkey_state)})
+    assert r.exit_code == 0, r.output
+    before = ctl.active()[2]
+    r = run("push", "--rollback", "--device", url, *key, "--yes")
+    assert r.exit_code == 2 and "something else changed it since; nothing written" in r.output, r.output
+    assert ctl.active()[2] == before
+
+
+def test_the_feedforward_switches_off_holds_and_comes_back_without_the_bank(ctl, tmp_path):
+    """``controller ff off`` stops the pushed LMS, ``on`` resumes it from the weights it held (the
+    bank untouched: its CRC-32 the same throughout), ``hold`` runs those weights as a fixed table;
+    each read back from ff.mode."""
+    coef = runout_file(tmp_path / "lms.json", ctl.rig, scale=0.5, schedule=[(1, 200, 12500, -0.001), (1, 17000, 60000, 0.001)])
+    url = ctl.serial_url
+    assert run("push", coef, "--device", url, "--key", DEFAULT_UNLOCK_KEY, "--yes").exit_code == 0
+    mode, _, crc = ctl.active()
+    assert mode == 2
+    r = run("controller", "ff", "off", "--device", url)
+    assert r.exit_code == 0 and "feedforward lms -> off" in r.output, r.output
+    assert ctl.active()[0] == 0 and ctl.active()[2] == crc
+    frozen = ctl.active()[1]
+    time.sleep(0.2)
+    np.testing.assert_array_equal(ctl.active()[1], frozen)  # off: nothing adapts
+    r = run("controller", "ff", "on", "--device", url)
+    assert r.exit_code == 0 and "feedforward off -> lms (the active bank's mode" in r.output, r.output
+    r = run("controller", "ff", "hold", "--device", url)
+    assert r.exit_code == 0 and "-> table" in r.output
+    held = ctl.active()[1]
+    time.sleep(0.2)
+    np.testing.assert_array_equal(ctl.active()[1], held)  # hold: the weights as they were
+    assert ctl.active()[2] == crc

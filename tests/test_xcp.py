@@ -312,6 +312,18 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
         assert "device-verified" in run("push", coef, "--device", url, "--a2l", a2l, "--yes")
         run("record", "--device", url, "--a2l", a2l, "--duration", 2.5, "-q", "-o", after)
         check = json.loads(run("runout", "check", before, after, "--min-db", 20, "--max-rms", 5, "--json"))
+        # and undone over XCP: the feedforward off and on (ff.mode, read back), then the push rolled
+        # back, the controller's bank the stock one again, and the runout back in the command error
+        stock = json.loads(run("controller", "status", "--device", url, "--a2l", a2l, "--json"))["log"]
+        assert "table -> off" in run("controller", "ff", "off", "--device", url, "--a2l", a2l)
+        assert "off -> table (the active bank's mode" in run("controller", "ff", "on", "--device", url, "--a2l", a2l)
+        assert "rolled back to bank 0" in run("push", "--rollback", "--device", url, "--a2l", a2l, "--yes")
+        status = json.loads(run("controller", "status", "--device", url, "--a2l", a2l, "--json"))
+        pushed = json.loads((tmp_path / "state" / "push.log").read_text().splitlines()[0])
+        assert status["active_crc32"] == pushed["replaced_crc32"] and status["active_mode"] == "off", (status, stock)
+        undone = tmp_path / "undone.mcap"
+        run("record", "--device", url, "--a2l", a2l, "--duration", 1, "-q", "-o", undone)
+        back = json.loads(run("runout", "check", before, undone, "--json"))
     finally:
         proc.terminate()
         proc.wait(timeout=10)
@@ -319,6 +331,8 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
         axis = check["axes"][a]
         assert axis["harmonics"][0]["change_db"] <= -20 and axis["harmonics"][1]["change_db"] <= -20, check
         assert axis["rms_after_um"] < 5.0, check  # (and `runout check` exited 0 on the same limits)
+        # the runout is back: the 1X of the command error as before the push, within 1 dB
+        assert abs(back["axes"][a]["harmonics"][0]["change_db"]) < 1.0, back
 
 
 def test_xcp_on_sxi_over_a_serial_line(a2l, tmp_path, run_cli, monkeypatch):

@@ -9,12 +9,13 @@ from pathlib import Path
 
 import click
 
-from ..workflows.push import describe_difference, plan_push, push, resolve_key
+from ..workflows.push import describe_difference, plan_push, plan_rollback, push, resolve_key
+from ..workflows.push import rollback as roll_back
 from ..daq.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..drivers.registry import open_controller
 from ..drivers.rigfile import load_rig
-from ..errors import BadInputError
+from ..errors import BadInputError, DeviceError
 from .options import a2l_option
 
 
@@ -36,36 +37,44 @@ def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[st
 
 
 @click.command("push")
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("file", type=click.Path(dir_okay=False), required=False)
 @click.option("--device", metavar="URL", help="The controller: serial:PORT or can://IF/CH?node=N (or a name in --rig).")
 @click.option("--rig", type=click.Path(dir_okay=False), help="Rig file: the controller's URL and unlock_key.")
 @click.option("--key", help="Unlock key (else $AMBDAQ_UNLOCK_KEY, else the rig file's unlock_key).")
 @a2l_option
 @click.option("--dry-run", is_flag=True, help="Validate and print the difference from the active bank; write nothing.")
+@click.option("--rollback", is_flag=True,
+              help="Put back the bank the last push from this machine to --device replaced (no FILE).")
 @click.option("--yes", is_flag=True, help="Do not ask before committing.")
-def push_command(file, device, rig, key, description, dry_run, yes):
+def push_command(file, device, rig, key, description, dry_run, rollback, yes):
     """Download coefficient FILE into the controller: validate, write the inactive bank, check the
-    device's CRC-32, commit at a control-period boundary, log.
+    device's CRC-32, commit at a control-period boundary, log. With --rollback, put back what the
+    last push replaced, the same way (and --rollback again undoes that).
 
     \b
     Examples:
       ambdaq push coef.json --device serial:///dev/pts/5 --dry-run
       ambdaq push coef.json --device serial:///dev/pts/5 --yes
+      ambdaq push --rollback --device serial:///dev/pts/5 --yes
       ambdaq push coef.json --device "can://socketcan/can0?node=0x50" --key "$KEY" --yes
       ambdaq push coef.json --device xcp+tcp://127.0.0.1:5555 --a2l spindle.a2l --yes
     """
+    if bool(file) == rollback:
+        raise BadInputError("push takes a coefficient FILE, or --rollback without one")
     url, rig_key, description = _target(device, rig, description)
-    coef = Coefficients.load(file)  # a broken file fails before any device is opened
+    coef = None if rollback else Coefficients.load(file)  # a broken file fails before any device is opened
     unlock_key = None if dry_run else resolve_key(key, rig_key)
     port = open_controller(url, description)
     try:
-        plan = plan_push(port, file, coef)
+        plan = plan_rollback(port, url) if rollback else plan_push(port, file, coef)
         status = plan.status
         if dry_run or not yes:
-            new = plan.image
+            new = BankImage.decode(plan.image) if rollback else plan.image
             old = BankImage.decode(port.read_bank("active", status["active_length"]))
+            what = (f"the bank before {plan.last.get('file')} ({plan.last.get('host_time')}, CRC-32 "
+                    f"{plan.last['replaced_crc32']})") if rollback else Path(file).name
             click.echo(f"{url}: active bank {status['active_bank']} (CRC-32 {status['active_crc32']}, "
-                       f"{status['active_mode']}) -> {Path(file).name}")
+                       f"{status['active_mode']}) -> {what}")
             for line in describe_difference(old, new, list(status["axes"])):
                 click.echo(f"  {line}")
             if dry_run:
@@ -81,10 +90,14 @@ def push_command(file, device, rig, key, description, dry_run, yes):
             if not answer:
                 click.echo("push cancelled, nothing written")
                 return
-        result = push(port, plan, unlock_key, target=url)
+        result = (roll_back(port, plan, unlock_key, target=url) if rollback
+                  else push(port, plan, unlock_key, target=url))
     finally:
         port.close()
-    if result.already_active:
+    if rollback:
+        click.echo(f"{url}: rolled back to bank {result.bank} (CRC-32 {result.crc32}, device-verified, what it ran "
+                   f"before {plan.last.get('file')}), running from sample {result.effective_sample}; logged to {result.log}")
+    elif result.already_active:
         click.echo(f"{url}: bank {result.bank} already holds {file} (CRC-32 {result.crc32}): nothing to do")
     else:
         click.echo(f"{url}: committed {file} to bank {result.bank} (CRC-32 {result.crc32}, device-verified), "
@@ -121,6 +134,38 @@ def status_command(device, description, as_json):
         click.echo(f"  {e.get('host_time', '?')}  bank {e['bank']}  crc {e['crc32']}  {e.get('file', '?')} "
                    f"sha256 {e.get('file_sha256', '')[:12]}  from sample {e['effective_sample']}  "
                    f"by {e.get('host', '?')} -> {e.get('target', '?')}")
+
+
+@controller_group.command("ff")
+@click.argument("action", type=click.Choice(["off", "hold", "on"]))
+@click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT, sim://spindle, xcp+...")
+@a2l_option
+def ff_command(action, device, description):
+    """Switch the runout feedforward: off, hold (the present weights, not adapting), or on (the
+    mode its active bank runs: table or LMS, from the weights it holds now). The bank is not
+    touched: push --rollback undoes a push. Read back after the write.
+
+    \b
+    Example:
+      ambdaq controller ff off --device serial:///dev/pts/5
+      ambdaq controller ff on --device serial:///dev/pts/5
+    """
+    from ..drivers.coefbank import MODES
+
+    names = {v: k for k, v in MODES.items()}
+    port = open_controller(device, description)
+    try:
+        status = port.bank_status()
+        want = {"off": "off", "hold": "table", "on": status["active_mode"]}[action]
+        before = names.get(int(port.read_param("ff.mode")[0]), "?")
+        port.write_param("ff.mode", [float(MODES[want])])
+        now = names.get(int(port.read_param("ff.mode")[0]), "?")
+    finally:
+        port.close()
+    if now != want:
+        raise DeviceError(f"{device}: ff.mode reads back {now} after writing {want}")
+    click.echo(f"{device}: feedforward {before} -> {now}" + (f" (the active bank's mode, CRC-32 {status['active_crc32']})"
+                                                           if action == "on" else ""))
 
 
 @controller_group.command("param")

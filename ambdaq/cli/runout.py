@@ -50,12 +50,12 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
     for w in ident.warnings:
         click.echo(f"ambdaq: warning: {w}", err=True)
     # u_um: each part's standard uncertainty from the recordings' noise (the Cramer-Rao bound);
-    # bound_um: a bound on the error the currents' sampling adds (SAMPLING_BOUND); null where not
+    # bound_um: a bound on the error the noise does not cover (MODEL_BOUND); null where not
     # propagated (1X separated from the unbalance over several speeds)
     table = {axis: [{"harmonic": k, "amplitude_um": round(float(np.hypot(*wk)) * 1e6, 4),
                      "phase_deg": round(float(np.degrees(np.arctan2(wk[1], wk[0]))), 2),
                      "u_um": None if np.isnan(u := ident.uncertainty[i, a]) else round(float(u) * 1e6, 5),
-                     "bound_um": None if np.isnan(b := ident.sampling_bound[i, a]) else round(float(b) * 1e6, 5)}
+                     "bound_um": None if np.isnan(b := ident.model_bound[i, a]) else round(float(b) * 1e6, 5)}
                     for i, (k, wk) in enumerate(zip(coef.harmonics, rows))]
              for a, (axis, rows) in enumerate(coef.weights.items())}
     if as_json:
@@ -66,9 +66,9 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
             click.echo(f"{axis:<9}" + "".join(
                 f"{r['amplitude_um']:>9.3f} ({'-' if r['u_um'] is None else format(r['u_um'], '.3f'):>5}) "
                 f"{r['phase_deg']:>7.1f} " for r in rows))
-        worst = np.nanmax(ident.sampling_bound) if np.isfinite(ident.sampling_bound).any() else float("nan")
+        worst = np.nanmax(ident.model_bound) if np.isfinite(ident.model_bound).any() else float("nan")
         click.echo("u: each part's standard uncertainty from the noise at that harmonic (Cramer-Rao bound); "
-                   f"-: not propagated; the currents' sampling adds at most {worst * 1e9:.1f} nm (--json: bound_um)",
+                   f"-: not propagated; the model's error beyond it is at most {worst * 1e9:.1f} nm (--json: bound_um)",
                    err=True)
         click.echo(f"-> {output}", err=True)
     sys.stdout.flush()

@@ -13,6 +13,10 @@ The sequence, over either port (serial or CANopen SDO):
 
 Any failure before the commit leaves the active bank untouched (writes only reach the inactive
 one); a commit whose answer is lost is resolved by reading the status.
+
+Every push keeps the bank it replaced, byte for byte, beside the log (``banks/CRC.bin``), and its
+log entry names it: :func:`rollback` puts it back through the same steps 4-6 (``push --rollback``),
+and is itself undone the same way.
 """
 
 from __future__ import annotations
@@ -50,7 +54,8 @@ def append_local_log(entry: dict) -> Path:
     return path
 
 
-LOG_KEYS = ("host_time", "bank", "crc32", "file", "file_sha256", "target", "host", "effective_sample")
+LOG_KEYS = ("host_time", "bank", "crc32", "file", "file_sha256", "target", "host", "effective_sample", "outcome",
+            "replaced_crc32", "replaced_image")
 
 
 def push_log_entries(path: Path | None, file_sha256s: set[str] | None = None) -> list[dict]:
@@ -256,27 +261,29 @@ def plan_push(port, path: str | Path, coef: Coefficients) -> PushPlan:
     return PushPlan(path, sha, status, image_from(coef, status, source_sha256=sha, where=str(path)))
 
 
-def push(port, plan: PushPlan, key: str, *, target: str) -> PushResult:
-    """Download a planned image through ``port`` (a controller driver) and commit.
+def keep_image(data: bytes) -> Path:
+    """Keep a bank image beside the push log, named by its CRC-32 (the same image once)."""
+    path = local_log_path().parent / "banks" / f"{crc32(data):08x}.bin"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(data)
+        tmp.replace(path)
+    return path
 
-    Parameters
-    ----------
-    port : ControllerDriver or CanopenController
-        The open controller the plan was made on.
-    plan : PushPlan
-        From :func:`plan_push`.
-    key : str
-        The controller's unlock key.
-    target : str
-        The device URL, for the logs.
-    """
-    path, sha, status = plan.path, plan.sha256, plan.status
-    data = plan.image.encode()
+
+def _download(port, data: bytes, key: str, record: dict, target: str, status: dict, outcome: str) -> PushResult:
+    """Steps 4-6 for ``data``: keep what the active bank holds, write the inactive bank, check the
+    device's CRC-32, commit, read back byte for byte, and log with ``record`` (what was replaced
+    named in it)."""
     crc = f"{crc32(data):08x}"
-    record = {"host_time": now_iso(), "file": path.name, "file_sha256": sha, "target": target,
-              "host": socket.gethostname()}
     if status["active_crc32"] == crc:
         return PushResult(crc, status["active_bank"], -1, None, already_active=True)
+    replaced = port.read_bank("active", status["active_length"])
+    if f"{crc32(replaced):08x}" != status["active_crc32"]:
+        raise DeviceError(f"{target}: the active bank reads back with CRC-32 {crc32(replaced):08x}, but the "
+                          f"controller states {status['active_crc32']}: nothing written")
+    record = {**record, "replaced_crc32": status["active_crc32"], "replaced_image": str(keep_image(replaced))}
     try:
         port.unlock(key)
         port.write_bank(data)
@@ -296,9 +303,74 @@ def push(port, plan: PushPlan, key: str, *, target: str) -> PushResult:
     except DeviceError as err:
         append_local_log({**record, "crc32": crc, "outcome": f"failed: {err}"})
         raise
-    log = append_local_log({**record, "crc32": crc, "outcome": "committed", "bank": final["active_bank"],
+    log = append_local_log({**record, "crc32": crc, "outcome": outcome, "bank": final["active_bank"],
                             "effective_sample": effective})
     return PushResult(crc, final["active_bank"], effective, log)
+
+
+def push(port, plan: PushPlan, key: str, *, target: str) -> PushResult:
+    """Download a planned image through ``port`` (a controller driver) and commit.
+
+    Parameters
+    ----------
+    port : ControllerDriver or CanopenController
+        The open controller the plan was made on.
+    plan : PushPlan
+        From :func:`plan_push`.
+    key : str
+        The controller's unlock key.
+    target : str
+        The device URL, for the logs.
+    """
+    record = {"host_time": now_iso(), "file": plan.path.name, "file_sha256": plan.sha256, "target": target,
+              "host": socket.gethostname()}
+    return _download(port, plan.image.encode(), key, record, target, plan.status, "committed")
+
+
+@dataclass
+class RollbackPlan:
+    """What ``push --rollback`` would put back: the image the last push to the target replaced,
+    the log entry of that push and the controller's status."""
+
+    image: bytes
+    last: dict
+    status: dict
+
+
+def plan_rollback(port, target: str) -> RollbackPlan:
+    """The bank the last push to ``target`` (this machine's log) replaced, checked: the controller
+    must still run what that push wrote, and the kept image must be the one replaced (its
+    CRC-32); BadInputError (nothing written) otherwise."""
+    log = local_log_path()
+    done = [e for e in push_log_entries(None) if e.get("target") == target
+            and e.get("outcome") in ("committed", "rolled back")]
+    if not done:
+        raise BadInputError(f"no push to {target} in {log}: nothing to roll back")
+    last = done[-1]
+    if not last.get("replaced_image"):
+        raise BadInputError(f"the last push to {target} ({last.get('file')}, {last.get('host_time')}) was logged "
+                            "before pushes kept what they replaced: it cannot be rolled back")
+    status = port.bank_status()
+    if status["active_crc32"] != last["crc32"]:
+        raise BadInputError(f"{target} runs CRC-32 {status['active_crc32']}, not {last['crc32']} that the last push "
+                            f"from this machine wrote ({last.get('file')}, {last.get('host_time')}): something else "
+                            "changed it since; nothing written")
+    try:
+        image = Path(last["replaced_image"]).read_bytes()
+    except OSError as err:
+        raise BadInputError(f"the bank the last push replaced is gone: {err}") from None
+    if f"{crc32(image):08x}" != last["replaced_crc32"]:
+        raise BadInputError(f"{last['replaced_image']}: CRC-32 {crc32(image):08x}, not the {last['replaced_crc32']} "
+                            "the controller ran: the kept image is damaged; nothing written")
+    return RollbackPlan(image, last, status)
+
+
+def rollback(port, plan: RollbackPlan, key: str, *, target: str) -> PushResult:
+    """Put back the bank the last push replaced (:func:`plan_rollback`), through the same write,
+    CRC check, commit and byte-for-byte read-back as a push; logged, and undone the same way."""
+    record = {"host_time": now_iso(), "file": f"rollback of {plan.last.get('file', '?')}",
+              "file_sha256": "", "target": target, "host": socket.gethostname()}
+    return _download(port, plan.image, key, record, target, plan.status, "rolled back")
 
 
 def resolve_key(key: str | None, rig_key: str | None) -> str:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, sampling_bound,
+from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, model_bound,
                                separate_unbalance,
                                synchronous_average, synthesise)
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
@@ -84,7 +84,7 @@ class Identification:
     spins: np.ndarray  # rad/s, per recording
     per_file: np.ndarray  # complex m, (recording, harmonic, axis): runout seen at that speed alone
     uncertainty: np.ndarray  # m, (harmonic, axis): each part's standard uncertainty (NaN: not propagated)
-    sampling_bound: np.ndarray  # m, (harmonic, axis): a bound on the error the currents' sampling adds (NaN: not propagated)
+    model_bound: np.ndarray  # m, (harmonic, axis): a bound on the error the noise does not cover (NaN: not propagated)
 
 
 def identify_recordings(recs: list[Recording], harmonics: list[int], method: str, *,
@@ -129,7 +129,7 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
         G, I = np.split(fitted[[orders.index(k) for k in harmonics]], 2, axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
-        b_file.append(np.array([sampling_bound(rotor.motion_from_currents(I[i], k * w, w), k * w / (2 * np.pi),
+        b_file.append(np.array([model_bound(rotor.motion_from_currents(I[i], k * w, w), k * w / (2 * np.pi),
                                                gap.nominal_rate) for i, k in enumerate(harmonics)]))
         u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
                                          np.column_stack([cur[a][:n] for a in axes]), theta, gap.nominal_rate, w,
@@ -166,9 +166,9 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
                 # each harmonic's standard uncertainty per axis, m (None: not estimated or not propagated)
                 "uncertainty_m": {axis: [None if not np.isfinite(u[i, a]) else float(u[i, a])
                                          for i in range(len(harmonics))] for a, axis in enumerate(axes)},
-                # each harmonic's bound on the error from the currents' sampling per axis, m
-                # (analysis.runout.SAMPLING_BOUND; None: not propagated)
-                "sampling_bound_m": {axis: [None if not np.isfinite(bound[i, a]) else float(bound[i, a])
+                # each harmonic's bound on the error the noise does not cover per axis, m
+                # (analysis.runout.MODEL_BOUND; None: not propagated)
+                "model_bound_m": {axis: [None if not np.isfinite(bound[i, a]) else float(bound[i, a])
                                             for i in range(len(harmonics))] for a, axis in enumerate(axes)}},
         harmonics=list(harmonics),
         weights=weights,

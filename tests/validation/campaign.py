@@ -96,7 +96,7 @@ def runout(seconds: float, rpm: float, seeds: range, *, unbalance: bool = True, 
            skip_s: float = 0.0) -> Row:
     """``runout identify`` of one recording per seed against the simulator's ``/truth/runout``
     (its harmonics fitted on the same samples): bias and scatter of each harmonic against the
-    standard uncertainty each run states. The bias may reach the sampling bound identify states,
+    standard uncertainty each run states. The bias may reach the model bound identify states (bound_um),
     and for a 1X with unbalance the unbalance response at that speed (docs/coefficients.md)."""
     from ambdaq.sim.rigs.spindle import SpindleParams
     from ambdaq.workflows.runout import identify_recordings
@@ -117,7 +117,7 @@ def runout(seconds: float, rpm: float, seeds: range, *, unbalance: bool = True, 
                 [orders.index(k) for k in harmonics]]
             err.append(ident.per_file[0] - true)
             unc.append(ident.uncertainty)
-            bound.append(ident.sampling_bound)
+            bound.append(ident.model_bound)
     err, unc, bound = np.array(err), np.array(unc), np.array(bound)
     pooled, each = _ratios(err, unc)  # about the truth: noise and bias together
     about_mean, each_mean = _ratios(err - err.mean(axis=0), unc)  # the noise alone
@@ -126,7 +126,7 @@ def runout(seconds: float, rpm: float, seeds: range, *, unbalance: bool = True, 
     bias = np.abs(err.mean(axis=0))  # (harmonic, axis), m
     se = unc.mean(axis=0) * np.sqrt(2 / len(err))  # the standard error of the runs' mean, per part
     bias_z = float(np.max(bias / se))
-    # the bias is within the stated bound of the currents' sampling, give or take 3 standard errors
+    # the bias is within the model bound identify states, give or take 3 standard errors
     allowed = bound.mean(axis=0)
     if unbalance and 1 in harmonics:
         allowed[list(harmonics).index(1)] += unbalance_at(rpm)
@@ -140,10 +140,10 @@ def runout(seconds: float, rpm: float, seeds: range, *, unbalance: bool = True, 
         "runout per harmonic (`runout identify`)",
         f"{speed}, {seconds:g} s, {'with' if unbalance else 'without'} unbalance, "
         f"{harmonics[0]}X-{harmonics[-1]}X" + (f", first {skip_s:g} s left out" if skip_s else ""),
-        f"u per part (Cramér-Rao), median {np.median(unc) * 1e9:.1f} nm; sampling bound up to "
+        f"u per part (Cramér-Rao), median {np.median(unc) * 1e9:.1f} nm; model bound up to "
         f"{bound.mean(axis=0).max() * 1e9:.1f} nm",
         f"largest {bias.max() * 1e9:.1f} nm ({bias_z:.1f} standard errors; "
-        f"{'within' if within_bound else 'beyond'} the sampling bound"
+        f"{'within' if within_bound else 'beyond'} the model bound"
         + (" and the unbalance response" if unbalance and 1 in harmonics else "") + ")",
         f"about the mean {about_mean:.2f} u pooled, {each_mean.min():.2f}-{each_mean.max():.2f} each; about the truth "
         f"{pooled:.2f} pooled, {each.min():.2f}-{each.max():.2f} each (worst {what})",
@@ -151,7 +151,7 @@ def runout(seconds: float, rpm: float, seeds: range, *, unbalance: bool = True, 
         f"sim generate --rpm {'slowroll' if rpm == SLOW_ROLL_RPM else f'{rpm:g}'} --duration {seconds + skip_s:g} "
         f"--seed S --truth; runout identify --json",
         holds, "" if holds else f"about the mean {about_mean:.2f} (0.9-1.1), each {each_mean.min():.2f}-{each_mean.max():.2f} "
-                                f"(0.7-1.4); bias {'within' if within_bound else 'beyond'} the sampling bound",
+                                f"(0.7-1.4); bias {'within' if within_bound else 'beyond'} the model bound",
         {"pooled": pooled, "each": each, "bias_z": bias_z, "pooled_about_mean": about_mean, "each_about_mean": each_mean,
          "within_bound": within_bound})
 
@@ -224,15 +224,15 @@ def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 
                 d_db.append(run.grade.peak_db - db(gs[i].max()))
                 d_hz.append(run.grade.peak_hz - grid[np.argmax(gs[i])])
     d_db, d_hz = np.array(d_db), np.array(d_hz)
-    holds = float(np.abs(d_db).max()) < 0.5 and float(np.abs(d_hz).max()) <= 20.0
+    holds = float(np.abs(d_db).max()) < 0.5 and float(np.abs(d_hz).max()) <= 40.0
     return Row("ISO 14839-3 peak |Gs| and its frequency (`iso stability`)",
                f"{rpm:,.0f} rpm, {', '.join(axes)}, 2 µm RMS noise, {seconds:g} s per axis, 10 Hz grid",
-               "0.5 dB; the frequency to 2 grid steps (20 Hz)",
+               "0.5 dB; the frequency within 4 grid steps (40 Hz: the radial peaks fall 0.3-0.4 dB over them)",
                f"{d_db.mean():+.2f} dB, {d_hz.mean():+.1f} Hz",
                f"{d_db.std(ddof=1):.2f} dB, {d_hz.std(ddof=1):.1f} Hz; largest {np.abs(d_db).max():.2f} dB, "
                f"{np.abs(d_hz).max():.0f} Hz", len(d_db), f"{seeds.start}-{seeds.stop - 1}",
                f"sim generate --rpm {rpm:g} --excite AXIS:2 --duration {seconds:g} --seed S; iso stability", holds,
-               "" if holds else f"largest {np.abs(d_db).max():.2f} dB (< 0.5), {np.abs(d_hz).max():.0f} Hz (<= 20)",
+               "" if holds else f"largest {np.abs(d_db).max():.2f} dB (< 0.5), {np.abs(d_hz).max():.0f} Hz (<= 40)",
                {"largest_db": float(np.abs(d_db).max())})
 
 

@@ -27,10 +27,10 @@ def test_runout_of_chosen_harmonics_fits_every_order_below_them():
     assert row.figures["bias_z"] < 4.0 and 0.85 <= row.figures["pooled"] <= 1.15, row
 
 
-def test_runout_at_speed_is_within_its_uncertainty_and_the_current_sampling_bound():
+def test_runout_at_speed_is_within_its_uncertainty_and_the_current_model_bound():
     """2X-4X at 30,000 rpm (1X holds the unbalance response, which identify says): the scatter
     about the mean is the stated uncertainty, and the bias from the truth is within the stated
-    bound of the currents' sampling (campaign.runout's ``within_bound``)."""
+    model bound identify states (``bound_um``: campaign.runout's ``within_bound``)."""
     row = campaign.runout(0.3, 30000.0, range(1, 9), harmonics=(2, 3, 4), skip_s=0.05)
     assert 0.85 <= row.figures["pooled_about_mean"] <= 1.15, row
     assert row.figures["within_bound"], row

@@ -68,6 +68,7 @@ from ...units import RAD_S_TO_RPM, RPM_TO_RAD_S
 SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised every 50 rpm
 FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
 FF_MODES = {"off": FF_OFF, "table": FF_TABLE, "lms": FF_LMS}
+FF_NAMES = {v: k for k, v in FF_MODES.items()}
 
 
 def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarray]:
@@ -852,8 +853,13 @@ FIRMWARE = Firmware(
                        "integral gain per axis, 1/s"),
         "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), FIRMWARE_GAIN_LEAST[2], 1.0,
                        "derivative gain per axis, s"),
-        # the feedforward is read here and changed only through the coefficient banks (BANK_*)
-        "ff.mode": Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]), doc="feedforward: 0 off, 1 table, 2 LMS"),
+        # the feedforward's weights change only through the coefficient banks (BANK_*); its mode may
+        # be switched here (ambdaq controller ff): off, held at the present weights, or adapting
+        # from them, the bank untouched
+        "ff.mode": Param(1, lambda r: np.array([FF_MODES[r.feedforward_mode]]),
+                         lambda r, v: r.set_feedforward(FF_NAMES[int(v[0])]), 0.0, 2.0,
+                         "feedforward: 0 off, 1 table (held at the present weights), 2 LMS",
+                         lambda r, v: "" if float(v[0]).is_integer() else "0 off, 1 table, 2 LMS"),
         "ff.table": Param(N_AXES * N_HARMONICS * 2, lambda r: r.feedforward_weights.ravel(),
                           doc="present feedforward weights [axis][harmonic][sin, cos] (LMS: as adapted), m"),
         "lms.schedule": Param(0, _read_schedule, doc="LMS step-size rows (harmonic, rpm_from, rpm_to, mu)"),
