@@ -5,6 +5,7 @@ it, and the snapshot's ``ambdaq.touchdown`` record is checked against the rig's 
 (``/truth/position``), then shown by the report and collected by the fleet (test_fleet.py)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -158,6 +159,15 @@ def test_the_report_lists_each_drop_with_the_numbers_of_json(drops, run_cli, chr
     assert line["result"].startswith("3 drops in 4 snapshot files")
     late = [i for i in data["verdict"]["open_items"] if drops["late"].name in i and "lower bound" in i]
     assert len(late) == 1
+    # the forms docs/iso.md shows: --drops A B ..., and a quoted glob; each file once, in order
+    r = run_cli("report", "--drops", *files, "-o", tmp_path / "list.html", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["touchdowns"] == data["touchdowns"], r.output
+    folder = files[0].parent
+    r = run_cli("report", "--drops", str(folder / "*.mcap"), "--drops", files[0], "-o", tmp_path / "glob.html", "--json")
+    assert r.exit_code == 0, r.output
+    assert [Path(e["file"]).name for e in json.loads(r.stdout)["touchdowns"]] == sorted(p.name for p in folder.glob("*.mcap"))
+    r = run_cli("report", "stray.mcap", "-o", tmp_path / "x.html")
+    assert r.exit_code == 2 and "snapshot files follow --drops" in r.output
 
 
 def test_a_drops_record_is_kept_within_the_memory_stated_before_recording(run_cli, tmp_path):

@@ -71,7 +71,7 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
     elif not quiet and snapshot is not None:
         how = " (stopped)" if result.stopped_by_user else ""
         click.echo(f"watched {result.duration_s:.3f} s{how}: {result.counts_line()}; "
-                   f"{len(result.files)} snapshots, memory peak {result.snapshot['memory_peak_bytes'] / 1e6:.1f} MB"
+                   f"{len(result.files)} snapshot{'' if len(result.files) == 1 else 's'}, memory peak {result.snapshot['memory_peak_bytes'] / 1e6:.1f} MB"
                    + "".join(f"\n  {f} ({f.stat().st_size / 1e6:.1f} MB)" for f in result.files), err=True)
     elif not quiet:
         size = sum(f.stat().st_size for f in result.files) / 1e6

@@ -276,6 +276,22 @@ def render(found, title: str) -> str:
             f"<style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
 
 
+def _drop_files(given: tuple[str, ...], more: tuple[str, ...]) -> list[str]:
+    """The drop snapshots: ``--drops`` values and the files after them, a glob expanded where no
+    file has its name; each named once, in the order given."""
+    import glob
+
+    if more and not given:
+        raise BadInputError(f"unexpected argument {more[0]!r}: snapshot files follow --drops")
+    out: list[str] = []
+    for name in (*given, *more):
+        found = [name] if Path(name).exists() or not glob.has_magic(name) else sorted(glob.glob(name))
+        if not found:
+            raise BadInputError(f"--drops {name}: no file matches")
+        out += [f for f in found if f not in out]
+    return out
+
+
 @click.command("report")
 @click.option("--stability", type=click.Path(dir_okay=False), help="ISO 14839-3 results (iso stability -o).")
 @click.option("--runup", type=click.Path(dir_okay=False), help="A run-up or coast-down recording.")
@@ -291,14 +307,16 @@ def render(found, title: str) -> str:
                    "speed must keep API 617's separation margin from it.")
 @critical_limits_options
 @click.option("--drops", multiple=True, type=click.Path(dir_okay=False),
-              help="A snapshot file a touchdown trigger caught (record --snapshot); repeat for each.")
+              help="Snapshot files a touchdown trigger caught (record --snapshot): --drops A B ..., a quoted glob "
+                   "('drop_*.mcap'), or --drops repeated.")
+@click.argument("more_drops", nargs=-1, type=click.Path(dir_okay=False), metavar="[DROPS]...")
 @click.option("--title", default="AMB commissioning report", show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The report (.html).")
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
-def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, limits, drops, title, output,
-            pdf, overwrite, as_json):
+def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, limits, drops, more_drops,
+            title, output, pdf, overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
     push with the push log and the APHT of the run after it, the run-up's order tracking, the rotor drops
@@ -314,6 +332,7 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
 
     if operating is not None and model is None:
         raise BadInputError("--operating checks the critical speeds of a --model: give one (spindle or cone)")
+    drops = _drop_files(drops, more_drops)
     out = Path(output)
     for target in (out, Path(pdf) if pdf else None):
         if target is not None and target.exists() and not overwrite:
