@@ -78,6 +78,36 @@ def test_to_pandas_has_the_time_as_index_and_the_units(spindle_file):
     assert df.attrs["units"]["front_x"] == "m" and df.attrs["time_unit"] == "s" and df.attrs["topic"] == "/amb/gap"
 
 
+def test_slices_by_time_an_index_pandas_resamples_and_one_frame_of_several_topics(spindle_file):
+    """``between`` (s, as ``time``), ``to_pandas(index="timedelta")`` that ``resample`` takes, the
+    UTC ``datetime`` index, and ``Recording.to_pandas`` of the gap and the accelerometer (another
+    device, 800 Hz) on the gap's samples: each row the latest acceleration at or before it."""
+    import pandas as pd
+
+    rec = load(spindle_file)
+    gap = rec["/amb/gap"]
+    part = gap.between(0.5, 0.6)
+    inside = (gap.time >= 0.5 - 1e-12) & (gap.time < 0.6)
+    assert len(part) == int(inside.sum()) > 0 and np.shares_memory(part["front_x"], gap["front_x"])
+    np.testing.assert_array_equal(part["front_x"], gap["front_x"][inside])
+    assert part.time[0] >= 0.5 and part.time[-1] < 0.6 and len(gap.between(5.0, 6.0)) == 0
+    df = gap.to_pandas(index="timedelta")
+    assert isinstance(df.index, pd.TimedeltaIndex)
+    ms = df.resample("1ms").mean()  # 10 samples a millisecond at 10 kHz
+    np.testing.assert_allclose(ms["front_x"].iloc[1], gap["front_x"][(gap.time >= 0.001) & (gap.time < 0.002)].mean())
+    when = gap.to_pandas(index="datetime").index
+    assert str(when.tz) == "UTC" and when[0].value == gap.log_time[0]
+    both = rec.to_pandas(["/amb/gap", "/amb/accel"])
+    accel = rec["/amb/accel"]
+    assert len(both) == len(gap) and "/amb/accel.front_x" in both and both.attrs["units"]["/amb/accel.front_x"] == "m/s^2"
+    at = np.searchsorted(accel.log_time, gap.log_time, side="right") - 1
+    ok = (at >= 0) & (gap.log_time - accel.log_time[np.maximum(at, 0)] <= 1.5e9 / accel.nominal_rate)
+    np.testing.assert_array_equal(both["/amb/accel.front_x"].to_numpy()[ok], accel["front_x"][at[ok]])
+    assert both["/amb/accel.front_x"].isna().to_numpy()[~ok].all()
+    with pytest.raises(BadInputError, match="is not a role"):
+        rec.together("gap", "/amb/accel")
+
+
 def _write_gap(path, order, official_chunk_size=None):
     """A /amb/gap file holding instants ``order`` (0..199, 100 us apart): written by the official
     writer (chunks cut where it likes), or by ours in blocks of 25 instants, one chunk each."""

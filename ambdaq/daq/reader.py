@@ -131,16 +131,59 @@ class TopicData:
                          {a: self.units.get(f, "") for a, f in fields.items()}, self.skipped,
                          {a: self.names.get(f, f) for a, f in fields.items() if self.names.get(f, f) != a})
 
-    def to_pandas(self):
-        """The fields as a pandas DataFrame indexed by ``time`` (s); ``df.attrs`` holds the topic, the
-        units of each column and the nominal rate.  pandas is the ``pandas`` extra."""
-        try:
-            import pandas as pd
-        except ImportError:
-            raise BadInputError("to_pandas needs pandas, the pandas extra: pip install 'ambdaq[pandas]'") from None
-        df = pd.DataFrame(self.fields, index=pd.Index(self.time, name="time"))
+    def between(self, t0: float | None = None, t1: float | None = None) -> "TopicData":
+        """The samples from ``t0`` to before ``t1`` (s since the recording's first message, as
+        :attr:`time`; None: from the first or to the last), as views of these arrays.
+
+        Parameters
+        ----------
+        t0, t1 : float or None
+            In s.
+        """
+        lo = 0 if t0 is None else int(np.searchsorted(self.log_time, self.start_ns + round(t0 * 1e9), "left"))
+        hi = len(self) if t1 is None else int(np.searchsorted(self.log_time, self.start_ns + round(t1 * 1e9), "left"))
+        s = slice(lo, max(lo, hi))
+        return TopicData(self.topic, self.nominal_rate, self.log_time[s], self.start_ns, self.device_time[s],
+                         self.seq[s], self.status[s], {k: v[s] for k, v in self.fields.items()}, dict(self.units),
+                         self.skipped, dict(self.names))
+
+    def to_pandas(self, index: str = "seconds"):
+        """The fields as a pandas DataFrame; ``df.attrs`` holds the topic, the units of each column
+        and the nominal rate.  pandas is the ``pandas`` extra.
+
+        Parameters
+        ----------
+        index : {"seconds", "timedelta", "datetime"}
+            ``time`` in s since the recording's first message (float), the same as a
+            ``TimedeltaIndex`` (what ``df.resample("1ms")`` takes), or the host time of each sample
+            as a UTC ``DatetimeIndex``.
+        """
+        pd = _pandas()
+        df = pd.DataFrame(self.fields, index=_time_index(pd, self, index))
         df.attrs = {"topic": self.topic, "units": dict(self.units), "time_unit": "s", "nominal_rate_hz": self.nominal_rate}
         return df
+
+
+INDEXES = ("seconds", "timedelta", "datetime")
+
+
+def _pandas():
+    try:
+        import pandas as pd
+    except ImportError:
+        raise BadInputError("to_pandas needs pandas, the pandas extra: pip install 'ambdaq[pandas]'") from None
+    return pd
+
+
+def _time_index(pd, data: TopicData, index: str):
+    """``data``'s samples as a pandas index of kind ``index`` (:meth:`TopicData.to_pandas`)."""
+    if index == "seconds":
+        return pd.Index(data.time, name="time")
+    if index == "timedelta":
+        return pd.TimedeltaIndex(pd.to_timedelta(data.log_time - data.start_ns, unit="ns"), name="time")
+    if index == "datetime":
+        return pd.DatetimeIndex(pd.to_datetime(data.log_time, unit="ns", utc=True), name="time")
+    raise BadInputError(f"index must be one of {', '.join(INDEXES)}, not {index!r}")
 
 
 def _nominal_rate(metadata: dict[str, dict[str, str]], topic: str) -> float | None:

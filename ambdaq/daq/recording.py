@@ -250,6 +250,9 @@ class Recording(Mapping):
         NotInRecording
             The recording has no such signals (one line naming the topic that would hold them).
         """
+        if name not in ROLE_TOPICS:
+            raise NotInRecording(f"{name!r} is not a role ({', '.join(ROLE_TOPICS)}); a topic is rec[{name!r}] "
+                                 f"and several are rec.to_pandas([...])")
         r = self.machine.role(name)
         if r is None or r.topic not in self._shown:
             raise NotInRecording(f"{self.path}: no {name} signals ({ROLE_TOPICS[name]}, or a rig file's "
@@ -269,6 +272,43 @@ class Recording(Mapping):
         if role is not None and (self.has_role(role) or spec not in self._shown):
             return self.role(role)
         return self[spec]
+
+    def to_pandas(self, topics: list[str], index: str = "seconds", tolerance_s: float | None = None):
+        """Several topics in one DataFrame on the first topic's samples: each other topic's latest
+        sample at or before each of them (``pandas.merge_asof``), NaN where it has none within
+        ``tolerance_s`` (default: 1.5 of its own sample periods: a hole, or before it began).
+        Columns are ``TOPIC.FIELD``; ``df.attrs["units"]`` has each column's unit.
+
+        Parameters
+        ----------
+        topics : list of str
+            Topics (or roles: ``gap``, ``rotor`` ...), the first one's samples the rows.
+        index : {"seconds", "timedelta", "datetime"}
+            As :meth:`TopicData.to_pandas`.
+        tolerance_s : float, optional
+            The oldest a joined sample may be, s.
+        """
+        from .reader import _pandas, _time_index
+
+        pd = _pandas()
+        if not topics:
+            raise BadInputError("to_pandas: name at least one topic")
+        datas = [self.signals(t) for t in topics]
+        base = datas[0]
+        frame = pd.DataFrame({f"{base.topic}.{k}": v for k, v in base.fields.items()})
+        frame["_t"] = base.log_time
+        units = {f"{base.topic}.{k}": u for k, u in base.units.items()}
+        for d in datas[1:]:
+            other = pd.DataFrame({f"{d.topic}.{k}": v for k, v in d.fields.items()})
+            other["_t"] = d.log_time
+            period = 1.0 / d.nominal_rate if d.nominal_rate else 0.0
+            tol = tolerance_s if tolerance_s is not None else 1.5 * period
+            frame = pd.merge_asof(frame, other, on="_t", direction="backward", tolerance=int(round(tol * 1e9)))
+            units.update({f"{d.topic}.{k}": u for k, u in d.units.items()})
+        frame.index = _time_index(pd, base, index)
+        frame = frame.drop(columns="_t")
+        frame.attrs = {"topics": [d.topic for d in datas], "units": units, "time_unit": "s"}
+        return frame
 
     def has_role(self, name: str) -> bool:
         """Whether the recording holds the signals of role ``name``."""
