@@ -225,7 +225,7 @@ def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 
                 d_hz.append(run.grade.peak_hz - grid[np.argmax(gs[i])])
     d_db, d_hz = np.array(d_db), np.array(d_hz)
     holds = float(np.abs(d_db).max()) < 0.5 and float(np.abs(d_hz).max()) <= 40.0
-    return Row("ISO 14839-3 peak |Gs| and its frequency (`iso stability`)",
+    return Row("ISO 14839-3 peak \\|Gs\\| and its frequency (`iso stability`)",
                f"{rpm:,.0f} rpm, {', '.join(axes)}, 2 µm RMS noise, {seconds:g} s per axis, 10 Hz grid",
                "0.5 dB; the frequency within 4 grid steps (40 Hz: the radial peaks fall 0.3-0.4 dB over them)",
                f"{d_db.mean():+.2f} dB, {d_hz.mean():+.1f} Hz",

@@ -48,6 +48,6 @@ def test_the_stability_peak_is_the_linearised_loops():
 
 @pytest.mark.validation
 def test_the_whole_campaign_holds(tmp_path):
-    """Every row of the full campaign (about 20 min here): what docs/validation.md reports."""
+    """Every row of the full campaign (a minute or two here): what docs/validation.md reports."""
     rows = [make() for make in campaign.FULL]
     assert all(r.holds for r in rows), campaign.table([r for r in rows if not r.holds])
