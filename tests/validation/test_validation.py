@@ -51,3 +51,8 @@ def test_the_whole_campaign_holds(tmp_path):
     """Every row of the full campaign (a minute or two here): what docs/validation.md reports."""
     rows = [make() for make in campaign.FULL]
     assert all(r.holds for r in rows), campaign.table([r for r in rows if not r.holds])
+
+
+def test_the_runups_1x_is_the_true_rotors():
+    row = campaign.one_x(3.0, 30000.0, range(1, 2))
+    assert row.holds, row
