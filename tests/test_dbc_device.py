@@ -47,9 +47,13 @@ raw = true
     sent = list(probes.devices["probes"].sent)
     for message in ("FrontGap", "RearGap"):
         got = rec[f"/probes/{message}"]
-        assert 450 <= len(got) <= 600  # 500 frames/s for the recording's second of host time
         assert got.units["gap_x"] == "um" and "counter" not in got.fields  # the counter is the seq
         mine = [(t, v) for t, name, v in sent if name == message]
+        # 500 frames/s for the recording's second of host time: no fewer than 450, and no more than
+        # the device sent over the span recorded (a sender starved by a loaded host sends its
+        # backlog in a burst: 716 in one second once)
+        during = [t for t, _v in mine if got.log_time[0] - 50_000_000 <= t <= got.log_time[-1]]  # 50 ms: its latency
+        assert 450 <= len(got) <= len(during), (len(got), len(during))
         for i in range(0, len(got), 37):
             # the frame it is: the last one sent before it arrived with its counter (the counter
             # turns every 32 ms; no frame here is that late)

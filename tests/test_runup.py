@@ -455,7 +455,7 @@ def test_a_detuned_loops_amplified_critical_speed_is_where_the_model_at_its_reco
 
 def test_what_sim_generate_param_refuses_is_one_line_exit_2(run_cli, tmp_path):
     for spec, said in (("pid.d=0.001,0.001", "expected 5 values"), ("pid.q=1", "NAME=VALUES with a writable"),
-                       ("pid.d", "NAME=VALUES"), ("pid.p=0,1,1,1,1", "within"), ("ff.mode=1", "read-only"),
+                       ("pid.d", "NAME=VALUES"), ("pid.p=0,1,1,1,1", "within"), ("ff.table=1", "read-only"), ("ff.mode=1.5", "0 off, 1 table, 2 LMS"),
                        ("pid.d=a,b,c,d,e", "comma-separated numbers")):
         r = run_cli("sim", "generate", "--duration", "0.1", "--param", spec, "-q", "-o", tmp_path / "x.mcap")
         assert r.exit_code == 2 and said in r.output and len(r.output.strip().splitlines()) == 1, (spec, r.output)

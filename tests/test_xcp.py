@@ -208,7 +208,7 @@ def test_pyxcp_calibrates_the_controllers_parameters_by_the_a2l(served, a2l):
     session = import_a2l(str(a2l), in_memory=True, loglevel="ERROR", progress_bar=False)
     found = {c.name: (c.address, c.number.number if c.number else 1, c.lowerLimit, c.upperLimit)
              for c in session.query(model.Characteristic) if not c.read_only and c.deposit == "RL_FLOAT64"}
-    assert list(found) == ["pid.p", "pid.i", "pid.d", "speed.rpm", "exc.signal"]
+    assert list(found) == ["pid.p", "pid.i", "pid.d", "ff.mode", "speed.rpm", "exc.signal"]  # ff.mode: controller ff
     assert found["pid.d"][1:] == (5, 1e-6, 1.0) and found["exc.signal"][1] == 3
     rig = served.rig.server.rig
     address, before = found["pid.p"][0], rig.pid_gains[0].copy()
