@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import struct
 import subprocess
 import sys
@@ -287,13 +286,14 @@ def test_bad_a2l_or_url_is_one_line_exit_2(a2l, tmp_path, run_cli, case):
     assert not (tmp_path / "x.mcap").exists()
 
 
-def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_path):
+def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_path, run_cli, monkeypatch):
     """Record, identify, push, record and `runout check` over XCP, the slave served by `ambdaq sim
-    serve --xcp` in its own process: the same 20 dB / 5 um as over serial."""
-    ambdaq = [sys.executable, "-m", "ambdaq"]
-    env = {**os.environ, "AMBDAQ_UNLOCK_KEY": "ambdaq-sim", "AMBDAQ_STATE_DIR": str(tmp_path / "state")}
-    proc = subprocess.Popen([*ambdaq, "sim", "serve", "--rpm", "30000", "--xcp", "tcp:0", "--duration", "120"],
-                            stdout=subprocess.PIPE, text=True)
+    serve --xcp` in its own process (the commands in this one, through the command line's door):
+    the same 20 dB / 5 um as over serial; then the push undone."""
+    monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
+    monkeypatch.setenv("AMBDAQ_STATE_DIR", str(tmp_path / "state"))
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--rpm", "30000", "--xcp", "tcp:0",
+                             "--duration", "120"], stdout=subprocess.PIPE, text=True)
     try:
         line = ""
         while not line.startswith("xcp "):
@@ -302,8 +302,8 @@ def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_
         url = line.split()[1]  # the A2L by option, as the user types it
 
         def run(*args):
-            r = subprocess.run([*ambdaq, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
-            assert r.returncode == 0, r.stderr
+            r = run_cli(*args)
+            assert r.exit_code == 0, r.output
             return r.stdout
 
         before, after, coef = tmp_path / "before.mcap", tmp_path / "after.mcap", tmp_path / "coef.json"
