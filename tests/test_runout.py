@@ -109,15 +109,33 @@ def test_synchronous_average_refuses_too_few_angles():
 
 @pytest.mark.parametrize("n, harmonics", [(37, (1, 2, 3)), (5000, (1, 2, 3, 4, 5, 6)), (800, (2, 5, 7))])
 def test_one_pass_fit_equals_least_squares_on_an_explicit_basis(n, harmonics):
-    """A^T A built from sums of sin/cos m theta (sum and difference identities) is the exact LS."""
+    """A^T A built from sums of sin/cos m theta (sum and difference identities) is the exact LS
+    over the orders it fits (those asked and the guard orders below them: fitted_orders), of which
+    it reports those asked."""
+    from ambdaq.analysis.runout import fitted_orders
+
     rng = np.random.default_rng(n)
-    theta = np.cumsum(rng.uniform(0.01, 0.9, n))  # irregular angles, not whole revolutions
+    theta = np.cumsum(rng.uniform(0.01, 0.3, n))  # irregular angles, not whole revolutions
     x = rng.standard_normal((n, 3))
-    k = np.asarray(harmonics)
+    basis = fitted_orders(harmonics, theta)
+    assert set(harmonics) <= set(basis) and set(range(1, 9)) <= set(basis)  # 0.3 rad a step at most: 8X is resolved
+    k = np.asarray(basis)
     A = np.concatenate([np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k)), np.ones((n, 1))], axis=1)
     coef, *_ = np.linalg.lstsq(A, x, rcond=None)
-    np.testing.assert_allclose(harmonic_fit(x, theta, harmonics), coef[: len(k)] + 1j * coef[len(k) : 2 * len(k)],
-                               rtol=1e-7, atol=1e-9)
+    want = (coef[: len(k)] + 1j * coef[len(k) : 2 * len(k)])[[basis.index(h) for h in harmonics]]
+    np.testing.assert_allclose(harmonic_fit(x, theta, harmonics), want, rtol=1e-7, atol=1e-9)
+
+
+def test_an_order_the_fit_is_not_asked_for_does_not_leak_into_those_it_is():
+    """A 10 um 2X beside a 3 um 1X over 12.4 revolutions: the 1X asked alone is the 1X (the 2X
+    fitted too and not reported); a fit of the 1X alone had been 0.2 um off."""
+    th = np.linspace(0.0, 12.4 * 2 * np.pi, 5000)
+    x = 3e-6 * np.sin(th + 0.4) + 10e-6 * np.sin(2 * th + 1.0)
+    (p,) = harmonic_fit(x, th, (1,))
+    assert abs(p - 3e-6 * np.exp(0.4j)) < 1e-12
+    A = np.column_stack([np.sin(th), np.cos(th), np.ones_like(th)])  # what a 1X-only fit gives
+    c = np.linalg.lstsq(A, x, rcond=None)[0]
+    assert abs(c[0] + 1j * c[1] - 3e-6 * np.exp(0.4j)) > 0.1e-6
 
 
 def test_runout_uncertainty_is_the_scatter_of_its_estimate(tmp_path):
