@@ -64,8 +64,8 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
             server.close()
     for name, clock in result.clocks.items():  # said even with -q: the file's times carry it
         if "suspect" in clock:
-            click.echo(f"ambdaq: warning: {name}: {clock['suspect']}; its samples are timed with that drift, "
-                       "as the file's clock metadata says", err=True)
+            click.echo(f"ambdaq: warning: {name}: {clock['suspect']}; its samples were timed by the offset alone "
+                       "while it lasted, as the file's clock metadata says", err=True)
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2))
     elif not quiet and snapshot is not None:

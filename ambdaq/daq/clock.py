@@ -41,7 +41,8 @@ time samples by).  A drift beyond this fitted over a whole ``SPAN_S`` window, or
 (:attr:`ClockMap.problem`).  Beyond this over a shorter window it is *suspect*
 (:attr:`ClockMap.suspect`): a host too loaded to read the device in time lifts every pair for
 seconds and fakes a slow clock (-1,800 ppm over 3 s with a core burnt beside an in-process rig),
-so the fit is kept and the recording's clock metadata says so."""
+so the samples are timed by the offset alone while it lasts, and the recording's clock metadata
+says so."""
 NO_CLOCK_PPM = 10_000.0  # 1 %: not even an RC oscillator; no loaded host fakes it over 3 s of pairs
 SPAN_S = 10.0  # fit over the last 10 s of pairs
 SETTLE_S = 3.0  # pairs spanning this long before drift is estimated
@@ -162,6 +163,11 @@ class ClockMap:
                 self.problem = said
             self.suspect = (f"{said} over {self.span_s:.1f} s of pairs (a host too loaded to read it in time, "
                             "or a clock that is not one)") if ppm > MAX_DRIFT_PPM and self.problem is None else None
+            if self.suspect is not None:
+                # a drift no crystal has is not used to time samples: offset only, from the fastest
+                # pair, until the pairs say otherwise (a loaded host's -1,500 ppm over 3 s had moved
+                # a 1 s part's boundary by 1.5 ms, 14 samples at 10 kHz)
+                self._a, self._b = min(self._y), 0.0
             while self._written and self._written[0][0] < device_ns - SPAN_S * 1e9:
                 self._written.popleft()
             if self._written:

@@ -100,7 +100,7 @@ def require_complete(rec: Recording, topics: list[str], purpose: str, max_lost: 
         if refused and set(device.topics) & set(topics):
             raise BadInputError(f"{rec.path}: {name}'s time stamps could not be its clock ({refused}): {purpose} "
                                 "would compute over times that are not; record it again")
-    suspect = [f"{rec.path.name}: {name}'s {device.clock['suspect']}; its times were fitted with that drift"
+    suspect = [f"{rec.path.name}: {name}'s {device.clock['suspect']}; its times were mapped by the offset alone"
                for name, device in rec.devices.items() if device.clock.get("suspect") and set(device.topics) & set(topics)]
     for topic in topics:
         c = topic_counts(rec, topic)
