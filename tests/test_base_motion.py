@@ -51,8 +51,10 @@ def test_base_motion_response_equals_the_exact_model(f_hz):
 
 @pytest.mark.parametrize("f_hz", [5.0, 40.0, 100.0])
 def test_mfxlms_with_two_alphas_recovers_the_perfect_compensator(f_hz):
-    """Eq. A-4 to A-17 on recorded responses with the exact secondary path: W within 2.5% of
-    W* = -B^-1 C (noise on the gap sensors and accelerometers included)."""
+    """Eq. A-4 to A-17 on recorded responses with the exact secondary path: W within 1 % of
+    W* = -B^-1 C relative to the matrix, each element within 5 % of its own (noise on the gap
+    sensors and accelerometers included; the cross terms, 30 times smaller, carry the noise: up to
+    3.9 % at 100 Hz over 12 seeds in the validation campaign, docs/validation.md)."""
     rig0 = BaseMotionRig()
     B, _, Wstar = rig0.responses([f_hz])
     betas = []
@@ -66,7 +68,7 @@ def test_mfxlms_with_two_alphas_recovers_the_perfect_compensator(f_hz):
         assert np.sqrt(np.mean(res.error[-5000:] ** 2)) < 1.5 * rig.params.gap_noise
         betas.append((run_beta(res, alpha), alpha))
     W = separate(betas[0][0], betas[0][1], betas[1][0], betas[1][1])
-    assert np.abs(W / Wstar[0] - 1).max() < 0.025
+    assert np.abs(W - Wstar[0]).max() < 0.01 * np.linalg.norm(Wstar[0]) and np.abs(W / Wstar[0] - 1).max() < 0.05
     with pytest.raises(ValueError, match="different disturbance ratios"):
         separate(betas[0][0], 1.0, betas[1][0], 1.0)
 
