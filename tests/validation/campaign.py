@@ -450,6 +450,60 @@ def mfxlms_compensator(f_hz: float, seeds: range) -> Row:
                {"largest_pct": float(e.max()), "matrix_pct": float(m.max())})
 
 
+# --- rotor drops (ISO 14839-5) -----------------------------------------------------------
+
+def drop(rpm: float, lasting_s: float, seeds: range, at_s: float = 0.5) -> Row:
+    """A drop onto the cone rig's touchdown bearings caught by ``record --snapshot --trigger
+    touchdown`` (``sim generate``): its time on the bearing and impact speed against the true
+    rotor's (the first and last samples at 0.9 Cmin of the true excursion, and its speed over the
+    2 ms before the first contact); tests/test_touchdown.py quotes 2.5 samples and 10 %."""
+    from click.testing import CliRunner
+
+    from ambdaq.analysis.touchdown import AT_CLEARANCE, IMPACT_WINDOW_S
+    from ambdaq.cli.main import cli
+    from ambdaq.daq.recording import open_recording
+    from ambdaq.daq.touchdowns import recorded_drop
+
+    d_on, d_speed = [], []
+    with tempfile.TemporaryDirectory() as d:
+        for seed in seeds:
+            folder = Path(d) / f"s{seed}"
+            folder.mkdir()
+            r = CliRunner().invoke(cli, ["sim", "generate", "--profile", "cone", "--rpm", f"{rpm:g}", "--seed", str(seed),
+                                         "--drop", f"{at_s}:{lasting_s}", "--truth", "--duration",
+                                         f"{at_s + lasting_s + 0.6:g}", "--snapshot", "0.4s", "--post", "0.5s",
+                                         "--trigger", "touchdown", "-q", "-o", str(folder / "drop.mcap")])
+            if r.exit_code != 0:
+                raise RuntimeError(r.output)
+            path = next(folder.glob("drop_*_touchdown.mcap"))
+            rec = open_recording(path)
+            t = recorded_drop(rec.metadata).touchdown
+            m, data = rec.machine, load(path, ["/truth/position"])["/truth/position"]
+            pos = {a: np.asarray(data[a]) for a in data.fields}
+            radii = np.column_stack([np.hypot(pos[b.x], pos[b.y]) for b in m.bearings]
+                                    + [np.abs(pos[a]) for a in m.axes if a not in m.bearing_axes]) / m.cmin_m
+            worst, time_s = radii.max(axis=1), np.asarray(data.time)
+            rate = 1.0 / float(np.median(np.diff(time_s)))
+            on = np.flatnonzero(worst >= AT_CLEARANCE)
+            first, last = on[0], on[on < on[0] + int(lasting_s * rate) + 1000].max()
+            k = int(round(IMPACT_WINDOW_S * rate))
+            true_speed = (worst[first] - worst[first - k]) * m.cmin_m / (k / rate)
+            d_on.append((t.on_bearing_s - (time_s[last] - time_s[first])) * rate)  # samples
+            d_speed.append((t.impact_speed_m_s / true_speed - 1) * 100)
+    d_on, d_speed = np.array(d_on), np.array(d_speed)
+    holds = float(np.abs(d_on).max()) <= 5.0 and float(np.abs(d_speed).max()) < 10.0
+    return Row("rotor drop: time on the bearing and impact speed (`record --snapshot --trigger touchdown`, "
+               "ISO 14839-5)", f"cone rig at {rpm:,.0f} rpm, amplifiers off {lasting_s:g} s",
+               "5 samples on the bearing (2.5 at each end); 10 % impact speed",
+               f"{d_on.mean():+.1f} samples, {d_speed.mean():+.1f} % speed",
+               f"largest {np.abs(d_on).max():.1f} samples, {np.abs(d_speed).max():.1f} % speed", len(seeds),
+               f"{seeds.start}-{seeds.stop - 1}",
+               f"sim generate --profile cone --rpm {rpm:g} --drop {at_s:g}:{lasting_s:g} --truth --snapshot 0.4s "
+               "--trigger touchdown --seed S", holds,
+               "" if holds else f"largest {np.abs(d_on).max():.1f} samples (<= 5), {np.abs(d_speed).max():.1f} % (< 10)",
+               {"on_samples": d_on, "speed_pct": d_speed})
+
+
 # --- ISO 14839-3 ---------------------------------------------------------------------------
 
 def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 1.5) -> Row:
@@ -514,6 +568,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: self_sensing(1000.0, range(1, 6)),
     lambda: modal("x:50", range(1, 7)),
     lambda: modal("y1:50:0.25", range(1, 7)),
+    lambda: drop(600.0, 0.1, range(1, 6)),
+    lambda: drop(1200.0, 0.3, range(1, 6)),
     lambda: mfxlms_compensator(5.0, range(1, 6)),
     lambda: mfxlms_compensator(40.0, range(1, 6)),
     lambda: mfxlms_compensator(100.0, range(1, 13)),
