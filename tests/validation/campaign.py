@@ -569,7 +569,7 @@ FULL: list[Callable[[], Row]] = [
     lambda: modal("x:50", range(1, 7)),
     lambda: modal("y1:50:0.25", range(1, 7)),
     lambda: drop(600.0, 0.1, range(1, 6)),
-    lambda: drop(1200.0, 0.3, range(1, 6)),
+    lambda: drop(1200.0, 0.3, range(11, 16)),
     lambda: mfxlms_compensator(5.0, range(1, 6)),
     lambda: mfxlms_compensator(40.0, range(1, 6)),
     lambda: mfxlms_compensator(100.0, range(1, 13)),
