@@ -249,3 +249,19 @@ def test_full_spectrum_parts_forward_and_backward_whirl_as_the_true_orbit_has_th
         assert titles_inside(fig) == [] and all(overlapping_tick_labels(ax) == [] for ax in fig.axes)
     finally:
         pyplot().close(fig)
+
+
+def test_the_rotors_speed_is_plotted_in_rpm(spindle_file):
+    """``plot`` of /amb/rotor's speed: rpm on the axis, the recorded rad/s scaled (30,000 rpm)."""
+    from ambdaq.daq import load
+    from ambdaq.figures import pyplot
+    from ambdaq.figures.signal import draw_signal
+
+    fig = draw_signal(load(spindle_file), "/amb/rotor", "speed", None)
+    try:
+        ax = fig.axes[0]
+        assert ax.get_ylabel() == "speed [rpm]"
+        ys = np.concatenate([line.get_ydata() for line in ax.get_lines()])
+        assert np.allclose(ys, 30000.0, rtol=1e-6), (ys.min(), ys.max())
+    finally:
+        pyplot().close(fig)

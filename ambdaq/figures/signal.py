@@ -9,9 +9,11 @@ import numpy as np
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..daq.recording import Recording
 from ..machines.machine import Bearing, orbit_partner, radial_bearings
+from ..units import RAD_S_TO_RPM
 from . import pyplot
 
-UNIT_SCALE = {"m": (1e6, "µm"), "m/s^2": (1.0, "m/s²"), "A": (1.0, "A"), "rad": (1.0, "rad"), "rad/s": (1.0, "rad/s")}
+UNIT_SCALE = {"m": (1e6, "µm"), "m/s^2": (1.0, "m/s²"), "A": (1.0, "A"), "rad": (1.0, "rad"),
+              "rad/s": (RAD_S_TO_RPM, "rpm")}  # a speed in rpm, as an AMB engineer reads it
 ENVELOPE_BINS = 800  # a long window's time panel: min and max per bin (about a screen pixel each)
 RAW_POINTS = 4000  # up to this many samples the waveform itself is drawn
 
@@ -64,8 +66,6 @@ def draw_signal(rec: Recording, topic: str, field_name: str, clearance_m: float 
         Minimum clearance, m.
     """
     from matplotlib.ticker import MaxNLocator
-
-    from ..units import RAD_S_TO_RPM
 
     plt = pyplot()
     data = rec.signals(topic)
