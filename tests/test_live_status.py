@@ -50,12 +50,18 @@ def strip(text: str) -> str:
 
 @pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_a_terminal_shows_the_live_status(tmp_path):
+    """The live status on a terminal, stopped with Ctrl-C once it shows 2 s recorded: the promised
+    "stopping, finishing FILE" line is said (through the status's own console, above it: written
+    under it, the next redraw had erased it from the screen, which this byte stream cannot show),
+    and the file is finished."""
+    import signal
+
     out = tmp_path / "live.mcap"
     master, slave = pty.openpty()
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "record", "--device", "sim://spindle", "--rpm", "30000",
-                             "--duration", "3", "-o", str(out)], stderr=slave, stdout=subprocess.PIPE)
+                             "--duration", "60", "-o", str(out)], stderr=slave, stdout=subprocess.PIPE)
     os.close(slave)
-    chunks = []
+    chunks, interrupted = [], False
     while True:
         try:
             data = os.read(master, 65536)
@@ -64,9 +70,13 @@ def test_a_terminal_shows_the_live_status(tmp_path):
         if not data:
             break
         chunks.append(data)
-    assert proc.wait(timeout=60) == 0
+        if not interrupted and re.search(r"recording\s+[2-9][\d.]* s", strip(b"".join(chunks[-8:]).decode(errors="replace"))):
+            proc.send_signal(signal.SIGINT)
+            interrupted = True
+    assert proc.wait(timeout=60) == 0 and interrupted
     os.close(master)
     text = strip(b"".join(chunks).decode(errors="replace"))
+    assert f"ambdaq: stopping, finishing {out}" in text.replace("\n", ""), text[-1500:]
     assert "samples/s" in text and "gap DC x / y [µm]" in text and "1X x / y [µm]" in text
     rows = re.findall(r"rig front\s+│\s+([\d,]+)\s+│\s+(-?[\d.]+) / (-?[\d.]+)\s+│\s+([\d.]+) / ([\d.]+)", text)
     assert rows, text[-2000:]

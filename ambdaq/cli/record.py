@@ -52,8 +52,8 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
         if p.elapsed_s >= 1.0:  # only for anything longer than a second
             print_progress(p)
 
-    def stopping(files: list[Path]) -> None:  # at once, so a user who pressed Ctrl-C knows it was heard
-        click.echo(f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ...", err=True)
+    def stopping(files: list[Path]) -> str:  # said at once, so a user who pressed Ctrl-C knows it was heard
+        return f"ambdaq: stopping, finishing {', '.join(str(f) for f in files)} ..."
 
     server = start_live(sources, recorder.machine, live) if live is not None else None
     try:
@@ -121,9 +121,11 @@ def _enter_fires(recorder) -> None:
 def _run(recorder, sources, status: bool, progress, stopping, sinks: list, snapped):
     """Run ``recorder`` with the live terminal status when ``status`` (stderr is a terminal), else
     with ``progress`` lines; ``sinks`` see every block as it is received; ``snapped`` hears of
-    every snapshot file opened."""
+    every snapshot file opened; ``stopping`` gives the line said when the user stops it (above the
+    live status on a terminal: written to stderr under it, the status's next redraw erased it)."""
     if not status:
-        return recorder.run(on_progress=progress, progress_interval_s=5.0, on_stopping=stopping, sinks=sinks,
+        return recorder.run(on_progress=progress, progress_interval_s=5.0,
+                            on_stopping=lambda files: click.echo(stopping(files), err=True), sinks=sinks,
                             on_snapshot=snapped)
     from rich.console import Console
     from rich.live import Live
@@ -140,8 +142,9 @@ def _run(recorder, sources, status: bool, progress, stopping, sinks: list, snapp
         shown[:] = [p]
 
     with Live(console=Console(stderr=True), refresh_per_second=2) as live:
-        return recorder.run(on_progress=redraw, progress_interval_s=0.5, on_stopping=stopping, sinks=[view, *sinks],
-                            on_snapshot=snapped)
+        return recorder.run(on_progress=redraw, progress_interval_s=0.5, sinks=[view, *sinks], on_snapshot=snapped,
+                            on_stopping=lambda files: live.console.print(stopping(files), markup=False,
+                                                                         highlight=False, soft_wrap=True))
 
 
 @click.command("record")
