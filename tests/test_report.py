@@ -167,3 +167,23 @@ def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):
                 "-o", tmp_path / "r.html")
     assert r.exit_code == 2 and "no such push log" in r.output
     assert not (tmp_path / "r.html").exists()
+
+
+@pytest.mark.realtime
+def test_the_machine_table_tells_devices_apart_by_identity_not_by_url(run_cli, tmp_path):
+    """Two recordings of the simulated spindle in one process reach its CAN devices over another
+    virtual bus each time (ambdaq-sim-N): each device is listed once, by its model and serial, with
+    both URLs and both recordings (the README's commands had listed the same four devices ten times)."""
+    from ambdaq.daq import open_recording
+    from ambdaq.workflows.commissioning import machine_identity
+
+    files = [tmp_path / "a.mcap", tmp_path / "b.mcap"]
+    for f in files:
+        assert run_cli("record", "--device", "sim://spindle", "--duration", "0.3", "-q", "-o", f).exit_code == 0
+    devices = machine_identity([open_recording(f) for f in files])["devices"]
+    assert sorted(d["device"] for d in devices) == ["rig", "rig-accelerometer", "rig-amplifier", "rig-gap_sensor",
+                                                    "rig-keyphasor"]
+    for d in devices:
+        assert d["recordings"] == ["a.mcap", "b.mcap"] and d["serial"], d
+    can = [d for d in devices if d["device"] != "rig"]
+    assert all(len(d["urls"]) == 2 and d["urls"][0] != d["urls"][1] for d in can), can

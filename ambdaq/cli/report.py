@@ -132,7 +132,8 @@ def render(found, title: str) -> str:
     parts.append("</section>")
     m = d["machine"]
     if m:
-        rows = [[_cell(dev["device"], "text"), *[_cell(dev.get(k), "text") for k in ("kind", "model", "serial", "firmware", "url")],
+        rows = [[_cell(dev["device"], "text"), *[_cell(dev.get(k), "text") for k in ("kind", "model", "serial", "firmware")],
+                 _cell(", ".join(dev.get("urls") or [dev.get("url") or "–"]), "text"),
                  _cell(", ".join(dev["recordings"]), "text")] for dev in m["devices"]]
         made = "; ".join(f"{Path(r['recording']).name} {when(r['start_time'])} on {r['host'] or '–'} (ambdaq "
                          f"{r['ambdaq_version'] or '–'})" for r in m["recordings"])

@@ -71,7 +71,10 @@ class SessionFiles:
 
 def machine_identity(recs: list[Recording]) -> dict:
     """The devices the session's recordings were made with, each once (kind, model, serial,
-    firmware, URL) with the recordings it is in, and when and where each recording was made.
+    firmware, the URLs it was reached by) with the recordings it is in, and when and where each
+    recording was made. A device is told apart by its identity: its model and serial where it
+    states a serial (the same CAN devices reached over another virtual bus in each run are one
+    device), else its name and URL.
 
     Parameters
     ----------
@@ -86,9 +89,12 @@ def machine_identity(recs: list[Recording]) -> dict:
                            "ambdaq_version": session.get("ambdaq_version", ""), "host": session.get("host", "")})
         for d in rec.devices.values():
             ident = {k: v for k, v in d.identity.items() if k in IDENTITY_KEYS}
-            key = (d.name, ident.get("serial"), ident.get("model"), ident.get("url"))
-            entry = devices.setdefault(key, {"device": d.name, **ident, "recordings": []})
-            entry["recordings"].append(rec.path.name)
+            key = (d.name, ident.get("model"), ident.get("serial")) if ident.get("serial") else (d.name, ident.get("url"))
+            entry = devices.setdefault(key, {"device": d.name, **ident, "urls": [], "recordings": []})
+            if ident.get("url") and ident["url"] not in entry["urls"]:
+                entry["urls"].append(ident["url"])
+            if rec.path.name not in entry["recordings"]:
+                entry["recordings"].append(rec.path.name)
     return {"devices": list(devices.values()), "recordings": recordings}
 
 
