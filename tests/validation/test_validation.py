@@ -46,6 +46,15 @@ def test_the_stability_peak_is_the_linearised_loops():
     assert row.holds, row
 
 
+@pytest.mark.parametrize("make", campaign.SMALL[5:], ids=["critical-speed", "apht", "iso-14839-2", "self-sensing",
+                                                          "modal", "drop", "mfxlms", "fir"])
+def test_a_small_row_of_every_other_estimator_holds(make):
+    """One seed of each other estimator's row (campaign.SMALL): what it states, against the
+    simulators' truth; the whole campaign has the seeds and the operating points."""
+    row = make()
+    assert row.holds, campaign.table([row])
+
+
 @pytest.mark.validation
 def test_the_whole_campaign_holds(tmp_path):
     """Every row of the full campaign (a minute or two here): what docs/validation.md reports."""
