@@ -286,3 +286,26 @@ def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(ser
         gap = load(fixed).get("/amb/gap")  # its channel is in the file from the start
         last = int(gap.log_time[-1]) if gap is not None and len(gap) else started
         assert (killed - last) / 1e9 <= 1.6, (after, (killed - last) / 1e9)
+
+
+def test_two_devices_of_one_kind_are_named_apart(run_cli, tmp_path):
+    """Two buses with the same DBC device (motohawk.dbc on two virtual channels): the first is
+    ``motohawk``, the second, whose own name is taken, ``motohawk-2``, each with its own topics, in
+    the summary and the file (they had been dev0 and dev1)."""
+    import cantools
+
+    from test_dbc_corpus import CORPUS, sending
+
+    path = CORPUS / "motohawk.dbc"
+    if not path.exists():
+        pytest.skip("../shared/corpus/dbc/motohawk.dbc is not beside the clone")
+    msg = cantools.database.load_file(str(path)).get_message_by_name("ExampleMessage")
+    frame = [(msg.frame_id, msg.encode({"Enable": 1, "AverageRadius": 0.5, "Temperature": 230.0}), False)]
+    out = tmp_path / "two.mcap"
+    with sending("named-a", frame, 0.01), sending("named-b", frame, 0.01):
+        r = run_cli("record", "--device", f"can://virtual/named-a?dbc={path}", "--device",
+                    f"can://virtual/named-b?dbc={path}", "--duration", "0.5", "--json", "-q", "-o", out)
+    assert r.exit_code == 0, r.output
+    assert sorted(json.loads(r.stdout)["devices"]) == ["motohawk-2.ExampleMessage", "motohawk.ExampleMessage"]
+    rec = load(out)
+    assert len(rec["/motohawk/ExampleMessage"]) > 10 and len(rec["/motohawk-2/ExampleMessage"]) > 10

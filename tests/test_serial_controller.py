@@ -213,6 +213,8 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
                     "--device", lines["gap_sensor"], "--duration", "3", "--json", "-o", out)
         assert r.exit_code == 0, r.output
         summary = json.loads(r.stdout)
+        # each device under the name it gives itself, not dev0, dev1 ...
+        assert sorted(summary["devices"]) == ["amplifier", "controller", "gap_sensor"]
         # every sample due is written or counted lost, on every topic.  Whether the slcan reader
         # keeps up beside a 10 kHz serial stream depends on the machine (bench_slcan.py measures
         # it): what a test can hold is the count.  The serial controller keeps up.
@@ -221,7 +223,7 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
         for topic in ("/can/amb/gap", "/can/amb/current"):
             assert topics[topic]["samples"] + topics[topic]["drops"] == 1200 and topics[topic]["samples"] >= 600
         # the device clock is mapped (its accuracy is checked against ground truth in the two-device test)
-        assert np.isfinite(summary["clocks"]["dev0"]["drift_ppm"]) and summary["clocks"]["dev0"]["points"] > 50
+        assert np.isfinite(summary["clocks"]["controller"]["drift_ppm"]) and summary["clocks"]["controller"]["points"] > 50
         rec = load(out)
         np.testing.assert_allclose(rec["/amb/rotor"]["speed"], 30000 * 2 * np.pi / 60, rtol=1e-6)
         # the same rotor seen by the controller's A/D at 10 kHz and by the CAN gap conditioner at
@@ -235,7 +237,7 @@ def test_record_from_sim_serve_in_another_process(tmp_path, run_cli):
             assert gap[axis].min() - 2e-6 <= can_gap[axis].min() and can_gap[axis].max() <= gap[axis].max() + 2e-6
             assert np.ptp(can_gap[axis]) > 0.5 * np.ptp(gap[axis])  # and it moves with the rotor
         info = run_cli("info", out).output
-        assert "[ambdaq.link.dev0]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
+        assert "[ambdaq.link.controller]" in info and "crc_errors = 0" in info and "lost_frames = 0" in info
         assert "malformed_frames = 0" in info
     finally:
         proc.terminate()

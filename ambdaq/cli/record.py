@@ -147,6 +147,22 @@ def _run(recorder, sources, status: bool, progress, stopping, sinks: list, snapp
                                                                          highlight=False, soft_wrap=True))
 
 
+def _named_apart(opened: Opened, url: str, **options) -> Opened:
+    """``url`` opened under the name its device gives itself (a controller's kind, a DBC's or EDS's
+    file, ``rig``), or, where a device opened before has that name, the name with ``-2``, ``-3``
+    ... (the summary and the file then say which is which, not ``dev0``/``dev1``)."""
+    taken = {s.name for s in opened.sources}
+    first = open_url(url, **options)
+    if not taken & {s.name for s in first.sources}:
+        return first
+    base = first.sources[0].name.split(".")[0]  # a DBC device's sources are NAME.MESSAGE
+    first.close()
+    k = 2
+    while any(n == f"{base}-{k}" or n.startswith((f"{base}-{k}-", f"{base}-{k}.")) for n in taken):
+        k += 1
+    return open_url(url, name=f"{base}-{k}", **options)
+
+
 @click.command("record")
 @click.option("--device", "devices", multiple=True, metavar="URL", envvar="AMBDAQ_DEVICE",
               help="Device URL, e.g. sim://spindle?seed=3 (repeatable).")
@@ -187,9 +203,8 @@ def command(devices, rig_path, duration, speed, truth, reconnect, description, m
     if measure:
         description = {**(description or {}), "measurements": list(measure)}
     with Opened() as opened:  # however the recording ends, every device and simulated rig is closed
-        for i, url in enumerate(devices):
-            opened.add(open_url(url, name=None if len(devices) == 1 else f"dev{i}", speed=speed, truth=truth or None,
-                                description=description))
+        for url in devices:
+            opened.add(_named_apart(opened, url, speed=speed, truth=truth or None, description=description))
         for d in rig.devices if rig is not None else ():
             opened.add(open_url(d.url, name=d.name, speed=speed or d.rpm, truth=truth or None,
                                 calibration=d.calibration, description=d.description))
