@@ -164,3 +164,21 @@ def test_check_fails_with_exit_1_when_the_error_did_not_fall_enough(before_after
     r = run_cli("runout", "check", after, before, "--max-rms", "5")  # swapped: the error grew
     rms = np.sqrt(np.mean(load(before)["/amb/error"]["front_x"] ** 2)) * 1e6  # the recording's own, > 5 um
     assert r.exit_code == 1 and f"front_x RMS {rms:.2f} um after (>= 5 um)" in r.stderr, (rms, r.stderr)
+
+
+def test_runout_identified_at_speed_is_flagged_wherever_it_is_taken_out(run_cli, tmp_path):
+    """Coefficients identified at 30,000 rpm hold the unbalance response in their 1X (identify
+    says so); every command that takes them out as runout (here apht, iso vibration) says so too,
+    in one line; coefficients from a slow roll are not flagged."""
+    fast, slow = tmp_path / "fast.mcap", tmp_path / "slow.mcap"
+    assert run_cli("sim", "generate", "--rpm", "30000", "--duration", "0.4", "-q", "-o", fast).exit_code == 0
+    assert run_cli("sim", "generate", "--rpm", "slowroll", "--duration", "1", "-q", "-o", slow).exit_code == 0
+    for rec, coef in ((fast, tmp_path / "at_speed.json"), (slow, tmp_path / "slow.json")):
+        assert run_cli("runout", "identify", rec, "-o", coef).exit_code == 0
+    said = "its 1X was identified at 30,000 rpm and holds the rotor's unbalance response there"
+    r = run_cli("apht", fast, "--coefficients", tmp_path / "at_speed.json", "--window", "0.1")
+    assert r.exit_code == 0 and said in r.stderr, r.stderr
+    r = run_cli("iso", "vibration", fast, "--coefficients", tmp_path / "at_speed.json", "--cmin", "150")
+    assert r.exit_code == 0 and said in r.stderr, r.stderr
+    r = run_cli("apht", fast, "--coefficients", tmp_path / "slow.json", "--window", "0.1")
+    assert r.exit_code == 0 and "unbalance response" not in r.stderr, r.stderr

@@ -3,6 +3,7 @@ prove on a new recording that the command error went down (docs/push.md, docs/co
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, ru
 from ..daq.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.recording import Recording
-from ..errors import BadInputError
+from ..errors import AmbdaqWarning, BadInputError
 from ..units import RAD_S_TO_RPM
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
@@ -52,12 +53,29 @@ def rigid_rotor_axes(rec: Recording) -> list[str]:
     return axes
 
 
+def held_unbalance(coef: Coefficients, where: Path | str) -> str | None:
+    """Why a coefficient file's 1X is not the runout alone, or None: identified from recordings at
+    one speed above UNBALANCE_NEGLIGIBLE_RPM (no slow roll, no second speed to separate them), it
+    holds the rotor's unbalance response at that speed (what ``runout identify`` warned)."""
+    if 1 not in coef.harmonics:
+        return None
+    speeds = [float(r.get("speed_rpm", 0.0)) for r in coef.source.get("recordings", []) if isinstance(r, dict)]
+    if not speeds or min(speeds) <= UNBALANCE_NEGLIGIBLE_RPM or len({round(s) for s in speeds}) >= 2:
+        return None
+    return (f"{where}: its 1X was identified at {speeds[0]:,.0f} rpm and holds the rotor's unbalance response there; "
+            "taken out as runout it takes that response out too (identify from a slow roll for the runout alone)")
+
+
 def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
     """The sensor runout a coefficient file describes, at the rotor angles ``theta`` (rad), for
-    ``axes``: shape (n, len(axes)), in m."""
+    ``axes``: shape (n, len(axes)), in m. A file whose 1X holds an unbalance response
+    (:func:`held_unbalance`) is warned about (an ``ambdaq: warning:`` line on the command line)."""
     missing = [a for a in axes if a not in coef.weights]
     if missing:
         raise BadInputError(f"{where}: no runout for {', '.join(missing)}")
+    problem = held_unbalance(coef, where)
+    if problem is not None:
+        warnings.warn(problem, AmbdaqWarning, stacklevel=2)
     phasors = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
     return synthesise(phasors, coef.harmonics, theta)
 
