@@ -87,6 +87,15 @@ SG_MUL_VAL_ 2147485000 Flow SubMode 1-1;
 Mode 2 carries SubMode, which selects Pressure (0) or Flow (1)."""
 
 
+def _sent_by_topic(frames: list[tuple], device: str) -> dict[str, list[dict]]:
+    """What was sent of each topic of ``device`` (``/DEVICE/MESSAGE[/PAGE]``), decoded by cantools,
+    from ``_frames``' rows."""
+    out: dict[str, list[dict]] = {}
+    for suffix, _id, _data, _fd, decoded, _ext in frames:
+        out.setdefault(f"/{device}/{suffix}", []).append(decoded)
+    return out
+
+
 @contextmanager
 def sending(channel: str, frames: list[tuple[int, bytes, bool]], period_s: float):
     """``frames`` (frame id, data, CAN FD) sent in turn, every ``period_s``, on python-can's virtual
@@ -168,9 +177,7 @@ def _record_and_check(path: Path, tmp_path, run_cli, via: str = "virtual", parse
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()
-    sent_by_topic: dict[str, list[dict]] = {}
-    for suffix, _id, _data, _fd, decoded, _ext in frames:
-        sent_by_topic.setdefault(f"/{path.stem}/{suffix}", []).append(decoded)
+    sent_by_topic = _sent_by_topic(frames, path.stem)
     assert set(rec) == set(sent_by_topic)
     for topic, sent in sent_by_topic.items():
         got = rec[topic]
@@ -486,9 +493,7 @@ def test_a_dbc_of_a_car_or_radar_project_records_what_was_sent(path, tmp_path, r
     assert r.exit_code == 0, r.output
     rec = load(out)
     meta = McapFile(out).metadata()
-    sent_by_topic: dict[str, list[dict]] = {}
-    for suffix, _id, _data, _fd, decoded, _ext in frames:
-        sent_by_topic.setdefault(f"/car/{suffix}", []).append(decoded)
+    sent_by_topic = _sent_by_topic(frames, "car")
     assert set(rec) == set(sent_by_topic)
     for topic, sent in sent_by_topic.items():
         got = rec[topic]

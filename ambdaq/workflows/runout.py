@@ -147,8 +147,9 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
         G, I = np.split(fitted[[orders.index(k) for k in harmonics]], 2, axis=1)
         r = np.array([runout_from_sensor(G[i], I[i], k * w, w, rotor) for i, k in enumerate(harmonics)])
         per_file.append((w, r))
-        b_file.append(np.array([model_bound(rotor.motion_from_currents(I[i], k * w, w), k * w / (2 * np.pi),
-                                               gap.nominal_rate) for i, k in enumerate(harmonics)]))
+        # the rotor motion the currents explain is what runout_from_sensor took out: G - r
+        b_file.append(np.array([model_bound(G[i] - r[i], k * w / (2 * np.pi), gap.nominal_rate)
+                                for i, k in enumerate(harmonics)]))
         u_file.append(runout_uncertainty(np.column_stack([gap[a][:n] for a in axes]),
                                          np.column_stack([cur[a][:n] for a in axes]), theta, gap.nominal_rate, w,
                                          list(harmonics), rotor) if uncertainty

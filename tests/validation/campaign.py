@@ -62,14 +62,19 @@ class Row:
     figures: dict = field(default_factory=dict)  # the numbers behind the text, for the tests
 
 
+def _write(source: SimSource, path: Path, seconds: float) -> Path:
+    """``seconds`` of ``source``, unpaced, as ``sim generate`` records it."""
+    Recorder([source], path, RecordOptions(duration_s=seconds, fsync=False), overwrite=True).run()
+    return path
+
+
 def _record(path: Path, seconds: float, *, seed: int, speed: SpeedProfile, profile: str = "spindle", params=None,
             excite=None) -> Path:
-    """``seconds`` of the simulated ``profile`` with its truth, unpaced, as ``sim generate`` records it."""
+    """``seconds`` of the simulated ``profile`` with its truth (:func:`_write`)."""
     source = SimSource(profile, seed=seed, speed=speed, truth=True, params=params)
     if excite is not None:
         source.rig.set_excitation(excite.resolve(source.rig.excitation_spec()))
-    Recorder([source], path, RecordOptions(duration_s=seconds, fsync=False), overwrite=True).run()
-    return path
+    return _write(source, path, seconds)
 
 
 def _ratios(err: np.ndarray, unc: np.ndarray) -> tuple[float, np.ndarray]:
@@ -257,9 +262,7 @@ def apht_one_x(rpm: float, seeds: range, seconds: float = 2.0, window_s: float =
         coef = _slow_roll_coefficients(Path(d))
         for seed in seeds:
             source = SimSource("spindle", seed=seed, speed=SpeedProfile(rpm, rpm), truth=True, ff_mode=ff)
-            path = Path(d) / f"a{seed}.mcap"
-            Recorder([source], path, RecordOptions(duration_s=seconds, fsync=False), overwrite=True).run()
-            rec = load(path)
+            rec = load(_write(source, Path(d) / f"a{seed}.mcap", seconds))
             out = apht(rec, window_s=window_s, coefficients=coef)
             truth, theta = rec["/truth/position"], rec["/amb/rotor"]["angle"]
             size = int(round(window_s * rec["/amb/gap"].nominal_rate))
@@ -290,9 +293,7 @@ def critical_speed(seeds: range) -> Row:
             source = SimSource("spindle", seed=seed, speed=SpeedProfile(3000.0, 15000.0, 6.0), truth=True)
             p, i, _ = source.rig.pid_gains
             source.rig.set_pid(p, i, np.array(detuned))
-            path = Path(d) / f"c{seed}.mcap"
-            Recorder([source], path, RecordOptions(duration_s=6.0, fsync=False), overwrite=True).run()
-            rec = load(path)
+            rec = load(_write(source, Path(d) / f"c{seed}.mcap", 6.0))
             res = analyse(rec, coefficients=coef)
             grid.append(float(np.median(np.diff(res.track.rpm))))
             truth, rot = rec["/truth/position"], rec["/amb/rotor"]
@@ -399,9 +400,7 @@ def modal(spec: str, seeds: range, seconds: float = 3.2) -> Row:
         for seed in seeds:
             source = SimSource("cone", seed=seed, truth=True)
             source.rig.set_impact(Impact.parse(spec))
-            path = Path(d) / f"m{seed}.mcap"
-            Recorder([source], path, RecordOptions(duration_s=seconds, fsync=False), overwrite=True).run()
-            best = identify_modal(load(path)).modes[0]
+            best = identify_modal(load(_write(source, Path(d) / f"m{seed}.mcap", seconds))).modes[0]
             d_f.append(best.freq_hz / f_true - 1)
             d_z.append(best.zeta / z_true - 1)
     d_f, d_z = np.array(d_f) * 100, np.array(d_z) * 100
@@ -419,28 +418,36 @@ def modal(spec: str, seeds: range, seconds: float = 3.2) -> Row:
 
 # --- base-motion feedforward (MFXLMS) ----------------------------------------------------
 
+def _identified_w(seed: int, f_hz: float, b: np.ndarray) -> np.ndarray:
+    """The compensator W at ``f_hz`` (Hz) MFXLMS identifies on the base-motion rig (seed ``seed``)
+    from two runs with other disturbance ratios (Kang et al., eq. A-4 to A-17), with the secondary
+    path ``b`` at that frequency."""
+    from ambdaq.analysis.mfxlms import mfxlms, run_beta, separate
+    from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
+
+    betas = []
+    for alpha in (1.0, -1.0 + 0.5j):
+        rig = BaseMotionRig(seed=seed)
+        rig.set_base_motion(BaseExcitation("sine", 1.0, f_hz, alpha))
+        rig.run(5000)
+        v = rig.run(30_000).values
+        res = mfxlms(v["/amb/gap"][:, :2], v["/base/accel"][:, :2], b, f_hz, rig.params.sample_rate)
+        betas.append((run_beta(res, alpha), alpha))
+    return separate(betas[0][0], betas[0][1], betas[1][0], betas[1][1])
+
+
 def mfxlms_compensator(f_hz: float, seeds: range) -> Row:
     """The base-motion compensator W identified by MFXLMS with two disturbance ratios (Kang et al.,
     eq. A-4 to A-17) on the base-motion rig, against its perfect compensator W* = -B^-1 C: the
     largest error relative to the matrix (its Frobenius norm) within 1 %, and each element's own
     within 5 % (the cross terms, 30 times smaller than the direct ones, carry the noise: 0.5-3.9 %
     at 100 Hz over 12 seeds, where tests/test_base_motion.py's one seed had 0.5 %)."""
-    from ambdaq.analysis.mfxlms import mfxlms, run_beta, separate
-    from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
+    from ambdaq.sim.rigs.base_motion import BaseMotionRig
 
     B, _, wstar = BaseMotionRig().responses([f_hz])
     errs, norm = [], []
     for seed in seeds:
-        betas = []
-        for alpha in (1.0, -1.0 + 0.5j):
-            rig = BaseMotionRig(seed=seed)
-            rig.set_base_motion(BaseExcitation("sine", 1.0, f_hz, alpha))
-            rig.run(5000)
-            v = rig.run(30_000).values
-            fs = rig.params.sample_rate
-            res = mfxlms(v["/amb/gap"][:, :2], v["/base/accel"][:, :2], B[0], f_hz, fs)
-            betas.append((run_beta(res, alpha), alpha))
-        w = separate(betas[0][0], betas[0][1], betas[1][0], betas[1][1])
+        w = _identified_w(seed, f_hz, B[0])
         errs.append(np.abs(w / wstar[0] - 1).max() * 100)
         norm.append(np.abs(w - wstar[0]).max() / np.linalg.norm(wstar[0]) * 100)
     e, m = np.array(errs), np.array(norm)
@@ -513,25 +520,15 @@ def fir_fit(seeds: range, freqs=(5.0, 20.0, 40.0, 70.0, 100.0)) -> Row:
     estimates at each campaign frequency, its response against the perfect W* = -B^-1 C there:
     what the controller runs, from what a campaign measures (the noise of the estimates through the
     fit). Stated: 2 % of the matrix (the estimates' 1 % and the fit's)."""
-    from ambdaq.analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
-    from ambdaq.sim.rigs.base_motion import BaseExcitation, BaseMotionRig
+    from ambdaq.analysis.mfxlms import fit_fir, knee
+    from ambdaq.sim.rigs.base_motion import BaseMotionRig
 
     f = np.asarray(freqs)
     B, _, wstar = BaseMotionRig().responses(f)
+    fs = BaseMotionRig().params.sample_rate
     errs, taps_used = [], []
     for seed in seeds:
-        est = np.empty_like(wstar)
-        for i, f_hz in enumerate(f):
-            betas = []
-            for alpha in (1.0, -1.0 + 0.5j):
-                rig = BaseMotionRig(seed=seed)
-                rig.set_base_motion(BaseExcitation("sine", 1.0, f_hz, alpha))
-                rig.run(5000)
-                v = rig.run(30_000).values
-                fs = rig.params.sample_rate
-                res = mfxlms(v["/amb/gap"][:, :2], v["/base/accel"][:, :2], B[i], f_hz, fs)
-                betas.append((run_beta(res, alpha), alpha))
-            est[i] = separate(betas[0][0], betas[0][1], betas[1][0], betas[1][1])
+        est = np.array([_identified_w(seed, f_hz, B[i]) for i, f_hz in enumerate(f)])
         worst = 0.0
         for j in range(2):
             for m in range(2):
