@@ -351,7 +351,7 @@ def _simulate(
             F[a] = ki[a] * 0.5 * (ieff0 + ieff1) + fu + fgrav[a]
             # through Psq and Psu the rotor sees the linear coil current as it moves within the
             # step; what the coils' law (clipping, a bias decaying) takes from it is held over it
-            Fo[a] = F[a] - ki[a] * 0.5 * (i0 + i1)
+            Fo[a] = ki[a] * 0.5 * ((ieff0 - i0) + (ieff1 - i1)) + fu + fgrav[a]
             out_gap[k, a] = s_meas
             out_cur[k, a] = i0 + noise_sd[1] * noise[k, 5 + a]
             out_err[k, a] = e
