@@ -285,7 +285,7 @@ def critical_speed(seeds: range) -> Row:
     from ambdaq.units import RAD_S_TO_RPM
     from ambdaq.workflows.runup_diagnostics import analyse
 
-    d_rpm, d_amp, grid = [], [], []
+    d_rpm, d_amp, grid, allowed = [], [], [], []
     detuned = [0.00075, 0.00075, 0.001, 0.001, 0.002]
     with tempfile.TemporaryDirectory() as d:
         coef = _slow_roll_coefficients(Path(d))
@@ -306,22 +306,26 @@ def critical_speed(seeds: range) -> Row:
                 if len(got) != 1 or len(want) != 1:
                     d_rpm.append(np.inf)
                     d_amp.append(np.inf)
+                    allowed.append(0.0)
                     continue
                 d_rpm.append(got[0].rpm / want[0].rpm - 1)
+                allowed.append(grid[-1] / want[0].rpm * 1.001)  # one window's spacing, at its speed
                 d_amp.append(got[0].amplification / want[0].amplification - 1)
     d_rpm, d_amp = np.array(d_rpm) * 100, np.array(d_amp) * 100
-    holds = bool(np.all(np.abs(d_rpm) < 0.5) and np.all(np.abs(d_amp) < 5.0))
+    allowed_pct = np.array(allowed) * 100
+    step_pct = float(allowed_pct.max()) if allowed_pct.size else 0.0
+    holds = bool(np.all(np.abs(d_rpm) <= allowed_pct) and np.all(np.abs(d_amp) < 5.0))
     return Row("critical speed and amplification factor (`runup`, API 684)",
                "run-up 3,000-15,000 rpm in 6 s, radial D halved (a forward mode near 180 Hz), windows "
                f"{np.mean(grid):.0f} rpm apart",
-               "none stated; 0.5 % in speed (the speed is a window's: its resolution the windows' spacing), "
-               "5 % in amplification quoted here",
+               f"none stated; one window's spacing in speed (up to {step_pct:.1f} %: the peak is a window's, and "
+               "two windows beside it can swap on the last bits), 5 % in amplification quoted here",
                f"{np.mean(d_rpm):+.3f} % speed, {np.mean(d_amp):+.2f} % amplification",
                f"largest {np.abs(d_rpm).max():.3f} % speed, {np.abs(d_amp).max():.2f} % amplification",
                len(d_rpm), f"{seeds.start}-{seeds.stop - 1}, each axis with a critical peak",
                "sim generate --rpm 3000:15000:6 --duration 6 --seed S --truth --param pid.d=...; runup --model spindle",
-               holds, "" if holds else f"largest {np.abs(d_rpm).max():.3f} % speed (< 0.5), {np.abs(d_amp).max():.2f} % "
-                                       "amplification (< 5)",
+               holds, "" if holds else f"largest {np.abs(d_rpm).max():.3f} % speed (> a window), "
+                                       f"{np.abs(d_amp).max():.2f} % amplification (< 5)",
                {"rpm_pct": d_rpm, "amp_pct": d_amp})
 
 
