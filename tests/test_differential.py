@@ -311,6 +311,7 @@ def check_exports(rec, ref: dict[str, Topic], out: Path, with_mf4: bool) -> list
     for topic in rec:
         data = rec[topic]
         csv = pd.read_csv(out / "csv" / f"{topic_filename(topic)}.csv")  # pandas 3 parses floats exactly
+        csv.columns = [c.split(" [")[0] for c in csv.columns]  # the header's "front_x [m]" as the field's name
         table = pq.read_table(out / "pq" / f"{topic_filename(topic)}.parquet")
         for name, col in data.fields.items():
             if not same_bits(csv[name].to_numpy(dtype=col.dtype), np.asarray(col)):

@@ -68,7 +68,7 @@ def test_a_topic_of_strings_exports_its_times_and_says_what_it_left_out(tmp_path
     assert r.exit_code == 0, r.output
     assert "/chatter: not exported (not numbers): data (str)" in r.output
     rows = list(csv.DictReader(open(tmp_path / "chatter.csv")))
-    assert len(rows) == 1324 and list(rows[0]) == ["time", "log_time_ns", "device_time_ns", "seq"]
+    assert len(rows) == 1324 and list(rows[0]) == ["time [s]", "log_time_ns [ns]", "device_time_ns [ns]", "seq"]
 
 
 def _stream_messages(data: bytes) -> list:

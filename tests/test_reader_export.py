@@ -1,6 +1,7 @@
 """The fast reader's options and the exports, against the data they came from."""
 
 import numpy as np
+import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
@@ -30,11 +31,11 @@ def test_export_csv_npz_parquet_round_trip(spindle_file, tmp_path, run_cli):
     r = run_cli("export", spindle_file, "--format", "csv", "--topic", "/amb/gap", "--topic", "/amb/rotor",
                 "--end", "0.1", "-o", tmp_path / "csv")
     assert r.exit_code == 0, r.output
-    data = np.genfromtxt(tmp_path / "csv" / "amb_gap.csv", delimiter=",", names=True)
-    np.testing.assert_allclose(data["front_x"], full["/amb/gap"]["front_x"], rtol=1e-8)
+    data = pd.read_csv(tmp_path / "csv" / "amb_gap.csv")  # each column's unit in its header
+    np.testing.assert_array_equal(data["front_x [m]"], full["/amb/gap"]["front_x"])
     # integer columns stay exact: ns stamps do not fit a float64 mantissa
     lines = (tmp_path / "csv" / "amb_rotor.csv").read_text().splitlines()
-    assert lines[0] == "time,log_time_ns,device_time_ns,seq,angle,speed,keyphasor"
+    assert lines[0] == "time [s],log_time_ns [ns],device_time_ns [ns],seq,angle [rad],speed [rad/s],keyphasor [1]"  # 1: dimensionless
     assert int(lines[2].split(",")[1]) == int(full["/amb/rotor"].log_time[1])
 
     r = run_cli("export", spindle_file, "--format", "npz", "--end", "0.1", "-o", tmp_path / "all.npz")
@@ -82,7 +83,6 @@ def test_slices_by_time_an_index_pandas_resamples_and_one_frame_of_several_topic
     """``between`` (s, as ``time``), ``to_pandas(index="timedelta")`` that ``resample`` takes, the
     UTC ``datetime`` index, and ``Recording.to_pandas`` of the gap and the accelerometer (another
     device, 800 Hz) on the gap's samples: each row the latest acceleration at or before it."""
-    import pandas as pd
 
     rec = load(spindle_file)
     gap = rec["/amb/gap"]

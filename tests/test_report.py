@@ -6,6 +6,7 @@ import json
 import os
 import re
 import subprocess
+import unicodedata
 
 import pytest
 
@@ -147,6 +148,23 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
         tables.tables["verdict"][0][2]
     assert dom.stdout.index('id="verdict"') < dom.stdout.index('id="machine"') < dom.stdout.index('id="stability"')
     assert pdf.read_bytes()[:5] == b"%PDF-" and pdf.stat().st_size > 100_000
+    # in the PDF, every section heading is on the page of what it introduces: its table's first
+    # column heading (or, without a table, its first paragraph), never alone at a page's foot
+    from pypdf import PdfReader
+
+    pages = [[unicodedata.normalize("NFKC", line).strip() for line in p.extract_text().splitlines() if line.strip()]
+             for p in PdfReader(pdf).pages]  # NFKC: the PDF's ligatures (ﬁ, ﬃ) as letters
+    assert len(pages) >= 3
+    sections = re.findall(r"<h2>(.*?)</h2>(.*?)(?=<h2>|</body>)", dom.stdout, re.S)
+    assert len(sections) == 9
+    for heading, body in sections:
+        table = re.search(r"<tr>(.*?)</tr>", body, re.S)  # the first table's header row, else the first paragraph
+        first = table.group(1) if table else re.search(r"<p[^>]*>(.*?)</p>", body, re.S).group(1)
+        words = unicodedata.normalize("NFKC", html.unescape(re.sub(r"<[^>]+>", " ", first))).split()
+        heading = html.unescape(heading)
+        (page,) = [lines for lines in pages if heading in lines]
+        after = iter(" ".join(page[page.index(heading) + 1:]).split())  # a cell's words may wrap onto lines
+        assert all(word in after for word in words), (heading, words, page[-3:])  # every word, in order
 
 
 def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):

@@ -182,3 +182,28 @@ def test_runout_identified_at_speed_is_flagged_wherever_it_is_taken_out(run_cli,
     assert r.exit_code == 0 and said in r.stderr, r.stderr
     r = run_cli("apht", fast, "--coefficients", tmp_path / "slow.json", "--window", "0.1")
     assert r.exit_code == 0 and "unbalance response" not in r.stderr, r.stderr
+    # and each says in one line what taking runout out does to its numbers; without coefficients, not
+    means = "runout taken out: these are the rotor's own motion, not what the sensors read"
+    assert r.stderr.count(means) == 1
+    r = run_cli("runup", fast, "--coefficients", tmp_path / "at_speed.json", "--json")
+    assert r.exit_code == 0 and said in r.stderr and r.stderr.count(means) == 1, r.stderr
+    assert json.loads(r.stdout)["runout_removed"].startswith(means)
+    r = run_cli("iso", "vibration", fast, "--coefficients", tmp_path / "slow.json", "--cmin", "150", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["runout_removed"]["means"].startswith(means), r.stderr
+    assert r.stderr.count(means) == 1
+    r = run_cli("iso", "vibration", fast, "--cmin", "150")
+    assert r.exit_code == 0 and means not in r.stderr
+    # the report lists the at-speed file among its open items, as identify warned
+    r = run_cli("report", "--before", fast, "--after", fast, "--coefficients", tmp_path / "at_speed.json",
+                "-o", tmp_path / "r.html", "--json")
+    assert r.exit_code == 0, r.output
+    (item,) = [i for i in json.loads(r.stdout)["verdict"]["open_items"] if "unbalance response" in i]
+    assert item.startswith("at_speed.json: " + said)
+    # the fleet's runout trend of recordings at speed is runout and unbalance together: fleet trend says so
+    plant = tmp_path / "plant"
+    plant.mkdir()
+    (plant / "fast.mcap").write_bytes(fast.read_bytes())
+    assert run_cli("fleet", "scan", plant, "-o", tmp_path / "fleet.parquet", "--workers", "1").exit_code == 0
+    r = run_cli("fleet", "trend", tmp_path / "fleet.parquet")
+    assert r.exit_code == 0 and "the 1X runout of 1 recording at speed (above 2,000 rpm) holds the rotor's " \
+        "unbalance response there" in r.stderr, r.stderr

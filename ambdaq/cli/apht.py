@@ -50,12 +50,16 @@ def command(recording, coefficients, orders, window_s, plot_path, as_json, max_l
     """
     from ..daq.recording import open_recording
     from ..workflows.apht import apht
+    from ..workflows.runout import RUNOUT_REMOVED
 
     res = apht(open_recording(recording), orders=_orders(orders), window_s=window_s,
                coefficients=Path(coefficients) if coefficients else None, max_lost=max_lost)
+    if coefficients:
+        click.echo(f"ambdaq: note: {RUNOUT_REMOVED}", err=True)
     if as_json:
         out = {"recording": recording, "rpm": round(res.rpm, 1), "window_s": window_s, "axes": res.axes,
-               "orders": res.orders, "compensation": res.compensation, "time_s": np.round(res.time_s, 4).tolist(),
+               "orders": res.orders, "compensation": res.compensation,
+               "runout_removed": RUNOUT_REMOVED if coefficients else None, "time_s": np.round(res.time_s, 4).tolist(),
                "gap_um": _vectors(res.gap, 1e6),
                "error_um": None if res.error is None else _vectors(res.error, 1e6),
                "feedforward": None if res.feedforward is None else {

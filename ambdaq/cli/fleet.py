@@ -124,6 +124,7 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
     import numpy as np
 
     from ..workflows.fleet import HARMONICS, axes_of, bearings_of, moved, read, touchdowns
+    from ..workflows.runout import UNBALANCE_NEGLIGIBLE_RPM
 
     df = read(Path(dataset), machine)
     drops = touchdowns(df, count_limit=touchdown_limit, energy_limit_j=touchdown_energy)
@@ -131,6 +132,10 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
     figures = ([f"onex_{a}_um" for a in axes] + [f"runout_{a}_{k}x_um" for a in axes for k in HARMONICS]
                + [f"vibration_{b}_um" for b in bearings_of(df)])
     movements = moved(df, figures, threshold)
+    at_speed = int(((df["rpm_min"] > UNBALANCE_NEGLIGIBLE_RPM) & df["error"].isna()).sum())
+    notes = [f"the 1X runout of {at_speed} recording{'s' if at_speed != 1 else ''} at speed (above "
+             f"{UNBALANCE_NEGLIGIBLE_RPM:,.0f} rpm) holds the rotor's unbalance response there (one speed cannot tell "
+             "them apart): its trend is runout and unbalance together; slow rolls trend the runout alone"] if at_speed else []
     if plot_path:
         if machine is None:
             raise BadInputError("--plot draws one machine's trend: give --machine")
@@ -147,8 +152,10 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
              "first": m.first_start, "last": m.last_start} for m in movements],
             "touchdowns": [{"machine": t.machine, "drops": t.count,
                             "energy_j": None if np.isnan(t.energy_j) else t.energy_j, "worst_ratio_cmin": t.worst_ratio,
-                            "last": t.last, "inspect": t.inspect} for t in drops]}, indent=2))
+                            "last": t.last, "inspect": t.inspect} for t in drops], "notes": notes}, indent=2))
         return
+    for note in notes:
+        click.echo(f"ambdaq: note: {note}", err=True)
     good = df[df["error"].isna()]
     # "lost": the samples the recordings lost (the dataset's drops column), not the rotor drops below
     click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'lost':>6s} {'zone now':>8s} "

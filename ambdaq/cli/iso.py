@@ -180,7 +180,7 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
     grades, info = iso.evaluate([open_recording(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,
                                 band_rpm=band_rpm, coefficients=Path(coefficients) if coefficients else None,
                                 limits=limits, max_lost=max_lost)
-    for note in info["notes"]:
+    for note in info["notes"] + ([info["runout_removed"]["means"]] if info["runout_removed"] else []):
         click.echo(f"ambdaq: note: {note}", err=True)
     doc = {**info, "bands": [g.as_dict() for g in grades]}
     if output:

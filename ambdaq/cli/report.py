@@ -36,7 +36,8 @@ figure { margin: 1em 0; } figure img { max-width: 100%; } figcaption { font-size
 p.note { font-size: 0.9em; color: #444; }
 #verdict-box { border: 2px solid #555; padding: 0 1em 0.5em; margin: 1em 0 2em; }
 #verdict-box h2 { margin-top: 0.6em; border: none; } #verdict-box td { text-align: left; }
-@media print { body { margin: 0; } h2 { break-before: auto; } figure { break-inside: avoid; } }
+/* a heading and its introduction keep with the table or figure they introduce; rows and figures whole */
+@media print { body { margin: 0; } h2, p.note { break-after: avoid; } div.keep, figure, tr { break-inside: avoid; } }
 """
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
@@ -166,7 +167,8 @@ def render(found, title: str) -> str:
                  _cell(b["windows"], kind="count"), _cell(b["max_um"], kind="um"), _cell(b["ratio_cmin"], kind="ratio"),
                  _cell(b["zone"], f"zone-{b['zone']} text"), _cell(b["at_rpm"], kind="rpm")]
                 for b in v["bands"]]
-        removed = ("the sensor runout taken out (" + html.escape(v["runout_removed"]["path"]) + ")"
+        removed = ("the sensor runout taken out (" + html.escape(v["runout_removed"]["path"]) + "). "
+                   + html.escape(v["runout_removed"]["means"][0].upper() + v["runout_removed"]["means"][1:])
                    if v["runout_removed"] else "the sensor runout not taken out")
         parts += ["<h2>Vibration, ISO 14839-2</h2>",
                   f'<p class="note">Largest orbit excursion from its centre per 0.1 s window, worst window per '
@@ -255,7 +257,9 @@ def render(found, title: str) -> str:
                           for a, ps in u["peaks_1x"].items())
         parts += ["<h2>Run-up</h2>",
                   f'<p class="note">{u["rpm_from"]:,.0f} to {u["rpm_to"]:,.0f} rpm, {u["windows"]} windows; compensation: '
-                  f"{html.escape(u['compensation'])}. 1X peaks: {html.escape(peaks)}.</p>"]
+                  f"{html.escape(u['compensation'])}. 1X peaks: {html.escape(peaks)}."
+                  + (f" {html.escape(u['runout_removed'][0].upper() + u['runout_removed'][1:])}." if u["runout_removed"]
+                     else "") + "</p>"]
         if u["model"]:
             rows = [[_cell(c["predicted_rpm"], kind="rpm"), _cell(c["predicted_amplification"], kind="factor"),
                      _cell(c["whirl"] or "–", "text"), _cell(c["measured_rpm"], kind="rpm"), _cell(c["axis"] or "–", "text"),
@@ -274,7 +278,26 @@ def render(found, title: str) -> str:
                           "Order tracking (1X, 2X amplitude in µm and 1X phase in degrees against speed in rpm), the "
                           "1X vector, and the waterfall of the gap spectrum with the order lines.")]
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
-            f"<style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
+            f"<style>{STYLE}</style></head><body>{''.join(_kept_together(parts))}</body></html>\n")
+
+
+def _kept_together(parts: list[str]) -> list[str]:
+    """Each section heading, its notes and what they introduce (up to its first table, or the one
+    block after the notes) in one ``div.keep``, which a printed page does not break."""
+    out: list[str] = []
+    i = 0
+    while i < len(parts):
+        if not parts[i].startswith("<h2>"):
+            out.append(parts[i])
+            i += 1
+            continue
+        j = i + 1
+        while j < len(parts) and parts[j].startswith('<p class="note"') and "<table" not in parts[j]:
+            j += 1
+        j = min(j + 1, len(parts))
+        out.append('<div class="keep">' + "".join(parts[i:j]) + "</div>")
+        i = j
+    return out
 
 
 def _drop_files(given: tuple[str, ...], more: tuple[str, ...]) -> list[str]:

@@ -54,6 +54,7 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
     """
     from ..analysis.orders import phase_lag_deg
     from ..daq.recording import open_recording
+    from ..workflows.runout import RUNOUT_REMOVED
     from ..workflows.runup_diagnostics import analyse
 
     if operating is not None and model is None:
@@ -64,10 +65,13 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
                   max_lost=max_lost)
     for note in res.notes:
         click.echo(f"ambdaq: warning: {note}", err=True)
+    if coefficients:
+        click.echo(f"ambdaq: note: {RUNOUT_REMOVED}", err=True)
     t = res.track
     if as_json:
         click.echo(json.dumps({
             "recording": recording, "compensation": res.compensation, "notes": res.notes, "revolutions": revolutions,
+            "runout_removed": RUNOUT_REMOVED if coefficients else None,
             "rpm": np.round(t.rpm, 1).tolist(),
             "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
                                    "phase_lag_deg": np.round(phase_lag_deg(t.order(k)[:, i]), 2).tolist()}

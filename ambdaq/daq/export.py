@@ -1,7 +1,10 @@
 """Export recordings to CSV, NPZ, Parquet or MDF 4 (``ambdaq export``).
 
 Every format carries, per topic, ``time`` (s since the first sample), ``log_time_ns``,
-``device_time_ns``, ``seq`` and one column per field in SI units.
+``device_time_ns``, ``seq`` and one column per field in SI units. A CSV header names each column's
+unit after it as asammdf's CSV export and most DAQ software write it (``time [s]``,
+``front_x [m]``; a column without a unit, such as ``seq``, bare); Parquet, NPZ and MDF 4 keep the
+plain names and carry the units in their own metadata.
 CSV and Parquet write one file per topic (``OUT/amb_gap.csv`` ...; a single topic may be written
 to ``OUT.csv`` directly); NPZ writes one archive with keys ``<topic>/<column>``; MDF 4 one file, a
 channel group per topic (:mod:`.mdf`).
@@ -19,6 +22,9 @@ from .reader import TopicData
 from .recording import Recording
 
 FORMATS = ("csv", "npz", "parquet", "mf4")
+
+
+TIME_UNITS = {"time": "s", "log_time_ns": "ns", "device_time_ns": "ns"}
 
 
 def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None,
@@ -139,23 +145,22 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
     for topic, target in targets.items():
         cols = _columns(rec.topics[topic], (labels or {}).get(topic), device_names)
         if fmt == "csv":
-            _write_csv(target, cols)
+            t = rec.topics[topic]
+            units = {**TIME_UNITS, **{t.names.get(k, k) if device_names else k: u for k, u in t.units.items()}}
+            _write_csv(target, cols, units)
         else:
             pq.write_table(pa.table(cols), target)
     return list(targets.values())
 
 
-
-
-
-def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
-    """CSV with integer columns kept integer (ns time stamps do not survive float64) and floats
-    written with 17 significant digits, which read back as the same float64 (9 had rounded a
-    10-digit integer such as a ROS stamp's seconds)."""
+def _write_csv(path: Path, cols: dict[str, np.ndarray], units: dict[str, str]) -> None:
+    """CSV with each column's unit in its header (``front_x [m]``), integer columns kept integer
+    (ns time stamps do not survive float64) and floats written with 17 significant digits, which
+    read back as the same float64 (9 had rounded a 10-digit integer such as a ROS stamp's seconds)."""
     names = list(cols)
     table = np.empty(len(cols["time"]), dtype=[(n, cols[n].dtype) for n in names])
     for n in names:
         table[n] = cols[n]
     fmts = ["%.9f" if n == "time" else "%s" if cols[n].dtype.kind == "U" else "%.17g" if cols[n].dtype.kind == "f"
             else "%d" for n in names]
-    np.savetxt(path, table, delimiter=",", fmt=fmts, header=",".join(names), comments="")
+    np.savetxt(path, table, delimiter=",", fmt=fmts, header=",".join(f"{n} [{units[n]}]" if units.get(n) else n for n in names), comments="")

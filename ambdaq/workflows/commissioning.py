@@ -20,7 +20,7 @@ from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .apht import Apht, apht
 from .push import push_log_entries
-from .runout import check_recordings, with_rotor
+from .runout import RUNOUT_REMOVED, check_recordings, held_unbalance, with_rotor
 
 IDENTITY_KEYS = ("kind", "model", "serial", "firmware", "software_version", "url", "sample_rate_hz")
 
@@ -157,6 +157,7 @@ def gather(files: SessionFiles) -> Commissioning:
                                           "amplification": round(p.amplification, 2),
                                           "critical": p.is_critical(diag.limits.critically_damped)}
                                          for p in ps] for a, ps in diag.peaks.items()},
+                        "runout_removed": None if files.coefficients is None else RUNOUT_REMOVED,
                         "model": files.model, "model_basis": None if diag.modes is None else diag.modes.basis,
                         "critical_speeds": [c.as_dict() for c in diag.criticals]}
     else:
@@ -176,6 +177,9 @@ def gather(files: SessionFiles) -> Commissioning:
         out["runout"] = out["apht"] = None
         after = None
     out["coefficients"] = None if files.coefficients is None else pushed_runout(files.coefficients)
+    if files.coefficients is not None:  # at-speed coefficients used as runout: an open item, as identify warned
+        problem = held_unbalance(Coefficients.load(files.coefficients), files.coefficients.name)
+        notes += [problem] if problem and problem not in notes else []
     out["touchdowns"] = touchdowns(files.drops) if files.drops else None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})

@@ -27,7 +27,7 @@ from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError
 from ..units import RAD_S_TO_RPM
-from .runout import runout_at, with_rotor
+from .runout import RUNOUT_REMOVED, runout_at, with_rotor
 
 WINDOW_S = 0.1  # 1,000 samples at 10 kHz: 5 revolutions at 3,000 rpm, 83 at 50,000
 
@@ -168,7 +168,8 @@ def evaluate(recs: list[Recording], *, cmin_m: float | None, band_rpm: float = 1
     info = {"standard": "ISO 14839-2", "cmin_um": round(cmin_m * 1e6, 3), "cmin_from": cmin_from,
             "limits_ratio_cmin": limits.as_list(), "window_s": WINDOW_S, "band_rpm": band_rpm,
             "runout_removed": None if coefficients is None else {"path": str(coefficients),
-                                                                 "sha256": file_sha256(coefficients)},
+                                                                 "sha256": file_sha256(coefficients),
+                                                                 "means": RUNOUT_REMOVED},
             "sources": sources, "notes": notes}
     return grades, info
 

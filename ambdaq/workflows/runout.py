@@ -20,6 +20,9 @@ from ..units import RAD_S_TO_RPM
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
 # a recording this slow is a slow roll for identification (the speed spec's `slowroll` is 800 rpm)
+RUNOUT_REMOVED = ("runout taken out: these are the rotor's own motion, not what the sensors read; at low speed, where "
+                  "the loop makes the rotor follow the sensor runout (no runout feedforward running), they are larger "
+                  "than the sensors alone show (docs/iso.md, 'The sensor is not the rotor')")
 METHODS = {  # x (samples, columns) -> phasors (harmonic, column)
     "fit": lambda x, th, k: harmonic_fit(x, th, k),  # every column in one pass
     "average": lambda x, th, k: np.stack([synchronous_average(c, th, harmonics=k) for c in x.T], axis=1),
