@@ -119,14 +119,16 @@ def build_once(tmp_path_factory):
 
 @pytest.fixture
 def served(request):
-    """``ambdaq sim serve --profile spindle --rpm RPM`` in its own process (RPM: the test's indirect
-    parameter, 30,000 by default); yields the controller's ``serial://`` URL."""
+    """``ambdaq sim serve --profile spindle --rpm RPM --seed SEED`` in its own process (the test's
+    indirect parameter: RPM, or (RPM, SEED); 30,000 rpm and seed 0 by default); yields the
+    controller's ``serial://`` URL."""
     import subprocess
     import sys
 
-    rpm = getattr(request, "param", 30000)
+    rpm, seed = (lambda p: p if isinstance(p, tuple) else (p, 0))(getattr(request, "param", 30000))
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle",
-                             "--rpm", str(rpm), "--duration", "180"], stdout=subprocess.PIPE, text=True)
+                             "--rpm", str(rpm), "--seed", str(seed), "--duration", "180"], stdout=subprocess.PIPE,
+                            text=True)
     try:
         name, pty = proc.stdout.readline().split()
         assert name == "controller"

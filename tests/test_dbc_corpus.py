@@ -390,7 +390,7 @@ def test_signals_named_like_the_message_header_keep_their_values_and_names(tmp_p
     csv = tmp_path / "h.csv"
     r = run_cli("export", out, "--format", "csv", "--device-names", "-o", csv)
     assert r.exit_code == 0, r.output
-    assert csv.read_text().splitlines()[0] == "time,log_time_ns,device_time_ns,seq,Status,SEQ,HU_date_year"
+    assert csv.read_text().splitlines()[0] == "time [s],log_time_ns [ns],device_time_ns [ns],seq,Status,SEQ,HU_date_year"
 
 
 PAGES = """VERSION ""
