@@ -3,9 +3,11 @@ behaviour Python users expect of a mapping."""
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -156,3 +158,17 @@ def test_a_disk_that_fills_up_is_one_line_naming_the_file_and_what_was_flushed_i
     assert r.returncode == 0, r.stderr
     gap = load(fixed)["/amb/gap"]
     assert len(gap) > 1000 and (gap.seq == gap.seq[0] + range(len(gap))).all()  # the first samples, none missing
+
+
+def test_a_python_started_in_the_clones_parent_folder_imports_the_installed_package(tmp_path):
+    """A clone named ``ambdaq`` and Python (or Jupyter) started in the folder that holds it: the
+    import is the installed package, not the clone's folder as an empty namespace package (the
+    src/ layout; the flat one failed here with "cannot import name '__version__'")."""
+    import ambdaq
+
+    root = Path(ambdaq.__file__).resolve().parents[2]  # the clone: src/ambdaq/__init__.py
+    (tmp_path / "ambdaq").symlink_to(root, target_is_directory=True)
+    r = subprocess.run([sys.executable, "-c", "from ambdaq import __version__; import ambdaq; print(ambdaq.__file__)"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert Path(r.stdout.strip()) == Path(ambdaq.__file__)

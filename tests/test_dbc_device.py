@@ -1,6 +1,6 @@
 """A raw-CAN device described by its vendor's DBC file (cantools), recorded from a rig file.
 
-The simulated probe conditioner (ambdaq/sim/devices/probes.py) sends big- and little-endian
+The simulated probe conditioner (src/ambdaq/sim/devices/probes.py) sends big- and little-endian
 signals, a multiplexed message and a frame its DBC does not describe; it keeps what it meant to
 send, which is what the recording must hold.
 """
