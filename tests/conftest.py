@@ -17,12 +17,11 @@ from ambdaq.cli.main import cli
 
 WARM = """import sys
 import numpy as np
-from ambdaq.analysis.runout import harmonic_fit, lms_offline
+from ambdaq.analysis.runout import lms_offline
 from ambdaq.sim.source import SimSource
 for p in sys.argv[1:]:
-    if p == "runout":  # the harmonic fit and the offline LMS every runout, live and iso command uses
+    if p == "runout":  # the offline LMS's kernel (runout identify --method lms)
         x, th = np.zeros(200), np.linspace(0.0, 20.0, 200)
-        harmonic_fit(x, th, (1, 2))
         lms_offline(x, th, harmonics=(1, 2))
     else:
         s = SimSource(p)
@@ -32,7 +31,7 @@ for p in sys.argv[1:]:
 
 
 def _warm_rigs() -> None:
-    """Compile the rigs' numba kernels (and the runout fit's) once, two at a time, before the workers
+    """Compile the rigs' numba kernels (and the offline LMS's) once, two at a time, before the workers
     start.  In a fresh clone every process that needs a kernel before its cache file exists compiles
     it again (5 s for the spindle's): the two workers and the servers and recorders the first tests
     start."""

@@ -105,15 +105,16 @@ def test_a_commissioning_day_record_identify_push_check_grade_report_undo(served
     # within 0.5 dB of the linearised loop's peak, the bound tests/test_iso.py gives its reasons for
     assert run["axis"] == "rear_x" and abs(run["peak_db"] - model) < 0.5 and run["coherence_at_peak"] >= 0.9, (run, model)
 
-    # the run-up against the spindle model, and the day's report from the files of the day
+    # the day's report from the files of the day, with the run-up against the spindle model
     runup = tmp_path / "runup.mcap"
     ambdaq("sim", "generate", "--rpm", f"0:{rpm}:3", "--duration", 3, "--seed", seed, "-q", "-o", runup)
-    up = json.loads(ambdaq("runup", runup, "--coefficients", coef, "--model", "spindle", "--json").stdout)
-    assert up["compensation"].startswith("runout coefficients") and max(up["rpm"]) > 0.9 * rpm
     r = ambdaq("report", "--stability", stability, "--runup", runup, "--coefficients", coef, "--before", before,
                "--after", after, "--push-log", tmp_path / "state" / "push.log", "--model", "spindle",
                "-o", tmp_path / "report.html", "--json", env=env)
     day = json.loads(r.stdout)
+    up = day["runup"]
+    assert up["compensation"].startswith("runout coefficients") and up["rpm_to"] > 0.9 * rpm
+    assert up["model"] == "spindle" and up["model_basis"].startswith("the PID gains the recording's controller ran")
     assert [e["file"] for e in day["push_log"]] == ["coef.json"]
     assert [(row["axis"], row["peak_db"]) for row in day["stability"]["rows"]] == [("rear_x", run["peak_db"])]
     for a in RADIAL:

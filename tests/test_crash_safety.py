@@ -34,7 +34,8 @@ def wait_for_data(out: Path, proc: subprocess.Popen, seconds: float) -> None:
     time.sleep(seconds)
 
 
-@pytest.mark.parametrize("sig, times", [(signal.SIGINT, 1), (signal.SIGTERM, 1), (signal.SIGINT, 2)])
+@pytest.mark.parametrize("sig, times", [(signal.SIGINT, 1), pytest.param(signal.SIGTERM, 1, marks=pytest.mark.long),
+                                        (signal.SIGINT, 2)])  # SIGTERM: the same handler as SIGINT
 def test_interrupt_finishes_the_file_cleanly(tmp_path, sig, times):
     """The first signal is answered at once and the file is finished; a second one while that
     happens only stops the wait for the devices: the file is still whole.  (Finishing takes about

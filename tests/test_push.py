@@ -335,7 +335,7 @@ def test_a_base_motion_fir_is_refused_by_a_controller_that_runs_none(ctl, tmp_pa
     assert ctl.active()[2] == before[2]
 
 
-@pytest.mark.parametrize("port", ["serial", "can"])
+@pytest.mark.parametrize("port", ["serial", pytest.param("can", marks=pytest.mark.long)])  # a push over CAN: above
 def test_rollback_puts_back_what_the_push_replaced_bit_for_bit(ctl, tmp_path, port):
     """Two pushes, then --rollback twice: each puts back the bank the push before it replaced, read
     back from the controller byte for byte (its CRC-32 and the bank's bytes); a third rollback

@@ -20,8 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
-
 from .rotor import RigidRotor
 
 
@@ -46,49 +44,30 @@ def synthesise(phasors: np.ndarray, harmonics: list[int], theta: np.ndarray) -> 
     return (e @ phasors).imag
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _harmonic_sums(s1: np.ndarray, c1: np.ndarray, x: np.ndarray, kmax: int, k: np.ndarray):
-    """One pass: sums of sin m theta and cos m theta for m = 0..2 kmax (they make A^T A) and
-    A^T x for the basis [sin k theta, cos k theta, 1]; sin/cos of m theta by angle addition."""
-    mmax = 2 * kmax
-    ssum = np.zeros(mmax + 1)
-    csum = np.zeros(mmax + 1)
-    nh = k.shape[0]
-    atx = np.zeros((2 * nh + 1, x.shape[1]))
-    sk = np.empty(mmax + 1)
-    ck = np.empty(mmax + 1)
-    for t in range(s1.shape[0]):
+FIT_BLOCK = 32_768
+"""Samples per block of :func:`_normal_equations`: one block's basis is a few MB of float64,
+whatever the recording's length."""
+
+
+def _normal_equations(s1: np.ndarray, c1: np.ndarray, x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A^T A and A^T x of the least squares on the basis A = [sin k theta, cos k theta, 1], a block
+    of samples at a time; sin and cos of m theta by angle addition from those of theta (numpy
+    throughout: no compiled kernel for each process to load, 1.1 s of numba's)."""
+    kmax, nh = int(k.max()), k.shape[0]
+    ata, atx = np.zeros((2 * nh + 1, 2 * nh + 1)), np.zeros((2 * nh + 1, x.shape[1]))
+    for start in range(0, s1.shape[0], FIT_BLOCK):
+        s, c = s1[start : start + FIT_BLOCK], c1[start : start + FIT_BLOCK]
+        sk, ck = np.empty((kmax + 1, s.shape[0])), np.empty((kmax + 1, s.shape[0]))
         sk[0], ck[0] = 0.0, 1.0
-        for j in range(1, mmax + 1):
-            sk[j] = sk[j - 1] * c1[t] + ck[j - 1] * s1[t]
-            ck[j] = ck[j - 1] * c1[t] - sk[j - 1] * s1[t]
-        for j in range(mmax + 1):
-            ssum[j] += sk[j]
-            csum[j] += ck[j]
-        for c in range(x.shape[1]):
-            xv = x[t, c]
-            for j in range(nh):
-                atx[j, c] += sk[k[j]] * xv
-                atx[nh + j, c] += ck[k[j]] * xv
-            atx[2 * nh, c] += xv
-    return ssum, csum, atx
-
-
-def _normal_matrix(ssum: np.ndarray, csum: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """A^T A from the sums of sin/cos m theta: products of harmonics are sums and differences."""
-    nh = k.shape[0]
-    kd = np.abs(k[:, None] - k[None, :])
-    ks = k[:, None] + k[None, :]
-    sgn = np.sign(k[:, None] - k[None, :])
-    ata = np.empty((2 * nh + 1, 2 * nh + 1))
-    ata[:nh, :nh] = (csum[kd] - csum[ks]) / 2  # sin a sin b
-    ata[nh : 2 * nh, nh : 2 * nh] = (csum[kd] + csum[ks]) / 2  # cos a cos b
-    ata[:nh, nh : 2 * nh] = (ssum[ks] + sgn * ssum[kd]) / 2  # sin a cos b
-    ata[nh : 2 * nh, :nh] = ata[:nh, nh : 2 * nh].T
-    ata[:nh, 2 * nh] = ata[2 * nh, :nh] = ssum[k]
-    ata[nh : 2 * nh, 2 * nh] = ata[2 * nh, nh : 2 * nh] = csum[k]
-    ata[2 * nh, 2 * nh] = csum[0]
-    return ata
+        for m in range(1, kmax + 1):
+            np.multiply(sk[m - 1], c, out=sk[m])
+            sk[m] += ck[m - 1] * s
+            np.multiply(ck[m - 1], c, out=ck[m])
+            ck[m] -= sk[m - 1] * s
+        basis = np.concatenate([sk[k], ck[k], ck[:1]])  # (2 nh + 1, block); ck[0] is the constant 1
+        ata += basis @ basis.T
+        atx += basis @ x[start : start + FIT_BLOCK]
+    return ata, atx
 
 
 GUARD_ORDERS = 8
@@ -143,9 +122,8 @@ def harmonic_fit(x: np.ndarray, theta: np.ndarray, harmonics=(1, 2, 3, 4, 5, 6))
     k = np.asarray(orders, dtype=np.int64)
     x2 = np.asarray(x, dtype=float)
     one = x2.ndim == 1
-    ssum, csum, atx = _harmonic_sums(np.sin(th), np.cos(th), np.ascontiguousarray(x2.reshape(x2.shape[0], -1)),
-                                     int(k.max()), k)
-    coef = np.linalg.solve(_normal_matrix(ssum, csum, k), atx)
+    ata, atx = _normal_equations(np.sin(th), np.cos(th), x2.reshape(x2.shape[0], -1), k)
+    coef = np.linalg.solve(ata, atx)
     n = k.shape[0]
     out = (coef[:n] + 1j * coef[n : 2 * n])[[orders.index(int(h)) for h in harmonics]]
     return out[:, 0] if one else out
@@ -190,31 +168,6 @@ def synchronous_average(x: np.ndarray, theta: np.ndarray, *, bins: int = 512, ha
     return (a + 1j * b) / gain
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _lms(e: np.ndarray, s1v: np.ndarray, c1v: np.ndarray, k: np.ndarray, mu: float, w: np.ndarray, out: np.ndarray) -> None:
-    nh = k.shape[0]
-    kmax = 0
-    for kk in k:
-        kmax = max(kmax, kk)
-    sk = np.empty(kmax + 1)
-    ck = np.empty(kmax + 1)
-    for t in range(e.shape[0]):
-        s1 = s1v[t]
-        c1 = c1v[t]
-        sk[0], ck[0] = 0.0, 1.0
-        for j in range(1, kmax + 1):  # sin/cos of j theta by angle addition
-            sk[j] = sk[j - 1] * c1 + ck[j - 1] * s1
-            ck[j] = ck[j - 1] * c1 - sk[j - 1] * s1
-        rc = 0.0
-        for j in range(nh):  # r_c with the previous weights, eq. 10
-            rc += w[j, 0] * sk[k[j]] + w[j, 1] * ck[k[j]]
-        err = e[t] - rc
-        out[t] = err
-        for j in range(nh):  # eq. 9
-            w[j, 0] += mu * err * sk[k[j]]
-            w[j, 1] += mu * err * ck[k[j]]
-
-
 @dataclass(frozen=True)
 class LmsResult:
     """Offline LMS: converged weights (phasors) and the error signal it leaves."""
@@ -246,7 +199,9 @@ def lms_offline(x: np.ndarray, theta: np.ndarray, *, mu: float = 0.002, harmonic
     w = np.zeros((len(harmonics), 2))
     out = np.empty_like(x)
     th = np.asarray(theta, dtype=float)
-    _lms(x - x.mean(), np.sin(th), np.cos(th), np.asarray(harmonics, dtype=np.int64), float(mu), w, out)
+    from .runout_lms import lms_recursion  # numba, loaded by the offline LMS alone
+
+    lms_recursion(x - x.mean(), np.sin(th), np.cos(th), np.asarray(harmonics, dtype=np.int64), float(mu), w, out)
     return LmsResult(w[:, 0] + 1j * w[:, 1], out)
 
 
