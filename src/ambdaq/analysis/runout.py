@@ -51,20 +51,24 @@ whatever the recording's length."""
 
 def _normal_equations(s1: np.ndarray, c1: np.ndarray, x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A^T A and A^T x of the least squares on the basis A = [sin k theta, cos k theta, 1], a block
-    of samples at a time; sin and cos of m theta by angle addition from those of theta (numpy
-    throughout: no compiled kernel for each process to load, 1.1 s of numba's)."""
+    of samples at a time; sin and cos of m theta by angle addition from those of theta, written in
+    place into the block's basis (numpy throughout: no compiled kernel for each process to load,
+    1.1 s of numba's)."""
     kmax, nh = int(k.max()), k.shape[0]
+    every_order = bool(np.array_equal(k, np.arange(1, kmax + 1)))  # harmonic_fit's usual case
     ata, atx = np.zeros((2 * nh + 1, 2 * nh + 1)), np.zeros((2 * nh + 1, x.shape[1]))
     for start in range(0, s1.shape[0], FIT_BLOCK):
         s, c = s1[start : start + FIT_BLOCK], c1[start : start + FIT_BLOCK]
-        sk, ck = np.empty((kmax + 1, s.shape[0])), np.empty((kmax + 1, s.shape[0]))
-        sk[0], ck[0] = 0.0, 1.0
-        for m in range(1, kmax + 1):
+        basis = np.empty((2 * kmax + 1, s.shape[0]))  # rows: sin 1..kmax, cos 1..kmax, 1
+        sk, ck, tmp = basis[:kmax], basis[kmax : 2 * kmax], np.empty(s.shape[0])
+        sk[0], ck[0], basis[2 * kmax] = s, c, 1.0
+        for m in range(1, kmax):  # sin (m+1) theta = sin m theta cos theta + cos m theta sin theta ...
             np.multiply(sk[m - 1], c, out=sk[m])
-            sk[m] += ck[m - 1] * s
+            sk[m] += np.multiply(ck[m - 1], s, out=tmp)
             np.multiply(ck[m - 1], c, out=ck[m])
-            ck[m] -= sk[m - 1] * s
-        basis = np.concatenate([sk[k], ck[k], ck[:1]])  # (2 nh + 1, block); ck[0] is the constant 1
+            ck[m] -= np.multiply(sk[m - 1], s, out=tmp)
+        if not every_order:
+            basis = np.concatenate([sk[k - 1], ck[k - 1], basis[-1:]])
         ata += basis @ basis.T
         atx += basis @ x[start : start + FIT_BLOCK]
     return ata, atx
