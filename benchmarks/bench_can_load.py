@@ -23,7 +23,7 @@ from pathlib import Path
 
 import can
 
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can.bus import bus_load
 from ambdaq.drivers.registry import open_device
 from ambdaq.speed import SpeedProfile

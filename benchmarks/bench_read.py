@@ -39,9 +39,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
-from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.daq.writer import RecordingWriter
+from ambdaq.mcap.mcapfile import McapFile
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.writer import RecordingWriter
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SpeedProfile
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
@@ -188,7 +188,7 @@ def main() -> None:
                       f"{ratios[0]:.2f}-{ratios[-1]:.2f}{' (target <= 1.5)' if name.startswith('zstd') else ''}")
 
         # the memory kept between loads (daq/memory.py) against fresh memory for every load
-        import ambdaq.daq.memory as memory
+        import ambdaq.mcap.memory as memory
 
         pooled = [best_of(lambda: load(path), repeat=3) for _ in range(3)]
         take = memory._POOL.take

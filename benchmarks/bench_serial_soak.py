@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 
 from _common import row
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import can
 import canopen
 
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can.bus import bus_load
 from ambdaq.drivers.can.profiles import PROFILES
 from ambdaq.drivers.registry import open_device

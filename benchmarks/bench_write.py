@@ -14,8 +14,8 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, IndexType, Writer
 
-from ambdaq.daq.mcapfile import McapFile
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.mcap.mcapfile import McapFile
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SpeedProfile
 

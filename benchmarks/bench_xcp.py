@@ -39,7 +39,7 @@ def cpu_s() -> float:
 
 
 def phase_ambdaq(url: str, a2l: str, seconds: float, out: Path) -> dict:
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.drivers.registry import open_url
 
     opened = open_url(url, description={"a2l": a2l})

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import open_recording
-from ambdaq.daq.recorder import Recorder, RecordOptions, machine_of
+from ambdaq.acquisition.recorder import Recorder, RecordOptions, machine_of
 from ambdaq.drivers.interfaces import PassThrough
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
 from ambdaq.machines.spindle import SPINDLE

@@ -44,7 +44,7 @@ def test_truncated_file(truncated, run_cli):
 
 
 def _second_chunk(path):
-    from ambdaq.daq.mcapfile import McapFile
+    from ambdaq.mcap.mcapfile import McapFile
 
     f = McapFile(path)
     return sorted(f.summary.chunk_indexes, key=lambda ci: ci.chunk_start_offset)[1], f
@@ -299,7 +299,7 @@ def test_a_flipped_byte_anywhere_is_refused_or_changes_nothing(codec, data_crc, 
 
     import numpy as np
 
-    from ambdaq.daq.mcapfile import McapFile, chunk_header
+    from ambdaq.mcap.mcapfile import McapFile, chunk_header
 
     path = tmp_path / "f.mcap"
     assert run_cli("sim", "generate", "--duration", "0.03", "--compression", codec, "-q", "-o", path).exit_code == 0
@@ -340,7 +340,7 @@ def test_a_chunk_size_that_cannot_be_is_refused_before_memory_is_sized_from_it(b
     """A chunk's uncompressed size changed in a file without indexes and without the data CRC (so
     nothing but the chunk itself can tell): refused in one line, exit 2, before any memory is sized
     from it (the high byte once asked numpy for 7.75 PiB); export writes nothing."""
-    from ambdaq.daq.mcapfile import McapFile
+    from ambdaq.mcap.mcapfile import McapFile
 
     path = tmp_path / "n.mcap"
     assert run_cli("sim", "generate", "--duration", "0.05", "--no-index", "-q", "-o", path).exit_code == 0

@@ -250,7 +250,7 @@ def test_a_fit_that_misses_a_point_far_is_refused_naming_it(run_cli, tmp_path):
     """Points at the simulated rig's exact W* (5 to 100 Hz) fit within the limit; the same points with
     the 100 Hz one ten times too large (a step that lost most of its samples gave 1,105 %) are
     refused in one line naming the point, and no coefficient file is written."""
-    from ambdaq.daq.compensator_points import save_points
+    from ambdaq.documents.compensator_points import save_points
     from ambdaq.sim.rigs.base_motion import BaseMotionRig
 
     freqs = np.array([5.0, 10, 20, 40, 70, 100])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can.bus import bus_load, frame_bits
 from ambdaq.drivers.can.profiles import ALL_PROFILES, PROFILES, build_od
 from ambdaq.drivers.registry import open_device
@@ -281,8 +281,8 @@ def test_an_emcy_fires_a_snapshot_fault_trigger(can_rig, tmp_path):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from ambdaq.daq.snapshot import SnapshotOptions
-    from ambdaq.daq.triggers import parse_trigger
+    from ambdaq.acquisition.snapshot import SnapshotOptions
+    from ambdaq.acquisition.triggers import parse_trigger
 
     channel, *_ = can_rig
     amp = open_device(f"can://virtual/{channel}?kind=amplifier&sync=500", name="amp")

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 
 sys.path.insert(0, str(Path(__file__).parent))
 from eds_gateway import recordable, synchronous_tpdos, value_of  # noqa: E402

@@ -3,7 +3,6 @@ behaviour Python users expect of a mapping."""
 
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 import sys

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ambdaq.daq.clock import ClockMap
+from ambdaq.acquisition.clock import ClockMap
 
 
 def simulate(drift_ppm, offset_ns, seconds=30.0, block_s=0.01, seed=0):

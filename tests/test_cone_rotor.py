@@ -10,7 +10,7 @@ from ambdaq.analysis.cone_rotor import (DISTRIBUTION, ConeRotor, controlled_eige
                                         uncontrolled_eigenvalues)
 from ambdaq.cli.main import cli
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.sim.rigs.cone import CONE, ConeRig
 
 ROTOR = ConeRotor()

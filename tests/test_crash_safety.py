@@ -108,7 +108,7 @@ def test_a_repeated_stop_just_after_the_end_is_the_same_stop():
     """What a stopped run leaves as the stop signal's handler: within the grace the signal does
     nothing (a double Ctrl-C must not interrupt the closing of the devices and the summary); after
     it, the handler there was before, and from then on that handler itself."""
-    from ambdaq.daq.acquisition import _after_stop
+    from ambdaq.acquisition.acquisition import _after_stop
 
     calls = []
     old = lambda signum, frame: calls.append(signum)  # noqa: E731

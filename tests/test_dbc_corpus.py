@@ -24,7 +24,7 @@ from mcap_ros2.decoder import DecoderFactory
 from conftest import npm_installed
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.drivers.signals import ros_field
 
 cantools = pytest.importorskip("cantools")

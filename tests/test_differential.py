@@ -36,7 +36,7 @@ from official import Topic, as_array, message_counts, official, same_bits
 
 from ambdaq.daq import load
 from ambdaq.daq.info import describe
-from ambdaq.daq.recover import recover
+from ambdaq.acquisition.recover import recover
 from ambdaq.errors import BadInputError
 
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "mcap"
@@ -105,7 +105,7 @@ def write(r: Recipe, folder: Path) -> list[Path]:
         return [target]
     path = folder / "rec.mcap"
     if r.writer == "sim":
-        from ambdaq.daq.recorder import Recorder, RecordOptions
+        from ambdaq.acquisition.recorder import Recorder, RecordOptions
         from ambdaq.sim.source import SimSource
         from ambdaq.speed import SpeedProfile
 
@@ -150,7 +150,7 @@ def _without_summary(path: Path) -> Path:
 def _devices(r: Recipe, path: Path) -> None:
     """Several devices of their own rates and block sizes, float and 64-bit integer fields, their
     blocks interleaved on the host clock, through ambdaq's writer."""
-    from ambdaq.daq.writer import RecordingWriter
+    from ambdaq.acquisition.writer import RecordingWriter
     from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
     rng = np.random.default_rng(r.seed)
@@ -197,7 +197,7 @@ def _official_writer(r: Recipe, path: Path) -> None:
     from google.protobuf.wrappers_pb2 import DoubleValue
     from mcap.writer import CompressionType, IndexType, Writer
 
-    from ambdaq.daq.schema import TopicLayout
+    from ambdaq.mcap.schema import TopicLayout
     from ambdaq.drivers.signals import SignalGroup
 
     rng = np.random.default_rng(r.seed)
@@ -389,7 +389,7 @@ def differences(r: Recipe, folder: Path, held, paths: list[Path] | None = None) 
 
 def _held(tmp: Path) -> dict:
     """Arrays of a load kept through the example (and copies of what they held)."""
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.sim.source import SimSource
 
     path = tmp / "held.mcap"

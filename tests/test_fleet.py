@@ -261,7 +261,7 @@ def test_every_rotor_drop_on_record_and_when_to_inspect(scheduler, build_once, t
     each against the rig's truth) are collected per machine; trend counts them, sums their impact
     energy, and says when the touchdown bearings are due."""
     from ambdaq.daq.recording import open_recording
-    from ambdaq.daq.touchdowns import recorded_drop
+    from ambdaq.acquisition.touchdowns import recorded_drop
     from test_touchdown import DROPS, drop_files
 
     drops = build_once("rotor-drops", drop_files)

@@ -12,7 +12,7 @@ import pytest
 from ambdaq.analysis.lms import error_response
 from ambdaq.sim.rigs.spindle import rig_loop
 from ambdaq.daq import load
-from ambdaq.daq.frequency_response import FrequencyResponse
+from ambdaq.documents.frequency_response import FrequencyResponse
 from ambdaq.drivers.serial.controller import ControllerDriver
 from ambdaq.drivers.serial.link import SerialLink
 from ambdaq.errors import DeviceError

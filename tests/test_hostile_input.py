@@ -9,8 +9,8 @@ import os
 
 import pytest
 
-from ambdaq.daq.coefficients import Coefficients
-from ambdaq.daq.sealed import seal
+from ambdaq.documents.coefficients import Coefficients
+from ambdaq.documents.sealed import seal
 
 NOWHERE = "serial:///dev/null"  # a broken file fails before any device is opened
 
@@ -135,8 +135,8 @@ def test_a_plant_whose_numbers_overflow_is_one_line(tmp_path, run_cli, command):
 def test_frequency_response_and_points_files_name_the_offending_key(tmp_path, run_cli):
     import numpy as np
 
-    from ambdaq.daq.compensator_points import save_points
-    from ambdaq.daq.frequency_response import FrequencyResponse
+    from ambdaq.documents.compensator_points import save_points
+    from ambdaq.documents.frequency_response import FrequencyResponse
 
     frf = FrequencyResponse(np.array([10.0, 20.0]), {"front_x": {"source": {}, "outputs": {
         "front_x": (np.array([1 + 1j, 2 - 1j]), np.array([0.9, 0.95]))}}}).to_dict()

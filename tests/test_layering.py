@@ -15,16 +15,21 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "speed": {"errors", "units"},
     "loading": set(),
     "layout": set(),
+    "output": {"errors"},
     "machines": {"analysis", "units", "errors", "layout"},
     "analysis": {"units", "errors"},
     "drivers": {"layout", "errors", "units", "speed", "loading"},
-    "daq": {"layout", "drivers", "machines", "analysis", "errors", "units"},
+    "mcap": {"drivers", "errors"},  # the file format alone
+    "documents": {"layout", "drivers", "machines", "output", "errors"},  # the sealed JSON files
+    "acquisition": {"layout", "drivers", "mcap", "machines", "analysis", "output", "errors", "units"},  # devices to files
+    "daq": {"layout", "mcap", "acquisition", "machines", "output", "errors", "units"},  # the read side
     "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
-    "workflows": {"layout", "drivers", "daq", "analysis", "sim", "machines", "speed", "units", "errors"},
-    "live": {"layout", "daq", "analysis", "machines", "units"},
-    "figures": {"layout", "daq", "analysis", "machines", "workflows", "units", "errors"},
-    "cli": {"layout", "drivers", "daq", "analysis", "sim", "workflows", "live", "figures", "machines", "speed", "units",
-            "errors", "loading"},
+    "workflows": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "machines", "speed",
+                  "output", "units", "errors"},
+    "live": {"layout", "acquisition", "daq", "analysis", "machines", "units"},
+    "figures": {"layout", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
+    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "live",
+            "figures", "machines", "speed", "output", "units", "errors", "loading"},
 }
 
 

@@ -9,8 +9,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
-from ambdaq.daq.writer import RecordingWriter
+from ambdaq.mcap.mcapfile import McapFile
+from ambdaq.acquisition.writer import RecordingWriter
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
 OLD = Path(__file__).parent / "data" / "ambdaq_0_1_two_devices.mcap"
@@ -100,7 +100,7 @@ def test_a_time_window_reads_in_place_too(tmp_path):
 
 
 def test_memory_a_caller_holds_is_never_handed_out_again(tmp_path):
-    """``load`` uses the memory of recordings no longer referred to again (ambdaq.daq.memory):
+    """``load`` uses the memory of recordings no longer referred to again (ambdaq.mcap.memory):
     a second load of a 4.0 MB file takes a small part of that from the allocator; arrays still
     held, even one field alone or a view of it, keep theirs through loads of equal size."""
     import tracemalloc
@@ -228,7 +228,8 @@ def test_the_memory_kept_between_loads_is_bounded_and_can_be_given_back(tmp_path
     import gc
     import tracemalloc
 
-    from ambdaq.daq import memory, release_memory
+    from ambdaq.daq import release_memory
+    from ambdaq.mcap import memory
 
     f = tmp_path / "s.mcap"
     assert run_cli("sim", "generate", "--duration", "0.6", "-q", "-o", f).exit_code == 0

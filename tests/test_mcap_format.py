@@ -10,7 +10,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 
 SPINDLE_TOPICS = {"/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/accel", "/amb/rotor",
                   "/truth/runout", "/truth/position"}
@@ -80,7 +80,7 @@ def test_chunks_are_cut_at_the_chunk_size_between_sample_instants(spindle_file):
     """The generator hands the writer one 7 MB block per simulated second; the writer cuts it so
     no chunk passes CHUNK_SIZE by more than one instant's records (712 bytes: the reader's speed
     and a damaged chunk's loss depend on it), and each chunk starts on a whole instant."""
-    from ambdaq.daq.mcapfile import CHUNK_SIZE
+    from ambdaq.mcap.mcapfile import CHUNK_SIZE
 
     f = McapFile(spindle_file)
     chunks = f.summary.chunk_indexes
@@ -230,8 +230,8 @@ def test_records_that_begin_rows_they_do_not_keep_are_read_by_the_records(tmp_pa
     never under the other's."""
     import struct
 
-    from ambdaq.daq.mcapfile import BlockWriter
-    from ambdaq.daq.schema import CDR_LE_HEADER, TopicLayout
+    from ambdaq.mcap.mcapfile import BlockWriter
+    from ambdaq.mcap.schema import CDR_LE_HEADER, TopicLayout
     from ambdaq.drivers.signals import SignalGroup
 
     path = tmp_path / "swapped.mcap"

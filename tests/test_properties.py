@@ -17,11 +17,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ambdaq.daq.coefficients import Coefficients
-from ambdaq.daq.compensator_points import load_points, save_points
-from ambdaq.daq.frequency_response import FrequencyResponse
-from ambdaq.daq.recover import recover
-from ambdaq.daq.sealed import seal
+from ambdaq.documents.coefficients import Coefficients
+from ambdaq.documents.compensator_points import load_points, save_points
+from ambdaq.documents.frequency_response import FrequencyResponse
+from ambdaq.acquisition.recover import recover
+from ambdaq.documents.sealed import seal
 from ambdaq.drivers.rigfile import load_rig
 from ambdaq.drivers.serial.framing import FrameDecoder, encode_frame
 from ambdaq.errors import BadInputError
@@ -147,7 +147,7 @@ def test_the_serial_decoder_takes_any_bytes_and_keeps_the_good_frames(profile):
 
 @pytest.fixture(scope="module")
 def small_recording(tmp_path_factory):
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.sim.source import SimSource
     from ambdaq.speed import SpeedProfile
 
@@ -160,7 +160,7 @@ def small_recording(tmp_path_factory):
 @pytest.mark.parametrize("profile", PROFILES)
 def test_reading_and_recovering_a_damaged_file_ends_in_data_or_bad_input(small_recording, tmp_path, profile):
     from ambdaq.daq import load
-    from ambdaq.daq.mcapfile import McapFile
+    from ambdaq.mcap.mcapfile import McapFile
 
     data = small_recording
 

@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
-from ambdaq.daq.coefficients import Coefficients
+from ambdaq.documents.coefficients import Coefficients
 from ambdaq.drivers.serial.controller import ControllerDriver
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import N_HARMONICS, SpindleRig

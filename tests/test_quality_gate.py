@@ -78,7 +78,7 @@ def test_a_device_that_restarted_its_count_is_said(run_cli, tmp_path):
     count, but the time across the restart is not known to be whole, and the result says so."""
     import numpy as np
 
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.drivers.interfaces import PassThrough
     from ambdaq.sim.source import SimSource
     from ambdaq.speed import SpeedProfile

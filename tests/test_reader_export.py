@@ -6,7 +6,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.errors import BadInputError
 
 
@@ -111,8 +111,8 @@ def test_slices_by_time_an_index_pandas_resamples_and_one_frame_of_several_topic
 def _write_gap(path, order, official_chunk_size=None):
     """A /amb/gap file holding instants ``order`` (0..199, 100 us apart): written by the official
     writer (chunks cut where it likes), or by ours in blocks of 25 instants, one chunk each."""
-    from ambdaq.daq.schema import MESSAGE_HEADER_SIZE, TopicLayout
-    from ambdaq.daq.writer import RecordingWriter
+    from ambdaq.mcap.schema import MESSAGE_HEADER_SIZE, TopicLayout
+    from ambdaq.acquisition.writer import RecordingWriter
     from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
     group = SignalGroup("/amb/gap", "Gap", ("front_x", "front_y"), ("m", "m"))

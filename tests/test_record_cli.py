@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
-from ambdaq.daq.recorder import Progress, Recorder, RecordOptions, print_progress
+from ambdaq.mcap.mcapfile import McapFile
+from ambdaq.acquisition.recorder import Progress, Recorder, RecordOptions, print_progress
 from ambdaq.drivers.registry import open_url
 
 pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)

@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SpeedProfile
 

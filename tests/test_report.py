@@ -23,7 +23,7 @@ def session(tmp_path_factory):
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli
-    from ambdaq.daq.coefficients import file_sha256
+    from ambdaq.documents.coefficients import file_sha256
     from ambdaq.workflows.push import append_local_log
 
     d = tmp_path_factory.mktemp("session")

@@ -148,7 +148,7 @@ def test_runout_uncertainty_is_the_scatter_of_its_estimate(tmp_path):
     1.2x of 1 (the pooled figure over 50 x 5 axes x 3 orders x 2 parts = 1,500 values is good to
     about 2 %; a single axis and order's, from 50, only to 10 %, hence pooled, and each within 1.4x)."""
     from ambdaq.daq import load
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.sim.source import SimSource
     from ambdaq.workflows.runout import identify_recordings
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.coefficients import Coefficients
+from ambdaq.documents.coefficients import Coefficients
 from ambdaq.sim.rigs.spindle import SPINDLE
 from ambdaq.errors import BadInputError
 

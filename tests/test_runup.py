@@ -466,7 +466,7 @@ def test_a_recordings_malformed_gains_are_refused_in_one_line_when_the_model_nee
     """A controller's calibration that states its gains wrongly (one D for five axes, a P of zero:
     a rig file's [device.calibration] can say anything) is one line, exit 2, under --model spindle;
     without --model nothing needs them and the run-up is tracked."""
-    from ambdaq.daq.recorder import Recorder, RecordOptions
+    from ambdaq.acquisition.recorder import Recorder, RecordOptions
     from ambdaq.sim.source import SimSource
     from ambdaq.speed import SpeedProfile
 

@@ -4,7 +4,7 @@ restarts, the missing tail, and a file's counts read back through ``ambdaq info`
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from ambdaq.daq.sequence import SequenceTracker, WRAP
+from ambdaq.acquisition.sequence import SequenceTracker, WRAP
 
 
 def judge(seq, times, tracker=None):

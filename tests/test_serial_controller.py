@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.mcap.mcapfile import McapFile
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.registry import open_device
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import SpindleRig

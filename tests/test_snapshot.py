@@ -22,9 +22,9 @@ from click.testing import CliRunner
 
 from ambdaq.cli.main import cli
 from ambdaq.daq import load
-from ambdaq.daq.recorder import Recorder, RecordOptions
-from ambdaq.daq.snapshot import SnapshotOptions
-from ambdaq.daq.triggers import parse_trigger
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.snapshot import SnapshotOptions
+from ambdaq.acquisition.triggers import parse_trigger
 from ambdaq.drivers.interfaces import Source
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
 

@@ -13,7 +13,7 @@ import pytest
 from ambdaq.analysis.orders import WHIRL_RATIO
 from ambdaq.analysis.touchdown import AT_CLEARANCE, IMPACT_WINDOW_S
 from ambdaq.daq.recording import load, open_recording
-from ambdaq.daq.touchdowns import recorded_drop
+from ambdaq.acquisition.touchdowns import recorded_drop
 from report_page import Tables
 
 RATE_HZ = 10_000.0  # both rigs' sample rate

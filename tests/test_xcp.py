@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.drivers.coefbank import BankImage, crc32
 from ambdaq.drivers.registry import open_controller
 from ambdaq.errors import DeviceError

@@ -20,7 +20,7 @@ import pytest
 from xcp_tcp import commands
 
 from ambdaq.daq import load
-from ambdaq.daq.mcapfile import McapFile
+from ambdaq.mcap.mcapfile import McapFile
 
 pytestmark = pytest.mark.realtime
 

@@ -36,7 +36,7 @@ import numpy as np
 from ambdaq.analysis.iso14839 import db, model_sensitivity
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load
-from ambdaq.daq.recorder import Recorder, RecordOptions
+from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SLOW_ROLL_RPM, SpeedProfile
 
@@ -477,7 +477,7 @@ def drop(rpm: float, lasting_s: float, seeds: range, at_s: float = 0.5) -> Row:
     from ambdaq.analysis.touchdown import AT_CLEARANCE, IMPACT_WINDOW_S
     from ambdaq.cli.main import cli
     from ambdaq.daq.recording import open_recording
-    from ambdaq.daq.touchdowns import recorded_drop
+    from ambdaq.acquisition.touchdowns import recorded_drop
 
     d_on, d_speed = [], []
     with tempfile.TemporaryDirectory() as d:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..daq.compensator_points import PAIRS
+from ..documents.compensator_points import PAIRS
 from ..errors import BadInputError
 from ..machines.base_motion import PLANES
 from ..workflows import fx

@@ -174,7 +174,7 @@ def vibration(recordings, cmin, coefficients, band_rpm, limits, output, overwrit
       ambdaq iso vibration run_*.mcap --cmin 150 --band-rpm 5000 --json
     """
     from ..daq.recording import open_recording
-    from ..daq.sealed import write_sealed
+    from ..documents.sealed import write_sealed
     from ..workflows import iso_vibration as iso
 
     grades, info = iso.evaluate([open_recording(p) for p in recordings], cmin_m=None if cmin is None else cmin * 1e-6,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..daq.recorder import Progress
+from ..acquisition.recorder import Progress
 from ..live.view import BearingStatus
 
 

@@ -230,8 +230,8 @@ DURATION = Seconds()
 def snapshot_options(command):
     """--snapshot, --post, --trigger, --cmin, --snapshot-memory: handed to the command as one
     ``snapshot: SnapshotOptions | None`` (triggers parsed here, so a bad one is exit 2 before anything opens)."""
-    from ..daq.snapshot import SnapshotOptions
-    from ..daq.triggers import ManualTrigger, parse_trigger
+    from ..acquisition.snapshot import SnapshotOptions
+    from ..acquisition.triggers import ManualTrigger, parse_trigger
     from ..errors import BadInputError
 
     @functools.wraps(command)

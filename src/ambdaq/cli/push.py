@@ -11,7 +11,7 @@ import click
 
 from ..workflows.push import describe_difference, plan_push, plan_rollback, push, resolve_key
 from ..workflows.push import rollback as roll_back
-from ..daq.coefficients import Coefficients
+from ..documents.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..drivers.registry import open_controller
 from ..drivers.rigfile import load_rig

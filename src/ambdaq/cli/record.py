@@ -11,8 +11,8 @@ from pathlib import Path
 
 import click
 
-from ..daq.recorder import Progress, Recorder, RecordOptions, print_progress
-from ..daq.snapshot import SnapshotOptions
+from ..acquisition.recorder import Progress, Recorder, RecordOptions, print_progress
+from ..acquisition.snapshot import SnapshotOptions
 from ..drivers.registry import Opened, open_url
 from ..drivers.rigfile import RigFile, load_rig
 from ..errors import BadInputError
@@ -27,7 +27,7 @@ def run_recording(sources, out: Output, *, duration, quiet, as_json, rig: RigFil
     with ``live``, serve the topics to Foxglove while recording; with ``snapshot``, write a file
     around each trigger instead of one recording; ``rig``: the rig file they came from (attached,
     its [machine] described); ``records``: more metadata records for every file (what the
-    workflow did to the machine: :class:`~ambdaq.daq.recorder.RecordOptions`)."""
+    workflow did to the machine: :class:`~ambdaq.acquisition.recorder.RecordOptions`)."""
     options = RecordOptions(duration_s=duration, split_size=out.split_size, split_duration_s=out.split_duration_s,
                             compression=out.compression, reconnect=reconnect, fsync=out.fsync, snapshot=snapshot,
                             index=out.index, records=records or {})

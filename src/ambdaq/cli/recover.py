@@ -6,7 +6,7 @@ import json
 
 import click
 
-from ..daq.recover import recover
+from ..acquisition.recover import recover
 
 
 @click.command("recover")

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import click
 import numpy as np
 
-from ..daq.coefficients import Coefficients, fir_array
+from ..documents.coefficients import Coefficients, fir_array
 from ..drivers.excitation import TEST_SIGNAL_RECORD
 from ..machines.base_motion import PLANES
 from ..errors import BadInputError

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError
-from .output import check_output
-from .reader import TopicData
+from ..output import check_output
+from ..mcap.reader import TopicData
 from .recording import Recording
 
 FORMATS = ("csv", "npz", "parquet", "mf4")

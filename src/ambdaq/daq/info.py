@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .mcapfile import McapFile
-from .reader import ambdaq_channels
+from ..mcap.mcapfile import McapFile
+from ..mcap.reader import ambdaq_channels
 from .recording import statistics_entry
 
 

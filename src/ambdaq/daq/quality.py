@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .recording import Recording
-from .sequence import HALF, WRAP
+from ..acquisition.sequence import HALF, WRAP
 
 MAX_LOST = 0.001
 """The share of a topic's samples that may be lost (0.1 %): a few isolated holes, as a CAN bus or

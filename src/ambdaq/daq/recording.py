@@ -9,7 +9,7 @@
 A :class:`Recording` reads the file's summary and metadata when it is opened and never again; a
 topic is decoded when first asked for and kept (:mod:`.reader` for ambdaq's fixed layouts,
 :mod:`.foreign` through the official decoders for other writers').  It is a read-only mapping of
-topic to :class:`~ambdaq.daq.reader.TopicData`.  What the file says about its devices is typed
+topic to :class:`~ambdaq.mcap.reader.TopicData`.  What the file says about its devices is typed
 (:class:`DeviceInfo`), and its machine (:class:`~ambdaq.machines.machine.Machine`) says where each
 signal role is recorded: workflows ask for ``rec.role("gap")``, not for a topic name.
 """
@@ -27,9 +27,9 @@ import numpy as np
 from ..errors import BadInputError
 from ..layout import ROLE_TOPICS
 from ..machines.machine import RECORD, Machine
-from .foreign import NotFixed, fixed_topics, foreign_topics, load_fixed, load_foreign
-from .mcapfile import McapFile
-from .reader import READ_THREADS, NotInRecording, TopicData, ambdaq_channels, read_fixed
+from ..mcap.foreign import NotFixed, fixed_topics, foreign_topics, load_fixed, load_foreign
+from ..mcap.mcapfile import McapFile
+from ..mcap.reader import READ_THREADS, NotInRecording, TopicData, ambdaq_channels, read_fixed
 
 DEVICE, CALIBRATION, CLOCK, LINK = "ambdaq.device.", "ambdaq.calibration.", "ambdaq.clock.", "ambdaq.link."
 
@@ -288,7 +288,7 @@ class Recording(Mapping):
         tolerance_s : float, optional
             The oldest a joined sample may be, s.
         """
-        from .reader import _pandas, _time_index
+        from ..mcap.reader import _pandas, _time_index
 
         pd = _pandas()
         if not topics:
@@ -396,7 +396,7 @@ def load(path: str | Path | McapFile, topics: list[str] | tuple[str, ...] | None
     Returns
     -------
     Recording
-        ``rec[topic]`` is a :class:`~ambdaq.daq.reader.TopicData`; ``rec.metadata`` holds the
+        ``rec[topic]`` is a :class:`~ambdaq.mcap.reader.TopicData`; ``rec.metadata`` holds the
         file's metadata.
 
     Raises

@@ -15,7 +15,7 @@ import numpy as np
 
 
 HEADER_FIELDS = ("device_time", "seq", "status")
-"""The members every ambdaq message begins with (:mod:`ambdaq.daq.schema`): no signal's field."""
+"""The members every ambdaq message begins with (:mod:`ambdaq.mcap.schema`): no signal's field."""
 ROS_FIELD = re.compile(r"[a-z](?:[a-z0-9]|_(?!_))*(?<!_)")
 """A field name ROS 2 and Foxglove accept: lower case, no double or trailing underscore."""
 

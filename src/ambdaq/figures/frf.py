@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..analysis.frf import COHERENT
-from ..daq.frequency_response import FrequencyResponse
+from ..documents.frequency_response import FrequencyResponse
 from . import pyplot
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..machines.base_motion import PLANES
-from ..daq.compensator_points import PAIRS
+from ..documents.compensator_points import PAIRS
 from . import pyplot
 
 

@@ -3,7 +3,7 @@ sample (``ambdaq record --live``, docs/live.md).
 
 The server is foxglove-sdk's (``foxglove.start_server``, in Rust on its own threads): each client
 has a bounded queue that drops its oldest messages when the client is slow, so no viewer can stall
-the recorder. It is a sink of the acquisition (:mod:`ambdaq.daq.acquisition`): every block received
+the recorder. It is a sink of the acquisition (:mod:`ambdaq.acquisition.acquisition`): every block received
 goes to :meth:`FoxgloveLive.received`, which logs
 every ``decimation``-th sample of each topic as JSON (a display rate a viewer can take: 100 Hz by
 default against the devices' 10 kHz). A thread of its own publishes the derived topics five times
@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..daq.acquisition import Sink
+from ..acquisition.acquisition import Sink
 from ..machines.machine import Machine
 from .view import LiveView
 

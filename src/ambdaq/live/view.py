@@ -1,7 +1,7 @@
 """What a recording shows while it runs: per device its sample rate and losses, per bearing the gap's
 DC and 1X amplitude from the key-phasor, the speed, the file size and the time to the next split.
 
-It is a sink of the acquisition (:mod:`ambdaq.daq.acquisition`): every block received goes to
+It is a sink of the acquisition (:mod:`ambdaq.acquisition.acquisition`): every block received goes to
 :meth:`LiveView.received` (a reference kept in a short ring, no copy, no arithmetic on the
 acquisition's thread), before its clock is mapped, so a controller's figures show from its first block; they are computed only when the terminal is
 redrawn, over the device's last ``WINDOW_S`` seconds of samples.
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..analysis.runout import harmonic_fit
-from ..daq.acquisition import Sink
+from ..acquisition.acquisition import Sink
 from ..machines.machine import Machine
 from ..units import RAD_S_TO_RPM
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.runout import harmonic_fit
-from ..daq.coefficients import Coefficients
+from ..documents.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError

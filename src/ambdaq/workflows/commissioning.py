@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.orders import CriticalLimits
-from ..daq.coefficients import Coefficients, file_sha256
+from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
-from ..daq.touchdowns import recorded_drop
+from ..acquisition.touchdowns import recorded_drop
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .apht import Apht, apht
@@ -48,7 +48,7 @@ class SessionFiles:
         :func:`~ambdaq.workflows.runup_diagnostics.model_modes`); None: not verified.
     drops : list of Recording
         Snapshot files a touchdown trigger caught (``record --snapshot``): the rotor drop each holds
-        (ISO 14839-5, :mod:`ambdaq.daq.touchdowns`).
+        (ISO 14839-5, :mod:`ambdaq.acquisition.touchdowns`).
     operating_rpm : (float, float) or None
         Minimum operating and maximum continuous speed, rpm: with ``model``, the critical speeds'
         API 617 separation margins are checked against them.

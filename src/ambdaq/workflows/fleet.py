@@ -33,9 +33,9 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..analysis.runout import harmonic_fit
-from ..daq.coefficients import file_sha256
-from ..daq.mcapfile import MAGIC
-from ..daq.reader import READ_THREADS
+from ..documents.coefficients import file_sha256
+from ..mcap.mcapfile import MAGIC
+from ..mcap.reader import READ_THREADS
 from ..daq.recording import Recording
 from ..errors import AmbdaqError, BadInputError
 from ..units import RAD_S_TO_RPM
@@ -54,7 +54,7 @@ key-phasor, and the sensor runout per harmonic (``runout identify``)."""
 BEARING_FIELDS = ("vibration_um", "ratio")  # and "zone": the worst band of ``iso vibration`` per bearing
 TOUCHDOWN_NUMBERS = ("speed_rpm", "on_bearing_s", "peak_ratio", "amplifier_at_limit", "impact_speed_m_s", "energy_j")
 TOUCHDOWN_TEXT = ("peak_at", "whirl")
-"""What a row says of each rotor drop a snapshot file holds (``ambdaq.touchdown``, :mod:`ambdaq.daq.touchdowns`),
+"""What a row says of each rotor drop a snapshot file holds (``ambdaq.touchdown``, :mod:`ambdaq.acquisition.touchdowns`),
 beside its time and whether the rotor levitated again."""
 
 
@@ -71,7 +71,7 @@ def _touchdowns(rec: Recording) -> list[dict]:
     """The rotor drop a snapshot file characterised (its ``ambdaq.touchdown``), as a row's list."""
     from dataclasses import asdict
 
-    from ..daq.touchdowns import recorded_drop
+    from ..acquisition.touchdowns import recorded_drop
 
     drop = recorded_drop(rec.metadata)
     if drop is None:

@@ -13,8 +13,8 @@ from typing import Callable
 import numpy as np
 
 from ..analysis.frf import COHERENT, coherent_band, h1_estimate
-from ..daq.coefficients import file_sha256
-from ..daq.frequency_response import FrequencyResponse
+from ..documents.coefficients import file_sha256
+from ..documents.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording, same_instants
 from ..drivers.excitation import OFF, TEST_SIGNAL_RECORD, Excitation, ExcitationRequest
@@ -108,7 +108,7 @@ def measure(device: str, request: ExcitationRequest, duration_s: float, output: 
         Replace an existing regular file.
     record : callable, optional
         Records the opened sources, with the metadata records it is given (the test signal's),
-        instead of a plain :class:`~ambdaq.daq.recorder.Recorder` (the command line's, with its
+        instead of a plain :class:`~ambdaq.acquisition.recorder.Recorder` (the command line's, with its
         progress and status).
 
     Returns
@@ -116,7 +116,7 @@ def measure(device: str, request: ExcitationRequest, duration_s: float, output: 
     Excited
         What ran; its ``switch_off_problem`` says if the signal could not be switched off.
     """
-    from ..daq.recorder import Recorder, RecordOptions
+    from ..acquisition.recorder import Recorder, RecordOptions
 
     with speed_restored(device, description, on_restore) if speed else nullcontext():
         with Opened() as opened:

@@ -19,12 +19,12 @@ import numpy as np
 
 from ..analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
 from ..analysis.runout import harmonic_fit
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.compensator_points import PAIRS, load_points, save_points
-from ..daq.frequency_response import FrequencyResponse
+from ..documents.coefficients import Coefficients, file_sha256, now_iso
+from ..documents.compensator_points import PAIRS, load_points, save_points
+from ..documents.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import load, same_instants
-from ..daq.recorder import Recorder, RecordOptions
+from ..acquisition.recorder import Recorder, RecordOptions
 from ..drivers.registry import endpoints, open_device
 from ..drivers.shaker import Shaker, drive_problem
 from ..errors import BadInputError, DeviceError

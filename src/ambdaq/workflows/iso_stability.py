@@ -23,11 +23,11 @@ from ..analysis.frf import h1_estimate
 from ..analysis.runout import harmonic_fit, synthesise
 from ..analysis.iso14839 import (STABILITY_LIMITS, StabilityGrade, ZoneLimits, closed_and_open_loop, grade_stability,
                                  sensitivity)
-from ..daq.coefficients import file_sha256
+from ..documents.coefficients import file_sha256
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
-from ..daq.recorder import Recorder, RecordOptions
-from ..daq.sealed import write_sealed
+from ..acquisition.recorder import Recorder, RecordOptions
+from ..documents.sealed import write_sealed
 from ..drivers.excitation import ExcitationRequest
 from ..drivers.interfaces import Controller
 from ..drivers.registry import Opened, open_url
@@ -295,8 +295,8 @@ def save(path: Path, runs: list[AxisRun], *, limits: ZoneLimits, min_coherence: 
 
 def load_results(path: Path):
     """A results file of :func:`save`, checked (format, checksum, every value's type and range)."""
-    from ..daq.sealed import read_sealed
-    from ..daq.sealed_schemas import StabilityDocument, check_document
+    from ..documents.sealed import read_sealed
+    from ..documents.sealed_schemas import StabilityDocument, check_document
 
     return check_document(StabilityDocument, read_sealed(path, FORMAT, VERSION, "ISO 14839-3 results file"), path)
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.iso14839 import VIBRATION_LIMITS, ZoneLimits
-from ..daq.coefficients import Coefficients, file_sha256
+from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError

@@ -11,8 +11,8 @@ import numpy as np
 
 from ..analysis.lms import (DesignModels, PhaseTable, StateSpaceLoop, convergence_radius, measured_phase_compensation,
                             mu_sign, phase_compensation, sign_changes, sign_schedule)
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
-from ..daq.frequency_response import FrequencyResponse
+from ..documents.coefficients import Coefficients, file_sha256, now_iso
+from ..documents.frequency_response import FrequencyResponse
 from ..errors import BadInputError
 from .plants import analysing, design_models, resolve_plant
 

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.signal import ss2tf
 
 from ..analysis.lms import DesignModels, PlantLoop, StateSpaceLoop
-from ..daq.sealed import check_regular_file, read_json
+from ..documents.sealed import check_regular_file, read_json
 from ..errors import BadInputError
 from ..sim.profiles import profile
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..daq.coefficients import Coefficients, file_sha256, fir_array, now_iso
+from ..documents.coefficients import Coefficients, file_sha256, fir_array, now_iso
 from ..drivers.coefbank import BankImage, crc32
 from ..drivers.interfaces import UNLOCK_KEY_ENV
 from ..errors import BadInputError, DeviceError, DeviceTimeout

@@ -12,7 +12,7 @@ import numpy as np
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, model_bound,
                                separate_unbalance,
                                synchronous_average, synthesise)
-from ..daq.coefficients import Coefficients, file_sha256, now_iso
+from ..documents.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.recording import Recording
 from ..errors import AmbdaqWarning, BadInputError

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..daq.coefficients import Coefficients
+from ..documents.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..speed import SpeedProfile
 from ..sim.rigs.spindle import AXES, N_HARMONICS, SPINDLE, RunoutFeedforward, SpindleRig  # the rig compared on

@@ -25,7 +25,7 @@ from ..analysis.orders import (SPEED_TOLERANCE, CriticalCheck, CriticalLimits, O
                                from_response, one_x_peaks, order_track, predicted_criticals, verify_criticals)
 from ..analysis.runout import harmonic_fit, synthesise
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
-from ..daq.coefficients import Coefficients
+from ..documents.coefficients import Coefficients
 from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError

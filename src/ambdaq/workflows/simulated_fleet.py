@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..daq.recorder import Recorder, RecordOptions
+from ..acquisition.recorder import Recorder, RecordOptions
 from ..drivers.interfaces import PassThrough
 from ..drivers.signals import SampleBlock
 from ..sim.rigs.spindle import SPINDLE  # the simulated fleet is of spindles

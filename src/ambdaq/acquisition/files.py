@@ -13,7 +13,7 @@ from pathlib import Path
 from .. import __version__
 from ..machines.machine import RECORD as MACHINE_RECORD, Machine
 from .acquisition import Acquisition
-from .output import check_output
+from ..output import check_output
 from .writer import RecordingWriter
 
 

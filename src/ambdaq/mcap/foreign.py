@@ -1,5 +1,5 @@
 """Topics of MCAP files ambdaq did not write (rosbag2, Foxglove, any MCAP writer), read through the
-official decoders into the same :class:`~ambdaq.daq.reader.TopicData` as ambdaq's own, so that
+official decoders into the same :class:`~ambdaq.mcap.reader.TopicData` as ambdaq's own, so that
 ``load``, ``export`` and ``plot`` take them.
 
 A ros2msg/CDR message is decoded by ``mcap-ros2-support``, a protobuf one by

@@ -34,10 +34,10 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 
 from ..errors import BadInputError
-from .codec import CorruptChunk, crc32, declared_size, first_frame, inflate
-from .mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, iter_records, message_indexes_of, rows_index
-from .output import check_output
-from .schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
+from ..mcap.codec import CorruptChunk, crc32, declared_size, first_frame, inflate
+from ..mcap.mcapfile import FOOTER_SIZE, MAGIC, BlockWriter, _read, chunk_header, iter_records, message_indexes_of, rows_index
+from ..output import check_output
+from ..mcap.schema import MESSAGE_HEADER_SIZE, MESSAGE_OPCODE, TopicLayout, parse_schema
 from .sequence import SampleCounts, SequenceTracker
 from .writer import PROFILE
 

@@ -16,7 +16,7 @@ import zlib
 from pathlib import Path
 
 from ..errors import BadInputError
-from .output import check_output
+from ..output import check_output
 
 MAX_BYTES = 64 * 2**20  # the largest sealed document ambdaq writes is well under 1 MiB
 

@@ -8,7 +8,7 @@ import os
 import stat
 from pathlib import Path
 
-from ..errors import BadInputError
+from .errors import BadInputError
 
 KINDS = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device",
          stat.S_IFBLK: "a block device", stat.S_IFSOCK: "a socket"}

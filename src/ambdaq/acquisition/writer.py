@@ -8,7 +8,7 @@ Metadata written (all values are strings; see docs/data-format.md):
 ``ambdaq.device.<name>``      device identity (URL, kind, profile, sample rate ...)
 ``ambdaq.calibration.<name>`` calibration the device reported
 ``ambdaq.statistics``         per topic: JSON with the device's samples, drops, duplicates, wraps,
-                              restarts in this file (:class:`~ambdaq.daq.sequence.SampleCounts`),
+                              restarts in this file (:class:`~ambdaq.acquisition.sequence.SampleCounts`),
                               first/last seq, rate
 """
 
@@ -23,9 +23,9 @@ import numpy as np
 
 from ..drivers.signals import Event, SampleBlock, SignalGroup
 from ..errors import BadInputError, DeviceError
-from .mcapfile import CHUNK_SIZE, BlockWriter
+from ..mcap.mcapfile import CHUNK_SIZE, BlockWriter
 from .sequence import SampleCounts
-from .schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
+from ..mcap.schema import (CDR_LE_HEADER, EVENT_SCHEMA_NAME, EVENT_SCHEMA_TEXT, MESSAGE_HEADER_SIZE, MESSAGE_OPCODE,
                      TopicLayout, encode_event)
 
 PROFILE = "ambdaq"

@@ -22,8 +22,8 @@ from ..errors import BadInputError, DeviceError
 from ..machines.machine import Machine
 from .acquisition import Acquisition, Sink
 from .files import RecordingFiles
-from .mcapfile import CHUNK_SIZE, McapFile
-from .output import check_output
+from ..mcap.mcapfile import CHUNK_SIZE, McapFile
+from ..output import check_output
 from .parts import FileParts, split_names
 from .sequence import SampleCounts
 from .snapshot import SnapshotOptions, Snapshots, check_memory, drop_bound, memory_bound

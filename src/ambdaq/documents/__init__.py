@@ -1,0 +1,2 @@
+"""The sealed JSON documents: coefficient files, frequency responses, compensator
+points, and the sealing and schemas they share."""
