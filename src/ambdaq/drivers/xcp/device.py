@@ -49,7 +49,8 @@ from .a2l import TYPES, A2lFile, A2lMeasurement, A2lParameter, Conversion
 from .checksum import checksum
 from .daq import DaqListPlan, DtoAssembler, Element, plan_lists, unwrap_timestamps
 from .keys import KeyAlgorithm
-from .master import RES_CALPAG, RES_DAQ, RESOURCES, EventChannel, XcpMaster, XcpRefused
+from .master import RESOURCES, EventChannel, XcpMaster, XcpRefused
+from .wire import RES_CALPAG, RES_DAQ
 from .transport import Link
 
 LENGTH = struct.Struct("<I")

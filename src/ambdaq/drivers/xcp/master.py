@@ -21,64 +21,27 @@ from dataclasses import dataclass
 
 from ...errors import DeviceError
 from .transport import Link
+from .wire import (ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, BUILD_CHECKSUM, CHECKSUM_TYPES, CLEAR_DAQ_LIST, CONNECT,
+                   COPY_CAL_PAGE, DISCONNECT, DOWNLOAD, ERR_CMD_UNKNOWN, EV_CMD_PENDING, EV_DAQ_OVERLOAD,
+                   EV_SESSION_TERMINATED, FREE_DAQ, GET_CAL_PAGE, GET_COMM_MODE_INFO, GET_DAQ_EVENT_INFO,
+                   GET_DAQ_LIST_INFO, GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_ID, GET_SEED, GET_STATUS,
+                   PID_ERR, PID_EV, PID_SERV, RES_CALPAG, RES_DAQ, RES_PGM, RES_STIM, SERV_TEXT,
+                   SET_CAL_PAGE, SET_DAQ_LIST_MODE, SET_DAQ_PTR, SET_MTA, SET_REQUEST,
+                   START_STOP_DAQ_LIST, START_STOP_SYNCH, TIME_UNITS_NS, UNLOCK, UPLOAD, WRITE_DAQ,
+                   XCP_ERRORS)
 
-PID_RES, PID_ERR, PID_EV, PID_SERV = 0xFF, 0xFE, 0xFD, 0xFC
-EV_CMD_PENDING, EV_DAQ_OVERLOAD, EV_SESSION_TERMINATED = 0x05, 0x06, 0x07
-SERV_TEXT = 0x01
 TIMEOUT_S = 1.0  # a command unanswered this long is a timeout (ASAM XCP Part 2's T1, 1 s as slaves commonly set it)
 PENDING_S = 5.0  # how long EV_CMD_PENDING may extend it, in all
 DISCONNECT_S = 0.5  # how long the DISCONNECT of a session ended by an error waits for its answer
 
-# resources (CONNECT, GET_STATUS, GET_SEED)
-RES_CALPAG, RES_DAQ, RES_STIM, RES_PGM = 0x01, 0x04, 0x08, 0x10
 RESOURCES = {"calpag": RES_CALPAG, "daq": RES_DAQ, "stim": RES_STIM, "pgm": RES_PGM}
 
-# command codes (Part 2, table of commands)
-CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
-SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF9, 0xF8, 0xF7, 0xF6, 0xF5, 0xF4, 0xF3
-DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, COPY_CAL_PAGE = 0xF0, 0xEB, 0xEA, 0xE4
-SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
-GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDA, 0xD9, 0xD7
-GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST = 0xD8, 0xE3
-FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
-
-ERR_CMD_UNKNOWN = 0x20
 OPTIONAL = {GET_COMM_MODE_INFO: "GET_COMM_MODE_INFO", GET_ID: "GET_ID", GET_DAQ_PROCESSOR_INFO: "GET_DAQ_PROCESSOR_INFO", GET_DAQ_RESOLUTION_INFO: "GET_DAQ_RESOLUTION_INFO",
             GET_DAQ_EVENT_INFO: "GET_DAQ_EVENT_INFO", GET_DAQ_LIST_INFO: "GET_DAQ_LIST_INFO"}
 """The commands ambdaq asks that ASAM XCP Part 2 makes optional and whose answers an A2L can give
 instead (its IF_DATA XCP): a slave that answers one with ERR_CMD_UNKNOWN is asked no more, and the
 master says so (:attr:`XcpMaster.lacking`)."""
 
-XCP_ERRORS = {
-    # ASAM MCD-1 XCP Part 2, the error codes of a negative response, and what each means
-    0x00: ("ERR_CMD_SYNCH", "command processor synchronisation"),
-    0x10: ("ERR_CMD_BUSY", "command not executed: the slave is busy"),
-    0x11: ("ERR_DAQ_ACTIVE", "command rejected while DAQ is running"),
-    0x12: ("ERR_PGM_ACTIVE", "command rejected while programming is running"),
-    0x20: ("ERR_CMD_UNKNOWN", "unknown command, or an optional one the slave lacks"),
-    0x21: ("ERR_CMD_SYNTAX", "command syntax invalid"),
-    0x22: ("ERR_OUT_OF_RANGE", "a command parameter is out of range"),
-    0x23: ("ERR_WRITE_PROTECTED", "the memory location is write protected"),
-    0x24: ("ERR_ACCESS_DENIED", "the memory location is not accessible"),
-    0x25: ("ERR_ACCESS_LOCKED", "access denied: seed & key is required"),
-    0x26: ("ERR_PAGE_NOT_VALID", "the page is not available"),
-    0x27: ("ERR_MODE_NOT_VALID", "the page mode is not available"),
-    0x28: ("ERR_SEGMENT_NOT_VALID", "the segment is not valid"),
-    0x29: ("ERR_SEQUENCE", "commands out of sequence"),
-    0x2A: ("ERR_DAQ_CONFIG", "the DAQ configuration is not valid"),
-    0x30: ("ERR_MEMORY_OVERFLOW", "memory overflow"),
-    0x31: ("ERR_GENERIC", "generic error"),
-    0x32: ("ERR_VERIFY", "the slave's verification found an error"),
-}
-
-CHECKSUM_TYPES = {0x01: "XCP_ADD_11", 0x02: "XCP_ADD_12", 0x03: "XCP_ADD_14", 0x04: "XCP_ADD_22",
-                  0x05: "XCP_ADD_24", 0x06: "XCP_ADD_44", 0x07: "XCP_CRC_16", 0x08: "XCP_CRC_16_CITT",
-                  0x09: "XCP_CRC_32", 0xFF: "XCP_USER_DEFINED"}
-"""BUILD_CHECKSUM's checksum type codes (Part 2)."""
-
-TIME_UNITS_NS = {0: 1, 1: 10, 2: 100, 3: 1_000, 4: 10_000, 5: 100_000, 6: 1_000_000, 7: 10_000_000,
-                 8: 100_000_000, 9: 1_000_000_000}
-"""DAQ timestamp and event cycle units (Part 2: DAQ_TIMESTAMP_UNIT_1NS ... _1S) in ns."""
 
 
 class XcpRefused(DeviceError):

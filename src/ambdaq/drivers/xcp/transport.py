@@ -18,15 +18,14 @@ skipped (:attr:`Link.malformed`), and the next datagram is read as usual.
 from __future__ import annotations
 
 import socket
-import struct
 import threading
 import time
 from abc import ABC, abstractmethod
 from collections import deque
 
 from ...errors import DeviceError
+from .wire import HEADER
 
-HEADER = struct.Struct("<HH")  # LEN, CTR (Part 3: Ethernet, SxI LEN_CTR_WORD)
 LINK_MAX = 0xFFFF  # the largest LEN a header can state; before CONNECT the slave's limit is unknown
 READ_WAIT_S = 0.05  # how long one receive waits, so that a closed link is noticed
 MAX_BUFFER = 4 << 20  # bytes held of a stream that does not frame: a slave sending garbage is cut off

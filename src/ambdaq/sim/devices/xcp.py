@@ -49,6 +49,14 @@ import numpy as np
 from ...drivers.coefbank import crc32
 from ...drivers.signals import SampleBlock
 from ...drivers.xcp.keys import sim_key
+from ...drivers.xcp.wire import (ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, BUILD_CHECKSUM, CHECKSUM_CRC_32, CLEAR_DAQ_LIST,
+                                 CONNECT, DISCONNECT, DOWNLOAD, ERR_CMD_SYNCH, ERR_CMD_SYNTAX, ERR_CMD_UNKNOWN,
+                                 ERR_DAQ_CONFIG, ERR_SEQUENCE, FREE_DAQ, GET_CAL_PAGE,
+                                 GET_COMM_MODE_INFO, GET_DAQ_CLOCK, GET_DAQ_EVENT_INFO, GET_DAQ_LIST_INFO,
+                                 GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_ID, GET_PAG_PROCESSOR_INFO,
+                                 GET_SEED, GET_STATUS, PID_ERR, PID_RES, RES_CALPAG, RES_DAQ, SET_CAL_PAGE,
+                                 SET_DAQ_LIST_MODE, SET_DAQ_PTR, SET_MTA, SET_REQUEST, SHORT_DOWNLOAD, SHORT_UPLOAD,
+                                 START_STOP_DAQ_LIST, START_STOP_SYNCH, SYNCH, UNLOCK, UPLOAD, WRITE_DAQ)
 from ...errors import DeviceError
 from ..profiles import profile
 from .banks import CoefficientBanks
@@ -58,11 +66,6 @@ from .xcp_memory import (ASAP2_NAME, ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, MEASUR
 from .xcp_transport import (HEADER, MAX_CTO, MAX_DTO, READ_WAIT_S, CanTransport, PtyLink, StreamTransport,
                             TcpLink)
 
-PID_RES, PID_ERR = 0xFF, 0xFE
-ERR_CMD_SYNCH, ERR_CMD_UNKNOWN, ERR_CMD_SYNTAX, ERR_DAQ_ACTIVE, ERR_SEQUENCE, ERR_DAQ_CONFIG = \
-    0x00, 0x20, 0x21, 0x11, 0x29, 0x2A
-RES_CALPAG, RES_DAQ = 0x01, 0x04
-CHECKSUM_CRC_32 = 0x09
 CAN_ID_MASTER, CAN_ID_SLAVE = 0x7F1, 0x7F2  # the simulated slave's XCP-on-CAN identifiers
 SEED_BYTES = 16
 EVENT_NAME = b"control"
@@ -73,13 +76,6 @@ MAX_DAQ_LISTS, MAX_ODT_ENTRY_SIZE = 16, 255
 STATIC_LISTS, STATIC_ODTS, STATIC_ENTRIES = 3, 16, 7  # static configuration: lists, ODTs per list, entries per ODT
 DAQ_QUEUE_S = 2.0
 
-CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID = 0xFF, 0xFE, 0xFD, 0xFC, 0xFB, 0xFA
-SET_REQUEST, GET_SEED, UNLOCK, SET_MTA, UPLOAD, SHORT_UPLOAD, BUILD_CHECKSUM = 0xF9, 0xF8, 0xF7, 0xF6, 0xF5, 0xF4, 0xF3
-DOWNLOAD, SHORT_DOWNLOAD, SET_CAL_PAGE, GET_CAL_PAGE, GET_PAG_PROCESSOR_INFO = 0xF0, 0xED, 0xEB, 0xEA, 0xE9
-SET_DAQ_PTR, WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH = 0xE2, 0xE1, 0xE0, 0xDE, 0xDD
-GET_DAQ_CLOCK, GET_DAQ_PROCESSOR_INFO, GET_DAQ_RESOLUTION_INFO, GET_DAQ_EVENT_INFO = 0xDC, 0xDA, 0xD9, 0xD7
-FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY = 0xD6, 0xD5, 0xD4, 0xD3
-GET_DAQ_LIST_INFO, CLEAR_DAQ_LIST = 0xD8, 0xE3
 
 
 @dataclass

@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...drivers.coefbank import crc32
+from ...drivers.xcp.wire import (ERR_ACCESS_LOCKED, ERR_CMD_BUSY, ERR_OUT_OF_RANGE,
+                                 ERR_PAGE_NOT_VALID, ERR_SEGMENT_NOT_VALID, ERR_VERIFY, ERR_WRITE_PROTECTED)
 from ..profiles import profile
 from .banks import BankRefused, CoefficientBanks
 from .firmware import Param
@@ -214,8 +216,6 @@ class Refused(Exception):
         self.code = code
 
 
-ERR_CMD_BUSY, ERR_OUT_OF_RANGE, ERR_WRITE_PROTECTED, ERR_ACCESS_LOCKED = 0x10, 0x22, 0x23, 0x25
-ERR_PAGE_NOT_VALID, ERR_MODE_NOT_VALID, ERR_SEGMENT_NOT_VALID, ERR_VERIFY = 0x26, 0x27, 0x28, 0x32
 REFUSAL_CODES = {"locked": ERR_ACCESS_LOCKED, "crc": ERR_VERIFY, "bad_value": ERR_VERIFY, "busy": ERR_CMD_BUSY}
 
 

@@ -12,13 +12,13 @@ from __future__ import annotations
 import os
 import select
 import socket
-import struct
 
 import numpy as np
 
+from ...drivers.xcp.wire import HEADER
+
 MAX_CTO = 255  # on TCP and SxI
 MAX_DTO = 1024
-HEADER = struct.Struct("<HH")  # LEN, CTR: XCP on TCP, and XCP on SxI with LEN_CTR_WORD framing
 READ_WAIT_S, WRITE_WAIT_S = 0.1, 0.5
 
 
