@@ -191,7 +191,7 @@ def test_selfsense_figure_has_the_convergence_region_and_one_legend_entry_each(t
 
 def test_model_region_legend_hides_none_of_the_region(run_cli, tmp_path):
     """The legend stands beside the (Kp, Kd) map: it covers none of the axes, so no stable gain."""
-    from ambdaq.cli.model import EXAMPLE, load_axis
+    from ambdaq.workflows.cone_axis import EXAMPLE, load_axis
     from ambdaq.figures.model import draw_region
     from ambdaq.analysis.cone import stable_region
 
