@@ -104,6 +104,10 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     assert data["runup"]["model_basis"].startswith("the PID gains the recording's controller ran (pid.p 1.6")
     assert html.escape(data["runup"]["model_basis"], quote=False) in dom.stdout
     crit = data["runup"]["critical_speeds"]
+    # one code path per number: the run-up's 1X peaks and critical speeds are what runup --json gives
+    alone = json.loads(run_cli("runup", session / "runup.mcap", "--coefficients", session / "coef.json", "--model",
+                               "spindle", "--operating", "1000:20000", "--orders", "1,2", "--json").stdout)
+    assert data["runup"]["peaks_1x"] == alone["peaks_1x"] and crit == alone["critical_speeds"]
     assert len(crit) >= 1 and tables.tables["critical-speeds"] == [
         [f"{c['predicted_rpm']:,.0f}", f"{c['predicted_amplification']:.2f}", c["whirl"] or "–",
          "–" if c["measured_rpm"] is None else f"{c['measured_rpm']:,.0f}", c["axis"] or "–",

@@ -52,7 +52,6 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
       ambdaq runup runup.mcap --coefficients coef.json --model spindle --plot runup.png
       ambdaq runup coastdown.mcap --slow-roll slow.mcap --orders 1,2,3 --json
     """
-    from ..analysis.orders import phase_lag_deg
     from ..daq.recording import open_recording
     from ..workflows.runout import RUNOUT_REMOVED
     from ..workflows.runup_diagnostics import analyse
@@ -67,38 +66,9 @@ def command(recording, coefficients, slow_roll, orders, revolutions, speeds, ope
         click.echo(f"ambdaq: warning: {note}", err=True)
     if coefficients:
         click.echo(f"ambdaq: note: {RUNOUT_REMOVED}", err=True)
-    t = res.track
     if as_json:
-        click.echo(json.dumps({
-            "recording": recording, "compensation": res.compensation, "notes": res.notes, "revolutions": revolutions,
-            "runout_removed": RUNOUT_REMOVED if coefficients else None,
-            "rpm": np.round(t.rpm, 1).tolist(),
-            "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
-                                   "phase_lag_deg": np.round(phase_lag_deg(t.order(k)[:, i]), 2).tolist()}
-                         for k in t.orders} for i, a in enumerate(res.axes)},
-            "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
-                              "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
-                              "amplification": round(p.amplification, 2),
-                              "critical": p.is_critical(res.limits.critically_damped)} for p in peaks]
-                         for a, peaks in res.peaks.items()},
-            "centreline": {"rpm": np.round(res.centreline.rpm, 1).tolist(),
-                           "time_s": np.round(res.centreline.time_s, 4).tolist(),
-                           "cmin_um": None if res.centreline.cmin_m is None else round(res.centreline.cmin_m * 1e6, 3),
-                           "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
-                                        for b, (x, y) in res.centreline.bearings.items()}},
-            "model_modes": None if res.modes is None else {
-                "basis": res.modes.basis, "assumed": res.modes.assumed,
-                "response_1x": {"rpm": res.modes.response_rpm.round(1).tolist(),
-                                **{a: {"amplitude_um": np.round(np.abs(v) * 1e6, 4).tolist(),
-                                       "phase_lag_deg": np.round(phase_lag_deg(v), 2).tolist()}
-                                   for a, v in res.modes.response.items()}},
-                "rpm": res.modes.rpm.round(1).tolist(),
-                "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in res.modes.freq_hz],
-                "damping": [[None if np.isnan(z) else round(float(z), 4) for z in row] for row in res.modes.damping],
-                "whirl": [[None if np.isnan(f) or not w else ("forward" if w > 0 else "backward")
-                           for f, w in zip(row, ws)] for row, ws in zip(res.modes.freq_hz, res.modes.whirl)]},
-            "critical_speeds": [c.as_dict() for c in res.criticals],
-        }, indent=2))
+        click.echo(json.dumps({**res.as_dict(recording, revolutions),
+                               "runout_removed": RUNOUT_REMOVED if coefficients else None}, indent=2))
     else:
         _print_table(res)
     if plot_path:

@@ -153,10 +153,7 @@ def gather(files: SessionFiles) -> Commissioning:
         notes += info["notes"] + diag.notes
         out["runup"] = {"rpm_from": round(float(diag.track.rpm.min()), 1), "rpm_to": round(float(diag.track.rpm.max()), 1),
                         "windows": int(diag.track.rpm.shape[0]), "compensation": diag.compensation,
-                        "peaks_1x": {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
-                                          "amplification": round(p.amplification, 2),
-                                          "critical": p.is_critical(diag.limits.critically_damped)}
-                                         for p in ps] for a, ps in diag.peaks.items()},
+                        "peaks_1x": diag.peaks_1x(),  # as runup --json gives them
                         "runout_removed": None if files.coefficients is None else RUNOUT_REMOVED,
                         "model": files.model, "model_basis": None if diag.modes is None else diag.modes.basis,
                         "critical_speeds": [c.as_dict() for c in diag.criticals]}

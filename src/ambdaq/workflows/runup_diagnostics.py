@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.orders import (SPEED_TOLERANCE, CriticalCheck, CriticalLimits, OneXPeak, OrderTrack, PredictedCritical,
-                               from_response, one_x_peaks, order_track, predicted_criticals, verify_criticals)
+                               from_response, one_x_peaks, order_track, phase_lag_deg, predicted_criticals,
+                               verify_criticals)
 from ..analysis.runout import harmonic_fit, synthesise
 from ..analysis.spectrum import amplitude_spectrum, full_spectrum
 from ..documents.coefficients import Coefficients
@@ -83,6 +84,35 @@ class RunupDiagnostics:
     criticals: list[CriticalCheck]
     bearings: tuple[Bearing, ...] = ()
     limits: CriticalLimits = CriticalLimits()
+
+    def peaks_1x(self) -> dict[str, list[dict]]:
+        """Per axis, its 1X peaks as ``runup --json`` and the report give them: rpm, amplitude (um),
+        half-power band (rpm), phase change (deg), amplification, and whether it is a critical speed."""
+        return {a: [{"rpm": round(p.rpm, 1), "amplitude_um": round(p.amplitude * 1e6, 3),
+                     "band_rpm": [round(v, 1) for v in p.band_rpm], "phase_change_deg": round(p.phase_change_deg, 1),
+                     "amplification": round(p.amplification, 2), "critical": p.is_critical(self.limits.critically_damped)}
+                    for p in peaks] for a, peaks in self.peaks.items()}
+
+    def as_dict(self, recording: str, revolutions: int) -> dict:
+        """The whole result, as ``ambdaq runup --json`` prints it: per axis and order the amplitude (um)
+        and phase lag (deg) per window, the 1X peaks, the centreline (um), the model's modes and
+        the critical speeds checked against it."""
+        t = self.track
+        c = self.centreline
+        return {
+            "recording": recording, "compensation": self.compensation, "notes": self.notes, "revolutions": revolutions,
+            "rpm": np.round(t.rpm, 1).tolist(),
+            "axes": {a: {f"{k}X": {"amplitude_um": np.round(np.abs(t.order(k)[:, i]) * 1e6, 4).tolist(),
+                                   "phase_lag_deg": np.round(phase_lag_deg(t.order(k)[:, i]), 2).tolist()}
+                         for k in t.orders} for i, a in enumerate(self.axes)},
+            "peaks_1x": self.peaks_1x(),
+            "centreline": {"rpm": np.round(c.rpm, 1).tolist(), "time_s": np.round(c.time_s, 4).tolist(),
+                           "cmin_um": None if c.cmin_m is None else round(c.cmin_m * 1e6, 3),
+                           "bearings": {b: {"x_um": np.round(x * 1e6, 4).tolist(), "y_um": np.round(y * 1e6, 4).tolist()}
+                                        for b, (x, y) in c.bearings.items()}},
+            "model_modes": None if self.modes is None else self.modes.as_dict(),
+            "critical_speeds": [x.as_dict() for x in self.criticals],
+        }
 
 
 @dataclass(frozen=True)
@@ -187,6 +217,21 @@ class ModelModes:
     assumed: bool
     response_rpm: np.ndarray
     response: dict[str, np.ndarray]
+
+    def as_dict(self) -> dict:
+        """The modes as ``runup --json`` gives them: the model's 1X response (um, deg), and each
+        mode's frequency (Hz), damping ratio and whirl per speed (null where a speed has fewer)."""
+        return {
+            "basis": self.basis, "assumed": self.assumed,
+            "response_1x": {"rpm": self.response_rpm.round(1).tolist(),
+                            **{a: {"amplitude_um": np.round(np.abs(v) * 1e6, 4).tolist(),
+                                   "phase_lag_deg": np.round(phase_lag_deg(v), 2).tolist()}
+                               for a, v in self.response.items()}},
+            "rpm": self.rpm.round(1).tolist(),
+            "freq_hz": [[None if np.isnan(f) else round(float(f), 2) for f in row] for row in self.freq_hz],
+            "damping": [[None if np.isnan(z) else round(float(z), 4) for z in row] for row in self.damping],
+            "whirl": [[None if np.isnan(f) or not w else ("forward" if w > 0 else "backward")
+                       for f, w in zip(row, ws)] for row, ws in zip(self.freq_hz, self.whirl)]}
 
     def criticals(self, order: int = 1, tolerance: float = SPEED_TOLERANCE) -> list[PredictedCritical]:
         """The critical speeds these modes predict on the ``order`` line, each amplified as the
