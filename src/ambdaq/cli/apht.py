@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..units import phasor_um_deg
 from .options import POSITIVE, max_lost_option, plot_option
 
 
@@ -71,9 +72,8 @@ def command(recording, coefficients, orders, window_s, plot_path, as_json, max_l
                    f"{res.compensation}")
         for j, a in enumerate(res.axes):
             for i, k in enumerate(res.orders):
-                first, last = res.gap[0, i, j] * 1e6, res.gap[-1, i, j] * 1e6
-                line = (f"{a:<9} {k}X gap {abs(first):8.3f} um {np.degrees(np.angle(first)):6.1f}° -> "
-                        f"{abs(last):8.3f} um {np.degrees(np.angle(last)):6.1f}°")
+                (um0, deg0), (um1, deg1) = phasor_um_deg(res.gap[0, i, j]), phasor_um_deg(res.gap[-1, i, j])
+                line = f"{a:<9} {k}X gap {um0:8.3f} um {deg0:6.1f}° -> {um1:8.3f} um {deg1:6.1f}°"
                 if res.error is not None:
                     line += f"; error {abs(res.error[0, i, j]) * 1e6:.3f} -> {abs(res.error[-1, i, j]) * 1e6:.3f} um"
                 click.echo(line)

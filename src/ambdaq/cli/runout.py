@@ -10,6 +10,7 @@ import numpy as np
 
 from ..daq.recording import open_recording
 from ..errors import AmbdaqError
+from ..units import phasor_um_deg
 from ..workflows.runout import METHODS, check_recordings, identify_recordings
 from .options import POSITIVE, max_lost_option, plot_option
 
@@ -52,8 +53,8 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
     # u_um: each part's standard uncertainty from the recordings' noise (the Cramer-Rao bound);
     # bound_um: a bound on the error the noise does not cover (MODEL_BOUND); null where not
     # propagated (1X separated from the unbalance over several speeds)
-    table = {axis: [{"harmonic": k, "amplitude_um": round(float(np.hypot(*wk)) * 1e6, 4),
-                     "phase_deg": round(float(np.degrees(np.arctan2(wk[1], wk[0]))), 2),
+    table = {axis: [{"harmonic": k, "amplitude_um": round(phasor_um_deg(wk)[0], 4),
+                     "phase_deg": round(phasor_um_deg(wk)[1], 2),
                      "u_um": None if np.isnan(u := ident.uncertainty[i, a]) else round(float(u) * 1e6, 5),
                      "bound_um": None if np.isnan(b := ident.model_bound[i, a]) else round(float(b) * 1e6, 5)}
                     for i, (k, wk) in enumerate(zip(coef.harmonics, rows))]

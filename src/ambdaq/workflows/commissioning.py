@@ -10,13 +10,13 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-import numpy as np
 
 from ..analysis.orders import CriticalLimits
 from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
 from ..acquisition.touchdowns import recorded_drop
 from ..errors import BadInputError
+from ..units import phasor_um_deg
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .apht import Apht, apht
 from .push import push_log_entries
@@ -193,7 +193,8 @@ def aphts(res: Apht, rec: Recording) -> dict:
     coefficients were given) and of the command error in the first and the last window, µm and
     degrees."""
     def vector(v) -> dict:
-        return {"um": round(float(abs(v)) * 1e6, 3), "deg": round(float(np.degrees(np.angle(v))), 1)}
+        um, deg = phasor_um_deg(v)
+        return {"um": round(um, 3), "deg": round(deg, 1)}
 
     rows = []
     for j, axis in enumerate(res.axes):
@@ -215,9 +216,9 @@ def pushed_runout(path: Path) -> dict:
     axes = {}
     for axis, rows in coef.weights.items():
         u = stated.get(axis) or [None] * len(rows)
-        axes[axis] = [{"harmonic": k, "um": round(float(np.hypot(*w)) * 1e6, 3),
-                       "deg": round(float(np.degrees(np.arctan2(w[1], w[0]))), 1),
-                       "u_um": None if ui is None else round(ui * 1e6, 4)} for k, w, ui in zip(coef.harmonics, rows, u)]
+        axes[axis] = [{"harmonic": k, "um": round(um, 3), "deg": round(deg, 1),
+                       "u_um": None if ui is None else round(ui * 1e6, 4)}
+                      for k, (um, deg), ui in zip(coef.harmonics, map(phasor_um_deg, rows), u)]
     return {"file": str(path), "method": coef.source.get("method", ""), "axes": axes}
 
 

@@ -34,6 +34,7 @@ from ..documents.coefficients import Coefficients, file_sha256, fir_array, now_i
 from ..drivers.coefbank import BankImage, crc32
 from ..drivers.interfaces import UNLOCK_KEY_ENV
 from ..errors import BadInputError, DeviceError, DeviceTimeout
+from ..units import phasor_um_deg
 
 MAX_MAP_POINTS = 20_000  # convergence-map points a schedule may check: 8 harmonics x 0..60,000 rpm x 2 bearings is 9,600
 STATE_ENV = "AMBDAQ_STATE_DIR"
@@ -192,7 +193,8 @@ def _fir_for(coef: Coefficients, status: dict, where: str) -> tuple[np.ndarray |
 
 def _phasor(w: np.ndarray) -> str:
     """[sin, cos] weights as amplitude (um) and phase (degrees)."""
-    return f"{np.hypot(*w) * 1e6:7.3f} um {np.degrees(np.arctan2(w[1], w[0])):7.1f} deg"
+    um, deg = phasor_um_deg(w)
+    return f"{um:7.3f} um {deg:7.1f} deg"
 
 
 def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: float = 1e-9) -> list[str]:
