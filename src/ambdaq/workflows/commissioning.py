@@ -10,7 +10,6 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-
 from ..analysis.orders import CriticalLimits
 from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
