@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ambdaq.daq import open_recording
-from ambdaq.acquisition.recorder import Recorder, RecordOptions, machine_of
+from ambdaq.acquisition.recorder import Recorder, RecordOptions, machine_from_sources
 from ambdaq.drivers.interfaces import PassThrough
 from ambdaq.drivers.signals import SampleBlock, SignalGroup
 from ambdaq.machines.spindle import SPINDLE
@@ -189,7 +189,7 @@ def test_plot_and_live_status_find_the_blowers_bearings(pairs, run_cli, tmp_path
     for machine, (wrap, table) in MACHINES.items():
         device = wrap(SimSource("spindle", seed=5, speed=SpeedProfile(30000, 30000)))
         groups = {device.name: {g.topic: list(g.fields) for g in device.signal_groups()}}
-        view = LiveView({device.name: device.sample_rate}, groups, machine_of([device], table))
+        view = LiveView({device.name: device.sample_rate}, groups, machine_from_sources([device], table))
         device.start(5000)
         while (block := device.read()) is not None:
             view.received(device.name, block)

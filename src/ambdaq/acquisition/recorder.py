@@ -83,7 +83,7 @@ class RecordOptions:
 
 
 
-def machine_of(sources: list[Source], table: dict | None = None, where: str = "[machine]") -> Machine:
+def machine_from_sources(sources: list[Source], table: dict | None = None, where: str = "[machine]") -> Machine:
     """The machine ``sources`` are on: what they declare (their signal groups, their calibration's
     ``machine.*`` and ``rotor.*``) with a rig file's ``[machine]`` ``table`` over it."""
     topics = {g.topic: g.fields for s in sources for g in s.signal_groups()}
@@ -247,7 +247,7 @@ class Recorder:
         if len(set(names)) != len(names):
             raise BadInputError(f"device names must be unique, got {', '.join(names)}")
         self.sources = sources
-        self.machine = machine_of(sources, machine_table, f"{rig_file}: [machine]" if rig_file else "[machine]")
+        self.machine = machine_from_sources(sources, machine_table, f"{rig_file}: [machine]" if rig_file else "[machine]")
         self.options = options
         self.output = Path(output)
         self.acquisition = Acquisition(sources, duration_s=options.duration_s, reconnect=options.reconnect,

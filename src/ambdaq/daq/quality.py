@@ -149,7 +149,7 @@ def require_same_speed(recs: list[Recording], rpm: list[float], purpose: str,
                             f"{tolerance:.0%} ({named}): their harmonics are at different frequencies")
 
 
-def machine_of(rec: Recording) -> tuple[str, str] | None:
+def controller_serial(rec: Recording) -> tuple[str, str] | None:
     """(device name, serial) of the recording's controller, or None if it names no serial."""
     return next(((d.name, d.serial) for d in rec.devices.values() if d.kind == "controller" and d.serial), None)
 
@@ -157,7 +157,7 @@ def machine_of(rec: Recording) -> tuple[str, str] | None:
 def require_same_machine(recs: list[Recording], purpose: str) -> None:
     """Refuse recordings whose controllers name different serial numbers (recordings without one
     are not judged)."""
-    serials = {m[1]: r for r in recs if (m := machine_of(r)) is not None}
+    serials = {m[1]: r for r in recs if (m := controller_serial(r)) is not None}
     if len(serials) > 1:
         named = ", ".join(f"{r.path.name} from controller {s}" for s, r in serials.items())
         raise BadInputError(f"{purpose} compares one machine, and these recordings come from different ones ({named})")
