@@ -8,7 +8,8 @@ to run on this machine and in the suite's time (each change named in :meth:`DocS
 - the setup a user does once (``python3 -m venv``, ``pip install``, the test command itself) is
   the test's own environment, and skipped;
 - ``ambdaq sim serve`` runs in the background (a terminal of its own in the docs) and the
-  pseudo-terminal and XCP address it prints replace the ones the document shows;
+  pseudo-terminal and XCP address it prints replace the ones the document shows; it is stopped
+  when another starts or no later command of the document reaches a server;
 - durations are capped at ``MAX_DURATION_S`` and ``iso stability`` excites each axis for
   ``STABILITY_S`` (the documents' own figures come from the full durations).
 """
@@ -25,6 +26,7 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
+SERVED = re.compile(r"serial:///dev/pts/|xcp\+tcp://127\.0\.0\.1|can://slcan")  # what reaches a server
 MAX_DURATION_S = 3.0
 STABILITY_S = 1.5
 SETUP = (re.compile(r"^python3? -m venv\b"), re.compile(r"^\. \.venv/bin/activate$"), re.compile(r"^(uv )?pip install\b"),
@@ -83,14 +85,25 @@ class DocSession:
     ran: list[str] = field(default_factory=list)
 
     def run_file(self, path: Path) -> None:
+        """Every command of ``path``'s blocks in order. A server runs while later commands of the
+        document still reach one (a terminal of its own, closed once its work is done, as a user
+        would): the pages' servers would otherwise simulate their rigs beside every later command."""
+        steps: list[tuple[str, str]] = []
         for block in blocks(path):
             if block.language == "python":
-                self._run([sys.executable, "-c", "\n".join(block.lines)], f"{path.name}:{block.line} python")
+                steps.append(("python", "\n".join(block.lines)))
                 continue
-            for command in block.lines:
-                for part in command.split(" && "):
-                    if not any(p.match(part.strip()) for p in SETUP):
-                        self.shell(part.strip(), f"{path.name}:{block.line}")
+            steps += [(f"{path.name}:{block.line}", part.strip()) for command in block.lines
+                      for part in command.split(" && ") if not any(p.match(part.strip()) for p in SETUP)]
+        for i, (where, command) in enumerate(steps):
+            if where == "python":
+                self._run([sys.executable, "-c", command], f"{path.name} python")
+                continue
+            if " sim serve" in command:
+                self.close()  # a new server: the addresses the page shows are now its
+            self.shell(command, where)
+            if not any(SERVED.search(later) for w, later in steps[i + 1 :] if w != "python"):
+                self.close()
 
     def shell(self, command: str, where: str) -> None:
         """One command line: ``export`` sets the environment, ``sim serve`` starts a server, the
@@ -143,6 +156,7 @@ class DocSession:
         self.ran.append(what)
 
     def close(self) -> None:
+        """Stop every server started so far."""
         for proc in self.servers:
             proc.terminate()
         for proc in self.servers:
@@ -150,3 +164,4 @@ class DocSession:
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 proc.kill()
+        self.servers.clear()
