@@ -124,7 +124,8 @@ def served(request):
     import subprocess
     import sys
 
-    rpm, seed = (lambda p: p if isinstance(p, tuple) else (p, 0))(getattr(request, "param", 30000))
+    param = getattr(request, "param", 30000)
+    rpm, seed = param if isinstance(param, tuple) else (param, 0)
     proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "spindle",
                              "--rpm", str(rpm), "--seed", str(seed), "--duration", "180"], stdout=subprocess.PIPE,
                             text=True)

@@ -53,11 +53,10 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
     # u_um: each part's standard uncertainty from the recordings' noise (the Cramer-Rao bound);
     # bound_um: a bound on the error the noise does not cover (MODEL_BOUND); null where not
     # propagated (1X separated from the unbalance over several speeds)
-    table = {axis: [{"harmonic": k, "amplitude_um": round(phasor_um_deg(wk)[0], 4),
-                     "phase_deg": round(phasor_um_deg(wk)[1], 2),
+    table = {axis: [{"harmonic": k, "amplitude_um": round(um, 4), "phase_deg": round(deg, 2),
                      "u_um": None if np.isnan(u := ident.uncertainty[i, a]) else round(float(u) * 1e6, 5),
                      "bound_um": None if np.isnan(b := ident.model_bound[i, a]) else round(float(b) * 1e6, 5)}
-                    for i, (k, wk) in enumerate(zip(coef.harmonics, rows))]
+                    for i, (k, (um, deg)) in enumerate(zip(coef.harmonics, map(phasor_um_deg, rows)))]
              for a, (axis, rows) in enumerate(coef.weights.items())}
     if as_json:
         click.echo(json.dumps(table, indent=2))

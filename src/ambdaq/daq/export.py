@@ -31,13 +31,18 @@ def _columns(t: TopicData, tables: dict[str, dict[str, str]] | None = None,
              device_names: bool = False) -> dict[str, np.ndarray]:
     cols = {"time": t.time, "log_time_ns": t.log_time, "device_time_ns": t.device_time, "seq": t.seq}
     for name, values in t.fields.items():
-        column = t.names.get(name, name) if device_names else name
+        column = _column(t, name, device_names)
         cols[column] = values
         table = (tables or {}).get(name)
         if table:  # the text beside the number: "" where the value has none in the table
             find = labeller(table)
             cols[f"{column}_label"] = np.array([find(v) for v in values.tolist()], dtype=str)
     return cols
+
+
+def _column(t: TopicData, name: str, device_names: bool) -> str:
+    """A field's column: its recorded name, or with ``device_names`` the device's own."""
+    return t.names.get(name, name) if device_names else name
 
 
 def labeller(table: dict[str, str]):
@@ -143,10 +148,10 @@ def export(rec: Recording, fmt: str, out: Path, *, overwrite: bool = False,
         except ImportError:
             raise BadInputError("Parquet export needs pyarrow, the parquet extra: pip install 'ambdaq[parquet]'") from None
     for topic, target in targets.items():
-        cols = _columns(rec.topics[topic], (labels or {}).get(topic), device_names)
+        t = rec.topics[topic]
+        cols = _columns(t, (labels or {}).get(topic), device_names)
         if fmt == "csv":
-            t = rec.topics[topic]
-            units = {**TIME_UNITS, **{t.names.get(k, k) if device_names else k: u for k, u in t.units.items()}}
+            units = {**TIME_UNITS, **{_column(t, k, device_names): u for k, u in t.units.items()}}
             _write_csv(target, cols, units)
         else:
             pq.write_table(pa.table(cols), target)

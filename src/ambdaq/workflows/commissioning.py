@@ -172,10 +172,10 @@ def gather(files: SessionFiles) -> Commissioning:
     else:
         out["runout"] = out["apht"] = None
         after = None
-    out["coefficients"] = None if files.coefficients is None else pushed_runout(files.coefficients)
-    if files.coefficients is not None:  # at-speed coefficients used as runout: an open item, as identify warned
-        problem = held_unbalance(Coefficients.load(files.coefficients), files.coefficients.name)
-        notes += [problem] if problem and problem not in notes else []
+    coef = None if files.coefficients is None else Coefficients.load(files.coefficients)
+    out["coefficients"] = None if coef is None else pushed_runout(coef, files.coefficients)
+    if coef is not None and (problem := held_unbalance(coef, files.coefficients.name)):
+        notes.append(problem)  # at-speed coefficients used as runout: an open item, as identify warned
     out["touchdowns"] = touchdowns(files.drops) if files.drops else None
     out["push_log"] = push_log_entries(files.push_log,
                                        None if files.coefficients is None else {file_sha256(files.coefficients)})
@@ -206,11 +206,10 @@ def aphts(res: Apht, rec: Recording) -> dict:
             "compensation": res.compensation, "rows": rows}
 
 
-def pushed_runout(path: Path) -> dict:
-    """The runout a coefficient file pushes, per axis and harmonic: amplitude and phase (µm,
-    degrees, for R sin(k theta + phi)) and the standard uncertainty ``runout identify`` stated
-    (µm; None where the file does not say)."""
-    coef = Coefficients.load(path)
+def pushed_runout(coef: Coefficients, path: Path) -> dict:
+    """The runout coefficient file ``path`` (loaded: ``coef``) pushes, per axis and harmonic:
+    amplitude and phase (µm, degrees, for R sin(k theta + phi)) and the standard uncertainty
+    ``runout identify`` stated (µm; None where the file does not say)."""
     stated = coef.source.get("uncertainty_m") or {}
     axes = {}
     for axis, rows in coef.weights.items():
