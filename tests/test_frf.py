@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ambdaq.analysis.lms import error_response
-from ambdaq.sim.rigs.spindle import rig_loop
+from ambdaq.machines.spindle_loop import rig_loop
 from ambdaq.daq import load
 from ambdaq.documents.frequency_response import FrequencyResponse
 from ambdaq.drivers.serial.controller import ControllerDriver
@@ -21,22 +21,24 @@ AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 
 
 @pytest.fixture(scope="module")
-def excited(tmp_path_factory):
-    """10 s at standstill with 2 um RMS white noise on each axis in turn (unpaced), and their FRF."""
+def excited(build_once):
+    """10 s at standstill with 2 um RMS white noise on each axis in turn (unpaced), and their FRF
+    (built once for both workers)."""
     from click.testing import CliRunner
 
     from ambdaq.cli.main import cli
 
-    d = tmp_path_factory.mktemp("frf")
-    runner = CliRunner()
-    for a in AXES:
-        r = runner.invoke(cli, ["sim", "generate", "--duration", "10", "--excite", f"{a}:2", "-q", "-o",
-                                str(d / f"{a}.mcap")])
+    def build(d):
+        runner = CliRunner()
+        for a in AXES:
+            r = runner.invoke(cli, ["sim", "generate", "--duration", "10", "--excite", f"{a}:2", "-q", "-o",
+                                    str(d / f"{a}.mcap")])
+            assert r.exit_code == 0, r.output
+        r = runner.invoke(cli, ["frf", "estimate", *[str(d / f"{a}.mcap") for a in AXES], "-o",
+                                str(d / "loop.json"), "--json", "--plot", str(d / "loop.png")])
         assert r.exit_code == 0, r.output
-    r = runner.invoke(cli, ["frf", "estimate", *[str(d / f"{a}.mcap") for a in AXES], "-o", str(d / "loop.json"),
-                            "--json", "--plot", str(d / "loop.png")])
-    assert r.exit_code == 0, r.output
-    return d
+
+    return build_once("frf-excited", build)
 
 
 def test_h1_of_the_simulated_loop_is_its_linearisation(excited):

@@ -16,7 +16,7 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "loading": set(),
     "layout": set(),
     "output": {"errors"},
-    "machines": {"analysis", "units", "errors", "layout"},
+    "machines": {"analysis", "units", "errors", "layout"},  # a machine's description and its models
     "analysis": {"units", "errors"},
     "drivers": {"layout", "errors", "units", "speed", "loading"},
     "mcap": {"drivers", "errors"},  # the file format alone
@@ -24,11 +24,13 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "acquisition": {"layout", "drivers", "mcap", "machines", "analysis", "output", "errors", "units"},  # devices to files
     "daq": {"layout", "mcap", "acquisition", "machines", "output", "errors", "units"},  # the read side
     "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
-    "workflows": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "machines", "speed",
-                  "output", "units", "errors"},
+    "workflows": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "machines", "speed",
+                  "output", "units", "errors"},  # never the simulator: a machine's models are in machines/
+    "studies": {"layout", "drivers", "acquisition", "documents", "analysis", "sim", "workflows", "machines", "speed",
+                "units", "errors"},  # runs of the simulator a command reports on
     "live": {"layout", "acquisition", "daq", "analysis", "machines", "units"},
     "figures": {"layout", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
-    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "live",
+    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies", "live",
             "figures", "machines", "speed", "output", "units", "errors", "loading"},
 }
 
@@ -92,13 +94,16 @@ def test_each_part_imports_only_what_its_layer_may():
     wrong = [(m, n) for m, deps in GRAPH.items() for n in deps  # "": the package itself (__version__)
              if part(m) in MAY_IMPORT and part(n) not in ("", part(m)) and part(n) not in MAY_IMPORT[part(m)]]
     assert not wrong, wrong
-    # in particular: no hardware driver imports the simulator
-    assert not [(m, n) for m, deps in GRAPH.items() for n in deps if part(m) == "drivers" and part(n) == "sim"]
+    # in particular: no hardware driver, and no workflow, imports the simulator (issue 41: a machine's
+    # models are read from machines/, which the simulator steps)
+    assert not [(m, n) for m, deps in GRAPH.items() for n in deps if part(m) in ("drivers", "workflows") and part(n) == "sim"]
 
 
 def test_no_host_side_module_takes_the_spindles_axes():
-    """Only the spindle's own description (``machines/``) and its simulation (``sim/``) import
-    ``ambdaq.machines.spindle``: every host-side part (daq, workflows, live, cli ...) takes its axes,
-    bearings and signals from the recording's machine (issue 27)."""
-    wrong = sorted(m for m, deps in GRAPH.items() if "ambdaq.machines.spindle" in deps and part(m) not in ("machines", "sim"))
+    """Only the spindle's own description (``machines/``) and its simulation (``sim/``, and the
+    studies run on it, ``studies/``) import ``ambdaq.machines.spindle``: every host-side part (daq,
+    workflows, live, cli ...) takes its axes, bearings and signals from the recording's machine
+    (issue 27)."""
+    wrong = sorted(m for m, deps in GRAPH.items()
+                   if "ambdaq.machines.spindle" in deps and part(m) not in ("machines", "sim", "studies"))
     assert not wrong, wrong

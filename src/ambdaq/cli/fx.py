@@ -33,6 +33,14 @@ def _alpha(text: str) -> complex:
         raise BadInputError(f"--alphas: {text!r} is not a number (e.g. 1, -1, 0.5+0.5j)") from None
 
 
+def _simulated_exact(f_hz):
+    """The simulated base-motion rig's exact compensator W* = -B^-1 C at ``f_hz`` (Hz), V per m/s^2
+    (Kang & Jung eq. 17): what ``fx fit --exact`` compares with."""
+    from ..sim.rigs.base_motion import BaseMotionRig
+
+    return BaseMotionRig().responses(f_hz)[2]
+
+
 @click.group("fx")
 def command() -> None:
     """Base-motion feedforward (Kang & Jung): campaign, MFXLMS estimate, FIR fit."""
@@ -121,7 +129,8 @@ def fit(points, max_order, order, exact, output, overwrite, plot_path, as_json, 
     Example:
       ambdaq fx fit points.json -o fir.json --plot fir.png --exact
     """
-    result = fx.fit(points, max_order, order, exact=exact, max_fit_error_pct=max_fit_error)
+    result = fx.fit(points, max_order, order, exact=_simulated_exact if exact else None,
+                    max_fit_error_pct=max_fit_error)
     result.coefficients.save(output, overwrite=overwrite)
     report, freqs, costs, chosen = result.report, result.freqs, result.costs, result.report["order"]
     orders = np.arange(0, max_order + 1)

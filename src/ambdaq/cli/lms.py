@@ -114,7 +114,7 @@ def runup_command(files, seconds, speeds, as_json):
       ambdaq lms schedule --plant rig --compensated -o comp.json
       ambdaq lms runup sign.json comp.json
     """
-    from ..workflows.runup import compare
+    from ..studies.lms_runup import compare
 
     report, runs, conv = compare(list(files), seconds=seconds, speeds=[float(s) for s in speeds.split(",")])
     rpms, bands = [float(s) for s in speeds.split(",")], report["bands_rpm"]

@@ -142,7 +142,7 @@ def fleet(folder, machines, days, duration, rpm, seed, drop_chance):
     Example:
       ambdaq sim fleet --machines 10 --days 4 -o fleet/ && ambdaq fleet scan fleet/ -o fleet.parquet
     """
-    from ..workflows.simulated_fleet import generate_fleet
+    from ..studies.simulated_fleet import generate_fleet
 
     paths = generate_fleet(Path(folder), n_machines=machines, days=days, duration_s=duration, rpm=rpm, seed=seed,
                            drop_chance=drop_chance)

@@ -4,18 +4,15 @@ Each profile is one module in :mod:`ambdaq.sim.rigs` with a rig class (physics, 
 :class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` listing the kinds of device it serves on
 transports (:mod:`ambdaq.sim.served`: its controller, which runs the profile's
 :class:`~ambdaq.sim.devices.firmware.Firmware`, on a serial line; its CANopen devices on a CAN bus;
-a shaker generator on a serial line).  A new profile is one module and one line here; a profile
-with a rotordynamic model (``modes``) is a ``runup --model``, one with LMS design models (``lms``)
-a ``lms --plant``.
+a shaker generator on a serial line).  A new profile is one module and one line here.  The models of
+the machine a rig simulates (its loop, its LMS design loops) are the machine's, in
+:mod:`ambdaq.machines.models`: the host side reads them there, without the simulator.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from ..loading import load_object
 from ..errors import BadInputError
@@ -26,31 +23,6 @@ PROFILES = {
     "cone": "ambdaq.sim.rigs.cone",
     "lorentz": "ambdaq.sim.rigs.lorentz",
 }
-
-
-@dataclass(frozen=True)
-class LoopModel:
-    """A rotordynamic model's closed loop, with the controller gains it was built at.
-
-    Attributes
-    ----------
-    at : callable
-        ``at(rpm)`` (rpm): the loop's lightly damped modes there, as frequencies (Hz), damping
-        ratios and whirl (+1 forward, -1 backward, 0 not known), each an array sorted by frequency.
-    basis : str
-        Which controller gains it holds, in words (the recording's own, or the model's defaults).
-    assumed : bool
-        The gains are the model's defaults, not what the recording says its controller ran.
-    response : callable or None
-        ``response(rpm)`` (rpm): the rotor's steady 1X there from the model's own unbalance and
-        runout, a phasor (m) per bearing axis by name (API 684's unbalance response analysis);
-        None: the model does not give it.
-    """
-
-    at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
-    basis: str
-    assumed: bool
-    response: Callable[[float], dict[str, complex]] | None = None
 
 
 @dataclass(frozen=True)
@@ -68,21 +40,12 @@ class Profile:
     devices : tuple of str
         The kinds of device it serves on transports, in order (:data:`ambdaq.sim.served.KINDS`:
         ``controller``, ``can``, ``shaker``); empty: it serves none (``ambdaq sim generate`` only).
-    modes : callable or None
-        Its rotordynamic model: ``modes(calibration)`` gives the :class:`LoopModel` at the controller
-        gains a recording's calibration states (``runup --model NAME``); None: the profile has no
-        such model.
-    lms : DesignModels or None
-        The loops its LMS feedforward is designed on (``ambdaq lms --plant``,
-        :class:`~ambdaq.analysis.lms.DesignModels`); None: it has none.
     """
 
     name: str
     rig: type
     firmware: Any = None
     devices: tuple = ()
-    modes: Callable[[Mapping[str, str]], LoopModel] | None = None
-    lms: Any = None
 
     @property
     def served(self) -> bool:

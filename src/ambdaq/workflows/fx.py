@@ -270,11 +270,12 @@ class Fit:
     sample_rate: float
 
 
-def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = False,
-        max_fit_error_pct: float = MAX_FIT_ERROR_PCT) -> Fit:
+def fit(points: str, max_order: int, order: int | None = None, *,
+        exact: Callable[[np.ndarray], np.ndarray] | None = None, max_fit_error_pct: float = MAX_FIT_ERROR_PCT) -> Fit:
     """Weighted least-squares FIR fit of each compensator W_jm (Kang & Jung eq. 19), of the order at the
-    knee of cost against order unless ``order``; ``exact`` also compares with the simulated rig's
-    exact W* = -B^-1 C.
+    knee of cost against order unless ``order``; ``exact``, where given, is the compensator known to
+    be exact (``exact(f_hz)``: W* = -B^-1 C per frequency (Hz), shape (n, 2, 2), V per m/s^2; the
+    simulated rig's), and the fit and the points are also compared with it.
 
     A fit that misses a point by more than ``max_fit_error_pct`` (%, relative) is refused
     (BadInputError naming the frequency): a point that far from a smooth compensator is a bad step
@@ -301,10 +302,8 @@ def fit(points: str, max_order: int, order: int | None = None, *, exact: bool = 
     report = {"order": chosen, "taps": chosen + 1,
               "cost_per_order": {f"W{j + 1}{m + 1}": [float(c) for c in costs[j, m]] for j, m in PAIRS},
               "fit_error_pct": miss.max(axis=(1, 2, 3)).round(3).tolist()}
-    if exact:
-        from ..sim.rigs.base_motion import BaseMotionRig
-
-        _, _, Wstar = BaseMotionRig().responses(freqs)
+    if exact is not None:
+        Wstar = exact(freqs)
         report["error_vs_exact_pct"] = (100 * np.abs(fitted / Wstar[:, None] - 1)).max(axis=(1, 2, 3)).round(3).tolist()
         report["points_vs_exact_pct"] = (100 * np.abs(W / Wstar[:, None] - 1)).max(axis=(1, 2, 3)).round(3).tolist()
     coef = Coefficients(

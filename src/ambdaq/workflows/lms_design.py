@@ -14,7 +14,8 @@ from ..analysis.lms import (DesignModels, PhaseTable, StateSpaceLoop, convergenc
 from ..documents.coefficients import Coefficients, file_sha256, now_iso
 from ..documents.frequency_response import FrequencyResponse
 from ..errors import BadInputError
-from .plants import analysing, design_models, resolve_plant
+from ..machines.models import design_models
+from .plants import DESIGN_MACHINE, analysing, resolve_plant
 
 
 def grid_step(loops: dict, fine: float) -> float:
@@ -73,7 +74,7 @@ def schedule(plant: str, *, mu: float, dead_band: float, harmonics: int, compens
     rpm_max : float
         Top of the schedule, in rpm.
     """
-    models = design_models()
+    models = design_models(DESIGN_MACHINE)
     base = Coefficients.load(weights_file) if weights_file else None
     axes = tuple(base.target["axes"]) if base is not None else models.axes  # the controller the file goes to
     if plant not in models.plants:  # a plant the user gives (tf:, ss:) stands for the file's axes
@@ -153,7 +154,7 @@ def convergence_map(plant: str, *, harmonic: int, rpm_max: float, mu_max: float,
     radius : bool
         Also the whole map of spectral radii (for the figure; the signs alone need far less).
     """
-    models = design_models()
+    models = design_models(DESIGN_MACHINE)
     loops = resolve_plant(plant, models)
     with analysing(plant):  # the loops' numbers may overflow: one line, not an internal error
         phase = phase_table(loops, models) if compensated else None

@@ -1,7 +1,7 @@
 """The loops an LMS design is made on, by name (``--plant``), for ``ambdaq lms`` and ``ambdaq push``.
 
-A machine's named plants come with its rig profile (``Profile.lms``, an
-:class:`~ambdaq.analysis.lms.DesignModels`); the spindle of Ro et al. is the one that has them:
+A machine's named plants come with its models (``LMS`` in its module of :mod:`ambdaq.machines.models`,
+an :class:`~ambdaq.analysis.lms.DesignModels`); the spindle of Ro et al. is the one that has them:
 
 =========  ========================================================================================
 name       loop
@@ -35,25 +35,17 @@ from scipy.signal import ss2tf
 from ..analysis.lms import DesignModels, PlantLoop, StateSpaceLoop
 from ..documents.sealed import check_regular_file, read_json
 from ..errors import BadInputError
-from ..sim.profiles import profile
+from ..machines.models import design_models
 
-DESIGN_MACHINE = "spindle"  # the rig profile whose models --plant names: the one with LMS design models
+DESIGN_MACHINE = "spindle"  # the machine whose models --plant names: the one with LMS design models
 FORMS = ("tf:NUM/DEN", "ss:FILE")
 MAX_ORDER = 64  # a plant model's order: the simulated spindle's discrete loop has 35 states
 MAX_AXES = 16  # a discrete loop's feedforward inputs: a controller's axes
 
 
-def design_models(machine: str = DESIGN_MACHINE) -> DesignModels:
-    """The LMS design models of rig profile ``machine``; one line if it has none."""
-    models = profile(machine).lms
-    if models is None:
-        raise BadInputError(f"the {machine} rig has no LMS design models: give --plant ss:FILE with its loop")
-    return models
-
-
 def plant_names(models: DesignModels | None = None) -> tuple[str, ...]:
     """The plants ``--plant`` takes: the machine's named ones, then the forms any machine may give."""
-    return (*(models or design_models()).plants, *FORMS)
+    return (*(models or design_models(DESIGN_MACHINE)).plants, *FORMS)
 
 
 @contextmanager
@@ -82,7 +74,7 @@ def resolve_plant(spec: str, models: DesignModels | None = None) -> dict:
     models : DesignModels, optional
         The machine's design models; default the spindle's (:data:`DESIGN_MACHINE`).
     """
-    models = models or design_models()
+    models = models or design_models(DESIGN_MACHINE)
     if spec in models.plants:
         return models.plants[spec]()
     if spec.startswith("tf:"):

@@ -151,9 +151,10 @@ def _check_schedule(rows: list[tuple[float, ...]], n_harm: int, plant: str, phas
     from dataclasses import replace
 
     from ..analysis.lms import PhaseTable, StateSpaceLoop, schedule_problem
-    from .plants import analysing, design_models, resolve_plant
+    from ..machines.models import design_models
+    from .plants import DESIGN_MACHINE, analysing, resolve_plant
 
-    models = design_models()
+    models = design_models(DESIGN_MACHINE)
     if plant not in models.plants:  # a plant the user gave stands for this controller's axes
         models = replace(models, axes=axes)
     loops = resolve_plant(plant, models)

@@ -31,6 +31,7 @@ from ..daq.quality import MAX_LOST, require_complete
 from ..daq.recording import Recording
 from ..errors import BadInputError
 from ..machines.machine import Bearing, Machine
+from ..machines.models import loop_model
 from ..units import RAD_S_TO_RPM
 from .runout import runout_at, with_rotor
 
@@ -198,7 +199,7 @@ class ModelModes:
     whirl : ndarray of int, shape (s, m)
         +1 forward, -1 backward, 0 not known (planar, or a model that does not give it).
     basis : str
-        The controller gains the model's loop holds, in words (:class:`~ambdaq.sim.profiles.LoopModel`).
+        The controller gains the model's loop holds, in words (:class:`~ambdaq.machines.models.LoopModel`).
     assumed : bool
         Those gains are the model's own, not what the recording says its controller ran.
     response_rpm : ndarray, shape (r,)
@@ -245,13 +246,14 @@ class ModelModes:
 def model_modes(model: str, rpm_from: float, rpm_to: float, calibration: Mapping[str, str] | None = None,
                 axes: tuple[str, ...] = ()) -> ModelModes:
     """The lightly damped modes (damping ratio <= 0.5, below 2 kHz) of a model's loop over speed,
-    and which whirl forward and which backward, found through the rig profile of that name.
+    and which whirl forward and which backward, from the machine's model of that name
+    (:mod:`ambdaq.machines.models`).
 
     Parameters
     ----------
     model : str
-        A rig profile with a rotordynamic model (its ``modes``): ``spindle``, the simulated
-        spindle's own linearised loop; ``cone``, Jeong et al.'s coupled 5-DOF cone rotor under its
+        A machine with a loop model: ``spindle``, Ro et al.'s spindle's five-axis loop (rotor,
+        amplifiers, PID; :mod:`ambdaq.machines.spindle_loop`); ``cone``, Jeong et al.'s coupled 5-DOF cone rotor under its
         PD control, current loop and eddy-current lag (eq. 10-16).
     rpm_from, rpm_to : float
         Speed range, in rpm.
@@ -261,13 +263,7 @@ def model_modes(model: str, rpm_from: float, rpm_to: float, calibration: Mapping
     axes : tuple of str
         The radial axes whose 1X response the model gives, where it gives one (the run's).
     """
-    from ..sim.profiles import PROFILES, profile
-
-    found = profile(model) if model in PROFILES else None
-    if found is None or found.modes is None:
-        known = ", ".join(n for n in PROFILES if profile(n).modes is not None)
-        raise BadInputError(f"--model {model!r}: the models known here are the rig profiles' ({known})")
-    loop = found.modes(calibration or {})
+    loop = loop_model(model, calibration or {})
     speeds = np.linspace(rpm_from, rpm_to, MODEL_SPEEDS)
     rows = [loop.at(float(r)) for r in speeds]  # per speed: frequencies, damping, whirl
     width = max(len(f) for f, _z, _w in rows)

@@ -23,18 +23,16 @@ linearisation, the ground truth for ``ambdaq identify modal``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.linalg import expm
 
-from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION, ConeControl, ConeRotor, closed_loop_state_space
-from ...analysis.orders import loop_modes
+from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION
 from ...errors import BadInputError
+from ...machines.cone import CONE, ConeParams
 from ...drivers.signals import SampleBlock, SignalGroup
-from ..profiles import LoopModel, Profile
+from ..profiles import Profile
 from .base import Rig
 from .drop import Drop
 from ...speed import RPM_TO_RAD_S, SpeedProfile
@@ -45,35 +43,6 @@ IMPACT_S = 0.5e-3  # hammer pulse length
 TOUCHDOWN_START_UM = (-250.0, -200.0, -120.0, 110.0, -80.0)  # q_b at rest (Jeong et al. Fig. 8's shape, in the clearance)
 
 
-@dataclass(frozen=True)
-class ConeParams:
-    """The cone rig (SI).  Rotor and gains from Jeong et al. Tables 1 and 3 where given; the
-    amplifier's Ka, Kf, R are chosen for tau_c = 6e-5 s (the paper's example) and Kc from the
-    sensor gain so the axial loop sits near the paper's design (see docs/cone.md)."""
-
-    sample_rate: float = 10_000.0
-    rotor: ConeRotor = ConeRotor()
-    control: ConeControl = ConeControl(ks=2000.0, kc=0.36)
-    resistance: float = 2.0  # coil, ohm
-    supply: float = 25.0  # V (Table 1)
-    clearance: float = 0.25e-3  # touchdown bearings (round, radial; and the axial stop), m
-    contact_stiffness: float = 2e7  # N/m
-    contact_damping: float = 400.0  # N s/m
-    gap_noise: float = 0.1e-6  # m RMS
-    hammer_noise: float = 0.05  # N RMS
-
-    @property
-    def amp_gain(self) -> float:
-        """Ka (V/V) from Kc = Ka / (Ka Kf + R) and tau_c = L / (Ka Kf + R) (eq. 15)."""
-        return self.control.kc * self.rotor.inductance / self.control.tau_c
-
-    @property
-    def current_feedback(self) -> float:
-        """Kf (V/A)."""
-        return (self.rotor.inductance / self.control.tau_c - self.resistance) / self.amp_gain
-
-
-CONE = ConeParams()
 
 
 @dataclass(frozen=True)
@@ -437,26 +406,4 @@ class ConeRig(Rig):
         return sorted(out)
 
 
-BEARING_PAIRS = ((AXES.index("y1"), AXES.index("z1")), (AXES.index("y2"), AXES.index("z2")))
-"""Each bearing's (x, y) of the full spectrum in ``AXES``: the spin turns y towards z."""
-
-
-def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Jeong et al.'s coupled 5-DOF cone rotor under its PD control, current loop and eddy-current
-    lag (eq. 10-16) at ``rpm`` (rpm): its lightly damped modes (ζ <= 0.5, below 2 kHz), their
-    damping, and their whirl from their shape at the two bearings (:func:`loop_modes`, on the loop
-    sampled at the rig's rate): the axial mode whirls neither way, and is no 1X critical speed."""
-    M, C, K, Kib = CONE.rotor.bearing_model(float(rpm) * RPM_TO_RAD_S)
-    A, _B, Cq = closed_loop_state_space(M, C, K, Kib, CONE.control)
-    h = 1.0 / CONE.sample_rate
-    return loop_modes(expm(A * h), h, fmax_hz=2000.0, outputs=Cq, pairs=BEARING_PAIRS)
-
-
-def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
-    """Jeong et al.'s loop (:func:`campbell_modes`): the simulated cone rig's controller has no
-    gains to retune, so a recording's calibration changes nothing."""
-    return LoopModel(campbell_modes, "Jeong et al.'s PD control, current loop and eddy-current lag (eq. 10-16)",
-                     assumed=False)
-
-
-PROFILE = Profile("cone", ConeRig, modes=loop_model)  # served on no transport: ambdaq sim generate only
+PROFILE = Profile("cone", ConeRig)  # served on no transport: ambdaq sim generate only

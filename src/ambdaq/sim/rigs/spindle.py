@@ -41,27 +41,22 @@ The axial bearing is not described in Ro et al.; its values here are assumptions
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
 from numba import njit
-from scipy.linalg import expm
 
-from ...analysis.lms import DesignModels, StateSpaceLoop
-from ...analysis.orders import loop_modes
 from ...drivers.signals import SampleBlock, SignalGroup
-from ...errors import BadInputError
-from ...machines.machine import radial_bearings
 from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
-from ..profiles import LoopModel, Profile
+from ..profiles import Profile
 from .base import Rig
 from .drop import Drop
 from .excitation import ExcitationInput
-from ...machines.spindle import (AXES, FRONT_LOOP, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
-                                  PHASE_BIN_HZ, PHASE_BINS, REAR_LOOP, SPINDLE, BearingAxis, SpindleParams)
+from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
+                                  PHASE_BIN_HZ, PHASE_BINS, SPINDLE, SpindleParams)
+from ...machines.spindle_loop import (GAIN_KEYS, GAIN_LEAST, SpindleLoop, amplifier_matrices, derivative_filter,
+                                       rotor_matrices, rotor_through_amplifiers, zoh)
 from ...speed import SpeedProfile
 from ...units import RAD_S_TO_RPM, RPM_TO_RAD_S
 
@@ -69,85 +64,6 @@ SPEED_BUCKET_RAD_S = 50.0 * RPM_TO_RAD_S  # gyroscopic matrices re-discretised e
 FF_OFF, FF_TABLE, FF_LMS = 0, 1, 2
 FF_MODES = {"off": FF_OFF, "table": FF_TABLE, "lms": FF_LMS}
 FF_NAMES = {v: k for k, v in FF_MODES.items()}
-
-
-def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous-time rotor model in bearing coordinates.
-
-    Parameters
-    ----------
-    p : SpindleParams
-        Rig parameters.
-    omega : float
-        Rotor speed, in rad/s (sets the gyroscopic coupling Jp*Omega).
-
-    Returns
-    -------
-    A : ndarray, shape (10, 10)
-        State matrix for [positions (5), velocities (5)] in AXES order, with the negative
-        magnet stiffness Kx included.
-    B : ndarray, shape (10, 5)
-        Input matrix for the bearing forces, in N.
-    """
-    M, G = p.rotor.mass_gyro(omega)  # the one rigid-rotor model (ambdaq.analysis.rotor)
-    Minv = np.linalg.inv(M)  # bearing forces -> bearing accelerations
-    kx = np.array([ax.kx for ax in p.axes])
-    A = np.zeros((10, 10))
-    A[:5, 5:] = np.eye(5)
-    A[5:, :5] = Minv * kx[None, :]
-    A[5:, 5:] = -Minv @ G  # the gyroscopic coupling of the tilt planes
-    B = np.zeros((10, 5))
-    B[5:, :] = Minv
-    return A, B
-
-
-def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B
-    E = expm(M * h)
-    return E[:n, :n].copy(), E[:n, n:].copy()
-
-
-def amplifier_continuous(ax: BearingAxis) -> tuple[np.ndarray, np.ndarray]:
-    """The amplifier G_A (Ro et al. eq. 2) in continuous time: state [i, di/dt], input in V."""
-    wn = 2 * np.pi * ax.amp_wn_hz
-    return np.array([[0.0, 1.0], [-(wn**2), -2 * ax.amp_zeta * wn]]), np.array([[0.0], [wn**2 * ax.amp_gain]])
-
-
-def amplifier_matrices(ax: BearingAxis, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH-discretised amplifier G_A (Ro et al. eq. 2): state [i, di/dt], input in V, step h (s)."""
-    Phi, Gam = zoh(*amplifier_continuous(ax), h)
-    return Phi, Gam[:, 0]
-
-
-def rotor_through_amplifiers(A: np.ndarray, B: np.ndarray, p: SpindleParams, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """What one step does to the rotor through the coil currents as they move within it.
-
-    The controller's output u is held over the step (its DAC); each amplifier's current follows
-    it continuously and the magnet's force ``ki i(t)`` with it. Holding the current's average
-    over the step instead (what the kernel did) is a force low-passed by cos(w h / 2) sinc(w h / 2):
-    6 % short at 1 kHz, 24 % at 2 kHz at 10 kHz, and the rotor's 2X-4X at 30,000 rpm was then
-    not what its currents say (a runout estimate 90 nm off the truth). The exact ZOH of rotor and
-    amplifiers together (state [rotor (10), amplifiers 2 per axis (10)], input u):
-
-        z[n+1] = Phi z[n] + Psi_q q[n] + Psi_u u[n] (+ Gamma F_other[n])
-
-    Returns ``Psi_q`` (10, 10), on the amplifier states in the kernel's order (axis-major
-    [i, di/dt]), and ``Psi_u`` (10, 5), on u in V."""
-    n = 20
-    Af = np.zeros((n, n))
-    Bu = np.zeros((n, 5))
-    Af[:10, :10] = A
-    for a, ax in enumerate(p.axes):
-        Aa, Ba = amplifier_continuous(ax)
-        Af[10 + 2 * a:12 + 2 * a, 10 + 2 * a:12 + 2 * a] = Aa
-        Bu[10 + 2 * a:12 + 2 * a, a] = Ba[:, 0]
-        Af[:10, 10 + 2 * a] = B[:, a] * ax.ki  # the force of the coil current, ki i
-    Phi, Gam = zoh(Af, Bu, h)
-    return Phi[:10, 10:].copy(), Gam[:10].copy()
 
 
 Schedule = dict[int, tuple[tuple[float, float, float], ...]]
@@ -467,7 +383,7 @@ class SpindleRig(Rig, ExcitationInput):
         self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
         self._theta0 = 0.0  # ... and this angle (rad)
         self._rotor_cache: dict[int, tuple[np.ndarray, ...]] = {}
-        self._linear: tuple | None = None  # loop_matrices' standstill probe
+        self._linear: SpindleLoop | None = None  # the loop at the present gains (loop_matrices)
         self.drop: Drop | None = None
         self._init_constants()
         self._init_state()
@@ -501,9 +417,7 @@ class SpindleRig(Rig, ExcitationInput):
         self._pid_p = np.array([ax.pid_p for ax in axes])
         self._pid_i = np.array([ax.pid_i for ax in axes])
         kd = np.array([ax.pid_d for ax in axes])
-        tf = kd / self._pid_p / p.derivative_filter  # Tf = Td / Nd, Td = D / P
-        self._ad = tf / (tf + h)
-        self._bd = kd / (tf + h)
+        self._ad, self._bd = derivative_filter(self._pid_p, kd, p.derivative_filter, h)
         self._mh = np.array([ax.housing_mass for ax in axes])
         self._fgrav = p.bearing_gravity()
         self._fstat = -self._fgrav
@@ -570,10 +484,8 @@ class SpindleRig(Rig, ExcitationInput):
     def set_pid(self, p: np.ndarray, i: np.ndarray, d: np.ndarray) -> None:
         """Replace the PID gains of the five axes (V/V, 1/s, s); the derivative filter follows."""
         p, i, d = (np.asarray(v, dtype=float).reshape(5) for v in (p, i, d))
-        tf = d / p / self.params.derivative_filter
         self._pid_p, self._pid_i = p.copy(), i.copy()
-        self._ad, self._bd = tf / (tf + self.h), d / (tf + self.h)
-        self._linear = None  # loop_matrices is linearised again, at these gains
+        self._ad, self._bd = derivative_filter(p, d, self.params.derivative_filter, self.h)
 
     def set_mu_schedule(self, schedule) -> None:
         """Replace the LMS step-size schedule: rows of (rpm_from, rpm_to, mu) for every harmonic, or a
@@ -694,18 +606,10 @@ class SpindleRig(Rig, ExcitationInput):
     # --- linear analysis of the simulated loop --------------------------------------------------
 
     def loop_matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The simulated loop linearised at ``rpm`` (rpm), at the present PID gains, with the
-        feedforward as its input:
-        x[n+1] = M x[n] + B r_c[n],  e[n] = C x[n] - r_c[n].
-
-        ``x`` is the kernel's state (rotor 10, amplifiers 10, controller 15), ``r_c`` the
-        feedforward per axis (m, subtracted from the sensor signal, Ro et al. eq. 10) and ``e`` the
-        command error per axis (m).  Found by stepping the simulation kernel itself from unit
-        perturbations, with noise, runout, unbalance, gravity and quantisation off (at standstill,
-        once per rig); only the rotor's step depends on the speed (gyroscopics), so at other speeds
-        the rotor rows are [Phi(Omega) Psi_q(Omega) 0] + Psi_u(Omega) du/dx
-        (:func:`rotor_through_amplifiers`), with the controller output's Jacobian du/dx taken from
-        the standstill probe's amplifier rows.
+        """The loop this rig runs, linear, at ``rpm`` (rpm) and its present PID gains: the machine's
+        model (:class:`~ambdaq.machines.spindle_loop.SpindleLoop`), which the kernel steps exactly
+        with noise, runout, unbalance, gravity and quantisation off (:meth:`probe_loop`, at the
+        speeds of its rotor matrices: multiples of 50 rpm).
 
         Returns
         -------
@@ -713,47 +617,18 @@ class SpindleRig(Rig, ExcitationInput):
         B : ndarray, shape (35, 5)
         C : ndarray, shape (5, 35)
         """
-        if self._linear is None:
-            M0, B0, C = self.probe_loop(0.0)
-            # the amplifier rows are Pa q + Ga u(x, r_c): solve for the controller output's Jacobian
-            Pa, Ga = np.zeros((10, 10)), np.zeros((10, 5))
-            for a in range(N_AXES):
-                Pa[2 * a:2 * a + 2, 2 * a:2 * a + 2] = self._Pa[a]
-                Ga[2 * a:2 * a + 2, a] = self._Ga[a]
-            amp0 = np.hstack([np.zeros((10, 10)), Pa, np.zeros((10, 15))])
-            dU = np.linalg.lstsq(Ga, np.hstack([M0[10:20] - amp0, B0[10:20]]), rcond=None)[0]
-            self._linear = (M0, B0, C, dU)
-        M0, B0, C, dU = self._linear
-        Phi, _Gam, Psq, Psu, _, _ = self._rotor(rpm * RPM_TO_RAD_S)
-        M, B = M0.copy(), B0.copy()
-        M[:10] = np.hstack([Phi, Psq, np.zeros((10, 15))]) + Psu @ dU[:, :35]
-        B[:10] = Psu @ dU[:, 35:]
-        return M, B, C
+        return self._loop().matrices(rpm)
 
     def unbalance_response(self, rpm: float) -> np.ndarray:
-        """The rotor's steady 1X at ``rpm`` (rpm): its position at each bearing axis as a phasor
-        ``a + j b`` of ``a sin theta + b cos theta`` (m; as :func:`~ambdaq.analysis.runout.harmonic_fit`
-        gives a recording's 1X), from the loop linearised there
-        (:meth:`loop_matrices`) driven by the rig's own unbalance (a force ``U Omega^2`` per plane,
-        held over each step from its mid-step angle, as the kernel applies it) and its 1X sensor
-        runout (which the loop sees as a feedforward of the opposite sign): the unbalance response
-        analysis of API 684 on this model.
+        """The rotor's steady 1X at ``rpm`` (rpm) from this rig's unbalance and runout
+        (:meth:`~ambdaq.machines.spindle_loop.SpindleLoop.unbalance_response`), m per axis."""
+        return self._loop().unbalance_response(rpm)
 
-        Returns
-        -------
-        ndarray of complex, shape (5,)
-            In ``AXES`` order.
-        """
-        M, B, _C = self.loop_matrices(rpm)
-        Gam = self._rotor(rpm * RPM_TO_RAD_S)[1]
-        step = np.exp(1j * rpm * RPM_TO_RAD_S * self.h)  # the angle advances this much per step
-        force = self._unb * (rpm * RPM_TO_RAD_S) ** 2 * np.exp(1j * self._unb_ph) * np.sqrt(step)
-        runout = self._run_c[:, 0] - 1j * self._run_s[:, 0]  # A sin + B cos = Re((B - jA) exp(j theta))
-        drive = np.zeros(M.shape[0], dtype=complex)
-        drive[:10] = Gam @ force
-        drive -= B @ runout
-        state = np.linalg.solve(step * np.eye(M.shape[0]) - M, drive)
-        return 1j * state[:5]  # Re(P exp(j theta)) = a sin theta + b cos theta with a + j b = j P
+    def _loop(self) -> SpindleLoop:
+        gains = tuple(tuple(float(v) for v in g) for g in self.pid_gains)
+        if self._linear is None or self._linear.gains != gains:
+            self._linear = SpindleLoop(self.params, gains)
+        return self._linear
 
     def probe_loop(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`loop_matrices` at ``rpm`` by stepping the kernel from every unit perturbation
@@ -824,7 +699,6 @@ class RunoutFeedforward(Feedforward):
         rig.set_feedforward(image.mode, image.weights)
 
 
-FIRMWARE_GAIN_LEAST = (1e-6, 0.0, 1e-6)
 """The least P (V/V), I (1/s) and D (s) the controller takes."""
 
 
@@ -847,11 +721,11 @@ FIRMWARE = Firmware(
     ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"),  # /amb/accel: a CANopen device
     {
         # P and D above zero: the derivative filter's time constant is D / P / Nd
-        "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), FIRMWARE_GAIN_LEAST[0], 100.0,
+        "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), GAIN_LEAST[0], 100.0,
                        "proportional gain per axis, V/V"),
-        "pid.i": Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), FIRMWARE_GAIN_LEAST[1], 1e4,
+        "pid.i": Param(N_AXES, lambda r: r.pid_gains[1], _set_pid(1), GAIN_LEAST[1], 1e4,
                        "integral gain per axis, 1/s"),
-        "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), FIRMWARE_GAIN_LEAST[2], 1.0,
+        "pid.d": Param(N_AXES, lambda r: r.pid_gains[2], _set_pid(2), GAIN_LEAST[2], 1.0,
                        "derivative gain per axis, s"),
         # the feedforward's weights change only through the coefficient banks (BANK_*); its mode may
         # be switched here (ambdaq controller ff): off, held at the present weights, or adapting
@@ -869,79 +743,4 @@ FIRMWARE = Firmware(
     RunoutFeedforward(),
 )
 
-GAIN_KEYS = ("controller.pid.p", "controller.pid.i", "controller.pid.d")
-"""The calibration entries that state the PID gains the controller ran (its parameters ``pid.p``,
-``pid.i``, ``pid.d``: V/V, 1/s, s), one value per axis in ``AXES`` order, comma-separated."""
-
-
-def recorded_gains(calibration: Mapping[str, str]) -> tuple[tuple[float, ...], ...] | None:
-    """The PID gains a recording's calibration states (:data:`GAIN_KEYS`), or None where it states
-    none; BadInputError, naming the entry, where one is missing, not one per axis, not finite, or
-    below what the controller's own parameters accept (:data:`FIRMWARE_GAIN_LEAST`)."""
-    given = [calibration.get(k) for k in GAIN_KEYS]
-    if all(v is None for v in given):
-        return None
-    gains = []
-    for key, text, least in zip(GAIN_KEYS, given, FIRMWARE_GAIN_LEAST):
-        try:
-            values = tuple(float(v) for v in (text or "").split(","))
-        except ValueError:
-            values = ()
-        if len(values) != N_AXES or not all(np.isfinite(v) and least <= v for v in values):
-            raise BadInputError(f"the recording's {key} is {text!r}: {N_AXES} gains, one per axis "
-                                f"({', '.join(AXES)}), each finite and at least {least:g}")
-        gains.append(values)
-    return tuple(gains)
-
-
-def loop_model(calibration: Mapping[str, str]) -> LoopModel:
-    """The spindle's own linearised loop (:meth:`SpindleRig.loop_matrices`) at the PID gains the
-    recording's controller ran (:func:`recorded_gains`), or at Ro et al.'s (Table 1) where the
-    recording does not say: its lightly damped modes (ζ <= 0.5, below 2 kHz) at each speed, with
-    their damping and whirl from their shape at the bearings (:func:`loop_modes`)."""
-    gains = recorded_gains(calibration)
-    rig = _model_rig(gains)
-    pairs = tuple((AXES.index(b.x), AXES.index(b.y)) for b in radial_bearings(AXES))
-
-    def at(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        M, _B, C = rig.loop_matrices(float(rpm))
-        return loop_modes(M, rig.h, fmax_hz=2000.0, outputs=C, pairs=pairs)
-
-    def response(rpm: float) -> dict[str, complex]:
-        return dict(zip(AXES, rig.unbalance_response(float(rpm))))
-
-    if gains is None:
-        return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
-                             f"({', '.join(GAIN_KEYS)})", assumed=True, response=response)
-    return LoopModel(at, "the PID gains the recording's controller ran (" + "; ".join(
-        f"{k.removeprefix('controller.')} {', '.join(f'{v:g}' for v in g)}" for k, g in zip(GAIN_KEYS, gains)) + ")",
-        assumed=False, response=response)
-
-
-@functools.lru_cache(maxsize=4)
-def _model_rig(gains: tuple[tuple[float, ...], ...] | None = None) -> "SpindleRig":
-    """One rig for the model at ``gains`` (P, I, D per axis; None: the defaults): its standstill
-    probe is made once (:meth:`SpindleRig.loop_matrices`)."""
-    rig = SpindleRig()
-    if gains is not None:
-        rig.set_pid(*(np.array(g) for g in gains))
-    return rig
-
-
-@functools.lru_cache(maxsize=1)
-def rig_loop() -> StateSpaceLoop:
-    """The simulated spindle's own five-axis loop, linearised from its kernel at each speed (one per
-    process: its linearisations are cached)."""
-    return StateSpaceLoop(_model_rig().loop_matrices)
-
-
-LMS = DesignModels(
-    plants={  # Ro et al.'s one-axis models (eq. 1-3) and the rig's own loop (docs/lms.md)
-        "front": lambda: {"front": (FRONT_LOOP, AXES[0:2])},
-        "rear": lambda: {"rear": (REAR_LOOP, AXES[2:4])},
-        "bearings": lambda: {"front": (FRONT_LOOP, AXES[0:2]), "rear": (REAR_LOOP, AXES[2:4])},
-        "rig": lambda: {"rig": (rig_loop(), AXES)},
-    },
-    pid=FRONT_LOOP, axes=AXES, phase_bins=PHASE_BINS, phase_bin_hz=PHASE_BIN_HZ)
-
-PROFILE = Profile("spindle", SpindleRig, FIRMWARE, ("controller", "can"), modes=loop_model, lms=LMS)
+PROFILE = Profile("spindle", SpindleRig, FIRMWARE, ("controller", "can"))

@@ -21,11 +21,11 @@ import numpy as np
 from ..acquisition.recorder import Recorder, RecordOptions
 from ..drivers.interfaces import PassThrough
 from ..drivers.signals import SampleBlock
-from ..sim.rigs.spindle import SPINDLE  # the simulated fleet is of spindles
+from ..machines.spindle import SPINDLE  # the simulated fleet is of spindles
 from ..sim.source import SimSource
 from ..speed import SpeedProfile
 from ..machines.machine import ID_KEY
-from .fleet import COEFFICIENTS_KEY
+from ..workflows.fleet import COEFFICIENTS_KEY
 
 FIRST_DAY = datetime(2026, 1, 5, 6, 0, tzinfo=timezone.utc)  # the fleet's commissioning
 

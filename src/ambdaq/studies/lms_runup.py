@@ -21,7 +21,7 @@ from ..speed import SpeedProfile
 from ..sim.rigs.spindle import AXES, N_HARMONICS, SPINDLE, RunoutFeedforward, SpindleRig  # the rig compared on
 from ..layout import ERROR, ROTOR
 from ..units import RAD_S_TO_RPM
-from .push import image_from
+from ..workflows.push import image_from
 
 WINDOW_S = 0.2  # demodulation window, s
 

@@ -1,0 +1,60 @@
+"""A machine's models, by name: its closed loop's modes (``runup --model NAME``) and the loops its
+LMS feedforward is designed on (``lms --plant``).  A machine with such a model is one module here
+and one line in :data:`MODELS`; the simulator's rigs step the same models."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BadInputError
+
+MODELS = {  # machine -> the module with its loop_model (and LMS, where it has design loops)
+    "spindle": "ambdaq.machines.spindle_loop",
+    "cone": "ambdaq.machines.cone",
+}
+
+
+@dataclass(frozen=True)
+class LoopModel:
+    """A rotordynamic model's closed loop, with the controller gains it was built at.
+
+    Attributes
+    ----------
+    at : callable
+        ``at(rpm)`` (rpm): the loop's lightly damped modes there, as frequencies (Hz), damping
+        ratios and whirl (+1 forward, -1 backward, 0 not known), each an array sorted by frequency.
+    basis : str
+        Which controller gains it holds, in words (the recording's own, or the model's defaults).
+    assumed : bool
+        The gains are the model's defaults, not what the recording says its controller ran.
+    response : callable or None
+        ``response(rpm)`` (rpm): the rotor's steady 1X there from the model's own unbalance and
+        runout, a phasor (m) per bearing axis by name (API 684's unbalance response analysis);
+        None: the model does not give it.
+    """
+
+    at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    basis: str
+    assumed: bool
+    response: Callable[[float], dict[str, complex]] | None = None
+
+
+def loop_model(machine: str, calibration: Mapping[str, str]) -> LoopModel:
+    """The loop of ``machine`` at the controller gains ``calibration`` states (its model's own
+    where it states none); BadInputError naming the machines that have one."""
+    if machine not in MODELS:
+        raise BadInputError(f"--model {machine!r}: the models known here are the machines' ({', '.join(MODELS)})")
+    return importlib.import_module(MODELS[machine]).loop_model(calibration)
+
+
+def design_models(machine: str):
+    """The LMS design models of ``machine`` (:class:`~ambdaq.analysis.lms.DesignModels`); one line
+    if it has none."""
+    models = getattr(importlib.import_module(MODELS[machine]), "LMS", None) if machine in MODELS else None
+    if models is None:
+        raise BadInputError(f"the {machine} machine has no LMS design models: give --plant ss:FILE with its loop")
+    return models
