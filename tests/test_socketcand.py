@@ -61,7 +61,8 @@ def gateway(request):
 
 
 @pytest.mark.skipif(not EDS_FILES, reason="../shared/corpus/eds/ is not beside the clone")
-@pytest.mark.parametrize("gateway", EDS_FILES, ids=[p.name for p in EDS_FILES], indirect=True)
+@pytest.mark.parametrize("gateway", [pytest.param(p, id=p.name, marks=() if p.name == "e35.eds" else pytest.mark.long)
+                                     for p in EDS_FILES], indirect=True)  # a vendor's file; every one: -m long
 def test_every_corpus_eds_through_a_gateway_in_another_process(gateway, tmp_path, run_cli):
     eds, port = gateway
     objects = recordable(eds, SIGNALS_PER_TPDO * TPDOS)
