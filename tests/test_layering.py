@@ -5,6 +5,8 @@ its layer may."""
 import ast
 from pathlib import Path
 
+import pytest
+
 import ambdaq
 
 ROOT = Path(ambdaq.__file__).parent
@@ -64,14 +66,17 @@ def imports(path: Path) -> set[str]:
     return out
 
 
-GRAPH = {module_name(p): imports(p) for p in ROOT.rglob("*.py")}
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    """Every module's ambdaq imports (read when a test here runs, not at collection: 2.5 s a worker)."""
+    return {module_name(p): imports(p) for p in ROOT.rglob("*.py")}
 
 
 def part(mod: str) -> str:
     return mod.split(".")[1] if mod.count(".") else ""
 
 
-def test_no_import_cycles():
+def test_no_import_cycles(graph):
     seen, on_path = set(), []
 
     def visit(m):
@@ -80,30 +85,30 @@ def test_no_import_cycles():
         if m in seen:
             return
         on_path.append(m)
-        for n in GRAPH.get(m, ()):
-            if n in GRAPH:
+        for n in graph.get(m, ()):
+            if n in graph:
                 visit(n)
         on_path.pop()
         seen.add(m)
 
-    for m in GRAPH:
+    for m in graph:
         visit(m)
 
 
-def test_each_part_imports_only_what_its_layer_may():
-    wrong = [(m, n) for m, deps in GRAPH.items() for n in deps  # "": the package itself (__version__)
+def test_each_part_imports_only_what_its_layer_may(graph):
+    wrong = [(m, n) for m, deps in graph.items() for n in deps  # "": the package itself (__version__)
              if part(m) in MAY_IMPORT and part(n) not in ("", part(m)) and part(n) not in MAY_IMPORT[part(m)]]
     assert not wrong, wrong
     # in particular: no hardware driver, and no workflow, imports the simulator (issue 41: a machine's
     # models are read from machines/, which the simulator steps)
-    assert not [(m, n) for m, deps in GRAPH.items() for n in deps if part(m) in ("drivers", "workflows") and part(n) == "sim"]
+    assert not [(m, n) for m, deps in graph.items() for n in deps if part(m) in ("drivers", "workflows") and part(n) == "sim"]
 
 
-def test_no_host_side_module_takes_the_spindles_axes():
+def test_no_host_side_module_takes_the_spindles_axes(graph):
     """Only the spindle's own description (``machines/``) and its simulation (``sim/``, and the
     studies run on it, ``studies/``) import ``ambdaq.machines.spindle``: every host-side part (daq,
     workflows, live, cli ...) takes its axes, bearings and signals from the recording's machine
     (issue 27)."""
-    wrong = sorted(m for m, deps in GRAPH.items()
+    wrong = sorted(m for m, deps in graph.items()
                    if "ambdaq.machines.spindle" in deps and part(m) not in ("machines", "sim", "studies"))
     assert not wrong, wrong
