@@ -22,7 +22,7 @@ import time
 import canopen
 from canopen import objectdictionary as od
 
-from ambdaq.sim.devices.socketcand import SimSocketcand
+from socketcand_gateway import SimSocketcand
 
 FORMATS = {od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H", od.INTEGER32: "i",
            od.UNSIGNED32: "I", od.INTEGER64: "q", od.UNSIGNED64: "Q", od.REAL32: "f", od.REAL64: "d"}

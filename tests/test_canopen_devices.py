@@ -333,7 +333,7 @@ def test_serial_controller_and_can_device_align_within_a_sample(tmp_path):
     that rig step is near the step's true time (bounds and their reasons below)."""
     from ambdaq.sim.devices.controller import FdPort, SimController
     from ambdaq.sim.devices.rig_server import DeviceClock
-    from ambdaq.sim.served import Pty
+    from ambdaq.sim.device_kinds import Pty
 
     channel = f"align{next(_channels)}"
     rig = SpindleRig(speed=SpeedProfile(30000, 30000))

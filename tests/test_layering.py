@@ -32,8 +32,9 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
                 "units", "errors"},  # runs of the simulator a command reports on
     "live": {"layout", "acquisition", "daq", "analysis", "machines", "units"},
     "figures": {"layout", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
-    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies", "live",
-            "figures", "machines", "speed", "output", "units", "errors", "loading"},
+    "report": {"analysis", "figures", "errors"},  # the commissioning report's page and PDF, from its result
+    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies",
+            "live", "figures", "report", "machines", "speed", "output", "units", "errors", "loading"},
 }
 
 

@@ -25,7 +25,7 @@ from ambdaq.sim.devices.canopen import SimCanController, open_network
 from ambdaq.sim.devices.controller import SimController
 from ambdaq.sim.devices.faults import FaultyPort
 from ambdaq.sim.devices.rig_server import RigServer
-from ambdaq.sim.served import Pty
+from ambdaq.sim.device_kinds import Pty
 
 pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 

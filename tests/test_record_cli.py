@@ -218,7 +218,7 @@ def test_devices_asks_a_named_port_for_an_slcan_adapter(run_cli):
     """Through python-can's own slcan interface (V and N), the simulated adapter on a
     pseudo-terminal answers; a port with no adapter behind it is one line, exit 1."""
     from ambdaq.sim.devices.slcan import SimSlcanAdapter
-    from ambdaq.sim.served import Pty
+    from ambdaq.sim.device_kinds import Pty
 
     pty, silent = Pty.open(), Pty.open()
     adapter = SimSlcanAdapter(pty.master, "ask-slcan")

@@ -10,7 +10,7 @@ import unicodedata
 
 import pytest
 
-from ambdaq.cli.report import HEADLESS
+from ambdaq.report.pdf import HEADLESS
 from report_page import Tables
 
 
@@ -114,23 +114,35 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
          "–" if c["measured_amplification"] is None else f"{c['measured_amplification']:.2f}",
          f"{c['margin']:.1%} / {c['margin_required']:.1%}", "pass" if c["passed"] else "FAIL", c["rule"]] for c in crit]
     # the runout pushed, with the uncertainty runout identify stated for each harmonic (its scatter
-    # against that bound: tests/test_runout.py)
+    # against that bound: tests/test_runout.py): what runout identify --json printed, one code path
     c = data["coefficients"]
+    identified = json.loads(run_cli("runout", "identify", session / "slow.mcap", "-o", tmp_path / "again.json",
+                                    "--json").stdout)
+    assert c["axes"] == identified
     assert tables.tables["coefficients"] == [
-        [axis] + [f"{h[key]:{fmt}}" for h in hs[:2] for key, fmt in (("um", ".2f"), ("deg", ".1f"), ("u_um", ".3f"))]
+        [axis] + [f"{h[key]:{fmt}}" for h in hs[:2]
+                  for key, fmt in (("amplitude_um", ".2f"), ("phase_deg", ".1f"), ("u_um", ".3f"))]
         for axis, hs in c["axes"].items()]
     slow = json.loads((session / "coef.json").read_text())["source"]["uncertainty_m"]
     for axis, hs in c["axes"].items():
-        assert [h["u_um"] for h in hs] == [round(u * 1e6, 4) for u in slow[axis]]
-        assert all(0 < h["u_um"] < 0.1 * h["um"] for h in hs[:2])  # 800 rpm slow roll, 2 s: well measured
-    # APHT of the run after the push: the LMS adapting from zero, its command error's 1X falling
+        assert [h["u_um"] for h in hs] == [round(u * 1e6, 5) for u in slow[axis]]
+        assert all(0 < h["u_um"] < 0.1 * h["amplitude_um"] for h in hs[:2])  # 800 rpm slow roll, 2 s: well measured
+    # APHT of the run after the push: the LMS adapting from zero, its command error's 1X falling; the
+    # first and the last window of what apht --json prints
     a = data["apht"]
     assert a["windows"] == 4 and a["window_s"] == 0.5 and a["rpm"] == pytest.approx(30000, abs=1)
-    assert tables.tables["apht"] == [[row["axis"], *(f"{row[k]['um']:.2f}" if u == "um" else f"{row[k]['deg']:.1f}"
+    alone = json.loads(run_cli("apht", session / "after.mcap", "--coefficients", session / "coef.json",
+                               "--json").stdout)
+    for j, row in enumerate(a["rows"]):
+        for key, series in (("gap", alone["gap_um"]), ("error", alone["error_um"])):
+            for name, w in (("first", 0), ("last", -1)):
+                assert row[f"{key}_{name}"] == {"amplitude": series["amplitude"][w][0][j],
+                                                "phase_deg": series["phase_deg"][w][0][j]}, (row["axis"], key, name)
+    assert tables.tables["apht"] == [[row["axis"], *(f"{row[k]['amplitude']:.2f}" if u == "um" else f"{row[k]['phase_deg']:.1f}"
                                                      for k in ("gap_first", "gap_last", "error_first", "error_last")
                                                      for u in ("um", "deg"))] for row in a["rows"]]
     for row in a["rows"]:
-        assert row["error_last"]["um"] < 0.2 * row["error_first"]["um"], row
+        assert row["error_last"]["amplitude"] < 0.2 * row["error_first"]["amplitude"], row
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]

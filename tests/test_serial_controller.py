@@ -17,7 +17,7 @@ from ambdaq.sim.rigs.spindle import SpindleRig
 from ambdaq.sim.devices.controller import FdPort, SimController
 from ambdaq.sim.devices.faults import FaultyPort
 from ambdaq.sim.devices.rig_server import DeviceClock, RigServer
-from ambdaq.sim.served import Pty
+from ambdaq.sim.device_kinds import Pty
 from ambdaq.errors import DeviceError
 
 pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)

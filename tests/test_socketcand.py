@@ -125,7 +125,7 @@ def test_a_sync_from_ambdaq_through_a_gateway_is_refused(tmp_path, run_cli):
     sends could not be timed against the replies. One line, exit 2, nothing written."""
     if not EDS_FILES:
         pytest.skip("../shared/corpus/eds/ is not beside the clone")
-    from ambdaq.sim.devices.socketcand import SimSocketcand
+    from socketcand_gateway import SimSocketcand
 
     server = SimSocketcand("refused-gateway")
     server.start()
@@ -148,7 +148,7 @@ def test_dbc_frames_through_a_gateway_are_on_the_host_clock(tmp_path, run_cli):
     import can
     import cantools
 
-    from ambdaq.sim.devices.socketcand import SimSocketcand
+    from socketcand_gateway import SimSocketcand
 
     path = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "dbc" / "motohawk.dbc"
     if not path.is_file():

@@ -133,7 +133,7 @@ def test_a_recording_without_a_drop_holds_no_touchdown_record(drops):
 def test_the_report_lists_each_drop_with_the_numbers_of_json(drops, run_cli, chromium, tmp_path):
     import subprocess
 
-    from ambdaq.cli.report import HEADLESS
+    from ambdaq.report.pdf import HEADLESS
 
     page = tmp_path / "drops.html"
     files = [drops[n] for n in ("short", "long", "late", "calm")]

@@ -6,9 +6,7 @@ import json
 from pathlib import Path
 
 import click
-import numpy as np
 
-from ..units import phasor_um_deg
 from .options import POSITIVE, max_lost_option, plot_option
 
 
@@ -22,12 +20,6 @@ def _orders(value: str) -> list[int]:
     if not out or any(not 1 <= k <= 20 for k in out):
         raise BadInputError(f"--orders {value!r}: expected orders 1..20, comma-separated (e.g. 1,2)")
     return out
-
-
-def _vectors(v: np.ndarray, scale: float) -> dict:
-    """Amplitude and phase of (window, order, axis) vectors, per order."""
-    return {"amplitude": np.round(np.abs(v) * scale, 5).tolist(),
-            "phase_deg": np.round(np.degrees(np.angle(v)), 2).tolist()}
 
 
 @click.command("apht")
@@ -58,24 +50,19 @@ def command(recording, coefficients, orders, window_s, plot_path, as_json, max_l
     if coefficients:
         click.echo(f"ambdaq: note: {RUNOUT_REMOVED}", err=True)
     if as_json:
-        out = {"recording": recording, "rpm": round(res.rpm, 1), "window_s": window_s, "axes": res.axes,
-               "orders": res.orders, "compensation": res.compensation,
-               "runout_removed": RUNOUT_REMOVED if coefficients else None, "time_s": np.round(res.time_s, 4).tolist(),
-               "gap_um": _vectors(res.gap, 1e6),
-               "error_um": None if res.error is None else _vectors(res.error, 1e6),
-               "feedforward": None if res.feedforward is None else {
-                   **_vectors(res.feedforward, 1e6 if res.ff_unit == "m" else 1.0),
-                   "unit": "um" if res.ff_unit == "m" else res.ff_unit}}
-        click.echo(json.dumps(out, indent=2))
+        click.echo(json.dumps(res.as_dict(recording, RUNOUT_REMOVED if coefficients else None), indent=2))
     else:
         click.echo(f"APHT at {res.rpm:,.0f} rpm, {len(res.time_s)} windows of {window_s:g} s; compensation: "
                    f"{res.compensation}")
-        for j, a in enumerate(res.axes):
-            for i, k in enumerate(res.orders):
-                (um0, deg0), (um1, deg1) = phasor_um_deg(res.gap[0, i, j]), phasor_um_deg(res.gap[-1, i, j])
-                line = f"{a:<9} {k}X gap {um0:8.3f} um {deg0:6.1f}° -> {um1:8.3f} um {deg1:6.1f}°"
-                if res.error is not None:
-                    line += f"; error {abs(res.error[0, i, j]) * 1e6:.3f} -> {abs(res.error[-1, i, j]) * 1e6:.3f} um"
+        rows = {k: res.first_last(k) for k in res.orders}
+        for j in range(len(res.axes)):
+            for k in res.orders:
+                row = rows[k][j]
+                g0, g1 = row["gap_first"], row["gap_last"]
+                line = (f"{row['axis']:<9} {k}X gap {g0['amplitude']:8.3f} um {g0['phase_deg']:6.1f}° -> "
+                        f"{g1['amplitude']:8.3f} um {g1['phase_deg']:6.1f}°")
+                if "error_first" in row:
+                    line += f"; error {row['error_first']['amplitude']:.3f} -> {row['error_last']['amplitude']:.3f} um"
                 click.echo(line)
     if plot_path:
         from ..figures import save

@@ -10,8 +10,7 @@ import numpy as np
 
 from ..daq.recording import open_recording
 from ..errors import AmbdaqError
-from ..units import phasor_um_deg
-from ..workflows.runout import METHODS, check_recordings, identify_recordings
+from ..workflows.runout import METHODS, check_recordings, identify_recordings, runout_table
 from .options import POSITIVE, max_lost_option, plot_option
 
 @click.group("runout")
@@ -53,11 +52,7 @@ def identify(files, output, harmonics, method, overwrite, as_json, plot_path, ma
     # u_um: each part's standard uncertainty from the recordings' noise (the Cramer-Rao bound);
     # bound_um: a bound on the error the noise does not cover (MODEL_BOUND); null where not
     # propagated (1X separated from the unbalance over several speeds)
-    table = {axis: [{"harmonic": k, "amplitude_um": round(um, 4), "phase_deg": round(deg, 2),
-                     "u_um": None if np.isnan(u := ident.uncertainty[i, a]) else round(float(u) * 1e6, 5),
-                     "bound_um": None if np.isnan(b := ident.model_bound[i, a]) else round(float(b) * 1e6, 5)}
-                    for i, (k, (um, deg)) in enumerate(zip(coef.harmonics, map(phasor_um_deg, rows)))]
-             for a, (axis, rows) in enumerate(coef.weights.items())}
+    table = runout_table(coef)
     if as_json:
         click.echo(json.dumps(table, indent=2))
     else:

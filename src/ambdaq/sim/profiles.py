@@ -2,7 +2,7 @@
 
 Each profile is one module in :mod:`ambdaq.sim.rigs` with a rig class (physics, a
 :class:`~ambdaq.sim.rigs.base.Rig`) and a ``PROFILE`` listing the kinds of device it serves on
-transports (:mod:`ambdaq.sim.served`: its controller, which runs the profile's
+transports (:mod:`ambdaq.sim.device_kinds`: its controller, which runs the profile's
 :class:`~ambdaq.sim.devices.firmware.Firmware`, on a serial line; its CANopen devices on a CAN bus;
 a shaker generator on a serial line).  A new profile is one module and one line here.  The models of
 the machine a rig simulates (its loop, its LMS design loops) are the machine's, in
@@ -38,7 +38,7 @@ class Profile:
     firmware : Firmware or None
         What its AMB controller runs.
     devices : tuple of str
-        The kinds of device it serves on transports, in order (:data:`ambdaq.sim.served.KINDS`:
+        The kinds of device it serves on transports, in order (:data:`ambdaq.sim.device_kinds.KINDS`:
         ``controller``, ``can``, ``shaker``); empty: it serves none (``ambdaq sim generate`` only).
     """
 

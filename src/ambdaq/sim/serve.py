@@ -17,7 +17,7 @@ from ..speed import SpeedProfile
 from .devices.banks import DEFAULT_UNLOCK_KEY
 from .devices.rig_server import DeviceClock, RigServer
 from .profiles import require_served
-from .served import KINDS, Pty, ServeOptions
+from .device_kinds import KINDS, Pty, ServeOptions
 
 CONTROLLER_CLOCK = DeviceClock(offset_ns=5_000_000_000, drift_ppm=50.0)
 """The simulated controller's own clock: 5 s ahead of the host's, running 50 ppm fast."""

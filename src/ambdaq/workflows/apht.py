@@ -49,6 +49,8 @@ class Apht:
         Its unit.
     compensation : str
         What was taken out of the gap.
+    window_s : float
+        The windows' length, s.
     """
 
     time_s: np.ndarray
@@ -60,6 +62,44 @@ class Apht:
     feedforward: np.ndarray | None
     ff_unit: str
     compensation: str
+    window_s: float
+
+    def as_dict(self, recording: str, runout_removed: str | None) -> dict:
+        """What ``apht --json`` prints: every window's vectors, per order and axis (µm and degrees;
+        the feedforward's in its own unit), with what was taken out of the gap."""
+        ff_scale = 1e6 if self.ff_unit == "m" else 1.0
+        return {"recording": recording, "rpm": round(self.rpm, 1), "window_s": self.window_s, "axes": self.axes,
+                "orders": self.orders, "compensation": self.compensation, "runout_removed": runout_removed,
+                "time_s": np.round(self.time_s, 4).tolist(), "gap_um": _vectors(self.gap, 1e6),
+                "error_um": None if self.error is None else _vectors(self.error, 1e6),
+                "feedforward": None if self.feedforward is None else {
+                    **_vectors(self.feedforward, ff_scale), "unit": "um" if self.ff_unit == "m" else self.ff_unit}}
+
+    def first_last(self, order: int = 1) -> list[dict]:
+        """Per axis, the gap's vector of ``order`` in the first and the last window, and the command
+        error's where recorded: the rows of ``apht``'s table and the commissioning report's, the
+        numbers of :meth:`as_dict` (µm, degrees)."""
+        i = self.orders.index(order)
+        rows = []
+        for j, axis in enumerate(self.axes):
+            row = {"axis": axis, "order": order, "gap_first": _vector(self.gap[0, i, j], 1e6),
+                   "gap_last": _vector(self.gap[-1, i, j], 1e6)}
+            if self.error is not None:
+                row |= {"error_first": _vector(self.error[0, i, j], 1e6),
+                        "error_last": _vector(self.error[-1, i, j], 1e6)}
+            rows.append(row)
+        return rows
+
+
+def _vectors(v: np.ndarray, scale: float) -> dict:
+    """Amplitude (times ``scale``) and phase (degrees, of ``a sin + b cos`` as ``a + j b``) of
+    (window, order, axis) vectors: 5 and 2 decimals, as every APHT number is given."""
+    return {"amplitude": np.round(np.abs(v) * scale, 5).tolist(), "phase_deg": np.round(np.degrees(np.angle(v)), 2).tolist()}
+
+
+def _vector(v: complex, scale: float) -> dict:
+    """One vector as :func:`_vectors` gives it."""
+    return {"amplitude": round(float(abs(v)) * scale, 5), "phase_deg": round(float(np.degrees(np.angle(v))), 2)}
 
 
 def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficients: Path | None = None,
@@ -115,7 +155,8 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
         return vectors(np.column_stack([signals[role][a][:n] for a in axes]))
 
     ff_unit = signals["ff"].units.get(axes[0], "") if "ff" in signals else ""
-    return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation)
+    return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation,
+                window_s)
 
 
 __all__ = ["Apht", "WINDOW_S", "apht"]

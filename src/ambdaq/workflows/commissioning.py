@@ -15,11 +15,10 @@ from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
 from ..acquisition.touchdowns import recorded_drop
 from ..errors import BadInputError
-from ..units import phasor_um_deg
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .apht import Apht, apht
 from .push import push_log_entries
-from .runout import RUNOUT_REMOVED, check_recordings, held_unbalance, with_rotor
+from .runout import RUNOUT_REMOVED, check_recordings, held_unbalance, runout_table, with_rotor
 
 IDENTITY_KEYS = ("kind", "model", "serial", "firmware", "software_version", "url", "sample_rate_hz")
 
@@ -189,35 +188,16 @@ def gather(files: SessionFiles) -> Commissioning:
 
 def aphts(res: Apht, rec: Recording) -> dict:
     """The report's APHT table: per radial axis, the 1X of the gap (runout out where the
-    coefficients were given) and of the command error in the first and the last window, µm and
-    degrees."""
-    def vector(v) -> dict:
-        um, deg = phasor_um_deg(v)
-        return {"um": round(um, 3), "deg": round(deg, 1)}
-
-    rows = []
-    for j, axis in enumerate(res.axes):
-        row = {"axis": axis, "gap_first": vector(res.gap[0, 0, j]), "gap_last": vector(res.gap[-1, 0, j])}
-        if res.error is not None:
-            row |= {"error_first": vector(res.error[0, 0, j]), "error_last": vector(res.error[-1, 0, j])}
-        rows.append(row)
+    coefficients were given) and of the command error in the first and the last window, as
+    ``apht --json`` gives them (:meth:`~ambdaq.workflows.apht.Apht.first_last`)."""
     return {"recording": str(rec.path), "rpm": round(res.rpm, 1), "windows": int(res.time_s.shape[0]),
-            "window_s": round(float(res.time_s[1] - res.time_s[0]), 3) if res.time_s.shape[0] > 1 else None,
-            "compensation": res.compensation, "rows": rows}
+            "window_s": res.window_s, "compensation": res.compensation, "rows": res.first_last(1)}
 
 
 def pushed_runout(coef: Coefficients, path: Path) -> dict:
-    """The runout coefficient file ``path`` (loaded: ``coef``) pushes, per axis and harmonic:
-    amplitude and phase (µm, degrees, for R sin(k theta + phi)) and the standard uncertainty
-    ``runout identify`` stated (µm; None where the file does not say)."""
-    stated = coef.source.get("uncertainty_m") or {}
-    axes = {}
-    for axis, rows in coef.weights.items():
-        u = stated.get(axis) or [None] * len(rows)
-        axes[axis] = [{"harmonic": k, "um": round(um, 3), "deg": round(deg, 1),
-                       "u_um": None if ui is None else round(ui * 1e6, 4)}
-                      for k, (um, deg), ui in zip(coef.harmonics, map(phasor_um_deg, rows), u)]
-    return {"file": str(path), "method": coef.source.get("method", ""), "axes": axes}
+    """The runout coefficient file ``path`` (loaded: ``coef``) pushes, per axis and harmonic, as
+    ``runout identify --json`` printed it (:func:`~ambdaq.workflows.runout.runout_table`)."""
+    return {"file": str(path), "method": coef.source.get("method", ""), "axes": runout_table(coef)}
 
 
 def touchdowns(snapshots: list[Recording]) -> list[dict]:

@@ -16,7 +16,7 @@ from ..documents.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.recording import Recording
 from ..errors import AmbdaqWarning, BadInputError
-from ..units import RAD_S_TO_RPM
+from ..units import RAD_S_TO_RPM, phasor_um_deg
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
 # a recording this slow is a slow roll for identification (the speed spec's `slowroll` is 800 rpm)
@@ -197,6 +197,26 @@ def identify_recordings(recs: list[Recording], harmonics: list[int], method: str
     )
     return Identification(coef, warnings, [r.path for r in recs], recs[0], spins, np.array([r for _, r in per_file]), u,
                           bound)
+
+
+def runout_table(coef: Coefficients) -> dict[str, list[dict]]:
+    """A runout coefficient file as ``runout identify`` prints it (``--json``) and the commissioning
+    report shows it: per axis and harmonic the amplitude and phase of R sin(k theta + phi) (µm,
+    degrees), the standard uncertainty identify stated (``u_um``, µm) and the bound on the error
+    the noise does not cover (``bound_um``, µm); None where the file does not say (not propagated,
+    or a file from elsewhere)."""
+    def stated(key: str, axis: str, n: int) -> list:
+        return (coef.source.get(key) or {}).get(axis) or [None] * n
+
+    def um(v, digits: int):
+        return None if v is None else round(float(v) * 1e6, digits)
+
+    return {axis: [{"harmonic": k, "amplitude_um": round(amp, 4), "phase_deg": round(deg, 2),
+                    "u_um": um(u, 5), "bound_um": um(b, 5)}
+                   for k, (amp, deg), u, b in zip(coef.harmonics, map(phasor_um_deg, rows),
+                                                   stated("uncertainty_m", axis, len(rows)),
+                                                   stated("model_bound_m", axis, len(rows)))]
+            for axis, rows in coef.weights.items()}
 
 
 def _synchronous(rec: Recording, harmonics: list[int]) -> dict:
