@@ -7,8 +7,7 @@ import json
 import click
 
 from ..errors import BadInputError
-from ..workflows.frf import COHERENT, estimate_responses, summarize
-from ..workflows.frf import measure as measure_frf
+from ..workflows.frf import COHERENT, estimate_responses, excited_device, summarize
 from .options import (a2l_option, excitation_option, max_lost_option, output_options, plot_option, report_options,
                       speed_option,
                       speed_restored_note)
@@ -40,10 +39,9 @@ def measure(device, excitation, duration, speed, description, out, quiet, as_jso
     if excitation is None:
         raise BadInputError("frf measure needs --excite AXIS:AMPLITUDE[:HZ] (e.g. front_x:2 for 2 um RMS white noise)")
     # --rpm: the speed the controller had is set again, however the run ends
-    excited = measure_frf(device, excitation, duration, out.path, speed=speed, description=description,
-                          on_restore=speed_restored_note(quiet),
-                          record=lambda sources, records: run_recording(sources, out, duration=duration, quiet=quiet,
-                                                                        as_json=as_json, records=records))
+    with excited_device(device, excitation, speed=speed, description=description,
+                        on_restore=speed_restored_note(quiet)) as (sources, excited):
+        run_recording(sources, out, duration=duration, quiet=quiet, as_json=as_json, records=excited.records())
     if excited.switch_off_problem:
         click.echo(f"ambdaq: warning: could not switch the excitation off: {excited.switch_off_problem}", err=True)
     elif not quiet:

@@ -5,10 +5,9 @@ unit, limits and rate are the device's own."""
 
 from __future__ import annotations
 
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -83,11 +82,12 @@ def excite(sources: list[Source], request: ExcitationRequest) -> Excited:
     return state
 
 
-def measure(device: str, request: ExcitationRequest, duration_s: float, output: Path, *, speed: str | None = None,
-            description: dict | None = None, overwrite: bool = False, on_restore=None,
-            record: Callable[[list[Source], dict[str, dict[str, str]]], object] | None = None) -> Excited:
-    """Record ``device`` with its test signal on (``frf measure``): opened, excited, recorded for
-    ``duration_s``, the signal switched off and the device closed however the recording ends.
+@contextmanager
+def excited_device(device: str, request: ExcitationRequest, *, speed: str | None = None,
+                   description: dict | None = None, on_restore=None) -> Iterator[tuple[list[Source], Excited]]:
+    """``device`` opened with its test signal on, for the caller to record (``frf measure`` with its
+    terminal status; from Python a :class:`~ambdaq.acquisition.recorder.Recorder`): the signal switched off and the device closed when the block ends, however
+    it ends; with ``speed``, the speed it had set again after (``on_restore`` is told).
 
     Parameters
     ----------
@@ -95,39 +95,23 @@ def measure(device: str, request: ExcitationRequest, duration_s: float, output: 
         The controller's URL (``sim://spindle``, ``serial:///dev/ttyACM0`` ...).
     request : ExcitationRequest
         Axis, amplitude and frequency of the test signal, checked against what the device reports.
-    duration_s : float
-        Recording length, s.
-    output : Path
-        The recording.
     speed : str, optional
-        A speed to set first (``--rpm``); the speed it had is set again at the end (``on_restore``
-        is told).
+        A speed to set first (``--rpm``).
     description : dict, optional
         What the device's back-end reads beyond its URL (an XCP controller's A2L).
-    overwrite : bool
-        Replace an existing regular file.
-    record : callable, optional
-        Records the opened sources, with the metadata records it is given (the test signal's),
-        instead of a plain :class:`~ambdaq.acquisition.recorder.Recorder` (the command line's, with its
-        progress and status).
 
-    Returns
-    -------
-    Excited
-        What ran; its ``switch_off_problem`` says if the signal could not be switched off.
+    Yields
+    ------
+    sources : list of Source
+        The opened devices, to record; a recording of them carries ``excited.records()``.
+    excited : Excited
+        What runs; its ``switch_off_problem`` says, after the block, if the signal could not be
+        switched off.
     """
-    from ..acquisition.recorder import Recorder, RecordOptions
-
     with speed_restored(device, description, on_restore) if speed else nullcontext():
         with Opened() as opened:
             opened.add(open_url(device, speed=speed, description=description))
-            excited = excite(opened.sources, request)
-            if record is not None:
-                record(opened.sources, excited.records())
-            else:
-                Recorder(opened.sources, output, RecordOptions(duration_s=duration_s, records=excited.records()),
-                         overwrite=overwrite).run()
-    return excited
+            yield opened.sources, excite(opened.sources, request)
 
 
 def excited_axis(rec: Recording, ff, given: str | None) -> str:
@@ -215,4 +199,4 @@ def summarize(frf: FrequencyResponse) -> dict:
     return out
 
 
-__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "measure", "summarize"]
+__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "excited_device", "summarize"]
