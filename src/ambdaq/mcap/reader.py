@@ -244,6 +244,107 @@ def _fields(view: np.ndarray, group: SignalGroup) -> dict[str, np.ndarray]:
     return {name: values[:, i] for i, name in enumerate(group.fields)}
 
 
+@dataclass(frozen=True)
+class _Chunk:
+    """A chunk that holds a wanted channel, as planned before any chunk is read.
+
+    ``records``: every channel in it -> its message index, or, where the chunk has none and its
+    rows are implied by its first records, its count of records (one per row).  ``rows``: its
+    rows (:data:`~.chunk_rows.Row`), None where they are not rows.  ``implied``: the rows were
+    read from the first records (no message index), so every row is checked as it is inflated."""
+
+    index: object  # the summary's ChunkIndex
+    records: dict
+    rows: Row | None
+    implied: bool
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One chunk to read: where each wanted channel's records in it go (its message index or
+    count, and the position of its first record in that channel's output), and where the chunk
+    itself is inflated (``at``: its byte offset in its device's buffer, read in place; None: into
+    a thread's buffer, its fields copied out)."""
+
+    chunk: _Chunk
+    places: dict
+    at: int | None
+
+    @property
+    def rows(self) -> Row | None:
+        """The rows its records are checked and viewed by (read in place, or implied)."""
+        return self.chunk.rows if self.at is not None or self.chunk.implied else None
+
+
+def _plan(f: McapFile, wanted: dict[int, object], message_sizes: dict[int, int], lo: int | None, hi: int | None,
+          not_rows: frozenset[int], threads: int) -> list[_Chunk]:
+    """The chunks in the window ``lo``..``hi`` (ns) that hold a wanted channel, in time order,
+    with each one's records and rows (see :class:`_Chunk`); ``not_rows`` are chunks known not to
+    be the rows they look like."""
+    chunks = sorted(f.chunks, key=lambda ci: ci.message_start_time)
+    chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
+    unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size
+                 and ci.chunk_start_offset not in not_rows]
+    first_rows = {}
+    if unindexed:
+        with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
+            heads = pool.map(lambda ci: first_row(f, ci, message_sizes), unindexed)
+            first_rows = {ci.chunk_start_offset: rows for ci, rows in zip(unindexed, heads)}
+    plan = []
+    for ci in chunks:
+        if ci.message_index_offsets:
+            if any(cid in wanted for cid in ci.message_index_offsets):
+                here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
+                rows = row_layout(ci.uncompressed_size, here, message_sizes)
+                plan.append(_Chunk(ci, here, None if ci.chunk_start_offset in not_rows else rows, False))
+        elif ci.uncompressed_size:
+            rows = first_rows.get(ci.chunk_start_offset)
+            if rows is None:  # not rows: its records walked for an index
+                here = walked(f, ci)
+                if here.keys() & wanted.keys():
+                    plan.append(_Chunk(ci, here, None, False))
+            elif any(cid in wanted for cid, _at in rows[0]):
+                n = ci.uncompressed_size // rows[1]  # each channel's count: one record per row
+                plan.append(_Chunk(ci, {cid: n for cid, _at in rows[0]}, rows, True))
+    return plan
+
+
+def _read_in_place(plan: list[_Chunk], wanted: dict[int, object], message_sizes: dict[int, int]) -> dict[Row, list[int]]:
+    """The wanted channels read in place, by the rows they lie in: a channel whose every chunk is
+    rows of one layout, where the wanted records fill half of each row or more (else copying them
+    out keeps less memory)."""
+    layouts: dict[int, set] = {cid: set() for cid in wanted}
+    for chunk in plan:
+        for cid in chunk.records.keys() & wanted.keys():
+            layouts[cid].add(chunk.rows)
+    in_place: dict[Row, list[int]] = {}
+    for cid, seen in layouts.items():
+        if len(seen) == 1 and None not in seen:
+            in_place.setdefault(next(iter(seen)), []).append(cid)
+    return {rows: cids for rows, cids in in_place.items() if 2 * sum(message_sizes[c] for c in cids) >= rows[1]}
+
+
+def _jobs(plan: list[_Chunk], wanted: dict[int, object], in_place: dict[Row, list[int]]
+          ) -> tuple[list[_Job], dict[int, int], dict[Row, int]]:
+    """Where each chunk's records go, known before any is read: the jobs in time order, each
+    channel's count of records, and the bytes of each in-place device's buffer."""
+    filled = {rows: 0 for rows in in_place}
+    counts = {cid: 0 for cid in wanted}
+    jobs = []
+    for chunk in plan:
+        places = {}
+        for cid, idx in chunk.records.items():
+            if cid in wanted:
+                places[cid] = (idx, counts[cid])
+                counts[cid] += idx if chunk.implied else idx.shape[0]
+        if chunk.rows in in_place:
+            jobs.append(_Job(chunk, places, filled[chunk.rows]))
+            filled[chunk.rows] += chunk.index.uncompressed_size
+        else:
+            jobs.append(_Job(chunk, places, None))
+    return jobs, counts, filled
+
+
 def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: dict[str, tuple[int, SignalGroup]],
                t0: int, lo: int | None, hi: int | None, metadata: dict[str, dict[str, str]],
                threads: int = READ_THREADS, not_rows: frozenset[int] = frozenset()) -> dict[str, TopicData]:
@@ -283,77 +384,26 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: d
         Chunks (by their offset) that looked like rows and are not: their fields are copied out,
         found by their message indexes or, without any, by walking their records.
     """
-    chunks = sorted(f.chunks, key=lambda ci: ci.message_start_time)
-    chunks = [ci for ci in chunks if (lo is None or ci.message_end_time >= lo) and (hi is None or ci.message_start_time <= hi)]
     by_id = {cid: (topic, TopicLayout(group)) for topic, (cid, group) in wanted.items()}
     dtypes = {cid: layout.message_dtype for cid, (_topic, layout) in by_id.items()}
     message_sizes = {cid: TopicLayout(group).message_dtype.itemsize for cid, group in fixed.values()}
-    # each chunk that holds a wanted channel: its index, every channel's message index (or where a
-    # chunk has none: the count of its records its rows imply, or the index its records give),
-    # its rows, and whether those are implied (every row then checked against the first)
-    unindexed = [ci for ci in chunks if not ci.message_index_offsets and ci.uncompressed_size
-                 and ci.chunk_start_offset not in not_rows]
-    first_rows = {}
-    if unindexed:
-        with ThreadPoolExecutor(max_workers=threads) as pool:  # zstd lets go of the GIL
-            heads = pool.map(lambda ci: first_row(f, ci, message_sizes), unindexed)
-            first_rows = {ci.chunk_start_offset: rows for ci, rows in zip(unindexed, heads)}
-    plan = []
-    for ci in chunks:
-        if ci.message_index_offsets:
-            if any(cid in by_id for cid in ci.message_index_offsets):
-                here = {cid: f.message_index(ci, cid) for cid in ci.message_index_offsets}
-                rows = row_layout(ci.uncompressed_size, here, message_sizes)
-                plan.append((ci, here, None if ci.chunk_start_offset in not_rows else rows, False))
-        elif ci.uncompressed_size:
-            rows = first_rows.get(ci.chunk_start_offset)
-            if rows is None:
-                here = walked(f, ci)
-                if here.keys() & by_id.keys():
-                    plan.append((ci, here, None, False))
-            elif any(cid in by_id for cid, _at in rows[0]):
-                n = ci.uncompressed_size // rows[1]  # each channel's count: one record per row
-                plan.append((ci, {cid: n for cid, _at in rows[0]}, rows, True))
-
-    # a wanted channel is read in place where every chunk that holds it is rows of one layout, and
-    # the wanted records fill half of each row or more (else copying them out keeps less memory)
-    layouts: dict[int, set] = {cid: set() for cid in by_id}
-    for _ci, here, rows, _implied in plan:
-        for cid in here.keys() & by_id.keys():
-            layouts[cid].add(rows)
-    in_place: dict[Row, list[int]] = {}
-    for cid, seen in layouts.items():
-        if len(seen) == 1 and None not in seen:
-            in_place.setdefault(next(iter(seen)), []).append(cid)
-    in_place = {rows: cids for rows, cids in in_place.items() if 2 * sum(message_sizes[c] for c in cids) >= rows[1]}
+    plan = _plan(f, by_id, message_sizes, lo, hi, not_rows, threads)
+    in_place = _read_in_place(plan, by_id, message_sizes)
     placed = {cid for cids in in_place.values() for cid in cids}
-
-    # where each chunk's records or messages go, known before any is read
-    buffers = {rows: memory.take(sum(ci.uncompressed_size for ci, _h, r, _i in plan if r == rows)) for rows in in_place}
-    filled = {rows: 0 for rows in in_place}
-    counts = {cid: 0 for cid in by_id}
-    jobs = []
-    for ci, here, rows, implied in plan:
-        mine = {cid: (idx, counts[cid]) for cid, idx in here.items() if cid in by_id}
-        for cid, (idx, _p) in mine.items():
-            counts[cid] += idx if implied else idx.shape[0]
-        if rows in in_place:
-            jobs.append((ci, mine, rows, implied, filled[rows]))
-            filled[rows] += ci.uncompressed_size
-        else:
-            jobs.append((ci, mine, rows if implied else None, implied, None))
+    jobs, counts, sizes = _jobs(plan, by_id, in_place)
+    buffers = {rows: memory.take(size) for rows, size in sizes.items()}
     out = {cid: _topic_arrays(counts[cid], len(layout.group.fields), bool(layout.group.types))
            for cid, (_topic, layout) in by_id.items() if cid not in placed}
-    largest = max((ci.uncompressed_size for ci, _m, _r, _i, at in jobs if at is None), default=0)
+    largest = max((job.chunk.index.uncompressed_size for job in jobs if job.at is None), default=0)
     local = threading.local()
     unordered: set[int] = set()  # channels with a message logged before the one in front of it
     looked_like_rows: set[int] = set()  # chunks that are not the rows they seemed (read again, copied)
 
-    def read_chunk(job) -> None:
+    def read_chunk(job: _Job) -> None:
         """Decompress one chunk (into its place in its device's buffer, or into this thread's
         buffer, and then copy its fields into place): both release the GIL, so chunks are read on
         every core at once."""
-        ci, places, rows, implied, at = job
+        ci, rows, implied, at = job.chunk.index, job.rows, job.chunk.implied, job.at
         if at is not None:
             records = buffers[rows][at : at + ci.uncompressed_size]
         else:
@@ -364,7 +414,7 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: d
         if implied and not rows_hold(records, rows):
             looked_like_rows.add(ci.chunk_start_offset)
             return
-        for cid, (idx, p) in places.items():
+        for cid, (idx, p) in job.places.items():
             try:
                 if implied:  # every row checked: the records lie where the rows put them
                     view = np.ndarray(shape=(idx,), dtype=dtypes[cid], buffer=records, offset=dict(rows[0])[cid],
@@ -417,37 +467,34 @@ def read_fixed(f: McapFile, wanted: dict[str, tuple[int, SignalGroup]], fixed: d
         columns[cid] = {"log_time": cols["log_time"], **{h: cols[h] for h in HEADER_FIELDS}}
         columns[cid].update({"field:" + name: cols["values"][i].view(FIELD_TYPES[t])
                              for i, (name, t) in enumerate(zip(g.fields, g.field_types))})
-    for _ci, places, _rows, _implied, _at in jobs:  # where one chunk's messages meet the next's
-        for cid, (_idx, p) in places.items():
+    for job in jobs:  # where one chunk's messages meet the next's
+        for cid, (_idx, p) in job.places.items():
             if p > 0 and columns[cid]["log_time"][p] < columns[cid]["log_time"][p - 1]:
                 unordered.add(cid)
-    result = {}
-    for cid, (topic, layout) in by_id.items():
-        cols = columns[cid]
-        if cid in unordered:
-            order = np.argsort(cols["log_time"], kind="stable")
-            cols = {k: v[order] for k, v in cols.items()}
-        if lo is not None or hi is not None:
-            lt = cols["log_time"]
-            a = 0 if lo is None else int(np.searchsorted(lt, lo, "left"))
-            b = lt.shape[0] if hi is None else int(np.searchsorted(lt, hi, "right"))
-            cols = {k: v[a:b] for k, v in cols.items()}
-        g = layout.group
-        result[topic] = TopicData(
-            topic=topic,
-            nominal_rate=0.0,
-            log_time=cols["log_time"],
-            start_ns=t0,
-            device_time=cols["device_time"],
-            seq=cols["seq"],
-            status=cols["status"],
-            fields={name: cols["field:" + name] for name in g.fields},
-            units=dict(zip(g.fields, g.units)),
-            names=_device_names(metadata, topic, g.fields),
-        )
-        declared = _nominal_rate(metadata, topic)
-        result[topic].nominal_rate = declared if declared is not None else result[topic].sample_rate
-    return result
+    return {topic: _topic_data(topic, layout.group, columns[cid], cid in unordered, t0, lo, hi, metadata)
+            for cid, (topic, layout) in by_id.items()}
+
+
+def _topic_data(topic: str, g: SignalGroup, cols: dict[str, np.ndarray], unordered: bool, t0: int, lo: int | None,
+                hi: int | None, metadata: dict[str, dict[str, str]]) -> TopicData:
+    """One topic's columns as its :class:`TopicData`: sorted by log time where they were not in
+    order, cut to the window ``lo``..``hi`` (ns), at the rate its device declared (else the one
+    its samples show)."""
+    if unordered:
+        order = np.argsort(cols["log_time"], kind="stable")
+        cols = {k: v[order] for k, v in cols.items()}
+    if lo is not None or hi is not None:
+        lt = cols["log_time"]
+        a = 0 if lo is None else int(np.searchsorted(lt, lo, "left"))
+        b = lt.shape[0] if hi is None else int(np.searchsorted(lt, hi, "right"))
+        cols = {k: v[a:b] for k, v in cols.items()}
+    data = TopicData(topic=topic, nominal_rate=0.0, log_time=cols["log_time"], start_ns=t0,
+                     device_time=cols["device_time"], seq=cols["seq"], status=cols["status"],
+                     fields={name: cols["field:" + name] for name in g.fields}, units=dict(zip(g.fields, g.units)),
+                     names=_device_names(metadata, topic, g.fields))
+    declared = _nominal_rate(metadata, topic)
+    data.nominal_rate = declared if declared is not None else data.sample_rate
+    return data
 
 
 __all__ = ["NotInRecording", "READ_THREADS", "TopicData", "ambdaq_channels", "read_fixed"]
