@@ -34,7 +34,7 @@ import canopen
 
 from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can.bus import bus_load
-from ambdaq.drivers.can.profiles import PROFILES
+from ambdaq.drivers.can.device_profiles import DEVICE_PROFILES
 from ambdaq.drivers.registry import open_device
 
 from bench_can_load import Count, ThreadCpu, notifier_ids
@@ -87,7 +87,7 @@ def phase_logger(seconds: float, rate: float, tmp: Path) -> dict:
         network = canopen.Network()
         network.connect(interface="slcan", channel=urls["can"], bitrate=1_000_000, sleep_after_open=0)
         for kind in KINDS:
-            p = PROFILES[kind]
+            p = DEVICE_PROFILES[kind]
             node = network.add_node(p.default_node, str(p.eds_path))
             node.sdo.RESPONSE_TIMEOUT = 2.0
             for i in range(len(p.tpdos)):

@@ -13,7 +13,7 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.drivers.can.bus import bus_load, frame_bits
-from ambdaq.drivers.can.profiles import ALL_PROFILES, PROFILES, build_od
+from ambdaq.drivers.can.device_profiles import ALL_DEVICE_PROFILES, DEVICE_PROFILES, build_od
 from ambdaq.drivers.registry import open_device
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import SpindleRig
@@ -41,7 +41,7 @@ def can_rig():
 
 
 def test_shipped_eds_files_match_the_profiles():
-    for p in ALL_PROFILES.values():
+    for p in ALL_DEVICE_PROFILES.values():
         shipped = canopen.import_od(str(p.eds_path))
         built = build_od(p)
         assert sorted(shipped.indices) == sorted(built.indices)
@@ -63,7 +63,7 @@ def test_a_stalled_rig_thread_loses_no_sync_cycle(can_rig):
     """The rig's own thread stops for 120 ms, longer than it computes ahead (50 ms): the device
     waits for its sample instead of leaving those SYNCs unanswered, and every cycle keeps its time."""
     channel, server, _sims, _net = can_rig
-    p = PROFILES["gap_sensor"]
+    p = DEVICE_PROFILES["gap_sensor"]
     listener = can.Bus(interface="virtual", channel=channel)  # sees every SYNC with its bus time
     dev = open_device(f"can://virtual/{channel}?node={p.default_node}&sync=500")
     try:
@@ -88,10 +88,10 @@ def test_a_stalled_rig_thread_loses_no_sync_cycle(can_rig):
         listener.shutdown()
 
 
-@pytest.mark.parametrize("kind", sorted(PROFILES))
+@pytest.mark.parametrize("kind", sorted(DEVICE_PROFILES))
 def test_each_driver_streams_its_simulated_device(can_rig, kind):
     channel, server, _sims, _net = can_rig
-    p = PROFILES[kind]
+    p = DEVICE_PROFILES[kind]
     dev = open_device(f"can://virtual/{channel}?node={p.default_node}&sync=500")
     try:
         assert dev.profile.kind == kind and dev.name == kind
@@ -143,12 +143,12 @@ def test_sdo_parameters_and_refusals(can_rig):
         amp.close()
 
 
-@pytest.mark.parametrize("kind", sorted(PROFILES))
+@pytest.mark.parametrize("kind", sorted(DEVICE_PROFILES))
 def test_driver_against_canopens_own_local_node(kind):
     """An independent peer: canopen's LocalNode with its own PDO encoding, no ambdaq device code."""
     channel = f"peer{next(_channels)}"
     net = open_network(channel)
-    p = PROFILES[kind]
+    p = DEVICE_PROFILES[kind]
     node_id = p.default_node + 1
     node = canopen.LocalNode(node_id, str(p.eds_path))
     net.add_node(node)
@@ -188,7 +188,7 @@ def test_a_reply_ahead_of_its_sync_is_that_syncs_not_one_240_cycles_older():
     SYNC, not on the one 240 cycles older with the same counter (a duplicate with an old time)."""
     channel = f"early{next(_channels)}"
     net = open_network(channel)
-    p = PROFILES["gap_sensor"]
+    p = DEVICE_PROFILES["gap_sensor"]
     node = canopen.LocalNode(p.default_node, str(p.eds_path))  # answers the driver's SDO
     net.add_node(node)
     node.set_data(0x1018, 4, struct.pack("<I", 7), check_writable=False)
@@ -233,7 +233,7 @@ def test_a_reply_ahead_of_its_sync_is_that_syncs_not_one_240_cycles_older():
 def test_bus_load_above_80_percent_is_refused_with_what_fits(can_rig):
     channel, *_ = can_rig
     # per SYNC: the SYNC (1 byte) and 6 TPDOs, 785 bits worst case: 79% at 1 kHz, 86% at 1.1 kHz
-    devs = [open_device(f"can://virtual/{channel}?kind={k}&sync=1100") for k in sorted(PROFILES)]
+    devs = [open_device(f"can://virtual/{channel}?kind={k}&sync=1100") for k in sorted(DEVICE_PROFILES)]
     try:
         devs[0].start(10)
         with pytest.raises(BadInputError, match=r"CAN stream needs 86% of 1,000,000 bit/s \(7 frames per SYNC at 1100 Hz, 7,700 frames/s\); the limit is 80%: use sync=1019 or lower"):

@@ -16,24 +16,24 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "units": set(),
     "speed": {"errors", "units"},
     "loading": set(),
-    "layout": set(),
+    "roles": set(),
     "output": {"errors"},
-    "machines": {"analysis", "units", "errors", "layout"},  # a machine's description and its models
+    "machines": {"analysis", "units", "errors", "roles"},  # a machine's description and its models
     "analysis": {"units", "errors"},
-    "drivers": {"layout", "errors", "units", "speed", "loading"},
+    "drivers": {"roles", "errors", "units", "speed", "loading"},
     "mcap": {"drivers", "errors"},  # the file format alone
-    "documents": {"layout", "drivers", "machines", "output", "errors"},  # the sealed JSON files
-    "acquisition": {"layout", "drivers", "mcap", "machines", "analysis", "output", "errors", "units"},  # devices to files
-    "daq": {"layout", "mcap", "acquisition", "machines", "output", "errors", "units"},  # the read side
-    "sim": {"layout", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
-    "workflows": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "machines", "speed",
+    "documents": {"roles", "drivers", "machines", "output", "errors"},  # the sealed JSON files
+    "acquisition": {"roles", "drivers", "mcap", "machines", "analysis", "output", "errors", "units"},  # devices to files
+    "daq": {"roles", "mcap", "acquisition", "machines", "output", "errors", "units"},  # the read side
+    "sim": {"roles", "drivers", "analysis", "machines", "speed", "units", "errors", "loading"},
+    "workflows": {"roles", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "machines", "speed",
                   "output", "units", "errors"},  # never the simulator: a machine's models are in machines/
-    "studies": {"layout", "drivers", "acquisition", "documents", "analysis", "sim", "workflows", "machines", "speed",
+    "studies": {"roles", "drivers", "acquisition", "documents", "analysis", "sim", "workflows", "machines", "speed",
                 "units", "errors"},  # runs of the simulator a command reports on
-    "live": {"layout", "acquisition", "daq", "analysis", "machines", "units"},
-    "figures": {"layout", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
+    "live": {"roles", "acquisition", "daq", "analysis", "machines", "units"},
+    "figures": {"roles", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
     "report": {"analysis", "figures", "errors"},  # the commissioning report's page and PDF, from its result
-    "cli": {"layout", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies",
+    "cli": {"roles", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies",
             "live", "figures", "report", "machines", "speed", "output", "units", "errors", "loading"},
 }
 

@@ -12,7 +12,7 @@ from .options import (a2l_option, excitation_option, max_lost_option, output_opt
                       speed_option,
                       speed_restored_note)
 from .record import run_recording
-from ..layout import ERROR, FF
+from ..roles import ERROR, FF
 
 
 @click.group("frf")

@@ -8,7 +8,7 @@ import click
 from ..daq.recording import open_recording
 from ..errors import BadInputError
 from .options import POSITIVE, ImagePath, window_options
-from ..layout import GAP
+from ..roles import GAP
 
 
 @click.command("plot")

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError
-from ..layout import ROLE_TOPICS
+from ..roles import ROLE_TOPICS
 from ..machines.machine import RECORD, Machine
 from ..mcap.foreign import NotFixed, fixed_topics, foreign_topics, load_fixed, load_foreign
 from ..mcap.mcapfile import McapFile
@@ -242,7 +242,7 @@ class Recording(Mapping):
         return self.session.get("host") or "unknown"
 
     def role(self, name: str) -> TopicData:
-        """The signals of role ``name`` (:data:`ambdaq.layout.ROLE_TOPICS`: gap, current, rotor ...),
+        """The signals of role ``name`` (:data:`ambdaq.roles.ROLE_TOPICS`: gap, current, rotor ...),
         fields named after the machine's axes, wherever the machine records them.
 
         Raises

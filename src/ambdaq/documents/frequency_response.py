@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .sealed import read_sealed, seal, write_sealed
-from ..layout import ERROR, FF
+from ..roles import ERROR, FF
 
 FORMAT = "ambdaq-frf"
 VERSION = 1

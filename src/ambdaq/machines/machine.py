@@ -7,7 +7,7 @@ axes and signals from here, never from one machine's constants, so a blower whos
 Where the description comes from (:meth:`Machine.describe`), first to last:
 
 * the devices that know: ambdaq's controllers declare ``machine.*`` and ``rotor.*`` entries in
-  their calibration, and record each role on its topic (:data:`ambdaq.layout.ROLE_TOPICS`) with
+  their calibration, and record each role on its topic (:data:`ambdaq.roles.ROLE_TOPICS`) with
   fields named after the axes;
 * a rig file's ``[machine]`` table (docs/device-urls.md): an id, the bearings, the axial axes, the
   limits, the rigid rotor's constants (``[machine.rigid_rotor]``), and for devices no one here
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 from ..analysis.rotor import RigidRotor
 from ..errors import BadInputError
-from ..layout import ROLE_TOPICS, ROTOR_FIELDS
+from ..roles import ROLE_TOPICS, ROTOR_FIELDS
 
 CMIN_KEY = "machine.min_clearance_m"  # in a device's calibration: the touchdown bearings' radial clearance, m
 CURRENT_LIMIT_KEY = "machine.current_limit_a"  # the amplifier's current limit, A
@@ -123,7 +123,7 @@ class Machine:
     rotor : RigidRotor or None
         The rigid rotor on its bearings, where the description gives its constants.
     roles : mapping of str to Role
-        Where each signal role (:data:`ambdaq.layout.ROLE_TOPICS`) is recorded.
+        Where each signal role (:data:`ambdaq.roles.ROLE_TOPICS`) is recorded.
     id : str or None
         The machine's identity in a fleet.
     """

@@ -24,7 +24,7 @@ import os
 import tty
 from dataclasses import dataclass
 
-from ..drivers.can.profiles import PROFILES as CAN_PROFILES
+from ..drivers.can.device_profiles import DEVICE_PROFILES
 from .devices.canopen import open_network, serve_can
 from .devices.controller import FdPort, SimController
 from .devices.faults import FaultyPort, ScheduledFault
@@ -143,7 +143,7 @@ class CanopenDevices:
         for dev in served.can_devices:
             kind = dev.profile.kind
             namespace = "&namespace=can" if kind in CAN_NAMESPACED else ""
-            served.urls[kind] = f"can://{bus}node={CAN_PROFILES[kind].default_node}&sync={sync:g}{namespace}"
+            served.urls[kind] = f"can://{bus}node={DEVICE_PROFILES[kind].default_node}&sync={sync:g}{namespace}"
         if options.third_party:
             served.devices["probes"] = SimProbeConditioner(channel, served.server)
             served.urls["probes"] = f"can://{bus}dbc={PROBES_DBC}"

@@ -19,7 +19,7 @@ from ..documents.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..speed import SpeedProfile
 from ..sim.rigs.spindle import AXES, N_HARMONICS, SPINDLE, RunoutFeedforward, SpindleRig  # the rig compared on
-from ..layout import ERROR, ROTOR
+from ..roles import ERROR, ROTOR
 from ..units import RAD_S_TO_RPM
 from ..workflows.push import image_from
 

@@ -20,7 +20,7 @@ from ..drivers.excitation import OFF, TEST_SIGNAL_RECORD, Excitation, Excitation
 from ..drivers.interfaces import Controller, Source
 from ..drivers.registry import Opened, open_url
 from ..errors import BadInputError, DeviceError
-from ..layout import ERROR, FF
+from ..roles import ERROR, FF
 from ..units import RAD_S_TO_RPM
 from .speed_restore import speed_restored
 

@@ -94,7 +94,7 @@ class CanBackend(Backend):
 
     def open(self, url: DeviceURL, request: OpenRequest) -> Opened:
         from .device import CanopenDevice
-        from .profiles import PROFILES
+        from .device_profiles import DEVICE_PROFILES
 
         if "dbc" in url.options or "dbc" in request.description:
             return self._open_dbc(url, request)
@@ -102,11 +102,11 @@ class CanBackend(Backend):
             return self._open_eds(url, request)
 
         kind = url.options.get("kind")
-        if kind is not None and kind not in PROFILES:
-            raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(PROFILES)}")
+        if kind is not None and kind not in DEVICE_PROFILES:
+            raise BadInputError(f"option kind={kind!r} in {url.text!r}: expected one of {', '.join(DEVICE_PROFILES)}")
         if "node" not in url.options and kind is None:
             raise BadInputError(f"device URL {url.text!r} needs node=N (or kind=...): expected {self.scheme.form}")
-        node = self._node(url, PROFILES[kind].default_node if kind else 0)
+        node = self._node(url, DEVICE_PROFILES[kind].default_node if kind else 0)
         self._sync_timeable(url, external=False)  # ambdaq's own CANopen devices follow ambdaq's SYNC
         dev = self._on_hub(url, lambda hub: CanopenDevice(
             hub, node, kind=kind, sync_hz=url.number("sync", 800.0), name=request.name,
@@ -184,7 +184,7 @@ class CanBackend(Backend):
 
     def controller(self, url: DeviceURL, description: dict | None = None) -> BankPort:
         from .controller import CanopenController
-        from .profiles import CONTROLLER
+        from .device_profiles import CONTROLLER
 
         if url.options.get("kind", "controller") != "controller":
             raise BadInputError(f"{url.text}: a push goes to the controller (kind=controller), not a {url.options['kind']}")

@@ -30,7 +30,7 @@ import canopen
 import numpy as np
 
 from ...errors import BadInputError, DeviceError
-from .profiles import SYNC_COUNTER_MAX
+from .device_profiles import SYNC_COUNTER_MAX
 from ..signals import Event, SampleBlock
 
 SYNC_COB_ID = 0x80

@@ -22,7 +22,7 @@ from ...errors import BadInputError, DeviceError
 from ..interfaces import Parameters, Source
 from ..signals import Event, SampleBlock, SignalGroup
 from .bus import CanHub
-from .profiles import PROFILES, DeviceProfile
+from .device_profiles import DEVICE_PROFILES, DeviceProfile
 from ..rows import RowQueue
 
 _FMT = {od.INTEGER16: "h", od.UNSIGNED16: "H", od.UNSIGNED8: "B", od.REAL32: "f", od.INTEGER32: "i"}
@@ -64,7 +64,7 @@ class CanopenDevice(Source, Parameters):
         self.node_id = node_id
         self.url = url or f"can://{hub.interface}/{hub.channel}?node={node_id}"
         self.sample_rate = sync_hz
-        self.node = canopen.RemoteNode(node_id, str(PROFILES[kind or "amplifier"].eds_path))
+        self.node = canopen.RemoteNode(node_id, str(DEVICE_PROFILES[kind or "amplifier"].eds_path))
         hub.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = 0.5
         try:
@@ -74,7 +74,7 @@ class CanopenDevice(Source, Parameters):
             hub.network.nodes.pop(node_id, None)
             raise _sdo_error(node_id, "reading its identity (0x1018)", err) from None
         code = struct.unpack("<I", product)[0]
-        found = next((p for p in PROFILES.values() if p.product_code == code), None)
+        found = next((p for p in DEVICE_PROFILES.values() if p.product_code == code), None)
         if found is None or (kind is not None and found.kind != kind):
             hub.network.nodes.pop(node_id, None)
             raise DeviceError(f"CANopen node {node_id}: product code 0x{code:04x} is not "

@@ -24,8 +24,8 @@ import canopen
 import numpy as np
 from canopen import objectdictionary as od
 
-from ...drivers.can import profiles as cp
-from ...drivers.can.profiles import PROFILES, DeviceProfile
+from ...drivers.can import device_profiles as cp
+from ...drivers.can.device_profiles import DEVICE_PROFILES, DeviceProfile
 from .banks import BankRefused, CoefficientBanks
 from .rig_server import RigServer
 
@@ -61,7 +61,7 @@ class SimCanDevice:
     :func:`serve_can` hands it with the rig's sample."""
 
     def __init__(self, network: canopen.Network, kind: str, node_id: int, *, serial: int = 1) -> None:
-        self.profile: DeviceProfile = PROFILES[kind]
+        self.profile: DeviceProfile = DEVICE_PROFILES[kind]
         self.node = canopen.LocalNode(node_id, str(self.profile.eds_path))
         network.add_node(self.node)
         self.network = network
@@ -166,7 +166,7 @@ def serve_can(network: canopen.Network, server: RigServer, nodes: dict[str, int]
     """Put one simulated device of each type on ``network``, fed by ``server``'s rig; ``nodes`` maps
     kind -> node id.  On every SYNC the rig is sampled once, at the SYNC's bus time, and each
     OPERATIONAL device answers with its TPDOs."""
-    nodes = nodes or {k: p.default_node for k, p in PROFILES.items()}
+    nodes = nodes or {k: p.default_node for k, p in DEVICE_PROFILES.items()}
     devices = [SimCanDevice(network, kind, node, serial=1000 + node) for kind, node in nodes.items()]
 
     period = [0.0, 0.0]  # the last SYNC's time and the SYNC period (s), learnt from the bus

@@ -1,7 +1,7 @@
 """CANopen (CiA 301) device types: object dictionaries, process data and parameters.
 
 Each device type is described once here; its EDS file in ``ambdaq/drivers/can/eds/`` is generated
-from the description (``python -m ambdaq.drivers.can.profiles``) and shipped.  At run time
+from the description (``python -m ambdaq.drivers.can.device_profiles``) and shipped.  At run time
 the simulated devices and the drivers both load the shipped EDS.
 
 Common objects: 0x1000 device type, 0x1001 error register, 0x1005 SYNC COB-ID, 0x1014 EMCY
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import canopen
 from canopen import objectdictionary as od
-from ...layout import ACCEL, CURRENT, GAP, ROTOR
+from ...roles import ACCEL, CURRENT, GAP, ROTOR
 
 EDS_DIR = Path(__file__).parent / "eds"
 SYNC_COUNTER_MAX = 240  # 0x1019
@@ -135,7 +135,7 @@ class DeviceProfile:
 _SIZE = {od.INTEGER16: 2, od.UNSIGNED16: 2, od.UNSIGNED8: 1, od.REAL32: 4, od.INTEGER32: 4}
 RADIAL = ("front_x", "front_y", "rear_x", "rear_y")
 
-PROFILES: dict[str, DeviceProfile] = {
+DEVICE_PROFILES: dict[str, DeviceProfile] = {
     p.kind: p
     for p in (
         DeviceProfile(
@@ -201,7 +201,7 @@ CONTROLLER = DeviceProfile(
      Parameter("first sample of the last commit", BANK_EFFECTIVE, od.UNSIGNED32, 0, "ro")),
     "",
 )
-ALL_PROFILES = {**PROFILES, CONTROLLER.kind: CONTROLLER}
+ALL_DEVICE_PROFILES = {**DEVICE_PROFILES, CONTROLLER.kind: CONTROLLER}
 """Every CANopen device type with a shipped EDS: the streaming devices and the controller port."""
 
 
@@ -270,10 +270,10 @@ def build_od(p: DeviceProfile) -> od.ObjectDictionary:
 
 
 def write_eds() -> list[Path]:
-    """Regenerate every shipped EDS file from :data:`PROFILES`."""
+    """Regenerate every shipped EDS file from :data:`DEVICE_PROFILES`."""
     EDS_DIR.mkdir(exist_ok=True)
     out = []
-    for p in ALL_PROFILES.values():
+    for p in ALL_DEVICE_PROFILES.values():
         canopen.export_od(build_od(p), str(p.eds_path), "eds")
         out.append(p.eds_path)
     return out
