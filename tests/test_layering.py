@@ -113,3 +113,49 @@ def test_no_host_side_module_takes_the_spindles_axes(graph):
     wrong = sorted(m for m, deps in graph.items()
                    if "ambdaq.machines.spindle" in deps and part(m) not in ("machines", "sim", "studies"))
     assert not wrong, wrong
+
+
+def _defined(path: Path) -> set[str]:
+    """The names a module defines or imports at its top level (what ``from it import NAME`` finds)."""
+    names = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            for t in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                names |= {n.id for n in ast.walk(t) if isinstance(n, ast.Name)}
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+    return names
+
+
+def test_every_name_imported_from_ambdaq_is_there():
+    """Each ``from ambdaq.X import NAME`` (relative ones too, inside functions too) names a module
+    or package that exists and a submodule or top-level name it has: a renamed module's last
+    importer fails here, not in the subprocess a user starts (``from . import profiles`` outlived
+    the rename of ``drivers/can/profiles.py`` by a commit)."""
+    missing = []
+    for path in ROOT.rglob("*.py"):
+        mod = module_name(path)
+        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if not target.startswith("ambdaq"):
+                continue
+            where = ROOT.parent / target.replace(".", "/")
+            source = where.with_suffix(".py") if where.with_suffix(".py").exists() else where / "__init__.py"
+            if not source.exists():
+                missing.append((mod, target))
+                continue
+            defined = _defined(source)
+            for a in node.names:
+                sub = where / a.name
+                if a.name != "*" and a.name not in defined and not sub.is_dir() and not sub.with_suffix(".py").exists():
+                    missing.append((mod, f"{target}.{a.name}"))
+    assert not missing, missing

@@ -15,7 +15,7 @@ import canopen
 
 from ...errors import DeviceError, DeviceTimeout
 from ..interfaces import BankPort
-from . import profiles as cp
+from . import device_profiles as cp
 from .bus import CanHub
 
 COMMIT_TIMEOUT_S = 2.0  # the controller switches within a control period or answers busy within 0.5 s
