@@ -10,6 +10,14 @@ from ..speed import SpeedProfile
 from .source import FF_CHOICES
 
 
+IN_PROCESS_ALIVE_S = 5.0
+"""Seconds of silence after which the in-process simulated controller's line counts as lost (1 s for
+a controller of its own): it runs in the recorder's process, so a host starved of CPU (a process
+burning a core beside two busy ones) stops it and the reader together, for longer than a second
+at times, which says nothing about a line; a controller that stops is still caught
+(tests/test_serial_controller.py stalls one served in another process)."""
+
+
 class SimBackend(Backend):
     """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
 
@@ -52,6 +60,8 @@ class SimBackend(Backend):
             for name, device_url in served.urls.items():
                 if name == "shaker":
                     continue
+                if name == "controller":  # it shares this process, and the CPU the host gives it
+                    device_url += f"?alive={IN_PROCESS_ALIVE_S:g}"
                 opened.add(open_url(device_url, name=base if name == "controller" else f"{base}-{name}",
                                     calibration=request.calibration))
         except BaseException:

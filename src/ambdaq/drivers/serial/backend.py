@@ -8,6 +8,7 @@ from ...errors import DeviceError
 from ..interfaces import BankPort, Controller
 from ..registry import Backend, Opened, OpenRequest, opened_controller
 from ..url import DeviceURL, Scheme
+from ...errors import BadInputError
 
 
 DEVICE_TYPES = {
@@ -20,13 +21,16 @@ DEVICE_TYPES = {
 class SerialBackend(Backend):
     """Opens the line, asks the device who it is, and hands it to the driver for its type."""
 
-    scheme = Scheme("serial", "serial:///dev/ttyUSB0[?baud=3000000] or serial:socket://HOST:PORT (any pyserial URL)",
-                    ("baud",), opaque=True)
+    scheme = Scheme("serial", "serial:///dev/ttyUSB0[?baud=3000000&alive=1] or serial:socket://HOST:PORT "
+                              "(any pyserial URL)", ("baud", "alive"), opaque=True)
 
     def _driver(self, url: DeviceURL, name: str | None) -> Controller:
         from .link import SerialLink
 
-        link = SerialLink(url.target, baudrate=url.integer("baud", 3_000_000))
+        alive = url.number("alive", 1.0)  # s of silence after which the line counts as lost
+        if alive <= 0:
+            raise BadInputError(f"option alive={alive:g} in {url.text!r}: seconds, above 0")
+        link = SerialLink(url.target, baudrate=url.integer("baud", 3_000_000), alive_s=alive)
         try:
             kind = link.identify().get("device_type")
             target = DEVICE_TYPES.get(kind)

@@ -163,9 +163,9 @@ class ControllerDriver(Controller):
 
     def reconnect(self) -> None:
         """Reopen the line, check the device is the same one, and resume streaming."""
-        port, baud = self.link.port_name, self.link.baudrate
+        port, baud, alive = self.link.port_name, self.link.baudrate, self.link.alive_s
         self.link.close()
-        self.link = SerialLink(port, baudrate=baud)
+        self.link = SerialLink(port, baudrate=baud, alive_s=alive)
         try:
             info = self.link.identify()
             if info.get("serial") != self.info.get("serial"):
