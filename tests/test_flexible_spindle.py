@@ -57,3 +57,39 @@ def test_the_stock_pid_levitates_it_in_zone_d_and_loses_it_below_the_top_speed(l
     s = np.log(lam[np.abs(lam) > 1].astype(complex)) / loop.h
     unstable_hz = np.abs(s.imag) / (2 * np.pi)
     assert np.all((unstable_hz > loop.free_hz[3]) & (unstable_hz < loop.free_hz[4])), unstable_hz
+
+
+def test_filter_sections_are_what_the_firmware_runs():
+    """A chain of sections (notch, low-pass, lead-lag) in the state-space form the loop closes
+    equals its transfer function to rounding; a notch's gain at its centre is its depth, a
+    low-pass is unity at DC, a lead-lag leads by its closed form at the mean of its corners."""
+    from ambdaq.analysis.sections import lead_lag, lowpass, notch, response, state_space
+
+    fs = 10_000.0
+    chain = [notch(1500.0, 4.0, fs), lowpass(2500.0, 0.7, fs), lead_lag(300.0, 1200.0, fs)]
+    f = np.array([0.0, 300.0, 600.0, 1500.0, 2500.0, 4000.0])
+    A, B, C, D = state_space(chain)
+    z = np.exp(2j * np.pi * f / fs)
+    ss = np.array([C @ np.linalg.solve(zz * np.eye(len(B)) - A, B) + D for zz in z])
+    np.testing.assert_allclose(ss, response(chain, f, fs), atol=1e-12)
+    assert abs(response([notch(1500.0, 4.0, fs, depth=0.1)], [1500.0], fs)[0]) == pytest.approx(0.1, abs=1e-12)
+    assert response([lowpass(2500.0, 0.7, fs)], [0.0], fs)[0] == pytest.approx(1.0, abs=1e-12)
+    lead = np.degrees(np.angle(response([lead_lag(300.0, 1200.0, fs)], [600.0], fs)[0]))
+    assert lead == pytest.approx(np.degrees(np.arctan(2.0) - np.arctan(0.5)), abs=1e-9)  # prewarped there
+
+
+def test_one_notch_does_not_tune_it(loop):
+    """A notch on the third bending mode (1505 Hz) gives that mode back its structural damping
+    (0.005, from 0.0011), but its phase lag below the notch costs the second bending mode its
+    margin: the standstill peak moves to 792 Hz and grows past 20 dB.  A filter at a time does not
+    tune this machine; a design over all its modes and speeds does (issue 42, item 4)."""
+    from ambdaq.analysis.sections import notch
+
+    notched = FlexibleLoop(sections=[notch(1505.0, 3.0, loop.params.sample_rate)])
+    M, B, C = notched.matrices(0.0)
+    lam = np.log(np.linalg.eigvals(M).astype(complex)) / notched.h
+    third = lam[np.abs(lam.imag / (2 * np.pi) - 1505.0) < 30.0]
+    assert np.all(-third.real / np.abs(third) > 0.0045)
+    f = np.arange(20.0, 2500.0, 0.5)
+    gs = np.abs(model_sensitivity(M, B, C, notched.h, f)).max(axis=0)
+    assert 20 * np.log10(gs.max()) > 20.0 and abs(f[gs.argmax()] - 792.0) < 15.0

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..analysis.beam_rotor import BeamRotor, Disk, ShaftElement
+from ..analysis.sections import state_space
 from ..units import RPM_TO_RAD_S
 from .spindle import BearingAxis
 from .spindle_loop import amplifier_continuous, derivative_filter, zoh
@@ -83,10 +84,14 @@ class FlexibleLoop:
     params : FlexibleSpindleParams
     gains : tuple of three tuples, optional
         P (V/V), I (1/s), D (s) per axis; default the machine's stock PID.
+    sections : list of Section, optional
+        The filter chain after each axis's PID, before its D/A (:mod:`ambdaq.analysis.sections`);
+        default none, the stock controller.
     """
 
-    def __init__(self, params: FlexibleSpindleParams = FLEXIBLE, gains=None) -> None:
+    def __init__(self, params: FlexibleSpindleParams = FLEXIBLE, gains=None, sections=()) -> None:
         self.params = params
+        self.sections = list(sections)
         self.h = 1.0 / params.sample_rate
         axes = params.axes
         self.gains = gains or (tuple(a.pid_p for a in axes), tuple(a.pid_i for a in axes), tuple(a.pid_d for a in axes))
@@ -158,7 +163,9 @@ class FlexibleLoop:
         ci = I * h * 0.5
         Cs = self.sensor_rows()
         nra, na = Phi.shape[0], len(AXES)
-        n = nra + 3 * na
+        Af, Bf, Cf, Df = state_space(self.sections)
+        nf = Af.shape[0]  # filter states per axis
+        n = nra + 3 * na + nf * na
         M, B = np.zeros((n, n)), np.zeros((n, na))
         U, Ur = np.zeros((na, n)), np.zeros(na)
         for a in range(na):
@@ -177,9 +184,17 @@ class FlexibleLoop:
             B[prev, a] = -ks
             U[a] = -(P[a] * ev + M[integ] + M[deriv])  # u = -(P ev + integral + derivative), eq. 3
             Ur[a] = P[a] * ks - B[integ, a] - B[deriv, a]
+        # the filter chain: s' = Af s + Bf u, and the D/A gets y = Cf s + Df u
+        Y, Yr = Df * U, Df * Ur
+        for a in range(na):
+            f = slice(nra + 3 * na + nf * a, nra + 3 * na + nf * (a + 1))
+            M[f, f] = Af
+            M[f] += np.outer(Bf, U[a])
+            B[f, a] = Bf * Ur[a]
+            Y[a, f] += Cf
         M[:nra, :nra] = Phi
-        M[:nra] += Gam @ U
-        B[:nra] = Gam * Ur[None, :]
+        M[:nra] += Gam @ Y
+        B[:nra] = Gam * Yr[None, :]
         C = np.zeros((na, n))
         C[:, :nra] = Cs
         return M, B, C
