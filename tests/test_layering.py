@@ -43,27 +43,34 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imports(path: Path) -> set[str]:
-    """The ambdaq modules ``path`` imports, resolved (relative imports included; a name imported
-    from a package counts as its submodule where there is one)."""
+def from_imports(path: Path):
+    """Each ``from ... import`` of an ambdaq module in ``path`` (relative ones resolved, inside
+    functions too): (the module it names, the names it imports)."""
     mod = module_name(path)
     package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
-    out = set()
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Import):
-            out |= {a.name for a in node.names if a.name.startswith("ambdaq")}
-        elif isinstance(node, ast.ImportFrom):
+        if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")[: len(package.split(".")) - node.level + 1]
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
-            if not target.startswith("ambdaq"):
-                continue
-            for a in node.names:
-                sub = f"{target}.{a.name}"
-                out.add(sub if (ROOT.parent / (sub.replace(".", "/") + ".py")).exists()
-                        or (ROOT.parent / sub.replace(".", "/")).is_dir() else target)
+            if target.startswith("ambdaq"):
+                yield target, [a.name for a in node.names]
+
+
+def imports(path: Path) -> set[str]:
+    """The ambdaq modules ``path`` imports, resolved (relative imports included; a name imported
+    from a package counts as its submodule where there is one)."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("ambdaq")}
+    for target, names in from_imports(path):
+        for name in names:
+            sub = f"{target}.{name}"
+            out.add(sub if (ROOT.parent / (sub.replace(".", "/") + ".py")).exists()
+                    or (ROOT.parent / sub.replace(".", "/")).is_dir() else target)
     return out
 
 
@@ -136,26 +143,14 @@ def test_every_name_imported_from_ambdaq_is_there():
     the rename of ``drivers/can/profiles.py`` by a commit)."""
     missing = []
     for path in ROOT.rglob("*.py"):
-        mod = module_name(path)
-        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
-        for node in ast.walk(ast.parse(path.read_text())):
-            if not isinstance(node, ast.ImportFrom):
-                continue
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
-            if not target.startswith("ambdaq"):
-                continue
+        for target, names in from_imports(path):
             where = ROOT.parent / target.replace(".", "/")
             source = where.with_suffix(".py") if where.with_suffix(".py").exists() else where / "__init__.py"
             if not source.exists():
-                missing.append((mod, target))
+                missing.append((module_name(path), target))
                 continue
             defined = _defined(source)
-            for a in node.names:
-                sub = where / a.name
-                if a.name != "*" and a.name not in defined and not sub.is_dir() and not sub.with_suffix(".py").exists():
-                    missing.append((mod, f"{target}.{a.name}"))
+            missing += [(module_name(path), f"{target}.{name}") for name in names
+                        if name != "*" and name not in defined and not (where / name).is_dir()
+                        and not (where / name).with_suffix(".py").exists()]
     assert not missing, missing
