@@ -46,9 +46,11 @@ def _warm_rigs() -> None:
 
 
 def pytest_configure(config):
-    """Caches (the parsed A2L files) go to a folder of this run, not the user's ~/.cache; the rigs'
-    kernels are compiled once by the controlling process (not on an xdist worker)."""
+    """Caches (the parsed A2L files) and the state ambdaq keeps (its push and parameter logs) go to
+    folders of this run, not the user's ~/.cache and ~/.local/state; the rigs' kernels are
+    compiled once by the controlling process (not on an xdist worker)."""
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
+    os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
     if not hasattr(config, "workerinput"):
         _warm_rigs()
 

@@ -143,7 +143,8 @@ def status_command(device, description, as_json):
 def ff_command(action, device, description):
     """Switch the runout feedforward: off, hold (the present weights, not adapting), or on (the
     mode its active bank runs: table or LMS, from the weights it holds now). The bank is not
-    touched: push --rollback undoes a push. Read back after the write.
+    touched: push --rollback undoes a push. Read back after the write, and logged: controller
+    param --undo puts the mode back.
 
     \b
     Example:
@@ -151,15 +152,15 @@ def ff_command(action, device, description):
       ambdaq controller ff on --device serial:///dev/pts/5
     """
     from ..drivers.coefbank import MODES
+    from ..workflows import controller_params
 
     names = {v: k for k, v in MODES.items()}
     port = open_controller(device, description)
     try:
         status = port.bank_status()
         want = {"off": "off", "hold": "table", "on": status["active_mode"]}[action]
-        before = names.get(int(port.read_param("ff.mode")[0]), "?")
-        port.write_param("ff.mode", [float(MODES[want])])
-        now = names.get(int(port.read_param("ff.mode")[0]), "?")
+        change = controller_params.write_param(port, device, "ff.mode", [float(MODES[want])])
+        before, now = (names.get(int(v[0]), "?") for v in (change.old, change.new))
     finally:
         port.close()
     if now != want:
@@ -177,27 +178,44 @@ def ff_command(action, device, description):
               help="The calibration page to read or write (XCP: its page number, e.g. 0 working, 1 reference); "
                    "the page presented before is restored.")
 @click.option("--yes", is_flag=True, help="Write without asking (changing a gain on a levitated rotor changes the loop).")
-def param_command(device, name, values, description, page, yes):
+@click.option("--undo", is_flag=True,
+              help="Write back what the last change ambdaq made to this controller replaced (refused if it was "
+                   "changed since).")
+def param_command(device, name, values, description, page, yes, undo):
     """Read a controller parameter, or write VALUES to it (e.g. pid.d, speed.rpm; docs/protocol.md);
-    without NAME, list the parameters.
+    without NAME, list the parameters.  Every write is read back and logged with what it replaced,
+    and --undo puts the last one back.
 
     \b
     Example:
       ambdaq controller param --device serial:///dev/pts/5 pid.d
       ambdaq controller param --device serial:///dev/pts/5 pid.d 0.001 0.001 0.002 0.002 0.002 --yes
+      ambdaq controller param --device serial:///dev/pts/5 --undo --yes
       ambdaq controller param --device xcp+udp://127.0.0.1:5555 --a2l hello.a2l --page 1 params.flow_rate
     """
     from contextlib import nullcontext
 
     from ..drivers.interfaces import CalibrationPages, Controller
     from ..drivers.registry import open_parameters
+    from ..workflows import controller_params
 
     if any(not math.isfinite(v) for v in values):
         raise BadInputError(f"{name}: values must be finite numbers")
+    if undo and (name is not None or page is not None):
+        raise BadInputError("--undo takes no NAME, VALUES or --page: it undoes the last change, where it was made")
     dev = open_parameters(device, description)
     try:
         if not isinstance(dev, Controller):
             raise BadInputError(f"{device}: not a controller with parameters")
+        if undo:
+            _line, last = controller_params.last_change(device)
+            if not yes and not click.confirm(f"{last['name']}: {_values(last['new'])} -> {_values(last['old'])} "
+                                             f"on {device} (undo the change of {last['host_time']})?"):
+                raise click.Abort()
+            change = controller_params.undo(dev, device, page_of=getattr(dev, "on_page", None))
+            click.echo(f"{change.name} = {_values(change.new)} (was {_values(change.old)}: the change of "
+                       f"{last['host_time']} undone)")
+            return
         if name is None:
             for known in dev.parameter_names():
                 click.echo(known)
@@ -209,8 +227,11 @@ def param_command(device, name, values, description, page, yes):
                 old = dev.read_param(name)
                 if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
                     raise click.Abort()
-                dev.write_param(name, list(values))
-            click.echo(f"{name} = {_values(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
+                change = controller_params.write_param(dev, device, name, list(values), page)
+                click.echo(f"{name} = {_values(change.new)}" + ("" if page is None else f" (page {page})")
+                           + f" (was {_values(change.old)}; logged, --undo puts it back)")
+            else:
+                click.echo(f"{name} = {_values(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
             for axis, points in dev.read_axes(name).items():  # a CURVE or MAP that stores its own axis points
                 click.echo(f"{name}.{axis} = {_values(points)}")
     finally:
