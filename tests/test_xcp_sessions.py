@@ -175,7 +175,9 @@ def test_a_float64_parameter_read_written_and_read_back(run_cli):
             assert r.exit_code == 0, (r.output, replay.explain())
             outputs.append(r.output.strip())
     assert replay.mismatch is None and replay.finished, replay.explain()
-    assert outputs == ["params.flow_rate = 0.301", "params.flow_rate = 0.5", "params.flow_rate = 0.5"]
+    # the write says what it replaced, as the slave held it (and logs it for --undo)
+    assert outputs == ["params.flow_rate = 0.301", "params.flow_rate = 0.5 (was 0.301; logged, --undo puts it back)",
+                       "params.flow_rate = 0.5"]
 
 
 def test_a_master_that_asks_otherwise_meets_a_silent_slave(tmp_path, run_cli):

@@ -227,7 +227,7 @@ def param_command(device, name, values, description, page, yes, undo):
                 old = dev.read_param(name)
                 if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
                     raise click.Abort()
-                change = controller_params.write_param(dev, device, name, list(values), page)
+                change = controller_params.write_param(dev, device, name, list(values), page, old=old)
                 click.echo(f"{name} = {_values(change.new)}" + ("" if page is None else f" (page {page})")
                            + f" (was {_values(change.old)}; logged, --undo puts it back)")
             else:

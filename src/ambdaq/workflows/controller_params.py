@@ -67,10 +67,13 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def write_param(dev: Controller, target: str, name: str, values: list[float], page: int | None = None) -> ParamChange:
+def write_param(dev: Controller, target: str, name: str, values: list[float], page: int | None = None,
+                old: list[float] | None = None) -> ParamChange:
     """Write ``values`` to parameter ``name`` of ``dev`` (on calibration ``page`` where given:
-    the caller has presented it), read it back, and log the change; returns it."""
-    old = [float(v) for v in dev.read_param(name)]
+    the caller has presented it), read it back, and log the change with what it replaced
+    (``old``, where the caller has just read it: one read, one write, one read on the wire, as a
+    recorded XCP session expects); returns it."""
+    old = [float(v) for v in (dev.read_param(name) if old is None else old)]
     dev.write_param(name, list(values))
     change = ParamChange(target, name, page, old, [float(v) for v in dev.read_param(name)], _now())
     _log(change)
