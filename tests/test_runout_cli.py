@@ -41,10 +41,17 @@ def test_slow_roll_recording(tmp_path, run_cli):
 
 @pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 def test_over_the_real_drivers(tmp_path, run_cli):
-    """sim:// records through the serial controller driver (float32 on the wire): same accuracy."""
-    rec = tmp_path / "live.mcap"
-    assert run_cli("record", "--device", "sim://spindle", "--rpm", "slowroll", "--duration", "5", "-q", "-o", rec).exit_code == 0
-    r = run_cli("runout", "identify", rec, "-o", tmp_path / "coef.json")
+    """sim:// records through the serial controller driver (float32 on the wire): same accuracy.
+    A host starved of CPU (a slow CI host beside another worker's processes) can cost the
+    in-process rig samples; identify then refuses the recording ("record it again", exit 2), as it
+    must, and the test records again as a user would, up to three times."""
+    for attempt in range(3):
+        rec = tmp_path / f"live{attempt}.mcap"
+        assert run_cli("record", "--device", "sim://spindle", "--rpm", "slowroll", "--duration", "5", "-q",
+                       "-o", rec).exit_code == 0
+        r = run_cli("runout", "identify", rec, "-o", tmp_path / "coef.json", "--overwrite")
+        if r.exit_code == 0 or "record it again" not in r.output:
+            break
     assert r.exit_code == 0, r.output
     assert_matches_truth(phasors(tmp_path / "coef.json"))
 
