@@ -115,7 +115,14 @@ def test_measure_through_the_served_controller(tmp_path):
                            capture_output=True, text=True, timeout=60)
         assert r.returncode == 0, r.stderr
         summary = json.loads(r.stdout)["rear_y"]
-        assert summary["median_coherence"] > 0.97 and 300 <= summary["peak_hz"] <= 400, summary
+        # the loop's rear peak is flat (|T| within 3 % from 330 to 420 Hz in the linearised loop):
+        # a 2 s measurement's argmax lands anywhere on it (410 Hz once); its height: coherence 0.99
+        # over about 20 averages is 1.6 % of random error, and the largest of the flat top's noisy
+        # bins sits about one of those above it (+2.2 % measured): 6 %
+        f = np.arange(10.0, 2000.0, 1.0)
+        model = np.abs(error_response(rig_loop(), f)[AXES.index("rear_y")])
+        assert summary["median_coherence"] > 0.97 and 300 <= summary["peak_hz"] <= 450, summary
+        assert abs(summary["peak_gain"] / model.max() - 1) < 0.06, (summary, model.max())
         after = tmp_path / "after.mcap"
         r = subprocess.run(cmd + ["record", "--device", url, "--duration", "1", "-o", after, "-q"],
                            capture_output=True, text=True, timeout=60)
