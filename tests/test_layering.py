@@ -43,12 +43,12 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def from_imports(path: Path):
-    """Each ``from ... import`` of an ambdaq module in ``path`` (relative ones resolved, inside
-    functions too): (the module it names, the names it imports)."""
+def from_imports(path: Path, tree: ast.AST):
+    """Each ``from ... import`` of an ambdaq module in ``path`` (its parsed ``tree``; relative ones
+    resolved, inside functions too): (the module it names, the names it imports)."""
     mod = module_name(path)
     package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")[: len(package.split(".")) - node.level + 1]
@@ -63,10 +63,11 @@ def imports(path: Path) -> set[str]:
     """The ambdaq modules ``path`` imports, resolved (relative imports included; a name imported
     from a package counts as its submodule where there is one)."""
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.startswith("ambdaq")}
-    for target, names in from_imports(path):
+    for target, names in from_imports(path, tree):
         for name in names:
             sub = f"{target}.{name}"
             out.add(sub if (ROOT.parent / (sub.replace(".", "/") + ".py")).exists()
@@ -143,7 +144,7 @@ def test_every_name_imported_from_ambdaq_is_there():
     the rename of ``drivers/can/profiles.py`` by a commit)."""
     missing = []
     for path in ROOT.rglob("*.py"):
-        for target, names in from_imports(path):
+        for target, names in from_imports(path, ast.parse(path.read_text())):
             where = ROOT.parent / target.replace(".", "/")
             source = where.with_suffix(".py") if where.with_suffix(".py").exists() else where / "__init__.py"
             if not source.exists():

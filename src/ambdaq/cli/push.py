@@ -14,6 +14,7 @@ from ..workflows.push import rollback as roll_back
 from ..documents.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
 from ..drivers.registry import open_controller
+from ..workflows.controller_params import values_text
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError, DeviceError
 from .options import a2l_option
@@ -208,12 +209,13 @@ def param_command(device, name, values, description, page, yes, undo):
         if not isinstance(dev, Controller):
             raise BadInputError(f"{device}: not a controller with parameters")
         if undo:
-            _line, last = controller_params.last_change(device)
-            if not yes and not click.confirm(f"{last['name']}: {_values(last['new'])} -> {_values(last['old'])} "
+            found = controller_params.last_change(device)
+            last = found[1]
+            if not yes and not click.confirm(f"{last['name']}: {values_text(last['new'])} -> {values_text(last['old'])} "
                                              f"on {device} (undo the change of {last['host_time']})?"):
                 raise click.Abort()
-            change = controller_params.undo(dev, device, page_of=getattr(dev, "on_page", None))
-            click.echo(f"{change.name} = {_values(change.new)} (was {_values(change.old)}: the change of "
+            change = controller_params.undo(dev, device, found, page_of=getattr(dev, "on_page", None))
+            click.echo(f"{change.name} = {values_text(change.new)} (was {values_text(change.old)}: the change of "
                        f"{last['host_time']} undone)")
             return
         if name is None:
@@ -225,15 +227,15 @@ def param_command(device, name, values, description, page, yes, undo):
         with dev.on_page(page) if page is not None else nullcontext():
             if values:
                 old = dev.read_param(name)
-                if not yes and not click.confirm(f"{name}: {_values(old)} -> {_values(values)} on {device}?"):
+                if not yes and not click.confirm(f"{name}: {values_text(old)} -> {values_text(values)} on {device}?"):
                     raise click.Abort()
                 change = controller_params.write_param(dev, device, name, list(values), page, old=old)
-                click.echo(f"{name} = {_values(change.new)}" + ("" if page is None else f" (page {page})")
-                           + f" (was {_values(change.old)}; logged, --undo puts it back)")
+                click.echo(f"{name} = {values_text(change.new)}" + ("" if page is None else f" (page {page})")
+                           + f" (was {values_text(change.old)}; logged, --undo puts it back)")
             else:
-                click.echo(f"{name} = {_values(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
+                click.echo(f"{name} = {values_text(dev.read_param(name))}" + ("" if page is None else f" (page {page})"))
             for axis, points in dev.read_axes(name).items():  # a CURVE or MAP that stores its own axis points
-                click.echo(f"{name}.{axis} = {_values(points)}")
+                click.echo(f"{name}.{axis} = {values_text(points)}")
     finally:
         dev.close()
 
@@ -263,10 +265,6 @@ def copy_page_command(device, parameter, description, source, target, yes):
         if not yes and not click.confirm(f"copy page {source} over page {target} of {parameter}'s segment on {device}?"):
             raise click.Abort()
         dev.copy_page(parameter, source, target)
-        click.echo(f"page {source} copied to page {target}; {parameter} = {_values(dev.read_param(parameter))}")
+        click.echo(f"page {source} copied to page {target}; {parameter} = {values_text(dev.read_param(parameter))}")
     finally:
         dev.close()
-
-
-def _values(values) -> str:
-    return " ".join(f"{float(v):g}" for v in values)

@@ -92,26 +92,27 @@ def last_change(target: str) -> tuple[int, dict]:
     raise BadInputError(f"{target}: no parameter change of ambdaq's to undo ({change_log_path()})")
 
 
-def undo(dev: Controller, target: str, page_of=None) -> ParamChange:
-    """Write the last change's old values back to ``dev`` (``page_of(page)``: a context manager
-    that presents a calibration page, for a change made on one), if the parameter still holds what
-    that change left; log the undo and return it."""
+def undo(dev: Controller, target: str, last: tuple[int, dict], page_of=None) -> ParamChange:
+    """Write the old values of change ``last`` (:func:`last_change`) back to ``dev``
+    (``page_of(page)``: a context manager that presents a calibration page, for a change made on
+    one), if the parameter still holds what that change left; log the undo and return it."""
     from contextlib import nullcontext
 
-    line, e = last_change(target)
+    line, e = last
     with page_of(e["page"]) if e.get("page") is not None and page_of is not None else nullcontext():
         now = [float(v) for v in dev.read_param(e["name"])]
         if now != e["new"]:
-            raise BadInputError(f"{target}: {e['name']} is {_values(now)} now, not {_values(e['new'])} as ambdaq left it "
+            raise BadInputError(f"{target}: {e['name']} is {values_text(now)} now, not {values_text(e['new'])} as ambdaq left it "
                                 f"at {e['host_time']}: changed since; not undone")
         dev.write_param(e["name"], e["old"])
         back = [float(v) for v in dev.read_param(e["name"])]
     if back != [float(v) for v in e["old"]]:
-        raise DeviceError(f"{target}: {e['name']} reads back {_values(back)} after writing {_values(e['old'])}")
+        raise DeviceError(f"{target}: {e['name']} reads back {values_text(back)} after writing {values_text(e['old'])}")
     change = ParamChange(target, e["name"], e.get("page"), now, back, _now(), undo_of=line)
     _log(change)
     return change
 
 
-def _values(values) -> str:
+def values_text(values) -> str:
+    """A parameter's values as the command line writes them: ``0.0015 0.0015 0.002``."""
     return " ".join(f"{float(v):g}" for v in values)
