@@ -60,6 +60,12 @@ class FlexibleSpindleParams:
     sensor_nodes: tuple[int, int] = (FRONT_SENSOR, REAR_SENSOR)
     bending_modes: int = 6
     structural_damping: float = 0.005  # zeta of each bending mode (a built-up steel rotor)
+    # mass unbalance per disk: (node, m e in kg m, angle rad): the motor's rotor 1 um of eccentricity,
+    # the impeller 2 um at 120 deg (about ISO 21940-11 G2.5 at 36,000 rpm for the whole rotor)
+    unbalance: tuple = ((MOTOR, 6.0e-6, 0.0), (IMPELLER, 6.0e-6, 2 * np.pi / 3))
+    gap_noise: float = 0.1e-6  # m RMS at each sensor
+    dac_range: float = 10.0  # V: the controller's output saturates here
+    clearance: float = 150e-6  # m at the sensors: beyond it the protection trips the amplifiers
     sensor_gain: float = 1.0e4  # V/m
     derivative_filter: float = 15.0  # Nd
     sample_rate: float = SAMPLE_RATE
@@ -84,14 +90,17 @@ class FlexibleLoop:
     params : FlexibleSpindleParams
     gains : tuple of three tuples, optional
         P (V/V), I (1/s), D (s) per axis; default the machine's stock PID.
-    sections : list of Section, optional
-        The filter chain after each axis's PID, before its D/A (:mod:`ambdaq.analysis.sections`);
-        default none, the stock controller.
+    sections : list of Section, or one such list per axis, optional
+        The filter chain after each axis's PID, before its D/A (:mod:`ambdaq.analysis.sections`):
+        one chain for every axis, or one per axis in ``AXES`` order; default none, the stock
+        controller.
     """
 
     def __init__(self, params: FlexibleSpindleParams = FLEXIBLE, gains=None, sections=()) -> None:
         self.params = params
-        self.sections = list(sections)
+        sections = list(sections)
+        per_axis = len(sections) == len(AXES) and all(isinstance(c, list) for c in sections)
+        self.sections = [list(c) for c in sections] if per_axis else [sections] * len(AXES)
         self.h = 1.0 / params.sample_rate
         axes = params.axes
         self.gains = gains or (tuple(a.pid_p for a in axes), tuple(a.pid_i for a in axes), tuple(a.pid_d for a in axes))
@@ -143,6 +152,24 @@ class FlexibleLoop:
             A[rows, nr + 2 * i] = ax.ki * self._at_bearing[i]  # the coil current's force, ki i
         return A, Bu
 
+    def plant(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rotor and amplifiers over one control period at ``rpm`` (rpm), zero-order hold:
+        x[n+1] = Phi x[n] + Gam_u u[n] + Gam_f f[n], with u the controller's output per axis (V)
+        and f the generalised (modal) forces of both planes, [x plane, y plane] (N per unit of
+        mass-normalised mode shape), each held over the period."""
+        A, Bu = self._continuous(rpm)
+        m = self.modes
+        Bf = np.zeros((A.shape[0], 2 * m))
+        Bf[2 * m : 4 * m] = np.eye(2 * m)
+        Phi, Gam = zoh(A, np.hstack([Bu, Bf]), self.h)
+        return Phi, Gam[:, : len(AXES)].copy(), Gam[:, len(AXES) :].copy()
+
+    def unbalance_modal(self) -> np.ndarray:
+        """The rotor's unbalance on its modal coordinates: complex, one value per mode, so that the
+        x plane's modal force is Re(U e^{j theta}) Omega^2 and the y plane's Im(U e^{j theta}) Omega^2
+        (theta the rotor angle, Omega its speed in rad/s)."""
+        return sum(self._phi[2 * node] * me * np.exp(1j * angle) for node, me, angle in self.params.unbalance)
+
     def sensor_rows(self) -> np.ndarray:
         """The gap each axis's sensor reads, as rows over the rotor-and-amplifier state, m."""
         m = self.modes
@@ -163,9 +190,9 @@ class FlexibleLoop:
         ci = I * h * 0.5
         Cs = self.sensor_rows()
         nra, na = Phi.shape[0], len(AXES)
-        Af, Bf, Cf, Df = state_space(self.sections)
-        nf = Af.shape[0]  # filter states per axis
-        n = nra + 3 * na + nf * na
+        chains = [state_space(c) for c in self.sections]  # (Af, Bf, Cf, Df) per axis
+        offsets = np.concatenate(([0], np.cumsum([c[0].shape[0] for c in chains])))
+        n = nra + 3 * na + int(offsets[-1])
         M, B = np.zeros((n, n)), np.zeros((n, na))
         U, Ur = np.zeros((na, n)), np.zeros(na)
         for a in range(na):
@@ -184,14 +211,16 @@ class FlexibleLoop:
             B[prev, a] = -ks
             U[a] = -(P[a] * ev + M[integ] + M[deriv])  # u = -(P ev + integral + derivative), eq. 3
             Ur[a] = P[a] * ks - B[integ, a] - B[deriv, a]
-        # the filter chain: s' = Af s + Bf u, and the D/A gets y = Cf s + Df u
-        Y, Yr = Df * U, Df * Ur
-        for a in range(na):
-            f = slice(nra + 3 * na + nf * a, nra + 3 * na + nf * (a + 1))
+        # each axis's filter chain: s' = Af s + Bf u, and its D/A gets y = Cf s + Df u
+        Y, Yr = np.zeros((na, n)), np.zeros(na)
+        for a, (Af, Bf, Cf, Df) in enumerate(chains):
+            f = slice(nra + 3 * na + offsets[a], nra + 3 * na + offsets[a + 1])
             M[f, f] = Af
             M[f] += np.outer(Bf, U[a])
             B[f, a] = Bf * Ur[a]
+            Y[a] = Df * U[a]
             Y[a, f] += Cf
+            Yr[a] = Df * Ur[a]
         M[:nra, :nra] = Phi
         M[:nra] += Gam @ Y
         B[:nra] = Gam * Yr[None, :]

@@ -69,6 +69,10 @@ class SimBackend(Backend):
             raise
         return opened
 
+    def parameters(self, url: DeviceURL, description: dict | None = None):
+        raise BadInputError(f"{url.text}: a parameter written to a rig served in this process is gone when the "
+                            "command ends: start `ambdaq sim serve` and use the serial:// port it prints")
+
     def controller(self, url: DeviceURL, description: dict | None = None):
         raise BadInputError(f"{url.text}: a push needs a controller that keeps running: start `ambdaq sim serve` "
                             "and push to the serial:// port it prints")

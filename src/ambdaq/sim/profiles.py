@@ -22,6 +22,7 @@ PROFILES = {
     "base-motion": "ambdaq.sim.rigs.base_motion",
     "cone": "ambdaq.sim.rigs.cone",
     "lorentz": "ambdaq.sim.rigs.lorentz",
+    "flexible": "ambdaq.sim.rigs.flexible",
 }
 
 

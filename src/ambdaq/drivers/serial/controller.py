@@ -184,6 +184,13 @@ class ControllerDriver(Controller):
         _req, got, values = proto.parse_param_value(reply.body)
         return values
 
+    def parameter_names(self) -> list[str]:
+        """The parameters its IDENTITY lists (docs/protocol.md)."""
+        names = self.info.get("parameters")
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            return super().parameter_names()
+        return list(names)
+
     def write_param(self, name: str, values: ArrayLike) -> None:
         """Write a controller parameter; the controller acknowledges or refuses (DeviceError)."""
         self.link.request(MsgType.PARAM_WRITE, proto.param_write(name, np.atleast_1d(values)), what=f"write {name}")

@@ -110,6 +110,17 @@ class Feedforward(ABC):
         problem = image.problem(len(lay["axes"]), lay["harmonics"])
         if problem:
             return problem
+        if image.pid is not None:
+            ctl = lay.get("controller")
+            if ctl is None:
+                return "this controller's bank holds no feedback controller (PID and sections)"
+            if image.pid.shape[0] != len(lay["axes"]):
+                return f"the controller section has {image.pid.shape[0]} axes, this controller {len(lay['axes'])}"
+            if image.biquads is not None and image.biquads.shape[1] > ctl["max_sections"]:
+                return (f"the controller has {image.biquads.shape[1]} sections per axis; this firmware runs at most "
+                        f"{ctl['max_sections']}")
+            if ctl["sample_rate_hz"] != lay.get("sample_rate_hz", ctl["sample_rate_hz"]):
+                return "the controller section was designed for another sample rate"
         fir = lay.get("fir")
         if image.fir_taps is None:
             return ""
