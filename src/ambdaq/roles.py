@@ -16,11 +16,12 @@ ROLE_TOPICS = {
     "error": "/amb/error",  # the controller's command error, m
     "ff": "/amb/ff",  # feedforward output, m
     "voltage": "/amb/voltage",  # coil voltages, V
+    "control": "/amb/control",  # the controller's output to the amplifiers, V
 }
 """Role -> the topic ambdaq's own devices record it on."""
 
-GAP, CURRENT, ACCEL, ROTOR, ERROR, FF, VOLTAGE = (ROLE_TOPICS[r] for r in
-                                                  ("gap", "current", "accel", "rotor", "error", "ff", "voltage"))
+GAP, CURRENT, ACCEL, ROTOR, ERROR, FF, VOLTAGE, CONTROL = (
+    ROLE_TOPICS[r] for r in ("gap", "current", "accel", "rotor", "error", "ff", "voltage", "control"))
 ROTOR_FIELDS = ("angle", "speed")  # the rotor role's fields: rad, rad/s
 
-__all__ = ["ACCEL", "CURRENT", "ERROR", "FF", "GAP", "ROLE_TOPICS", "ROTOR", "ROTOR_FIELDS", "VOLTAGE"]
+__all__ = ["ACCEL", "CONTROL", "CURRENT", "ERROR", "FF", "GAP", "ROLE_TOPICS", "ROTOR", "ROTOR_FIELDS", "VOLTAGE"]

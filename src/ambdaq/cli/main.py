@@ -37,6 +37,7 @@ COMMANDS = {
     "info": "info:command",
     "lms": "lms:command",
     "model": "model:command",
+    "plant": "plant:command",
     "plot": "plot:command",
     "push": "push:push_command",
     "record": "record:command",

@@ -42,7 +42,7 @@ N_AXES = len(AXES)
 
 @njit(cache=True, fastmath=False, nogil=True)
 def _simulate(x, ctl, sec_state, st, theta, omega, noise, exc, Phi, Gam, Gamf, Cs, ks, P, ci, ad, bd, sections,
-              ur, ui, c, out_gap, out_cur, out_err, out_ff, out_pos):
+              ur, ui, c, out_gap, out_cur, out_err, out_ff, out_ctl, out_pos):
     """Advance the loop over len(theta) periods.  x: rotor and amplifier state; ctl (axes, 3):
     integral, derivative, previous error voltage; sec_state (axes, sections, 2); st[0]: 1 while
     levitated, 0 once tripped.  c = [gap noise m, D/A range V, clearance m]."""
@@ -64,12 +64,10 @@ def _simulate(x, ctl, sec_state, st, theta, omega, noise, exc, Phi, Gam, Gamf, C
             out_cur[k, a] = x[nr + 2 * a]
             e = gap - exc[k, a]
             out_err[k, a] = e
-            if st[0] == 0.0:
-                u[a] = 0.0
-                continue
-            if abs(gap) > c[2]:
+            if st[0] == 0.0 or abs(gap) > c[2]:
                 st[0] = 0.0
                 u[a] = 0.0
+                out_ctl[k, a] = 0.0
                 continue
             ev = ks * e
             integ = ctl[a, 0] + ci[a] * (ev + ctl[a, 2])
@@ -84,6 +82,7 @@ def _simulate(x, ctl, sec_state, st, theta, omega, noise, exc, Phi, Gam, Gamf, C
                 sec_state[a, s, 1] = sections[a, s, 2] * v - sections[a, s, 4] * y
                 v = y
             u[a] = min(max(v, -c[1]), c[1])
+            out_ctl[k, a] = u[a]
         if st[0] == 0.0:  # on the touchdown bearings: the rotor stays where the trip left it
             continue
         w2 = omega[k] * omega[k]
@@ -111,6 +110,7 @@ def _groups(truth: bool) -> list[SignalGroup]:
         SignalGroup("/amb/current", "Current", AXES, ("A",) * N_AXES),
         SignalGroup("/amb/error", "Error", AXES, m4),
         SignalGroup("/amb/ff", "Feedforward", AXES, m4),
+        SignalGroup("/amb/control", "Control", AXES, ("V",) * N_AXES),
         SignalGroup("/amb/rotor", "Rotor", ("angle", "speed", "keyphasor"), ("rad", "rad/s", "1")),
     ]
     if truth:
@@ -265,7 +265,7 @@ class FlexibleRig(Rig, ExcitationInput):
         theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
         noise = self._rng.standard_normal((n, N_AXES))
         exc = self.excitation_block(steps)
-        outs = [np.empty((n, N_AXES)) for _ in range(5)]
+        outs = [np.empty((n, N_AXES)) for _ in range(6)]
         rpm = omega / RPM_TO_RAD_S
         bucket = np.round(rpm / SPEED_BUCKET_RPM)
         edges = np.concatenate(([0], np.flatnonzero(np.diff(bucket)) + 1, [n]))
@@ -279,12 +279,12 @@ class FlexibleRig(Rig, ExcitationInput):
         if levitated and not self._st[0]:
             self.tripped_at = float(t[np.flatnonzero(np.abs(outs[0]).max(axis=1) > self.params.clearance)[0]])
         self.step_index += n
-        gap, cur, err, ff, pos = outs
+        gap, cur, err, ff, ctl, pos = outs
         revs = np.floor(theta / (2 * np.pi))
         keyphasor = (revs > np.concatenate(([self._rev], revs[:-1]))).astype(float)  # once per turn, at its start
         self._rev = float(revs[-1])
         rotor = np.column_stack([np.mod(theta, 2 * np.pi), omega, keyphasor])
-        arrays = [gap, cur, err, ff, rotor] + ([pos] if self.truth else [])
+        arrays = [gap, cur, err, ff, ctl, rotor] + ([pos] if self.truth else [])
         return self._block(steps, arrays)
 
 
@@ -328,7 +328,7 @@ def _sections_problem(rig, values: np.ndarray) -> str:
 
 FIRMWARE = Firmware(
     "AMB controller (simulated, flexible rotor)",
-    ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/rotor"),
+    ("/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/control", "/amb/rotor"),
     {
         "pid.p": Param(N_AXES, lambda r: r.pid_gains[0], _set_pid(0), GAIN_LEAST[0], 100.0,
                        "proportional gain per axis, V/V"),

@@ -1,0 +1,96 @@
+"""The plant of a levitated rotor, measured in closed loop (issue 42, item 2).
+
+A magnetic bearing cannot be opened: its plant P (controller output u, V, to the gap y, m) is
+unstable on its own.  The test signal r is added at the sensor summing point (ISO 14839-3), so the
+controller sees e = y - r and drives u = -C e; the gap carries the sensor noise and the unbalance
+n, which the loop feeds back into u.  The *direct* estimate G_uy / G_uu is therefore biased: where
+n dominates r it tends to -1/C, the inverse of the controller, not the plant (Pintelon & Schoukens,
+System Identification, 2nd ed., section 13.2).  The estimator here is the *joint input-output*
+one: both the gap and the controller's output are referred to the test signal, which nothing in
+the loop is correlated with,
+
+    H_ry = G_ry / G_rr,   H_ru = G_ru / G_rr,   P = H_RY H_RU^-1          (Pintelon & Schoukens eq. 13-23)
+
+column j of H_RY and H_RU being the run that excited axis j.  It needs every axis of a coupled set
+excited (one run each), and it is asymptotically unbiased whatever the noise, the feedback and
+the controller, which it never needs to know (the *indirect* estimate from the sensitivity,
+P = C^-1 (S^-1 - 1), needs C exactly and inherits every error in it).
+
+The sensitivity S = -H_re (e = -S r) and the complementary sensitivity T = 1 - S are measured
+alongside, per axis, as ISO 14839-3 asks.
+
+Random errors: each H1 element has the normalised random error
+eps = sqrt(1 - g2) / (|g| sqrt(2 n_d)) (Bendat & Piersol, Random Data, eq. 9.90), g2 its
+coherence and n_d the averages; they are propagated to P to first order,
+dP = (dH_RY - P dH_RU) H_RU^-1, treating the elements' errors as independent and circular.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def h1_error(response: np.ndarray, coherence: np.ndarray, segments: int) -> np.ndarray:
+    """The standard deviation of an H1 estimate's complex error (Bendat & Piersol eq. 9.90),
+    in its unit: |H| sqrt(1 - g2) / (sqrt(g2) sqrt(2 n_d))."""
+    g2 = np.clip(coherence, 1e-12, 1.0)
+    return np.abs(response) * np.sqrt(1.0 - g2) / (np.sqrt(g2) * np.sqrt(2.0 * segments))
+
+
+@dataclass(frozen=True)
+class ClosedLoopPlant:
+    """The plant measured in closed loop, per frequency.
+
+    Attributes
+    ----------
+    freq_hz : ndarray, shape (n,)
+    response : ndarray of complex, shape (n, outputs, inputs)
+        P[output, input], m per V.
+    sigma : ndarray, shape (n, outputs, inputs)
+        The standard deviation of each element's complex error, m per V.
+    coherence : ndarray, shape (n, outputs, inputs)
+        P[i, k]: the smaller of the coherences of gap i's H1 and of output k's H1 in the run that
+        excited axis k (what the element can be trusted by).
+    """
+
+    freq_hz: np.ndarray
+    response: np.ndarray
+    sigma: np.ndarray
+    coherence: np.ndarray
+
+
+def joint_input_output(h_ry: np.ndarray, h_ru: np.ndarray, coh_ry: np.ndarray, coh_ru: np.ndarray,
+                       segments: np.ndarray, freq_hz: np.ndarray) -> ClosedLoopPlant:
+    """P = H_RY H_RU^-1 at each frequency, with its first-order random error.
+
+    Parameters
+    ----------
+    h_ry, h_ru : ndarray of complex, shape (n, axes, axes)
+        Gap (m) and controller output (V) per test signal (m), column j from the run that excited
+        axis j.
+    coh_ry, coh_ru : ndarray, shape (n, axes, axes)
+        Their coherences.
+    segments : ndarray of int, shape (axes,)
+        The averages of each run.
+    freq_hz : ndarray, shape (n,)
+
+    Raises
+    ------
+    ValueError
+        Where H_RU is singular: a run that moved no controller output.
+    """
+    cond = np.linalg.cond(h_ru)
+    if not np.all(np.isfinite(cond)) or np.any(cond > 1e12):
+        raise ValueError("the controller's outputs do not respond to every test signal (singular at "
+                         f"{freq_hz[np.argmax(np.where(np.isfinite(cond), cond, np.inf))]:g} Hz)")
+    inv = np.linalg.inv(h_ru)
+    p = h_ry @ inv
+    s_ry = h1_error(h_ry, coh_ry, segments[None, None, :]) ** 2
+    s_ru = h1_error(h_ru, coh_ru, segments[None, None, :]) ** 2
+    # dP_ik = sum_j (dHy_ij - sum_l P_il dHu_lj) inv_jk; independent circular errors add in power
+    spread = s_ry + np.einsum("nil,nlj->nij", np.abs(p) ** 2, s_ru)
+    var = np.einsum("nij,njk->nik", spread, np.abs(inv) ** 2)
+    coh = np.minimum(coh_ry, np.diagonal(coh_ru, axis1=1, axis2=2)[:, None, :])
+    return ClosedLoopPlant(freq_hz, p, np.sqrt(var), coh)

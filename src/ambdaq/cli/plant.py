@@ -1,0 +1,100 @@
+"""``ambdaq plant``: the plant of a levitated machine, measured in closed loop (docs/tuning.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ..errors import BadInputError
+from .options import DURATION, POSITIVE, a2l_option, max_lost_option, plot_option, speed_restored_note
+
+
+@click.group("plant")
+def command() -> None:
+    """The machine's plant, from the controller's output to the gap: measured in closed loop."""
+
+
+@command.command("identify")
+@click.argument("recordings", nargs=-1, type=click.Path(dir_okay=False))
+@click.option("--device", metavar="URL", help="Measure on this controller (serial://..., xcp+..., sim://flexible).")
+@a2l_option
+@click.option("--rpm", type=click.FloatRange(min=0, max=200_000), metavar="RPM",
+              help="The speed to measure at, set through the controller's speed parameter; default: the present one.")
+@click.option("--axes", help="Comma-separated axes to excite (every axis of a coupled set); default: all.")
+@click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
+              help="RMS of the white-noise test signal at the sensor summing point, um.")
+@click.option("--duration", type=DURATION, default=10.0, show_default=True, metavar="SECONDS", help="Per axis.")
+@click.option("--settle", type=DURATION, default=60.0, show_default=True, metavar="SECONDS",
+              help="Longest wait for the rotor to reach --rpm.")
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
+              help="Where the measured recordings go; default: beside -o, in NAME_runs/.")
+@click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True, help="Frequency step, Hz.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Plant file (sealed JSON).")
+@click.option("--overwrite", is_flag=True)
+@plot_option("Measured plant per axis with its 95 % band, sensitivity and coherence (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
+@max_lost_option
+def identify(recordings, device, description, rpm, axes, amplitude, duration, settle, runs_dir, resolution, output,
+             overwrite, plot_path, as_json, quiet, max_lost):
+    """The plant P (controller output, V, to gap, m) per axis and across axes, with its random error,
+    and the sensitivity S and complementary sensitivity T per axis, measured in closed loop.
+
+    The test signal is white noise at the sensor summing point (ISO 14839-3), one axis at a time;
+    the plant is the joint input-output estimate P = H_RY H_RU^-1, both responses referred to the
+    test signal, which the feedback and the sensor noise are not correlated with (the direct
+    estimate from the controller's output is biased towards the inverse of the controller).
+    Measures with --device, or takes RECORDINGS made so (iso stability --runs DIR keeps them).
+
+    \b
+    Example:
+      ambdaq plant identify --device serial:///dev/pts/5 --duration 10 -o plant.json --plot plant.png
+      ambdaq plant identify runs/gs_*.mcap -o plant.json --json
+    """
+    from ..workflows import iso_stability as iso
+    from ..workflows.plant_identification import identify as identify_plant
+
+    if bool(recordings) == bool(device):
+        raise BadInputError("plant identify takes either --device URL (measure) or recordings, not both or neither")
+    if description and not device:
+        raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
+    if device:
+        where = Path(runs_dir) if runs_dir else out.with_name(out.stem + "_runs")
+
+        def announce(axis, at_rpm, path):
+            if not quiet:
+                at = "at the present speed" if at_rpm is None else f"at {at_rpm:,.0f} rpm"
+                click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
+
+        paths = iso.measure(device, None if rpm is None else [rpm], [a.strip() for a in axes.split(",")] if axes else None,
+                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
+                            description=description, on_restore=speed_restored_note(quiet))
+        if not quiet:
+            click.echo("test signal switched off after each run", err=True)
+    else:
+        paths = [Path(p) for p in recordings]
+    from ..daq.recording import open_recording
+
+    measured = identify_plant([open_recording(p) for p in paths], resolution_hz=resolution, max_lost=max_lost)
+    measured.save(out, overwrite=overwrite)
+    if plot_path:
+        from ..figures import save
+        from ..figures.plant import draw_plant
+
+        save(draw_plant(measured), plot_path)
+    if as_json:
+        click.echo(json.dumps(measured.as_dict(), indent=2))
+    else:
+        click.echo(f"plant at {measured.speed_rpm:,.0f} rpm over {', '.join(measured.axes)} "
+                   f"({len(measured.freq_hz)} points of {measured.freq_hz[1] - measured.freq_hz[0]:g} Hz)")
+        for row in measured.rows():
+            band = row["plant_coherent_band_hz"]
+            click.echo(f"  {row['axis']:<8} S peak {row['sensitivity_peak_db']:5.1f} dB at {row['sensitivity_peak_hz']:6.0f} Hz"
+                       f"  plant coherent {'-' if band is None else f'{band[0]:g}-{band[1]:g} Hz'}"
+                       f"  resonances {', '.join(f'{f:g}' for f in row['plant_resonances_hz']) or '-'} Hz")
+    click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)

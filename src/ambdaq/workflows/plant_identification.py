@@ -1,0 +1,185 @@
+"""``ambdaq plant identify``: the plant of a levitated machine, measured in closed loop (issue 42,
+item 2), from one excited run per axis (the runs ``iso stability`` records: white noise at the
+sensor summing point).
+
+Per run, the H1 responses from the test signal to the gap, to the controller's output and to
+the command error (:func:`~ambdaq.workflows.frf.estimate_responses`); over the excited axes, the
+plant by the joint input-output estimator (:mod:`ambdaq.analysis.closed_loop`: unbiased by the
+feedback, and independent of the controller), with its random error; per axis, the sensitivity
+S = -e/r and the complementary sensitivity T = 1 - S.  The plant file is sealed JSON with every
+run's path and SHA-256, the speed and the controller's gains the recordings state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.closed_loop import ClosedLoopPlant, joint_input_output
+from ..analysis.frf import COHERENT
+from ..daq.quality import MAX_LOST
+from ..daq.recording import Recording
+from ..documents.sealed import read_sealed, write_sealed
+from ..errors import BadInputError
+from ..roles import CONTROL, ERROR, FF, GAP
+from .frf import estimate_responses
+
+FORMAT, VERSION = "ambdaq-plant-frf", 1
+SPEED_TOLERANCE = 0.01  # the runs of one plant ran within 1 % (and 20 rpm) of each other
+SPEED_FLOOR_RPM = 20.0
+
+
+@dataclass
+class PlantMeasurement:
+    """The plant and the loop's sensitivities of one machine at one speed.
+
+    Attributes
+    ----------
+    axes : list of str
+        The excited axes, the plant's inputs and outputs in this order.
+    plant : ClosedLoopPlant
+        P[output, input] (m/V) with its random error and coherence.
+    sensitivity : ndarray of complex, shape (n, axes)
+        S per axis, S = -e / r (dimensionless).
+    sensitivity_coherence : ndarray, shape (n, axes)
+    speed_rpm : float
+        The runs' median speed.
+    sources : list of dict
+        Per run: path, sha256, speed_rpm, segments, the axis it excited.
+    controller : dict
+        The controller's gains the recordings state (``controller.pid_*`` of their calibration).
+    """
+
+    axes: list[str]
+    plant: ClosedLoopPlant
+    sensitivity: np.ndarray
+    sensitivity_coherence: np.ndarray
+    speed_rpm: float
+    sources: list[dict] = field(default_factory=list)
+    controller: dict = field(default_factory=dict)
+
+    @property
+    def freq_hz(self) -> np.ndarray:
+        return self.plant.freq_hz
+
+    def rows(self) -> list[dict]:
+        """Per axis, what a table shows: the sensitivity's peak (dB, Hz), the plant's coherent band
+        and its resonances there (local maxima of |P| on the diagonal, Hz)."""
+        out = []
+        f = self.freq_hz
+        for i, axis in enumerate(self.axes):
+            s_db = 20 * np.log10(np.abs(self.sensitivity[:, i]))
+            trusted = self.sensitivity_coherence[:, i] >= COHERENT
+            peak = int(np.argmax(np.where(trusted, s_db, -np.inf))) if trusted.any() else int(np.argmax(s_db))
+            p = np.abs(self.plant.response[:, i, i])
+            good = self.plant.coherence[:, i, i] >= COHERENT
+            band = (float(f[good][0]), float(f[good][-1])) if good.any() else None
+            maxima = [float(f[k]) for k in range(1, len(f) - 1)
+                      if good[k] and p[k] > p[k - 1] and p[k] > p[k + 1] and p[k] > 2 * np.median(p[good])]
+            out.append({"axis": axis, "sensitivity_peak_db": round(float(s_db[peak]), 2),
+                        "sensitivity_peak_hz": float(f[peak]),
+                        "plant_coherent_band_hz": list(band) if band else None,
+                        "plant_resonances_hz": maxima,
+                        "plant_median_relative_error": round(float(np.median(
+                            (self.plant.sigma[:, i, i] / np.maximum(p, 1e-300))[good])), 4) if good.any() else None})
+        return out
+
+    def as_dict(self) -> dict:
+        """What ``plant identify --json`` prints."""
+        return {"axes": self.axes, "speed_rpm": round(self.speed_rpm, 1),
+                "resolution_hz": float(self.freq_hz[1] - self.freq_hz[0]), "points": int(len(self.freq_hz)),
+                "estimator": "joint input-output: P = H_RY H_RU^-1, both referred to the test signal",
+                "rows": self.rows(), "sources": self.sources}
+
+    def to_document(self) -> dict:
+        p = self.plant
+        cells = {out: {inp: {"re": p.response[:, i, j].real.tolist(), "im": p.response[:, i, j].imag.tolist(),
+                             "sigma": p.sigma[:, i, j].tolist(), "coherence": p.coherence[:, i, j].tolist()}
+                       for j, inp in enumerate(self.axes)} for i, out in enumerate(self.axes)}
+        sens = {a: {"re": self.sensitivity[:, i].real.tolist(), "im": self.sensitivity[:, i].imag.tolist(),
+                    "coherence": self.sensitivity_coherence[:, i].tolist()} for i, a in enumerate(self.axes)}
+        return {"format": FORMAT, "version": VERSION, "axes": self.axes, "speed_rpm": self.speed_rpm,
+                "input": CONTROL, "output": GAP, "unit": "m/V", "freq_hz": self.freq_hz.tolist(),
+                "plant": cells, "sensitivity": sens, "sources": self.sources, "controller": self.controller}
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        return write_sealed(path, self.to_document(), overwrite=overwrite)
+
+
+def _controller_gains(rec: Recording) -> dict:
+    return {k: v for device in rec.devices.values() for k, v in device.calibration.items()
+            if k.startswith("controller.pid")}
+
+
+def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float = MAX_LOST) -> PlantMeasurement:
+    """The plant over the axes ``recs`` excited, one run each (see the module docstring).
+
+    Parameters
+    ----------
+    recs : list of Recording
+        One run per excited axis, white noise on the controller's test-signal input, each with the
+        gap, the controller's output (``/amb/control``), the command error and the test signal.
+    resolution_hz : float
+        Frequency step, Hz.
+    max_lost : float
+        Share of samples a run may have lost (a hole is a jump inside a Welch segment).
+    """
+    if not recs:
+        raise BadInputError("no recordings: give one excited run per axis (iso stability --runs DIR keeps them)")
+    for rec in recs:
+        if CONTROL not in rec:
+            raise BadInputError(f"{rec.path}: no controller output ({CONTROL}): the plant is measured from what the "
+                                "controller sent to the amplifiers, which this controller does not stream")
+    gap = estimate_responses(recs, resolution_hz, None, FF, GAP, max_lost)
+    ctl = estimate_responses(recs, resolution_hz, None, FF, CONTROL, max_lost)
+    err = estimate_responses(recs, resolution_hz, None, FF, ERROR, max_lost)
+    axes = list(gap.columns)
+    speeds = [gap.columns[a]["source"]["speed_rpm"] for a in axes]
+    median = float(np.median(speeds))
+    if any(abs(s - median) > max(SPEED_TOLERANCE * median, SPEED_FLOOR_RPM) for s in speeds):
+        raise BadInputError("the runs ran at different speeds (" + ", ".join(f"{a} {s:,.0f} rpm" for a, s in
+                                                                              zip(axes, speeds)) + "): one plant is one speed")
+
+    def matrix(frf, what):
+        return np.stack([np.stack([frf.response(o, i)[what] for i in axes], axis=-1) for o in axes], axis=1)
+
+    segments = np.array([gap.columns[a]["source"]["segments"] for a in axes])
+    try:
+        plant = joint_input_output(matrix(gap, 0), matrix(ctl, 0), matrix(gap, 1), matrix(ctl, 1), segments,
+                                   gap.freq_hz)
+    except ValueError as err_:
+        raise BadInputError(f"the plant cannot be solved: {err_}") from None
+    sens = -np.stack([err.response(a, a)[0] for a in axes], axis=1)
+    sens_coh = np.stack([err.response(a, a)[1] for a in axes], axis=1)
+    sources = [{**gap.columns[a]["source"], "excited": a} for a in axes]
+    return PlantMeasurement(axes, plant, sens, sens_coh, median, sources, _controller_gains(recs[0]))
+
+
+def load_measurement(path: str | Path) -> PlantMeasurement:
+    """Read and check a plant file ``plant identify`` wrote: format, version, checksum, shapes,
+    finite values; BadInputError naming what is wrong."""
+    path = Path(path)
+    doc = read_sealed(path, FORMAT, VERSION, "plant file")
+    try:
+        axes = [str(a) for a in doc["axes"]]
+        f = np.array(doc["freq_hz"], dtype=float)
+        n, k = f.shape[0], len(axes)
+        resp, sigma, coh = (np.empty((n, k, k), dtype=complex), np.empty((n, k, k)), np.empty((n, k, k)))
+        for i, out in enumerate(axes):
+            for j, inp in enumerate(axes):
+                cell = doc["plant"][out][inp]
+                resp[:, i, j] = np.array(cell["re"], dtype=float) + 1j * np.array(cell["im"], dtype=float)
+                sigma[:, i, j] = np.array(cell["sigma"], dtype=float)
+                coh[:, i, j] = np.array(cell["coherence"], dtype=float)
+        sens = np.stack([np.array(doc["sensitivity"][a]["re"], float) + 1j * np.array(doc["sensitivity"][a]["im"], float)
+                         for a in axes], axis=1)
+        sens_coh = np.stack([np.array(doc["sensitivity"][a]["coherence"], float) for a in axes], axis=1)
+        speed = float(doc["speed_rpm"])
+    except (KeyError, TypeError, ValueError, IndexError) as err:
+        raise BadInputError(f"{path}: malformed plant file ({err})") from None
+    if not all(np.all(np.isfinite(v)) for v in (f, resp, sigma, coh, sens, sens_coh)) or not np.isfinite(speed):
+        raise BadInputError(f"{path}: the plant file holds a value that is not a finite number")
+    return PlantMeasurement(axes, ClosedLoopPlant(f, resp, sigma, coh), sens, sens_coh, speed,
+                            list(doc.get("sources", [])), dict(doc.get("controller", {})))
