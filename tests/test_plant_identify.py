@@ -23,6 +23,17 @@ def true_plant(rpm: float, freq_hz: np.ndarray) -> np.ndarray:
     return np.array([cs @ np.linalg.solve(np.exp(2j * np.pi * f * loop.h) * eye - phi, gam) for f in freq_hz])
 
 
+def true_modes() -> dict:
+    """The plant's poles at standstill: the rigid-body modes' unstable real pairs and the bending
+    modes the diagonal of the plant holds (the fourth, 2,433 Hz, has a node at the front bearing
+    and at the rear sensor: neither axis's own response holds it), in Hz."""
+    a, _ = FlexibleLoop()._continuous(0.0)
+    poles = np.linalg.eigvals(a)
+    rigid = sorted({round(p.real / (2 * np.pi), 3) for p in poles if abs(p.imag) < 1e-6 and p.real > 0})
+    bending = sorted({round(abs(p) / (2 * np.pi), 3) for p in poles if p.imag > 0 and -p.real / abs(p) < 0.1})
+    return {"rigid_hz": rigid, "bending_hz": [hz for hz in bending if hz < 4000 and abs(hz - 2433.3) > 1]}
+
+
 @pytest.mark.parametrize("rpm", [0, 20000])
 def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_error(rpm, run_cli, tmp_path):
     """Four runs of 6 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
@@ -54,6 +65,27 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         assert np.median(np.abs(p / t - 1)) < 0.04, axis
         assert np.mean(normalised < 2) >= 0.85 and np.sqrt(np.mean(normalised**2)) < 1.5, (axis, np.mean(normalised < 2))
     assert (tmp_path / "plant.png").stat().st_size > 10_000
+
+    # item 3: the parametric model, its poles shared by the four axes
+    r = run_cli("plant", "fit", out, "-o", tmp_path / "model.json", "--json", "--plot", tmp_path / "fit.png")
+    if rpm:  # at speed the gyroscopic modes need complex modal gains: refused, not a wrong model
+        assert r.exit_code == 2 and "the model does not reach the measurement" in r.output, r.output
+        assert "fit a standstill measurement" in r.output and not (tmp_path / "model.json").exists()
+        return
+    assert r.exit_code == 0, r.output
+    got = {k: (v["value"], v["std"]) for k, v in json.loads(r.stdout)["parameters"].items()}
+    truth = true_modes()
+    # at 5 Hz resolution (seed 5, measured): bending modes within 0.04 % and their damping within 5 %,
+    # the rigid-body poles within 3 %, the amplifier within 1 %; the covariance states the random
+    # error only, and the Hann window's leakage at these lightly damped modes is up to six of its
+    # standard deviations (docs/tuning.md): the bounds here are the measured ones with a margin
+    for k, hz in enumerate(truth["bending_hz"], 1):
+        assert abs(got[f"mode{k}_hz"][0] / hz - 1) < 0.001, (k, got[f"mode{k}_hz"], hz)
+        assert abs(got[f"mode{k}_zeta"][0] / 0.005 - 1) < 0.10, (k, got[f"mode{k}_zeta"])
+    for k, hz in enumerate(truth["rigid_hz"], 1):
+        assert abs(got[f"rigid{k}_hz"][0] / hz - 1) < 0.06, (k, got[f"rigid{k}_hz"], hz)
+    assert abs(got["amplifier_hz"][0] / 2500 - 1) < 0.03 and abs(got["amplifier_zeta"][0] / 0.8 - 1) < 0.03
+    assert all(std > 0 for _, std in got.values())
 
 
 def test_a_recording_without_the_controllers_output_is_one_line(run_cli, tmp_path):

@@ -98,3 +98,48 @@ def identify(recordings, device, description, rpm, axes, amplitude, duration, se
                        f"  plant coherent {'-' if band is None else f'{band[0]:g}-{band[1]:g} Hz'}"
                        f"  resonances {', '.join(f'{f:g}' for f in row['plant_resonances_hz']) or '-'} Hz")
     click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
+
+
+@command.command("fit")
+@click.argument("plant_file", type=click.Path(dir_okay=False))
+@click.option("--axes", help="Comma-separated axes to fit; default: every axis of the plant file.")
+@click.option("--sample-rate", type=click.FloatRange(min=1.0), default=10_000.0, show_default=True,
+              help="The controller's rate the plant was measured at, Hz (the model is held over its period).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Model file (sealed JSON).")
+@click.option("--overwrite", is_flag=True)
+@plot_option("Measured and fitted plant side by side, per axis (.png, .pdf, .svg).")
+@click.option("--json", "as_json", is_flag=True, help="Print the parameters with their standard deviations as JSON.")
+def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
+    """A parametric model of each axis's plant, with the covariance of its parameters: rigid-body
+    modes (their unstable poles), bending modes (frequency, damping, residue), the amplifier's
+    bandwidth and damping, the delay; fitted to the trusted points of PLANT_FILE (plant identify),
+    weighted by their random error.
+
+    \b
+    Example:
+      ambdaq plant fit plant.json -o model.json --plot fit.png
+    """
+    import numpy as np
+
+    from ..workflows.plant_fit import fit_file
+
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
+    measured, fitted = fit_file(plant_file, 1.0 / sample_rate, [a.strip() for a in axes.split(",")] if axes else None)
+    fitted.save(out, overwrite=overwrite)
+    if plot_path:
+        from ..figures import save
+        from ..figures.plant import draw_plant
+
+        shown = [a for a in measured.axes if a in fitted.axes]
+        model = np.stack([fitted.response(a, measured.freq_hz) for a in shown], axis=1)
+        save(draw_plant(measured.subset(shown), model), plot_path)
+    if as_json:
+        click.echo(json.dumps(fitted.as_dict(), indent=2))
+    else:
+        f = fitted.fit
+        click.echo(f"{', '.join(f.axes)}: {f.points} points, reduced chi-square {f.chi2_reduced:.2f}")
+        for row in fitted.rows():
+            click.echo(f"  {row['parameter']:<26} {row['value']:12.5g} +- {row['std']:.3g}")
+    click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)

@@ -33,18 +33,18 @@ def draw_plant(measured, fitted: np.ndarray | None = None):
         colour = line.get_color()
         mag.fill_between(f, np.where(good, np.maximum(np.abs(p) - 2 * sigma, 1e-6), np.nan),
                          np.where(good, np.abs(p) + 2 * sigma, np.nan), color=colour, alpha=0.2, lw=0)
-        phase.semilogx(f, np.where(good, np.degrees(np.unwrap(np.angle(p))), np.nan), lw=0.9, color=colour)
+        phase.semilogx(f, np.where(good, np.degrees(np.angle(p)), np.nan), lw=0.9, color=colour)
         if fitted is not None:
             model = fitted[:, i] * 1e6
             mag.loglog(f, np.abs(model), lw=0.9, ls="--", color=colour, label=f"{axis} model")
-            phase.semilogx(f, np.degrees(np.unwrap(np.angle(model))), lw=0.9, ls="--", color=colour)
+            phase.semilogx(f, np.degrees(np.angle(model)), lw=0.9, ls="--", color=colour)
         s = measured.sensitivity[:, i]
         trusted = measured.sensitivity_coherence[:, i] >= COHERENT
         loop.semilogx(f, np.where(trusted, db(np.abs(s)), np.nan), lw=0.9, color=colour, label=f"{axis} |S|")
         loop.semilogx(f, np.where(trusted, db(np.abs(1 - s)), np.nan), lw=0.7, ls=":", color=colour, label=f"{axis} |T|")
     mag.set(ylabel="|P| [um/V]", title=f"plant measured in closed loop at {measured.speed_rpm:,.0f} rpm "
                                         f"(band: 95 % of its random error; coherence >= {COHERENT:g})")
-    phase.set(ylabel="phase [deg]")
+    phase.set(ylabel="phase [deg]", ylim=(-185, 185), yticks=range(-180, 181, 90))
     loop.set(ylabel="[dB]", xlabel="frequency [Hz]", title="sensitivity S = -e/r and T = 1 - S")
     for ax in (mag, phase, loop):
         ax.grid(alpha=0.3, which="both")

@@ -29,6 +29,7 @@ from .frf import estimate_responses
 FORMAT, VERSION = "ambdaq-plant-frf", 1
 SPEED_TOLERANCE = 0.01  # the runs of one plant ran within 1 % (and 20 rpm) of each other
 SPEED_FLOOR_RPM = 20.0
+FLANK = 6  # points on either side of a resonance's top, one of which must be trusted
 
 
 @dataclass
@@ -64,6 +65,15 @@ class PlantMeasurement:
     def freq_hz(self) -> np.ndarray:
         return self.plant.freq_hz
 
+    def subset(self, axes: list[str]) -> "PlantMeasurement":
+        """The diagonal view of some axes (their own responses, sensitivities and sources)."""
+        idx = [self.axes.index(a) for a in axes]
+        p = self.plant
+        plant = ClosedLoopPlant(p.freq_hz, p.response[:, idx][:, :, idx], p.sigma[:, idx][:, :, idx],
+                                p.coherence[:, idx][:, :, idx])
+        return PlantMeasurement(list(axes), plant, self.sensitivity[:, idx], self.sensitivity_coherence[:, idx],
+                                self.speed_rpm, [s for s in self.sources if s.get("excited") in axes], self.controller)
+
     def rows(self) -> list[dict]:
         """Per axis, what a table shows: the sensitivity's peak (dB, Hz), the plant's coherent band
         and its resonances there (local maxima of |P| on the diagonal, Hz)."""
@@ -76,8 +86,7 @@ class PlantMeasurement:
             p = np.abs(self.plant.response[:, i, i])
             good = self.plant.coherence[:, i, i] >= COHERENT
             band = (float(f[good][0]), float(f[good][-1])) if good.any() else None
-            maxima = [float(f[k]) for k in range(1, len(f) - 1)
-                      if good[k] and p[k] > p[k - 1] and p[k] > p[k + 1] and p[k] > 2 * np.median(p[good])]
+            maxima = resonances(f, p, good)
             out.append({"axis": axis, "sensitivity_peak_db": round(float(s_db[peak]), 2),
                         "sensitivity_peak_hz": float(f[peak]),
                         "plant_coherent_band_hz": list(band) if band else None,
@@ -106,6 +115,20 @@ class PlantMeasurement:
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         return write_sealed(path, self.to_document(), overwrite=overwrite)
+
+
+def resonances(freq_hz: np.ndarray, magnitude: np.ndarray, trusted: np.ndarray, *, above_hz: float = 150.0,
+               prominence: float = 2.0) -> list[float]:
+    """The plant's resonances: peaks of ``magnitude`` standing ``prominence`` times above their
+    surroundings (scipy's peak prominence, on the log of the magnitude) above ``above_hz`` (Hz;
+    below it the rigid-body modes' roll-off has no peak), where the points on either side are
+    trusted (a lightly damped mode's top loses coherence to the window's leakage, its flanks do
+    not; noise peaks have no trusted flanks), in Hz."""
+    from scipy.signal import find_peaks
+
+    peaks, _ = find_peaks(np.log(np.maximum(magnitude, 1e-300)), prominence=np.log(prominence))
+    flanked = [k for k in peaks if trusted[max(k - FLANK, 0) : k].any() and trusted[k + 1 : k + 1 + FLANK].any()]
+    return [float(freq_hz[k]) for k in flanked if freq_hz[k] > above_hz]
 
 
 def _controller_gains(rec: Recording) -> dict:

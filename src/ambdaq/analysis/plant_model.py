@@ -1,0 +1,256 @@
+"""A parametric model of one AMB axis's plant, fitted to its closed-loop measurement (issue 42,
+item 3).
+
+The plant from the controller's output u (V) to the gap y (m) is the amplifier, the rotor's
+modes as the sensor sees them, a delay, all held over the control period::
+
+    P(s) = e^{-s tau} A(s) sum_k r_k / (s^2 + c_k s + d_k),   A(s) = w_a^2 / (s^2 + 2 z_a w_a s + w_a^2)
+
+A rigid-body mode on the magnets' negative stiffness is an unstable real pair, c = 0 and
+d = -a^2 (a = sqrt(k_neg / m_modal), rad/s); a bending mode is c = 2 zeta w, d = w^2.  The residue
+r_k (m/V/s^2) is the product of the mode's shape at the bearing and at the sensor, the amplifier's
+gain, the current gain and the sensor's gain: one measured response holds only their product,
+so the model states the residue and not its factors.  The model is compared with the measurement
+exactly as the controller sees it: the continuous model zero-order-held over the period (its
+states stepped by the matrix exponential), so the hold's phase is not fitted by the delay.
+
+The residues enter linearly: for given poles, amplifier and delay they are the weighted linear
+least-squares solution (variable projection, Golub & Pereyra 1973), and the nonlinear search
+(scipy's least_squares, trust region) runs over the poles alone.  The weights are the inverse
+of the measurement's random error, so the covariance of all the parameters is
+(J^T J)^-1 at the optimum, scaled up by the reduced chi-square where the model does not reach the
+measurement's noise (a conservative statement: never below what the noise alone gives).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..machines.spindle_loop import zoh
+
+RIGID_MAX_HZ = 300.0
+"""The highest a rigid-body mode's unstable pole may be fitted at, Hz: sqrt(k_neg / m) of an AMB rotor
+is tens of hertz; a pole fitted higher stands in for an unmodelled mode, not the rigid body."""
+
+
+@dataclass(frozen=True)
+class ModalPlant:
+    """A fitted axis (see the module docstring); SI units, frequencies in rad/s.
+
+    Attributes
+    ----------
+    rigid : ndarray, shape (m,)
+        a of each rigid-body mode's unstable pair +-a, rad/s.
+    bending : ndarray, shape (b, 2)
+        (w, zeta) of each bending mode.
+    residues : ndarray, shape (axes, m + b)
+        r_k of each axis, rigid modes first, m/V/s^2: every axis of one rotor has the same poles
+        (they are the rotor's on its bearings), each its own residues.
+    amplifier : tuple of float
+        (w_a rad/s, z_a).
+    delay_s : float
+    h : float
+        The control period the model is held over, s.
+    """
+
+    rigid: np.ndarray
+    bending: np.ndarray
+    residues: np.ndarray
+    amplifier: tuple[float, float]
+    delay_s: float
+    h: float
+
+    def theta(self) -> np.ndarray:
+        """The nonlinear parameters as the fit moves them: logs of a, w, zeta, w_a; z_a; delay."""
+        return np.concatenate([np.log(self.rigid), np.log(self.bending[:, 0]), np.log(self.bending[:, 1]),
+                               [np.log(self.amplifier[0]), self.amplifier[1], self.delay_s]])
+
+    @classmethod
+    def from_theta(cls, theta: np.ndarray, residues: np.ndarray, m: int, b: int, h: float) -> "ModalPlant":
+        rigid = np.exp(theta[:m])
+        bending = np.column_stack([np.exp(theta[m : m + b]), np.exp(theta[m + b : m + 2 * b])])
+        return cls(rigid, bending, residues, (float(np.exp(theta[m + 2 * b])), float(theta[m + 2 * b + 1])),
+                   float(theta[m + 2 * b + 2]), h)
+
+    def basis(self, freq_hz: np.ndarray) -> np.ndarray:
+        """Each mode's held response through the amplifier and delay with unit residue, (n, modes)."""
+        return _basis(self.rigid, self.bending, self.amplifier, self.delay_s, self.h, freq_hz)
+
+    def response(self, freq_hz: np.ndarray) -> np.ndarray:
+        """P_ii(e^{j w h}) of each axis at ``freq_hz`` (Hz), shape (n, axes), m/V."""
+        return self.basis(freq_hz) @ self.residues.T
+
+    def state_space(self, axis: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Axis ``axis``'s continuous model without its delay: (A, B, C), input V, output m;
+        states: the amplifier's (2), then each mode's displacement and velocity."""
+        wa, za = self.amplifier
+        modes = [(0.0, -a * a) for a in self.rigid] + [(2 * z * w, w * w) for w, z in self.bending]
+        n = 2 + 2 * len(modes)
+        A, B, C = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((1, n))
+        A[0, 1] = 1.0
+        A[1, 0], A[1, 1] = -wa * wa, -2 * za * wa
+        B[1, 0] = wa * wa
+        for k, (c, d) in enumerate(modes):
+            i = 2 + 2 * k
+            A[i, i + 1] = 1.0
+            A[i + 1, i], A[i + 1, i + 1], A[i + 1, 0] = -d, -c, 1.0
+            C[0, i] = self.residues[axis, k]
+        return A, B, C
+
+
+def _basis(rigid, bending, amplifier, delay_s, h, freq_hz) -> np.ndarray:
+    wa, za = amplifier
+    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * h)
+    lag = np.exp(-2j * np.pi * np.asarray(freq_hz, float) * delay_s)
+    out = []
+    for c, d in [(0.0, -a * a) for a in rigid] + [(2 * zeta * w, w * w) for w, zeta in bending]:
+        A = np.array([[0.0, 1.0, 0.0, 0.0], [-wa * wa, -2 * za * wa, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0],
+                      [1.0, 0.0, -d, -c]])
+        B = np.array([[0.0], [wa * wa], [0.0], [0.0]])
+        phi, gam = zoh(A, B, h)
+        # C (zI - Phi)^-1 Gam with C picking the mode's displacement, by the eigen-decomposition of Phi
+        lam, vec = np.linalg.eig(phi)
+        left = vec[2] * (np.linalg.solve(vec, gam)[:, 0])  # C V and V^-1 Gam, per eigenvalue
+        out.append((left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * lag)
+    return np.stack(out, axis=1)
+
+
+@dataclass(frozen=True)
+class PlantFit:
+    """A fitted model of one rotor's axes with the covariance of its parameters.
+
+    Attributes
+    ----------
+    model : ModalPlant
+    axes : list of str
+        The axes fitted, in the order of the model's residues.
+    names : list of str
+        The parameters in the covariance's order (their units in :meth:`table`).
+    values : ndarray
+        Their values, SI (frequencies in Hz, the delay in s).
+    covariance : ndarray
+        Of ``values``.
+    chi2_reduced : float
+        The weighted residual's mean square per degree of freedom (1: the model reaches the noise).
+    points : int
+        Complex points fitted.
+    """
+
+    model: ModalPlant
+    axes: list[str]
+    names: list[str]
+    values: np.ndarray
+    covariance: np.ndarray
+    chi2_reduced: float
+    points: int
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+
+def _physical(theta: np.ndarray, residues: np.ndarray, m: int, b: int, axes: list[str]) -> tuple[list[str], np.ndarray]:
+    """(names, values) in engineering units from the fit's parameters: the shared poles, then each
+    axis's residues (``AXIS.modeK_residue``)."""
+    two_pi = 2 * np.pi
+    modes = [f"rigid{k + 1}" for k in range(m)] + [f"mode{k + 1}" for k in range(b)]
+    names = ([f"rigid{k + 1}_hz" for k in range(m)] + [f"mode{k + 1}_hz" for k in range(b)]
+             + [f"mode{k + 1}_zeta" for k in range(b)] + ["amplifier_hz", "amplifier_zeta", "delay_s"]
+             + [f"{axis}.{mode}_residue" for axis in axes for mode in modes])
+    values = np.concatenate([np.exp(theta[:m]) / two_pi, np.exp(theta[m : m + b]) / two_pi, np.exp(theta[m + b : m + 2 * b]),
+                             [np.exp(theta[m + 2 * b]) / two_pi, theta[m + 2 * b + 1], theta[m + 2 * b + 2]],
+                             residues.ravel()])
+    return names, values
+
+
+def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], h: float, *,
+        rigid_hz: list[float], bending_hz: list[float], amplifier_hz: float = 2000.0,
+        amplifier_zeta: float = 0.7) -> PlantFit:
+    """Fit the model to the measured plant of one or more axes of one rotor, their poles shared.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        The measurement's frequencies, Hz.
+    measured : dict
+        Axis -> (P_ii (complex, m/V), its random error (m/V), trusted (bool)) over ``freq_hz``.
+    h : float
+        Control period, s.
+    rigid_hz, bending_hz : list of float
+        Starting guesses: each rigid-body mode's unstable pole (Hz) and each bending mode's
+        frequency (Hz, from the measurement's resonances).
+    amplifier_hz, amplifier_zeta : float
+        Starting guess of the amplifier's bandwidth (Hz) and damping.
+    """
+    from scipy.optimize import least_squares
+
+    axes = list(measured)
+    m, b = len(rigid_hz), len(bending_hz)
+    modes = m + b
+    data = [(measured[a][2], measured[a][0][measured[a][2]], 1.0 / measured[a][1][measured[a][2]]) for a in axes]
+    used = np.zeros(len(freq_hz), dtype=bool)
+    for keep, _, _ in data:
+        used |= keep
+    grid = np.asarray(freq_hz, float)[used]
+    where = [np.flatnonzero(keep[used]) for keep, _, _ in data]
+    theta0 = np.concatenate([np.log(2 * np.pi * np.asarray(rigid_hz, float)), np.log(2 * np.pi * np.asarray(bending_hz, float)),
+                             np.log(np.full(b, 0.01)), [np.log(2 * np.pi * amplifier_hz), amplifier_zeta, 0.0]])
+
+    def solve(theta):
+        """Each axis's residues by weighted linear least squares, and the weighted residual."""
+        basis = ModalPlant.from_theta(theta, np.zeros((1, modes)), m, b, h).basis(grid)
+        res, out = [], []
+        for idx, (_, p, w) in zip(where, data):
+            rows = basis[idx] * w[:, None]
+            rows = np.vstack([rows.real, rows.imag])
+            rhs = np.concatenate([(p * w).real, (p * w).imag])
+            r = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+            res.append(r)
+            out.append(rows @ r - rhs)
+        return np.array(res), np.concatenate(out)
+
+    # the search stays where each parameter means what its name says: a rigid-body mode's pole
+    # below RIGID_MAX_HZ (above it, it would stand in for something else), a bending mode's damping
+    # below 0.5, the amplifier between 100 Hz and 50 kHz, the delay not negative (nothing answers
+    # before it is asked) and below five periods
+    lower = np.concatenate([np.full(m, np.log(2 * np.pi * 1.0)), np.full(2 * b, -np.inf),
+                            [np.log(2 * np.pi * 100.0), 0.05, 0.0]])
+    upper = np.concatenate([np.full(m, np.log(2 * np.pi * RIGID_MAX_HZ)), np.full(2 * b, np.inf),
+                            [np.log(2 * np.pi * 50e3), 3.0, 5 * h]])
+    upper[m + b : m + 2 * b] = np.log(0.5)
+    sol = least_squares(lambda t: solve(t)[1], np.clip(theta0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper),
+                        x_scale="jac", max_nfev=400)
+    residues, _ = solve(sol.x)
+    n_theta = sol.x.size
+
+    def full(params):
+        model = ModalPlant.from_theta(params[:n_theta], params[n_theta:].reshape(len(axes), modes), m, b, h)
+        resp = model.response(grid)
+        out = []
+        for k, (idx, (_, p, w)) in enumerate(zip(where, data)):
+            d = (resp[idx, k] - p) * w
+            out += [d.real, d.imag]
+        return np.concatenate(out)
+
+    # the covariance of every parameter at once (poles and residues), by the Jacobian of the full residual
+    p0 = np.concatenate([sol.x, residues.ravel()])
+    res0 = full(p0)
+    jac = np.empty((res0.size, p0.size))
+    for k in range(p0.size):
+        step = 1e-6 * max(abs(p0[k]), 1e-3 if k >= n_theta else 1e-6)
+        up, down = p0.copy(), p0.copy()
+        up[k] += step
+        down[k] -= step
+        jac[:, k] = (full(up) - full(down)) / (2 * step)
+    dof = max(res0.size - p0.size, 1)
+    chi2 = float(res0 @ res0) / dof
+    cov_p = np.linalg.pinv(jac.T @ jac) * max(chi2, 1.0)
+    # to engineering units: the logs' derivative is the value itself, the rest are identities
+    names, values = _physical(sol.x, residues, m, b, axes)
+    scale = np.ones(p0.size)
+    scale[: m + 2 * b + 1] = values[: m + 2 * b + 1]
+    cov = cov_p * np.outer(scale, scale)
+    model = ModalPlant.from_theta(sol.x, residues, m, b, h)
+    return PlantFit(model, axes, names, values, cov, chi2, int(sum(len(i) for i in where)))

@@ -1,0 +1,145 @@
+"""``ambdaq plant fit``: a parametric model of each axis's plant from its closed-loop measurement,
+with the covariance of its parameters (issue 42, item 3; the model: :mod:`ambdaq.analysis.plant_model`).
+
+Each axis's diagonal P_ii is fitted over its trusted points (coherence 0.9 or more), weighted by
+its random error; the bending modes start at the measured resonances, the rigid-body modes at
+``RIGID_START_HZ``.  The model file is sealed JSON naming the plant file it came from (path,
+SHA-256), its speed and the controller's gains the runs stated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.frf import COHERENT
+from ..analysis.plant_model import ModalPlant, PlantFit, fit
+from ..documents.coefficients import file_sha256
+from ..documents.sealed import read_sealed, write_sealed
+from ..errors import BadInputError
+from .plant_identification import PlantMeasurement, load_measurement, resonances
+
+FORMAT, VERSION = "ambdaq-plant-model", 1
+RIGID_START_HZ = (50.0, 90.0)
+"""Where the fit starts the rigid-body modes' unstable poles, Hz: sqrt(k_neg / m) of an AMB rotor is
+tens of hertz (the flexible rotor's are 61 and 83 Hz)."""
+AMPLIFIER_START = (2000.0, 0.7)  # Hz, damping: a current amplifier's bandwidth is a few kHz
+
+
+MERGE = 0.01  # resonances of different axes within 1 % are one mode
+CHI2_LIMIT = 4.0
+"""Largest reduced chi-square a model is kept at: its residual's RMS twice the measurement's random
+error (the flexible rotor at standstill fits at 0.6-0.8); beyond, the model misses something the
+measurement holds, and its parameters and their covariance mean nothing."""
+
+
+@dataclass
+class FittedPlant:
+    """The model of the axes of one plant file: their poles shared, each axis its residues."""
+
+    fit: PlantFit
+    speed_rpm: float
+    h: float
+    source: dict = field(default_factory=dict)
+    controller: dict = field(default_factory=dict)
+
+    @property
+    def axes(self) -> list[str]:
+        return self.fit.axes
+
+    def rows(self) -> list[dict]:
+        """Per parameter: value and standard deviation (what a table shows)."""
+        f = self.fit
+        return [{"parameter": n, "value": float(v), "std": float(s)} for n, v, s in zip(f.names, f.values, f.std)]
+
+    def as_dict(self) -> dict:
+        """What ``plant fit --json`` prints."""
+        f = self.fit
+        return {"speed_rpm": self.speed_rpm, "source": self.source, "axes": f.axes,
+                "chi2_reduced": round(f.chi2_reduced, 3), "points": f.points,
+                "parameters": {n: {"value": float(f"{v:.6g}"), "std": float(f"{s:.3g}")}
+                               for n, v, s in zip(f.names, f.values, f.std)}}
+
+    def response(self, axis: str, freq_hz: np.ndarray) -> np.ndarray:
+        """The model's P_ii of ``axis`` at ``freq_hz`` (Hz), m/V."""
+        return self.fit.model.response(freq_hz)[:, self.fit.axes.index(axis)]
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        f = self.fit
+        doc = {"format": FORMAT, "version": VERSION, "speed_rpm": self.speed_rpm, "sample_period_s": self.h,
+               "source": self.source, "controller": self.controller, "axes": f.axes,
+               "rigid_modes": len(f.model.rigid), "bending_modes": len(f.model.bending),
+               "names": f.names, "values": f.values.tolist(), "covariance": f.covariance.tolist(),
+               "chi2_reduced": f.chi2_reduced, "points": f.points}
+        return write_sealed(path, doc, overwrite=overwrite)
+
+
+def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None = None,
+                    source: dict | None = None) -> FittedPlant:
+    """Fit the axes of ``measured`` (default every one) together at control period ``h`` (s)."""
+    axes = axes or measured.axes
+    data, found = {}, []
+    f = measured.freq_hz
+    for axis in axes:
+        if axis not in measured.axes:
+            raise BadInputError(f"the plant file has no axis {axis!r} (it has {', '.join(measured.axes)})")
+        i = measured.axes.index(axis)
+        good = measured.plant.coherence[:, i, i] >= COHERENT
+        if good.sum() < 20:
+            raise BadInputError(f"{axis}: {int(good.sum())} trusted points (coherence >= {COHERENT:g}); measure longer "
+                                "or with a larger test signal")
+        data[axis] = (measured.plant.response[:, i, i], measured.plant.sigma[:, i, i], good)
+        found += resonances(f, np.abs(measured.plant.response[:, i, i]), good)
+    modes: list[float] = []
+    for hz in sorted(found):
+        if not modes or hz > modes[-1] * (1 + MERGE):
+            modes.append(hz)
+    result = fit(f, data, h, rigid_hz=list(RIGID_START_HZ), bending_hz=modes, amplifier_hz=AMPLIFIER_START[0],
+                 amplifier_zeta=AMPLIFIER_START[1])
+    if result.chi2_reduced > CHI2_LIMIT:
+        spinning = (" At speed the gyroscopic coupling turns the rigid-body modes into whirls and gives the modes "
+                    "complex modal gains, which this model does not have yet: fit a standstill measurement."
+                    if measured.speed_rpm > 0 else "")
+        raise BadInputError(f"the model does not reach the measurement: reduced chi-square {result.chi2_reduced:.1f} "
+                            f"(at most {CHI2_LIMIT:g}) with {len(modes)} bending modes at "
+                            f"{', '.join(f'{hz:g}' for hz in modes)} Hz; no model written.{spinning}")
+    return FittedPlant(result, measured.speed_rpm, h, source or {}, measured.controller)
+
+
+def fit_file(path: str | Path, h: float, axes: list[str] | None = None) -> tuple[PlantMeasurement, FittedPlant]:
+    """The plant file ``plant identify`` wrote, and its fitted model."""
+    measured = load_measurement(path)
+    return measured, fit_measurement(measured, h, axes, {"path": str(path), "sha256": file_sha256(Path(path))})
+
+
+def load_model(path: str | Path) -> FittedPlant:
+    """Read a model file ``plant fit`` wrote; BadInputError naming what is wrong."""
+    path = Path(path)
+    doc = read_sealed(path, FORMAT, VERSION, "plant model file")
+    try:
+        h = float(doc["sample_period_s"])
+        axes = [str(a) for a in doc["axes"]]
+        names, values = [str(n) for n in doc["names"]], np.array(doc["values"], dtype=float)
+        cov = np.array(doc["covariance"], dtype=float)
+        m, b = int(doc["rigid_modes"]), int(doc["bending_modes"])
+        want = m + 2 * b + 3 + len(axes) * (m + b)
+        if len(names) != values.size or cov.shape != (values.size, values.size) or values.size != want:
+            raise ValueError(f"{values.size} values for {m} rigid and {b} bending modes on {len(axes)} axes")
+        result = PlantFit(model_from_values(values, m, b, len(axes), h), axes, names, values, cov,
+                          float(doc["chi2_reduced"]), int(doc["points"]))
+    except (KeyError, TypeError, ValueError) as err:
+        raise BadInputError(f"{path}: malformed plant model file ({err})") from None
+    if not (np.all(np.isfinite(values)) and np.all(np.isfinite(cov)) and h > 0):
+        raise BadInputError(f"{path}: the plant model holds a value that is not a finite number")
+    return FittedPlant(result, float(doc.get("speed_rpm", 0.0)), h, dict(doc.get("source", {})),
+                       dict(doc.get("controller", {})))
+
+
+def model_from_values(values: np.ndarray, m: int, b: int, n_axes: int, h: float) -> ModalPlant:
+    """The model from its engineering values, in :class:`PlantFit`'s order (Hz, damping, s, residues)."""
+    two_pi = 2 * np.pi
+    return ModalPlant(two_pi * values[:m], np.column_stack([two_pi * values[m : m + b], values[m + b : m + 2 * b]]),
+                      values[m + 2 * b + 3 :].reshape(n_axes, m + b),
+                      (float(two_pi * values[m + 2 * b]), float(values[m + 2 * b + 1])), float(values[m + 2 * b + 2]), h)
