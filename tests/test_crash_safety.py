@@ -20,7 +20,7 @@ AMBDAQ = [sys.executable, "-m", "ambdaq"]
 
 def start_recording(out: Path) -> subprocess.Popen:
     return subprocess.Popen(
-        [*AMBDAQ, "record", "--device", "sim://spindle", "--rpm", "30000", "--duration", "60", "-o", str(out), "--json"],
+        [*AMBDAQ, "record", "--device", "sim://spindle?can=0", "--rpm", "30000", "--duration", "60", "-o", str(out), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
 

@@ -146,7 +146,7 @@ def test_stability_with_the_feedforward_running_names_its_own_axis(run_cli, tmp_
     for an --input iso stability does not have). The run says it in its metadata; the grade is the
     loop's: within 0.5 dB of the linearisation (the test's other bound; the LMS's notches sit on the
     rotor's orders, which are taken out and skipped). A recording's own word beats --input."""
-    r = run_cli("iso", "stability", "--device", "sim://spindle?ff=lms&rpm=30000", "--axes", "front_x",
+    r = run_cli("iso", "stability", "--device", "sim://spindle?ff=lms&rpm=30000&can=0", "--axes", "front_x",
                 "--duration", "1.5", "-o", tmp_path / "lms.json", "--json")
     assert r.exit_code == 0, r.output
     (got,) = json.loads(r.stdout)["runs"]
@@ -242,7 +242,7 @@ def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp
     import sys
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "iso", "stability", "--device", "sim://spindle",
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "iso", "stability", "--device", "sim://spindle?can=0",
                              "--axes", "front_x,front_y", "--duration", "5", "-o", str(tmp_path / "s.json")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = [proc.stderr.readline(), proc.stderr.readline()]
@@ -261,7 +261,7 @@ def test_ctrl_c_during_a_stability_run_keeps_it_and_the_runs_before(run_cli, tmp
     graded = json.loads((tmp_path / "graded.json").read_text())
     assert sorted(row["axis"] for row in graded["runs"]) == ["front_x", "front_y"]
     # measuring again meets the runs left behind: the line names the options that move on
-    r = run_cli("iso", "stability", "--device", "sim://spindle", "--axes", "front_x", "--duration", "1",
+    r = run_cli("iso", "stability", "--device", "sim://spindle?can=0", "--axes", "front_x", "--duration", "1",
                 "-o", tmp_path / "s.json")
     assert r.exit_code == 2 and r.output.strip() == (
         f"ambdaq: error: {runs / 'gs_front_x.mcap'} exists (a run of an earlier measurement): pass --runs DIR for "

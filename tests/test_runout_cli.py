@@ -47,7 +47,7 @@ def test_over_the_real_drivers(tmp_path, run_cli):
     must, and the test records again as a user would, up to three times."""
     for attempt in range(3):
         rec = tmp_path / f"live{attempt}.mcap"
-        assert run_cli("record", "--device", "sim://spindle", "--rpm", "slowroll", "--duration", "5", "-q",
+        assert run_cli("record", "--device", "sim://spindle?can=0", "--rpm", "slowroll", "--duration", "5", "-q",
                        "-o", rec).exit_code == 0
         r = run_cli("runout", "identify", rec, "-o", tmp_path / "coef.json", "--overwrite")
         if r.exit_code == 0 or "record it again" not in r.output:

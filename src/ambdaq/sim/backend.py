@@ -21,9 +21,9 @@ at times, which says nothing about a line; a controller that stops is still caug
 class SimBackend(Backend):
     """Serves the rig (:func:`ambdaq.sim.serve.serve`) and opens each of its devices' URLs."""
 
-    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&third_party=0|1"
-                           "&fault=SECONDS&line_errors=SHARE]",
-                    ("seed", "rpm", "truth", "ff", "noise", "third_party", "fault", "line_errors"))
+    scheme = Scheme("sim", "sim://PROFILE[?seed=N&rpm=SPEED&truth=0|1&ff=off|table|lms&noise=0|1&can=0|1"
+                           "&third_party=0|1&fault=SECONDS&line_errors=SHARE]",
+                    ("seed", "rpm", "truth", "ff", "noise", "can", "third_party", "fault", "line_errors"))
 
     def _serve(self, url: DeviceURL, request: OpenRequest):
         from .serve import serve
@@ -43,7 +43,7 @@ class SimBackend(Backend):
         return serve(url.target, seed=seed, speed=speed,
                      truth=url.flag("truth", False) if request.truth is None else request.truth,
                      ff_mode=url.choice("ff", "off", FF_CHOICES), noise=url.flag("noise", True),
-                     third_party=url.flag("third_party", False), fault_after_s=fault, line_errors=line_errors)
+                     can="virtual" if url.flag("can", True) else None, third_party=url.flag("third_party", False), fault_after_s=fault, line_errors=line_errors)
 
     def endpoints(self, url: DeviceURL, request: OpenRequest) -> Endpoints:
         served = self._serve(url, request)
