@@ -88,7 +88,7 @@ def _rig(tmp_path: Path, eds: Path, port: int, inputs: int, mapping: str = "conf
     return rig
 
 
-@pytest.mark.parametrize("capacity", [0, 1, 2, 8])
+@pytest.mark.parametrize("capacity", [0, 1, pytest.param(2, marks=pytest.mark.long), 8])  # 2: between 1 and 8
 def test_eight_inputs_are_spread_over_the_tpdos_that_have_room_or_refused(capacity, tmp_path, run_cli):
     """Eight 16-bit inputs: 64 bits would take two TPDOs, but a mapping record of ``capacity``
     entries takes no more than that: four TPDOs of 0 or 1 cannot carry them, of 2 they can (every

@@ -98,6 +98,7 @@ def test_a_recording_without_excitation_is_refused(spindle_file, run_cli, tmp_pa
 
 
 @pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
+@pytest.mark.long  # the same excitation over the real drivers runs by default in iso stability (test_iso.py)
 def test_measure_through_the_served_controller(tmp_path):
     """``frf measure`` sets the controller's test signal over the serial line, records, and switches
     it off; the controller refuses an out-of-range signal."""

@@ -47,6 +47,7 @@ def test_zones_and_their_boundaries(run_cli, tmp_path):
 
 
 @pytest.mark.realtime
+@pytest.mark.long  # the default suite grades rear_x at speed by URL in test_commissioning_day.py
 @pytest.mark.parametrize("served", [0], indirect=True)  # standstill
 def test_stability_measured_by_url_agrees_with_the_rigs_linearisation(served, run_cli, tmp_path):
     """Every axis at standstill, then the front bearing detuned (a lower derivative gain) at 12,000 rpm:

@@ -16,6 +16,7 @@ SPINDLE_TOPICS = {"/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/acc
                   "/truth/runout", "/truth/position"}
 
 
+@pytest.mark.long  # the official reader decodes ambdaq's files by default in test_differential.py
 def test_official_decoder_reads_every_message_with_our_values(spindle_file):
     rec = load(spindle_file)
     seen = {t: [] for t in SPINDLE_TOPICS}

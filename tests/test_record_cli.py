@@ -263,6 +263,7 @@ def test_the_heap_is_frozen_out_of_garbage_collection_while_recording(tmp_path):
     assert gc.get_freeze_count() == 0  # let back in
 
 
+@pytest.mark.long  # a kill -9 mid-recording runs by default in test_crash_safety.py
 def test_a_kill_in_the_first_seconds_loses_no_more_than_the_last_half_second(served, tmp_path, run_cli):
     """`kill -9` at 0.5, 2 and 4 s into a recording of the controller served in another
     process (its own clock, mapped to the host's): `recover` gets its samples up to the last

@@ -286,6 +286,7 @@ def test_bad_a2l_or_url_is_one_line_exit_2(a2l, tmp_path, run_cli, case):
     assert not (tmp_path / "x.mcap").exists()
 
 
+@pytest.mark.long  # recording over XCP from another process runs by default (test_xcp_on_can_across_processes_through_slcan)
 def test_runout_workflow_over_xcp_against_sim_serve_in_another_process(a2l, tmp_path, run_cli, monkeypatch):
     """Record, identify, push, record and `runout check` over XCP, the slave served by `ambdaq sim
     serve --xcp` in its own process (the commands in this one, through the command line's door):
