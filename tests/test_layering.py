@@ -3,6 +3,7 @@ no import cycles, the hardware drivers never import the simulator, each part imp
 its layer may."""
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -123,8 +124,10 @@ def test_no_host_side_module_takes_the_spindles_axes(graph):
     assert not wrong, wrong
 
 
-def _defined(path: Path) -> set[str]:
-    """The names a module defines or imports at its top level (what ``from it import NAME`` finds)."""
+@functools.lru_cache(maxsize=None)
+def _defined(path: Path) -> frozenset[str]:
+    """The names a module defines or imports at its top level (what ``from it import NAME`` finds);
+    each module parsed once (its importers ask for it again and again)."""
     names = set()
     for node in ast.parse(path.read_text()).body:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
@@ -134,7 +137,7 @@ def _defined(path: Path) -> set[str]:
                 names |= {n.id for n in ast.walk(t) if isinstance(n, ast.Name)}
         elif isinstance(node, (ast.Import, ast.ImportFrom)):
             names |= {(a.asname or a.name).split(".")[0] for a in node.names}
-    return names
+    return frozenset(names)
 
 
 def test_every_name_imported_from_ambdaq_is_there():

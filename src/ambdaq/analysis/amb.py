@@ -148,3 +148,15 @@ def equivalent_stiffness_damping(
     with np.errstate(divide="ignore", invalid="ignore"):
         damping = ki * g.imag / w
     return StiffnessDamping(f, -kx + ki * g.real, damping)
+
+
+def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
+    from scipy.linalg import expm  # 0.3 s to import: only where a model is discretised
+
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    E = expm(M * h)
+    return E[:n, :n].copy(), E[:n, n:].copy()

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..machines.spindle_loop import zoh
+from .amb import zoh
 
 RIGID_MAX_HZ = 300.0
 """The highest a rigid-body mode's unstable pole may be fitted at, Hz: sqrt(k_neg / m) of an AMB rotor

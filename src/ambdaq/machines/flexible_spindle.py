@@ -30,7 +30,8 @@ from ..analysis.beam_rotor import BeamRotor, Disk, ShaftElement
 from ..analysis.sections import state_space
 from ..units import RPM_TO_RAD_S
 from .spindle import BearingAxis
-from .spindle_loop import amplifier_continuous, derivative_filter, zoh
+from ..analysis.amb import zoh
+from .spindle_loop import amplifier_continuous, derivative_filter
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y")
 SAMPLE_RATE = 10_000.0  # Hz

@@ -25,8 +25,8 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping
 import numpy as np
-from scipy.linalg import expm
 
+from ..analysis.amb import zoh
 from ..analysis.lms import DesignModels, StateSpaceLoop
 from ..analysis.orders import loop_modes
 from ..errors import BadInputError
@@ -39,16 +39,6 @@ N_STATE = 35  # rotor 10, amplifiers 10, controller 15
 
 Gains = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
 """PID gains (P in V/V, I in 1/s, D in s), one tuple each, one value per axis in ``AXES`` order."""
-
-
-def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B
-    E = expm(M * h)
-    return E[:n, :n].copy(), E[:n, n:].copy()
 
 
 def rotor_matrices(p: SpindleParams, omega: float) -> tuple[np.ndarray, np.ndarray]:

@@ -39,7 +39,7 @@ from .excitation import ExcitationInput
 from ...speed import SpeedProfile
 from ...machines.base_motion import AXES, BASE_AXES, MAX_FIR_TAPS, PLANES, SAMPLE_RATE
 from ...units import GRAVITY
-from ...machines.spindle_loop import zoh
+from ...analysis.amb import zoh
 
 MAX_TEST_SIGNAL_V = 1.0  # the secondary-path test signal; a tenth of the D/A range
 MIN_TEST_SIGNAL_V = 1e-3  # a fifth of a 12-bit +-10 V D/A's step: less is not a test signal
