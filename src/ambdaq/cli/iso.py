@@ -10,7 +10,7 @@ import numpy as np
 
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
-from .options import DURATION, POSITIVE, RangeArg, a2l_option, max_lost_option, plot_option, speed_restored_note
+from .options import DURATION, POSITIVE, RangeArg, a2l_option, excited_runs, max_lost_option, plot_option
 
 
 class LimitsArg(click.ParamType):
@@ -81,30 +81,11 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
     """
     from ..workflows import iso_stability as iso
 
-    if bool(recordings) == bool(device):
-        raise BadInputError("iso stability takes either --device URL (measure) or recordings to grade, not both or neither")
-    if description and not device:
-        raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
     if input_axis and device:
         raise BadInputError("--input names the excited axis of recordings; with --device the runs say it (--axes)")
     out = Path(output)
-    if out.exists() and not overwrite:
-        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
-    if device:
-        where = Path(runs_dir) if runs_dir else out.with_name(out.stem + "_runs")
-
-        def announce(axis, rpm, path):
-            if not quiet:
-                at = "at the present speed" if rpm is None else f"at {rpm:,.0f} rpm"
-                click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
-
-        paths = iso.measure(device, list(speeds) or None, [a.strip() for a in axes.split(",")] if axes else None,
-                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
-                            description=description, on_restore=speed_restored_note(quiet))
-        if not quiet:
-            click.echo("test signal switched off after each run", err=True)
-    else:
-        paths = [Path(p) for p in recordings]
+    paths = excited_runs("iso stability", recordings, device, description, list(speeds) or None, axes, amplitude,
+                         duration, settle, runs_dir, out, overwrite, quiet)
     from ..daq.recording import open_recording
 
     runs = iso.evaluate([open_recording(p) for p in paths], resolution_hz=resolution, band_hz=band, limits=limits,

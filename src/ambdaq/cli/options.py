@@ -10,6 +10,8 @@ from pathlib import Path
 
 import click
 
+from ..errors import BadInputError
+
 SIZE_UNITS = {"": 1, "k": 10**3, "m": 10**6, "g": 10**9, "ki": 2**10, "mi": 2**20, "gi": 2**30}
 
 
@@ -147,6 +149,38 @@ def speed_restored_note(quiet: bool):
     return say
 
 
+def excited_runs(command: str, recordings, device: str | None, description: dict | None, speeds: list[float] | None,
+                 axes: str | None, amplitude: float, duration: float, settle: float, runs_dir: str | None, out: Path,
+                 overwrite: bool, quiet: bool) -> list[Path]:
+    """The runs a closed-loop measurement works on (``iso stability``, ``plant identify``): recorded
+    on ``device``, one white-noise run per axis and speed into ``runs_dir`` (default beside ``out``
+    in NAME_runs/), each announced, the test signal switched off after each and the speed set back;
+    or ``recordings`` as given.  Either one, never both; ``out`` must be new unless ``overwrite``."""
+    from ..workflows.iso_stability import measure
+
+    if bool(recordings) == bool(device):
+        raise BadInputError(f"{command} takes either --device URL (measure) or recordings, not both or neither")
+    if description and not device:
+        raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
+    if out.exists() and not overwrite:
+        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
+    if not device:
+        return [Path(p) for p in recordings]
+    where = Path(runs_dir) if runs_dir else out.with_name(out.stem + "_runs")
+
+    def announce(axis, rpm, path):
+        if not quiet:
+            at = "at the present speed" if rpm is None else f"at {rpm:,.0f} rpm"
+            click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
+
+    paths = measure(device, speeds, [a.strip() for a in axes.split(",")] if axes else None, amplitude, duration, where,
+                    settle_s=settle, overwrite=overwrite, on_run=announce, description=description,
+                    on_restore=speed_restored_note(quiet))
+    if not quiet:
+        click.echo("test signal switched off after each run", err=True)
+    return paths
+
+
 def a2l_option(f):
     """--a2l FILE, given to the command as the device description ``{"a2l": absolute path}``
     (None without it), as a rig file's ``a2l`` is."""
@@ -232,7 +266,6 @@ def snapshot_options(command):
     ``snapshot: SnapshotOptions | None`` (triggers parsed here, so a bad one is exit 2 before anything opens)."""
     from ..acquisition.snapshot import SnapshotOptions
     from ..acquisition.triggers import ManualTrigger, parse_trigger
-    from ..errors import BadInputError
 
     @functools.wraps(command)
     def bundled(*args, snapshot_s, post_s, triggers, cmin_um, snapshot_memory, **kwargs):

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import BadInputError
-from .options import DURATION, POSITIVE, a2l_option, max_lost_option, plot_option, speed_restored_note
+from .options import DURATION, POSITIVE, a2l_option, excited_runs, max_lost_option, plot_option
 
 
 @click.group("plant")
@@ -53,31 +53,11 @@ def identify(recordings, device, description, rpm, axes, amplitude, duration, se
       ambdaq plant identify --device serial:///dev/pts/5 --duration 10 -o plant.json --plot plant.png
       ambdaq plant identify runs/gs_*.mcap -o plant.json --json
     """
-    from ..workflows import iso_stability as iso
     from ..workflows.plant_identification import identify as identify_plant
 
-    if bool(recordings) == bool(device):
-        raise BadInputError("plant identify takes either --device URL (measure) or recordings, not both or neither")
-    if description and not device:
-        raise BadInputError("--a2l names the A2L of the controller measured with --device; recordings need none")
     out = Path(output)
-    if out.exists() and not overwrite:
-        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
-    if device:
-        where = Path(runs_dir) if runs_dir else out.with_name(out.stem + "_runs")
-
-        def announce(axis, at_rpm, path):
-            if not quiet:
-                at = "at the present speed" if at_rpm is None else f"at {at_rpm:,.0f} rpm"
-                click.echo(f"exciting {axis} {at} for {duration:g} s -> {path}", err=True)
-
-        paths = iso.measure(device, None if rpm is None else [rpm], [a.strip() for a in axes.split(",")] if axes else None,
-                            amplitude, duration, where, settle_s=settle, overwrite=overwrite, on_run=announce,
-                            description=description, on_restore=speed_restored_note(quiet))
-        if not quiet:
-            click.echo("test signal switched off after each run", err=True)
-    else:
-        paths = [Path(p) for p in recordings]
+    paths = excited_runs("plant identify", recordings, device, description, None if rpm is None else [rpm], axes,
+                         amplitude, duration, settle, runs_dir, out, overwrite, quiet)
     from ..daq.recording import open_recording
 
     measured = identify_plant([open_recording(p) for p in paths], resolution_hz=resolution, max_lost=max_lost)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ...drivers.signals import SampleBlock, SignalGroup
 from ...speed import SpeedProfile
+from ...units import RPM_TO_RAD_S
 
 
 class Rig(ABC):
@@ -70,3 +71,30 @@ class Rig(ABC):
         """The samples of ``steps``: one array per signal group, in :meth:`signal_groups` order."""
         return SampleBlock(device_time_ns=steps * self.period_ns, seq=(steps & 0xFFFFFFFF).astype(np.uint32),
                            values={g.topic: a for g, a in zip(self.signal_groups(), arrays)})
+
+
+class CommandedSpeed:
+    """Mixed into a rig whose drive takes a speed set-point (its firmware's ``speed.rpm``): the
+    speed profile runs from ``_speed_t0`` (s) and the angle ``_theta0`` (rad), so a new set-point
+    keeps the angle continuous.  The rig's ``run`` takes its angle and speed from
+    :meth:`_angle_speed`."""
+
+    _speed_t0 = 0.0
+    _theta0 = 0.0
+
+    def command_speed(self, speed: SpeedProfile) -> None:
+        """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous
+        (a drive taking a new set-point, ``speed.rpm``)."""
+        t = self.step_index * self.h
+        theta, _ = self.speed.angle_speed(np.array([t - self._speed_t0]), self._theta0)
+        self._speed_t0, self._theta0 = t, float(theta[0])
+        self.speed = speed
+
+    def run_speed_rpm(self) -> float:
+        """The rotor speed at the present step, in rpm."""
+        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h - self._speed_t0]), self._theta0)
+        return float(omega[0]) / RPM_TO_RAD_S
+
+    def _angle_speed(self, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rotor's angle (rad) and speed (rad/s) at control steps ``steps``."""
+        return self.speed.angle_speed(steps * self.h - self._speed_t0, self._theta0)

@@ -31,7 +31,7 @@ from ...machines.spindle_loop import GAIN_LEAST, derivative_filter
 from ...speed import RPM_TO_RAD_S, SpeedProfile
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
-from .base import Rig
+from .base import CommandedSpeed, Rig
 from .excitation import ExcitationInput
 
 MAX_SECTIONS = 4  # second-order sections per axis the firmware runs
@@ -145,7 +145,7 @@ def chain(sections) -> np.ndarray:
     return out
 
 
-class FlexibleRig(Rig, ExcitationInput):
+class FlexibleRig(CommandedSpeed, Rig, ExcitationInput):
     """The flexible rotor's closed loop, stepped in blocks of control periods.
 
     Parameters
@@ -185,7 +185,6 @@ class FlexibleRig(Rig, ExcitationInput):
         self._sec_state = np.zeros((N_AXES, MAX_SECTIONS, 2))
         self._st = np.ones(1)
         self._c = np.array([params.gap_noise if noise else 0.0, params.dac_range, params.clearance])
-        self._speed_t0, self._theta0 = 0.0, 0.0
         self._rev = float(np.floor(speed.angle_speed(np.zeros(1))[0][0] / (2 * np.pi)))
         self.tripped_at: float | None = None
 
@@ -213,20 +212,6 @@ class FlexibleRig(Rig, ExcitationInput):
     def sections(self) -> np.ndarray:
         """Present sections per axis, shape (axes, MAX_SECTIONS, 5)."""
         return self._sections.copy()
-
-    def command_speed(self, speed: SpeedProfile) -> None:
-        """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous."""
-        t = self.step_index * self.h
-        theta, _ = self.speed.angle_speed(np.array([t - self._speed_t0]), self._theta0)
-        self._speed_t0, self._theta0 = t, float(theta[0])
-        self.speed = speed
-
-    def run_speed_rpm(self) -> float:
-        """The rotor speed at the present step, in rpm."""
-        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h - self._speed_t0]), self._theta0)
-        return float(omega[0]) / RPM_TO_RAD_S
-
-    # --- what the machine is -------------------------------------------------------------------
 
     def signal_groups(self) -> list[SignalGroup]:
         return _groups(self.truth)
@@ -262,7 +247,7 @@ class FlexibleRig(Rig, ExcitationInput):
         """Advance the loop by ``n`` control periods and return their samples."""
         steps = self._steps(n)
         t = steps * self.h
-        theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
+        theta, omega = self._angle_speed(steps)
         noise = self._rng.standard_normal((n, N_AXES))
         exc = self.excitation_block(steps)
         outs = [np.empty((n, N_AXES)) for _ in range(6)]

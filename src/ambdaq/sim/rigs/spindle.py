@@ -50,7 +50,7 @@ from ...drivers.signals import SampleBlock, SignalGroup
 from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
-from .base import Rig
+from .base import CommandedSpeed, Rig
 from .drop import Drop
 from .excitation import ExcitationInput
 from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
@@ -330,7 +330,7 @@ SETTLE_S = 0.1
 start-up transient from rest (30 ms)."""
 
 
-class SpindleRig(Rig, ExcitationInput):
+class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
     """Closed-loop simulation of the Ro et al. spindle, stepped in blocks of control periods.
 
     Parameters
@@ -380,8 +380,6 @@ class SpindleRig(Rig, ExcitationInput):
         self._ff_mode = FF_MODES["off"]
         self.set_feedforward(ff_mode)
         self._exc_rng = np.random.default_rng([seed, 1])  # its own stream: the rig's noise stays as it was
-        self._speed_t0 = 0.0  # the speed profile runs from this time (s) ...
-        self._theta0 = 0.0  # ... and this angle (rad)
         self._rotor_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._linear: SpindleLoop | None = None  # the loop at the present gains (loop_matrices)
         self.drop: Drop | None = None
@@ -474,13 +472,6 @@ class SpindleRig(Rig, ExcitationInput):
         rig's, from the start of the run."""
         self.drop = drop
 
-    def command_speed(self, speed: SpeedProfile) -> None:
-        """Follow ``speed`` from now on, its time 0 being the present step; the angle is continuous."""
-        t = self.step_index * self.h
-        theta, _ = self.speed.angle_speed(np.array([t - self._speed_t0]), self._theta0)
-        self._speed_t0, self._theta0 = t, float(theta[0])
-        self.speed = speed
-
     def set_pid(self, p: np.ndarray, i: np.ndarray, d: np.ndarray) -> None:
         """Replace the PID gains of the five axes (V/V, 1/s, s); the derivative filter follows."""
         p, i, d = (np.asarray(v, dtype=float).reshape(5) for v in (p, i, d))
@@ -513,11 +504,6 @@ class SpindleRig(Rig, ExcitationInput):
     def lms_phase(self) -> np.ndarray:
         """The LMS phase compensation per axis and 10 Hz bin, in rad (zeros: none)."""
         return np.arctan2(self._ph_sin, self._ph_cos)
-
-    def run_speed_rpm(self) -> float:
-        """The rotor speed at the present step, in rpm."""
-        _, omega = self.speed.angle_speed(np.array([self.step_index * self.h - self._speed_t0]), self._theta0)
-        return float(omega[0]) / RPM_TO_RAD_S
 
     @property
     def pid_gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -571,7 +557,7 @@ class SpindleRig(Rig, ExcitationInput):
         """Advance the closed loop by ``n`` control periods and return their samples."""
         steps = self._steps(n)
         t = steps * self.h
-        theta, omega = self.speed.angle_speed(t - self._speed_t0, self._theta0)
+        theta, omega = self._angle_speed(steps)
         # unit normals in float32 (half the cost of float64), scaled to SI inside the kernel; one
         # row of 15 per step, so the stream does not depend on how the run is cut into blocks
         noise = self._rng.standard_normal((n, 15), dtype=np.float32)
