@@ -50,7 +50,7 @@ class PlantMeasurement:
     sources : list of dict
         Per run: path, sha256, speed_rpm, segments, the axis it excited.
     controller : dict
-        The controller's gains the recordings state (``controller.pid_*`` of their calibration).
+        The controller's gains the recordings state (``controller.pid.*`` of their calibration).
     """
 
     axes: list[str]
@@ -133,7 +133,7 @@ def resonances(freq_hz: np.ndarray, magnitude: np.ndarray, trusted: np.ndarray, 
 
 def _controller_gains(rec: Recording) -> dict:
     return {k: v for device in rec.devices.values() for k, v in device.calibration.items()
-            if k.startswith("controller.pid")}
+            if k.startswith("controller.pid.")}
 
 
 def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float = MAX_LOST) -> PlantMeasurement:

@@ -27,7 +27,7 @@ from numba import njit
 from ...drivers.coefbank import BankImage, controller_problem
 from ...drivers.signals import SampleBlock, SignalGroup
 from ...machines.flexible_spindle import AXES, FLEXIBLE, FlexibleLoop, FlexibleSpindleParams
-from ...machines.spindle_loop import GAIN_LEAST, derivative_filter
+from ...machines.spindle_loop import GAIN_KEYS, GAIN_LEAST, derivative_filter
 from ...speed import RPM_TO_RAD_S, SpeedProfile
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
@@ -222,8 +222,8 @@ class FlexibleRig(CommandedSpeed, Rig, ExcitationInput):
             "gap_sensor_gain_v_per_m": f"{p.sensor_gain:g}",
             "units": "SI: m, A, rad, rad/s",
             "machine.min_clearance_m": repr(p.clearance),
-            "machine.model": "flexible",
-            **{f"controller.pid_{k}": ",".join(repr(float(v)) for v in g) for k, g in zip("pid", self.pid_gains)},
+            # the gains the loop runs at now, under the names the spindle states them (GAIN_KEYS)
+            **{key: ",".join(repr(float(v)) for v in g) for key, g in zip(GAIN_KEYS, self.pid_gains)},
         }
 
     def loop(self) -> FlexibleLoop:
