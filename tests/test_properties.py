@@ -72,7 +72,28 @@ def documents():
     f = np.array([10.0, 20.0])
     frf = FrequencyResponse(f, {"front_x": {"source": {"file": "a.mcap"},
                                            "outputs": {"front_x": (np.array([1 + 1j, 2 - 1j]), np.array([0.9, 0.95]))}}})
-    return {"coefficient": (coef, Coefficients.load), "frequency-response": (frf.to_dict(), FrequencyResponse.load)}
+    from ambdaq.analysis.closed_loop import ClosedLoopPlant
+    from ambdaq.analysis.plant_model import ModalPlant, PlantFit
+    from ambdaq.workflows.plant_fit import FittedPlant, load_model
+    from ambdaq.workflows.plant_identification import PlantMeasurement, load_measurement
+
+    one = np.ones((2, 1, 1))
+    plant = PlantMeasurement(["front_x"], ClosedLoopPlant(f, one * (1e-4 + 1e-5j), one * 1e-6, one * 0.95),
+                             np.ones((2, 1), complex), np.ones((2, 1)) * 0.9, 0.0, [{"path": "a.mcap"}], {})
+    model = ModalPlant(np.array([300.0]), np.array([[2500.0, 0.005]]), np.array([[30.0, 10.0]]), (15000.0, 0.8), 0.0, 1e-4)
+    values = np.array([47.7, 397.9, 0.005, 2387.3, 0.8, 0.0, 30.0, 10.0])
+    fitted = FittedPlant(PlantFit(model, ["front_x"], [f"p{k}" for k in range(8)], values, np.eye(8) * 1e-6, 0.7, 40),
+                         0.0, 1e-4)
+
+    def model_doc():
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            fitted.save(Path(tmp) / "m.json")
+            return json.loads((Path(tmp) / "m.json").read_text())
+
+    return {"coefficient": (coef, Coefficients.load), "frequency-response": (frf.to_dict(), FrequencyResponse.load),
+            "plant": (plant.to_document(), load_measurement), "plant-model": (model_doc(), load_model)}
 
 
 def _points_doc(tmp: Path) -> dict:
@@ -82,7 +103,7 @@ def _points_doc(tmp: Path) -> dict:
 
 
 @pytest.mark.parametrize("profile", PROFILES)
-@pytest.mark.parametrize("kind", ["coefficient", "frequency-response", "points"])
+@pytest.mark.parametrize("kind", ["coefficient", "frequency-response", "points", "plant", "plant-model"])
 def test_a_sealed_document_with_any_value_anywhere_loads_or_is_bad_input(tmp_path, kind, profile):
     if kind == "points":
         doc, load = _points_doc(tmp_path), load_points
@@ -99,6 +120,33 @@ def test_a_sealed_document_with_any_value_anywhere_loads_or_is_bad_input(tmp_pat
             load(path)
         except BadInputError:
             pass
+
+    check()
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_a_bank_image_with_any_bytes_changed_decodes_or_is_refused(profile):
+    """A coefficient bank image (with the flexible controller's section: PID and biquads) with
+    bytes changed, cut or appended decodes to an image that encodes back to the same bytes, or is
+    refused with ValueError: the controller's decode never takes half an image."""
+    from ambdaq.drivers.coefbank import BankImage
+
+    good = BankImage(np.zeros((4, 0, 2)), "off", pid=np.tile([1.4, 2.0, 0.0012], (4, 1)),
+                     biquads=np.tile([1.0, 0.0, 0.0, 0.0, 0.0], (4, 2, 1))).encode()
+
+    @profile
+    @given(st.lists(st.tuples(st.integers(0, len(good) - 1), st.integers(0, 255)), max_size=4),
+           st.integers(0, len(good)), st.binary(max_size=16))
+    def check(changes, cut, tail):
+        data = bytearray(good)
+        for at, value in changes:
+            data[at] = value
+        data = bytes(data[:cut]) + tail
+        try:
+            image = BankImage.decode(data)
+        except ValueError:
+            return
+        assert image.encode() == data
 
     check()
 

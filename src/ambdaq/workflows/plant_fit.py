@@ -120,21 +120,33 @@ def load_model(path: str | Path) -> FittedPlant:
     doc = read_sealed(path, FORMAT, VERSION, "plant model file")
     try:
         h = float(doc["sample_period_s"])
-        axes = [str(a) for a in doc["axes"]]
-        names, values = [str(n) for n in doc["names"]], np.array(doc["values"], dtype=float)
+        axes = doc["axes"]
+        if not isinstance(axes, list) or not axes or not all(isinstance(a, str) for a in axes):
+            raise ValueError("axes must be a list of names")
+        names = doc["names"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ValueError("names must be a list of names")
+        values = np.array(doc["values"], dtype=float)
         cov = np.array(doc["covariance"], dtype=float)
-        m, b = int(doc["rigid_modes"]), int(doc["bending_modes"])
+        m, b = doc["rigid_modes"], doc["bending_modes"]
+        if not all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 64 for x in (m, b)):
+            raise ValueError("rigid_modes and bending_modes must be integers from 0 to 64")
         want = m + 2 * b + 3 + len(axes) * (m + b)
-        if len(names) != values.size or cov.shape != (values.size, values.size) or values.size != want:
+        if values.shape != (len(names),) or cov.shape != (values.size, values.size) or values.size != want:
             raise ValueError(f"{values.size} values for {m} rigid and {b} bending modes on {len(axes)} axes")
-        result = PlantFit(model_from_values(values, m, b, len(axes), h), axes, names, values, cov,
-                          float(doc["chi2_reduced"]), int(doc["points"]))
-    except (KeyError, TypeError, ValueError) as err:
+        chi2, points, speed = float(doc["chi2_reduced"]), int(doc["points"]), float(doc.get("speed_rpm", 0.0))
+        source, controller = doc.get("source", {}), doc.get("controller", {})
+        if not isinstance(source, dict) or not isinstance(controller, dict):
+            raise ValueError("source and controller must be objects")
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
         raise BadInputError(f"{path}: malformed plant model file ({err})") from None
-    if not (np.all(np.isfinite(values)) and np.all(np.isfinite(cov)) and h > 0):
+    if not (np.all(np.isfinite(values)) and np.all(np.isfinite(cov)) and np.isfinite(h) and h > 0 and np.isfinite(chi2)
+            and np.isfinite(speed)):
         raise BadInputError(f"{path}: the plant model holds a value that is not a finite number")
-    return FittedPlant(result, float(doc.get("speed_rpm", 0.0)), h, dict(doc.get("source", {})),
-                       dict(doc.get("controller", {})))
+    if np.any(values[: m + b] <= 0) or np.any(values[m + b : m + 2 * b] < 0) or values[m + 2 * b] <= 0:
+        raise BadInputError(f"{path}: the plant model's frequencies must be above 0 and its damping at least 0")
+    result = PlantFit(model_from_values(values, m, b, len(axes), h), list(axes), list(names), values, cov, chi2, points)
+    return FittedPlant(result, speed, h, source, controller)
 
 
 def model_from_values(values: np.ndarray, m: int, b: int, n_axes: int, h: float) -> ModalPlant:

@@ -186,7 +186,9 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
     path = Path(path)
     doc = read_sealed(path, FORMAT, VERSION, "plant file")
     try:
-        axes = [str(a) for a in doc["axes"]]
+        axes = doc["axes"]
+        if not isinstance(axes, list) or not axes or not all(isinstance(a, str) for a in axes) or len(set(axes)) < len(axes):
+            raise ValueError("axes must be a list of distinct names")
         f = np.array(doc["freq_hz"], dtype=float)
         n, k = f.shape[0], len(axes)
         resp, sigma, coh = (np.empty((n, k, k), dtype=complex), np.empty((n, k, k)), np.empty((n, k, k)))
@@ -200,9 +202,15 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
                          for a in axes], axis=1)
         sens_coh = np.stack([np.array(doc["sensitivity"][a]["coherence"], float) for a in axes], axis=1)
         speed = float(doc["speed_rpm"])
-    except (KeyError, TypeError, ValueError, IndexError) as err:
+        sources, controller = doc.get("sources", []), doc.get("controller", {})
+        if not isinstance(sources, list) or not all(isinstance(x, dict) for x in sources) or not isinstance(controller, dict):
+            raise ValueError("sources must be a list of objects, controller an object")
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as err:
         raise BadInputError(f"{path}: malformed plant file ({err})") from None
     if not all(np.all(np.isfinite(v)) for v in (f, resp, sigma, coh, sens, sens_coh)) or not np.isfinite(speed):
         raise BadInputError(f"{path}: the plant file holds a value that is not a finite number")
-    return PlantMeasurement(axes, ClosedLoopPlant(f, resp, sigma, coh), sens, sens_coh, speed,
-                            list(doc.get("sources", [])), dict(doc.get("controller", {})))
+    if (f.ndim != 1 or n < 2 or np.any(np.diff(f) <= 0) or f[0] <= 0 or speed < 0 or np.any(sigma < 0)
+            or np.any((coh < 0) | (coh > 1)) or np.any((sens_coh < 0) | (sens_coh > 1))):
+        raise BadInputError(f"{path}: the plant file's frequencies must rise from above 0, its errors be at least 0, "
+                            "its coherences within 0..1 and its speed at least 0")
+    return PlantMeasurement(list(axes), ClosedLoopPlant(f, resp, sigma, coh), sens, sens_coh, speed, sources, controller)
