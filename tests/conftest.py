@@ -40,7 +40,7 @@ def _warm_rigs() -> None:
     if any((Path(ambdaq.__file__).parent / "sim" / "rigs" / "__pycache__").glob("spindle._simulate-*.nbi")):
         return
     procs = [subprocess.Popen([sys.executable, "-c", WARM, *kernels])
-             for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz"))]
+             for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz", "flexible"))]
     for p in procs:
         p.wait()
 
