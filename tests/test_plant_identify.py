@@ -36,17 +36,18 @@ def true_modes() -> dict:
 
 @pytest.mark.parametrize("rpm", [0, 20000])
 def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_error(rpm, run_cli, tmp_path):
-    """Four runs of 6 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
-    seed 5): on the diagonal, where the coherence is 0.9 or more, the measured plant is the true
-    one within 4 % (median; 1.4-1.7 % measured at 2.5 Hz and standstill), and within twice its
-    stated random error at 85 % of the points or more (92-95 % measured; the rest is the Hann
-    window's leakage at the bending modes, a bias the random error does not hold), its error's
-    RMS at most 1.5 times the stated one (1.0-1.25 measured)."""
+    """Four runs of 4 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
+    seed 5), 5 Hz: on the diagonal, where the coherence is 0.9 or more, the measured plant is the
+    true one within 4 % (median; 1.5-2.5 % measured over seeds 5 and 6 at both speeds), within
+    twice its stated random error at 85 % of the points or more (90-97 % measured), and its error's
+    RMS at most 1.5 times the stated one (0.88-1.28 measured per axis: within the 0.7-1.4 issue 39
+    asks of a stated uncertainty; the excess is the Hann window's leakage at the lightly damped
+    bending modes, a bias the random error does not hold)."""
     runs = []
     for axis in AXES:
         path = tmp_path / f"run_{axis}.mcap"
         r = run_cli("sim", "generate", "--profile", "flexible", "--rpm", str(rpm), "--excite", f"{axis}:2",
-                    "--duration", "6", "--seed", "5", "-q", "-o", path)
+                    "--duration", "4", "--seed", "5", "-q", "-o", path)
         assert r.exit_code == 0, r.output
         runs.append(path)
     out = tmp_path / "plant.json"
