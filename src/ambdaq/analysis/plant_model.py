@@ -45,9 +45,10 @@ class ModalPlant:
         a of each rigid-body mode's unstable pair +-a, rad/s.
     bending : ndarray, shape (b, 2)
         (w, zeta) of each bending mode.
-    residues : ndarray, shape (axes, m + b)
-        r_k of each axis, rigid modes first, m/V/s^2: every axis of one rotor has the same poles
-        (they are the rotor's on its bearings), each its own residues.
+    residues : ndarray, shape (responses, m + b)
+        r_k of each response (an element of the plant), rigid modes first, m/V/s^2: every element
+        of one rotor's plant has the same poles (they are the rotor's on its bearings), each its
+        own residues.
     amplifier : tuple of float
         (w_a rad/s, z_a).
     delay_s : float
@@ -79,7 +80,7 @@ class ModalPlant:
         return _basis(self.rigid, self.bending, self.amplifier, self.delay_s, self.h, freq_hz)
 
     def response(self, freq_hz: np.ndarray) -> np.ndarray:
-        """P_ii(e^{j w h}) of each axis at ``freq_hz`` (Hz), shape (n, axes), m/V."""
+        """Each response's P(e^{j w h}) at ``freq_hz`` (Hz), shape (n, responses), m/V."""
         return self.basis(freq_hz) @ self.residues.T
 
     def state_space(self, axis: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -125,7 +126,7 @@ class PlantFit:
     ----------
     model : ModalPlant
     axes : list of str
-        The axes fitted, in the order of the model's residues.
+        The responses fitted (elements of the plant, by name), in the order of the model's residues.
     names : list of str
         The parameters in the covariance's order (their units in :meth:`table`).
     values : ndarray
@@ -168,14 +169,14 @@ def _physical(theta: np.ndarray, residues: np.ndarray, m: int, b: int, axes: lis
 def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], h: float, *,
         rigid_hz: list[float], bending_hz: list[float], amplifier_hz: float = 2000.0,
         amplifier_zeta: float = 0.7) -> PlantFit:
-    """Fit the model to the measured plant of one or more axes of one rotor, their poles shared.
+    """Fit the model to one or more measured responses (elements of one rotor's plant), their poles shared.
 
     Parameters
     ----------
     freq_hz : ndarray
         The measurement's frequencies, Hz.
     measured : dict
-        Axis -> (P_ii (complex, m/V), its random error (m/V), trusted (bool)) over ``freq_hz``.
+        Response name -> (P (complex, m/V), its random error (m/V), trusted (bool)) over ``freq_hz``.
     h : float
         Control period, s.
     rigid_hz, bending_hz : list of float

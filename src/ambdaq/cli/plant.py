@@ -112,7 +112,7 @@ def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
         from ..figures import save
         from ..figures.plant import draw_plant
 
-        shown = [a for a in measured.axes if a in fitted.axes]
+        shown = [a for a in measured.axes if a in fitted.responses]
         model = np.stack([fitted.response(a, measured.freq_hz) for a in shown], axis=1)
         save(draw_plant(measured.subset(shown), model), plot_path)
     if as_json:

@@ -1,8 +1,10 @@
 """``ambdaq plant fit``: a parametric model of each axis's plant from its closed-loop measurement,
 with the covariance of its parameters (issue 42, item 3; the model: :mod:`ambdaq.analysis.plant_model`).
 
-Each axis's diagonal P_ii is fitted over its trusted points (coherence 0.9 or more), weighted by
-its random error; the bending modes start at the measured resonances, the rigid-body modes at
+Each element P_ij of the measured plant with enough trusted points (coherence 0.9 or more: at
+standstill the x and y planes do not reach each other, and those elements hold only noise) is
+fitted over them, weighted by its random error, every element with the same poles (they are the
+rotor's) and its own residues: a diagonal element is named by its axis, another ``OUT<-IN``; the bending modes start at the measured resonances, the rigid-body modes at
 ``RIGID_START_HZ``.  The model file is sealed JSON naming the plant file it came from (path,
 SHA-256), its speed and the controller's gains the runs stated.
 """
@@ -29,6 +31,7 @@ AMPLIFIER_START = (2000.0, 0.7)  # Hz, damping: a current amplifier's bandwidth 
 
 
 MERGE = 0.01  # resonances of different axes within 1 % are one mode
+MIN_POINTS = 20  # trusted points an element needs to be fitted
 CHI2_LIMIT = 4.0
 """Largest reduced chi-square a model is kept at: its residual's RMS twice the measurement's random
 error (the flexible rotor at standstill fits at 0.6-0.8); beyond, the model misses something the
@@ -46,7 +49,8 @@ class FittedPlant:
     controller: dict = field(default_factory=dict)
 
     @property
-    def axes(self) -> list[str]:
+    def responses(self) -> list[str]:
+        """The elements fitted: ``AXIS`` on the diagonal, ``OUT<-IN`` across axes."""
         return self.fit.axes
 
     def rows(self) -> list[dict]:
@@ -57,19 +61,22 @@ class FittedPlant:
     def as_dict(self) -> dict:
         """What ``plant fit --json`` prints."""
         f = self.fit
-        return {"speed_rpm": self.speed_rpm, "source": self.source, "axes": f.axes,
+        return {"speed_rpm": self.speed_rpm, "source": self.source, "responses": f.axes,
                 "chi2_reduced": round(f.chi2_reduced, 3), "points": f.points,
                 "parameters": {n: {"value": float(f"{v:.6g}"), "std": float(f"{s:.3g}")}
                                for n, v, s in zip(f.names, f.values, f.std)}}
 
-    def response(self, axis: str, freq_hz: np.ndarray) -> np.ndarray:
-        """The model's P_ii of ``axis`` at ``freq_hz`` (Hz), m/V."""
-        return self.fit.model.response(freq_hz)[:, self.fit.axes.index(axis)]
+    def response(self, output: str, freq_hz: np.ndarray, input_: str | None = None) -> np.ndarray:
+        """The model's P[output, input] (default the diagonal, input = output) at ``freq_hz`` (Hz), m/V."""
+        label = output if input_ in (None, output) else f"{output}<-{input_}"
+        if label not in self.fit.axes:
+            raise BadInputError(f"the model has no {label} (it has {', '.join(self.fit.axes)})")
+        return self.fit.model.response(freq_hz)[:, self.fit.axes.index(label)]
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         f = self.fit
         doc = {"format": FORMAT, "version": VERSION, "speed_rpm": self.speed_rpm, "sample_period_s": self.h,
-               "source": self.source, "controller": self.controller, "axes": f.axes,
+               "source": self.source, "controller": self.controller, "responses": f.axes,
                "rigid_modes": len(f.model.rigid), "bending_modes": len(f.model.bending),
                "names": f.names, "values": f.values.tolist(), "covariance": f.covariance.tolist(),
                "chi2_reduced": f.chi2_reduced, "points": f.points}
@@ -78,20 +85,28 @@ class FittedPlant:
 
 def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None = None,
                     source: dict | None = None) -> FittedPlant:
-    """Fit the axes of ``measured`` (default every one) together at control period ``h`` (s)."""
+    """Fit the elements of ``measured`` among ``axes`` (default every axis) together at control
+    period ``h`` (s): each diagonal one (refused with fewer than MIN_POINTS trusted points) and each
+    across axes with at least MIN_POINTS."""
     axes = axes or measured.axes
     data, found = {}, []
     f = measured.freq_hz
     for axis in axes:
         if axis not in measured.axes:
             raise BadInputError(f"the plant file has no axis {axis!r} (it has {', '.join(measured.axes)})")
-        i = measured.axes.index(axis)
-        good = measured.plant.coherence[:, i, i] >= COHERENT
-        if good.sum() < 20:
-            raise BadInputError(f"{axis}: {int(good.sum())} trusted points (coherence >= {COHERENT:g}); measure longer "
-                                "or with a larger test signal")
-        data[axis] = (measured.plant.response[:, i, i], measured.plant.sigma[:, i, i], good)
-        found += resonances(f, np.abs(measured.plant.response[:, i, i]), good)
+    for out in axes:
+        for inp in axes:
+            i, j = measured.axes.index(out), measured.axes.index(inp)
+            good = measured.plant.coherence[:, i, j] >= COHERENT
+            if good.sum() < MIN_POINTS:
+                if i == j:
+                    raise BadInputError(f"{out}: {int(good.sum())} trusted points (coherence >= {COHERENT:g}); measure "
+                                        "longer or with a larger test signal")
+                continue
+            data[out if i == j else f"{out}<-{inp}"] = (measured.plant.response[:, i, j], measured.plant.sigma[:, i, j], good)
+            # a mode with a node at one axis's bearing or sensor is missing from that axis's own
+            # response and not from another's: the modes are every element's resonances
+            found += resonances(f, np.abs(measured.plant.response[:, i, j]), good)
     modes: list[float] = []
     for hz in sorted(found):
         if not modes or hz > modes[-1] * (1 + MERGE):
@@ -120,9 +135,9 @@ def load_model(path: str | Path) -> FittedPlant:
     doc = read_sealed(path, FORMAT, VERSION, "plant model file")
     try:
         h = float(doc["sample_period_s"])
-        axes = doc["axes"]
+        axes = doc["responses"]
         if not isinstance(axes, list) or not axes or not all(isinstance(a, str) for a in axes):
-            raise ValueError("axes must be a list of names")
+            raise ValueError("responses must be a list of names")
         names = doc["names"]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise ValueError("names must be a list of names")
@@ -133,7 +148,7 @@ def load_model(path: str | Path) -> FittedPlant:
             raise ValueError("rigid_modes and bending_modes must be integers from 0 to 64")
         want = m + 2 * b + 3 + len(axes) * (m + b)
         if values.shape != (len(names),) or cov.shape != (values.size, values.size) or values.size != want:
-            raise ValueError(f"{values.size} values for {m} rigid and {b} bending modes on {len(axes)} axes")
+            raise ValueError(f"{values.size} values for {m} rigid and {b} bending modes in {len(axes)} responses")
         chi2, points, speed = float(doc["chi2_reduced"]), int(doc["points"]), float(doc.get("speed_rpm", 0.0))
         source, controller = doc.get("source", {}), doc.get("controller", {})
         if not isinstance(source, dict) or not isinstance(controller, dict):
