@@ -185,46 +185,71 @@ class FlexibleLoop:
         if rpm not in self._steps:
             self._steps[rpm] = zoh(*self._continuous(rpm), self.h)
         Phi, Gam = self._steps[rpm]
-        p, h, ks = self.params, self.h, self.params.sensor_gain
-        P, I, D = (np.asarray(g, dtype=float) for g in self.gains)
-        ad, bd = derivative_filter(P, D, p.derivative_filter, h)
-        ci = I * h * 0.5
-        Cs = self.sensor_rows()
-        nra, na = Phi.shape[0], len(AXES)
-        chains = [state_space(c) for c in self.sections]  # (Af, Bf, Cf, Df) per axis
-        offsets = np.concatenate(([0], np.cumsum([c[0].shape[0] for c in chains])))
-        n = nra + 3 * na + int(offsets[-1])
-        M, B = np.zeros((n, n)), np.zeros((n, na))
-        U, Ur = np.zeros((na, n)), np.zeros(na)
-        for a in range(na):
-            integ, deriv, prev = nra + 3 * a, nra + 3 * a + 1, nra + 3 * a + 2
-            ev = np.zeros(n)
-            ev[:nra] = ks * Cs[a]  # the error voltage Ks (gap - r_c)
-            M[integ] = ci[a] * ev
-            M[integ, integ] += 1.0
-            M[integ, prev] += ci[a]
-            B[integ, a] = -ci[a] * ks
-            M[deriv] = bd[a] * ev
-            M[deriv, deriv] += ad[a]
-            M[deriv, prev] -= bd[a]
-            B[deriv, a] = -bd[a] * ks
-            M[prev] = ev
-            B[prev, a] = -ks
-            U[a] = -(P[a] * ev + M[integ] + M[deriv])  # u = -(P ev + integral + derivative), eq. 3
-            Ur[a] = P[a] * ks - B[integ, a] - B[deriv, a]
-        # each axis's filter chain: s' = Af s + Bf u, and its D/A gets y = Cf s + Df u
-        Y, Yr = np.zeros((na, n)), np.zeros(na)
-        for a, (Af, Bf, Cf, Df) in enumerate(chains):
-            f = slice(nra + 3 * na + offsets[a], nra + 3 * na + offsets[a + 1])
-            M[f, f] = Af
-            M[f] += np.outer(Bf, U[a])
-            B[f, a] = Bf * Ur[a]
-            Y[a] = Df * U[a]
-            Y[a, f] += Cf
-            Yr[a] = Df * Ur[a]
-        M[:nra, :nra] = Phi
-        M[:nra] += Gam @ Y
-        B[:nra] = Gam * Yr[None, :]
-        C = np.zeros((na, n))
-        C[:, :nra] = Cs
-        return M, B, C
+        p = self.params
+        return close_loop(Phi, Gam, self.sensor_rows(), self.gains, self.sections, sensor_gain=p.sensor_gain,
+                          nd=p.derivative_filter, h=self.h)
+
+def close_loop(Phi: np.ndarray, Gam: np.ndarray, Cs: np.ndarray, gains, sections, *, sensor_gain: float, nd: float,
+               h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A discrete plant closed by the firmware's controller, per axis in the order it runs (sample
+    the gap, PID, the chain of sections, hold): x[n+1] = M x + B r_c, e = C x - r_c.
+
+    Parameters
+    ----------
+    Phi, Gam : ndarray
+        The plant over one period, x[n+1] = Phi x + Gam u, u the controller's output per axis (V).
+    Cs : ndarray, shape (axes, states)
+        The gap each axis's sensor reads, m.
+    gains : tuple of three sequences
+        P (V/V), I (1/s), D (s) per axis.
+    sections : list of lists of Section
+        Each axis's chain (:mod:`ambdaq.analysis.sections`).
+    sensor_gain : float
+        V/m.
+    nd : float
+        The derivative filter's Nd.
+    h : float
+        Control period, s.
+    """
+    ks = sensor_gain
+    P, I, D = (np.asarray(g, dtype=float) for g in gains)
+    ad, bd = derivative_filter(P, D, nd, h)
+    ci = I * h * 0.5
+    nra, na = Phi.shape[0], Cs.shape[0]
+    chains = [state_space(c) for c in sections]  # (Af, Bf, Cf, Df) per axis
+    offsets = np.concatenate(([0], np.cumsum([c[0].shape[0] for c in chains])))
+    n = nra + 3 * na + int(offsets[-1])
+    M, B = np.zeros((n, n)), np.zeros((n, na))
+    U, Ur = np.zeros((na, n)), np.zeros(na)
+    for a in range(na):
+        integ, deriv, prev = nra + 3 * a, nra + 3 * a + 1, nra + 3 * a + 2
+        ev = np.zeros(n)
+        ev[:nra] = ks * Cs[a]  # the error voltage Ks (gap - r_c)
+        M[integ] = ci[a] * ev
+        M[integ, integ] += 1.0
+        M[integ, prev] += ci[a]
+        B[integ, a] = -ci[a] * ks
+        M[deriv] = bd[a] * ev
+        M[deriv, deriv] += ad[a]
+        M[deriv, prev] -= bd[a]
+        B[deriv, a] = -bd[a] * ks
+        M[prev] = ev
+        B[prev, a] = -ks
+        U[a] = -(P[a] * ev + M[integ] + M[deriv])  # u = -(P ev + integral + derivative), eq. 3
+        Ur[a] = P[a] * ks - B[integ, a] - B[deriv, a]
+    # each axis's filter chain: s' = Af s + Bf u, and its D/A gets y = Cf s + Df u
+    Y, Yr = np.zeros((na, n)), np.zeros(na)
+    for a, (Af, Bf, Cf, Df) in enumerate(chains):
+        f = slice(nra + 3 * na + offsets[a], nra + 3 * na + offsets[a + 1])
+        M[f, f] = Af
+        M[f] += np.outer(Bf, U[a])
+        B[f, a] = Bf * Ur[a]
+        Y[a] = Df * U[a]
+        Y[a, f] += Cf
+        Yr[a] = Df * Ur[a]
+    M[:nra, :nra] = Phi
+    M[:nra] += Gam @ Y
+    B[:nra] = Gam * Yr[None, :]
+    C = np.zeros((na, n))
+    C[:, :nra] = Cs
+    return M, B, C
