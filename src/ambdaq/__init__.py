@@ -1,7 +1,3 @@
 """ambdaq: hardware bridge and data acquisition for active magnetic bearing machines."""
 
 __version__ = "0.3.0"
-
-from . import python_can_import
-
-python_can_import.install()

@@ -6,6 +6,10 @@ imports on a slow host, in every process that touches a CAN bus.  ambdaq never u
 MF4 reader or writer (MDF export goes through asammdf itself, :mod:`ambdaq.daq.mdf`), so while
 ``can.io.mf4`` is being imported, asammdf is reported missing to it: python-can then leaves its MF4
 classes unavailable (they raise if used) and every other import of asammdf is untouched.
+
+Only the command line installs it (:mod:`ambdaq.cli.main`): its processes never use python-can's
+MF4 logger, while a notebook or a program that imports ambdaq as a library may, and keeps
+python-can as it is.
 """
 
 from __future__ import annotations

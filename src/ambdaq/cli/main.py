@@ -19,8 +19,13 @@ from pathlib import Path
 import click
 
 from ..loading import load_object
-from .. import __version__
+from .. import __version__, python_can_import
 from ..errors import AmbdaqError, AmbdaqWarning
+
+# a process the command line runs never uses python-can's MF4 logger: python-can comes without the
+# asammdf it imports for it (1.5 s of a served rig's start here); a notebook that imports ambdaq
+# keeps python-can whole
+python_can_import.install()
 
 
 COMMANDS = {
