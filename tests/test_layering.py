@@ -17,6 +17,7 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "units": set(),
     "speed": {"errors", "units"},
     "loading": set(),
+    "python_can_import": set(),  # the command line's python-can without asammdf
     "roles": set(),
     "output": {"errors"},
     "machines": {"analysis", "units", "errors", "roles"},  # a machine's description and its models
@@ -35,7 +36,8 @@ MAY_IMPORT = {  # part -> the parts it may import (itself always)
     "figures": {"roles", "documents", "daq", "analysis", "machines", "workflows", "units", "errors"},
     "report": {"analysis", "figures", "errors"},  # the commissioning report's page and PDF, from its result
     "cli": {"roles", "drivers", "mcap", "acquisition", "documents", "daq", "analysis", "sim", "workflows", "studies",
-            "live", "figures", "report", "machines", "speed", "output", "units", "errors", "loading"},
+            "live", "figures", "report", "machines", "speed", "output", "units", "errors", "loading",
+            "python_can_import"},
 }
 
 
