@@ -101,6 +101,10 @@ class SimController:
         self._streaming = threading.Event()
         self._stream_from = 0  # the first rig step a stream started now sends
         self._tx: queue.Queue[tuple[MsgType, bytes]] = queue.Queue(maxsize=tx_queue)
+        # events go out before any queued frame and are never dropped: a lost sample shows as a gap
+        # in the sample index, a lost fault would show nowhere (a fresh clone's starved host once
+        # dropped the injected fault with the samples queued before it)
+        self._events: queue.SimpleQueue[tuple[MsgType, bytes]] = queue.SimpleQueue()
         self._seq = 0
         self._time_requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()  # (t1, t2)
         self._stop = threading.Event()
@@ -162,6 +166,11 @@ class SimController:
             except queue.Empty:
                 queued = None
             try:
+                while True:
+                    try:
+                        self._write(*self._events.get_nowait())
+                    except queue.Empty:
+                        break
                 if queued is not None:
                     self._write(*queued)
                 while True:  # time replies are stamped t3 as they are written
@@ -187,8 +196,8 @@ class SimController:
         self._send(MsgType.SAMPLES, proto.samples(int(block.seq[0]), t0, period, values))
 
     def fault(self, code: int, severity: int, message: str) -> None:
-        """Report a fault event to the host."""
-        self._send(MsgType.FAULT, proto.fault(code, severity, self.now_ns(), message))
+        """Report a fault event to the host: ahead of every queued frame, never dropped."""
+        self._events.put((MsgType.FAULT, proto.fault(code, severity, self.now_ns(), message)))
 
     # --- receive ----------------------------------------------------------------------------------
 
