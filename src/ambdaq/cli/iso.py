@@ -10,7 +10,7 @@ import numpy as np
 
 from ..analysis.iso14839 import STABILITY_LIMITS, VIBRATION_LIMITS, ZoneLimits, db
 from ..errors import BadInputError
-from .options import DURATION, POSITIVE, RangeArg, a2l_option, excited_runs, max_lost_option, plot_option
+from .options import POSITIVE, RangeArg, a2l_option, excited_run_options, excited_runs, max_lost_option, plot_option
 
 
 class LimitsArg(click.ParamType):
@@ -44,15 +44,7 @@ def command() -> None:
 @a2l_option
 @click.option("--rpm", "speeds", type=click.FloatRange(min=0, max=200_000), multiple=True, metavar="RPM",
               help="A speed to measure at (repeatable; 0: standstill); set through the controller's speed parameter.")
-@click.option("--axes", help="Comma-separated axes to excite; default: every axis of the test-signal input.")
-@click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
-              help="RMS of the white-noise test signal: um for a displacement input, else the input's unit.")
-@click.option("--duration", type=DURATION, default=10.0, show_default=True, metavar="SECONDS", help="Per axis and speed.")
-@click.option("--settle", type=DURATION, default=60.0, show_default=True, metavar="SECONDS",
-              help="Longest wait for the rotor to reach each speed.")
-@click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
-              help="Where the measured recordings go; default: beside -o, in NAME_runs/.")
-@click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True, help="Frequency step, Hz.")
+@excited_run_options
 @click.option("--band", type=RangeArg("LO:HI", "Hz", "10:2000"), help="Band searched for the peak, Hz; default: every measured frequency.")
 @click.option("--limits", type=LimitsArg(), default=",".join(f"{v:g}" for v in STABILITY_LIMITS.as_list()), show_default=True,
               help="Peak |Gs| at the zone boundaries A/B, B/C, C/D (gains, or e.g. 9.5dB,12dB,14dB).")

@@ -149,6 +149,28 @@ def speed_restored_note(quiet: bool):
     return say
 
 
+def excited_run_options(f):
+    """The options of a closed-loop measurement's runs (``iso stability``, ``plant identify``), the
+    ones :func:`excited_runs` takes: --axes, --amplitude, --duration, --settle, --runs, and the
+    --resolution their responses are estimated at."""
+    for option in reversed([
+        click.option("--axes", help="Comma-separated axes to excite (every axis of a coupled set); default: every "
+                                    "axis of the test-signal input."),
+        click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
+                     help="RMS of the white-noise test signal: um for a displacement input, else the input's unit."),
+        click.option("--duration", type=DURATION, default=10.0, show_default=True, metavar="SECONDS",
+                     help="Per axis and speed."),
+        click.option("--settle", type=DURATION, default=60.0, show_default=True, metavar="SECONDS",
+                     help="Longest wait for the rotor to reach each speed (--rpm)."),
+        click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
+                     help="Where the measured recordings go; default: beside -o, in NAME_runs/."),
+        click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
+                     help="Frequency step, Hz."),
+    ]):
+        f = option(f)
+    return f
+
+
 def excited_runs(command: str, recordings, device: str | None, description: dict | None, speeds: list[float] | None,
                  axes: str | None, amplitude: float, duration: float, settle: float, runs_dir: str | None, out: Path,
                  overwrite: bool, quiet: bool) -> list[Path]:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import BadInputError
-from .options import DURATION, POSITIVE, a2l_option, excited_runs, max_lost_option, plot_option
+from .options import a2l_option, excited_run_options, excited_runs, max_lost_option, plot_option
 
 
 @click.group("plant")
@@ -22,15 +22,7 @@ def command() -> None:
 @a2l_option
 @click.option("--rpm", type=click.FloatRange(min=0, max=200_000), metavar="RPM",
               help="The speed to measure at, set through the controller's speed parameter; default: the present one.")
-@click.option("--axes", help="Comma-separated axes to excite (every axis of a coupled set); default: all.")
-@click.option("--amplitude", type=POSITIVE, default=2.0, show_default=True,
-              help="RMS of the white-noise test signal at the sensor summing point, um.")
-@click.option("--duration", type=DURATION, default=10.0, show_default=True, metavar="SECONDS", help="Per axis.")
-@click.option("--settle", type=DURATION, default=60.0, show_default=True, metavar="SECONDS",
-              help="Longest wait for the rotor to reach --rpm.")
-@click.option("--runs", "runs_dir", type=click.Path(file_okay=False),
-              help="Where the measured recordings go; default: beside -o, in NAME_runs/.")
-@click.option("--resolution", type=click.FloatRange(min=0.1), default=10.0, show_default=True, help="Frequency step, Hz.")
+@excited_run_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Plant file (sealed JSON).")
 @click.option("--overwrite", is_flag=True)
 @plot_option("Measured plant per axis with its 95 % band, sensitivity and coherence (.png, .pdf, .svg).")

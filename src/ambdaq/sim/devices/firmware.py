@@ -119,8 +119,6 @@ class Feedforward(ABC):
             if image.biquads is not None and image.biquads.shape[1] > ctl["max_sections"]:
                 return (f"the controller has {image.biquads.shape[1]} sections per axis; this firmware runs at most "
                         f"{ctl['max_sections']}")
-            if ctl["sample_rate_hz"] != lay.get("sample_rate_hz", ctl["sample_rate_hz"]):
-                return "the controller section was designed for another sample rate"
         fir = lay.get("fir")
         if image.fir_taps is None:
             return ""
