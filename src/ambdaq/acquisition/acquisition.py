@@ -151,15 +151,16 @@ def _after_stop(old, until: float) -> Callable:
 
 
 def _freeze_heap(sources: list[Source]) -> None:
-    """Where a device is paced by the wall clock: collect once, then leave every object that exists
-    now out of the collector's full passes until the acquisition ends (``gc.freeze``).  After numpy,
-    scipy, numba and canopen are loaded a full collection walks about 150,000 objects with the GIL
-    held: 90-100 ms here, in which no device thread runs (measured: 64-148 CAN samples of a
-    simulated rig lost at the start of a recording).  Objects made during the recording are
-    collected as usual.  A run of unpaced sources only (``sim generate``) loses nothing to a
-    pause and skips the collection (70 ms here, more in a process that holds more)."""
+    """Where a device is paced by the wall clock: leave every object that exists now out of the
+    collector's full passes until the acquisition ends (``gc.freeze``).  After numpy, scipy, numba
+    and canopen are loaded a full collection walks about 150,000 objects with the GIL held: 90-100
+    ms here, in which no device thread runs (measured: 64-148 CAN samples of a simulated rig lost
+    at the start of a recording).  Objects made during the recording are collected as usual.
+    Nothing is collected first: that would be the same pause once, at the start (and seconds in a
+    process that holds more, as a test runner does); garbage that exists now waits for the end of
+    the recording.  A run of unpaced sources only (``sim generate``) loses nothing to a pause and
+    is left alone."""
     if any(s.paced for s in sources):
-        gc.collect()
         gc.freeze()
 
 

@@ -11,6 +11,8 @@ C(z) at z = exp(jwh), the D/A's zero-order hold and the amplifier G_A (Ro et al.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,13 +152,36 @@ def equivalent_stiffness_damping(
     return StiffnessDamping(f, -kx + ki * g.real, damping)
 
 
+ZOH_MEMO = 2048
+"""The discretisations :func:`zoh` keeps per process (the least recently used go first): a rig steps
+the same speeds again and again (each 50 rpm bucket of every run-up ``lms runup`` compares, every
+spindle a process builds) and a 25-state matrix exponential is a third of a millisecond."""
+_zoh_memo: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_zoh_lock = threading.Lock()
+
+
 def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s)."""
+    """Exact zero-order-hold discretisation: x[k+1] = Phi x[k] + Gamma u[k] for step ``h`` (s).
+
+    The same (A, B, h) gives the same matrices, from the memo after the first time (fresh copies:
+    a caller may change them)."""
     from scipy.linalg import expm  # 0.3 s to import: only where a model is discretised
 
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B
-    E = expm(M * h)
-    return E[:n, :n].copy(), E[:n, n:].copy()
+    A, B = np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(B, dtype=float)
+    key = (A.shape, B.shape, float(h), A.tobytes(), B.tobytes())
+    with _zoh_lock:
+        hit = _zoh_memo.get(key)
+        if hit is not None:
+            _zoh_memo.move_to_end(key)
+    if hit is None:
+        n, m = B.shape
+        M = np.zeros((n + m, n + m))
+        M[:n, :n] = A
+        M[:n, n:] = B
+        E = expm(M * h)
+        hit = (E[:n, :n].copy(), E[:n, n:].copy())
+        with _zoh_lock:
+            _zoh_memo[key] = hit
+            while len(_zoh_memo) > ZOH_MEMO:
+                _zoh_memo.popitem(last=False)
+    return hit[0].copy(), hit[1].copy()

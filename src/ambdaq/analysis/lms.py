@@ -172,12 +172,11 @@ def _radius(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, mu: np.n
     Cf1 = np.zeros((p, 2 * p))  # G_ff's output for mu = 1
     for i, (_R, _b, c) in enumerate(blocks):
         Cf1[i, 2 * i : 2 * i + 2] = c
-    out = np.empty(len(mu))
-    for j, m in enumerate(mu):
-        Cf = m * Cf1
-        closed = np.block([[A, -B @ Cf], [Bf @ C, Rf - Bf @ D @ Cf]])
-        out[j] = np.abs(np.linalg.eigvals(closed)).max()
-    return out
+    # the closed loop is affine in mu: one stack of matrices, their eigenvalues in one call
+    fixed = np.block([[A, np.zeros((A.shape[0], Rf.shape[0]))], [Bf @ C, Rf]])
+    per_mu = np.block([[np.zeros_like(A), -B @ Cf1], [np.zeros((Rf.shape[0], A.shape[1])), -Bf @ D @ Cf1]])
+    closed = fixed[None] + np.asarray(mu, dtype=float)[:, None, None] * per_mu[None]
+    return np.abs(np.linalg.eigvals(closed)).max(axis=1)
 
 
 def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmonic: int,

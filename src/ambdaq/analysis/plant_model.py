@@ -30,6 +30,10 @@ import numpy as np
 
 from .amb import zoh
 
+MAX_EVALUATIONS = 60
+"""The most evaluations of the residual (and of its Jacobian) the search may take: a model that
+describes the measurement converges in a few (the flexible rotor at standstill in 7); one that
+does not wanders for hundreds, and its refusal should not take a minute."""
 RIGID_MAX_HZ = 300.0
 """The highest a rigid-body mode's unstable pole may be fitted at, Hz: sqrt(k_neg / m) of an AMB rotor
 is tens of hertz; a pole fitted higher stands in for an unmodelled mode, not the rigid body."""
@@ -137,6 +141,9 @@ class PlantFit:
         The weighted residual's mean square per degree of freedom (1: the model reaches the noise).
     points : int
         Complex points fitted.
+    converged : bool
+        Whether the search met its tolerances within ``MAX_EVALUATIONS`` (if not, the parameters
+        are not at an optimum and their covariance means nothing).
     """
 
     model: ModalPlant
@@ -146,6 +153,7 @@ class PlantFit:
     covariance: np.ndarray
     chi2_reduced: float
     points: int
+    converged: bool = True
 
     @property
     def std(self) -> np.ndarray:
@@ -222,7 +230,7 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
                             [np.log(2 * np.pi * 50e3), 3.0, 5 * h]])
     upper[m + b : m + 2 * b] = np.log(0.5)
     sol = least_squares(lambda t: solve(t)[1], np.clip(theta0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper),
-                        x_scale="jac", max_nfev=400)
+                        x_scale="jac", max_nfev=MAX_EVALUATIONS)
     residues, _ = solve(sol.x)
     n_theta = sol.x.size
 
@@ -254,4 +262,4 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     scale[: m + 2 * b + 1] = values[: m + 2 * b + 1]
     cov = cov_p * np.outer(scale, scale)
     model = ModalPlant.from_theta(sol.x, residues, m, b, h)
-    return PlantFit(model, axes, names, values, cov, chi2, int(sum(len(i) for i in where)))
+    return PlantFit(model, axes, names, values, cov, chi2, int(sum(len(i) for i in where)), bool(sol.status > 0))

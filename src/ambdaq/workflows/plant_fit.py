@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.frf import COHERENT
-from ..analysis.plant_model import ModalPlant, PlantFit, fit
+from ..analysis.plant_model import MAX_EVALUATIONS, ModalPlant, PlantFit, fit
 from ..documents.coefficients import file_sha256
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
@@ -113,12 +113,13 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
             modes.append(hz)
     result = fit(f, data, h, rigid_hz=list(RIGID_START_HZ), bending_hz=modes, amplifier_hz=AMPLIFIER_START[0],
                  amplifier_zeta=AMPLIFIER_START[1])
-    if result.chi2_reduced > CHI2_LIMIT:
+    if result.chi2_reduced > CHI2_LIMIT or not result.converged:
         spinning = (" At speed the gyroscopic coupling turns the rigid-body modes into whirls and gives the modes "
                     "complex modal gains, which this model does not have yet: fit a standstill measurement."
                     if measured.speed_rpm > 0 else "")
+        unsettled = "" if result.converged else f", the search unsettled after {MAX_EVALUATIONS} evaluations"
         raise BadInputError(f"the model does not reach the measurement: reduced chi-square {result.chi2_reduced:.1f} "
-                            f"(at most {CHI2_LIMIT:g}) with {len(modes)} bending modes at "
+                            f"(at most {CHI2_LIMIT:g}){unsettled} with {len(modes)} bending modes at "
                             f"{', '.join(f'{hz:g}' for hz in modes)} Hz; no model written.{spinning}")
     return FittedPlant(result, measured.speed_rpm, h, source or {}, measured.controller)
 
