@@ -169,8 +169,10 @@ def a2l(tmp_path):
     return path
 
 
-@pytest.mark.parametrize("lacks", [set(), *({code} for code in OPTIONAL), set(OPTIONAL)],
-                         ids=["none", *OPTIONAL.values(), "all five"])
+# every optional command lacking at once runs each fallback; each one alone is -m long (the suite's budget)
+@pytest.mark.parametrize("lacks", [pytest.param(set(), id="none"),
+                                   *(pytest.param({code}, id=name, marks=pytest.mark.long) for code, name in OPTIONAL.items()),
+                                   pytest.param(set(OPTIONAL), id="all five")])
 def test_a_lacking_optional_command_is_read_from_the_a2l_and_the_slave_is_left_free(lacks, a2l, tmp_path, run_cli):
     slave = OneMasterSlave(lacks)
     try:
