@@ -120,6 +120,8 @@ def test_sections_are_characteristics_pyxcp_writes_and_the_serial_line_reads_bac
     assert found == {**{k: (found[k][0], 4) for k in ("pid.p", "pid.i", "pid.d")},
                      "filter.sections": (found["filter.sections"][0], 4 * MAX_SECTIONS * 5),
                      "speed.rpm": (found["speed.rpm"][0], 1), "exc.signal": (found["exc.signal"][0], 3)}
+    # the A2L and the slave name the rig they are (they said "spindle" for every profile)
+    assert session.query(model.Project).one().name == "AMBDAQ_FLEXIBLE"
     served = serve("flexible", can=None, xcp="tcp:0")
     try:
         rig = served.server.rig
@@ -132,6 +134,7 @@ def test_sections_are_characteristics_pyxcp_writes_and_the_serial_line_reads_bac
         try:
             with master(port) as x:
                 x.connect()
+                assert x.identifier(1) == "AMBDAQ_FLEXIBLE"
                 seed = bytes(x.getSeed(0, 0x01).seed)
                 key = sim_key(0x01, seed, "ambdaq-sim")
                 x.unlock(len(key), key)

@@ -61,8 +61,9 @@ from ...errors import DeviceError
 from ..profiles import profile
 from .banks import CoefficientBanks
 from .rig_server import DeviceClock, RigServer
-from .xcp_memory import (ASAP2_NAME, ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, MEASUREMENT_BASE, STATUS_BASE,
-                         CalibrationConstants, CalibrationPages, ControllerParameters, MeasurementMap, Refused)
+from .xcp_memory import (ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, MEASUREMENT_BASE, STATUS_BASE,
+                         CalibrationConstants, CalibrationPages, ControllerParameters, MeasurementMap, Refused,
+                         asap2_name)
 from .xcp_transport import (HEADER, MAX_CTO, MAX_DTO, READ_WAIT_S, CanTransport, PtyLink, StreamTransport,
                             TcpLink)
 
@@ -327,7 +328,7 @@ class XcpSlave:
     def _get_id(self, p: bytes) -> bytes:
         if p[1] != 1:  # only the ASAP2 name (the A2L's project)
             return struct.pack("<BBHI", PID_RES, 0, 0, 0)
-        self._upload_text = ASAP2_NAME.encode()
+        self._upload_text = asap2_name(self.server.rig.profile).encode()
         return struct.pack("<BBHI", PID_RES, 0, 0, len(self._upload_text))
 
     def _set_request(self, p: bytes) -> bytes:

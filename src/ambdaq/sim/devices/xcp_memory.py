@@ -30,6 +30,7 @@ PARAM_WRITE takes it (:class:`ControllerParameters`).
 from __future__ import annotations
 
 import json
+import re
 import struct
 import time
 from dataclasses import dataclass
@@ -50,7 +51,14 @@ RECORD_BASE, RECORD_SIZE = 0x0003_0000, 0x400
 STATUS_BASE, STATUS_SIZE = 0x0003_1000, 0x4000
 CONSTANTS_BASE = 0x0004_0000
 PARAMETERS_BASE = 0x0005_0000
-ASAP2_NAME = "AMBDAQ_SPINDLE"
+
+
+def asap2_name(rig_profile: str) -> str:
+    """The A2L's PROJECT name (what GET_ID type 1 answers) of the controller of a rig profile:
+    ``AMBDAQ_SPINDLE``, ``AMBDAQ_FLEXIBLE`` ..."""
+    return "AMBDAQ_" + re.sub(r"[^A-Z0-9]", "_", rig_profile.upper())
+
+
 COUNTER = "control_period"
 LENGTH = struct.Struct("<I")
 
@@ -384,7 +392,7 @@ def a2l_text(rig) -> str:
       /begin MEMORY_SEGMENT PARAMETERS "the controller's parameters" DATA RAM INTERN 0x{PARAMETERS_BASE:08X} 0x{table.end - PARAMETERS_BASE:X} -1 -1 -1 -1 -1
       /end MEMORY_SEGMENT""" if table.entries else ""
     return f"""ASAP2_VERSION 1 71
-/begin PROJECT {ASAP2_NAME} "ambdaq simulated spindle AMB controller"
+/begin PROJECT {asap2_name(rig.profile)} "ambdaq simulated {rig.profile} AMB controller"
   /begin MODULE CONTROLLER "the XCP slave's memory (ambdaq/sim/devices/xcp_memory.py)"
     /begin A2ML
       block "IF_DATA" taggedunion if_data {{
