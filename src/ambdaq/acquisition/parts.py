@@ -3,7 +3,9 @@
 device.
 
 Parts are cut at ``start + k * split_duration`` (or where a part reached ``split_size``); each
-sample goes to the part its time falls in.  A part stays open until every device has written a
+sample goes to the part its time falls in, and so does each sample period a device never sent: a
+lost period is due where its ``seq`` puts it between the samples around it (evenly spaced), so a
+run of losses across a part's start is counted partly in each part.  A part stays open until every device has written a
 sample past its end (or ended), so a device whose samples arrive late (a serial line whose clock
 map is still settling) still lands in the right file.  Every open file's chunk is closed and handed
 to the OS at least every ``flush_interval`` seconds of wall time, and forced to the disk (fsync)
@@ -70,6 +72,7 @@ class FileParts(Sink):
         self.paths: list[Path] = []  # every file opened, in order
         self._parts: list[_Part] = []
         self._ended: set[str] = set()
+        self._last: dict[str, int] = {}  # host time of each device's last sample handed to a part, ns
         self._last_flush = 0.0
 
     @property
@@ -95,6 +98,7 @@ class FileParts(Sink):
     def block(self, device: str, block: SampleBlock, verdict: Verdict) -> None:
         """The judged block's kept samples, each into the part its time falls in."""
         n, t = len(block), block.host_time_ns
+        before = self._last.get(device)
         pos = 0
         while pos < n:
             part = self._part_for(int(t[pos]))
@@ -105,12 +109,39 @@ class FileParts(Sink):
             sl = slice(pos, end)
             keep = verdict.keep[sl]
             piece = block.slice(pos, end)
-            part.writer.write(device, piece if keep.all() else piece.select(keep),
-                              verdict.counts(device, sl, block.seq, t))
+            counts = verdict.counts(device, sl, block.seq, t)
+            counts.drops -= self._lost_before(device, part, int(verdict.lost[pos]),
+                                              int(t[pos - 1]) if pos else before, int(t[pos]))
+            part.writer.write(device, piece if keep.all() else piece.select(keep), counts)
             if self.split_size is not None and part.end_ns is None and part.writer.bytes_written >= self.split_size:
                 part.end_ns = int(t[end - 1]) + 1
             pos = end
+        if n:
+            self._last[device] = int(t[-1])
         self._close_finished()
+
+    def _lost_before(self, device: str, part: _Part, lost: int, prev_ns: int | None, now_ns: int) -> int:
+        """Of the ``lost`` periods ``device`` never sent between its samples at host times
+        ``prev_ns`` and ``now_ns`` (the latter in ``part``), those due before ``part`` began are
+        counted as drops of the open parts they were due in; returns how many.  The j-th of them is
+        due at prev + j (now - prev) / (lost + 1)."""
+        if not lost or prev_ns is None or prev_ns >= part.start_ns or now_ns <= prev_ns:
+            return 0
+        span = now_ns - prev_ns
+
+        def due_before(x_ns: int) -> int:  # how many of them are due before host time x_ns
+            q = (x_ns - prev_ns) * (lost + 1)
+            return 0 if q <= 0 else min(max(-(-q // span) - 1, 0), lost)
+
+        moved = 0
+        for earlier in self._parts:
+            if earlier is part or earlier.end_ns is None:
+                break
+            k = due_before(earlier.end_ns) - due_before(earlier.start_ns)
+            if k:
+                earlier.writer.lost_at_end(device, k)
+                moved += k
+        return moved
 
     def event(self, device: str, t_ns: int, event: Event) -> None:
         self._part_for(t_ns).writer.write_event(event.topic, device, t_ns, event)
