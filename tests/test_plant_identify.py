@@ -34,6 +34,27 @@ def true_modes() -> dict:
     return {"rigid_hz": rigid, "bending_hz": [hz for hz in bending if hz < 4000]}
 
 
+def true_residues() -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The levitated rotor's modes at standstill (their frequencies, Hz) and each element's residue
+    of each (m/V/s^2): the mode's shape at the output's sensor and at the input's bearing, the
+    current gain and the amplifier's gain; the modes of the free rotor with the magnets' negative
+    stiffness at the bearings (one plane: x and y are alike at standstill)."""
+    loop = FlexibleLoop()
+    axes = loop.params.axes
+    stiffness = loop._stiff.copy()
+    for i in (0, 2):  # front_x and rear_x: the x plane's bearings
+        stiffness -= axes[i].kx * np.outer(loop._at_bearing[i], loop._at_bearing[i])
+    w2, shapes = np.linalg.eigh(stiffness)
+    gain = axes[0].ki * axes[0].amp_gain
+    out = {}
+    for out_name, oi in (("front", 0), ("rear", 2)):
+        for in_name, ii in (("front", 0), ("rear", 2)):
+            for plane in "xy":
+                label = f"{out_name}_{plane}" if out_name == in_name else f"{out_name}_{plane}<-{in_name}_{plane}"
+                out[label] = (loop._at_sensor[oi] @ shapes) * (loop._at_bearing[ii] @ shapes) * gain
+    return np.sqrt(np.abs(w2)) / (2 * np.pi), out
+
+
 @pytest.mark.parametrize("rpm", [0, 20000])
 def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_error(rpm, run_cli, tmp_path):
     """Four runs of 4 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
@@ -92,6 +113,22 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         assert abs(got[f"rigid{k}_hz"][0] / hz - 1) < 0.06, (k, got[f"rigid{k}_hz"], hz)
     assert abs(got["amplifier_hz"][0] / 2500 - 1) < 0.03 and abs(got["amplifier_zeta"][0] / 0.8 - 1) < 0.03
     assert all(std > 0 for _, std in got.values())
+    # every stated residue is the rotor's own within its deviation (seed 5: RMS 1.2 deviations, 89 %
+    # within 2, the largest 3.9: the leakage bias above); a residue of a mode above an element's band
+    # is not stated (the rear sensor's elements are trusted to about 900 Hz: modes 3-5 are in their
+    # residual; fitted, they were +6,459 and -10,098 for -0.3 and +0.7, with deviations of 0.5)
+    hz, truth = true_residues()
+    z = []
+    for name, (value, std) in got.items():
+        if name.endswith("_residue"):
+            label, mode = name.rsplit(".", 1)
+            nearest = int(np.argmin(np.abs(hz - got[mode.removesuffix("_residue") + "_hz"][0])))
+            z.append((value - truth[label][nearest]) / std)
+    z = np.array(z)
+    assert len(z) >= 40 and np.abs(z).max() < 5 and np.sqrt(np.mean(z**2)) < 1.6, z
+    for element in ("rear_x", "rear_y", "rear_x<-front_x", "rear_y<-front_y"):
+        assert f"{element}.mode2_residue" in got and f"{element}.mode3_residue" not in got, element
+        assert f"{element}.residual" in got
 
 
 def test_a_recording_without_the_controllers_output_is_one_line(run_cli, tmp_path):

@@ -82,8 +82,9 @@ def documents():
                              np.ones((2, 1), complex), np.ones((2, 1)) * 0.9, 0.0, [{"path": "a.mcap"}], {})
     model = ModalPlant(np.array([300.0]), np.array([[2500.0, 0.005]]), np.array([[30.0, 10.0]]), (15000.0, 0.8), 0.0, 1e-4)
     values = np.array([47.7, 397.9, 0.005, 2387.3, 0.8, 0.0, 30.0, 10.0])
-    fitted = FittedPlant(PlantFit(model, ["front_x"], [f"p{k}" for k in range(8)], values, np.eye(8) * 1e-6, 0.7, 40),
-                         0.0, 1e-4)
+    names = ["rigid1_hz", "mode1_hz", "mode1_zeta", "amplifier_hz", "amplifier_zeta", "delay_s", "front_x.rigid1_residue",
+             "front_x.mode1_residue"]
+    fitted = FittedPlant(PlantFit(model, ["front_x"], names, values, np.eye(8) * 1e-6, 0.7, 40), 0.0, 1e-4)
 
     def model_doc():
         import tempfile

@@ -14,6 +14,14 @@ so the model states the residue and not its factors.  The model is compared with
 exactly as the controller sees it: the continuous model zero-order-held over the period (its
 states stepped by the matrix exponential), so the hold's phase is not fitted by the delay.
 
+A bending mode well above a response's trusted band reaches it only as a compliance, the same
+at every frequency there: its residue is not identifiable from that response (fitted anyway, a
+pair of such modes cancel each other in residues a hundred times the truth, with tight stated
+errors).  So each response fits the residues of the modes up to ``BAND_MARGIN`` times its highest
+trusted frequency, and lumps those above (and the rotor's modes above the model's) into one
+residual compliance R (m/V, through the amplifier and the delay: the "upper residual" of
+experimental modal analysis); the residues it cannot identify are not stated.
+
 The residues enter linearly: for given poles, amplifier and delay they are the weighted linear
 least-squares solution (variable projection, Golub & Pereyra 1973), and the nonlinear search
 (scipy's least_squares, trust region) runs over the poles alone.  The weights are the inverse
@@ -34,6 +42,9 @@ MAX_EVALUATIONS = 60
 """The most evaluations of the residual (and of its Jacobian) the search may take: a model that
 describes the measurement converges in a few (the flexible rotor at standstill in 7); one that
 does not wanders for hundreds, and its refusal should not take a minute."""
+BAND_MARGIN = 1.25
+"""A bending mode up to this factor above a response's highest trusted frequency still shapes the
+band's edge and has its residue fitted; above it, it is in the response's residual compliance."""
 RIGID_MAX_HZ = 300.0
 """The highest a rigid-body mode's unstable pole may be fitted at, Hz: sqrt(k_neg / m) of an AMB rotor
 is tens of hertz; a pole fitted higher stands in for an unmodelled mode, not the rigid body."""
@@ -52,12 +63,14 @@ class ModalPlant:
     residues : ndarray, shape (responses, m + b)
         r_k of each response (an element of the plant), rigid modes first, m/V/s^2: every element
         of one rotor's plant has the same poles (they are the rotor's on its bearings), each its
-        own residues.
+        own residues; 0 where a mode is in the response's residual instead.
     amplifier : tuple of float
         (w_a rad/s, z_a).
     delay_s : float
     h : float
         The control period the model is held over, s.
+    residual : ndarray, shape (responses,), optional
+        Each response's residual compliance R (m/V) of the modes above its band; default none.
     """
 
     rigid: np.ndarray
@@ -66,6 +79,7 @@ class ModalPlant:
     amplifier: tuple[float, float]
     delay_s: float
     h: float
+    residual: np.ndarray | None = None
 
     def theta(self) -> np.ndarray:
         """The nonlinear parameters as the fit moves them: logs of a, w, zeta, w_a; z_a; delay."""
@@ -73,11 +87,12 @@ class ModalPlant:
                                [np.log(self.amplifier[0]), self.amplifier[1], self.delay_s]])
 
     @classmethod
-    def from_theta(cls, theta: np.ndarray, residues: np.ndarray, m: int, b: int, h: float) -> "ModalPlant":
+    def from_theta(cls, theta: np.ndarray, residues: np.ndarray, m: int, b: int, h: float,
+                   residual: np.ndarray | None = None) -> "ModalPlant":
         rigid = np.exp(theta[:m])
         bending = np.column_stack([np.exp(theta[m : m + b]), np.exp(theta[m + b : m + 2 * b])])
         return cls(rigid, bending, residues, (float(np.exp(theta[m + 2 * b])), float(theta[m + 2 * b + 1])),
-                   float(theta[m + 2 * b + 2]), h)
+                   float(theta[m + 2 * b + 2]), h, residual)
 
     def basis(self, freq_hz: np.ndarray) -> np.ndarray:
         """Each mode's held response through the amplifier and delay with unit residue, (n, modes)."""
@@ -85,11 +100,15 @@ class ModalPlant:
 
     def response(self, freq_hz: np.ndarray) -> np.ndarray:
         """Each response's P(e^{j w h}) at ``freq_hz`` (Hz), shape (n, responses), m/V."""
-        return self.basis(freq_hz) @ self.residues.T
+        out = self.basis(freq_hz) @ self.residues.T
+        if self.residual is not None:
+            out = out + _static_basis(self.amplifier, self.delay_s, self.h, freq_hz)[:, None] * self.residual[None, :]
+        return out
 
     def state_space(self, axis: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Axis ``axis``'s continuous model without its delay: (A, B, C), input V, output m;
-        states: the amplifier's (2), then each mode's displacement and velocity."""
+        """Response ``axis``'s continuous model without its delay: (A, B, C), input V, output m;
+        states: the amplifier's (2: its current, with unit DC gain, the residual's input), then
+        each mode's displacement and velocity."""
         wa, za = self.amplifier
         modes = [(0.0, -a * a) for a in self.rigid] + [(2 * z * w, w * w) for w, z in self.bending]
         n = 2 + 2 * len(modes)
@@ -102,6 +121,8 @@ class ModalPlant:
             A[i, i + 1] = 1.0
             A[i + 1, i], A[i + 1, i + 1], A[i + 1, 0] = -d, -c, 1.0
             C[0, i] = self.residues[axis, k]
+        if self.residual is not None:
+            C[0, 0] = self.residual[axis]
         return A, B, C
 
 
@@ -120,6 +141,18 @@ def _basis(rigid, bending, amplifier, delay_s, h, freq_hz) -> np.ndarray:
         left = vec[2] * (np.linalg.solve(vec, gam)[:, 0])  # C V and V^-1 Gam, per eigenvalue
         out.append((left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * lag)
     return np.stack(out, axis=1)
+
+
+def _static_basis(amplifier, delay_s, h, freq_hz) -> np.ndarray:
+    """A unit compliance's held response through the amplifier and the delay, (n,)."""
+    wa, za = amplifier
+    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * h)
+    lag = np.exp(-2j * np.pi * np.asarray(freq_hz, float) * delay_s)
+    A = np.array([[0.0, 1.0], [-wa * wa, -2 * za * wa]])
+    phi, gam = zoh(A, np.array([[0.0], [wa * wa]]), h)
+    lam, vec = np.linalg.eig(phi)
+    left = vec[0] * (np.linalg.solve(vec, gam)[:, 0])
+    return (left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * lag
 
 
 @dataclass(frozen=True)
@@ -160,18 +193,39 @@ class PlantFit:
         return np.sqrt(np.diag(self.covariance))
 
 
-def _physical(theta: np.ndarray, residues: np.ndarray, m: int, b: int, axes: list[str]) -> tuple[list[str], np.ndarray]:
+def pole_names(m: int, b: int) -> list[str]:
+    """The shared parameters' names, in the fit's order: poles, damping, amplifier, delay."""
+    return ([f"rigid{k + 1}_hz" for k in range(m)] + [f"mode{k + 1}_hz" for k in range(b)]
+            + [f"mode{k + 1}_zeta" for k in range(b)] + ["amplifier_hz", "amplifier_zeta", "delay_s"])
+
+
+def mode_names(m: int, b: int) -> list[str]:
+    return [f"rigid{k + 1}" for k in range(m)] + [f"mode{k + 1}" for k in range(b)]
+
+
+def _physical(theta: np.ndarray, lin: np.ndarray, fitted: np.ndarray, m: int, b: int,
+              axes: list[str]) -> tuple[list[str], np.ndarray]:
     """(names, values) in engineering units from the fit's parameters: the shared poles, then each
-    axis's residues (``AXIS.modeK_residue``)."""
+    response's fitted residues (``AXIS.modeK_residue``) and its residual (``AXIS.residual``), the
+    order :func:`_unpack` reads."""
     two_pi = 2 * np.pi
-    modes = [f"rigid{k + 1}" for k in range(m)] + [f"mode{k + 1}" for k in range(b)]
-    names = ([f"rigid{k + 1}_hz" for k in range(m)] + [f"mode{k + 1}_hz" for k in range(b)]
-             + [f"mode{k + 1}_zeta" for k in range(b)] + ["amplifier_hz", "amplifier_zeta", "delay_s"]
-             + [f"{axis}.{mode}_residue" for axis in axes for mode in modes])
+    modes = mode_names(m, b)
+    names = pole_names(m, b)
+    for i, axis in enumerate(axes):
+        names += [f"{axis}.{mode}_residue" for k, mode in enumerate(modes) if fitted[i, k]] + [f"{axis}.residual"]
     values = np.concatenate([np.exp(theta[:m]) / two_pi, np.exp(theta[m : m + b]) / two_pi, np.exp(theta[m + b : m + 2 * b]),
-                             [np.exp(theta[m + 2 * b]) / two_pi, theta[m + 2 * b + 1], theta[m + 2 * b + 2]],
-                             residues.ravel()])
+                             [np.exp(theta[m + 2 * b]) / two_pi, theta[m + 2 * b + 1], theta[m + 2 * b + 2]], lin])
     return names, values
+
+
+def _unpack(lin: np.ndarray, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    residues, residual, pos = np.zeros(fitted.shape), np.zeros(fitted.shape[0]), 0
+    for i in range(fitted.shape[0]):
+        k = int(fitted[i].sum())
+        residues[i, fitted[i]] = lin[pos : pos + k]
+        residual[i] = lin[pos + k]
+        pos += k + 1
+    return residues, residual
 
 
 def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], h: float, *,
@@ -189,7 +243,9 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
         Control period, s.
     rigid_hz, bending_hz : list of float
         Starting guesses: each rigid-body mode's unstable pole (Hz) and each bending mode's
-        frequency (Hz, from the measurement's resonances).
+        frequency (Hz, from the measurement's resonances); a response fits the residues of the
+        bending modes up to ``BAND_MARGIN`` times its highest trusted frequency (by these
+        guesses), and a residual compliance for those above.
     amplifier_hz, amplifier_zeta : float
         Starting guess of the amplifier's bandwidth (Hz) and damping.
     """
@@ -204,21 +260,27 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
         used |= keep
     grid = np.asarray(freq_hz, float)[used]
     where = [np.flatnonzero(keep[used]) for keep, _, _ in data]
+    fitted = np.ones((len(axes), modes), dtype=bool)
+    for i, (keep, _, _) in enumerate(data):
+        fitted[i, m:] = np.asarray(bending_hz, float) <= BAND_MARGIN * float(np.asarray(freq_hz, float)[keep].max())
     theta0 = np.concatenate([np.log(2 * np.pi * np.asarray(rigid_hz, float)), np.log(2 * np.pi * np.asarray(bending_hz, float)),
                              np.log(np.full(b, 0.01)), [np.log(2 * np.pi * amplifier_hz), amplifier_zeta, 0.0]])
 
     def solve(theta):
-        """Each axis's residues by weighted linear least squares, and the weighted residual."""
-        basis = ModalPlant.from_theta(theta, np.zeros((1, modes)), m, b, h).basis(grid)
-        res, out = [], []
-        for idx, (_, p, w) in zip(where, data):
-            rows = basis[idx] * w[:, None]
+        """Each response's linear parameters by weighted linear least squares, and the weighted residual."""
+        model = ModalPlant.from_theta(theta, np.zeros((1, modes)), m, b, h)
+        basis = model.basis(grid)
+        static = _static_basis(model.amplifier, model.delay_s, h, grid)
+        lin, out = [], []
+        for i, (idx, (_, p, w)) in enumerate(zip(where, data)):
+            cols = np.column_stack([basis[idx][:, fitted[i]], static[idx]])
+            rows = cols * w[:, None]
             rows = np.vstack([rows.real, rows.imag])
             rhs = np.concatenate([(p * w).real, (p * w).imag])
             r = np.linalg.lstsq(rows, rhs, rcond=None)[0]
-            res.append(r)
+            lin.append(r)
             out.append(rows @ r - rhs)
-        return np.array(res), np.concatenate(out)
+        return np.concatenate(lin), np.concatenate(out)
 
     # the search stays where each parameter means what its name says: a rigid-body mode's pole
     # below RIGID_MAX_HZ (above it, it would stand in for something else), a bending mode's damping
@@ -231,35 +293,44 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     upper[m + b : m + 2 * b] = np.log(0.5)
     sol = least_squares(lambda t: solve(t)[1], np.clip(theta0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper),
                         x_scale="jac", max_nfev=MAX_EVALUATIONS)
-    residues, _ = solve(sol.x)
+    lin, _ = solve(sol.x)
     n_theta = sol.x.size
 
+    def model_of(params):
+        residues, residual = _unpack(params[n_theta:], fitted)
+        return ModalPlant.from_theta(params[:n_theta], residues, m, b, h, residual)
+
     def full(params):
-        model = ModalPlant.from_theta(params[:n_theta], params[n_theta:].reshape(len(axes), modes), m, b, h)
-        resp = model.response(grid)
+        resp = model_of(params).response(grid)
         out = []
         for k, (idx, (_, p, w)) in enumerate(zip(where, data)):
             d = (resp[idx, k] - p) * w
             out += [d.real, d.imag]
         return np.concatenate(out)
 
-    # the covariance of every parameter at once (poles and residues), by the Jacobian of the full residual
-    p0 = np.concatenate([sol.x, residues.ravel()])
+    # the covariance of every parameter at once (poles, residues, residuals), by the Jacobian of the full residual
+    p0 = np.concatenate([sol.x, lin])
     res0 = full(p0)
     jac = np.empty((res0.size, p0.size))
+    # the smallest step of each: 1e-6 of the log-poles, 1e-3 of a residue (m/V/s^2, tens), 1e-12 of
+    # a residual (m/V: a compliance of 1e-7 to 1e-5)
+    floor = np.concatenate([np.full(n_theta, 1e-6)] + [np.r_[np.full(int(f.sum()), 1e-3), 1e-12] for f in fitted])
     for k in range(p0.size):
-        step = 1e-6 * max(abs(p0[k]), 1e-3 if k >= n_theta else 1e-6)
+        step = 1e-6 * max(abs(p0[k]), floor[k])
         up, down = p0.copy(), p0.copy()
         up[k] += step
         down[k] -= step
         jac[:, k] = (full(up) - full(down)) / (2 * step)
     dof = max(res0.size - p0.size, 1)
     chi2 = float(res0 @ res0) / dof
-    cov_p = np.linalg.pinv(jac.T @ jac) * max(chi2, 1.0)
+    # each column to unit norm first: a residual's (m/V, 1e-8) and a log-pole's columns differ by
+    # sixteen orders, and the pseudo-inverse would drop the small directions as if they were certain
+    norms = np.linalg.norm(jac, axis=0)
+    norms[norms == 0] = 1.0
+    cov_p = np.linalg.pinv((jac / norms).T @ (jac / norms)) / np.outer(norms, norms) * max(chi2, 1.0)
     # to engineering units: the logs' derivative is the value itself, the rest are identities
-    names, values = _physical(sol.x, residues, m, b, axes)
+    names, values = _physical(sol.x, lin, fitted, m, b, axes)
     scale = np.ones(p0.size)
     scale[: m + 2 * b + 1] = values[: m + 2 * b + 1]
     cov = cov_p * np.outer(scale, scale)
-    model = ModalPlant.from_theta(sol.x, residues, m, b, h)
-    return PlantFit(model, axes, names, values, cov, chi2, int(sum(len(i) for i in where)), bool(sol.status > 0))
+    return PlantFit(model_of(p0), axes, names, values, cov, chi2, int(sum(len(i) for i in where)), bool(sol.status > 0))

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.frf import COHERENT
-from ..analysis.plant_model import MAX_EVALUATIONS, ModalPlant, PlantFit, fit
+from ..analysis.plant_model import MAX_EVALUATIONS, ModalPlant, PlantFit, fit, mode_names, pole_names
 from ..documents.coefficients import file_sha256
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
@@ -147,9 +147,8 @@ def load_model(path: str | Path) -> FittedPlant:
         m, b = doc["rigid_modes"], doc["bending_modes"]
         if not all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 64 for x in (m, b)):
             raise ValueError("rigid_modes and bending_modes must be integers from 0 to 64")
-        want = m + 2 * b + 3 + len(axes) * (m + b)
-        if values.shape != (len(names),) or cov.shape != (values.size, values.size) or values.size != want:
-            raise ValueError(f"{values.size} values for {m} rigid and {b} bending modes in {len(axes)} responses")
+        if values.shape != (len(names),) or cov.shape != (values.size, values.size) or values.size < m + 2 * b + 3:
+            raise ValueError(f"{values.size} values for {len(names)} names, {m} rigid and {b} bending modes")
         chi2, points, speed = float(doc["chi2_reduced"]), int(doc["points"]), float(doc.get("speed_rpm", 0.0))
         source, controller = doc.get("source", {}), doc.get("controller", {})
         if not isinstance(source, dict) or not isinstance(controller, dict):
@@ -161,13 +160,32 @@ def load_model(path: str | Path) -> FittedPlant:
         raise BadInputError(f"{path}: the plant model holds a value that is not a finite number")
     if np.any(values[: m + b] <= 0) or np.any(values[m + b : m + 2 * b] < 0) or values[m + 2 * b] <= 0:
         raise BadInputError(f"{path}: the plant model's frequencies must be above 0 and its damping at least 0")
-    result = PlantFit(model_from_values(values, m, b, len(axes), h), list(axes), list(names), values, cov, chi2, points)
+    result = PlantFit(model_from_values(path, values, names, m, b, axes, h), list(axes), list(names), values, cov, chi2,
+                      points)
     return FittedPlant(result, speed, h, source, controller)
 
 
-def model_from_values(values: np.ndarray, m: int, b: int, n_axes: int, h: float) -> ModalPlant:
-    """The model from its engineering values, in :class:`PlantFit`'s order (Hz, damping, s, residues)."""
+def model_from_values(path: Path, values: np.ndarray, names: list[str], m: int, b: int, axes: list[str],
+                      h: float) -> ModalPlant:
+    """The model from its engineering values (Hz, damping, s, residues m/V/s^2, residuals m/V), each
+    placed by its name (:func:`~ambdaq.analysis.plant_model.pole_names`, ``AXIS.modeK_residue``,
+    ``AXIS.residual``); BadInputError naming one that is not the model's."""
+    poles = pole_names(m, b)
+    if list(names[: len(poles)]) != poles:
+        raise BadInputError(f"{path}: the plant model's first parameters must be {', '.join(poles)}")
+    modes = mode_names(m, b)
+    residues, residual, seen = np.zeros((len(axes), m + b)), np.zeros(len(axes)), set()
+    for name, value in zip(names[len(poles):], values[len(poles):]):
+        axis, _, what = name.rpartition(".")
+        if axis not in axes or name in seen or (what != "residual" and what.removesuffix("_residue") not in modes):
+            raise BadInputError(f"{path}: the plant model has a parameter {name!r} that is not one of its responses' "
+                                "residues or residuals (or has it twice)")
+        seen.add(name)
+        if what == "residual":
+            residual[axes.index(axis)] = value
+        else:
+            residues[axes.index(axis), modes.index(what.removesuffix("_residue"))] = value
     two_pi = 2 * np.pi
     return ModalPlant(two_pi * values[:m], np.column_stack([two_pi * values[m : m + b], values[m + b : m + 2 * b]]),
-                      values[m + 2 * b + 3 :].reshape(n_axes, m + b),
-                      (float(two_pi * values[m + 2 * b]), float(values[m + 2 * b + 1])), float(values[m + 2 * b + 2]), h)
+                      residues, (float(two_pi * values[m + 2 * b]), float(values[m + 2 * b + 1])),
+                      float(values[m + 2 * b + 2]), h, residual if any(n.endswith(".residual") for n in seen) else None)
