@@ -2,8 +2,9 @@
 with the covariance of its parameters (issue 42, item 3; the model: :mod:`ambdaq.analysis.plant_model`).
 
 Each element P_ij of the measured plant with enough trusted points (coherence 0.9 or more: at
-standstill the x and y planes do not reach each other, and those elements hold only noise) is
-fitted over them, weighted by its random error, every element with the same poles (they are the
+standstill the x and y planes do not reach each other, and those elements hold only noise; where
+they do, the rotor's gyroscopic coupling at speed, the measurement is refused: the model's modes
+are planar) is fitted over them, weighted by its random error, every element with the same poles (they are the
 rotor's) and its own residues: a diagonal element is named by its axis, another ``OUT<-IN``; the bending modes start at the measured resonances, the rigid-body modes at
 ``RIGID_START_HZ``.  The model file is sealed JSON naming the plant file it came from (path,
 SHA-256), its speed and the controller's gains the runs stated.
@@ -107,6 +108,13 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
             # a mode with a node at one axis's bearing or sensor is missing from that axis's own
             # response and not from another's: the modes are every element's resonances
             found += resonances(f, np.abs(measured.plant.response[:, i, j]), good)
+    coupled = [label for label in data if "<-" in label and _plane(label.split("<-")[0]) != _plane(label.split("<-")[1])
+               and None not in (_plane(label.split("<-")[0]), _plane(label.split("<-")[1]))]
+    if coupled:
+        raise BadInputError(
+            f"the x and y planes reach each other in this measurement ({', '.join(coupled)} trusted): the rotor's "
+            f"gyroscopic coupling at {measured.speed_rpm:g} rpm turns its modes into whirls with complex modal gains, "
+            "which this model (modes in each plane, real gains) does not have yet: fit a standstill measurement")
     modes: list[float] = []
     for hz in sorted(found):
         if not modes or hz > modes[-1] * (1 + MERGE):
@@ -122,6 +130,12 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
                             f"(at most {CHI2_LIMIT:g}){unsettled} with {len(modes)} bending modes at "
                             f"{', '.join(f'{hz:g}' for hz in modes)} Hz; no model written.{spinning}")
     return FittedPlant(result, measured.speed_rpm, h, source or {}, measured.controller)
+
+
+def _plane(axis: str) -> str | None:
+    """The plane an axis moves in, by its name (``front_x`` -> ``x``), or None."""
+    tail = axis.rsplit("_", 1)[-1]
+    return tail if tail in ("x", "y") else None
 
 
 def fit_file(path: str | Path, h: float, axes: list[str] | None = None) -> tuple[PlantMeasurement, FittedPlant]:
