@@ -30,29 +30,47 @@ for p in sys.argv[1:]:
 """
 
 
-def _warm_rigs() -> None:
-    """Compile the rigs' numba kernels (and the offline LMS's) once, two at a time, before the workers
-    start.  In a fresh clone every process that needs a kernel before its cache file exists compiles
-    it again (5 s for the spindle's): the two workers and the servers and recorders the first tests
-    start."""
+def _warm_rigs() -> list[subprocess.Popen]:
+    """Start compiling the rigs' numba kernels (and the offline LMS's) once, two at a time, before
+    the workers start; returns the processes to wait for.  In a fresh clone every process that needs
+    a kernel before its cache file exists compiles it again (5 s for the spindle's): the two workers
+    and the servers and recorders the first tests start."""
     import ambdaq
 
     if any((Path(ambdaq.__file__).parent / "sim" / "rigs" / "__pycache__").glob("spindle._simulate-*.nbi")):
-        return
-    procs = [subprocess.Popen([sys.executable, "-c", WARM, *kernels])
-             for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz", "flexible"))]
-    for p in procs:
-        p.wait()
+        return []
+    return [subprocess.Popen([sys.executable, "-c", WARM, *kernels])
+            for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz", "flexible"))]
+
+
+def _compile_environment() -> None:
+    """Compile the environment's Python files to bytecode once, on every core, before the workers
+    start (what is compiled already is skipped).  In a fresh environment the two workers and the
+    suite's hundred subprocesses would otherwise each compile what they import, at the same time:
+    74 s longer on a fresh clone here.  The packages' own tests (a third of their files, 13 of 29 s)
+    are skipped: nothing imports them."""
+    import compileall
+    import re
+    import sysconfig
+
+    import ambdaq
+
+    skip = re.compile(r"[/\\]tests?[/\\]")
+    for folder in {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"], str(Path(ambdaq.__file__).parent)}:
+        compileall.compile_dir(folder, quiet=2, workers=0, rx=skip)
 
 
 def pytest_configure(config):
     """Caches (the parsed A2L files) and the state ambdaq keeps (its push and parameter logs) go to
-    folders of this run, not the user's ~/.cache and ~/.local/state; the rigs' kernels are
-    compiled once by the controlling process (not on an xdist worker)."""
+    folders of this run, not the user's ~/.cache and ~/.local/state; the rigs' kernels and the
+    environment's bytecode are compiled once by the controlling process (not on an xdist worker)."""
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
     os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
     if not hasattr(config, "workerinput"):
-        _warm_rigs()
+        warming = _warm_rigs()
+        _compile_environment()
+        for p in warming:
+            p.wait()
 
 
 def pytest_collection_finish(session):
