@@ -30,6 +30,8 @@ from .firmware import Firmware
 from .rig_server import DeviceClock, RigServer
 
 HEARTBEAT_S = 0.005  # heartbeats are the clock-sync pairs: stamped as they leave, 200 per second
+STOP_POLL_S = 0.05  # the writer looks at its stop flag at least this often, s
+_WAKE = (None, b"")  # queued to wake the writer for an event or a time request
 
 
 class FdPort:
@@ -126,6 +128,7 @@ class SimController:
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake()
         self.server.unsubscribe(self._on_block)
         for t in self._threads:
             t.join(timeout=1.0)
@@ -153,17 +156,29 @@ class SimController:
     def _write(self, msg_type: MsgType, body: bytes) -> None:
         self.port.write(encode_frame(proto.pack(msg_type, self._next_seq(), body)))
 
+    def _wake(self) -> None:
+        """Have the writer look at the events and time requests now (a full queue: it is busy)."""
+        try:
+            self._tx.put_nowait(_WAKE)
+        except queue.Full:
+            pass
+
     def _tx_loop(self) -> None:
         """Write queued frames; every HEARTBEAT_S stamp a heartbeat with the device clock at the
-        moment it goes out, so the host can map the clock without the queueing latency."""
+        moment it goes out, so the host can map the clock without the queueing latency.  It sleeps
+        until a frame, an event or a time request comes (:meth:`_wake`) or the next heartbeat is
+        due: polling every millisecond cost the host a thousand wake-ups a second per controller."""
         # each device has its own phase and a jittered period, as independent oscillators do
         rng = random.Random(self.serial)
         next_beat = time.monotonic() + rng.uniform(0, HEARTBEAT_S)
         while not self._stop.is_set():
-            timeout = max(0.0, next_beat - time.monotonic())
+            # no heartbeat before the rig's clock runs: until then only frames and requests wake it
+            timeout = max(0.0, next_beat - time.monotonic()) if self.server.start_wall_ns else STOP_POLL_S
             try:
-                queued = self._tx.get(timeout=min(timeout, 0.001))
+                queued = self._tx.get(timeout=min(timeout, STOP_POLL_S))
             except queue.Empty:
+                queued = None
+            if queued is _WAKE:
                 queued = None
             try:
                 while True:
@@ -198,6 +213,7 @@ class SimController:
     def fault(self, code: int, severity: int, message: str) -> None:
         """Report a fault event to the host: ahead of every queued frame, never dropped."""
         self._events.put((MsgType.FAULT, proto.fault(code, severity, self.now_ns(), message)))
+        self._wake()
 
     # --- receive ----------------------------------------------------------------------------------
 
@@ -236,6 +252,7 @@ class SimController:
         if t == MsgType.TIME_REQUEST:
             (t1,) = struct.unpack_from("<q", frame.body, 0)
             self._time_requests.put((t1, received_ns))
+            self._wake()
         elif t == MsgType.IDENTIFY:
             self._send(MsgType.IDENTITY, proto.identity(self.identity()))
         elif t == MsgType.STREAM:
