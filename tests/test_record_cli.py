@@ -148,11 +148,12 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
 
 
 def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_due(tmp_path):
-    """A device at 1 kHz, paced by the wall clock, that never sends seq 700 to 1,299 (0.6 s around
-    the first part's end at 1 s) recorded in 1 s parts: each lost period is due where its seq puts
-    it between the samples around the run (evenly spaced, on the host times the files hold), and is
+    """A device at 1 kHz, paced by the wall clock, that never sends seq 300 to 1,699 (1.4 s around
+    the first part's end at 1 s: a host that holds the test off the CPU for less than 0.7 s still
+    puts the run across it) recorded in 1 s parts: each lost period is due where its seq puts it
+    between the samples around the run (evenly spaced, on the host times the files hold), and is
     counted in the part it was due in; before, the whole run went to the part of the sample that
-    ends it (the first part said it held 700 of its 1,000 periods and lost none)."""
+    ends it (the first part said it held 300 of its 1,000 periods and lost none)."""
     from ambdaq.drivers.interfaces import Source
     from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
@@ -163,7 +164,7 @@ def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_d
             return [SignalGroup("/gappy/gap", "Gap", ("x",), ("m",))]
 
         def identity(self):
-            return {"url": "gappy://", "kind": "a device that loses 0.6 s"}
+            return {"url": "gappy://", "kind": "a device that loses 1.4 s"}
 
         def device_calibration(self):
             return {}
@@ -177,7 +178,7 @@ def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_d
                 time.sleep(max(0.0, self.t0 + (self.next + n) / 1000 - time.monotonic()))
                 k = np.arange(self.next, self.next + n)
                 self.next += n
-                k = k[(k < 700) | (k >= 1300)]
+                k = k[(k < 300) | (k >= 1700)]
                 if k.size:
                     return SampleBlock(k * 1_000_000, k.astype(np.uint32), {"/gappy/gap": np.zeros((k.size, 1))})
             return None
@@ -194,13 +195,13 @@ def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_d
     # where the run lies: between the last sample before it and the first after it, whichever parts hold them
     seq = np.concatenate([d.seq for d in data]).astype(np.int64)
     t = np.concatenate([d.log_time for d in data]).astype(np.int64)
-    i = int(np.flatnonzero(seq == 699)[0])
-    assert seq[i + 1] == 1300 and len(seq) + sum(s["drops"] for s in stats) == 2500
-    a, b = int(t[i]), int(t[i + 1])  # the j-th lost period is due at a + j (b - a) / 601: compared exactly, in integers
-    due601 = [a * 601 + j * (b - a) for j in range(1, 601)]
+    i = int(np.flatnonzero(seq == 299)[0])
+    assert seq[i + 1] == 1700 and len(seq) + sum(s["drops"] for s in stats) == 2500
+    a, b = int(t[i]), int(t[i + 1])  # the j-th lost period is due at a + j (b - a) / 1401: compared exactly, in integers
+    due = [a * 1401 + j * (b - a) for j in range(1, 1401)]
     for k, (s, d) in enumerate(zip(stats, data)):
         hi = start[k + 1] if k + 1 < len(parts) else None
-        lost_here = sum(start[k] * 601 <= x and (hi is None or x < hi * 601) for x in due601)
+        lost_here = sum(start[k] * 1401 <= x and (hi is None or x < hi * 1401) for x in due)
         end_loss = s["drops"] - lost_here  # the last part also counts the periods never sent after its last sample
         assert end_loss == 0 or k == len(parts) - 1, (k, s["drops"], lost_here)
         assert len(d) == s["samples"]
