@@ -590,6 +590,60 @@ def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 
                {"largest_db": float(np.abs(d_db).max())})
 
 
+# --- the plant of a flexible rotor (issue 42) ------------------------------------------------
+
+FLEX_AXES = ("front_x", "front_y", "rear_x", "rear_y")
+
+
+def _true_plant(loop, rpm: float, freq_hz: np.ndarray) -> np.ndarray:
+    """P(e^{jwh}) of the flexible machine from the controller's output (V) to the gaps (m), (n, 4, 4)."""
+    phi, gam, _ = loop.plant(rpm)
+    cs = loop.sensor_rows()
+    eye = np.eye(phi.shape[0])
+    return np.array([cs @ np.linalg.solve(np.exp(2j * np.pi * f * loop.h) * eye - phi, gam) for f in freq_hz])
+
+
+def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) -> Row:
+    """``plant identify`` (the joint input-output estimate from one white-noise run per axis) on the
+    flexible rotor against the machine's own plant: the diagonal where the coherence is 0.9 or more,
+    its scatter about the truth against the stated random error, per axis and pooled."""
+    from ambdaq.drivers.excitation import ExcitationRequest
+    from ambdaq.machines.flexible_spindle import FlexibleLoop
+    from ambdaq.workflows.plant_identification import identify
+
+    loop = FlexibleLoop()
+    norm: dict[str, list[np.ndarray]] = {a: [] for a in FLEX_AXES}
+    rel: list[np.ndarray] = []
+    with tempfile.TemporaryDirectory() as d:
+        for seed in seeds:
+            runs = [load(_record(Path(d) / f"p{seed}{a}.mcap", seconds, seed=seed, speed=SpeedProfile(rpm, rpm),
+                                 profile="flexible", excite=ExcitationRequest(a, 2.0))) for a in FLEX_AXES]
+            m = identify(runs, resolution_hz)
+            truth = _true_plant(loop, rpm, m.freq_hz)
+            for i, a in enumerate(m.axes):
+                good = m.plant.coherence[:, i, i] >= 0.9
+                p, t, sd = m.plant.response[good, i, i], truth[good, i, i], m.plant.sigma[good, i, i]
+                norm[a].append(np.abs(p - t) / sd)
+                rel.append(np.abs(p / t - 1))
+    per_axis = {a: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for a, v in norm.items()}
+    pooled = float(np.sqrt(np.mean(np.concatenate([np.concatenate(v) for v in norm.values()]) ** 2)))
+    rel_all = np.concatenate(rel) * 100
+    holds = POOLED[0] <= pooled <= POOLED[1] and all(EACH[0] <= r <= EACH[1] for r in per_axis.values())
+    return Row("closed-loop plant P(jω) (`plant identify`, joint input-output)",
+               f"flexible rotor, {rpm:,.0f} rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz, "
+               "where the coherence is 0.9 or more",
+               "its random error (first order, per point)",
+               f"median {np.median(rel_all):.2f} % of \|P\|",
+               f"{pooled:.2f} x stated pooled; per axis {', '.join(f'{r:.2f}' for r in per_axis.values())}",
+               len(seeds), f"{seeds.start}-{seeds.stop - 1}",
+               f"sim generate --profile flexible --rpm {rpm:g} --excite AXIS:2 --duration {seconds:g} --seed S; "
+               f"plant identify --resolution {resolution_hz:g}", holds,
+               "" if holds else f"scatter / stated {pooled:.2f} pooled (0.9-1.1), per axis "
+                                f"{min(per_axis.values()):.2f}-{max(per_axis.values()):.2f} (0.7-1.4): the window's "
+                                "leakage at the lightly damped bending modes is a bias the random error does not hold",
+               {"pooled": pooled, **per_axis})
+
+
 # --- the campaign --------------------------------------------------------------------------
 
 SMALL: list[Callable[[], Row]] = [
@@ -635,6 +689,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: stability(0.0, AXES, range(1, 5)),
     lambda: stability(12000.0, AXES, range(1, 5)),
     lambda: stability(30000.0, AXES, range(1, 5)),
+    lambda: plant(0.0, range(1, 5)),
+    lambda: plant(20000.0, range(1, 5)),
 ]
 
 
