@@ -633,7 +633,7 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
                f"flexible rotor, {rpm:,.0f} rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz, "
                "where the coherence is 0.9 or more",
                "its random error (first order, per point)",
-               f"median {np.median(rel_all):.2f} % of \|P\|",
+               f"median {np.median(rel_all):.2f} % of \\|P\\|",
                f"{pooled:.2f} x stated pooled; per axis {', '.join(f'{r:.2f}' for r in per_axis.values())}",
                len(seeds), f"{seeds.start}-{seeds.stop - 1}",
                f"sim generate --profile flexible --rpm {rpm:g} --excite AXIS:2 --duration {seconds:g} --seed S; "
