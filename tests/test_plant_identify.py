@@ -16,11 +16,7 @@ AXES = ("front_x", "front_y", "rear_x", "rear_y")
 
 def true_plant(rpm: float, freq_hz: np.ndarray) -> np.ndarray:
     """P(e^{jwh}) from the controller's output (V) to the gaps (m), shape (n, 4, 4)."""
-    loop = FlexibleLoop()
-    phi, gam, _ = loop.plant(rpm)
-    cs = loop.sensor_rows()
-    eye = np.eye(phi.shape[0])
-    return np.array([cs @ np.linalg.solve(np.exp(2j * np.pi * f * loop.h) * eye - phi, gam) for f in freq_hz])
+    return FlexibleLoop().plant_response(rpm, freq_hz)
 
 
 def true_modes() -> dict:

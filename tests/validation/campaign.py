@@ -592,23 +592,12 @@ def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 
 
 # --- the plant of a flexible rotor (issue 42) ------------------------------------------------
 
-FLEX_AXES = ("front_x", "front_y", "rear_x", "rear_y")
-
-
-def _true_plant(loop, rpm: float, freq_hz: np.ndarray) -> np.ndarray:
-    """P(e^{jwh}) of the flexible machine from the controller's output (V) to the gaps (m), (n, 4, 4)."""
-    phi, gam, _ = loop.plant(rpm)
-    cs = loop.sensor_rows()
-    eye = np.eye(phi.shape[0])
-    return np.array([cs @ np.linalg.solve(np.exp(2j * np.pi * f * loop.h) * eye - phi, gam) for f in freq_hz])
-
-
 def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) -> Row:
     """``plant identify`` (the joint input-output estimate from one white-noise run per axis) on the
     flexible rotor against the machine's own plant: the diagonal where the coherence is 0.9 or more,
     its scatter about the truth against the stated random error, per axis and pooled."""
     from ambdaq.drivers.excitation import ExcitationRequest
-    from ambdaq.machines.flexible_spindle import FlexibleLoop
+    from ambdaq.machines.flexible_spindle import AXES as FLEX_AXES, FlexibleLoop
     from ambdaq.workflows.plant_identification import identify
 
     loop = FlexibleLoop()
@@ -619,7 +608,7 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
             runs = [load(_record(Path(d) / f"p{seed}{a}.mcap", seconds, seed=seed, speed=SpeedProfile(rpm, rpm),
                                  profile="flexible", excite=ExcitationRequest(a, 2.0))) for a in FLEX_AXES]
             m = identify(runs, resolution_hz)
-            truth = _true_plant(loop, rpm, m.freq_hz)
+            truth = loop.plant_response(rpm, m.freq_hz)
             for i, a in enumerate(m.axes):
                 good = m.plant.coherence[:, i, i] >= 0.9
                 p, t, sd = m.plant.response[good, i, i], truth[good, i, i], m.plant.sigma[good, i, i]

@@ -165,6 +165,14 @@ class FlexibleLoop:
         Phi, Gam = zoh(A, np.hstack([Bu, Bf]), self.h)
         return Phi, Gam[:, : len(AXES)].copy(), Gam[:, len(AXES) :].copy()
 
+    def plant_response(self, rpm: float, freq_hz: np.ndarray) -> np.ndarray:
+        """The plant the controller sees at ``rpm`` (rpm), P(e^{j w h}) from its output (V) to the
+        gaps (m) at ``freq_hz`` (Hz), shape (n, axes, axes): what ``plant identify`` measures."""
+        phi, gam, _ = self.plant(rpm)
+        cs = self.sensor_rows()
+        eye = np.eye(phi.shape[0])
+        return np.array([cs @ np.linalg.solve(np.exp(2j * np.pi * f * self.h) * eye - phi, gam) for f in freq_hz])
+
     def unbalance_modal(self) -> np.ndarray:
         """The rotor's unbalance on its modal coordinates: complex, one value per mode, so that the
         x plane's modal force is Re(U e^{j theta}) Omega^2 and the y plane's Im(U e^{j theta}) Omega^2

@@ -90,7 +90,7 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
     period ``h`` (s): each diagonal one (refused with fewer than MIN_POINTS trusted points) and each
     across axes with at least MIN_POINTS."""
     axes = axes or measured.axes
-    data, found = {}, []
+    data, found, coupled = {}, [], []
     f = measured.freq_hz
     for axis in axes:
         if axis not in measured.axes:
@@ -105,11 +105,11 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
                                         "longer or with a larger test signal")
                 continue
             data[out if i == j else f"{out}<-{inp}"] = (measured.plant.response[:, i, j], measured.plant.sigma[:, i, j], good)
+            if None not in (_plane(out), _plane(inp)) and _plane(out) != _plane(inp):
+                coupled.append(f"{out}<-{inp}")
             # a mode with a node at one axis's bearing or sensor is missing from that axis's own
             # response and not from another's: the modes are every element's resonances
             found += resonances(f, np.abs(measured.plant.response[:, i, j]), good)
-    coupled = [label for label in data if "<-" in label and _plane(label.split("<-")[0]) != _plane(label.split("<-")[1])
-               and None not in (_plane(label.split("<-")[0]), _plane(label.split("<-")[1]))]
     if coupled:
         raise BadInputError(
             f"the x and y planes reach each other in this measurement ({', '.join(coupled)} trusted): the rotor's "
