@@ -56,10 +56,11 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
     """Four runs of 4 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
     seed 5), 5 Hz: on the diagonal, where the coherence is 0.9 or more, the measured plant is the
     true one within 4 % (median; 1.5-2.5 % measured over seeds 5 and 6 at both speeds), within
-    twice its stated random error at 85 % of the points or more (90-97 % measured), and its error's
-    RMS at most 1.5 times the stated one (0.88-1.28 measured per axis: within the 0.7-1.4 issue 39
-    asks of a stated uncertainty; the excess is the Hann window's leakage at the lightly damped
-    bending modes, a bias the random error does not hold)."""
+    twice its stated random error at 90 % of the points or more (92-97 % measured at seed 5; 98 %
+    for an exactly stated circular error), and its error's RMS at most 1.4 times the stated one, the
+    per-axis bound issue 39 sets for a stated uncertainty (1.05-1.25 measured per axis at seed 5;
+    1.13-1.23 when the errors of the gap's and the controller output's responses were taken as
+    independent, which they are not: one loop's noise moves both)."""
     runs = []
     for axis in AXES:
         path = tmp_path / f"run_{axis}.mcap"
@@ -81,7 +82,7 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         p, t, s = measured.plant.response[good, i, i], truth[good, i, i], measured.plant.sigma[good, i, i]
         normalised = np.abs(p - t) / s
         assert np.median(np.abs(p / t - 1)) < 0.04, axis
-        assert np.mean(normalised < 2) >= 0.85 and np.sqrt(np.mean(normalised**2)) < 1.5, (axis, np.mean(normalised < 2))
+        assert np.mean(normalised < 2) >= 0.9 and np.sqrt(np.mean(normalised**2)) < 1.4, (axis, np.mean(normalised < 2))
     assert (tmp_path / "plant.png").stat().st_size > 10_000
 
     # item 3: the parametric model of every element, its poles shared
@@ -98,19 +99,21 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
     assert sorted(fitted["responses"]) == sorted([*AXES, "front_x<-rear_x", "rear_x<-front_x", "front_y<-rear_y",
                                                   "rear_y<-front_y"])
     assert sum(k.endswith("_hz") and k.startswith("mode") for k in got) == len(truth["bending_hz"]) == 5
-    # at 5 Hz resolution (seed 5, measured): bending modes within 0.04 % and their damping within 5 %,
-    # the rigid-body poles within 3 %, the amplifier within 1 %; the covariance states the random
-    # error only, and the Hann window's leakage at these lightly damped modes is up to six of its
-    # standard deviations (docs/tuning.md): the bounds here are the measured ones with a margin
+    # at 5 Hz resolution (seeds 1-3 and 5, measured): bending modes within 0.07 % and their damping
+    # 1 % low to 11 % high, the rigid-body poles within 5 %, the amplifier within 1 %; the covariance
+    # states the random error only, and the Hann window's leakage at these lightly damped modes
+    # (half-power bandwidth 3.9 Hz at the first, below the 5 Hz resolution) broadens them by up to ten of its
+    # standard deviations (docs/tuning.md): the bounds here are the measured ones with a margin,
+    # within the 20 % issue 42 asks of the damping
     for k, hz in enumerate(truth["bending_hz"], 1):
         assert abs(got[f"mode{k}_hz"][0] / hz - 1) < 0.001, (k, got[f"mode{k}_hz"], hz)
-        assert abs(got[f"mode{k}_zeta"][0] / 0.005 - 1) < 0.10, (k, got[f"mode{k}_zeta"])
+        assert abs(got[f"mode{k}_zeta"][0] / 0.005 - 1) < 0.15, (k, got[f"mode{k}_zeta"])
     for k, hz in enumerate(truth["rigid_hz"], 1):
         assert abs(got[f"rigid{k}_hz"][0] / hz - 1) < 0.06, (k, got[f"rigid{k}_hz"], hz)
     assert abs(got["amplifier_hz"][0] / 2500 - 1) < 0.03 and abs(got["amplifier_zeta"][0] / 0.8 - 1) < 0.03
     assert all(std > 0 for _, std in got.values())
-    # every stated residue is the rotor's own within its deviation (seed 5: RMS 1.2 deviations, 89 %
-    # within 2, the largest 3.9: the leakage bias above); a residue of a mode above an element's band
+    # every stated residue is the rotor's own within its deviation (seed 5: RMS 1.3 deviations, the
+    # largest 4.0; 1.3-1.9 and 2.9-3.7 over seeds 1-3: the leakage bias above); a residue of a mode above an element's band
     # is not stated (the rear sensor's elements are trusted to about 900 Hz: modes 3-5 are in their
     # residual; fitted, they were +6,459 and -10,098 for -0.3 and +0.7, with deviations of 0.5)
     hz, truth = true_residues()

@@ -238,7 +238,7 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     freq_hz : ndarray
         The measurement's frequencies, Hz.
     measured : dict
-        Response name -> (P (complex, m/V), its random error (m/V), trusted (bool)) over ``freq_hz``.
+        Response name -> (P (complex, m/V), the standard deviation of its complex error (m/V), trusted (bool)) over ``freq_hz``.
     h : float
         Control period, s.
     rigid_hz, bending_hz : list of float
@@ -254,7 +254,9 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     axes = list(measured)
     m, b = len(rigid_hz), len(bending_hz)
     modes = m + b
-    data = [(measured[a][2], measured[a][0][measured[a][2]], 1.0 / measured[a][1][measured[a][2]]) for a in axes]
+    # the real and imaginary parts of a response's error each have sigma / sqrt(2) (sigma the
+    # complex error's standard deviation): weighted by sqrt(2) / sigma, each residual is one unit
+    data = [(measured[a][2], measured[a][0][measured[a][2]], np.sqrt(2.0) / measured[a][1][measured[a][2]]) for a in axes]
     used = np.zeros(len(freq_hz), dtype=bool)
     for keep, _, _ in data:
         used |= keep

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..analysis.frf import COHERENT, coherent_band, h1_estimate
+from ..analysis.frf import COHERENT, H1Estimate, coherent_band, h1_estimate
 from ..documents.coefficients import file_sha256
 from ..documents.frequency_response import FrequencyResponse
 from ..daq.quality import MAX_LOST, require_complete
@@ -140,46 +140,81 @@ def excited_axis(rec: Recording, ff, given: str | None) -> str:
     return live[0]
 
 
+@dataclass(frozen=True)
+class ExcitedRun:
+    """One excited recording's H1 from its test signal to the fields of some topics.
+
+    Attributes
+    ----------
+    axis : str
+        The excited axis.
+    outputs : list of (str, str)
+        (the role or topic as asked, field) of each output, in the estimate's order.
+    estimate : H1Estimate
+        Responses (output unit per input unit), coherences and the covariance of their errors.
+    unit : str
+        The first output's unit per the input's.
+    source : dict
+        path, sha256, speed_rpm (the key-phasor's median; 0 without a rotor) and segments.
+    """
+
+    axis: str
+    outputs: list[tuple[str, str]]
+    estimate: H1Estimate
+    unit: str
+    source: dict
+
+
+def estimate_run(rec: Recording, resolution_hz: float, input_axis: str | None, input_topic: str,
+                 output_topics: list[str], max_lost: float = MAX_LOST) -> ExcitedRun:
+    """H1 from ``rec``'s excited axis to every field of ``output_topics`` (roles or topics,
+    :meth:`~ambdaq.daq.recording.Recording.signals`), all on the instants of the test signal, in
+    one estimate so that the covariance of their errors holds across topics.  A recording that lost
+    more than ``max_lost`` of its samples (a share, 0..1) is refused: a hole is a jump inside a
+    Welch segment; ``resolution_hz`` in Hz."""
+    path = rec.path
+    spinning = rec.has_role("rotor")  # base-motion rigs have no rotor topic
+    x_data, *y_topics = same_instants(
+        [rec.signals(input_topic), *(rec.signals(t) for t in output_topics),
+         *([rec.role("rotor")] if spinning else [])],
+        ["input", *output_topics, *(["rotor"] if spinning else [])], path)
+    rot = y_topics.pop() if spinning else None
+    require_complete(rec, [d.topic for d in (x_data, *y_topics)] + ([rot.topic] if spinning else []),
+                     "the frequency response", max_lost)
+    n = len(x_data)
+    axis = excited_axis(rec, x_data, input_axis)
+    outputs = [(name, a) for name, d in zip(output_topics, y_topics) for a in d.fields]
+    try:
+        est = h1_estimate(x_data[axis][:n], np.stack([d[a][:n] for d in y_topics for a in d.fields], axis=1),
+                          fs=x_data.nominal_rate, resolution_hz=resolution_hz)
+    except ValueError as err:
+        raise BadInputError(f"{path}: {err}") from None
+    if not np.all(np.isfinite(est.response)):
+        raise BadInputError(f"{path}: the input {axis} carries nothing at some frequencies (a sine, not noise?)")
+    rpm = float(np.median(rot["speed"])) * RAD_S_TO_RPM if spinning else 0.0
+    source = {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1), "segments": est.segments}
+    return ExcitedRun(axis, outputs, est, f"{next(iter(y_topics[0].units.values()))}/{x_data.units[axis]}", source)
+
+
 def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: str | None,
                        input_topic: str = FF, output_topic: str = ERROR,
                        max_lost: float = MAX_LOST) -> FrequencyResponse:
     """H1 and coherence from each recording's excited axis to every output axis (one column per
-    file); a recording that lost more than ``max_lost`` of its samples (a share, 0..1) is refused:
-    a hole is a jump inside a Welch segment.  ``input_topic`` and ``output_topic`` name a role or a
-    topic (:meth:`~ambdaq.daq.recording.Recording.signals`)."""
-    freq, columns = None, {}
+    file, :func:`estimate_run`)."""
+    freq, columns, unit = None, {}, ""
     for rec in recs:
-        path = rec.path
-        spinning = rec.has_role("rotor")  # base-motion rigs have no rotor topic
-        x_data, y_data, *rot = same_instants(
-            [rec.signals(input_topic), rec.signals(output_topic), *([rec.role("rotor")] if spinning else [])],
-            ["input", "output", "rotor"], path)
-        rot = rot[0] if rot else None
-        require_complete(rec, [x_data.topic, y_data.topic] + ([rot.topic] if spinning else []),
-                         "the frequency response", max_lost)
-        n = len(x_data)
-        axis = excited_axis(rec, x_data, input_axis)
-        x_unit, y_unit = x_data.units[axis], next(iter(y_data.units.values()))
-        if axis in columns:
-            raise BadInputError(f"{path}: {axis} was already measured in {columns[axis]['source']['path']}")
-        outputs = list(y_data.fields)
-        try:
-            est = h1_estimate(x_data[axis][:n], np.stack([y_data[a][:n] for a in outputs], axis=1),
-                              fs=x_data.nominal_rate, resolution_hz=resolution_hz)
-        except ValueError as err:
-            raise BadInputError(f"{path}: {err}") from None
-        if not np.all(np.isfinite(est.response)):
-            raise BadInputError(f"{path}: the input {axis} carries nothing at some frequencies (a sine, not noise?)")
-        if freq is not None and not np.array_equal(freq, est.freq_hz):
-            raise BadInputError(f"{path}: sample rate differs from the other recordings'")
-        freq = est.freq_hz
-        rpm = float(np.median(rot["speed"])) * RAD_S_TO_RPM if spinning else 0.0
-        columns[axis] = {
-            "source": {"path": str(path), "sha256": file_sha256(path), "speed_rpm": round(rpm, 1),
-                       "segments": est.segments},
-            "outputs": {a: (est.response[:, i], est.coherence[:, i]) for i, a in enumerate(outputs)},
+        run = estimate_run(rec, resolution_hz, input_axis, input_topic, [output_topic], max_lost)
+        if run.axis in columns:
+            raise BadInputError(f"{rec.path}: {run.axis} was already measured in {columns[run.axis]['source']['path']}")
+        if freq is not None and not np.array_equal(freq, run.estimate.freq_hz):
+            raise BadInputError(f"{rec.path}: sample rate differs from the other recordings'")
+        freq, unit = run.estimate.freq_hz, run.unit
+        columns[run.axis] = {
+            "source": run.source,
+            "outputs": {a: (run.estimate.response[:, i], run.estimate.coherence[:, i])
+                        for i, (_, a) in enumerate(run.outputs)},
         }
-    return FrequencyResponse(freq, columns, input_topic, output_topic, f"{y_unit}/{x_unit}")
+    return FrequencyResponse(freq, columns, input_topic, output_topic, unit)
 
 
 def summarize(frf: FrequencyResponse) -> dict:
@@ -199,4 +234,4 @@ def summarize(frf: FrequencyResponse) -> dict:
     return out
 
 
-__all__ = ["COHERENT", "Excited", "estimate_responses", "excite", "excited_axis", "excited_device", "summarize"]
+__all__ = ["COHERENT", "Excited", "ExcitedRun", "estimate_responses", "estimate_run", "excite", "excited_axis", "excited_device", "summarize"]

@@ -3,7 +3,7 @@ item 2), from one excited run per axis (the runs ``iso stability`` records: whit
 sensor summing point).
 
 Per run, the H1 responses from the test signal to the gap, to the controller's output and to
-the command error (:func:`~ambdaq.workflows.frf.estimate_responses`); over the excited axes, the
+the command error in one estimate (:func:`~ambdaq.workflows.frf.estimate_run`); over the excited axes, the
 plant by the joint input-output estimator (:mod:`ambdaq.analysis.closed_loop`: unbiased by the
 feedback, and independent of the controller), with its random error; per axis, the sensitivity
 S = -e/r and the complementary sensitivity T = 1 - S.  The plant file is sealed JSON with every
@@ -24,7 +24,7 @@ from ..daq.recording import Recording
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
 from ..roles import CONTROL, ERROR, FF, GAP
-from .frf import estimate_responses
+from .frf import estimate_run
 
 FORMAT, VERSION = "ambdaq-plant-frf", 1
 SPEED_TOLERANCE = 0.01  # the runs of one plant ran within 1 % (and 20 rpm) of each other
@@ -155,28 +155,43 @@ def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float
         if CONTROL not in rec:
             raise BadInputError(f"{rec.path}: no controller output ({CONTROL}): the plant is measured from what the "
                                 "controller sent to the amplifiers, which this controller does not stream")
-    gap = estimate_responses(recs, resolution_hz, None, FF, GAP, max_lost)
-    ctl = estimate_responses(recs, resolution_hz, None, FF, CONTROL, max_lost)
-    err = estimate_responses(recs, resolution_hz, None, FF, ERROR, max_lost)
-    axes = list(gap.columns)
-    speeds = [gap.columns[a]["source"]["speed_rpm"] for a in axes]
+    runs = [estimate_run(rec, resolution_hz, None, FF, [GAP, CONTROL, ERROR], max_lost) for rec in recs]
+    axes = [run.axis for run in runs]
+    for j, run in enumerate(runs):
+        if run.axis in axes[:j]:
+            raise BadInputError(f"{run.source['path']}: {run.axis} was already measured in {runs[axes.index(run.axis)].source['path']}")
+        if not np.array_equal(run.estimate.freq_hz, runs[0].estimate.freq_hz):
+            raise BadInputError(f"{run.source['path']}: sample rate differs from the other recordings'")
+    speeds = [run.source["speed_rpm"] for run in runs]
     median = float(np.median(speeds))
     if any(abs(s - median) > max(SPEED_TOLERANCE * median, SPEED_FLOOR_RPM) for s in speeds):
         raise BadInputError("the runs ran at different speeds (" + ", ".join(f"{a} {s:,.0f} rpm" for a, s in
                                                                               zip(axes, speeds)) + "): one plant is one speed")
+    # each run's outputs in the order gaps, controller outputs, command errors, each in ``axes``' order
+    order = []
+    for role in (GAP, CONTROL, ERROR):
+        for a in axes:
+            try:
+                order.append([run.outputs.index((role, a)) for run in runs])
+            except ValueError:
+                raise BadInputError(f"the {role} has no field {a}: the plant is measured between the same axes at the "
+                                    "gaps, the controller's outputs and the command errors") from None
+    order = np.array(order)  # (3 axes, runs)
+    k = len(axes)
 
-    def matrix(frf, what):
-        return np.stack([np.stack([frf.response(o, i)[what] for i in axes], axis=-1) for o in axes], axis=1)
+    def matrix(what, block):  # (n, outputs, runs) of one role
+        return np.stack([getattr(run.estimate, what)[:, order[block * k : (block + 1) * k, j]]
+                         for j, run in enumerate(runs)], axis=-1)
 
-    segments = np.array([gap.columns[a]["source"]["segments"] for a in axes])
+    error = np.stack([run.estimate.error[:, order[: 2 * k, j]][:, :, order[: 2 * k, j]] for j, run in enumerate(runs)])
     try:
-        plant = joint_input_output(matrix(gap, 0), matrix(ctl, 0), matrix(gap, 1), matrix(ctl, 1), segments,
-                                   gap.freq_hz)
+        plant = joint_input_output(matrix("response", 0), matrix("response", 1), matrix("coherence", 0),
+                                   matrix("coherence", 1), error, runs[0].estimate.freq_hz)
     except ValueError as err_:
         raise BadInputError(f"the plant cannot be solved: {err_}") from None
-    sens = -np.stack([err.response(a, a)[0] for a in axes], axis=1)
-    sens_coh = np.stack([err.response(a, a)[1] for a in axes], axis=1)
-    sources = [{**gap.columns[a]["source"], "excited": a} for a in axes]
+    sens = -np.stack([run.estimate.response[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
+    sens_coh = np.stack([run.estimate.coherence[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
+    sources = [{**run.source, "excited": run.axis} for run in runs]
     return PlantMeasurement(axes, plant, sens, sens_coh, median, sources, _controller_gains(recs[0]))
 
 
