@@ -2,6 +2,7 @@
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,7 +10,9 @@ import pytest
 from ambdaq.daq import load
 from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.acquisition.recorder import Progress, Recorder, RecordOptions, print_progress
+from ambdaq.drivers.interfaces import Source
 from ambdaq.drivers.registry import open_url
+from ambdaq.drivers.signals import SampleBlock, SignalGroup
 
 pytestmark = pytest.mark.realtime  # devices run in real time (pyproject.toml: each written to hold beside another test)
 
@@ -147,6 +150,51 @@ def test_split_of_a_live_rig_puts_every_sample_in_its_own_second(tmp_path, run_c
         assert len(seq) + lost == round(3.5 * load(parts[0])[topic].nominal_rate), topic
 
 
+class _Paced(Source):
+    """A device at 1 kHz paced by the wall clock, in blocks of 20, that sends the seqs ``keep``
+    accepts and stops (done, as asked) before seq ``stop`` (default: all it was asked for)."""
+
+    sample_rate = 1000.0
+
+    def __init__(self, name: str, keep=lambda k: k >= 0, stop: int | None = None) -> None:
+        self.name, self.keep, self.stop = name, keep, stop
+
+    def signal_groups(self):
+        return [SignalGroup(f"/{self.name}/gap", "Gap", ("x",), ("m",))]
+
+    def identity(self):
+        return {"url": f"{self.name}://", "kind": "a paced test device"}
+
+    def device_calibration(self):
+        return {}
+
+    def start(self, n_samples):
+        self.end, self.next, self.t0 = min(n_samples, self.stop or n_samples), 0, time.monotonic()
+
+    def read(self):
+        while self.next < self.end:
+            n = min(20, self.end - self.next)
+            time.sleep(max(0.0, self.t0 + (self.next + n) / 1000 - time.monotonic()))
+            k = np.arange(self.next, self.next + n)
+            self.next += n
+            k = k[self.keep(k)]
+            if k.size:
+                return SampleBlock(k * 1_000_000, k.astype(np.uint32), {f"/{self.name}/gap": np.zeros((k.size, 1))})
+        return None
+
+    def _close(self):
+        self.end = self.next
+
+
+def _lost_where_due(parts: list[Path], a: int, b: int, lost: int) -> list[int]:
+    """Per part, how many of ``lost`` periods evenly spaced between host times ``a`` and ``b``
+    (the j-th due at a + j (b - a) / (lost + 1), compared exactly, in integers) fall in its span."""
+    start = [int(McapFile(p).metadata()["ambdaq.part"]["start_ns"]) for p in parts]
+    due = [a * (lost + 1) + j * (b - a) for j in range(1, lost + 1)]
+    return [sum(start[k] * (lost + 1) <= x and (k + 1 == len(parts) or x < start[k + 1] * (lost + 1)) for x in due)
+            for k in range(len(parts))]
+
+
 def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_due(tmp_path):
     """A device at 1 kHz, paced by the wall clock, that never sends seq 300 to 1,699 (1.4 s around
     the first part's end at 1 s: a host that holds the test off the CPU for less than 0.7 s still
@@ -154,59 +202,45 @@ def test_a_run_of_losses_across_a_parts_start_is_counted_where_each_period_was_d
     between the samples around the run (evenly spaced, on the host times the files hold), and is
     counted in the part it was due in; before, the whole run went to the part of the sample that
     ends it (the first part said it held 300 of its 1,000 periods and lost none)."""
-    from ambdaq.drivers.interfaces import Source
-    from ambdaq.drivers.signals import SampleBlock, SignalGroup
-
-    class Gappy(Source):
-        name, sample_rate = "gappy", 1000.0
-
-        def signal_groups(self):
-            return [SignalGroup("/gappy/gap", "Gap", ("x",), ("m",))]
-
-        def identity(self):
-            return {"url": "gappy://", "kind": "a device that loses 1.4 s"}
-
-        def device_calibration(self):
-            return {}
-
-        def start(self, n_samples):
-            self.end, self.next, self.t0 = n_samples, 0, time.monotonic()
-
-        def read(self):
-            while self.next < self.end:
-                n = min(20, self.end - self.next)
-                time.sleep(max(0.0, self.t0 + (self.next + n) / 1000 - time.monotonic()))
-                k = np.arange(self.next, self.next + n)
-                self.next += n
-                k = k[(k < 300) | (k >= 1700)]
-                if k.size:
-                    return SampleBlock(k * 1_000_000, k.astype(np.uint32), {"/gappy/gap": np.zeros((k.size, 1))})
-            return None
-
-        def _close(self):
-            self.end = self.next
-
     out = tmp_path / "g.mcap"
-    Recorder([Gappy()], out, RecordOptions(duration_s=2.5, split_duration_s=1.0)).run()
+    Recorder([_Paced("gappy", lambda k: (k < 300) | (k >= 1700))], out,
+             RecordOptions(duration_s=2.5, split_duration_s=1.0)).run()
     parts = sorted(tmp_path.glob("g_*.mcap"))
     stats = [json.loads(McapFile(p).metadata()["ambdaq.statistics"]["/gappy/gap"]) for p in parts]
     data = [load(p)["/gappy/gap"] for p in parts]
-    start = [int(McapFile(p).metadata()["ambdaq.part"]["start_ns"]) for p in parts]
     # where the run lies: between the last sample before it and the first after it, whichever parts hold them
     seq = np.concatenate([d.seq for d in data]).astype(np.int64)
     t = np.concatenate([d.log_time for d in data]).astype(np.int64)
     i = int(np.flatnonzero(seq == 299)[0])
     assert seq[i + 1] == 1700 and len(seq) + sum(s["drops"] for s in stats) == 2500
-    a, b = int(t[i]), int(t[i + 1])  # the j-th lost period is due at a + j (b - a) / 1401: compared exactly, in integers
-    due = [a * 1401 + j * (b - a) for j in range(1, 1401)]
+    lost_here = _lost_where_due(parts, int(t[i]), int(t[i + 1]), 1400)
     for k, (s, d) in enumerate(zip(stats, data)):
-        hi = start[k + 1] if k + 1 < len(parts) else None
-        lost_here = sum(start[k] * 1401 <= x and (hi is None or x < hi * 1401) for x in due)
-        end_loss = s["drops"] - lost_here  # the last part also counts the periods never sent after its last sample
+        end_loss = s["drops"] - lost_here[k]  # the last part also counts the periods never sent after its last sample
         assert end_loss == 0 or k == len(parts) - 1, (k, s["drops"], lost_here)
         assert len(d) == s["samples"]
     # the run crosses the first part's end: both parts count some of it
     assert stats[0]["drops"] > 0 and stats[1]["drops"] > 0, stats
+
+
+def test_the_periods_a_device_never_sent_after_it_ended_are_counted_where_each_was_due(tmp_path):
+    """Recorded for 2.5 s in 1 s parts beside a device that sends all its samples, a device that
+    ends after 1.2 s (its seq 1,199: a finite source done, as asked) never sent 1,300 periods: the
+    j-th was due at its last sample's host time + j ms, and each is counted in the part it was due
+    in, the parts that open after the device ended included (before, all went to the part of its
+    last sample: the second part said it lost 1,300 of 1,000 periods and the third none)."""
+    out = tmp_path / "q.mcap"
+    Recorder([_Paced("quitter", stop=1200), _Paced("steady")], out,
+             RecordOptions(duration_s=2.5, split_duration_s=1.0)).run()
+    parts = sorted(tmp_path.glob("q_*.mcap"))
+    assert len(parts) == 3
+    stats = [json.loads(McapFile(p).metadata()["ambdaq.statistics"]["/quitter/gap"]) for p in parts]
+    last = int(np.concatenate([load(p)["/quitter/gap"].log_time for p in parts])[-1])
+    # the j-th of 1,300 is due at last + j * 1e6 ns: evenly spaced between last and last + 1,301 ms
+    expected = _lost_where_due(parts, last, last + 1_301_000_000, 1300)
+    assert [s["drops"] for s in stats] == expected and expected[2] > 0, (stats, expected)
+    assert sum(s["samples"] for s in stats) == 1200
+    steady = [json.loads(McapFile(p).metadata()["ambdaq.statistics"]["/steady/gap"]) for p in parts]
+    assert sum(s["samples"] for s in steady) == 2500 and not any(s["drops"] for s in steady)
 
 
 def test_split_by_size(tmp_path, run_cli):

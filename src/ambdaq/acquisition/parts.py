@@ -47,6 +47,22 @@ class _Part:
     end_ns: int | None  # None: the newest part, open-ended until a split decides its end
 
 
+@dataclass
+class _Tail:
+    """The ``missing`` periods a device never sent after its last sample at host time ``last_ns``,
+    one every ``period_ns``; ``counted`` of them already in a part."""
+
+    last_ns: int
+    period_ns: float
+    missing: int
+    counted: int = 0
+
+    def due_before(self, t_ns: int) -> int:
+        """How many of those not yet counted are due before host time ``t_ns``."""
+        j = -(-(t_ns - self.last_ns) // self.period_ns) - 1  # the largest j with last + j period < t
+        return int(min(max(j, 0), self.missing)) - self.counted if j > self.counted else 0
+
+
 class FileParts(Sink):
     """Writes the judged samples and the events into the recording's file or parts.
 
@@ -73,6 +89,7 @@ class FileParts(Sink):
         self._parts: list[_Part] = []
         self._ended: set[str] = set()
         self._last: dict[str, int] = {}  # host time of each device's last sample handed to a part, ns
+        self._tails: dict[str, _Tail] = {}  # periods an ended device never sent, not yet counted in a part
         self._last_flush = 0.0
 
     @property
@@ -92,6 +109,7 @@ class FileParts(Sink):
 
     def start(self, acquisition: Acquisition) -> None:
         self.acq = acquisition
+        self._rates = {s.name: s.sample_rate for s in acquisition.sources}
         self._last_flush = acquisition.t0
         self._open(acquisition.start_ns)
 
@@ -118,6 +136,8 @@ class FileParts(Sink):
             pos = end
         if n:
             self._last[device] = int(t[-1])
+        if self._tails:
+            self._count_tails()
         self._close_finished()
 
     def _lost_before(self, device: str, part: _Part, lost: int, prev_ns: int | None, now_ns: int) -> int:
@@ -147,12 +167,32 @@ class FileParts(Sink):
         self._part_for(t_ns).writer.write_event(event.topic, device, t_ns, event)
 
     def device_ended(self, device: str, missing: int) -> None:
-        """The periods ``device`` never sent are drops of the part its last sample is in."""
+        """The ``missing`` periods ``device`` never sent after its last sample are drops of the parts
+        they were due in: the j-th at last + j / rate on the host clock (a device with no sample
+        kept, or no rate, has them all in the part the recording starts in)."""
         if missing:
-            last = self.acq.last_time(device)
-            self._part_for(last if last is not None else self.acq.start_ns).writer.lost_at_end(device, missing)
+            last, rate = self.acq.last_time(device), self._rates.get(device)
+            if last is None or not rate:
+                self._parts[0].writer.lost_at_end(device, missing)
+            else:
+                self._tails[device] = _Tail(last, 1e9 / rate, missing)
+                self._count_tails()
         self._ended.add(device)
         self._close_finished()
+
+    def _count_tails(self) -> None:
+        """Each ended device's missing periods due in a part whose end is known are counted there;
+        the rest wait for the parts still to come (or, at the close, go to the last part)."""
+        for device, tail in list(self._tails.items()):
+            for part in self._parts:
+                if part.end_ns is None:
+                    break
+                k = tail.due_before(part.end_ns)
+                if k:
+                    part.writer.lost_at_end(device, k)
+                    tail.counted += k
+            if tail.counted == tail.missing:
+                del self._tails[device]
 
     def tick(self, now: float) -> None:
         if now - self._last_flush >= self.flush_interval_s:
@@ -161,6 +201,9 @@ class FileParts(Sink):
             self._last_flush = now
 
     def close(self) -> None:
+        for device, tail in self._tails.items():  # due after the last part's start: the recording ended there
+            self._parts[-1].writer.lost_at_end(device, tail.missing - tail.counted)
+        self._tails.clear()
         for part in self._parts:
             self._finish(part)
         self._parts.clear()
