@@ -632,6 +632,56 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
                {"pooled": pooled, **per_axis})
 
 
+def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) -> Row:
+    """``plant fit`` (the modal model, its poles shared by every element) of the flexible rotor at
+    standstill against the machine's own poles: each bending mode's frequency and damping and each
+    rigid-body pole, their errors against the stated standard deviations; issue 42 asks the 95 %
+    intervals to cover the truth in 90 % of runs."""
+    from ambdaq.drivers.excitation import ExcitationRequest
+    from ambdaq.machines.flexible_spindle import AXES as FLEX_AXES, FLEXIBLE, FlexibleLoop
+    from ambdaq.workflows.plant_fit import fit_measurement
+    from ambdaq.workflows.plant_identification import identify
+
+    poles = FlexibleLoop().plant_poles(0.0)
+    # each pole twice at standstill (the x and the y plane): one of each
+    rigid = sorted({round(p.real / (2 * np.pi), 6) for p in poles if abs(p.imag) < 1e-6 and p.real > 0})
+    bend = sorted({(round(abs(p) / (2 * np.pi), 6), round(-p.real / abs(p), 9)) for p in poles
+                   if p.imag > 0 and -p.real / abs(p) < 0.1 and abs(p) / (2 * np.pi) < 4000})
+    z: dict[str, list[float]] = {"frequency": [], "damping": [], "rigid": []}
+    rel: dict[str, list[float]] = {"frequency": [], "damping": [], "rigid": []}
+    with tempfile.TemporaryDirectory() as d:
+        for seed in seeds:
+            runs = [load(_record(Path(d) / f"m{seed}{a}.mcap", seconds, seed=seed, speed=SpeedProfile(0.0, 0.0),
+                                 profile="flexible", excite=ExcitationRequest(a, 2.0))) for a in FLEX_AXES]
+            fitted = fit_measurement(identify(runs, resolution_hz), 1.0 / FLEXIBLE.sample_rate)
+            got = {n: (v, s) for n, v, s in zip(fitted.fit.names, fitted.fit.values, fitted.fit.std)}
+            for k, (hz, zeta) in enumerate(bend, 1):
+                for what, name, truth in (("frequency", f"mode{k}_hz", hz), ("damping", f"mode{k}_zeta", zeta)):
+                    value, std = got[name]
+                    z[what].append((value - truth) / std)
+                    rel[what].append(value / truth - 1)
+            for k, hz in enumerate(rigid, 1):
+                value, std = got[f"rigid{k}_hz"]
+                z["rigid"].append((value - hz) / std)
+                rel["rigid"].append(value / hz - 1)
+    cover = {k: float(np.mean(np.abs(v) <= 1.96)) for k, v in z.items()}
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in z.items()}
+    holds = all(c >= 0.9 for c in cover.values())
+    return Row("modal model of the plant (`plant fit`): bending modes, their damping, rigid-body poles",
+               f"flexible rotor, 0 rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz",
+               "1σ per parameter (its covariance)",
+               "median " + ", ".join(f"{k} {np.median(v) * 100:+.2f} %" for k, v in rel.items()),
+               "error / stated RMS " + ", ".join(f"{k} {rms[k]:.1f}" for k in z) + "; 95 % intervals cover "
+               + ", ".join(f"{k} {cover[k] * 100:.0f} %" for k in z),
+               len(seeds), f"{seeds.start}-{seeds.stop - 1}",
+               f"sim generate --profile flexible --rpm 0 --excite AXIS:2 --duration {seconds:g} --seed S; "
+               f"plant identify --resolution {resolution_hz:g}; plant fit", holds,
+               "" if holds else "the intervals hold the noise only: the window's leakage at the lightly damped "
+                                "bending modes broadens them (damping high by the median above), a bias issue 42's "
+                                "90 % coverage needs modelled or a periodic excitation measured without a window",
+               {**{f"cover_{k}": v for k, v in cover.items()}, **{f"rms_{k}": v for k, v in rms.items()}})
+
+
 # --- the campaign --------------------------------------------------------------------------
 
 SMALL: list[Callable[[], Row]] = [
@@ -679,6 +729,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: stability(30000.0, AXES, range(1, 5)),
     lambda: plant(0.0, range(1, 9)),
     lambda: plant(20000.0, range(1, 9)),
+    lambda: plant_model(range(1, 9)),
+    lambda: plant_model(range(1, 5), seconds=10.0, resolution_hz=2.5),
 ]
 
 

@@ -93,7 +93,7 @@ def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
     """
     import numpy as np
 
-    from ..workflows.plant_fit import fit_file
+    from ..workflows.plant_fit import STD_HOLDS, fit_file
 
     out = Path(output)
     if out.exists() and not overwrite:
@@ -114,4 +114,5 @@ def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
         click.echo(f"{', '.join(f.axes)}: {f.points} points, reduced chi-square {f.chi2_reduced:.2f}")
         for row in fitted.rows():
             click.echo(f"  {row['parameter']:<26} {row['value']:12.5g} +- {row['std']:.3g}")
+        click.echo(f"warning: the deviations (+-) hold {STD_HOLDS}", err=True)
     click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)

@@ -165,6 +165,12 @@ class FlexibleLoop:
         Phi, Gam = zoh(A, np.hstack([Bu, Bf]), self.h)
         return Phi, Gam[:, : len(AXES)].copy(), Gam[:, len(AXES) :].copy()
 
+    def plant_poles(self, rpm: float) -> np.ndarray:
+        """The open-loop poles of the rotor on its magnets with the amplifiers at ``rpm`` (rpm), in
+        rad/s: what a model fitted to the plant should find (the rigid-body modes' unstable pairs,
+        the bending modes, the amplifiers')."""
+        return np.linalg.eigvals(self._continuous(rpm)[0])
+
     def plant_response(self, rpm: float, freq_hz: np.ndarray) -> np.ndarray:
         """The plant the controller sees at ``rpm`` (rpm), P(e^{j w h}) from its output (V) to the
         gaps (m) at ``freq_hz`` (Hz), shape (n, axes, axes): what ``plant identify`` measures."""

@@ -25,6 +25,11 @@ from ..errors import BadInputError
 from .plant_identification import PlantMeasurement, load_measurement, resonances
 
 FORMAT, VERSION = "ambdaq-plant-model", 1
+STD_HOLDS = ("the measurement's noise only, not the window's leakage, which biases the bending modes' damping high "
+             "and moves their frequencies and the rigid-body poles by more than the noise does: the 95 % intervals "
+             "do not hold the truth as often as they say (docs/validation.md measures how often); measure longer, at a "
+             "finer resolution, where a mode's damping matters")
+"""What the parameters' standard deviations hold (``plant fit`` says it beside them)."""
 RIGID_START_HZ = (50.0, 90.0)
 """Where the fit starts the rigid-body modes' unstable poles, Hz: sqrt(k_neg / m) of an AMB rotor is
 tens of hertz (the flexible rotor's are 61 and 83 Hz)."""
@@ -63,7 +68,7 @@ class FittedPlant:
         """What ``plant fit --json`` prints."""
         f = self.fit
         return {"speed_rpm": self.speed_rpm, "source": self.source, "responses": f.axes,
-                "chi2_reduced": round(f.chi2_reduced, 3), "points": f.points,
+                "chi2_reduced": round(f.chi2_reduced, 3), "points": f.points, "std_holds": STD_HOLDS,
                 "parameters": {n: {"value": float(f"{v:.6g}"), "std": float(f"{s:.3g}")}
                                for n, v, s in zip(f.names, f.values, f.std)}}
 
