@@ -676,9 +676,11 @@ def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) 
                len(seeds), f"{seeds.start}-{seeds.stop - 1}",
                f"sim generate --profile flexible --rpm 0 --excite AXIS:2 --duration {seconds:g} --seed S; "
                f"plant identify --resolution {resolution_hz:g}; plant fit", holds,
-               "" if holds else "the intervals hold the noise only: the window's leakage at the lightly damped "
-                                "bending modes broadens them (damping high by the median above), a bias issue 42's "
-                                "90 % coverage needs modelled or a periodic excitation measured without a window",
+               "" if holds else "the intervals hold the noise only: the damping is biased high (the window's "
+                                "leakage broadens the lightly damped bending modes; less at the finer resolution) "
+                                "and the frequencies and rigid-body poles are off by more than the noise, a bias "
+                                "whose cause is not yet measured; issue 42's 90 % coverage needs both modelled or "
+                                "a periodic excitation measured without a window",
                {**{f"cover_{k}": v for k, v in cover.items()}, **{f"rms_{k}": v for k, v in rms.items()}})
 
 

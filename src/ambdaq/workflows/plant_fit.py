@@ -25,10 +25,10 @@ from ..errors import BadInputError
 from .plant_identification import PlantMeasurement, load_measurement, resonances
 
 FORMAT, VERSION = "ambdaq-plant-model", 1
-STD_HOLDS = ("the measurement's noise only, not the window's leakage, which biases the bending modes' damping high "
-             "and moves their frequencies and the rigid-body poles by more than the noise does: the 95 % intervals "
-             "do not hold the truth as often as they say (docs/validation.md measures how often); measure longer, at a "
-             "finer resolution, where a mode's damping matters")
+STD_HOLDS = ("the measurement's noise only, not its biases: the window's leakage biases the bending modes' damping "
+             "high, and their frequencies and the rigid-body poles are off by more than the noise moves them; the 95 % "
+             "intervals do not hold the truth as often as they say (docs/validation.md measures how often); measure "
+             "longer, at a finer resolution, where a mode's damping matters")
 """What the parameters' standard deviations hold (``plant fit`` says it beside them)."""
 RIGID_START_HZ = (50.0, 90.0)
 """Where the fit starts the rigid-body modes' unstable poles, Hz: sqrt(k_neg / m) of an AMB rotor is
