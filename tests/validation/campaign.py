@@ -678,8 +678,9 @@ def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) 
                f"plant identify --resolution {resolution_hz:g}; plant fit", holds,
                "" if holds else "the intervals hold the noise only: the damping is biased high (the window's "
                                 "leakage broadens the lightly damped bending modes; less at the finer resolution) "
-                                "and the frequencies and rigid-body poles are off by more than the noise, a bias "
-                                "whose cause is not yet measured; issue 42's 90 % coverage needs both modelled or "
+                                "and the frequencies and rigid-body poles are off by more than the noise, biases "
+                                "of the measured P (the model fitted to the true plant returns its poles: "
+                                "tests/test_plant_identify.py); issue 42's 90 % coverage needs them modelled or "
                                 "a periodic excitation measured without a window",
                {**{f"cover_{k}": v for k, v in cover.items()}, **{f"rms_{k}": v for k, v in rms.items()}})
 

@@ -279,7 +279,11 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
             rows = cols * w[:, None]
             rows = np.vstack([rows.real, rows.imag])
             rhs = np.concatenate([(p * w).real, (p * w).imag])
-            r = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+            # columns to unit norm first: a residual compliance's column (m/V) and a residue's
+            # (m/V/s^2) differ by eight orders, and lstsq's cut-off dropped the small one's direction
+            norm = np.linalg.norm(rows, axis=0)
+            norm[norm == 0] = 1.0
+            r = np.linalg.lstsq(rows / norm, rhs, rcond=None)[0] / norm
             lin.append(r)
             out.append(rows @ r - rhs)
         return np.concatenate(lin), np.concatenate(out)
