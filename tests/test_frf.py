@@ -157,3 +157,27 @@ def test_measure_through_the_served_controller(tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_an_output_that_stays_at_zero_is_explained_by_nothing():
+    """A channel that stays at zero (an axis without power, a disconnected output) has coherence 0,
+    never trusted, and no warning of a division by zero; the other outputs of the estimate are
+    those of their own estimate, its error covariance zero on the silent channel."""
+    import warnings
+
+    from ambdaq.analysis.frf import h1_estimate
+
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(20_000)
+    y = np.stack([0.5 * np.roll(x, 1) + 0.1 * rng.standard_normal(x.size), np.zeros(x.size)], axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        both = h1_estimate(x, y, fs=10_000.0, resolution_hz=10.0)
+    alone = h1_estimate(x, y[:, 0], fs=10_000.0, resolution_hz=10.0)
+    assert np.all(both.coherence[:, 1] == 0) and np.all(both.response[:, 1] == 0)
+    assert np.all(both.error[:, 1, :] == 0) and np.all(both.error[:, :, 1] == 0)
+    # the same sums in another order (the transforms and products over two channels, not one):
+    # equal within 1e-12, rounding's scale
+    assert np.allclose(both.response[:, 0], alone.response[:, 0], rtol=1e-12, atol=0)
+    assert np.allclose(both.coherence[:, 0], alone.coherence[:, 0], rtol=1e-12, atol=0)
+    assert np.median(both.coherence[:, 0]) > 0.9

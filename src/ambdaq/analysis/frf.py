@@ -94,7 +94,10 @@ def h1_estimate(x: np.ndarray, y: np.ndarray, *, fs: float, resolution_hz: float
     sxy = np.einsum("kf,kfo->fo", xs.conj(), ys)
     syy = np.sum(np.abs(ys) ** 2, axis=0)
     h = sxy / sxx[:, None]
-    coh = np.abs(sxy) ** 2 / (sxx[:, None] * syy)
+    # an output with no power at a frequency (a channel that stays at zero) is explained by nothing:
+    # coherence 0, never trusted, rather than 0/0
+    power = sxx[:, None] * syy
+    coh = np.divide(np.abs(sxy) ** 2, power, out=np.zeros_like(power), where=power > 0)
     # the error of H1 is sum_k V_k X_k* / sum_k |X_k|^2, V the output the input does not explain
     # (Bendat & Piersol, Random Data, section 9.2.3); its covariance across outputs is the residuals'
     # cross-spectral matrix over sum |X_k|^2, the residuals losing one degree of freedom to H, and
