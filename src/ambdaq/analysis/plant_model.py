@@ -230,7 +230,7 @@ def _unpack(lin: np.ndarray, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], h: float, *,
         rigid_hz: list[float], bending_hz: list[float], amplifier_hz: float = 2000.0,
-        amplifier_zeta: float = 0.7) -> PlantFit:
+        amplifier_zeta: float = 0.7, neighbour_correlation: float = 0.0) -> PlantFit:
     """Fit the model to one or more measured responses (elements of one rotor's plant), their poles shared.
 
     Parameters
@@ -248,6 +248,10 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
         guesses), and a residual compliance for those above.
     amplifier_hz, amplifier_zeta : float
         Starting guess of the amplifier's bandwidth (Hz) and damping.
+    neighbour_correlation : float
+        The correlation of a response's errors at neighbouring frequencies (the estimate's
+        window spreads each frequency's noise over its neighbours: 4/9 for a Hann-windowed H1,
+        :data:`~ambdaq.analysis.frf.NEIGHBOUR_CORRELATION`); the covariance holds it.
     """
     from scipy.optimize import least_squares
 
@@ -333,7 +337,23 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     # sixteen orders, and the pseudo-inverse would drop the small directions as if they were certain
     norms = np.linalg.norm(jac, axis=0)
     norms[norms == 0] = 1.0
-    cov_p = np.linalg.pinv((jac / norms).T @ (jac / norms)) / np.outer(norms, norms) * max(chi2, 1.0)
+    jn = jac / norms
+    inv = np.linalg.pinv(jn.T @ jn)
+    # the points' errors are not independent: neighbouring frequencies of one response share a
+    # part of their noise (correlation rho), so the covariance is the sandwich
+    # A^-1 J^T R J A^-1 (R: 1 on the diagonal, rho between neighbours), not A^-1
+    # (Seber & Wild, Nonlinear Regression, section 2.1.4)
+    middle = jn.T @ jn
+    if neighbour_correlation:
+        first = np.flatnonzero(used)  # each fitted point's index on the measurement's frequency grid
+        row = 0
+        for idx in where:
+            adjacent = np.flatnonzero(np.diff(first[idx]) == 1)
+            for part in (row, row + len(idx)):  # the real parts, then the imaginary ones
+                here, next_ = jn[part + adjacent], jn[part + adjacent + 1]
+                middle += neighbour_correlation * (here.T @ next_ + next_.T @ here)
+            row += 2 * len(idx)
+    cov_p = inv @ middle @ inv / np.outer(norms, norms) * max(chi2, 1.0)
     # to engineering units: the logs' derivative is the value itself, the rest are identities
     names, values = _physical(sol.x, lin, fitted, m, b, axes)
     scale = np.ones(p0.size)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.frf import COHERENT
+from ..analysis.frf import COHERENT, NEIGHBOUR_CORRELATION
 from ..analysis.plant_model import MAX_EVALUATIONS, ModalPlant, PlantFit, fit, mode_names, pole_names
 from ..documents.coefficients import file_sha256
 from ..documents.sealed import read_sealed, write_sealed
@@ -125,7 +125,7 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
         if not modes or hz > modes[-1] * (1 + MERGE):
             modes.append(hz)
     result = fit(f, data, h, rigid_hz=list(RIGID_START_HZ), bending_hz=modes, amplifier_hz=AMPLIFIER_START[0],
-                 amplifier_zeta=AMPLIFIER_START[1])
+                 amplifier_zeta=AMPLIFIER_START[1], neighbour_correlation=NEIGHBOUR_CORRELATION)
     if result.chi2_reduced > CHI2_LIMIT or not result.converged:
         spinning = (" At speed the gyroscopic coupling turns the rigid-body modes into whirls and gives the modes "
                     "complex modal gains, which this model does not have yet: fit a standstill measurement."
