@@ -47,20 +47,26 @@ class _Part:
     end_ns: int | None  # None: the newest part, open-ended until a split decides its end
 
 
+def _due_before(x_ns: int, from_ns: int, span: float, steps: float, count: int) -> int:
+    """How many of ``count`` periods due at from + j span / steps (j = 1 .. count) are due before
+    host time ``x_ns`` (exact in integers where the arguments are)."""
+    q = (x_ns - from_ns) * steps
+    return 0 if q <= 0 else int(min(max(-(-q // span) - 1, 0), count))
+
+
 @dataclass
 class _Tail:
     """The ``missing`` periods a device never sent after its last sample at host time ``last_ns``,
-    one every ``period_ns``; ``counted`` of them already in a part."""
+    ``rate_hz`` of them a second; ``counted`` of them already in a part."""
 
     last_ns: int
-    period_ns: float
+    rate_hz: float
     missing: int
     counted: int = 0
 
     def due_before(self, t_ns: int) -> int:
         """How many of those not yet counted are due before host time ``t_ns``."""
-        j = -(-(t_ns - self.last_ns) // self.period_ns) - 1  # the largest j with last + j period < t
-        return int(min(max(j, 0), self.missing)) - self.counted if j > self.counted else 0
+        return max(_due_before(t_ns, self.last_ns, 1e9, self.rate_hz, self.missing) - self.counted, 0)
 
 
 class FileParts(Sink):
@@ -148,16 +154,12 @@ class FileParts(Sink):
         if not lost or prev_ns is None or prev_ns >= part.start_ns or now_ns <= prev_ns:
             return 0
         span = now_ns - prev_ns
-
-        def due_before(x_ns: int) -> int:  # how many of them are due before host time x_ns
-            q = (x_ns - prev_ns) * (lost + 1)
-            return 0 if q <= 0 else min(max(-(-q // span) - 1, 0), lost)
-
         moved = 0
         for earlier in self._parts:
             if earlier is part or earlier.end_ns is None:
                 break
-            k = due_before(earlier.end_ns) - due_before(earlier.start_ns)
+            k = (_due_before(earlier.end_ns, prev_ns, span, lost + 1, lost)
+                 - _due_before(earlier.start_ns, prev_ns, span, lost + 1, lost))
             if k:
                 earlier.writer.lost_at_end(device, k)
                 moved += k
@@ -175,7 +177,7 @@ class FileParts(Sink):
             if last is None or not rate:
                 self._parts[0].writer.lost_at_end(device, missing)
             else:
-                self._tails[device] = _Tail(last, 1e9 / rate, missing)
+                self._tails[device] = _Tail(last, rate, missing)
                 self._count_tails()
         self._ended.add(device)
         self._close_finished()

@@ -126,33 +126,35 @@ class ModalPlant:
         return A, B, C
 
 
+def _held(A: np.ndarray, B: np.ndarray, state: int, h: float, freq_hz, delay_s: float) -> np.ndarray:
+    """State ``state`` of the continuous system (A, B) held over the period ``h`` (s), per unit of its
+    input, then delayed by ``delay_s`` (s), at ``freq_hz`` (Hz): C (zI - Phi)^-1 Gam e^{-j w tau},
+    C picking the state, by the eigen-decomposition of Phi, (n,)."""
+    f = np.asarray(freq_hz, float)
+    z = np.exp(2j * np.pi * f * h)
+    phi, gam = zoh(A, B, h)
+    lam, vec = np.linalg.eig(phi)
+    left = vec[state] * (np.linalg.solve(vec, gam)[:, 0])  # C V and V^-1 Gam, per eigenvalue
+    return (left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * np.exp(-2j * np.pi * f * delay_s)
+
+
 def _basis(rigid, bending, amplifier, delay_s, h, freq_hz) -> np.ndarray:
+    """Each mode's displacement through the amplifier with unit residue, (n, modes)."""
     wa, za = amplifier
-    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * h)
-    lag = np.exp(-2j * np.pi * np.asarray(freq_hz, float) * delay_s)
+    B = np.array([[0.0], [wa * wa], [0.0], [0.0]])
     out = []
     for c, d in [(0.0, -a * a) for a in rigid] + [(2 * zeta * w, w * w) for w, zeta in bending]:
         A = np.array([[0.0, 1.0, 0.0, 0.0], [-wa * wa, -2 * za * wa, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0],
                       [1.0, 0.0, -d, -c]])
-        B = np.array([[0.0], [wa * wa], [0.0], [0.0]])
-        phi, gam = zoh(A, B, h)
-        # C (zI - Phi)^-1 Gam with C picking the mode's displacement, by the eigen-decomposition of Phi
-        lam, vec = np.linalg.eig(phi)
-        left = vec[2] * (np.linalg.solve(vec, gam)[:, 0])  # C V and V^-1 Gam, per eigenvalue
-        out.append((left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * lag)
+        out.append(_held(A, B, 2, h, freq_hz, delay_s))
     return np.stack(out, axis=1)
 
 
 def _static_basis(amplifier, delay_s, h, freq_hz) -> np.ndarray:
-    """A unit compliance's held response through the amplifier and the delay, (n,)."""
+    """A unit compliance's held response through the amplifier and the delay (its current), (n,)."""
     wa, za = amplifier
-    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * h)
-    lag = np.exp(-2j * np.pi * np.asarray(freq_hz, float) * delay_s)
-    A = np.array([[0.0, 1.0], [-wa * wa, -2 * za * wa]])
-    phi, gam = zoh(A, np.array([[0.0], [wa * wa]]), h)
-    lam, vec = np.linalg.eig(phi)
-    left = vec[0] * (np.linalg.solve(vec, gam)[:, 0])
-    return (left[None, :] / (z[:, None] - lam[None, :])).sum(axis=1) * lag
+    return _held(np.array([[0.0, 1.0], [-wa * wa, -2 * za * wa]]), np.array([[0.0], [wa * wa]]), 0, h, freq_hz,
+                 delay_s)
 
 
 @dataclass(frozen=True)

@@ -196,24 +196,30 @@ def estimate_run(rec: Recording, resolution_hz: float, input_axis: str | None, i
     return ExcitedRun(axis, outputs, est, f"{next(iter(y_topics[0].units.values()))}/{x_data.units[axis]}", source)
 
 
+def check_runs(runs: list[ExcitedRun]) -> None:
+    """BadInputError unless the runs excited different axes on one frequency grid (one column each
+    of one response matrix)."""
+    for j, run in enumerate(runs):
+        earlier = next((r for r in runs[:j] if r.axis == run.axis), None)
+        if earlier is not None:
+            raise BadInputError(f"{run.source['path']}: {run.axis} was already measured in {earlier.source['path']}")
+        if not np.array_equal(run.estimate.freq_hz, runs[0].estimate.freq_hz):
+            raise BadInputError(f"{run.source['path']}: sample rate differs from the other recordings'")
+
+
 def estimate_responses(recs: list[Recording], resolution_hz: float, input_axis: str | None,
                        input_topic: str = FF, output_topic: str = ERROR,
                        max_lost: float = MAX_LOST) -> FrequencyResponse:
     """H1 and coherence from each recording's excited axis to every output axis (one column per
     file, :func:`estimate_run`)."""
-    freq, columns, unit = None, {}, ""
-    for rec in recs:
-        run = estimate_run(rec, resolution_hz, input_axis, input_topic, [output_topic], max_lost)
-        if run.axis in columns:
-            raise BadInputError(f"{rec.path}: {run.axis} was already measured in {columns[run.axis]['source']['path']}")
-        if freq is not None and not np.array_equal(freq, run.estimate.freq_hz):
-            raise BadInputError(f"{rec.path}: sample rate differs from the other recordings'")
-        freq, unit = run.estimate.freq_hz, run.unit
-        columns[run.axis] = {
-            "source": run.source,
-            "outputs": {a: (run.estimate.response[:, i], run.estimate.coherence[:, i])
-                        for i, (_, a) in enumerate(run.outputs)},
-        }
+    runs: list[ExcitedRun] = []
+    for rec in recs:  # each checked against those before it as it comes: refused before the next is read
+        runs.append(estimate_run(rec, resolution_hz, input_axis, input_topic, [output_topic], max_lost))
+        check_runs(runs)
+    columns = {run.axis: {"source": run.source,
+                          "outputs": {a: (run.estimate.response[:, i], run.estimate.coherence[:, i])
+                                      for i, (_, a) in enumerate(run.outputs)}} for run in runs}
+    freq, unit = (runs[-1].estimate.freq_hz, runs[-1].unit) if runs else (None, "")
     return FrequencyResponse(freq, columns, input_topic, output_topic, unit)
 
 
@@ -234,4 +240,5 @@ def summarize(frf: FrequencyResponse) -> dict:
     return out
 
 
-__all__ = ["COHERENT", "Excited", "ExcitedRun", "estimate_responses", "estimate_run", "excite", "excited_axis", "excited_device", "summarize"]
+__all__ = ["COHERENT", "Excited", "ExcitedRun", "check_runs", "estimate_responses", "estimate_run", "excite",
+           "excited_axis", "excited_device", "summarize"]

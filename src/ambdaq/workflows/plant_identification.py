@@ -24,7 +24,7 @@ from ..daq.recording import Recording
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
 from ..roles import CONTROL, ERROR, FF, GAP
-from .frf import estimate_run
+from .frf import ExcitedRun, check_runs, estimate_run
 
 FORMAT, VERSION = "ambdaq-plant-frf", 1
 SPEED_TOLERANCE = 0.01  # the runs of one plant ran within 1 % (and 20 rpm) of each other
@@ -155,13 +155,11 @@ def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float
         if CONTROL not in rec:
             raise BadInputError(f"{rec.path}: no controller output ({CONTROL}): the plant is measured from what the "
                                 "controller sent to the amplifiers, which this controller does not stream")
-    runs = [estimate_run(rec, resolution_hz, None, FF, [GAP, CONTROL, ERROR], max_lost) for rec in recs]
+    runs: list[ExcitedRun] = []
+    for rec in recs:  # each checked against those before it as it comes
+        runs.append(estimate_run(rec, resolution_hz, None, FF, [GAP, CONTROL, ERROR], max_lost))
+        check_runs(runs)
     axes = [run.axis for run in runs]
-    for j, run in enumerate(runs):
-        if run.axis in axes[:j]:
-            raise BadInputError(f"{run.source['path']}: {run.axis} was already measured in {runs[axes.index(run.axis)].source['path']}")
-        if not np.array_equal(run.estimate.freq_hz, runs[0].estimate.freq_hz):
-            raise BadInputError(f"{run.source['path']}: sample rate differs from the other recordings'")
     speeds = [run.source["speed_rpm"] for run in runs]
     median = float(np.median(speeds))
     if any(abs(s - median) > max(SPEED_TOLERANCE * median, SPEED_FLOOR_RPM) for s in speeds):
@@ -187,8 +185,8 @@ def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float
     try:
         plant = joint_input_output(matrix("response", 0), matrix("response", 1), matrix("coherence", 0),
                                    matrix("coherence", 1), error, runs[0].estimate.freq_hz)
-    except ValueError as err_:
-        raise BadInputError(f"the plant cannot be solved: {err_}") from None
+    except ValueError as err:
+        raise BadInputError(f"the plant cannot be solved: {err}") from None
     sens = -np.stack([run.estimate.response[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
     sens_coh = np.stack([run.estimate.coherence[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
     sources = [{**run.source, "excited": run.axis} for run in runs]
