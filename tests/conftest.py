@@ -12,7 +12,16 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from ambdaq.cli.main import cli
+# One BLAS thread per process, set before anything loads numpy here, and inherited by the xdist
+# workers and every subprocess the tests start: the suite is already parallel (three workers, a
+# hundred subprocesses, real-time devices), and OpenBLAS's own threads, spinning while they wait for
+# work, took a third of the CPU on this 2-core machine (the plant, LMS, runout and FRF tests: 116
+# CPU-s with OpenBLAS's default threads, 79 with one; wall 59 s and 43 s). Our matrices are small
+# (4 x 4 per frequency, batched): one thread computes them as fast.
+for _blas in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas, "1")
+
+from ambdaq.cli.main import cli  # noqa: E402  (after the threads are set)
 
 
 WARM = """import sys
@@ -33,7 +42,7 @@ for p in sys.argv[1:]:
 def _warm_rigs() -> list[subprocess.Popen]:
     """Start compiling the rigs' numba kernels (and the offline LMS's) once, two at a time, before
     the workers start; returns the processes to wait for.  In a fresh clone every process that needs
-    a kernel before its cache file exists compiles it again (5 s for the spindle's): the two workers
+    a kernel before its cache file exists compiles it again (5 s for the spindle's): the three workers
     and the servers and recorders the first tests start."""
     import ambdaq
 
@@ -45,7 +54,7 @@ def _warm_rigs() -> list[subprocess.Popen]:
 
 def _compile_environment() -> None:
     """Compile the environment's Python files to bytecode once, on every core, before the workers
-    start (what is compiled already is skipped).  In a fresh environment the two workers and the
+    start (what is compiled already is skipped).  In a fresh environment the three workers and the
     suite's hundred subprocesses would otherwise each compile what they import, at the same time:
     74 s longer on a fresh clone here.  The packages' own tests (a third of their files, 13 of 29 s)
     are skipped: nothing imports them."""
