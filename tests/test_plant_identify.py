@@ -92,20 +92,19 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         return
     assert r.exit_code == 0, r.output
     fitted = json.loads(r.stdout)
-    # the deviations say what they hold: the noise, not the leakage (the validation campaign's row)
-    assert "noise only" in fitted["std_holds"] and "leakage" in fitted["std_holds"]
+    # the deviations say what they hold, and where the validation campaign found they did not
+    assert "window's bias taken out" in fitted["std_holds"] and "82 %" in fitted["std_holds"]
     got = {k: (v["value"], v["std"]) for k, v in fitted["parameters"].items()}
     truth = true_modes()
     # the diagonal and the elements across each plane's bearings; the x-y elements hold only noise
     assert sorted(fitted["responses"]) == sorted([*AXES, "front_x<-rear_x", "rear_x<-front_x", "front_y<-rear_y",
                                                   "rear_y<-front_y"])
     assert sum(k.endswith("_hz") and k.startswith("mode") for k in got) == len(truth["bending_hz"]) == 5
-    # at 5 Hz resolution (seeds 1-3 and 5, measured): bending modes within 0.07 % and their damping
-    # 1 % low to 11 % high, the rigid-body poles within 5 %, the amplifier within 1 %; the covariance
-    # states the random error only, and the Hann window's leakage at these lightly damped modes
-    # (half-power bandwidth 3.9 Hz at the first, below the 5 Hz resolution) broadens them by up to ten of its
-    # standard deviations (docs/tuning.md): the bounds here are the measured ones with a margin,
-    # within the 20 % issue 42 asks of the damping
+    # at 5 Hz resolution, seed 5, the window's bias taken out: bending modes within 0.01 % and their
+    # damping within 4 %, the rigid-body poles within 0.6 %, the amplifier within 1 % (before the
+    # bias was taken out, over seeds 1-3 and 5: 0.07 %, 1 % low to 11 % high, 5 %, 1 %): the bounds
+    # are those measured before, which issue 42 asks (1 % and 20 %) and the measurement now holds
+    # with a margin
     for k, hz in enumerate(truth["bending_hz"], 1):
         assert abs(got[f"mode{k}_hz"][0] / hz - 1) < 0.001, (k, got[f"mode{k}_hz"], hz)
         assert abs(got[f"mode{k}_zeta"][0] / 0.005 - 1) < 0.15, (k, got[f"mode{k}_zeta"])
@@ -113,8 +112,17 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         assert abs(got[f"rigid{k}_hz"][0] / hz - 1) < 0.06, (k, got[f"rigid{k}_hz"], hz)
     assert abs(got["amplifier_hz"][0] / 2500 - 1) < 0.03 and abs(got["amplifier_zeta"][0] / 0.8 - 1) < 0.03
     assert all(std > 0 for _, std in got.values())
-    # every stated residue is the rotor's own within its deviation (seed 5: RMS 1.3 deviations, the
-    # largest 4.0; 1.3-1.9 and 2.9-3.7 over seeds 1-3: the leakage bias above); a residue of a mode above an element's band
+    # and each pole is the machine's within three of its stated deviations: the fit takes the
+    # window's bias out (by the first model seen through the measured loop) and states the
+    # covariance the elements share (one run's noise reaches every element of its plane). Without
+    # the two, the second mode was 5.8 deviations low here (this test failed), and the validation
+    # campaign's 95 % intervals held the frequencies in 75 % of runs; seed 5 now: modes 1-4 within 0.9
+    poles = {f"mode{k}_hz": hz for k, hz in enumerate(truth["bending_hz"], 1)}
+    poles.update({f"rigid{k}_hz": hz for k, hz in enumerate(truth["rigid_hz"], 1)})
+    z = {name: (got[name][0] - hz) / got[name][1] for name, hz in poles.items()}
+    assert max(abs(v) for v in z.values()) < 3, z
+    # every stated residue is the rotor's own within its deviation (seed 5: RMS 0.67 deviations, the
+    # largest 2.1; 1.3 and 4.0 before the window's bias was taken out); a residue of a mode above an element's band
     # is not stated (the rear sensor's elements are trusted to about 900 Hz: modes 3-5 are in their
     # residual; fitted, they were +6,459 and -10,098 for -0.3 and +0.7, with deviations of 0.5)
     hz, truth = true_residues()

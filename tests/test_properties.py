@@ -78,7 +78,8 @@ def documents():
     from ambdaq.workflows.plant_identification import PlantMeasurement, load_measurement
 
     one = np.ones((2, 1, 1))
-    plant = PlantMeasurement(["front_x"], ClosedLoopPlant(f, one * (1e-4 + 1e-5j), one * 1e-6, one * 0.95),
+    plant = PlantMeasurement(["front_x"], ClosedLoopPlant(f, one * (1e-4 + 1e-5j), np.ones((2, 1, 1, 1, 1)) * 1e-12,
+                                                          one * 0.95, one * (3e4 - 1e3j)),
                              np.ones((2, 1), complex), np.ones((2, 1)) * 0.9, 0.0, [{"path": "a.mcap"}], {})
     model = ModalPlant(np.array([300.0]), np.array([[2500.0, 0.005]]), np.array([[30.0, 10.0]]), (15000.0, 0.8), 0.0, 1e-4)
     values = np.array([47.7, 397.9, 0.005, 2387.3, 0.8, 0.0, 30.0, 10.0])

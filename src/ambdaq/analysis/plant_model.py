@@ -230,9 +230,63 @@ def _unpack(lin: np.ndarray, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return residues, residual
 
 
+def _couple(jn: np.ndarray, a: np.ndarray, b: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """J_a^T R_ab J_b + its transpose, for whitened residual rows of points ``a`` and ``b`` (each a
+    pair of row indices: the real parts', the imaginary parts') whose complex errors have the
+    correlation ``rho``: the real parts correlate by Re rho, as do the imaginary ones, and the
+    imaginary part of one with the real part of the other by +-Im rho (a circular error)."""
+    (xa, ya), (xb, yb) = a, b
+    re, im = rho.real[:, None], rho.imag[:, None]
+    m = (jn[xa] * re).T @ jn[xb] + (jn[ya] * re).T @ jn[yb] + (jn[ya] * im).T @ jn[xb] - (jn[xa] * im).T @ jn[yb]
+    return m + m.T
+
+
+def _correlated(jn: np.ndarray, where: list[np.ndarray], first: np.ndarray, data: list, axes: list[str],
+                neighbour: float, cross: dict[tuple[str, str], np.ndarray]) -> np.ndarray:
+    """The off-diagonal part of J^T R J: each response's neighbouring points (correlation
+    ``neighbour``), and each pair of responses at one frequency (their errors' correlation from
+    ``cross``) and at neighbouring ones (the product of the two)."""
+    starts = np.cumsum([0] + [2 * len(idx) for idx in where])
+    at = [first[idx] for idx in where]  # each response's points on the measurement's grid
+
+    def rows(e, positions):  # response e's real and imaginary rows of its points ``positions``
+        return starts[e] + positions, starts[e] + len(where[e]) + positions
+
+    out = np.zeros((jn.shape[1], jn.shape[1]))
+    for e in range(len(where)):
+        if neighbour:
+            adjacent = np.flatnonzero(np.diff(at[e]) == 1)
+            out += _couple(jn, rows(e, adjacent), rows(e, adjacent + 1), np.full(adjacent.size, neighbour + 0j))
+    for a in range(len(where)):
+        for b in range(a + 1, len(where)):
+            c = cross.get((axes[a], axes[b]))
+            if c is None and (axes[b], axes[a]) in cross:
+                c = cross[(axes[b], axes[a])].conj()
+            if c is None:
+                continue
+            sigma = {}
+            for e in (a, b):  # the complex error's deviation on the measurement's grid, from the weights
+                keep, _, weight = data[e]
+                sigma[e] = np.full(keep.size, np.nan)
+                sigma[e][keep] = np.sqrt(2.0) / weight
+            both = np.intersect1d(at[a], at[b])  # the frequencies both responses hold
+            rho = np.zeros(len(data[a][0]), dtype=complex)
+            rho[both] = c[both] / (sigma[a][both] * sigma[b][both])
+            pos = {e: np.full(len(data[e][0]), -1) for e in (a, b)}
+            for e in (a, b):
+                pos[e][at[e]] = np.arange(at[e].size)
+            for shift, scale in ((0, 1.0), (1, neighbour), (-1, neighbour)):
+                # a at g, b at g + shift, both holding g and g + shift (their correlation the product)
+                g = both if shift == 0 else np.intersect1d(both, both - shift)
+                if scale and g.size:
+                    out += _couple(jn, rows(a, pos[a][g]), rows(b, pos[b][g + shift]), scale * rho[g])
+    return out
+
+
 def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], h: float, *,
         rigid_hz: list[float], bending_hz: list[float], amplifier_hz: float = 2000.0,
-        amplifier_zeta: float = 0.7, neighbour_correlation: float = 0.0) -> PlantFit:
+        amplifier_zeta: float = 0.7, neighbour_correlation: float = 0.0,
+        cross_covariance: dict[tuple[str, str], np.ndarray] | None = None) -> PlantFit:
     """Fit the model to one or more measured responses (elements of one rotor's plant), their poles shared.
 
     Parameters
@@ -254,6 +308,12 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
         The correlation of a response's errors at neighbouring frequencies (the estimate's
         window spreads each frequency's noise over its neighbours: 4/9 for a Hann-windowed H1,
         :data:`~ambdaq.analysis.frf.NEIGHBOUR_CORRELATION`); the covariance holds it.
+    cross_covariance : dict, optional
+        (name a, name b) -> the covariance of the two responses' complex errors at each of
+        ``freq_hz``, E[dP_a dP_b^*] (m^2/V^2): the elements of one measured plant share its runs'
+        noise (:mod:`ambdaq.analysis.closed_loop`); the parameters' covariance holds it, with the
+        neighbouring frequencies' correlation on top (the two taken as independent causes). A pair
+        not given is uncorrelated.
     """
     from scipy.optimize import least_squares
 
@@ -342,19 +402,12 @@ def fit(freq_hz: np.ndarray, measured: dict[str, tuple[np.ndarray, np.ndarray, n
     jn = jac / norms
     inv = np.linalg.pinv(jn.T @ jn)
     # the points' errors are not independent: neighbouring frequencies of one response share a
-    # part of their noise (correlation rho), so the covariance is the sandwich
-    # A^-1 J^T R J A^-1 (R: 1 on the diagonal, rho between neighbours), not A^-1
-    # (Seber & Wild, Nonlinear Regression, section 2.1.4)
-    middle = jn.T @ jn
-    if neighbour_correlation:
-        first = np.flatnonzero(used)  # each fitted point's index on the measurement's frequency grid
-        row = 0
-        for idx in where:
-            adjacent = np.flatnonzero(np.diff(first[idx]) == 1)
-            for part in (row, row + len(idx)):  # the real parts, then the imaginary ones
-                here, next_ = jn[part + adjacent], jn[part + adjacent + 1]
-                middle += neighbour_correlation * (here.T @ next_ + next_.T @ here)
-            row += 2 * len(idx)
+    # part of their noise (correlation rho), and the responses of one plant share its runs' noise
+    # at each frequency (their complex correlation), so the covariance is the sandwich
+    # A^-1 J^T R J A^-1 (R the whitened residuals' correlation), not A^-1 (Seber & Wild, Nonlinear
+    # Regression, section 2.1.4)
+    middle = jn.T @ jn + _correlated(jn, where, np.flatnonzero(used), data, axes, neighbour_correlation,
+                                     cross_covariance or {})
     cov_p = inv @ middle @ inv / np.outer(norms, norms) * max(chi2, 1.0)
     # to engineering units: the logs' derivative is the value itself, the rest are identities
     names, values = _physical(sol.x, lin, fitted, m, b, axes)

@@ -26,7 +26,7 @@ from ..errors import BadInputError
 from ..roles import CONTROL, ERROR, FF, GAP
 from .frf import ExcitedRun, check_runs, estimate_run
 
-FORMAT, VERSION = "ambdaq-plant-frf", 1
+FORMAT, VERSION = "ambdaq-plant-frf", 2  # 2: the error covariance across elements, the controller's response
 SPEED_TOLERANCE = 0.01  # the runs of one plant ran within 1 % (and 20 rpm) of each other
 SPEED_FLOOR_RPM = 20.0
 FLANK = 6  # points on either side of a resonance's top, one of which must be trusted
@@ -68,10 +68,7 @@ class PlantMeasurement:
     def subset(self, axes: list[str]) -> "PlantMeasurement":
         """The diagonal view of some axes (their own responses, sensitivities and sources)."""
         idx = [self.axes.index(a) for a in axes]
-        p = self.plant
-        plant = ClosedLoopPlant(p.freq_hz, p.response[:, idx][:, :, idx], p.sigma[:, idx][:, :, idx],
-                                p.coherence[:, idx][:, :, idx])
-        return PlantMeasurement(list(axes), plant, self.sensitivity[:, idx], self.sensitivity_coherence[:, idx],
+        return PlantMeasurement(list(axes), self.plant.subset(idx), self.sensitivity[:, idx], self.sensitivity_coherence[:, idx],
                                 self.speed_rpm, [s for s in self.sources if s.get("excited") in axes], self.controller)
 
     def rows(self) -> list[dict]:
@@ -104,17 +101,33 @@ class PlantMeasurement:
 
     def to_document(self) -> dict:
         p = self.plant
+        k = len(self.axes)
         cells = {out: {inp: {"re": p.response[:, i, j].real.tolist(), "im": p.response[:, i, j].imag.tolist(),
-                             "sigma": p.sigma[:, i, j].tolist(), "coherence": p.coherence[:, i, j].tolist()}
+                             "coherence": p.coherence[:, i, j].tolist()}
                        for j, inp in enumerate(self.axes)} for i, out in enumerate(self.axes)}
+        h_ru = {out: {inp: {"re": p.controller_response[:, i, j].real.tolist(),
+                            "im": p.controller_response[:, i, j].imag.tolist()}
+                      for j, inp in enumerate(self.axes)} for i, out in enumerate(self.axes)}
+        # the covariance of the elements' errors (Hermitian): its upper triangle, row by row, per
+        # frequency, to seven digits (a deviation needs two)
+        upper = np.triu_indices(k * k)
+        tri = p.covariance.reshape(-1, k * k, k * k)[:, upper[0], upper[1]]
         sens = {a: {"re": self.sensitivity[:, i].real.tolist(), "im": self.sensitivity[:, i].imag.tolist(),
                     "coherence": self.sensitivity_coherence[:, i].tolist()} for i, a in enumerate(self.axes)}
         return {"format": FORMAT, "version": VERSION, "axes": self.axes, "speed_rpm": self.speed_rpm,
                 "input": CONTROL, "output": GAP, "unit": "m/V", "freq_hz": self.freq_hz.tolist(),
-                "plant": cells, "sensitivity": sens, "sources": self.sources, "controller": self.controller}
+                "plant": cells, "controller_response": h_ru,
+                "error_covariance": {"elements": [[out, inp] for out in self.axes for inp in self.axes],
+                                     "re": _digits(tri.real), "im": _digits(tri.imag)},
+                "sensitivity": sens, "sources": self.sources, "controller": self.controller}
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         return write_sealed(path, self.to_document(), overwrite=overwrite)
+
+
+def _digits(values: np.ndarray) -> list:
+    """Nested lists of ``values`` to seven significant digits."""
+    return np.vectorize(lambda v: float(f"{v:.7g}"), otypes=[float])(values).tolist()
 
 
 def resonances(freq_hz: np.ndarray, magnitude: np.ndarray, trusted: np.ndarray, *, above_hz: float = 150.0,
@@ -204,13 +217,23 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
             raise ValueError("axes must be a list of distinct names")
         f = np.array(doc["freq_hz"], dtype=float)
         n, k = f.shape[0], len(axes)
-        resp, sigma, coh = (np.empty((n, k, k), dtype=complex), np.empty((n, k, k)), np.empty((n, k, k)))
+        resp, h_ru, coh = (np.empty((n, k, k), dtype=complex), np.empty((n, k, k), dtype=complex), np.empty((n, k, k)))
         for i, out in enumerate(axes):
             for j, inp in enumerate(axes):
-                cell = doc["plant"][out][inp]
+                cell, ctl = doc["plant"][out][inp], doc["controller_response"][out][inp]
                 resp[:, i, j] = np.array(cell["re"], dtype=float) + 1j * np.array(cell["im"], dtype=float)
-                sigma[:, i, j] = np.array(cell["sigma"], dtype=float)
                 coh[:, i, j] = np.array(cell["coherence"], dtype=float)
+                h_ru[:, i, j] = np.array(ctl["re"], dtype=float) + 1j * np.array(ctl["im"], dtype=float)
+        errors = doc["error_covariance"]
+        if errors["elements"] != [[out, inp] for out in axes for inp in axes]:
+            raise ValueError("the error covariance's elements must be every [output, input] of the axes, row by row")
+        upper = np.triu_indices(k * k)
+        tri = np.array(errors["re"], dtype=float) + 1j * np.array(errors["im"], dtype=float)
+        if tri.shape != (n, upper[0].size):
+            raise ValueError(f"the error covariance must hold {upper[0].size} values at each of {n} frequencies")
+        cov = np.zeros((n, k * k, k * k), dtype=complex)
+        cov[:, upper[0], upper[1]] = tri
+        cov[:, upper[1], upper[0]] = tri.conj()
         sens = np.stack([np.array(doc["sensitivity"][a]["re"], float) + 1j * np.array(doc["sensitivity"][a]["im"], float)
                          for a in axes], axis=1)
         sens_coh = np.stack([np.array(doc["sensitivity"][a]["coherence"], float) for a in axes], axis=1)
@@ -220,10 +243,15 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
             raise ValueError("sources must be a list of objects, controller an object")
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as err:
         raise BadInputError(f"{path}: malformed plant file ({err})") from None
-    if not all(np.all(np.isfinite(v)) for v in (f, resp, sigma, coh, sens, sens_coh)) or not np.isfinite(speed):
+    if not all(np.all(np.isfinite(v)) for v in (f, resp, h_ru, cov, coh, sens, sens_coh)) or not np.isfinite(speed):
         raise BadInputError(f"{path}: the plant file holds a value that is not a finite number")
-    if (f.ndim != 1 or n < 2 or np.any(np.diff(f) <= 0) or f[0] <= 0 or speed < 0 or np.any(sigma < 0)
+    var = cov.diagonal(axis1=1, axis2=2).real
+    # a covariance: variances at least 0, no correlation above 1 (beyond the stored digits' rounding)
+    if (f.ndim != 1 or n < 2 or np.any(np.diff(f) <= 0) or f[0] <= 0 or speed < 0 or np.any(var < 0)
+            or np.any(np.abs(cov) ** 2 > var[:, :, None] * var[:, None, :] * (1 + 1e-5) + 1e-300)
             or np.any((coh < 0) | (coh > 1)) or np.any((sens_coh < 0) | (sens_coh > 1))):
-        raise BadInputError(f"{path}: the plant file's frequencies must rise from above 0, its errors be at least 0, "
-                            "its coherences within 0..1 and its speed at least 0")
-    return PlantMeasurement(list(axes), ClosedLoopPlant(f, resp, sigma, coh), sens, sens_coh, speed, sources, controller)
+        raise BadInputError(f"{path}: the plant file's frequencies must rise from above 0, its error covariance be "
+                            "one (variances at least 0, correlations at most 1), its coherences within 0..1 and its "
+                            "speed at least 0")
+    plant = ClosedLoopPlant(f, resp, cov.reshape(n, k, k, k, k), coh, h_ru)
+    return PlantMeasurement(list(axes), plant, sens, sens_coh, speed, sources, controller)
