@@ -52,33 +52,23 @@ def _warm_rigs() -> list[subprocess.Popen]:
             for kernels in (("spindle", "runout"), ("cone", "base-motion", "lorentz", "flexible"))]
 
 
-def _compile_environment() -> None:
-    """Compile the environment's Python files to bytecode once, on every core, before the workers
-    start (what is compiled already is skipped).  In a fresh environment the three workers and the
-    suite's hundred subprocesses would otherwise each compile what they import, at the same time:
-    74 s longer on a fresh clone here.  The packages' own tests (a third of their files, 13 of 29 s)
-    are skipped: nothing imports them."""
-    import compileall
-    import re
-    import sysconfig
-
-    import ambdaq
-
-    skip = re.compile(r"[/\\]tests?[/\\]")
-    for folder in {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"], str(Path(ambdaq.__file__).parent)}:
-        compileall.compile_dir(folder, quiet=2, workers=0, rx=skip)
-
-
 def pytest_configure(config):
     """Caches (the parsed A2L files) and the state ambdaq keeps (its push and parameter logs) go to
-    folders of this run, not the user's ~/.cache and ~/.local/state; the rigs' kernels and the
-    environment's bytecode are compiled once by the controlling process (not on an xdist worker)."""
+    folders of this run, not the user's ~/.cache and ~/.local/state; the rigs' kernels are compiled
+    once by the controlling process (not on an xdist worker).
+
+    Every process of the run writes the bytecode of what it imports, whatever the environment says
+    (PYTHONDONTWRITEBYTECODE, set on this machine): the workers and the suite's hundred
+    subprocesses would otherwise each compile every module they import, every time (74 s longer on
+    a fresh clone here). The first to import a module writes it (atomically: importlib writes a
+    temporary file and renames it), the rest read it; compiling the whole environment before the
+    workers started instead took 30 s of a fresh clone, most of it on packages no test imports."""
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
     os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    sys.dont_write_bytecode = False
     if not hasattr(config, "workerinput"):
-        warming = _warm_rigs()
-        _compile_environment()
-        for p in warming:
+        for p in _warm_rigs():
             p.wait()
 
 
