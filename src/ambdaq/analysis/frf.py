@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .spectrum import periodic_hann
+
 
 @dataclass(frozen=True)
 class H1Estimate:
@@ -71,8 +73,6 @@ def h1_estimate(x: np.ndarray, y: np.ndarray, *, fs: float, resolution_hz: float
     >>> print(f"{abs(h):.3f} {np.degrees(np.angle(h)):.1f}")
     0.500 -45.0
     """
-    from scipy.signal import get_window
-
     x = np.asarray(x, dtype=float)
     y2 = np.asarray(y, dtype=float).reshape(x.shape[0], -1)
     nperseg = int(round(fs / resolution_hz))
@@ -81,7 +81,7 @@ def h1_estimate(x: np.ndarray, y: np.ndarray, *, fs: float, resolution_hz: float
                          f"the signal has {x.shape[0]}")
     step = nperseg - nperseg // 2
     segments = 1 + (x.shape[0] - nperseg) // step
-    window = get_window("hann", nperseg)  # periodic, as scipy's welch uses it
+    window = periodic_hann(nperseg)  # periodic, as scipy's welch uses it
     starts = np.arange(segments) * step
 
     def spectra(s):  # (segments, n_freq, channels): each segment's mean removed, windowed, transformed
@@ -136,10 +136,8 @@ def window_kernel(resolution_hz: float, fs: float, *, sub: int = 16, half: int =
     offsets_hz, weights : ndarray, shape (2 half sub + 1,)
         nu_m (Hz) and K_m (summing to 1).
     """
-    from scipy.signal import get_window
-
     n = int(round(fs / resolution_hz))
-    power = np.abs(np.fft.fft(get_window("hann", n), n * sub)) ** 2
+    power = np.abs(np.fft.fft(periodic_hann(n), n * sub)) ** 2
     m = np.arange(-half * sub, half * sub + 1)
     k = power[m % (n * sub)]
     return m * resolution_hz / sub, k / k.sum()
