@@ -186,6 +186,43 @@ class _Paced(Source):
         self.end = self.next
 
 
+class _Early(_Paced):
+    """A _Paced device that stamps its samples on the host clock itself (as a CAN bus does), its
+    first sample 200 ms before it was started: a frame the bus stamped before the recording began."""
+
+    def start(self, n_samples):
+        super().start(n_samples)
+        self.first_ns = time.time_ns() - 200_000_000
+
+    def read(self):
+        block = super().read()
+        if block is not None:
+            block = SampleBlock(block.device_time_ns, block.seq, block.values,
+                                host_time_ns=self.first_ns + block.device_time_ns)
+        return block
+
+
+def test_a_part_states_a_span_that_holds_its_samples_when_one_is_stamped_before_the_start(tmp_path):
+    """A device's first samples can be stamped before the recording's start (a bus's stamps; a
+    clock map fitted online put a controller's first sample 1.1 ms before it under load on a fresh
+    clone, failing the live split test): they go into the first part, whose stated span must then
+    begin at its earliest sample, not at the recording's start (it did, and the part said it held
+    no sample from before a time it held 200 of)."""
+    out = tmp_path / "e.mcap"
+    Recorder([_Early("early"), _Paced("steady")], out, RecordOptions(duration_s=1.5, split_duration_s=1.0)).run()
+    parts = sorted(tmp_path.glob("e_*.mcap"))
+    assert len(parts) >= 2
+    first = load(parts[0])["/early/gap"].log_time
+    meta = McapFile(parts[0]).metadata()["ambdaq.part"]
+    assert int(meta["start_ns"]) == int(first.min()), (meta, int(first.min()))
+    for p in parts:
+        meta = McapFile(p).metadata()["ambdaq.part"]
+        lo, hi = int(meta["start_ns"]), int(meta["end_ns"]) if meta["end_ns"] else None
+        for topic, data in load(p).topics.items():
+            if len(data):
+                assert data.log_time.min() >= lo and (hi is None or data.log_time.max() < hi), (p.name, topic)
+
+
 def _lost_where_due(parts: list[Path], a: int, b: int, lost: int) -> list[int]:
     """Per part, how many of ``lost`` periods evenly spaced between host times ``a`` and ``b``
     (the j-th due at a + j (b - a) / (lost + 1), compared exactly, in integers) fall in its span."""

@@ -45,6 +45,7 @@ class _Part:
     writer: RecordingWriter
     start_ns: int
     end_ns: int | None  # None: the newest part, open-ended until a split decides its end
+    earliest_ns: int | None = None  # its earliest sample's time, which a clock map can put before start_ns
 
 
 def _due_before(x_ns: int, from_ns: int, span: float, steps: float, count: int) -> int:
@@ -137,6 +138,9 @@ class FileParts(Sink):
             counts.drops -= self._lost_before(device, part, int(verdict.lost[pos]),
                                               int(t[pos - 1]) if pos else before, int(t[pos]))
             part.writer.write(device, piece if keep.all() else piece.select(keep), counts)
+            if keep.any():
+                first = int(t[sl][keep].min())
+                part.earliest_ns = first if part.earliest_ns is None else min(part.earliest_ns, first)
             if self.split_size is not None and part.end_ns is None and part.writer.bytes_written >= self.split_size:
                 part.end_ns = int(t[end - 1]) + 1
             pos = end
@@ -252,9 +256,13 @@ class FileParts(Sink):
 
     def _finish(self, part: _Part) -> None:
         """Its host-time span, clock fits and link statistics go into the part's metadata, then it is
-        finished."""
+        finished.  The span starts at its earliest sample where that is before the part's start: a
+        time before the oldest open part goes to that part (:meth:`_part_for`), and a device's
+        clock map, fitted online, can put its first samples a millisecond or two before the
+        recording's start under load (a span that did not hold them would be a wrong statement)."""
+        start = part.start_ns if part.earliest_ns is None else min(part.start_ns, part.earliest_ns)
         self.files.finish(part.writer, "ambdaq.part", {
-            "index": str(part.index), "start_ns": str(part.start_ns),
+            "index": str(part.index), "start_ns": str(start),
             "end_ns": "" if part.end_ns is None else str(part.end_ns)})
 
 
