@@ -25,9 +25,11 @@ experimental modal analysis); the residues it cannot identify are not stated.
 The residues enter linearly: for given poles, amplifier and delay they are the weighted linear
 least-squares solution (variable projection, Golub & Pereyra 1973), and the nonlinear search
 (scipy's least_squares, trust region) runs over the poles alone.  The weights are the inverse
-of the measurement's random error, so the covariance of all the parameters is
-(J^T J)^-1 at the optimum, scaled up by the reduced chi-square where the model does not reach the
-measurement's noise (a conservative statement: never below what the noise alone gives).
+of the measurement's random error; its errors are correlated (neighbouring frequencies through
+the window, the elements of one plant through the runs they share), so the covariance of all the
+parameters is the sandwich (J^T J)^-1 J^T R J (J^T J)^-1 at the optimum, R the whitened errors'
+correlation, scaled up by the reduced chi-square where the model does not reach the measurement's
+noise (a conservative statement: never below what the noise alone gives).
 """
 
 from __future__ import annotations
