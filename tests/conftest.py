@@ -40,8 +40,8 @@ for p in sys.argv[1:]:
 
 
 def _warm_rigs() -> list[subprocess.Popen]:
-    """Start compiling the rigs' numba kernels (and the offline LMS's) once, two at a time, before
-    the workers start; returns the processes to wait for.  In a fresh clone every process that needs
+    """Start compiling the rigs' numba kernels (and the offline LMS's) once, two at a time, while
+    the workers start and collect; returns the processes to wait for.  In a fresh clone every process that needs
     a kernel before its cache file exists compiles it again (5 s for the spindle's): the three workers
     and the servers and recorders the first tests start.  The two processes are balanced by what
     each kernel took to compile here (spindle 5.8 s, cone 3.3, base-motion 3.0, flexible 2.7,
@@ -71,8 +71,20 @@ def pytest_configure(config):
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
     if not hasattr(config, "workerinput"):
-        for p in _warm_rigs():
-            p.wait()
+        _WARMING.extend(_warm_rigs())
+
+
+_WARMING: list[subprocess.Popen] = []
+"""The controlling process's kernel compilers (:func:`_warm_rigs`), waited for before any test runs."""
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session):
+    """The kernels compiled before the first test runs: the controlling process waits here, after
+    pytest-xdist started its workers and while they collect the tests (6-8 s on a fresh clone that
+    the kernels' 10.6 s no longer add to), and before it hands them a test."""
+    while _WARMING:
+        _WARMING.pop().wait()
 
 
 def pytest_collection_finish(session):
