@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 # One BLAS thread per process, set before anything loads numpy here, and inherited by the xdist
-# workers and every subprocess the tests start: the suite is already parallel (three workers, a
+# workers and every subprocess the tests start: the suite is already parallel (two workers, a
 # hundred subprocesses, real-time devices), and OpenBLAS's own threads, spinning while they wait for
 # work, took a third of the CPU on this 2-core machine (the plant, LMS, runout and FRF tests: 116
 # CPU-s with OpenBLAS's default threads, 79 with one; wall 59 s and 43 s). Our matrices are small
@@ -42,7 +42,7 @@ for p in sys.argv[1:]:
 def _warm_rigs() -> list[subprocess.Popen]:
     """Start compiling the rigs' numba kernels (and the offline LMS's) once, two at a time, while
     the workers start and collect; returns the processes to wait for.  In a fresh clone every process that needs
-    a kernel before its cache file exists compiles it again (5 s for the spindle's): the three workers
+    a kernel before its cache file exists compiles it again (5 s for the spindle's): the two workers
     and the servers and recorders the first tests start.  The two processes are balanced by what
     each kernel took to compile here (spindle 5.8 s, cone 3.3, base-motion 3.0, flexible 2.7,
     lorentz 2.2, runout 1.3; each process 1.3 s to start): 10.6 and 10.3 s, where the first split
