@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frf import window_kernel
+from .frf import interpolate_response, window_kernel
 
 
 @dataclass(frozen=True)
@@ -170,27 +170,3 @@ def window_bias(plant: ClosedLoopPlant, model: Callable[[np.ndarray], np.ndarray
     u = np.einsum("m,nmij->nij", weights, (c_fine @ closed).reshape(shape))
     return t @ np.linalg.inv(u) - model(f)
 
-
-def interpolate_response(freq_hz: np.ndarray, response: np.ndarray, at_hz: np.ndarray) -> np.ndarray:
-    """A measured response (of a real system) between its frequencies: linear in the real and the
-    imaginary parts, H(-f) = H(f)^* below 0 Hz, the nearest end elsewhere outside.
-
-    Parameters
-    ----------
-    freq_hz : ndarray, shape (n,)
-        The measurement's frequencies, Hz, rising.
-    response : ndarray of complex, shape (n, ...)
-    at_hz : ndarray, shape (m,)
-        Where, Hz.
-
-    Returns
-    -------
-    ndarray of complex, shape (m, ...)
-    """
-    flat = response.reshape(response.shape[0], -1)
-    where = np.abs(at_hz)
-    out = np.empty((at_hz.size, flat.shape[1]), dtype=complex)
-    for col in range(flat.shape[1]):
-        out[:, col] = np.interp(where, freq_hz, flat[:, col].real) + 1j * np.interp(where, freq_hz, flat[:, col].imag)
-    out[at_hz < 0] = out[at_hz < 0].conj()
-    return out.reshape((at_hz.size,) + response.shape[1:])

@@ -143,6 +143,31 @@ def window_kernel(resolution_hz: float, fs: float, *, sub: int = 16, half: int =
     return m * resolution_hz / sub, k / k.sum()
 
 
+def interpolate_response(freq_hz: np.ndarray, response: np.ndarray, at_hz: np.ndarray) -> np.ndarray:
+    """A measured response (of a real system) between its frequencies: linear in the real and the
+    imaginary parts, H(-f) = H(f)^* below 0 Hz, the nearest end elsewhere outside.
+
+    Parameters
+    ----------
+    freq_hz : ndarray, shape (n,)
+        The measurement's frequencies, Hz, rising.
+    response : ndarray of complex, shape (n, ...)
+    at_hz : ndarray, shape (m,)
+        Where, Hz.
+
+    Returns
+    -------
+    ndarray of complex, shape (m, ...)
+    """
+    flat = response.reshape(response.shape[0], -1)
+    where = np.abs(at_hz)
+    out = np.empty((at_hz.size, flat.shape[1]), dtype=complex)
+    for col in range(flat.shape[1]):
+        out[:, col] = np.interp(where, freq_hz, flat[:, col].real) + 1j * np.interp(where, freq_hz, flat[:, col].imag)
+    out[at_hz < 0] = out[at_hz < 0].conj()
+    return out.reshape((at_hz.size,) + response.shape[1:])
+
+
 NEIGHBOUR_CORRELATION = 4.0 / 9.0
 """The correlation of an H1 estimate's errors at neighbouring frequencies with the Hann window
 (:func:`h1_estimate`): |sum w^2 e^{-2 pi j n / N}|^2 / (sum w^2)^2 = (2/3)^2; measured on the

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..units import RPM_TO_RAD_S
 from .amb import pid_z
+from .frf import interpolate_response
 
 
 @dataclass(frozen=True)
@@ -352,7 +353,7 @@ def measured_phase_compensation(freq_hz: np.ndarray, responses: np.ndarray, cohe
             raise ValueError(f"axis {a}: fewer than two points with coherence >= {min_coherence:g}")
         g = -np.conj(responses[a, good]) / np.abs(responses[a, good])
         fg = freq_hz[good]
-        table[a] = np.angle(np.interp(f, fg, g.real) + 1j * np.interp(f, fg, g.imag))
+        table[a] = np.angle(interpolate_response(fg, g, f))
     return PhaseTable(table, bin_hz)
 
 

@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..analysis.frf import interpolate_response
 from ..analysis.mfxlms import fit_fir, knee, mfxlms, run_beta, separate
 from ..analysis.runout import harmonic_fit
 from ..documents.coefficients import Coefficients, file_sha256, now_iso
@@ -161,7 +162,7 @@ def _path_at(frf: FrequencyResponse, plane: int, f_hz: float) -> np.ndarray:
     for i in range(2):
         for j in range(2):
             h, _ = frf.response(AXES[2 * plane + i], AXES[2 * plane + j])
-            out[i, j] = np.interp(f_hz, frf.freq_hz, h.real) + 1j * np.interp(f_hz, frf.freq_hz, h.imag)
+            out[i, j] = interpolate_response(frf.freq_hz, h, np.array([f_hz]))[0]
     return out
 
 

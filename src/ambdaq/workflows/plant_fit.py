@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.frf import COHERENT, NEIGHBOUR_CORRELATION
-from ..analysis.closed_loop import interpolate_response, window_bias
+from ..analysis.closed_loop import window_bias
+from ..analysis.frf import COHERENT, NEIGHBOUR_CORRELATION, interpolate_response
 from ..analysis.plant_model import MAX_EVALUATIONS, ModalPlant, PlantFit, fit, mode_names, pole_names
 from ..documents.coefficients import file_sha256
 from ..documents.sealed import read_sealed, write_sealed
@@ -134,6 +134,8 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
     # the window's bias, by the first model seen through the measured loop, taken from the
     # measurement, and the model fitted again from where the first one ended (one pass: a second
     # moves the parameters by a hundredth of their deviations on the flexible rotor)
+    # (the recordings' sample rate taken as the control rate: the kernel's shape in frequency steps
+    # hardly depends on how many samples a segment has, once it has hundreds)
     bias = window_bias(measured.plant, _matrix(result, cells, measured), 1.0 / h)
     data = {label: (p - bias[:, *cells[label]], sigma, good) for label, (p, sigma, good) in data.items()}
     named = dict(zip(result.names, result.values))
