@@ -137,6 +137,66 @@ def status_command(device, description, as_json):
                    f"by {e.get('host', '?')} -> {e.get('target', '?')}")
 
 
+@controller_group.command("design")
+@click.argument("model_file", type=click.Path(dir_okay=False))
+@click.option("--machine", default="flexible", show_default=True,
+              help="The rotor model the design is checked on over speed (machines/).")
+@click.option("--stiffness", type=float, help="Bearing stiffness, N/m; default the machine's PID's.")
+@click.option("--damping", type=float, help="Bearing damping, N s/m; default the machine's PID's.")
+@click.option("--max-rpm", type=float, help="Top of the speed grid, rpm; default the machine's maximum speed.")
+@click.option("--draws", type=click.IntRange(min=1, max=10_000), default=200, show_default=True,
+              help="Plants drawn within the identified uncertainty, each closed with the design.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True,
+              help="Controller design file (sealed JSON: the PID and sections per axis, and the prediction).")
+@click.option("--overwrite", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the design and its prediction as JSON.")
+def design_command(model_file, machine, stiffness, damping, max_rpm, draws, output, overwrite, as_json):
+    """PID gains for a stated bearing stiffness and damping, and the sections (notch, low-pass,
+    lead, lag) placed on MODEL_FILE's bending modes (plant fit, at standstill), chosen to lower the
+    worst ISO 14839-3 peak |Gs| over speed; predicted per axis on a 1 % speed grid of the machine's
+    rotor model, and on plants drawn within the identified uncertainty (docs/tuning.md). Exit 1
+    (the file written, for inspection) where the design is not stable on the whole grid or on
+    every drawn plant.
+
+    \b
+    Example:
+      ambdaq controller design model.json --machine flexible -o controller.json
+    """
+    from ..errors import AmbdaqError
+    from ..workflows.controller_design import design, source_of
+    from ..workflows.plant_fit import load_model
+
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
+    result = design(load_model(model_file), machine, stiffness=stiffness, damping=damping, max_rpm=max_rpm,
+                    draws=draws)
+    result.source = {**source_of(model_file), **result.source}
+    result.save(out, overwrite=overwrite)
+    summary = result.as_dict()
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+    else:
+        for name, labels in summary["sections"].items():
+            click.echo(f"{name:6s} {'; '.join(labels) or 'no sections'}")
+        click.echo("axis      peak |Gs|  at        speed      zone  identified at standstill  stock")
+        for row in summary["axes"]:
+            stock = (f"{row['stock_peak_db']:.1f} dB" if row["stock_peak_db"] is not None
+                     else f"unstable from {row['stock_unstable_from_rpm']:.0f} rpm")
+            click.echo(f"{row['axis']:9s} {row['peak_db'] if row['peak_db'] is not None else '-':>6} dB  "
+                       f"{row['at_hz'] or 0:7.1f} Hz  {row['at_rpm']:7.0f} rpm  {row['zone'] or '-':4s}  "
+                       f"{row['identified_standstill_db']} dB{'':15s}{stock}")
+        rb = summary["robustness"]
+        click.echo(f"{rb['stable']} of {rb['draws']} plants drawn within the identified uncertainty stable; their "
+                   f"worst peak median {rb['worst_peak_db_median']} dB, 95th percentile {rb['worst_peak_db_95']} dB")
+    click.echo(f"-> {out}", err=True)
+    if not result.robust:
+        where = ("unstable on the machine's model at some speed" if not result.stable else
+                 f"unstable with {result.draws - result.stable_draws} of {result.draws} plants drawn within the "
+                 "identified uncertainty")
+        raise AmbdaqError(f"the design is {where}: do not push it; measure the plant finer (docs/tuning.md)")
+
+
 @controller_group.command("ff")
 @click.argument("action", type=click.Choice(["off", "hold", "on"]))
 @click.option("--device", metavar="URL", required=True, help="The controller: serial:PORT, sim://spindle, xcp+...")

@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.linalg import solve_discrete_are
 
 from ...drivers.signals import SampleBlock, SignalGroup
 from ...drivers.coefbank import BankImage
@@ -271,6 +270,8 @@ class BaseMotionRig(Rig, ExcitationInput):
 
     def _design(self) -> None:
         """ZOH model, LQR with integral action (eq. 10-13) and the observer's gain."""
+        from scipy.linalg import solve_discrete_are  # here: every served or recorded rig imports this module (0.3 s)
+
         p = self.params
         m = p.plane_matrices()
         h = self.h

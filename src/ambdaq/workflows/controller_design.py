@@ -1,0 +1,379 @@
+"""A flexible rotor's controller designed to an ISO 14839-3 target (issue 42, item 4):
+``ambdaq controller design MODEL.json --machine flexible -o controller.json``.
+
+What it starts from, and what each part of the check rests on:
+
+- **The identified plant** (``plant fit``'s model file: the rotor's poles and every element's
+  residues, with their covariance), at standstill. The design's sections are placed on its bending
+  modes, its nominal loop is checked, and ``draws`` plants drawn from its covariance (a normal
+  distribution of the parameters, the fit's own statement of what it knows) are each closed with
+  the design: how many stay stable, and the spread of their peak |Gs|.
+- **The machine's rotor model** (``machines/``) for what a standstill measurement cannot hold: how
+  the modes move with speed (the impeller's spin lifts a bending mode's forward whirl by hundreds
+  of hertz) and the bearing calibration that turns a stiffness into a gain. Every design is
+  checked on it on a 1 % speed grid from standstill to the maximum speed.
+
+**PID gains for a stated stiffness and damping** (Schweitzer & Maslen, *Magnetic Bearings*
+(2009), ch. 7): a PD on the sensor's gap gives the bearing a force ``-(ki ka ks P - kx) x -
+ki ka ks D x'``, ki the current gain, ka the amplifier's (A/V), ks the sensor's (V/m), kx the
+magnet's negative stiffness; so ``P = (k + kx) / (ki ka ks)`` and ``D = c / (ki ka ks)``. The
+integral gain stays the controller's.
+
+**The sections** (at most the firmware's ``MAX_SECTIONS`` per axis, one chain per bearing, its x
+and y axes alike) are chosen greedily: each step tries every candidate (a notch on each identified
+bending mode at two widths and two depths, low-passes, lead and lag sections across the band) on
+each bearing and keeps the one that lowers most the worst peak |Gs| over the search speeds and
+the identified loop at standstill; it stops when none lowers it by ``MIN_GAIN_DB``. A greedy search
+does not promise the best chain; it promises one whose every figure is checked after.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis import sections as sec
+from ..analysis.amb import zoh
+from ..analysis.iso14839 import STABILITY_LIMITS, db, model_sensitivity_peaks
+from ..analysis.plant_model import ModalPlant
+from ..documents.sealed import write_sealed
+from ..errors import BadInputError
+from ..machines.flexible_spindle import AXES, FLEXIBLE, MAX_RPM, FlexibleLoop, FlexibleSpindleParams, close_loop
+from .plant_fit import FittedPlant, model_from_values
+
+FORMAT = "ambdaq.controller_design"
+VERSION = 1
+MACHINES: dict[str, tuple[FlexibleSpindleParams, float]] = {"flexible": (FLEXIBLE, MAX_RPM)}
+"""The machines whose rotor model a design is checked on: (parameters, maximum speed in rpm)."""
+MAX_SECTIONS = 4
+"""Second-order sections per axis the controllers ambdaq designs for run (the flexible rig's firmware)."""
+SEARCH_SPEEDS = 7
+"""Speeds the search grades each candidate at, evenly from standstill to the maximum; the design is
+then checked on the 1 % grid."""
+GRID_STEPS = 100
+"""The check's speed grid: 1 % of the maximum speed."""
+MIN_GAIN_DB = 0.05
+"""A section that lowers the worst peak by less than this is not worth its place in the chain."""
+UNSTABLE_COST = 100.0
+"""What an unstable loop costs in the search, in dB, plus a thousand times how far its largest pole is
+outside the unit circle (so the search can still tell a less unstable loop)."""
+BEARINGS = {"front": ("front_x", "front_y"), "rear": ("rear_x", "rear_y")}
+
+
+@dataclass(frozen=True)
+class Section:
+    """One designed section: what it is, in words, and its coefficients (b0, b1, b2, a1, a2)."""
+
+    label: str
+    coefficients: tuple[float, float, float, float, float]
+
+
+def pid_for(stiffness: float, damping: float, params: FlexibleSpindleParams, axis: int) -> tuple[float, float]:
+    """P (V/V) and D (s) that give ``axis``'s bearing ``stiffness`` (N/m) and ``damping`` (N s/m)
+    (the module docstring's relation)."""
+    a = params.axes[axis]
+    gain = a.ki * a.amp_gain * params.sensor_gain  # N of bearing force per m of gap, per unit of P
+    return (stiffness + a.kx) / gain, damping / gain
+
+
+def candidates(bending_hz: np.ndarray, fs: float) -> list[Section]:
+    """The sections the search tries: notches on each identified bending mode (Q 1 and 3, full and
+    -10 dB deep), second-order low-passes and lead and lag sections of a factor 2.5 across the band."""
+    out = []
+    for f in bending_hz:
+        if f < 0.45 * fs:
+            for q in (1.0, 3.0):
+                for depth in (0.0, 0.3):
+                    out.append(Section(f"notch {f:.1f} Hz, Q {q:g}, depth {depth:g}", sec.notch(f, q, fs, depth)))
+    for f0 in (400.0, 600.0, 900.0, 1300.0, 2000.0):
+        out.append(Section(f"low-pass {f0:g} Hz, Q 0.707", sec.lowpass(f0, 0.707, fs)))
+    for f in (150.0, 300.0, 600.0, 1200.0):
+        out.append(Section(f"lead {f:g}-{2.5 * f:g} Hz", sec.lead_lag(f, 2.5 * f, fs)))
+        out.append(Section(f"lag {2.5 * f:g}-{f:g} Hz", sec.lead_lag(2.5 * f, f, fs)))
+    return out
+
+
+PLANES = (("front_x", "rear_x"), ("front_y", "rear_y"))
+"""The axes of each plane: at standstill a plane's bearings reach each other, the planes do not."""
+
+
+def identified_plant(model: ModalPlant, responses: list[str], h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The identified plant of every axis in ``AXES`` as one discrete state space over the period
+    ``h`` (s), x[n+1] = Phi x + Gam u, gap = Cs x (u V per axis, gap m): each input's amplifier,
+    and each mode once per plane, driven by and seen at both of its bearings.
+
+    A mode's residues in one plane form a 2 x 2 matrix (sensors x bearings) that is the product of
+    its shape at the sensors and at the bearings: rank one.  A mode realised once per input instead
+    is a copy per bearing, and the copies of an unstable rigid-body mode that the controller cannot
+    tell apart stay unstable in any closed loop.  So each plane's matrix is taken at its rank-one
+    part (its largest singular value; the fit's own is rank one within its noise), and that mode is
+    one pair of states.  The fitted delay (microseconds, within its deviation of zero on the
+    simulator) is left out."""
+    modes = [(0.0, -a * a) for a in model.rigid] + [(2 * z * w, w * w) for w, z in model.bending]
+    na, nm = len(AXES), len(modes)
+    n = 2 * na + 2 * nm * len(PLANES)
+    A, B, C = np.zeros((n, n)), np.zeros((n, na)), np.zeros((na, n))
+    wa, za = model.amplifier
+    for j in range(na):  # the amplifiers: states 2j (its output, unit DC gain) and 2j + 1
+        A[2 * j, 2 * j + 1] = 1.0
+        A[2 * j + 1, 2 * j], A[2 * j + 1, 2 * j + 1] = -wa * wa, -2 * za * wa
+        B[2 * j + 1, j] = wa * wa
+    where = {label: r for r, label in enumerate(responses)}
+    for q, plane in enumerate(PLANES):
+        idx = [AXES.index(a) for a in plane]
+        labels = [[o if o == i else f"{o}<-{i}" for i in plane] for o in plane]
+        absent = [lb for row in labels for lb in row if lb not in where]
+        if absent:
+            raise BadInputError(f"the plant model has no {', '.join(absent)}: a design needs every element of each "
+                                "plane (measure every axis; plant fit fits the elements across a plane's bearings)")
+        for k, (c, d) in enumerate(modes):
+            R = np.array([[model.residues[where[lb], k] for lb in row] for row in labels])
+            u, sv, vt = np.linalg.svd(R)
+            i = 2 * na + 2 * (q * nm + k)
+            A[i, i + 1] = 1.0
+            A[i + 1, i], A[i + 1, i + 1] = -d, -c
+            for col, j in enumerate(idx):
+                A[i + 1, 2 * j] = vt[0, col]  # driven by the amplifiers' outputs along the bearings' shape
+                C[j, i] = sv[0] * u[col, 0]
+        if model.residual is not None:
+            for r_, row in enumerate(labels):
+                for c_, lb in enumerate(row):
+                    C[idx[r_], 2 * idx[c_]] += model.residual[where[lb]]
+    Phi, Gam = zoh(A, B, h)
+    return Phi, Gam, C
+
+
+def _draws(fitted: FittedPlant, count: int, seed: int) -> list[ModalPlant]:
+    """``count`` models with parameters drawn from the fit's normal distribution (its values and
+    covariance); a draw that leaves the physical range (a negative frequency) is drawn again."""
+    f = fitted.fit
+    w, v = np.linalg.eigh((f.covariance + f.covariance.T) / 2)
+    root = v * np.sqrt(np.clip(w, 0.0, None))
+    rng = np.random.default_rng(seed)
+    m, b = len(f.model.rigid), len(f.model.bending)
+    out: list[ModalPlant] = []
+    while len(out) < count:
+        values = f.values + root @ rng.standard_normal(f.values.size)
+        if np.any(values[: m + 2 * b + 1] <= 0):
+            continue
+        out.append(model_from_values(Path("draw"), values, f.names, m, b, f.axes, fitted.h))
+    return out
+
+
+@dataclass
+class ControllerDesign:
+    """A designed controller and everything predicted of it (what ``--json`` prints, what the file
+    holds, what the report shows)."""
+
+    machine: str
+    gains: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+    chains: dict[str, list[Section]]
+    speeds_rpm: np.ndarray
+    peak_db: np.ndarray  # (speeds, axes); NaN where unstable
+    at_hz: np.ndarray
+    radius: np.ndarray  # (speeds,)
+    stock_peak_db: np.ndarray  # the machine's stock controller (PID, no sections), same grid
+    stock_radius: np.ndarray
+    identified_db: np.ndarray  # (axes,): the identified loop at standstill with the design
+    draws: int
+    stable_draws: int
+    draw_peak_db: np.ndarray  # (stable draws,): each draw's worst axis
+    source: dict = field(default_factory=dict)
+
+    @property
+    def stable(self) -> bool:
+        return bool(np.all(self.radius < 1.0))
+
+    @property
+    def robust(self) -> bool:
+        """Stable on the whole speed grid and with every plant drawn within the identified uncertainty."""
+        return self.stable and self.stable_draws == self.draws
+
+    def sections(self, axis: str) -> list[Section]:
+        return next(c for name, c in self.chains.items() if axis in BEARINGS[name])
+
+    def biquads(self) -> np.ndarray:
+        """(axes, MAX_SECTIONS, 5): every axis's chain, the unused places passing through."""
+        out = np.tile(np.array([1.0, 0.0, 0.0, 0.0, 0.0]), (len(AXES), MAX_SECTIONS, 1))
+        for i, a in enumerate(AXES):
+            for k, s in enumerate(self.sections(a)):
+                out[i, k] = s.coefficients
+        return out
+
+    def rows(self) -> list[dict]:
+        """Per axis: the worst predicted peak over the speed grid, where, its zone; the stock's."""
+        out = []
+        for i, a in enumerate(AXES):
+            k = int(np.nanargmax(self.peak_db[:, i])) if self.stable else int(np.argmax(self.radius))
+            stock = self.stock_peak_db[:, i]
+            out.append({"axis": a, "peak_db": _r(self.peak_db[k, i]), "at_hz": _r(self.at_hz[k, i]),
+                        "at_rpm": float(self.speeds_rpm[k]), "zone": _zone(self.peak_db[k, i]),
+                        "identified_standstill_db": _r(self.identified_db[i]),
+                        "stock_peak_db": None if np.isnan(stock).any() else _r(np.max(stock)),
+                        "stock_unstable_from_rpm": _unstable_from(self.speeds_rpm, self.stock_radius)})
+        return out
+
+    def as_dict(self) -> dict:
+        return {"machine": self.machine, "source": self.source, "stable_on_the_grid": self.stable,
+                "robust": self.robust,
+                "speed_grid_rpm": [float(self.speeds_rpm[0]), float(self.speeds_rpm[-1]), len(self.speeds_rpm)],
+                "pid": {name: list(map(float, g)) for name, g in zip(("p", "i", "d"), self.gains)},
+                "sections": {name: [s.label for s in c] for name, c in self.chains.items()},
+                "axes": self.rows(),
+                "robustness": {"draws": self.draws, "stable": self.stable_draws,
+                               "worst_peak_db_median": _r(np.median(self.draw_peak_db)) if self.stable_draws else None,
+                               "worst_peak_db_95": _r(np.percentile(self.draw_peak_db, 95)) if self.stable_draws else None}}
+
+    def document(self) -> dict:
+        """The sealed file: the controller as the firmware takes it, and its prediction."""
+        return {"format": FORMAT, "version": VERSION, **self.as_dict(), "axis_names": list(AXES),
+                "pid_per_axis": np.column_stack(self.gains).tolist(), "biquads": self.biquads().tolist(),
+                "prediction": {"speeds_rpm": self.speeds_rpm.tolist(),
+                               "peak_db": [[_r(v) for v in row] for row in self.peak_db],
+                               "at_hz": [[_r(v) for v in row] for row in self.at_hz]}}
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        return write_sealed(path, self.document(), overwrite=overwrite)
+
+
+def _r(value: float) -> float | None:
+    return None if not np.isfinite(value) else round(float(value), 2)
+
+
+def _zone(peak_db: float) -> str | None:
+    return None if not np.isfinite(peak_db) else STABILITY_LIMITS.zone(10 ** (peak_db / 20))
+
+
+def _unstable_from(speeds: np.ndarray, radius: np.ndarray) -> float | None:
+    bad = np.flatnonzero(radius >= 1.0)
+    return float(speeds[bad[0]]) if bad.size else None
+
+
+class _Machine:
+    """The machine's plant at each speed (computed once) and its loop closed by a controller."""
+
+    def __init__(self, params: FlexibleSpindleParams) -> None:
+        self.params = params
+        self.loop = FlexibleLoop(params)
+        self.h = self.loop.h
+        self._plants: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def closed(self, rpm: float, gains, chains: list[list[tuple]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if rpm not in self._plants:
+            self._plants[rpm] = zoh(*self.loop._continuous(rpm), self.h)
+        Phi, Gam = self._plants[rpm]
+        return close_loop(Phi, Gam, self.loop.sensor_rows(), gains, chains, sensor_gain=self.params.sensor_gain,
+                          nd=self.params.derivative_filter, h=self.h)
+
+
+def _per_axis(chains: dict[str, list[Section]]) -> list[list[tuple]]:
+    return [[s.coefficients for s in next(c for n, c in chains.items() if a in BEARINGS[n])] for a in AXES]
+
+
+def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float | None = None,
+           damping: float | None = None, max_rpm: float | None = None, draws: int = 200,
+           seed: int = 0) -> ControllerDesign:
+    """Design the controller of ``machine`` on the identified plant ``fitted`` (module docstring).
+
+    Parameters
+    ----------
+    fitted : FittedPlant
+        ``plant fit``'s model, measured at standstill.
+    machine : str
+        The rotor model the design is checked on over speed (:data:`MACHINES`).
+    stiffness : float, optional
+        Bearing stiffness, N/m; default the one the machine's PID gives.
+    damping : float, optional
+        Bearing damping, N s/m; default the one the machine's PID gives.
+    max_rpm : float, optional
+        The top of the speed grid, rpm; default the machine's maximum speed.
+    draws : int
+        Plants drawn from the identified covariance for the robustness check.
+    seed : int
+        Seed of those draws.
+    """
+    if machine not in MACHINES:
+        raise BadInputError(f"no rotor model for machine {machine!r} (there is: {', '.join(MACHINES)})")
+    if fitted.speed_rpm != 0.0:
+        raise BadInputError(f"the plant was measured at {fitted.speed_rpm:g} rpm: a design starts from a measurement "
+                            "at standstill (the model has no gyroscopic coupling)")
+    params, top = MACHINES[machine]
+    top = float(max_rpm if max_rpm is not None else top)
+    if not (np.isfinite(top) and top > 0):
+        raise BadInputError(f"--max-rpm must be a speed above 0, not {top:g}")
+    if abs(fitted.h * params.sample_rate - 1.0) > 1e-6:
+        raise BadInputError(f"the plant was measured at {1 / fitted.h:g} Hz, the {machine} controller runs at "
+                            f"{params.sample_rate:g} Hz")
+    missing = [a for a in AXES if a not in fitted.responses]
+    if missing:
+        raise BadInputError(f"the plant model has no response for {', '.join(missing)}: measure every axis")
+    stock = (tuple(a.pid_p for a in params.axes), tuple(a.pid_i for a in params.axes),
+             tuple(a.pid_d for a in params.axes))
+    P, D = list(stock[0]), list(stock[2])
+    if stiffness is not None or damping is not None:
+        for i, a in enumerate(params.axes):
+            gain = a.ki * a.amp_gain * params.sensor_gain
+            k = stiffness if stiffness is not None else P[i] * gain - a.kx
+            c = damping if damping is not None else D[i] * gain
+            if not (np.isfinite(k) and k > 0 and np.isfinite(c) and c > 0):
+                raise BadInputError(f"stiffness and damping must be above 0, not {k:g} N/m and {c:g} N s/m")
+            P[i], D[i] = pid_for(k, c, params, i)
+    gains = (tuple(P), stock[1], tuple(D))
+    plant = _Machine(params)
+    model = fitted.fit.model
+    ident = identified_plant(model, fitted.responses, fitted.h)
+    band = (5.0, 0.5 * params.sample_rate - 1.0)
+
+    def worst(chains: dict[str, list[Section]], speeds) -> float:
+        per_axis = _per_axis(chains)
+        out = []
+        for closed in [close_loop(*ident, gains, per_axis, sensor_gain=params.sensor_gain,
+                                  nd=params.derivative_filter, h=fitted.h)] + \
+                [plant.closed(n, gains, per_axis) for n in speeds]:
+            radius, peak, _ = model_sensitivity_peaks(*closed, plant.h, band, points=300)
+            if radius >= 1.0:
+                return UNSTABLE_COST + 1000.0 * (radius - 1.0)
+            out.append(float(db(peak.max())))
+        return max(out)
+
+    search = np.linspace(0.0, top, SEARCH_SPEEDS)
+    chains: dict[str, list[Section]] = {name: [] for name in BEARINGS}
+    best = worst(chains, search)
+    options = candidates(model.bending[:, 0] / (2 * np.pi), params.sample_rate)
+    while True:
+        trials = [(worst({**chains, name: chains[name] + [s]}, search), name, s)
+                  for name in BEARINGS if len(chains[name]) < MAX_SECTIONS for s in options]
+        if not trials:
+            break
+        cost, name, s = min(trials, key=lambda t: t[0])
+        if cost > best - MIN_GAIN_DB:
+            break
+        best, chains = cost, {**chains, name: chains[name] + [s]}
+
+    speeds = np.linspace(0.0, top, GRID_STEPS + 1)
+    grid = [model_sensitivity_peaks(*plant.closed(n, gains, _per_axis(chains)), plant.h, band) for n in speeds]
+    stock_grid = [model_sensitivity_peaks(*plant.closed(n, stock, [[] for _ in AXES]), plant.h, band) for n in speeds]
+    per_axis = _per_axis(chains)
+    _, ident_peak, _ = model_sensitivity_peaks(*close_loop(*ident, gains, per_axis, sensor_gain=params.sensor_gain,
+                                                            nd=params.derivative_filter, h=fitted.h), fitted.h, band)
+    draw_peaks = []
+    for drawn in _draws(fitted, draws, seed):
+        radius, peak, _ = model_sensitivity_peaks(*close_loop(*identified_plant(drawn, fitted.responses, fitted.h), gains,
+                                                              per_axis, sensor_gain=params.sensor_gain,
+                                                              nd=params.derivative_filter, h=fitted.h),
+                                                  fitted.h, band, points=300)
+        if radius < 1.0:
+            draw_peaks.append(float(db(peak.max())))
+    return ControllerDesign(
+        machine, gains, chains, speeds, np.array([db(g[1]) for g in grid]), np.array([g[2] for g in grid]),
+        np.array([g[0] for g in grid]), np.array([db(g[1]) for g in stock_grid]), np.array([g[0] for g in stock_grid]),
+        np.asarray(db(ident_peak)), draws, len(draw_peaks), np.array(draw_peaks), dict(fitted.source))
+
+
+def source_of(path: str | Path) -> dict:
+    """The model file a design came from: its name and SHA-256."""
+    path = Path(path)
+    return {"plant_model": path.name, "plant_model_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
