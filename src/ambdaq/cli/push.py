@@ -146,17 +146,19 @@ def status_command(device, description, as_json):
 @click.option("--max-rpm", type=float, help="Top of the speed grid, rpm; default the machine's maximum speed.")
 @click.option("--draws", type=click.IntRange(min=1, max=10_000), default=200, show_default=True,
               help="Plants drawn within the identified uncertainty, each closed with the design.")
+@click.option("--zone", "target_zone", type=click.Choice(["A", "B", "C"]), default="A", show_default=True,
+              help="The ISO 14839-3 zone every axis must reach at every speed.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True,
               help="Controller design file (sealed JSON: the PID and sections per axis, and the prediction).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the design and its prediction as JSON.")
-def design_command(model_file, machine, stiffness, damping, max_rpm, draws, output, overwrite, as_json):
+def design_command(model_file, machine, stiffness, damping, max_rpm, draws, target_zone, output, overwrite, as_json):
     """PID gains for a stated bearing stiffness and damping, and the sections (notch, low-pass,
     lead, lag) placed on MODEL_FILE's bending modes (plant fit, at standstill), chosen to lower the
     worst ISO 14839-3 peak |Gs| over speed; predicted per axis on a 1 % speed grid of the machine's
     rotor model, and on plants drawn within the identified uncertainty (docs/tuning.md). Exit 1
     (the file written, for inspection) where the design is not stable on the whole grid or on
-    every drawn plant.
+    every drawn plant, or an axis is beyond the target zone at some speed.
 
     \b
     Example:
@@ -170,7 +172,7 @@ def design_command(model_file, machine, stiffness, damping, max_rpm, draws, outp
     if out.exists() and not overwrite:
         raise BadInputError(f"{out} exists: choose another -o or pass --overwrite")
     result = design(load_model(model_file), machine, stiffness=stiffness, damping=damping, max_rpm=max_rpm,
-                    draws=draws)
+                    draws=draws, target_zone=target_zone)
     result.source = {**source_of(model_file), **result.source}
     result.save(out, overwrite=overwrite)
     summary = result.as_dict()
@@ -195,6 +197,9 @@ def design_command(model_file, machine, stiffness, damping, max_rpm, draws, outp
                  f"unstable with {result.draws - result.stable_draws} of {result.draws} plants drawn within the "
                  "identified uncertainty")
         raise AmbdaqError(f"the design is {where}: do not push it; measure the plant finer (docs/tuning.md)")
+    if not result.meets_target:
+        raise AmbdaqError(f"the design reaches zone {result.zone}, not {target_zone}, at some axis and speed: change "
+                          "--stiffness or --damping, or measure the plant finer (docs/tuning.md)")
 
 
 @controller_group.command("ff")
