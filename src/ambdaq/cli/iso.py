@@ -52,6 +52,9 @@ def command() -> None:
               help="Least coherence at the peak for a grade.")
 @click.option("--input", "input_axis", metavar="AXIS",
               help="The excited axis of RECORDINGS that do not say it (another tool's); ambdaq's own say it.")
+@click.option("--compare", "design_file", type=click.Path(dir_okay=False),
+              help="A controller design (controller design): each graded peak beside its prediction; exit 1 where "
+                   "one is more than 1 dB from it.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Results file (JSON).")
 @click.option("--overwrite", is_flag=True)
 @plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")
@@ -59,7 +62,7 @@ def command() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
 @max_lost_option
 def stability(recordings, device, description, speeds, axes, amplitude, duration, settle, runs_dir, resolution, band, limits,
-              min_coherence, input_axis, output, overwrite, plot_path, as_json, quiet, max_lost):
+              min_coherence, input_axis, design_file, output, overwrite, plot_path, as_json, quiet, max_lost):
     """ISO 14839-3: peak of the sensitivity function per axis and speed, and its zone.
 
     Measures with --device (white noise at the sensor summing point, one axis at a time, at each
@@ -72,9 +75,11 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
       ambdaq iso stability gs_*.mcap -o stability.json --limits 9.5dB,12dB,14dB
     """
     from ..workflows import iso_stability as iso
+    from ..workflows.controller_design import COMPARE_TOLERANCE_DB, compare, load_design
 
     if input_axis and device:
         raise BadInputError("--input names the excited axis of recordings; with --device the runs say it (--axes)")
+    design = load_design(design_file) if design_file else None  # a broken file fails before the measurement
     out = Path(output)
     paths = excited_runs("iso stability", recordings, device, description, list(speeds) or None, axes, amplitude,
                          duration, settle, runs_dir, out, overwrite, quiet)
@@ -91,17 +96,32 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         save(draw_stability([{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": r.freq_hz, "gs": r.gs,
                            "coherence": r.coherence, "peak_db": r.grade.peak_db, "zone": r.grade.zone} for r in runs],
                              limits), plot_path)
+    compared = compare(design, runs) if design is not None else None
     if as_json:
         click.echo(json.dumps({"standard": "ISO 14839-3", "limits_peak_gs": limits.as_list(),
-                               "runs": [r.as_dict(curves=False) for r in runs]}, indent=2))
+                               "runs": [r.as_dict(curves=False) for r in runs]}
+                              | ({"compared": {"design": Path(design_file).name, "tolerance_db": COMPARE_TOLERANCE_DB,
+                                               "rows": compared}} if design is not None else {}), indent=2))
     else:
         click.echo(stability_table(runs, limits))
+        if compared is not None:
+            click.echo(f"against {Path(design_file).name}'s prediction (within {COMPARE_TOLERANCE_DB:g} dB):")
+            for c in compared:
+                click.echo(f"{c['speed_rpm']:>10,.0f}  {c['axis']:<9} measured {c['measured_db']:6.2f} dB  predicted "
+                           f"{c['predicted_db']:6.2f} dB  {c['difference_db']:+.2f} dB  {'ok' if c['within'] else 'NOT AS PREDICTED'}")
     click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
     ungraded = [r for r in runs if r.grade.zone is None]
     if ungraded:  # the results are kept, but an acceptance run with an ungraded axis has not passed
         first = ungraded[0]
         raise BadInputError(f"{len(ungraded)} of {len(runs)} runs not graded; {first.axis} at {first.speed_rpm:,.0f} rpm: "
                             f"{first.grade.reason}")
+    off = [c for c in compared or [] if not c["within"]]
+    if off:
+        from ..errors import AmbdaqError
+
+        raise AmbdaqError(f"{len(off)} of {len(compared)} peaks are not as {Path(design_file).name} predicted: "
+                          f"{off[0]['axis']} at {off[0]['speed_rpm']:,.0f} rpm measured {off[0]['measured_db']:.2f} dB, "
+                          f"predicted {off[0]['predicted_db']:.2f} dB")
 
 
 def stability_table(runs, limits: ZoneLimits) -> str:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ..workflows.push import describe_difference, plan_push, plan_rollback, push, resolve_key
+from ..workflows.push import describe_difference, plan_controller_push, plan_push, plan_rollback, push, resolve_key
 from ..workflows.push import rollback as roll_back
 from ..documents.coefficients import Coefficients
 from ..drivers.coefbank import BankImage
@@ -37,6 +37,22 @@ def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[st
     return chosen[0].url, chosen[0].unlock_key, {**chosen[0].description, **given}
 
 
+def _controller_design(file: str):
+    """The controller design in ``file`` (``controller design`` wrote it), or None for any other file."""
+    from ..workflows.controller_design import FORMAT, load_design
+
+    try:
+        head = json.loads(Path(file).read_text())
+    except (OSError, ValueError):
+        return None  # Coefficients.load says what is wrong with it
+    if not (isinstance(head, dict) and head.get("format") == FORMAT):
+        return None
+    design = load_design(file)
+    if not design.meets_target:
+        raise BadInputError(f"{file}: the design did not meet its target (controller design said why): not pushed")
+    return design
+
+
 @click.command("push")
 @click.argument("file", type=click.Path(dir_okay=False), required=False)
 @click.option("--device", metavar="URL", help="The controller: serial:PORT or can://IF/CH?node=N (or a name in --rig).")
@@ -49,7 +65,9 @@ def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[st
 @click.option("--yes", is_flag=True, help="Do not ask before committing.")
 def push_command(file, device, rig, key, description, dry_run, rollback, yes):
     """Download coefficient FILE into the controller: validate, write the inactive bank, check the
-    device's CRC-32, commit at a control-period boundary, log. With --rollback, put back what the
+    device's CRC-32, commit at a control-period boundary, log. FILE may be a controller design
+    (controller design): its PID and sections replace the controller's, the feedforward the active
+    bank runs is kept. With --rollback, put back what the
     last push replaced, the same way (and --rollback again undoes that).
 
     \b
@@ -63,11 +81,14 @@ def push_command(file, device, rig, key, description, dry_run, rollback, yes):
     if bool(file) == rollback:
         raise BadInputError("push takes a coefficient FILE, or --rollback without one")
     url, rig_key, description = _target(device, rig, description)
-    coef = None if rollback else Coefficients.load(file)  # a broken file fails before any device is opened
+    # a broken file fails before any device is opened: a controller design, or coefficients
+    design = None if rollback else _controller_design(file)
+    coef = None if rollback or design is not None else Coefficients.load(file)
     unlock_key = None if dry_run else resolve_key(key, rig_key)
     port = open_controller(url, description)
     try:
-        plan = plan_rollback(port, url) if rollback else plan_push(port, file, coef)
+        plan = (plan_rollback(port, url) if rollback else plan_controller_push(port, file, design) if design is not None
+                else plan_push(port, file, coef))
         status = plan.status
         if dry_run or not yes:
             new = BankImage.decode(plan.image) if rollback else plan.image

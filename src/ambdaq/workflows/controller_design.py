@@ -409,3 +409,80 @@ def source_of(path: str | Path) -> dict:
     """The model file a design came from: its name and SHA-256."""
     path = Path(path)
     return {"plant_model": path.name, "plant_model_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
+@dataclass(frozen=True)
+class ControllerFile:
+    """A design file as ``push`` takes it: the controller per axis and what was predicted of it."""
+
+    axes: list[str]
+    pid: np.ndarray  # (axes, 3): P V/V, I 1/s, D s
+    biquads: np.ndarray  # (axes, sections, 5)
+    speeds_rpm: np.ndarray
+    peak_db: np.ndarray  # (speeds, axes), NaN where the design was predicted unstable
+    meets_target: bool
+
+    def predicted_db(self, axis: str, rpm: float) -> float:
+        """The predicted peak |Gs| (dB) of ``axis`` at ``rpm``, linear between the grid's speeds;
+        BadInputError beyond the grid (the design was not checked there)."""
+        half = 0.5 * float(self.speeds_rpm[1] - self.speeds_rpm[0])  # a measured speed a little off the grid's ends
+        if not self.speeds_rpm[0] - half <= rpm <= self.speeds_rpm[-1] + half:
+            raise BadInputError(f"the design was predicted from {self.speeds_rpm[0]:g} to {self.speeds_rpm[-1]:g} rpm, "
+                                f"not at {rpm:g}")
+        return float(np.interp(rpm, self.speeds_rpm, self.peak_db[:, self.axes.index(axis)]))
+
+
+def load_design(path: str | Path) -> ControllerFile:
+    """Read a file ``controller design`` wrote; BadInputError naming what is wrong (a controller that
+    could not run: a gain out of range, a section whose poles are outside the unit circle)."""
+    from ..documents.sealed import read_sealed
+    from ..drivers.coefbank import controller_problem
+
+    path = Path(path)
+    doc = read_sealed(path, FORMAT, VERSION, "controller design file")
+    try:
+        axes = doc["axis_names"]
+        if not isinstance(axes, list) or not all(isinstance(a, str) for a in axes):
+            raise ValueError("axis_names must be a list of names")
+        pid = np.array(doc["pid_per_axis"], dtype=float)
+        biquads = np.array(doc["biquads"], dtype=float)
+        pred = doc["prediction"]
+        speeds = np.array(pred["speeds_rpm"], dtype=float)
+        peak = np.array([[np.nan if v is None else v for v in row] for row in pred["peak_db"]], dtype=float)
+        if peak.shape != (speeds.size, len(axes)) or speeds.size < 2 or np.any(np.diff(speeds) <= 0):
+            raise ValueError("the prediction must hold one row per speed, increasing, one column per axis")
+        meets = doc["meets_target"]
+        if not isinstance(meets, bool):
+            raise ValueError("meets_target must be true or false")
+    except (KeyError, TypeError, ValueError) as err:
+        raise BadInputError(f"{path}: malformed controller design file ({err})") from None
+    if pid.shape[0] != len(axes):
+        raise BadInputError(f"{path}: {pid.shape[0]} PID rows for {len(axes)} axes")
+    problem = controller_problem(pid, biquads)
+    if problem:
+        raise BadInputError(f"{path}: {problem}")
+    return ControllerFile(list(axes), pid, biquads, speeds, peak, meets)
+
+
+COMPARE_TOLERANCE_DB = 1.0
+"""How far a measured peak |Gs| may be from the design's prediction before the machine is said not to
+behave as predicted, dB: the measured peak's stated accuracy (0.5 dB, docs/validation.md) and as
+much again for the measurement's frequency grid (a radial peak falls 0.3-0.4 dB over the 40 Hz its
+frequency is stated to)."""
+
+
+def compare(design: ControllerFile, runs) -> list[dict]:
+    """Each graded ``iso stability`` run (its axis, speed and peak) beside the design's prediction
+    there: ``within`` where they differ by at most :data:`COMPARE_TOLERANCE_DB`.  A run the
+    measurement could not grade (its coherence at the peak too low) is not compared: its peak is
+    not a measurement of the loop."""
+    out = []
+    for r in runs:
+        if r.axis not in design.axes or r.grade.zone is None:
+            continue
+        predicted = design.predicted_db(r.axis, float(r.speed_rpm))
+        diff = float(r.grade.peak_db) - predicted
+        out.append({"axis": r.axis, "speed_rpm": float(r.speed_rpm), "measured_db": round(float(r.grade.peak_db), 2),
+                    "predicted_db": round(predicted, 2), "difference_db": round(diff, 2),
+                    "within": bool(abs(diff) <= COMPARE_TOLERANCE_DB)})
+    return out

@@ -229,6 +229,17 @@ def describe_difference(old: BankImage, new: BankImage, axes: list[str], tol_m: 
     if list(map(tuple, old.schedule)) != list(map(tuple, new.schedule)):
         out.append(f"lms schedule: {len(old.schedule)} rows -> {len(new.schedule)} rows")
         out += [f"  {'all' if k == 0 else f'{k:g}X':>4} {lo:7.0f} .. {hi:7.0f} rpm  mu {mu:+g}" for k, lo, hi, mu in new.schedule]
+    if new.pid is not None and (old.pid is None or not np.array_equal(old.pid, new.pid)):
+        for a, axis in enumerate(axes):
+            before = "-" if old.pid is None else " ".join(f"{g:g}" for g in old.pid[a])
+            out.append(f"{axis:<8} PID (P, I, D): {before} -> {' '.join(f'{g:g}' for g in new.pid[a])}")
+    old_bq = None if old.biquads is None else old.biquads
+    if new.biquads is not None and (old_bq is None or old_bq.shape != new.biquads.shape
+                                    or not np.array_equal(old_bq, new.biquads)):
+        passing = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+        for a, axis in enumerate(axes):
+            used = [s for s in new.biquads[a] if not np.array_equal(s, passing)]
+            out.append(f"{axis:<8} sections: {len(used)} (" + "; ".join(" ".join(f"{c:+.6g}" for c in s) for s in used) + ")")
     if old.source_sha256 != new.source_sha256:
         out.append(f"source: {old.source_sha256[:12] or '-'} -> {new.source_sha256[:12]}")
     return out or ["no difference: the controller already holds these coefficients"]
@@ -262,6 +273,32 @@ def plan_push(port, path: str | Path, coef: Coefficients) -> PushPlan:
     sha = file_sha256(path)
     status = port.bank_status()
     return PushPlan(path, sha, status, image_from(coef, status, source_sha256=sha, where=str(path)))
+
+
+def plan_controller_push(port, path: str | Path, design) -> PushPlan:
+    """Validate a controller design file (``controller design``, loaded as ``design``) against the
+    controller behind ``port``: its axes by name, and the bank image that holds the active bank's
+    feedforward as it is (its weights, mode, schedule, phase table and FIR read back from the
+    controller) with the design's PID and sections; nothing is written.  A design that did not meet
+    its target (exit 1 of ``controller design``) is refused."""
+    from dataclasses import replace
+
+    path = Path(path)
+    if not design.meets_target:
+        raise BadInputError(f"{path}: the design did not meet its target (controller design said why): not pushed")
+    sha = file_sha256(path)
+    status = port.bank_status()
+    axes = list(status["axes"])
+    if sorted(axes) != sorted(design.axes):
+        raise BadInputError(f"{path}: the design is for axes {', '.join(design.axes)}, the controller has "
+                            f"{', '.join(axes)}")
+    order = [design.axes.index(a) for a in axes]
+    active = BankImage.decode(port.read_bank("active", status["active_length"]))
+    image = replace(active, pid=design.pid[order], biquads=design.biquads[order], source_sha256=sha)
+    problem = image.problem(len(axes), int(status["harmonics"]))
+    if problem:
+        raise BadInputError(f"{path}: {problem}")
+    return PushPlan(path, sha, status, image)
 
 
 def keep_image(data: bytes) -> Path:
