@@ -54,7 +54,7 @@ def command() -> None:
               help="The excited axis of RECORDINGS that do not say it (another tool's); ambdaq's own say it.")
 @click.option("--compare", "design_file", type=click.Path(dir_okay=False),
               help="A controller design (controller design): each graded peak beside its prediction; exit 1 where "
-                   "one is more than 1 dB from it.")
+                   "one is more than 0.5 dB from it.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Results file (JSON).")
 @click.option("--overwrite", is_flag=True)
 @plot_option("Sensitivity functions with the zone limits (.png, .pdf, .svg).")

@@ -209,14 +209,18 @@ def design_command(model_file, machine, stiffness, damping, max_rpm, draws, targ
             click.echo(f"{row['axis']:9s} {row['peak_db'] if row['peak_db'] is not None else '-':>6} dB  "
                        f"{row['at_hz'] or 0:7.1f} Hz  {row['at_rpm']:7.0f} rpm  {row['zone'] or '-':4s}  "
                        f"{row['identified_standstill_db']} dB{'':15s}{stock}")
-        rb = summary["robustness"]
+        rb, pt = summary["robustness"], summary["perturbed"]
         click.echo(f"{rb['stable']} of {rb['draws']} plants drawn within the identified uncertainty stable; their "
                    f"worst peak median {rb['worst_peak_db_median']} dB, 95th percentile {rb['worst_peak_db_95']} dB")
+        click.echo(f"{pt['stable']} of {pt['plants']} plants perturbed by +-10 % frequency, +-20 % damping, +-5 % gain "
+                   f"stable; their worst peak median {pt['worst_peak_db_median']} dB, 95th percentile "
+                   f"{pt['worst_peak_db_95']} dB")
     click.echo(f"-> {out}", err=True)
     if not result.robust:
         where = ("unstable on the machine's model at some speed" if not result.stable else
                  f"unstable with {result.draws - result.stable_draws} of {result.draws} plants drawn within the "
-                 "identified uncertainty")
+                 "identified uncertainty" if result.stable_draws < result.draws else
+                 f"unstable with {result.perturbed - result.stable_perturbed} of {result.perturbed} perturbed plants")
         raise AmbdaqError(f"the design is {where}: do not push it; measure the plant finer (docs/tuning.md)")
     if not result.meets_target:
         raise AmbdaqError(f"the design reaches zone {result.zone}, not {target_zone}, at some axis and speed: change "

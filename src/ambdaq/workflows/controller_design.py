@@ -174,6 +174,28 @@ def _draws(fitted: FittedPlant, count: int, seed: int) -> list[ModalPlant]:
     return out
 
 
+PERTURBATION = (0.10, 0.20, 0.05)
+"""The perturbed plants every design is also closed with (issue 42): each mode's frequency (and each
+rigid-body pole) within +-10 %, each bending mode's damping within +-20 %, each residue (the
+product of the modal, current, amplifier and sensor gains) within +-5 %, uniformly and
+independently: far wider than a good measurement's deviations, what a machine may drift by
+between the measurement and the years it runs."""
+
+
+def _perturbed(model: ModalPlant, count: int, seed: int) -> list[ModalPlant]:
+    """``count`` plants perturbed from ``model`` by :data:`PERTURBATION`."""
+    freq, damping, gain = PERTURBATION
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        b = len(model.bending)
+        bending = model.bending * np.column_stack([rng.uniform(1 - freq, 1 + freq, b), rng.uniform(1 - damping, 1 + damping, b)])
+        out.append(ModalPlant(model.rigid * rng.uniform(1 - freq, 1 + freq, model.rigid.size), bending,
+                              model.residues * rng.uniform(1 - gain, 1 + gain, model.residues.shape), model.amplifier,
+                              model.delay_s, model.h, model.residual))
+    return out
+
+
 @dataclass
 class ControllerDesign:
     """A designed controller and everything predicted of it (what ``--json`` prints, what the file
@@ -192,6 +214,9 @@ class ControllerDesign:
     draws: int
     stable_draws: int
     draw_peak_db: np.ndarray  # (stable draws,): each draw's worst axis
+    perturbed: int = 0
+    stable_perturbed: int = 0
+    perturbed_peak_db: np.ndarray = field(default_factory=lambda: np.zeros(0))
     target_zone: str = "A"
     source: dict = field(default_factory=dict)
 
@@ -201,8 +226,9 @@ class ControllerDesign:
 
     @property
     def robust(self) -> bool:
-        """Stable on the whole speed grid and with every plant drawn within the identified uncertainty."""
-        return self.stable and self.stable_draws == self.draws
+        """Stable on the whole speed grid, with every plant drawn within the identified uncertainty
+        and with every perturbed plant (:data:`PERTURBATION`)."""
+        return self.stable and self.stable_draws == self.draws and self.stable_perturbed == self.perturbed
 
     @property
     def zone(self) -> str | None:
@@ -246,9 +272,9 @@ class ControllerDesign:
                 "pid": {name: list(map(float, g)) for name, g in zip(("p", "i", "d"), self.gains)},
                 "sections": {name: [s.label for s in c] for name, c in self.chains.items()},
                 "axes": self.rows(),
-                "robustness": {"draws": self.draws, "stable": self.stable_draws,
-                               "worst_peak_db_median": _r(np.median(self.draw_peak_db)) if self.stable_draws else None,
-                               "worst_peak_db_95": _r(np.percentile(self.draw_peak_db, 95)) if self.stable_draws else None}}
+                "robustness": {"draws": self.draws, "stable": self.stable_draws, **_spread(self.draw_peak_db)},
+                "perturbed": {"plants": self.perturbed, "stable": self.stable_perturbed,
+                              "frequency_damping_gain": list(PERTURBATION), **_spread(self.perturbed_peak_db)}}
 
     def document(self) -> dict:
         """The sealed file: the controller as the firmware takes it, and its prediction."""
@@ -260,6 +286,13 @@ class ControllerDesign:
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         return write_sealed(path, self.document(), overwrite=overwrite)
+
+
+def _spread(worst_db: np.ndarray) -> dict:
+    """The median and 95th percentile of stable plants' worst peaks, dB."""
+    if not worst_db.size:
+        return {"worst_peak_db_median": None, "worst_peak_db_95": None}
+    return {"worst_peak_db_median": _r(np.median(worst_db)), "worst_peak_db_95": _r(np.percentile(worst_db, 95))}
 
 
 def _r(value: float) -> float | None:
@@ -298,7 +331,7 @@ def _per_axis(chains: dict[str, list[Section]]) -> list[list[tuple]]:
 
 def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float | None = None,
            damping: float | None = None, max_rpm: float | None = None, draws: int = 200,
-           seed: int = 0, target_zone: str = "A") -> ControllerDesign:
+           seed: int = 0, target_zone: str = "A", perturbed: int = 200) -> ControllerDesign:
     """Design the controller of ``machine`` on the identified plant ``fitted`` (module docstring).
 
     Parameters
@@ -319,6 +352,8 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
         Seed of those draws.
     target_zone : str
         The ISO 14839-3 zone every axis must reach at every speed ("A" ... "D").
+    perturbed : int
+        Plants perturbed by :data:`PERTURBATION` the design is also closed with.
     """
     if machine not in MACHINES:
         raise BadInputError(f"no rotor model for machine {machine!r} (there is: {', '.join(MACHINES)})")
@@ -391,18 +426,24 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
     per_axis = _per_axis(chains)
     _, ident_peak, _ = model_sensitivity_peaks(*close_loop(*ident, gains, per_axis, sensor_gain=params.sensor_gain,
                                                             nd=params.derivative_filter, h=fitted.h), fitted.h, band)
-    draw_peaks = []
-    for drawn in _draws(fitted, draws, seed):
-        radius, peak, _ = model_sensitivity_peaks(*close_loop(*identified_plant(drawn, fitted.responses, fitted.h), gains,
-                                                              per_axis, sensor_gain=params.sensor_gain,
-                                                              nd=params.derivative_filter, h=fitted.h),
-                                                  fitted.h, band, points=300)
-        if radius < 1.0:
-            draw_peaks.append(float(db(peak.max())))
+    def worst_peaks(plants: list[ModalPlant]) -> np.ndarray:
+        """Each stable plant's worst axis peak with the design, dB (the unstable ones left out)."""
+        out = []
+        for other in plants:
+            radius, peak, _ = model_sensitivity_peaks(*closed_identified(identified_plant(other, fitted.responses,
+                                                                                           fitted.h), per_axis),
+                                                      fitted.h, band, points=300)
+            if radius < 1.0:
+                out.append(float(db(peak.max())))
+        return np.array(out)
+
+    draw_peaks = worst_peaks(_draws(fitted, draws, seed))
+    perturbed_peaks = worst_peaks(_perturbed(model, perturbed, seed))
     return ControllerDesign(
         machine, gains, chains, speeds, np.array([db(g[1]) for g in grid]), np.array([g[2] for g in grid]),
         np.array([g[0] for g in grid]), np.array([db(g[1]) for g in stock_grid]), np.array([g[0] for g in stock_grid]),
-        np.asarray(db(ident_peak)), draws, len(draw_peaks), np.array(draw_peaks), target_zone, dict(fitted.source))
+        np.asarray(db(ident_peak)), draws, draw_peaks.size, draw_peaks, perturbed, perturbed_peaks.size, perturbed_peaks,
+        target_zone, dict(fitted.source))
 
 
 def source_of(path: str | Path) -> dict:
@@ -464,11 +505,10 @@ def load_design(path: str | Path) -> ControllerFile:
     return ControllerFile(list(axes), pid, biquads, speeds, peak, meets)
 
 
-COMPARE_TOLERANCE_DB = 1.0
+COMPARE_TOLERANCE_DB = 0.5
 """How far a measured peak |Gs| may be from the design's prediction before the machine is said not to
-behave as predicted, dB: the measured peak's stated accuracy (0.5 dB, docs/validation.md) and as
-much again for the measurement's frequency grid (a radial peak falls 0.3-0.4 dB over the 40 Hz its
-frequency is stated to)."""
+behave as predicted, dB: the measured peak's stated accuracy (docs/validation.md), which issue 42
+asks of the prediction. A peak a few hertz wide needs a grid as fine for it (docs/tuning.md)."""
 
 
 def compare(design: ControllerFile, runs) -> list[dict]:
