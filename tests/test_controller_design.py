@@ -54,7 +54,7 @@ def test_the_identified_plant_closed_by_the_controller_is_the_machines_loop():
 
 
 @pytest.mark.long  # four 10 s measurements, their fit and a design: about 2 minutes (docs/tuning.md)
-def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cli, tmp_path, monkeypatch):
+def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cli, tmp_path, monkeypatch, chromium):
     """docs/tuning.md's steps: four runs of 10 s at 2.5 Hz, the model fitted, a design for 4,000 N s/m
     of damping. On the machine's model it is stable at every speed of the 1 % grid where the stock PID
     is unstable above 32,400 rpm, every axis in ISO 14839-3 zone A; the identified loop at
@@ -70,12 +70,13 @@ def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cl
     assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
     assert run_cli("plant", "fit", tmp_path / "plant.json", "-o", tmp_path / "model.json").exit_code == 0
     r = run_cli("controller", "design", tmp_path / "model.json", "--damping", "4000", "-o", tmp_path / "ctl.json",
-                "--json")
+                "--json", "--plot", tmp_path / "design.png")
     assert r.exit_code == 0, r.output
     design = json.loads(r.stdout)
     assert design["stable_on_the_grid"] and design["speed_grid_rpm"] == [0.0, 36000.0, 101]
     assert design["robust"] and design["meets_target"] and design["robustness"]["stable"] == 200
     assert design["perturbed"]["plants"] == design["perturbed"]["stable"] == 200
+    assert (tmp_path / "design.png").stat().st_size > 30_000
     for row in design["axes"]:
         assert row["zone"] == "A" and row["stock_unstable_from_rpm"] == 32400.0, row
         assert row["identified_standstill_db"] < 9.5, row
@@ -85,6 +86,33 @@ def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cl
     assert r.exit_code == 2 and "did not meet its target" in r.output, r.output
     monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
     push_measure_undo(run_cli, tmp_path, tmp_path / "ctl.json", design)
+    report_renders_the_controller(run_cli, tmp_path, chromium)
+
+
+def report_renders_the_controller(run_cli, tmp_path, chromium):
+    """The commissioning report with the design and the stability measured after its push: its
+    controller section, rendered by Chromium, holds the numbers ``--json`` printed."""
+    import subprocess
+
+    from ambdaq.report.pdf import HEADLESS
+    from report_page import Tables
+
+    page = tmp_path / "report.html"
+    r = run_cli("report", "--stability", tmp_path / "st_20000.json", "--design", tmp_path / "ctl.json", "-o", page,
+                "--json")
+    assert r.exit_code == 0, r.output
+    c = json.loads(r.stdout)["controller"]
+    assert [x["axis"] for x in c["compared"]] == ["front_x", "rear_x"] and all(x["within"] for x in c["compared"])
+    browse = [chromium, *HEADLESS, f"--user-data-dir={tmp_path / 'profile'}"]
+    dom = subprocess.run([*browse, "--dump-dom", page.as_uri()], capture_output=True, text=True, timeout=120)
+    assert dom.returncode == 0
+    tables = Tables()
+    tables.feed(dom.stdout)
+    shown = tables.tables["controller-compared"]
+    assert [cells[:5] for cells in shown] == [[f"{x['speed_rpm']:,.0f}", x["axis"], f"{x['measured_db']:.1f}",
+                                              f"{x['predicted_db']:.1f}", f"{x['difference_db']:+.1f}"]
+                                             for x in c["compared"]]
+    assert [cells[4] for cells in tables.tables["controller-prediction"]] == [row["zone"] for row in c["axes"]]
 
 
 def served_flexible(*extra: str):

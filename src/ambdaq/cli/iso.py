@@ -96,7 +96,8 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         save(draw_stability([{"speed_rpm": r.speed_rpm, "axis": r.axis, "freq_hz": r.freq_hz, "gs": r.gs,
                            "coherence": r.coherence, "peak_db": r.grade.peak_db, "zone": r.grade.zone} for r in runs],
                              limits), plot_path)
-    compared = compare(design, runs) if design is not None else None
+    compared = (None if design is None else
+                compare(design, [(r.axis, r.speed_rpm, r.grade.peak_db, r.grade.zone) for r in runs]))
     if as_json:
         click.echo(json.dumps({"standard": "ISO 14839-3", "limits_peak_gs": limits.as_list(),
                                "runs": [r.as_dict(curves=False) for r in runs]}

@@ -17,7 +17,7 @@ from ..drivers.registry import open_controller
 from ..workflows.controller_params import values_text
 from ..drivers.rigfile import load_rig
 from ..errors import BadInputError, DeviceError
-from .options import a2l_option
+from .options import a2l_option, plot_option
 
 
 def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[str, str | None, dict]:
@@ -39,11 +39,12 @@ def _target(device: str | None, rig: str | None, given: dict | None) -> tuple[st
 
 def _controller_design(file: str):
     """The controller design in ``file`` (``controller design`` wrote it), or None for any other file."""
+    from ..documents.sealed import read_json
     from ..workflows.controller_design import FORMAT, load_design
 
-    try:
-        head = json.loads(Path(file).read_text())
-    except (OSError, ValueError):
+    try:  # a regular file of bounded size only (a FIFO or a device is never read)
+        head = read_json(Path(file), "coefficient file")
+    except BadInputError:
         return None  # Coefficients.load says what is wrong with it
     if not (isinstance(head, dict) and head.get("format") == FORMAT):
         return None
@@ -172,8 +173,10 @@ def status_command(device, description, as_json):
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True,
               help="Controller design file (sealed JSON: the PID and sections per axis, and the prediction).")
 @click.option("--overwrite", is_flag=True)
+@plot_option("Predicted peak |Gs| over speed per axis, the design's and the stock controller's (.png, .pdf, .svg).")
 @click.option("--json", "as_json", is_flag=True, help="Print the design and its prediction as JSON.")
-def design_command(model_file, machine, stiffness, damping, max_rpm, draws, target_zone, output, overwrite, as_json):
+def design_command(model_file, machine, stiffness, damping, max_rpm, draws, target_zone, output, overwrite, plot_path,
+                   as_json):
     """PID gains for a stated bearing stiffness and damping, and the sections (notch, low-pass,
     lead, lag) placed on MODEL_FILE's bending modes (plant fit, at standstill), chosen to lower the
     worst ISO 14839-3 peak |Gs| over speed; predicted per axis on a 1 % speed grid of the machine's
@@ -196,6 +199,13 @@ def design_command(model_file, machine, stiffness, damping, max_rpm, draws, targ
                     draws=draws, target_zone=target_zone)
     result.source = {**source_of(model_file), **result.source}
     result.save(out, overwrite=overwrite)
+    if plot_path:
+        from ..figures import save
+        from ..figures.controller import draw_design
+        from ..workflows.controller_design import AXES
+
+        save(draw_design(result.speeds_rpm, result.peak_db, result.stock_peak_db, list(AXES),
+                         {name: [s.label for s in c] for name, c in result.chains.items()}), plot_path)
     summary = result.as_dict()
     if as_json:
         click.echo(json.dumps(summary, indent=2))
@@ -215,7 +225,7 @@ def design_command(model_file, machine, stiffness, damping, max_rpm, draws, targ
         click.echo(f"{pt['stable']} of {pt['plants']} plants perturbed by +-10 % frequency, +-20 % damping, +-5 % gain "
                    f"stable; their worst peak median {pt['worst_peak_db_median']} dB, 95th percentile "
                    f"{pt['worst_peak_db_95']} dB")
-    click.echo(f"-> {out}", err=True)
+    click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
     if not result.robust:
         where = ("unstable on the machine's model at some speed" if not result.stable else
                  f"unstable with {result.draws - result.stable_draws} of {result.draws} plants drawn within the "

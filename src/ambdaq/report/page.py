@@ -132,6 +132,37 @@ def render(found, title: str) -> str:
                   _table(["speed [rpm]", "axis", "peak |Gs|", "peak [dB]", "at [Hz]", "coherence", "zone"], rows, "stability"),
                   _figure(_png(draw_stability(curves, limits)),
                           "Sensitivity function |Gs| in dB against frequency in Hz, per axis; dashed: the zone limits.")]
+    c = d.get("controller")
+    if c:
+        from ..figures.controller import draw_design
+
+        pred = c["prediction"]
+        rows = [[_cell(bearing, "text"), _cell("; ".join(labels) or "none", "text")] for bearing, labels in c["sections"].items()]
+        pid = [[_cell(a, "text"), _cell(c["pid"]["p"][i], kind="factor"), _cell(c["pid"]["i"][i], kind="factor"),
+                _cell(c["pid"]["d"][i] * 1e3, kind="factor")] for i, a in enumerate(pred["axes"])]
+        axes = [[_cell(r["axis"], "text"), _cell(r["peak_db"], kind="db"), _cell(r["at_hz"], kind="hz"),
+                 _cell(r["at_rpm"], kind="rpm"), _cell(r["zone"] or "unstable", f"zone-{r['zone'] or 'none'} text"),
+                 _cell(r["identified_standstill_db"], kind="db")] for r in c["axes"]]
+        compared = [[_cell(x["speed_rpm"], kind="rpm"), _cell(x["axis"], "text"), _cell(x["measured_db"], kind="db"),
+                     _cell(x["predicted_db"], kind="db"), _cell(x["difference_db"], kind="change_db"),
+                     _cell("as predicted" if x["within"] else "NOT as predicted", "text")] for x in c["compared"]]
+        nan = (lambda rows_: np.array([[np.nan if v is None else v for v in r] for r in rows_], dtype=float))
+        rb, pt = c["robustness"], c["perturbed"]
+        parts += ["<h2>Controller</h2>",
+                  f'<p class="note">The controller design pushed ({html.escape(c["file"])}, from the identified plant '
+                  f"{html.escape(str(c['source'].get('plant_model', '–')))}): predicted on the machine's rotor model over "
+                  f"speed (docs/tuning.md); {rb['stable']} of {rb['draws']} plants drawn within the identified "
+                  f"uncertainty and {pt['stable']} of {pt['plants']} perturbed plants stable with it.</p>",
+                  _table(["bearing", "sections"], rows, "controller-sections"),
+                  _table(["axis", "P [V/V]", "I [1/s]", "D [ms]"], pid, "controller-pid"),
+                  _table(["axis", "predicted worst peak [dB]", "at [Hz]", "at [rpm]", "zone", "identified at standstill [dB]"],
+                         axes, "controller-prediction"),
+                  _table(["speed [rpm]", "axis", "measured [dB]", "predicted [dB]", "difference [dB]",
+                          f"within {c['tolerance_db']:g} dB"], compared, "controller-compared"),
+                  _figure(_png(draw_design(np.array(pred["speeds_rpm"]), nan(pred["peak_db"]), nan(pred["stock_peak_db"]),
+                                           pred["axes"], c["sections"])),
+                          "Predicted peak |Gs| in dB against speed in rpm per axis: the design (solid) and the stock "
+                          "controller (dashed), its unstable speeds shaded; dotted: the zone limits.")]
     v = d["vibration"]
     if v:
         limits = ZoneLimits(*v["limits_ratio_cmin"])

@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
+
 from ..analysis.orders import CriticalLimits
 from ..documents.coefficients import Coefficients, file_sha256
 from ..daq.recording import Recording, open_recording
@@ -52,6 +54,9 @@ class SessionFiles:
         API 617 separation margins are checked against them.
     limits : CriticalLimits
         What the critical speeds are verified by (API 684's by default).
+    design : Path or None
+        The controller design that was pushed (``controller design``): its prediction beside the
+        stability measurement.
     """
 
     stability: Path | None = None
@@ -65,6 +70,7 @@ class SessionFiles:
     drops: list[Recording] = field(default_factory=list)
     operating_rpm: tuple[float, float] | None = None
     limits: CriticalLimits = CriticalLimits()
+    design: Path | None = None
 
 
 def machine_identity(recs: list[Recording]) -> dict:
@@ -182,8 +188,23 @@ def gather(files: SessionFiles) -> Commissioning:
                     if isinstance(v, (Path, Recording))}
     if files.drops:
         out["files"]["drops"] = [str(r.path) for r in files.drops]
+    out["controller"] = None if files.design is None else controller_section(files.design, doc)
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag, after)
+
+
+def controller_section(path: Path, stability) -> dict:
+    """The pushed controller design (issue 42): what ``controller design --json`` said of it, its
+    prediction over speed, and each graded stability run beside the prediction at its speed."""
+    from .controller_design import COMPARE_TOLERANCE_DB, compare, load_design
+
+    design = load_design(path)
+    runs = [] if stability is None else [(r.axis, r.speed_rpm, r.peak_db, r.zone) for r in stability.runs]
+    return {"file": str(path), **design.summary, "tolerance_db": COMPARE_TOLERANCE_DB,
+            "compared": compare(design, runs),
+            "prediction": {"speeds_rpm": design.speeds_rpm.tolist(), "axes": design.axes,
+                           "peak_db": [[None if np.isnan(v) else v for v in row] for row in design.peak_db],
+                           "stock_peak_db": [[None if np.isnan(v) else v for v in row] for row in design.stock_peak_db]}}
 
 
 def aphts(res: Apht, rec: Recording) -> dict:
@@ -267,6 +288,17 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
                                                             if c["predicted_rpm"] is not None else
                                                             f"measured at {c['measured_rpm']:,.0f} rpm") +
                               f" fails: {c['rule']}")
+    c = data.get("controller")
+    if c is not None:
+        off = [x for x in c["compared"] if not x["within"]]
+        lines.append({"check": "controller design", "standard": "ISO 14839-3 prediction", "zone": c.get("zone"),
+                      "result": f"predicted zone {c.get('zone')} to {c['prediction']['speeds_rpm'][-1]:,.0f} rpm; "
+                                f"{len(c['compared']) - len(off)} of {len(c['compared'])} measured peaks within "
+                                f"{c['tolerance_db']:g} dB of the prediction"})
+        open_items += [f"controller design: {x['axis']} at {x['speed_rpm']:,.0f} rpm measured {x['measured_db']:.2f} dB, "
+                       f"predicted {x['predicted_db']:.2f} dB" for x in off]
+        if not c["compared"]:
+            open_items.append("controller design: no graded stability run to compare its prediction with (--stability)")
     for line in lines:
         if line["zone"] in ("C", "D"):
             open_items.append(f"{line['standard']}: zone {line['zone']}, {ZONE_MEANING[line['zone']]}")

@@ -282,7 +282,8 @@ class ControllerDesign:
                 "pid_per_axis": np.column_stack(self.gains).tolist(), "biquads": self.biquads().tolist(),
                 "prediction": {"speeds_rpm": self.speeds_rpm.tolist(),
                                "peak_db": [[_r(v) for v in row] for row in self.peak_db],
-                               "at_hz": [[_r(v) for v in row] for row in self.at_hz]}}
+                               "at_hz": [[_r(v) for v in row] for row in self.at_hz],
+                               "stock_peak_db": [[_r(v) for v in row] for row in self.stock_peak_db]}}
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         return write_sealed(path, self.document(), overwrite=overwrite)
@@ -462,6 +463,8 @@ class ControllerFile:
     speeds_rpm: np.ndarray
     peak_db: np.ndarray  # (speeds, axes), NaN where the design was predicted unstable
     meets_target: bool
+    stock_peak_db: np.ndarray  # (speeds, axes): the stock controller's, NaN where unstable
+    summary: dict  # what ``controller design --json`` printed (sections, axes, robustness)
 
     def predicted_db(self, axis: str, rpm: float) -> float:
         """The predicted peak |Gs| (dB) of ``axis`` at ``rpm``, linear between the grid's speeds;
@@ -490,7 +493,9 @@ def load_design(path: str | Path) -> ControllerFile:
         pred = doc["prediction"]
         speeds = np.array(pred["speeds_rpm"], dtype=float)
         peak = np.array([[np.nan if v is None else v for v in row] for row in pred["peak_db"]], dtype=float)
-        if peak.shape != (speeds.size, len(axes)) or speeds.size < 2 or np.any(np.diff(speeds) <= 0):
+        stock = np.array([[np.nan if v is None else v for v in row] for row in pred["stock_peak_db"]], dtype=float)
+        if (peak.shape != (speeds.size, len(axes)) or stock.shape != peak.shape or speeds.size < 2
+                or np.any(np.diff(speeds) <= 0)):
             raise ValueError("the prediction must hold one row per speed, increasing, one column per axis")
         meets = doc["meets_target"]
         if not isinstance(meets, bool):
@@ -502,7 +507,9 @@ def load_design(path: str | Path) -> ControllerFile:
     problem = controller_problem(pid, biquads)
     if problem:
         raise BadInputError(f"{path}: {problem}")
-    return ControllerFile(list(axes), pid, biquads, speeds, peak, meets)
+    summary = {k: doc[k] for k in ("machine", "source", "zone", "target_zone", "pid", "sections", "axes", "robustness",
+                                   "perturbed") if k in doc}
+    return ControllerFile(list(axes), pid, biquads, speeds, peak, meets, stock, summary)
 
 
 COMPARE_TOLERANCE_DB = 0.5
@@ -511,18 +518,18 @@ behave as predicted, dB: the measured peak's stated accuracy (docs/validation.md
 asks of the prediction. A peak a few hertz wide needs a grid as fine for it (docs/tuning.md)."""
 
 
-def compare(design: ControllerFile, runs) -> list[dict]:
-    """Each graded ``iso stability`` run (its axis, speed and peak) beside the design's prediction
-    there: ``within`` where they differ by at most :data:`COMPARE_TOLERANCE_DB`.  A run the
-    measurement could not grade (its coherence at the peak too low) is not compared: its peak is
-    not a measurement of the loop."""
+def compare(design: ControllerFile, runs: list[tuple[str, float, float, str | None]]) -> list[dict]:
+    """Each graded ``iso stability`` run, (axis, speed rpm, peak dB, zone), beside the design's
+    prediction there: ``within`` where they differ by at most :data:`COMPARE_TOLERANCE_DB`.  A run
+    the measurement could not grade (zone None: its coherence at the peak too low) is not
+    compared: its peak is not a measurement of the loop."""
     out = []
-    for r in runs:
-        if r.axis not in design.axes or r.grade.zone is None:
+    for axis, rpm, peak_db, zone in runs:
+        if axis not in design.axes or zone is None:
             continue
-        predicted = design.predicted_db(r.axis, float(r.speed_rpm))
-        diff = float(r.grade.peak_db) - predicted
-        out.append({"axis": r.axis, "speed_rpm": float(r.speed_rpm), "measured_db": round(float(r.grade.peak_db), 2),
+        predicted = design.predicted_db(axis, float(rpm))
+        diff = float(peak_db) - predicted
+        out.append({"axis": axis, "speed_rpm": float(rpm), "measured_db": round(float(peak_db), 2),
                     "predicted_db": round(predicted, 2), "difference_db": round(diff, 2),
                     "within": bool(abs(diff) <= COMPARE_TOLERANCE_DB)})
     return out
