@@ -196,11 +196,16 @@ class FlexibleLoop:
 
     def matrices(self, rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """M, B and C at ``rpm`` (rpm)."""
+        return self.closed(rpm, self.gains, self.sections)
+
+    def closed(self, rpm: float, gains, sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """M, B and C at ``rpm`` (rpm) with another controller: ``gains`` (P, I, D per axis) and
+        ``sections`` (one chain per axis); the rotor's step over a period is computed once per speed."""
         if rpm not in self._steps:
             self._steps[rpm] = zoh(*self._continuous(rpm), self.h)
         Phi, Gam = self._steps[rpm]
         p = self.params
-        return close_loop(Phi, Gam, self.sensor_rows(), self.gains, self.sections, sensor_gain=p.sensor_gain,
+        return close_loop(Phi, Gam, self.sensor_rows(), gains, sections, sensor_gain=p.sensor_gain,
                           nd=p.derivative_filter, h=self.h)
 
 def close_loop(Phi: np.ndarray, Gam: np.ndarray, Cs: np.ndarray, gains, sections, *, sensor_gain: float, nd: float,

@@ -75,12 +75,17 @@ class Section:
     coefficients: tuple[float, float, float, float, float]
 
 
+def _bearing_gain(params: FlexibleSpindleParams, axis: int) -> float:
+    """ki ka ks of ``axis``: N of bearing force per m of gap, per unit of P (V/V)."""
+    a = params.axes[axis]
+    return a.ki * a.amp_gain * params.sensor_gain
+
+
 def pid_for(stiffness: float, damping: float, params: FlexibleSpindleParams, axis: int) -> tuple[float, float]:
     """P (V/V) and D (s) that give ``axis``'s bearing ``stiffness`` (N/m) and ``damping`` (N s/m)
     (the module docstring's relation)."""
-    a = params.axes[axis]
-    gain = a.ki * a.amp_gain * params.sensor_gain  # N of bearing force per m of gap, per unit of P
-    return (stiffness + a.kx) / gain, damping / gain
+    gain = _bearing_gain(params, axis)
+    return (stiffness + params.axes[axis].kx) / gain, damping / gain
 
 
 def candidates(bending_hz: np.ndarray, fs: float) -> list[Section]:
@@ -240,14 +245,11 @@ class ControllerDesign:
         """Robust, and no axis at any speed beyond the target zone."""
         return self.robust and self.zone is not None and self.zone <= self.target_zone
 
-    def sections(self, axis: str) -> list[Section]:
-        return next(c for name, c in self.chains.items() if axis in BEARINGS[name])
-
     def biquads(self) -> np.ndarray:
         """(axes, MAX_SECTIONS, 5): every axis's chain, the unused places passing through."""
         out = np.tile(np.array([1.0, 0.0, 0.0, 0.0, 0.0]), (len(AXES), MAX_SECTIONS, 1))
         for i, a in enumerate(AXES):
-            for k, s in enumerate(self.sections(a)):
+            for k, s in enumerate(_chain(self.chains, a)):
                 out[i, k] = s.coefficients
         return out
 
@@ -309,25 +311,13 @@ def _unstable_from(speeds: np.ndarray, radius: np.ndarray) -> float | None:
     return float(speeds[bad[0]]) if bad.size else None
 
 
-class _Machine:
-    """The machine's plant at each speed (computed once) and its loop closed by a controller."""
-
-    def __init__(self, params: FlexibleSpindleParams) -> None:
-        self.params = params
-        self.loop = FlexibleLoop(params)
-        self.h = self.loop.h
-        self._plants: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-
-    def closed(self, rpm: float, gains, chains: list[list[tuple]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if rpm not in self._plants:
-            self._plants[rpm] = zoh(*self.loop._continuous(rpm), self.h)
-        Phi, Gam = self._plants[rpm]
-        return close_loop(Phi, Gam, self.loop.sensor_rows(), gains, chains, sensor_gain=self.params.sensor_gain,
-                          nd=self.params.derivative_filter, h=self.h)
+def _chain(chains: dict[str, list[Section]], axis: str) -> list[Section]:
+    """``axis``'s chain: its bearing's."""
+    return next(c for name, c in chains.items() if axis in BEARINGS[name])
 
 
 def _per_axis(chains: dict[str, list[Section]]) -> list[list[tuple]]:
-    return [[s.coefficients for s in next(c for n, c in chains.items() if a in BEARINGS[n])] for a in AXES]
+    return [[s.coefficients for s in _chain(chains, a)] for a in AXES]
 
 
 def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float | None = None,
@@ -376,14 +366,14 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
     P, D = list(stock[0]), list(stock[2])
     if stiffness is not None or damping is not None:
         for i, a in enumerate(params.axes):
-            gain = a.ki * a.amp_gain * params.sensor_gain
+            gain = _bearing_gain(params, i)
             k = stiffness if stiffness is not None else P[i] * gain - a.kx
             c = damping if damping is not None else D[i] * gain
             if not (np.isfinite(k) and k > 0 and np.isfinite(c) and c > 0):
                 raise BadInputError(f"stiffness and damping must be above 0, not {k:g} N/m and {c:g} N s/m")
             P[i], D[i] = pid_for(k, c, params, i)
     gains = (tuple(P), stock[1], tuple(D))
-    plant = _Machine(params)
+    plant = FlexibleLoop(params)
     model = fitted.fit.model
     ident = identified_plant(model, fitted.responses, fitted.h)
     band = (5.0, 0.5 * params.sample_rate - 1.0)
@@ -422,11 +412,10 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
         best, chains = cost, {**chains, name: chains[name] + [s]}
 
     speeds = np.linspace(0.0, top, GRID_STEPS + 1)
-    grid = [model_sensitivity_peaks(*plant.closed(n, gains, _per_axis(chains)), plant.h, band) for n in speeds]
-    stock_grid = [model_sensitivity_peaks(*plant.closed(n, stock, [[] for _ in AXES]), plant.h, band) for n in speeds]
     per_axis = _per_axis(chains)
-    _, ident_peak, _ = model_sensitivity_peaks(*close_loop(*ident, gains, per_axis, sensor_gain=params.sensor_gain,
-                                                            nd=params.derivative_filter, h=fitted.h), fitted.h, band)
+    grid = [model_sensitivity_peaks(*plant.closed(n, gains, per_axis), plant.h, band) for n in speeds]
+    stock_grid = [model_sensitivity_peaks(*plant.closed(n, stock, [[] for _ in AXES]), plant.h, band) for n in speeds]
+    _, ident_peak, _ = model_sensitivity_peaks(*closed_identified(ident, per_axis), fitted.h, band)
     def worst_peaks(plants: list[ModalPlant]) -> np.ndarray:
         """Each stable plant's worst axis peak with the design, dB (the unstable ones left out)."""
         out = []
