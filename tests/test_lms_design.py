@@ -44,9 +44,10 @@ def test_convergence_map_is_symmetric_in_sign_near_zero_and_bounded():
 def test_lms_filter_realisation_is_eq_9_summed_over_time(phi, g):
     """The rotation-form filter's impulse response is r_c[n] = Re(g exp(j n phi)) for n >= 1
     (eq. 9 summed over time, the update turned by g), to rounding."""
-    from ambdaq.analysis.lms import _lms_filter
+    from ambdaq.analysis.lms import _lms_filters
 
-    R, b, c = _lms_filter(phi, complex(g))
+    R, c = _lms_filters(np.array([phi]), np.array([[complex(g)]]))
+    R, c, b = R[0], c[0], np.array([[1.0], [0.0]])
     x, got = b.copy(), []
     for _ in range(200):
         got.append((c @ x).item())

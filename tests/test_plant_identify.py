@@ -92,10 +92,17 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         return
     assert r.exit_code == 0, r.output
     fitted = json.loads(r.stdout)
-    # the deviations say what they hold, and where the validation campaign found they did not
-    assert "window's bias taken out" in fitted["std_holds"] and "82 %" in fitted["std_holds"]
+    # the deviations say what they hold
+    assert "window's bias taken out" in fitted["std_holds"] and "RESOLUTION_FLOOR" in fitted["std_holds"]
     got = {k: (v["value"], v["std"]) for k, v in fitted["parameters"].items()}
     truth = true_modes()
+    # each bending mode's damping is stated no better than the frequency step leaves it (5 Hz: the
+    # first mode, 3.9 Hz wide, 8 % of its damping; the validation campaign measured the need)
+    for k, hz in enumerate(truth["bending_hz"], 1):
+        floor = 0.05 * (5.0 / (2 * 0.005 * hz)) ** 2 * 0.005
+        # 0.9: the floor here is the true damping's, the
+        # fit's (within 4 % of it above) sets the file's, and the JSON keeps 3 digits
+        assert got[f"mode{k}_zeta"][1] >= 0.9 * floor, (k, got[f"mode{k}_zeta"], floor)
     # the diagonal and the elements across each plane's bearings; the x-y elements hold only noise
     assert sorted(fitted["responses"]) == sorted([*AXES, "front_x<-rear_x", "rear_x<-front_x", "front_y<-rear_y",
                                                   "rear_y<-front_y"])

@@ -143,52 +143,57 @@ def converges(radius: np.ndarray) -> np.ndarray:
     return np.where(r < 1.0 - HOLD_TOL, 1, np.where(r > 1.0 + HOLD_TOL, -1, 0))
 
 
-def _lms_filter(phi: float, g: complex) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """G_ff / mu for a harmonic at phi = k Omega h rad per sample with the update turned by g,
-    as a state space (R, b, c): r_c[n] = mu sum_{d>=1} e[n-d] Re(g exp(j d phi)), so
+def _lms_filters(phi: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """G_ff / mu for a harmonic at phi = k Omega h rad per sample with the update turned by g, as a
+    state space (R, b, c) per point and axis: r_c[n] = mu sum_{d>=1} e[n-d] Re(g exp(j d phi)), so
 
         G_ff = mu ((g_r cos phi - g_i sin phi) z - g_r) / (z^2 - 2 cos phi z + 1).
 
     R is the rotation by phi, whose eigenvalues exp(+-j phi) have modulus 1 to the last bit; the
     companion form of the same denominator is nearly defective at low speed and puts its roots
     up to 6e-5 off the circle.  With b = [1, 0], c = [g_r cos phi - g_i sin phi,
-    -(g_r sin phi + g_i cos phi)], c (zI - R)^-1 b is that numerator over that denominator."""
+    -(g_r sin phi + g_i cos phi)], c (zI - R)^-1 b is that numerator over that denominator.
+
+    ``phi`` (K,) rad per sample, ``g`` (K, p) complex; returns R (K, 2, 2) and c (K, p, 2)."""
     c, s = np.cos(phi), np.sin(phi)
-    R = np.array([[c, -s], [s, c]])
-    b = np.array([[1.0], [0.0]])
-    out = np.array([[g.real * c - g.imag * s, -(g.real * s + g.imag * c)]])
-    return R, b, out
+    R = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    out = np.stack([g.real * c[:, None] - g.imag * s[:, None], -(g.real * s[:, None] + g.imag * c[:, None])], -1)
+    return R, out
 
 
-def _radius(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, mu: np.ndarray, phi: float,
+RADIUS_BATCH = 256  # loops whose eigenvalues are taken in one call (a few MB of matrices)
+
+
+def _radius(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, mu: np.ndarray, phi: np.ndarray,
             g: np.ndarray) -> np.ndarray:
-    """Spectral radius of the loop e = T u (state space A, B, C, D; u = -r_c, one input per
-    adapting axis) closed through the LMS filter of each axis (``g``: its update's turn), for each
-    step size in ``mu``.  The feedforward uses the weights of the previous step, so G_ff is
-    strictly proper and the loop has no algebraic part."""
-    p = B.shape[1]
-    blocks = [_lms_filter(phi, complex(g[i])) for i in range(p)]
-    Rf = np.kron(np.eye(p), blocks[0][0])
-    Bf = np.kron(np.eye(p), blocks[0][1])
-    Cf1 = np.zeros((p, 2 * p))  # G_ff's output for mu = 1
-    for i, (_R, _b, c) in enumerate(blocks):
-        Cf1[i, 2 * i : 2 * i + 2] = c
-    # the closed loop is affine in mu: one stack of matrices, their eigenvalues in one call
-    fixed = np.block([[A, np.zeros((A.shape[0], Rf.shape[0]))], [Bf @ C, Rf]])
-    per_mu = np.block([[np.zeros_like(A), -B @ Cf1], [np.zeros((Rf.shape[0], A.shape[1])), -Bf @ D @ Cf1]])
-    closed = fixed[None] + np.asarray(mu, dtype=float)[:, None, None] * per_mu[None]
-    return np.abs(np.linalg.eigvals(closed)).max(axis=1)
-
-
-def _radius_state_space(loop: StateSpaceLoop, rpm: float, mu: np.ndarray, harmonic: int,
-                        g: np.ndarray) -> np.ndarray:
-    """Spectral radius of ``loop`` with the LMS filter G_ff on every adapting axis; ``g`` turns
-    each axis's update (ones: Ro et al.'s plain LMS).  The loop's input is r_c itself: e = C x - r_c."""
-    M, B, C = loop.at(rpm)
-    axes = list(range(B.shape[1])) if loop.axes is None else list(loop.axes)
-    B, C = B[:, axes], C[axes]
-    phi = harmonic * rpm * RPM_TO_RAD_S * loop.h
-    return _radius(M, -B, C, np.eye(len(axes)), mu, phi, g[axes])
+    """Spectral radius of the loops e = T u (state space A, B, C, D, each (K, ...) or one for all;
+    u = -r_c, one input per adapting axis) closed through the LMS filter of each axis at ``phi``
+    (K,) (``g`` (K, p): its update's turn), for each step size in ``mu``: shape (K, len(mu)).  The
+    feedforward uses the weights of the previous step, so G_ff is strictly proper and the loop
+    has no algebraic part."""
+    K, p = len(phi), g.shape[1]
+    A, B, C = (np.broadcast_to(m, (K, *m.shape[-2:])) for m in (A, B, C))
+    n, q = A.shape[1], 2 * p
+    R, c = _lms_filters(phi, g)
+    Bf = np.kron(np.eye(p), np.array([[1.0], [0.0]]))  # each filter's input: its axis's error
+    Cf1 = np.zeros((K, p, q))  # G_ff's output for mu = 1
+    for i in range(p):
+        Cf1[:, i, 2 * i:2 * i + 2] = c[:, i]
+    # the closed loop is affine in mu: fixed + mu per_mu, every point's and step size's eigenvalues at once
+    fixed = np.zeros((K, n + q, n + q))
+    fixed[:, :n, :n] = A
+    fixed[:, n:, :n] = Bf @ C
+    for i in range(p):
+        fixed[:, n + 2 * i:n + 2 * i + 2, n + 2 * i:n + 2 * i + 2] = R
+    per_mu = np.zeros((K, n + q, n + q))
+    per_mu[:, :n, n:] = -B @ Cf1
+    per_mu[:, n:, n:] = -(Bf @ D) @ Cf1
+    mu = np.asarray(mu, dtype=float)
+    out = np.empty((K, len(mu)))
+    for lo in range(0, K, RADIUS_BATCH):
+        closed = fixed[lo:lo + RADIUS_BATCH, None] + mu[None, :, None, None] * per_mu[lo:lo + RADIUS_BATCH, None]
+        out[lo:lo + RADIUS_BATCH] = np.abs(np.linalg.eigvals(closed)).max(axis=-1)
+    return out
 
 
 @dataclass(frozen=True)
@@ -248,14 +253,19 @@ def convergence_radius(loop, rpm: np.ndarray, mu: np.ndarray, harmonic: int = 1,
         return np.exp(1j * phase.at(harmonic * n / 60.0))
 
     mu = np.asarray(mu, dtype=float)
+    phi = harmonic * rpm * RPM_TO_RAD_S * loop.h
     if isinstance(loop, StateSpaceLoop):
-        n_axes = loop.at(float(rpm[0]))[1].shape[1]
-        return np.array([_radius_state_space(loop, float(n), mu, harmonic, g_at(n, n_axes)) for n in rpm])
+        # the loop's input is r_c itself: e = C x - r_c, on the adapting axes
+        at = [loop.at(float(n)) for n in rpm]
+        axes = list(range(at[0][1].shape[1])) if loop.axes is None else list(loop.axes)
+        return _radius(np.array([m for m, _, _ in at]), -np.array([b[:, axes] for _, b, _ in at]),
+                       np.array([c[axes] for _, _, c in at]), np.eye(len(axes)), mu, phi,
+                       np.array([g_at(n, at[0][1].shape[1])[axes] for n in rpm]).reshape(len(rpm), len(axes)))
     # e = S (r - r_c): the sensitivity in state space, its input u = -r_c
     from scipy.signal import tf2ss  # imported when used (OneAxis.plant_z)
 
     A, B, C, D = tf2ss(*loop.sensitivity_z())
-    return np.array([_radius(A, B, C, D, mu, harmonic * n * RPM_TO_RAD_S * loop.h, g_at(n, 1)) for n in rpm])
+    return _radius(A, B, C, D, mu, phi, np.array([g_at(n, 1) for n in rpm]).reshape(len(rpm), 1))
 
 
 @dataclass(frozen=True)
