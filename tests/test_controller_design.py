@@ -115,12 +115,12 @@ def report_renders_the_controller(run_cli, tmp_path, chromium):
     assert [cells[4] for cells in tables.tables["controller-prediction"]] == [row["zone"] for row in c["axes"]]
 
 
-def served_flexible(*extra: str):
-    """``ambdaq sim serve --profile flexible`` in its own process; yields its URLs by kind."""
+def served_flexible(*extra: str, profile: str = "flexible"):
+    """``ambdaq sim serve --profile PROFILE`` in its own process; yields its URLs by kind."""
     import subprocess
     import sys
 
-    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", "flexible", "--duration",
+    proc = subprocess.Popen([sys.executable, "-m", "ambdaq", "sim", "serve", "--profile", profile, "--duration",
                              "300", *extra], stdout=subprocess.PIPE, text=True)
     urls = {}
     while len(urls) < 1 + len(extra) // 2:
@@ -166,6 +166,78 @@ def push_measure_undo(run_cli, tmp_path, ctl, design):
         assert run_cli("push", "--rollback", "--device", xcp, "--yes").exit_code == 0
         assert json.loads(run_cli("controller", "status", "--device", xcp, "--json").stdout)["active_crc32"] == \
             stock["active_crc32"]
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_the_second_rotor_needs_tuning_and_is_not_the_first():
+    """The longer rotor (``--profile flexible-long``): bending modes at least 20 % below the first
+    rotor's, its stock PID zone D at standstill and still stable at the top speed (a machine the
+    design has nothing tuned for; the long test below takes it from measurement to undo)."""
+    from ambdaq.machines.flexible_spindle import LONG_ROTOR, MAX_RPM
+
+    first, second = FlexibleLoop(FLEXIBLE), FlexibleLoop(LONG_ROTOR)
+    assert np.all(second.free_hz[2:6] < 0.8 * first.free_hz[2:6]), (first.free_hz, second.free_hz)
+    radius, peak, _ = model_sensitivity_peaks(*second.matrices(0.0), second.h, BAND)
+    assert radius < 1 and db(peak.max()) > 14.0, db(peak)  # ISO 14839-3 zone D beyond 14 dB
+    assert model_sensitivity_peaks(*second.matrices(MAX_RPM), second.h, BAND)[0] < 1
+
+
+@pytest.mark.long  # four 10 s measurements, fit, design, push, three measurements: about 3 minutes
+def test_the_whole_job_on_a_rotor_the_design_was_not_written_for(run_cli, tmp_path, monkeypatch):
+    """Identify -> fit -> design -> push -> measure -> undo on the longer rotor (seed 9): its
+    poles within 3 of their stated deviations; a design to zone B (200 drawn and 200 perturbed
+    plants stable; the stock PID was zone D); after the push every measured peak within 0.5 dB
+    of the prediction, at standstill and at 36,000 rpm; the rollback restores the stock bank.
+    Measured here: fitted bending modes 295.25, 596.52, 1192.4, 1888.7, 2828.4, 3675.6 Hz for
+    295.26 ... 3675.1; peaks +0.06 and -0.03 dB at standstill, -0.38 and -0.07 dB at 36,000 rpm."""
+    from ambdaq.machines.flexible_spindle import LONG_ROTOR
+
+    runs = []
+    for axis in AXES:
+        runs.append(tmp_path / f"run_{axis}.mcap")
+        assert run_cli("sim", "generate", "--profile", "flexible-long", "--excite", f"{axis}:2", "--duration", "10",
+                       "--seed", "9", "-q", "-o", runs[-1]).exit_code == 0
+    assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
+    r = run_cli("plant", "fit", tmp_path / "plant.json", "-o", tmp_path / "model.json", "--json")
+    assert r.exit_code == 0, r.output
+    got = {k: (v["value"], v["std"]) for k, v in json.loads(r.stdout)["parameters"].items()}
+    poles = FlexibleLoop(LONG_ROTOR).plant_poles(0.0)
+    bending = sorted(abs(p) / (2 * np.pi) for p in poles if p.imag > 0 and -p.real / abs(p) < 0.1
+                     and abs(p) / (2 * np.pi) < 4000)[::2]  # each mode once per plane
+    assert len(bending) == sum(k.startswith("mode") and k.endswith("_hz") for k in got) == 6
+    for k, hz in enumerate(bending, 1):
+        value, std = got[f"mode{k}_hz"]
+        assert abs(value - hz) < 3 * std, (k, value, std, hz)
+    ctl = tmp_path / "ctl.json"
+    r = run_cli("controller", "design", tmp_path / "model.json", "--machine", "flexible-long", "--zone", "B",
+                "-o", ctl, "--json")
+    assert r.exit_code == 0, r.output
+    design = json.loads(r.stdout)
+    assert design["meets_target"] and design["zone"] in ("A", "B")
+    assert design["robustness"]["stable"] == design["perturbed"]["stable"] == 200
+    assert all(row["stock_peak_db"] > 14.0 for row in design["axes"]), design["axes"]
+    monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
+    proc, urls = served_flexible(profile="flexible-long")
+    try:
+        url = urls["controller"]
+        stock = json.loads(run_cli("controller", "status", "--device", url, "--json").stdout)
+        r = run_cli("push", ctl, "--device", url, "--yes")
+        assert r.exit_code == 0 and "device-verified" in r.output, r.output
+        # the front's standstill peak is the third bending mode's, 1.2 kHz and narrow: 10 s at
+        # 2.5 Hz with 4 um (4 s at 5 Hz with 2 um left its coherence at 0.87, not graded)
+        for rpm, axes, duration, step, amplitude in ((0, "front_x,rear_x", 10, 2.5, 4),
+                                                     (36000, "front_x,rear_x", 16, 1.25, 4)):
+            r = run_cli("iso", "stability", "--device", url, "--rpm", rpm, "--duration", duration, "--resolution",
+                        step, "--amplitude", amplitude, "--axes", axes, "-o", tmp_path / f"st_{rpm}.json",
+                        "--compare", ctl, "--json", "-q")
+            assert r.exit_code == 0, r.output
+            rows = json.loads(r.stdout)["compared"]["rows"]
+            assert [c["axis"] for c in rows] == ["front_x", "rear_x"] and all(c["within"] for c in rows), rows
+        assert run_cli("push", "--rollback", "--device", url, "--yes").exit_code == 0
+        back = json.loads(run_cli("controller", "status", "--device", url, "--json").stdout)
+        assert back["active_crc32"] == stock["active_crc32"]
     finally:
         proc.terminate()
         proc.wait(timeout=10)

@@ -149,21 +149,40 @@ def routh_stable(coefficients: np.ndarray) -> bool:
     a = np.trim_zeros(np.asarray(coefficients, dtype=float), "f")
     if a.shape[0] < 2:
         return True
-    if a[0] < 0:
-        a = -a
-    n = a.shape[0]
+    return bool(routh_stable_many(a[None])[0])
+
+
+def routh_stable_many(coefficients: np.ndarray) -> np.ndarray:
+    """:func:`routh_stable` of each row of ``coefficients`` (N, degree + 1), polynomials of one
+    degree whose leading coefficient is not zero, their Routh arrays built side by side."""
+    a = np.asarray(coefficients, dtype=float)
+    a = np.where(a[:, :1] < 0, -a, a)
+    count, n = a.shape
     cols = (n + 1) // 2
-    rows = [np.zeros(cols), np.zeros(cols)]
-    rows[0][: len(a[0::2])] = a[0::2]
-    rows[1][: len(a[1::2])] = a[1::2]
+    p, q = np.zeros((count, cols)), np.zeros((count, cols))
+    p[:, : len(range(0, n, 2))] = a[:, 0::2]
+    q[:, : len(range(1, n, 2))] = a[:, 1::2]
+    ok = p[:, 0] > 0
     for _ in range(n - 2):
-        p, q = rows[-2], rows[-1]
-        if q[0] <= 0:
-            return False
-        r = np.zeros(cols)
-        r[:-1] = (q[0] * p[1:] - p[0] * q[1:]) / q[0]
-        rows.append(r)
-    return bool(all(r[0] > 0 for r in rows))
+        lead = q[:, 0]
+        ok &= lead > 0  # a zero or a sign change in the first column
+        r = np.zeros((count, cols))
+        r[:, :-1] = (lead[:, None] * p[:, 1:] - p[:, :1] * q[:, 1:]) / np.where(lead > 0, lead, 1.0)[:, None]
+        p, q = q, r
+    return ok & (q[:, 0] > 0) & (p[:, 0] > 0)
+
+
+def stable_map(loop: "PdLoop", kp: np.ndarray, kd: np.ndarray) -> np.ndarray:
+    """Whether ``loop`` is stable at each (Kp, Kd) of the grid ``kp`` (V/V) x ``kd`` (s): shape
+    (len(kp), len(kd)), every point's characteristic polynomial (eq. 22) tested at once."""
+    from dataclasses import replace
+
+    base = replace(loop, kp=0.0, kd=0.0).characteristic()
+    P, D = np.meshgrid(np.asarray(kp, dtype=float), np.asarray(kd, dtype=float), indexing="ij")
+    char = np.broadcast_to(base, (*P.shape, base.shape[0])).copy()
+    char[..., -2] += loop.ki * (loop.ks * loop.kc * (P * loop.tau + D))  # characteristic()'s order of operations
+    char[..., -1] += loop.ki * (loop.ks * loop.kc * P)
+    return routh_stable_many(char.reshape(-1, base.shape[0])).reshape(P.shape)
 
 
 @dataclass(frozen=True)

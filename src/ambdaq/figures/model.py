@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..analysis.cone import PdLoop
+from ..analysis.cone import PdLoop, stable_map
 from . import pyplot
 
 
@@ -16,7 +16,7 @@ def draw_region(loop: PdLoop, region, kp_max: float):
     kd = np.geomspace(max(region.kd_min, 1e-7) * 0.5, region.kd_max * 2, 160)
     top = max(region.kp_min * 20, loop.kp, kp_max if np.isfinite(kp_max) else 0.0) * 3
     kp = np.geomspace(region.kp_min * 0.5, top, 160)
-    ok = np.array([[PdLoop(**{**loop.__dict__, "kp": p, "kd": d}).stable() for d in kd] for p in kp])
+    ok = stable_map(loop, kp, kd)
     fig, ax = plt.subplots(figsize=(8.5, 5), constrained_layout=True)
     ax.contourf(kd, kp, ok.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
     ax.plot(loop.kd, loop.kp, "k*", ms=10, label="design point")

@@ -23,6 +23,7 @@ PROFILES = {
     "cone": "ambdaq.sim.rigs.cone",
     "lorentz": "ambdaq.sim.rigs.lorentz",
     "flexible": "ambdaq.sim.rigs.flexible",
+    "flexible-long": "ambdaq.sim.rigs.flexible_long",
 }
 
 

@@ -41,12 +41,14 @@ from ..analysis.iso14839 import STABILITY_LIMITS, db, model_sensitivity_peaks
 from ..analysis.plant_model import ModalPlant
 from ..documents.sealed import write_sealed
 from ..errors import BadInputError
-from ..machines.flexible_spindle import AXES, FLEXIBLE, MAX_RPM, FlexibleLoop, FlexibleSpindleParams, close_loop
+from ..machines.flexible_spindle import (AXES, FLEXIBLE, LONG_ROTOR, MAX_RPM, FlexibleLoop, FlexibleSpindleParams,
+                                         close_loop)
 from .plant_fit import FittedPlant, model_from_values
 
 FORMAT = "ambdaq.controller_design"
 VERSION = 1
-MACHINES: dict[str, tuple[FlexibleSpindleParams, float]] = {"flexible": (FLEXIBLE, MAX_RPM)}
+MACHINES: dict[str, tuple[FlexibleSpindleParams, float]] = {"flexible": (FLEXIBLE, MAX_RPM),
+                                                           "flexible-long": (LONG_ROTOR, MAX_RPM)}
 """The machines whose rotor model a design is checked on: (parameters, maximum speed in rpm)."""
 MAX_SECTIONS = 4
 """Second-order sections per axis the controllers ambdaq designs for run (the flexible rig's firmware)."""
