@@ -127,7 +127,7 @@ def test_foreign_files(tmp_path, run_cli):
     [
         ("foo://bar", "unknown device URL 'foo://bar': expected sim://PROFILE"),
         ("spindle", "unknown device URL"),
-        ("sim://nope", "unknown simulated rig 'nope': profiles are base-motion, cone, flexible, lorentz, spindle"),
+        ("sim://nope", "unknown simulated rig 'nope': profiles are base-motion, cone, flexible, flexible-long, lorentz, spindle"),
         ("sim://spindle?bogus=1", "unknown option 'bogus'"),
         ("sim://spindle?seed=x", "expected an integer"),
         ("sim://spindle?ff=maybe", "expected one of off, table, lms"),
