@@ -116,3 +116,33 @@ def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
             click.echo(f"  {row['parameter']:<26} {row['value']:12.5g} +- {row['std']:.3g}")
         click.echo(f"warning: the deviations (+-) hold {STD_HOLDS}", err=True)
     click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
+
+
+@command.command("gains")
+@click.argument("plant_file", type=click.Path(dir_okay=False))
+@click.option("--machine", default="flexible", show_default=True,
+              help="The rotor model the bearings' gains are fitted with (machines/).")
+@click.option("--json", "as_json", is_flag=True, help="Print the gains with their standard deviations as JSON.")
+def gains(plant_file, machine, as_json):
+    """Each magnetic bearing's actuator gain ki*ka (force per controller volt, N/V) and negative
+    stiffness kx (N/m), fitted to the standstill plant of PLANT_FILE (plant identify) with the
+    machine's rotor model, with their standard deviations and the machine's own values beside.
+
+    \b
+    Example:
+      ambdaq plant gains plant.json --machine flexible
+    """
+    from ..machines.flexible_spindle import flexible_machine
+    from ..workflows.bearing_gains import fit_bearing_gains
+    from ..workflows.plant_identification import load_measurement
+
+    params, _top = flexible_machine(machine)
+    result = fit_bearing_gains(load_measurement(plant_file), params, machine)
+    if as_json:
+        click.echo(json.dumps(result.as_dict(), indent=2))
+        return
+    click.echo(f"{machine}: {result.points} points below {result.band_hz:.0f} Hz, reduced chi-square "
+               f"{result.chi2_reduced:.2f}")
+    for row in result.rows():
+        click.echo(f"  {row['parameter']:<12} {row['value']:12.5g} +- {row['std']:<9.3g} {row['unit']:<4} "
+                   f"(machine data {row['machine']:.5g}: x{row['ratio']:.4f})")

@@ -93,6 +93,20 @@ bearings and stock PID. Its bending modes sit lower (301, 600, 1193, 1890 Hz fre
 stock controller is zone D at standstill (17.4 dB at 1.2 kHz) and stays stable to 36,000 rpm: a
 second rotor the controller design must handle without anything tuned for it."""
 
+FLEXIBLE_MACHINES: dict[str, tuple[FlexibleSpindleParams, float]] = {"flexible": (FLEXIBLE, MAX_RPM),
+                                                                     "flexible-long": (LONG_ROTOR, MAX_RPM)}
+"""The flexible rotors whose models the host side reads (``--machine NAME``): parameters and maximum
+speed (rpm)."""
+
+
+def flexible_machine(name: str) -> tuple[FlexibleSpindleParams, float]:
+    """``FLEXIBLE_MACHINES[name]``, or BadInputError naming the ones there are."""
+    from ..errors import BadInputError
+
+    if name not in FLEXIBLE_MACHINES:
+        raise BadInputError(f"no rotor model for machine {name!r} (there is: {', '.join(FLEXIBLE_MACHINES)})")
+    return FLEXIBLE_MACHINES[name]
+
 
 class FlexibleLoop:
     """The machine's loop at given PID gains: x[n+1] = M x + B r_c, e = C x - r_c, per radial axis

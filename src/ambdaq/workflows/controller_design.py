@@ -41,15 +41,11 @@ from ..analysis.iso14839 import STABILITY_LIMITS, db, model_sensitivity_peaks
 from ..analysis.plant_model import ModalPlant
 from ..documents.sealed import write_sealed
 from ..errors import BadInputError
-from ..machines.flexible_spindle import (AXES, FLEXIBLE, LONG_ROTOR, MAX_RPM, FlexibleLoop, FlexibleSpindleParams,
-                                         close_loop)
+from ..machines.flexible_spindle import AXES, FlexibleLoop, FlexibleSpindleParams, close_loop, flexible_machine
 from .plant_fit import FittedPlant, model_from_values
 
 FORMAT = "ambdaq.controller_design"
 VERSION = 1
-MACHINES: dict[str, tuple[FlexibleSpindleParams, float]] = {"flexible": (FLEXIBLE, MAX_RPM),
-                                                           "flexible-long": (LONG_ROTOR, MAX_RPM)}
-"""The machines whose rotor model a design is checked on: (parameters, maximum speed in rpm)."""
 MAX_SECTIONS = 4
 """Second-order sections per axis the controllers ambdaq designs for run (the flexible rig's firmware)."""
 SEARCH_SPEEDS = 7
@@ -332,7 +328,8 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
     fitted : FittedPlant
         ``plant fit``'s model, measured at standstill.
     machine : str
-        The rotor model the design is checked on over speed (:data:`MACHINES`).
+        The rotor model the design is checked on over speed
+        (:data:`~ambdaq.machines.flexible_spindle.FLEXIBLE_MACHINES`).
     stiffness : float, optional
         Bearing stiffness, N/m; default the one the machine's PID gives.
     damping : float, optional
@@ -348,12 +345,10 @@ def design(fitted: FittedPlant, machine: str = "flexible", *, stiffness: float |
     perturbed : int
         Plants perturbed by :data:`PERTURBATION` the design is also closed with.
     """
-    if machine not in MACHINES:
-        raise BadInputError(f"no rotor model for machine {machine!r} (there is: {', '.join(MACHINES)})")
     if fitted.speed_rpm != 0.0:
         raise BadInputError(f"the plant was measured at {fitted.speed_rpm:g} rpm: a design starts from a measurement "
                             "at standstill (the model has no gyroscopic coupling)")
-    params, top = MACHINES[machine]
+    params, top = flexible_machine(machine)
     top = float(max_rpm if max_rpm is not None else top)
     if not (np.isfinite(top) and top > 0):
         raise BadInputError(f"--max-rpm must be a speed above 0, not {top:g}")
