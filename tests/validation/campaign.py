@@ -708,7 +708,7 @@ def bearing_gains(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0
     holds = cover >= 0.9 and float(np.abs(rel).max()) < 5.0
     return Row("bearings' actuator gain ki·ka and negative stiffness kx (`plant gains`)",
                f"{machine} rotor, 0 rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz",
-               "1σ per parameter; issue 42 asks 5 %",
+               "1σ per parameter (the noise's, and 0.1 % of the value: bearing_gains.MODEL_FLOOR); issue 42 asks 5 %",
                "median " + ", ".join(f"{n} {np.median(rel[:, k]):+.2f} %" for k, n in enumerate(NAMES)),
                "largest " + f"{np.abs(rel).max():.2f} %; error / stated RMS "
                + ", ".join(f"{r:.1f}" for r in rms) + f"; 95 % intervals cover {cover * 100:.0f} %",
