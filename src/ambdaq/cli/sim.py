@@ -52,6 +52,11 @@ def command() -> None:
 @click.option("--drop", metavar="AT_S:DURATION_S",
               help="Cone and spindle rigs: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops "
                    "onto its touchdown bearings, then levitates again.")
+@click.option("--trial", "trials", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True,
+              help="Spindle: a trial mass on a balancing plane (front, rear), its angle from the key-phasor's mark "
+                   "in the direction of rotation; the radius the machine's balancing holes' by default (30 mm).")
+@click.option("--correction", "corrections", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True,
+              help="Spindle: a correction mass, as --trial (recorded as the rig's masses either way).")
 @click.option("--unbalance", metavar="UPPER_KGM:LOWER_KGM[:DEG]",
               help="Cone rig: a mass unbalance at its two bearing planes, kg m, the lower one DEG ahead (Jeong et al. "
                    "give none, so the rig has none unless asked).")
@@ -63,7 +68,7 @@ def command() -> None:
 @output_options
 @report_options
 def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base, fir_file, impact, start, drop,
-             unbalance, params, snapshot, out, quiet, as_json):
+             trials, corrections, unbalance, params, snapshot, out, quiet, as_json):
     """Run a simulated rig as fast as it goes and write the same MCAP a recording would.
 
     \b
@@ -111,6 +116,15 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             from ..sim.rigs.drop import Drop
 
             source.rig.set_drop(Drop.parse(drop))
+        if trials or corrections:
+            if "balancing" not in source.rig.inputs:
+                raise BadInputError(f"--trial/--correction: the {profile} rig has no balancing planes (use --profile "
+                                    "spindle)")
+            from ..machines.balance_masses import BalanceMass
+
+            rig = source.rig
+            source.rig.add_masses([BalanceMass.parse(spec, rig.balance_planes, rig.params.balance_radius)
+                                   for spec in (*trials, *corrections)])
         if unbalance is not None:
             if "unbalance" not in source.rig.inputs:
                 raise BadInputError(f"--unbalance: the {profile} rig's unbalance is its own (use --profile cone)")

@@ -127,6 +127,8 @@ class SpindleParams:
     runout_phase: np.ndarray = field(default_factory=lambda: _default_runout()[1])  # rad
     unbalance: tuple[float, float] = (2.0e-6, 3.0e-6)  # kg m, front and rear planes
     unbalance_phase: tuple[float, float] = (0.0, 2.0)  # rad
+    # assumed: balancing holes on a 30 mm radius in the front and rear planes (Ro et al. give none)
+    balance_radius: float = 0.03  # m
     # assumed: Ro et al. gives no touchdown bearings; their radial clearance is commonly half the
     # magnetic air gap (0.3 mm, Table 1)
     min_clearance: float = 0.15e-3  # m, Cmin of ISO 14839-2

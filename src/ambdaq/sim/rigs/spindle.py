@@ -53,6 +53,7 @@ from ..profiles import Profile
 from .base import CommandedSpeed, Rig
 from .drop import Drop
 from .excitation import ExcitationInput
+from ...machines.balance_masses import BalanceMass, plane_unbalance
 from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
                                   PHASE_BIN_HZ, PHASE_BINS, SPINDLE, SpindleParams)
 from ...machines.spindle_loop import (GAIN_KEYS, GAIN_LEAST, SpindleLoop, amplifier_matrices, derivative_filter,
@@ -354,7 +355,8 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
     """
 
     profile = "spindle"
-    inputs = frozenset({"excitation", "feedforward", "drop"})
+    inputs = frozenset({"excitation", "feedforward", "drop", "balancing"})
+    balance_planes = ("front", "rear")  # where the unbalance acts, at the bearings
     excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
     excitation_unit = "m"
     excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal
@@ -383,6 +385,7 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
         self._rotor_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._linear: SpindleLoop | None = None  # the loop at the present gains (loop_matrices)
         self.drop: Drop | None = None
+        self.masses: list[BalanceMass] = []  # put on its planes (add_masses)
         self._init_constants()
         self._init_state()
         self.settle(settle_s)
@@ -423,9 +426,7 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
         self._Ga = np.empty((5, 2))
         for i, ax in enumerate(axes):
             self._Pa[i], self._Ga[i] = amplifier_matrices(ax, h)
-        self._unb = np.array([p.unbalance[0], p.unbalance[0], p.unbalance[1], p.unbalance[1], 0.0])
-        ph = np.array(p.unbalance_phase)
-        self._unb_ph = np.array([ph[0], ph[0] - np.pi / 2, ph[1], ph[1] - np.pi / 2, 0.0])
+        self._set_unbalance_arrays()
         self._run_s, self._run_c = p.runout_sin_cos()
         adc_lsb = 2 * p.adc_range / 2**p.adc_bits if self.noise else 0.0
         dac_lsb = 2 * p.dac_range / 2**p.dac_bits if self.noise else 0.0
@@ -433,6 +434,30 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
                             PHASE_BIN_HZ, p.min_clearance, p.contact_stiffness, p.contact_damping,
                             np.exp(-h / p.coil_time_constant)])
         self._noise_sd = np.array([p.gap_noise, p.current_noise, p.accel_noise]) * (1.0 if self.noise else 0.0)
+
+    def _set_unbalance_arrays(self) -> None:
+        """The kernel's unbalance per axis from the params' per plane: x axes cos, y axes sin."""
+        p = self.params
+        self._unb = np.array([p.unbalance[0], p.unbalance[0], p.unbalance[1], p.unbalance[1], 0.0])
+        ph = np.array(p.unbalance_phase)
+        self._unb_ph = np.array([ph[0], ph[0] - np.pi / 2, ph[1], ph[1] - np.pi / 2, 0.0])
+
+    def plane_unbalance(self) -> dict[str, complex]:
+        """The rotor's unbalance per balancing plane now, kg m as a phasor (its angle from the
+        key-phasor's mark in the direction of rotation)."""
+        p = self.params
+        return {plane: u * np.exp(1j * ph) for plane, u, ph in zip(self.balance_planes, p.unbalance, p.unbalance_phase)}
+
+    def add_masses(self, masses: list[BalanceMass]) -> None:
+        """Put ``masses`` (trial or correction) on the balancing planes before a recording: the
+        unbalance changes, and the loop settles again (SETTLE_S, the clock back at 0)."""
+        u = plane_unbalance(self.plane_unbalance(), masses)
+        self.params = replace(self.params, unbalance=tuple(float(abs(u[k])) for k in self.balance_planes),
+                              unbalance_phase=tuple(float(np.angle(u[k])) for k in self.balance_planes))
+        self.masses = [*self.masses, *masses]
+        self._set_unbalance_arrays()
+        self._linear = None  # its unbalance response is the new unbalance's
+        self.settle(SETTLE_S)
 
     def _init_state(self) -> None:
         """Start at the static equilibrium: rotor centred, gravity carried by the integrators."""
@@ -539,7 +564,18 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
             # the gains the loop runs at now (a retune through `controller param` included): what
             # `runup --model spindle` predicts the critical speeds at
             **{GAIN_KEYS[k]: ",".join(repr(float(v)) for v in g) for k, g in enumerate(self.pid_gains)},
+            **self._balancing_truth(),
         }
+
+    def _balancing_truth(self) -> dict[str, str]:
+        """The masses put on the planes and, with ``truth``, the unbalance per plane they leave
+        (kg m and degrees from the key-phasor's mark): what a balancing job is checked against."""
+        out = {f"sim.mass.{k}": f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}" for k, m in enumerate(self.masses)}
+        if self.truth:
+            for plane, u in self.plane_unbalance().items():
+                out[f"truth.unbalance.{plane}_kg_m"] = repr(float(abs(u)))
+                out[f"truth.unbalance.{plane}_deg"] = repr(float(np.degrees(np.angle(u))))
+        return out
 
     # --- stepping --------------------------------------------------------------------------
 
