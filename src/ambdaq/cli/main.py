@@ -31,6 +31,7 @@ python_can_import.install()
 COMMANDS = {
     # name: "module:attribute" in ambdaq.cli; a new command is one module and one line here
     "apht": "apht:command",
+    "balance": "balance:command",
     "controller": "push:controller_group",
     "devices": "devices:command",
     "export": "export:command",

@@ -35,12 +35,22 @@ class LoopModel:
         ``response(rpm)`` (rpm): the rotor's steady 1X there from the model's own unbalance and
         runout, a phasor (m) per bearing axis by name (API 684's unbalance response analysis);
         None: the model does not give it.
+    runout_response : callable or None
+        ``runout_response(rpm, runout)``: the rotor's steady 1X that a 1X sensor runout (a phasor
+        per axis by name, m) drives through the loop, per axis by name (m); None: not given.
+    balance_planes : tuple of str
+        The rotor's balancing planes (empty: none modelled).
+    balance_radius_m : float
+        The radius of their holes, m.
     """
 
     at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
     basis: str
     assumed: bool
     response: Callable[[float], dict[str, complex]] | None = None
+    runout_response: Callable[[float, Mapping[str, complex]], dict[str, complex]] | None = None
+    balance_planes: tuple[str, ...] = ()
+    balance_radius_m: float = 0.0
 
 
 def loop_model(machine: str, calibration: Mapping[str, str]) -> LoopModel:

@@ -167,6 +167,8 @@ class SpindleParams:
         return f
 
 
+BALANCE_PLANES = ("front", "rear")
+"""The spindle's balancing planes, at its bearings, where its unbalance acts (SpindleParams.unbalance)."""
 SPINDLE = SpindleParams()
 
 

@@ -33,7 +33,7 @@ from ..errors import BadInputError
 from ..units import RPM_TO_RAD_S
 from .machine import radial_bearings
 from .models import LoopModel
-from .spindle import AXES, FRONT_LOOP, N_AXES, PHASE_BIN_HZ, PHASE_BINS, REAR_LOOP, SPINDLE, BearingAxis, SpindleParams
+from .spindle import AXES, BALANCE_PLANES, FRONT_LOOP, N_AXES, PHASE_BIN_HZ, PHASE_BINS, REAR_LOOP, SPINDLE, BearingAxis, SpindleParams
 
 N_STATE = 35  # rotor 10, amplifiers 10, controller 15
 
@@ -232,6 +232,15 @@ class SpindleLoop:
         state = np.linalg.solve(step * np.eye(M.shape[0]) - M, drive)
         return 1j * state[:5]  # Re(P exp(j theta)) = a sin theta + b cos theta with a + j b = j P
 
+    def runout_response(self, rpm: float, runout: np.ndarray) -> np.ndarray:
+        """The rotor's steady 1X at ``rpm`` (rpm) that a 1X sensor runout alone drives through the
+        loop (the controller follows what its sensors read): ``runout`` and the result per axis as
+        phasors ``a + j b`` of ``a sin theta + b cos theta`` (m), as :meth:`unbalance_response`."""
+        M, B, _C = self.matrices(rpm)
+        step = np.exp(1j * rpm * RPM_TO_RAD_S * self.h)
+        state = np.linalg.solve(step * np.eye(M.shape[0]) - M, -B @ (-1j * np.asarray(runout, dtype=complex)))
+        return 1j * state[:5]
+
 
 GAIN_KEYS = ("controller.pid.p", "controller.pid.i", "controller.pid.d")
 """The calibration entries that state the PID gains the controller ran (its parameters ``pid.p``,
@@ -277,12 +286,17 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
     def response(rpm: float) -> dict[str, complex]:
         return dict(zip(AXES, loop.unbalance_response(float(rpm))))
 
+    def runout_response(rpm: float, runout: Mapping[str, complex]) -> dict[str, complex]:
+        return dict(zip(AXES, loop.runout_response(float(rpm), np.array([runout.get(a, 0j) for a in AXES]))))
+
+    extra = {"response": response, "runout_response": runout_response, "balance_planes": BALANCE_PLANES,
+             "balance_radius_m": loop.params.balance_radius}
     if gains is None:
         return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
-                             f"({', '.join(GAIN_KEYS)})", assumed=True, response=response)
+                             f"({', '.join(GAIN_KEYS)})", assumed=True, **extra)
     return LoopModel(at, "the PID gains the recording's controller ran (" + "; ".join(
         f"{k.removeprefix('controller.')} {', '.join(f'{v:g}' for v in g)}" for k, g in zip(GAIN_KEYS, gains)) + ")",
-        assumed=False, response=response)
+        assumed=False, **extra)
 
 
 @functools.lru_cache(maxsize=1)

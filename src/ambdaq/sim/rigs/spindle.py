@@ -54,7 +54,7 @@ from .base import CommandedSpeed, Rig
 from .drop import Drop
 from .excitation import ExcitationInput
 from ...machines.balance_masses import BalanceMass, plane_unbalance
-from ...machines.spindle import (AXES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
+from ...machines.spindle import (AXES, BALANCE_PLANES, MU_BIN_RPM, MU_BINS, N_AXES, N_HARMONICS, PAPER_MU_SCHEDULE,
                                   PHASE_BIN_HZ, PHASE_BINS, SPINDLE, SpindleParams)
 from ...machines.spindle_loop import (GAIN_KEYS, GAIN_LEAST, SpindleLoop, amplifier_matrices, derivative_filter,
                                        rotor_matrices, rotor_through_amplifiers, zoh)
@@ -356,7 +356,7 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
 
     profile = "spindle"
     inputs = frozenset({"excitation", "feedforward", "drop", "balancing"})
-    balance_planes = ("front", "rear")  # where the unbalance acts, at the bearings
+    balance_planes = BALANCE_PLANES
     excitation_axes = AXES  # test signal added to r_c, in m (asked for in um)
     excitation_unit = "m"
     excitation_min = 0.01e-6  # a third of the 16-bit A/D's step (0.03 um): less is not a test signal

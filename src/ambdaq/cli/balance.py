@@ -1,0 +1,63 @@
+"""``ambdaq balance``: the rotor balanced with its own bearings (issue 43)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ..errors import BadInputError
+
+
+@click.group("balance")
+def command() -> None:
+    """Balance the rotor: influence coefficients from a reference run and a trial run per plane."""
+
+
+@command.command("influence")
+@click.argument("reference", type=click.Path(dir_okay=False))
+@click.argument("trials", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--mass", "masses", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True, required=True,
+              help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear).")
+@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
+              help="Runout coefficients (runout identify of a slow roll): the sensor runout, and what it drives "
+                   "through the loop, taken out of every run.")
+@click.option("--machine", default="spindle", show_default=True,
+              help="The machine model: its balancing planes and its loop's response to runout (machines/).")
+@click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
+def influence(reference, trials, masses, coefficients, machine, as_json):
+    """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
+    trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
+    per plane that cancels the reference's 1X over the radial axes (least squares), and the
+    residual 1X it predicts (ISO 21940-13's influence-coefficient method).
+
+    \b
+    Example:
+      ambdaq balance influence ref.mcap t_front.mcap t_rear.mcap --mass front:0.1@0 --mass rear:0.1@0 \\
+          --coefficients coef.json
+    """
+    from ..machines.balance_masses import BalanceMass
+    from ..machines.models import loop_model
+    from ..workflows.balancing import influence_balancing, run_vector
+
+    if len(masses) != len(trials):
+        raise BadInputError(f"{len(trials)} trial runs and {len(masses)} --mass: one trial mass per trial run")
+    coef = Path(coefficients)
+    model = loop_model(machine, {})
+    if not model.balance_planes:
+        raise BadInputError(f"the {machine} model has no balancing planes")
+    parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
+    result = influence_balancing(run_vector(reference, coef, machine),
+                                 [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)])
+    if as_json:
+        click.echo(json.dumps(result.as_dict(), indent=2))
+        return
+    d = result.as_dict()
+    click.echo(f"{d['rpm']:,.0f} rpm; influence coefficients, um per g mm:")
+    for plane, row in d["influence_um_per_g_mm"].items():
+        click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v['um']:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
+    for m in d["correction"]:
+        click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm "
+                   "(with the trial masses taken off)")
+    click.echo(f"predicted residual 1X: {d['predicted_reduction'] * 100:.1f} % of the reference's")

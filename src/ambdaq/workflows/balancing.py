@@ -1,0 +1,132 @@
+"""Influence-coefficient balancing (issue 43, item 2; ISO 21940-13's procedure):
+``ambdaq balance influence REFERENCE TRIAL... --mass PLANE:GRAMS@DEG ... -o balance.json``.
+
+A reference run and one run per plane with a known trial mass on it, all at one steady speed.
+Each run's vector is the rotor's 1X from its unbalance at each radial axis: the gaps' 1X with the
+sensor runout taken out (a slow roll's runout coefficients, :mod:`ambdaq.workflows.apht`'s windows
+averaged), less the motion that runout drives through the loop (the machine's loop model). The influence
+coefficient of plane p at axis a is what the trial mass did there per unit of its unbalance,
+A[a, p] = (V_trial_p[a] - V_ref[a]) / U_trial_p (m per kg m); the correction is the unbalance per
+plane that cancels the reference vector in the least-squares sense over the axes,
+U = -A^+ V_ref, and the residual it predicts is V_ref + A U. A correction mass is U as grams at the
+plane's radius and the angle of U from the key-phasor's mark in the direction of rotation, for
+the rotor as it ran in the reference run: the trial masses come off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis.runout import harmonic_fit
+from ..daq import load
+from ..documents.coefficients import Coefficients
+from ..errors import BadInputError
+from ..machines.balance_masses import BalanceMass
+from ..machines.models import loop_model
+from .apht import apht
+from .runout import runout_at
+
+SAME_SPEED = 0.01
+"""Runs more than this fraction apart in speed are not one balancing speed: refused."""
+
+
+@dataclass
+class RunVector:
+    """One run's 1X per radial axis (runout out), m, with its standard error."""
+
+    path: str
+    rpm: float
+    axes: list[str]
+    one_x: np.ndarray  # complex, per axis: the rotor's 1X from unbalance alone
+    std: np.ndarray  # of each part, per axis, from the windows' scatter
+
+
+FF_ON = 1e-9  # a feedforward 1X above this (its unit per axis) is a running feedforward
+
+
+def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -> RunVector:
+    """The rotor's 1X at ``path``'s steady speed from its unbalance alone: the gaps' 1X with the
+    runout of ``coefficients`` taken out, less what that runout itself drives through the loop
+    (the controller follows its sensors: at 20,000 rpm the spindle's runout moves the rotor by up to
+    33 um at 1X, ten times its unbalance), by ``machine``'s loop model at the gains the recording
+    states. A run with its feedforward on is refused: its loop is another, not modelled here yet."""
+    rec = load(path)
+    result = apht(rec, orders=(1,), coefficients=coefficients)
+    if result.feedforward is not None and np.abs(result.feedforward).max() > FF_ON:
+        raise BadInputError(f"{path}: its feedforward runs (1X up to {np.abs(result.feedforward).max():.3g} "
+                            f"{result.ff_unit}): balance with the feedforward off (the runout's path through a loop "
+                            "with the feedforward on is not modelled yet)")
+    v = result.gap[:, 0, :]  # (windows, axes)
+    if v.shape[0] < 2:
+        raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
+    model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
+    if model.runout_response is None:
+        raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
+    theta = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+    runout = harmonic_fit(runout_at(Coefficients.load(coefficients), list(result.axes), theta, coefficients), theta,
+                          (1,))[0]
+    driven = model.runout_response(result.rpm, dict(zip(result.axes, runout)))
+    std = np.sqrt((np.var(v.real, axis=0, ddof=1) + np.var(v.imag, axis=0, ddof=1)) / 2 / v.shape[0])
+    return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - np.array([driven[a] for a in result.axes]),
+                     std)
+
+
+@dataclass
+class Balancing:
+    """Influence coefficients and the correction they give."""
+
+    planes: list[str]
+    axes: list[str]
+    rpm: float
+    influence: np.ndarray  # (axes, planes) complex, m per kg m
+    reference: np.ndarray  # (axes,) complex, m
+    correction: np.ndarray  # (planes,) complex, kg m
+    residual: np.ndarray  # (axes,) complex, m: predicted
+    radius_m: dict[str, float]
+    trials: list[BalanceMass]
+
+    def masses(self) -> list[BalanceMass]:
+        """The correction as one mass per plane at its radius."""
+        return [BalanceMass(p, float(abs(u)) / self.radius_m[p] * 1e3, float(np.degrees(np.angle(u))) % 360.0,
+                            self.radius_m[p]) for p, u in zip(self.planes, self.correction)]
+
+    def as_dict(self) -> dict:
+        """What ``balance influence --json`` prints."""
+        def um(v: complex) -> dict:
+            return {"um": round(abs(v) * 1e6, 4), "deg": round(float(np.degrees(np.angle(v))), 2)}
+
+        return {"rpm": round(self.rpm, 1), "planes": self.planes, "axes": self.axes,
+                "influence_um_per_g_mm": {p: {a: um(self.influence[i, k] * 1e-6) for i, a in enumerate(self.axes)}
+                                          for k, p in enumerate(self.planes)},
+                "reference": {a: um(v) for a, v in zip(self.axes, self.reference)},
+                "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
+                                "radius_mm": m.radius_m * 1e3} for m in self.masses()],
+                "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
+                "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4)}
+
+
+def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]) -> Balancing:
+    """Influence coefficients from ``reference`` and one trial run per plane, and the correction
+    (module docstring)."""
+    planes = [m.plane for m, _ in trials]
+    if len(set(planes)) != len(planes):
+        raise BadInputError(f"one trial run per plane: {', '.join(planes)}")
+    for _mass, run in trials:
+        if run.axes != reference.axes:
+            raise BadInputError(f"{run.path}: its axes are not the reference's ({', '.join(reference.axes)})")
+        if abs(run.rpm / reference.rpm - 1) > SAME_SPEED:
+            raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm, the reference at {reference.rpm:,.0f}: "
+                                "balance at one speed")
+    A = np.column_stack([(run.one_x - reference.one_x) / mass.unbalance for mass, run in trials])
+    moved = np.abs(A * np.array([m.unbalance for m, _ in trials])).max(axis=0)
+    noise = np.sqrt(2) * max(float(reference.std.max()), *(float(r.std.max()) for _, r in trials))
+    for (mass, run), m in zip(trials, moved):
+        if m < 10 * noise:
+            raise BadInputError(f"{run.path}: the trial mass on {mass.plane} moved the 1X by {m * 1e6:.3f} um at most, "
+                                f"less than ten times its noise ({noise * 1e6:.3f} um): use a larger trial mass")
+    correction, *_ = np.linalg.lstsq(A, -reference.one_x, rcond=None)
+    return Balancing(planes, reference.axes, reference.rpm, A, reference.one_x, correction,
+                     reference.one_x + A @ correction, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials])
