@@ -109,3 +109,40 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
     runout_only = np.abs(model_one_x(0j, 0j))
     assert np.all(np.abs(np.abs(one_x(fixed)) - runout_only) < 0.1 * np.abs(model_one_x(own["front"], own["rear"])
                                                                           - model_one_x(0j, 0j)) + 0.05e-6)
+
+
+def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli, tmp_path):
+    """The influence coefficients saved by one job (balance influence -o) and the next job on the
+    same machine: the rotor has changed (0.05 g more at 45 degrees on the front plane), one run,
+    balance correct: the correction cancels the rotor's whole unbalance within 10 % and 10 degrees.
+    A changed file or a run at another speed is refused in one line."""
+    import json
+
+    def generate(name, *extra, rpm=RPM, seconds=1.0):
+        path = tmp_path / f"{name}.mcap"
+        assert run_cli("sim", "generate", "--rpm", rpm, "--duration", seconds, "-q", "-o", path, *extra).exit_code == 0
+        return path
+
+    slow = generate("slow", rpm="slowroll", seconds=4.0)
+    coef = tmp_path / "coef.json"
+    assert run_cli("runout", "identify", slow, "-o", coef).exit_code == 0
+    runs = [generate("ref"), generate("tf", "--trial", "front:0.1@0"), generate("tr", "--trial", "rear:0.1@0")]
+    infl = tmp_path / "influence.json"
+    r = run_cli("balance", "influence", *runs, "--mass", "front:0.1@0", "--mass", "rear:0.1@0", "--coefficients", coef,
+                "-o", infl)
+    assert r.exit_code == 0 and infl.exists(), r.output
+    today = generate("today", "--correction", "front:0.05@45")
+    r = run_cli("balance", "correct", today, "--influence", infl, "--coefficients", coef, "--json")
+    assert r.exit_code == 0, r.output
+    own = {p: u * np.exp(1j * ph) for p, u, ph in zip(("front", "rear"), SPINDLE.unbalance, SPINDLE.unbalance_phase)}
+    own["front"] += 0.05e-3 * 0.03 * np.exp(1j * np.radians(45))
+    for m in json.loads(r.stdout)["correction"]:
+        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
+        assert abs(abs(got) / abs(own[m["plane"]]) - 1) < 0.10, m
+        assert abs(np.degrees(np.angle(-got / own[m["plane"]]))) < 10.0, m
+    other = generate("other", rpm=25000.0)
+    r = run_cli("balance", "correct", other, "--influence", infl, "--coefficients", coef)
+    assert r.exit_code == 2 and "the influence coefficients are of 20,000 rpm" in r.output, r.output
+    infl.write_text(infl.read_text().replace('"rpm": 2', '"rpm": 3'))
+    r = run_cli("balance", "correct", today, "--influence", infl, "--coefficients", coef)
+    assert r.exit_code == 2 and "checksum mismatch" in r.output, r.output

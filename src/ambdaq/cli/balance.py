@@ -25,8 +25,11 @@ def command() -> None:
                    "through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
+@click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, as_json):
+def influence(reference, trials, masses, coefficients, machine, output, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -50,6 +53,38 @@ def influence(reference, trials, masses, coefficients, machine, as_json):
     parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
     result = influence_balancing(run_vector(reference, coef, machine),
                                  [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)])
+    if output:
+        from ..workflows.balancing import save_influence
+
+        save_influence(result, output, [reference, *trials], overwrite=overwrite)
+    _show(result, as_json)
+    if output:
+        click.echo(f"-> {output}", err=True)
+
+
+@command.command("correct")
+@click.argument("run", type=click.Path(dir_okay=False))
+@click.option("--influence", "influence_file", type=click.Path(dir_okay=False), required=True,
+              help="The influence coefficients an earlier balance influence saved (-o) for this machine and speed.")
+@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
+              help="Runout coefficients (runout identify of a slow roll).")
+@click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
+@click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
+def correct(run, influence_file, coefficients, machine, as_json):
+    """The correction masses for RUN from saved influence coefficients: the next balancing job on the
+    same machine at the same speed, one run instead of a reference and a trial run per plane.
+
+    \b
+    Example:
+      ambdaq balance correct today.mcap --influence influence.json --coefficients coef.json
+    """
+    from ..workflows.balancing import correct_with, run_vector
+
+    _show(correct_with(influence_file, run_vector(run, Path(coefficients), machine)), as_json)
+
+
+def _show(result, as_json: bool) -> None:
+    """The influence coefficients, the correction and the residual it predicts: JSON or lines."""
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2))
         return
@@ -58,6 +93,6 @@ def influence(reference, trials, masses, coefficients, machine, as_json):
     for plane, row in d["influence_um_per_g_mm"].items():
         click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v['um']:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
     for m in d["correction"]:
-        click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm "
-                   "(with the trial masses taken off)")
+        click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm"
+                   + (" (with the trial masses taken off)" if result.trials else ""))
     click.echo(f"predicted residual 1X: {d['predicted_reduction'] * 100:.1f} % of the reference's")

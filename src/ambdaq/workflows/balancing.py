@@ -22,7 +22,8 @@ import numpy as np
 
 from ..analysis.runout import harmonic_fit
 from ..daq import load
-from ..documents.coefficients import Coefficients
+from ..documents.coefficients import Coefficients, file_sha256
+from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
 from ..machines.balance_masses import BalanceMass
 from ..machines.models import loop_model
@@ -127,6 +128,46 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
         if m < 10 * noise:
             raise BadInputError(f"{run.path}: the trial mass on {mass.plane} moved the 1X by {m * 1e6:.3f} um at most, "
                                 f"less than ten times its noise ({noise * 1e6:.3f} um): use a larger trial mass")
-    correction, *_ = np.linalg.lstsq(A, -reference.one_x, rcond=None)
-    return Balancing(planes, reference.axes, reference.rpm, A, reference.one_x, correction,
-                     reference.one_x + A @ correction, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials])
+    return _correct(planes, reference, A, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials])
+
+
+def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[str, float],
+             trials: list[BalanceMass]) -> Balancing:
+    """The correction per plane that cancels ``run``'s 1X over its axes by least squares."""
+    correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
+    return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, run.one_x + A @ correction, radius_m,
+                     trials)
+
+
+FORMAT, VERSION = "ambdaq.balance_influence", 1
+
+
+def save_influence(result: Balancing, path: str | Path, sources: list[str | Path], *, overwrite: bool = False) -> Path:
+    """The influence coefficients as a sealed file, to balance the same machine again from one run
+    (``balance correct``): planes, axes, speed, coefficients (m per kg m), radii, the trial masses
+    and the runs they came from (name and SHA-256)."""
+    doc = {"format": FORMAT, "version": VERSION, "rpm": result.rpm, "planes": result.planes, "axes": result.axes,
+           "influence_re": result.influence.real.tolist(), "influence_im": result.influence.imag.tolist(),
+           "radius_m": result.radius_m, "trials": [f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}"
+                                                   for m in result.trials],
+           "sources": [{"file": Path(f).name, "sha256": file_sha256(f)} for f in sources]}
+    return write_sealed(path, doc, overwrite=overwrite)
+
+
+def correct_with(path: str | Path, run: RunVector) -> Balancing:
+    """The correction for ``run`` by the influence coefficients of the file ``path`` (one run of
+    the same machine at the same speed instead of three)."""
+    doc = read_sealed(path, FORMAT, VERSION, "influence file")
+    try:
+        planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
+        A = np.array(doc["influence_re"], dtype=float) + 1j * np.array(doc["influence_im"], dtype=float)
+        radius = {str(k): float(v) for k, v in doc["radius_m"].items()}
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise BadInputError(f"{path}: an influence file needs planes, axes, rpm, influence_re/_im and radius_m") from None
+    if A.shape != (len(axes), len(planes)) or not np.all(np.isfinite(A)) or set(radius) != set(planes):
+        raise BadInputError(f"{path}: its coefficients are not one finite value per axis and plane")
+    if run.axes != axes:
+        raise BadInputError(f"{run.path}: axes {', '.join(run.axes)}; the influence file's are {', '.join(axes)}")
+    if abs(run.rpm / rpm - 1) > SAME_SPEED:
+        raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
+    return _correct(planes, run, A, radius, [])
