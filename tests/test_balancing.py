@@ -100,6 +100,17 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
         assert abs(np.degrees(np.angle(got / want))) < 10.0, (m, np.degrees(np.angle(want)))
     fixed = generate("fixed", *[x for m in out["correction"] for x in
                                 ("--correction", f"{m['plane']}:{m['grams']}@{m['deg']}:{m['radius_mm']}")])
+    # in 12 holes per plane: each correction split between the two holes either side of its angle,
+    # the same vector per plane (to the JSON's 4 decimals of a gram)
+    r = run_cli("balance", "influence", ref, front, rear, "--mass", "front:0.1@0", "--mass", "rear:0.1@0",
+                "--coefficients", tmp_path / "coef.json", "--holes", "12", "--json")
+    assert r.exit_code == 0, r.output
+    split = json.loads(r.stdout)["correction"]
+    assert all(m["deg"] % 30 == 0 for m in split) and len(split) <= 4, split
+    for plane in ("front", "rear"):
+        whole = sum(m["grams"] * np.exp(1j * np.radians(m["deg"])) for m in out["correction"] if m["plane"] == plane)
+        parts = sum(m["grams"] * np.exp(1j * np.radians(m["deg"])) for m in split if m["plane"] == plane)
+        assert abs(parts - whole) < 3e-4, (plane, split, out["correction"])
     # the unbalance the correction leaves, as the simulator states it: at most 10 % of each plane's
     cal = load(fixed, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
     for plane in ("front", "rear"):

@@ -25,11 +25,13 @@ def command() -> None:
                    "through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
+@click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
+              "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, output, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, machine, holes, output, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -57,6 +59,7 @@ def influence(reference, trials, masses, coefficients, machine, output, overwrit
         from ..workflows.balancing import save_influence
 
         save_influence(result, output, [reference, *trials], overwrite=overwrite)
+    result.holes = holes or 0
     _show(result, as_json)
     if output:
         click.echo(f"-> {output}", err=True)
@@ -69,8 +72,10 @@ def influence(reference, trials, masses, coefficients, machine, output, overwrit
 @click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
               help="Runout coefficients (runout identify of a slow roll).")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
+@click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
+              "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, as_json):
+def correct(run, influence_file, coefficients, machine, holes, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane.
 
@@ -80,7 +85,9 @@ def correct(run, influence_file, coefficients, machine, as_json):
     """
     from ..workflows.balancing import correct_with, run_vector
 
-    _show(correct_with(influence_file, run_vector(run, Path(coefficients), machine)), as_json)
+    result = correct_with(influence_file, run_vector(run, Path(coefficients), machine))
+    result.holes = holes or 0
+    _show(result, as_json)
 
 
 def _show(result, as_json: bool) -> None:

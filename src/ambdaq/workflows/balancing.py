@@ -88,11 +88,27 @@ class Balancing:
     residual: np.ndarray  # (axes,) complex, m: predicted
     radius_m: dict[str, float]
     trials: list[BalanceMass]
+    holes: int = 0  # holes per plane, evenly spaced from the key-phasor's mark; 0: a mass at any angle
 
     def masses(self) -> list[BalanceMass]:
-        """The correction as one mass per plane at its radius."""
-        return [BalanceMass(p, float(abs(u)) / self.radius_m[p] * 1e3, float(np.degrees(np.angle(u))) % 360.0,
-                            self.radius_m[p]) for p, u in zip(self.planes, self.correction)]
+        """The correction as masses at each plane's radius: one per plane at the correction's angle,
+        or, with ``holes``, split between the two holes either side of it (each plane's unbalance
+        the same vector sum, so the predicted residual holds)."""
+        out = []
+        for p, u in zip(self.planes, self.correction):
+            r = self.radius_m[p]
+            if not self.holes:
+                out.append(BalanceMass(p, float(abs(u)) / r * 1e3, float(np.degrees(np.angle(u))) % 360.0, r))
+                continue
+            pitch = 2 * np.pi / self.holes
+            k = int(np.floor((np.angle(u) % (2 * np.pi)) / pitch))
+            lo, hi = k * pitch, (k + 1) * pitch
+            # u = a e^{j lo} + b e^{j hi}, a and b >= 0: the two holes' share of the vector
+            a, b = np.linalg.solve(np.array([[np.cos(lo), np.cos(hi)], [np.sin(lo), np.sin(hi)]]), [u.real, u.imag])
+            for share, at in ((a, lo), (b, hi)):
+                if share * 1e3 / r > 1e-6:  # a microgram: the hole is not used
+                    out.append(BalanceMass(p, float(share) / r * 1e3, float(np.degrees(at)) % 360.0, r))
+        return out
 
     def as_dict(self) -> dict:
         """What ``balance influence --json`` prints."""
@@ -103,6 +119,7 @@ class Balancing:
                 "influence_um_per_g_mm": {p: {a: um(self.influence[i, k] * 1e-6) for i, a in enumerate(self.axes)}
                                           for k, p in enumerate(self.planes)},
                 "reference": {a: um(v) for a, v in zip(self.axes, self.reference)},
+                "holes": self.holes or None,
                 "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
                                 "radius_mm": m.radius_m * 1e3} for m in self.masses()],
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
