@@ -27,11 +27,13 @@ def command() -> None:
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
 @click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
               "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
+@click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True), help="The machine's maximum service speed, "
+              "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, holes, output, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, output, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -59,7 +61,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, output, o
         from ..workflows.balancing import save_influence
 
         save_influence(result, output, [reference, *trials], overwrite=overwrite)
-    result.holes = holes or 0
+    result.holes, result.max_rpm = holes or 0, max_rpm
     _show(result, as_json)
     if output:
         click.echo(f"-> {output}", err=True)
@@ -74,8 +76,10 @@ def influence(reference, trials, masses, coefficients, machine, holes, output, o
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
 @click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
               "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
+@click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True), help="The machine's maximum service speed, "
+              "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, holes, as_json):
+def correct(run, influence_file, coefficients, machine, holes, max_rpm, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane.
 
@@ -86,7 +90,7 @@ def correct(run, influence_file, coefficients, machine, holes, as_json):
     from ..workflows.balancing import correct_with, run_vector
 
     result = correct_with(influence_file, run_vector(run, Path(coefficients), machine))
-    result.holes = holes or 0
+    result.holes, result.max_rpm = holes or 0, max_rpm
     _show(result, as_json)
 
 
@@ -103,3 +107,6 @@ def _show(result, as_json: bool) -> None:
         click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm"
                    + (" (with the trial masses taken off)" if result.trials else ""))
     click.echo(f"predicted residual 1X: {d['predicted_reduction'] * 100:.1f} % of the reference's")
+    if d["grade_mm_s"] is not None:
+        click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm, the unbalance this run holds): "
+                   f"{d['grade_mm_s']:.3g} +- {d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
