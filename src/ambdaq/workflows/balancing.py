@@ -20,15 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.runout import harmonic_fit
 from ..daq import load
 from ..documents.coefficients import Coefficients, file_sha256
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
 from ..machines.balance_masses import BalanceMass
 from ..machines.models import loop_model
+from ..units import RPM_TO_RAD_S
 from .apht import apht
-from .runout import runout_at
+from .runout import runout_phasors
 
 SAME_SPEED = 0.01
 """Runs more than this fraction apart in speed are not one balancing speed: refused."""
@@ -73,19 +73,15 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.runout_response is None:
         raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
-    theta = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
-    runout = harmonic_fit(runout_at(Coefficients.load(coefficients), list(result.axes), theta, coefficients), theta,
-                          (1,))[0]
+    coef = Coefficients.load(coefficients)
+    runout = (runout_phasors(coef, list(result.axes))[coef.harmonics.index(1)] if 1 in coef.harmonics
+              else np.zeros(len(result.axes), dtype=complex))
     driven = model.runout_response(result.rpm, dict(zip(result.axes, runout)))
     noise = (np.var(v.real, axis=0, ddof=1) + np.var(v.imag, axis=0, ddof=1)) / 2 / v.shape[0]
     driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + (RUNOUT_MODEL * np.abs(driven_1x)) ** 2)
-    try:
-        mass = float(rec.metadata.get("ambdaq.calibration.rig", {}).get("rotor.mass_kg", "nan"))
-    except ValueError:
-        mass = float("nan")
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
-                     mass if np.isfinite(mass) and mass > 0 else None, np.sqrt(noise))
+                     rec.machine.rotor_mass_kg, np.sqrt(noise))
 
 
 @dataclass
@@ -98,14 +94,17 @@ class Balancing:
     influence: np.ndarray  # (axes, planes) complex, m per kg m
     reference: np.ndarray  # (axes,) complex, m
     correction: np.ndarray  # (planes,) complex, kg m
-    residual: np.ndarray  # (axes,) complex, m: predicted
     radius_m: dict[str, float]
     trials: list[BalanceMass]
     holes: int = 0  # holes per plane, evenly spaced from the key-phasor's mark; 0: a mass at any angle
     rotor_mass_kg: float | None = None  # the recording's rotor model's (rotor.mass_kg)
     max_rpm: float | None = None  # the machine's maximum service speed, for the balance grade
-
     reference_std: np.ndarray | None = None  # (axes,): each part's deviation of the reference vector, m
+
+    @property
+    def residual(self) -> np.ndarray:
+        """The 1X the correction leaves, predicted, per axis (complex, m)."""
+        return self.reference + self.influence @ self.correction
 
     @property
     def correction_std(self) -> np.ndarray | None:
@@ -121,7 +120,7 @@ class Balancing:
         """The grade's standard deviation, mm/s (the planes' magnitudes' deviations summed)."""
         if self.grade_mm_s is None or self.correction_std is None:
             return None
-        return float(self.correction_std.sum()) / self.rotor_mass_kg * self.max_rpm * 2 * np.pi / 60 * 1e3
+        return self._grade(float(self.correction_std.sum()))
 
     @property
     def grade_mm_s(self) -> float | None:
@@ -130,8 +129,11 @@ class Balancing:
         magnitude, over the rotor's mass) and Omega_max the maximum service speed; None without both."""
         if not self.rotor_mass_kg or not self.max_rpm:
             return None
-        e_per = float(np.abs(self.correction).sum()) / self.rotor_mass_kg  # m
-        return e_per * self.max_rpm * 2 * np.pi / 60 * 1e3
+        return self._grade(float(np.abs(self.correction).sum()))
+
+    def _grade(self, unbalance_kg_m: float) -> float:
+        """e_per Omega_max (mm/s) of an unbalance (kg m) on this rotor at its maximum speed."""
+        return unbalance_kg_m / self.rotor_mass_kg * self.max_rpm * RPM_TO_RAD_S * 1e3
 
     def masses(self) -> list[BalanceMass]:
         """The correction as masses at each plane's radius: one per plane at the correction's angle,
@@ -215,8 +217,8 @@ def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[st
              trials: list[BalanceMass]) -> Balancing:
     """The correction per plane that cancels ``run``'s 1X over its axes by least squares."""
     correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
-    return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, run.one_x + A @ correction, radius_m,
-                     trials, rotor_mass_kg=run.rotor_mass_kg, reference_std=run.std)
+    return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, radius_m, trials,
+                     rotor_mass_kg=run.rotor_mass_kg, reference_std=run.std)
 
 
 FORMAT, VERSION = "ambdaq.balance_influence", 1

@@ -133,15 +133,12 @@ def fit_bearing_gains(measured: PlantMeasurement, params: FlexibleSpindleParams,
                             "test signal")
     y, w = np.concatenate(data), 1.0 / np.concatenate(sigma)
     base = nominal(params)
-    order = [(measured.axes.index(o), measured.axes.index(i)) for o in AXES for i in AXES]
+    at = [(AXES.index(measured.axes[i]), AXES.index(measured.axes[j])) for i, j in cells]  # in the model's order
+    trusted = [g[inband] for g in runs]  # each element's trusted points among the band's
 
     def residual(scale: np.ndarray) -> np.ndarray:
-        loop = FlexibleLoop(with_bearings(params, scale * base))
-        model = loop.plant_response(0.0, f[inband])  # (n, AXES, AXES) in AXES' order
-        got = np.zeros((f.size, len(measured.axes), len(measured.axes)), dtype=complex)
-        for k, (i, j) in enumerate(order):
-            got[inband, i, j] = model[:, k // len(AXES), k % len(AXES)]
-        r = (np.concatenate([got[g, i, j] for g, (i, j) in zip(runs, cells)]) - y) * w
+        model = FlexibleLoop(with_bearings(params, scale * base)).plant_response(0.0, f[inband])
+        r = (np.concatenate([model[g, i, j] for g, (i, j) in zip(trusted, at)]) - y) * w
         return np.concatenate([r.real, r.imag])
 
     def whole(scale: np.ndarray):

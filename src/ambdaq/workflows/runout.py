@@ -79,8 +79,13 @@ def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Pat
     problem = held_unbalance(coef, where)
     if problem is not None:
         warnings.warn(problem, AmbdaqWarning, stacklevel=2)
-    phasors = np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
-    return synthesise(phasors, coef.harmonics, theta)
+    return synthesise(runout_phasors(coef, axes), coef.harmonics, theta)
+
+
+def runout_phasors(coef: Coefficients, axes: list[str]) -> np.ndarray:
+    """The runout phasors of ``coef`` for ``axes``, m: shape (len(coef.harmonics), len(axes)), in
+    :func:`~ambdaq.analysis.runout.harmonic_fit`'s convention."""
+    return np.array([[complex(*coef.weights[a][i]) for a in axes] for i in range(len(coef.harmonics))])
 
 
 def _rotor(rec: Recording):
