@@ -89,9 +89,21 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
     ref = generate("ref")
     front, rear = generate("t_front", "--trial", "front:0.1@0"), generate("t_rear", "--trial", "rear:0.1@0")
     r = run_cli("balance", "influence", ref, front, rear, "--mass", "front:0.1@0", "--mass", "rear:0.1@0",
-                "--coefficients", tmp_path / "coef.json", "--max-rpm", 60000, "-o", tmp_path / "infl.json", "--json")
+                "--coefficients", tmp_path / "coef.json", "--max-rpm", 60000, "-o", tmp_path / "infl.json", "--json",
+                "--record", tmp_path / "job.json", "--plot", tmp_path / "job.png")
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout)
+    # the sealed record: each run with its role and hash, the coefficient file, what --json printed
+    from ambdaq.documents.coefficients import file_sha256
+    from ambdaq.documents.sealed import read_sealed
+
+    record = read_sealed(tmp_path / "job.json", "ambdaq.balancing_record", 1, "balancing record")
+    assert [(run["role"], run["file"], run["sha256"]) for run in record["runs"]] == [
+        ("reference", "ref.mcap", file_sha256(ref)), ("trial front:0.1@0:30", "t_front.mcap", file_sha256(front)),
+        ("trial rear:0.1@0:30", "t_rear.mcap", file_sha256(rear))]
+    assert record["runout_coefficients"]["sha256"] == file_sha256(tmp_path / "coef.json")
+    assert record["result"] == out and record["machine"] == "spindle" and record["influence_file"] is None
+    assert (tmp_path / "job.png").stat().st_size > 30_000
     own = {p: u * np.exp(1j * ph) for p, u, ph in zip(("front", "rear"), SPINDLE.unbalance, SPINDLE.unbalance_phase)}
     for m in out["correction"]:
         got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
@@ -125,9 +137,16 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
 
     assert abs(out["grade_mm_s"] - truth_grade(ref)) < 3 * out["grade_std_mm_s"], out
     r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients",
-                tmp_path / "coef.json", "--max-rpm", 60000, "--json")
+                tmp_path / "coef.json", "--max-rpm", 60000, "--json", "--record", tmp_path / "after.json")
     assert r.exit_code == 0, r.output
     after = json.loads(r.stdout)
+    record = read_sealed(tmp_path / "after.json", "ambdaq.balancing_record", 1, "balancing record")
+    assert [run["role"] for run in record["runs"]] == ["run"] and record["result"] == after
+    assert record["influence_file"] == {"file": "infl.json", "sha256": file_sha256(tmp_path / "infl.json")}
+    # a record is not replaced without --overwrite, and that is said before any work
+    r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients",
+                tmp_path / "coef.json", "--record", tmp_path / "after.json")
+    assert r.exit_code == 2 and "after.json exists" in r.output, r.output
     assert abs(after["grade_mm_s"] - truth_grade(fixed)) < 3 * after["grade_std_mm_s"], after
     assert after["grade_mm_s"] < 0.1 * out["grade_mm_s"] and after["grade"] == "G0.4", after
     # and what is left of the rotor's 1X is what the sensor runout drives through the loop (33 um

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import BadInputError
+from .options import plot_option
 
 
 @click.group("balance")
@@ -31,9 +32,14 @@ def command() -> None:
               "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
+@click.option("--record", type=click.Path(dir_okay=False),
+              help="Save the balancing record (sealed JSON): the runs and files it used, the coefficients, the "
+                   "correction masses and the grade.")
+@plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, output, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, output, record, plot_path,
+              overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -48,6 +54,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     from ..machines.models import loop_model
     from ..workflows.balancing import influence_balancing, run_vector
 
+    _writable(record, overwrite)
     if len(masses) != len(trials):
         raise BadInputError(f"{len(trials)} trial runs and {len(masses)} --mass: one trial mass per trial run")
     coef = Path(coefficients)
@@ -62,7 +69,10 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 
         save_influence(result, output, [reference, *trials], overwrite=overwrite)
     result.holes, result.max_rpm = holes or 0, max_rpm
+    runs = [("reference", reference), *((f"trial {m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}", t)
+                                        for m, t in zip(parsed, trials))]
     _show(result, as_json)
+    _keep(result, record, plot_path, runs, coef, machine, None, overwrite)
     if output:
         click.echo(f"-> {output}", err=True)
 
@@ -78,8 +88,13 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
               "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
 @click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True), help="The machine's maximum service speed, "
               "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
+@click.option("--record", type=click.Path(dir_okay=False),
+              help="Save the balancing record (sealed JSON): the runs and files it used, the coefficients, the "
+                   "correction masses and the grade.")
+@plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
+@click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, holes, max_rpm, as_json):
+def correct(run, influence_file, coefficients, machine, holes, max_rpm, record, plot_path, overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane.
 
@@ -89,9 +104,35 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, as_json)
     """
     from ..workflows.balancing import correct_with, run_vector
 
+    _writable(record, overwrite)
     result = correct_with(influence_file, run_vector(run, Path(coefficients), machine))
     result.holes, result.max_rpm = holes or 0, max_rpm
     _show(result, as_json)
+    _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
+
+
+def _writable(record: str | None, overwrite: bool) -> None:
+    """Refuse before any work a --record that would replace a file without --overwrite."""
+    if record:
+        from ..output import check_output
+
+        check_output(Path(record), overwrite, hint="choose another --record or pass --overwrite")
+
+
+def _keep(result, record, plot_path, runs, coefficients, machine, influence_file, overwrite) -> None:
+    """The sealed balancing record and the polar figure, where asked for."""
+    if record:
+        from ..workflows.balancing import save_record
+
+        save_record(result, record, runs, coefficients, machine, influence_file, overwrite=overwrite)
+    if plot_path:
+        from ..figures import save
+        from ..figures.balancing import draw_balancing
+
+        save(draw_balancing(result), plot_path)
+    for written in (record, plot_path):
+        if written:
+            click.echo(f"-> {written}", err=True)
 
 
 def _show(result, as_json: bool) -> None:

@@ -253,3 +253,21 @@ def correct_with(path: str | Path, run: RunVector) -> Balancing:
     if abs(run.rpm / rpm - 1) > SAME_SPEED:
         raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
     return _correct(planes, run, A, radius, [])
+
+
+RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
+
+
+def save_record(result: Balancing, path: str | Path, runs: list[tuple[str, str | Path]], coefficients: str | Path,
+                machine: str, influence_file: str | Path | None = None, *, overwrite: bool = False) -> Path:
+    """The balancing job as a sealed record (ISO 21940-13's record of a balancing): the machine,
+    each run with its role (``reference``, ``trial PLANE:GRAMS@DEG:RADIUS_MM``, ``run``) and
+    SHA-256, the runout coefficient file and, for ``balance correct``, the influence file used;
+    then what ``--json`` prints (coefficients, correction masses, the unbalance and the grade)."""
+    def source(f: str | Path) -> dict:
+        return {"file": Path(f).name, "sha256": file_sha256(f)}
+
+    doc = {"format": RECORD_FORMAT, "version": RECORD_VERSION, "machine": machine,
+           "runs": [{"role": role, **source(f)} for role, f in runs], "runout_coefficients": source(coefficients),
+           "influence_file": None if influence_file is None else source(influence_file), "result": result.as_dict()}
+    return write_sealed(path, doc, overwrite=overwrite, indent=1)
