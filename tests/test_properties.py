@@ -98,6 +98,28 @@ def documents():
             "plant": (plant.to_document(), load_measurement), "plant-model": (model_doc(), load_model)}
 
 
+def _influence(tmp: Path):
+    """A saved influence file (balance influence -o) and what reads it: the next job's correction,
+    as balance correct prints it."""
+    from ambdaq.machines.balance_masses import BalanceMass
+    from ambdaq.workflows.balancing import RunVector, correct_with, influence_balancing, save_influence
+
+    axes, c = ["front_x", "front_y"], np.array([1e-6 + 2e-6j, -2e-6 + 1e-6j])
+    noise = np.array([1e-8, 1e-8])
+
+    def run(name, shift):
+        return RunVector(name, 20000.0, axes, c + shift, noise, 4.4, noise)
+
+    masses = [BalanceMass("front", 0.1, 0.0, 0.03), BalanceMass("rear", 0.1, 90.0, 0.03)]
+    result = influence_balancing(run("r", 0), [(masses[0], run("a", np.array([3e-6, 3e-6j]))),
+                                               (masses[1], run("b", np.array([1e-6j, 2e-6])))])
+    result.max_rpm = 60000.0
+    for name in ("r", "a", "b"):
+        (tmp / name).write_bytes(name.encode())
+    save_influence(result, tmp / "i.json", [tmp / "r", tmp / "a", tmp / "b"])
+    return json.loads((tmp / "i.json").read_text()), lambda path: correct_with(path, run("r", 0)).as_dict()
+
+
 def _points_doc(tmp: Path) -> dict:
     W = np.ones((2, 2, 2, 2), dtype=complex)
     save_points(tmp / "p.json", [10.0, 20.0], W, [[0.1, 0.2], [0.1, 0.2]], {"campaign": "x"})
@@ -105,10 +127,12 @@ def _points_doc(tmp: Path) -> dict:
 
 
 @pytest.mark.parametrize("profile", PROFILES)
-@pytest.mark.parametrize("kind", ["coefficient", "frequency-response", "points", "plant", "plant-model"])
+@pytest.mark.parametrize("kind", ["coefficient", "frequency-response", "points", "plant", "plant-model", "influence"])
 def test_a_sealed_document_with_any_value_anywhere_loads_or_is_bad_input(tmp_path, kind, profile):
     if kind == "points":
         doc, load = _points_doc(tmp_path), load_points
+    elif kind == "influence":
+        doc, load = _influence(tmp_path)
     else:
         doc, load = documents()[kind]
 

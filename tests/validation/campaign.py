@@ -720,6 +720,81 @@ def bearing_gains(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0
                {"cover": cover, "largest_pct": float(np.abs(rel).max())})
 
 
+# --- balancing -------------------------------------------------------------------------------
+
+def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
+              max_rpm: float = 60000.0, trial_g: float = 0.1) -> Row:
+    """``balance influence`` on the spindle as docs/balancing.md does it, one job per case: its own
+    slow roll (the runout), a reference run and a 0.1 g trial run per plane, each with its own noise;
+    the rotor's unbalance its own plus a random mass per plane (0.02-0.3 g at any angle on the 30 mm
+    radius: a total of 0.01-0.4 g per plane). Against the simulator's truth: the unbalance one
+    correction leaves (issue 43: at most 10 % in 95 % of cases), the correction within 10 % and 10
+    degrees of the one that cancels the whole unbalance, the stated 95 % intervals of the unbalance
+    (circular, 2.45 deviations) holding it (at least 90 %), and the ISO 21940-11 grade before.
+    The default suite's version is tests/test_balancing.py (one job, the same checks)."""
+    from ambdaq.machines.balance_masses import BalanceMass
+    from ambdaq.workflows.balancing import influence_balancing, run_vector
+    from ambdaq.workflows.runout import identify_recordings
+
+    planes, radius = ("front", "rear"), 0.03
+    trials = [BalanceMass(p, trial_g, 0.0, radius) for p in planes]
+    left, mag_err, ang_err, z, grade_z = [], [], [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases:
+            d = Path(tmp) / str(case)  # one job's files
+            d.mkdir()
+            rng = np.random.default_rng(case)
+            added = [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), radius)
+                     for p in planes]
+
+            def run(name: str, masses: list, seed: int, speed: SpeedProfile, secs: float) -> Path:
+                source = SimSource("spindle", seed=seed, speed=speed, truth=True)
+                source.rig.add_masses(added + masses)
+                return _write(source, d / f"{name}.mcap", secs)
+
+            slow = run("slow", [], 4 * case, SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), slow_s)
+            coef = identify_recordings([load(slow)], [1, 2, 3, 4, 5, 6], "fit").coef.save(d / "coef.json")
+            steady = SpeedProfile(rpm, rpm)
+            ref = run("ref", [], 4 * case + 1, steady, seconds)
+            result = influence_balancing(run_vector(ref, coef), [
+                (m, run_vector(run(f"t{k}", [m], 4 * case + 2 + k, steady, seconds), coef))
+                for k, m in enumerate(trials)])
+            result.max_rpm = max_rpm
+            cal = load(ref, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
+            truth = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(
+                float(cal[f"truth.unbalance.{p}_deg"]))) for p in planes])
+            left.append(np.abs(truth + result.correction) / np.abs(truth))  # the correction adds its vector
+            mag_err.append(np.abs(result.correction) / np.abs(truth) - 1)
+            ang_err.append(np.degrees(np.angle(-result.correction / truth)))
+            z.append(np.abs(-result.correction - truth) / result.correction_std)
+            true_grade = np.abs(truth).sum() / float(cal["rotor.mass_kg"]) * max_rpm * 2 * np.pi / 60 * 1e3
+            grade_z.append((result.grade_mm_s - true_grade) / result.grade_std_mm_s)
+    left, mag_err, ang_err, z = (np.array(v) for v in (left, mag_err, ang_err, z))
+    grade_z = np.array(grade_z)
+    one_step = float(np.mean(left.max(axis=1) <= 0.10))
+    within = float(np.mean((np.abs(mag_err) < 0.10) & (np.abs(ang_err) < 10.0)))
+    cover = float(np.mean(z <= 2.45))
+    grade_cover = float(np.mean(np.abs(grade_z) <= 1.96))
+    holds = one_step >= 0.95 and within >= 0.95 and cover >= 0.90
+    return Row("correction masses and unbalance per plane (`balance influence`), ISO 21940-11 grade",
+               f"spindle at {rpm:,.0f} rpm, feedforward off, {seconds:g} s runs, 0.1 g trial masses, a {slow_s:g} s "
+               "slow roll per job; unbalance 0.01-0.4 g per plane at any angle",
+               "1σ per part of each plane's unbalance (the runs' noise and 0.2 % of the runout-driven 1X, "
+               "RUNOUT_MODEL); issue 43: one step leaves ≤ 10 % in 95 % of cases",
+               f"magnitude median {np.median(mag_err) * 100:+.2f} %, angle median {np.median(ang_err):+.2f}°",
+               f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
+               f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
+               f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f}); "
+               f"grade within its 95 % interval in {grade_cover * 100:.0f} %",
+               len(cases), f"{cases.start}-{cases.stop - 1}",
+               f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
+               f"--duration {seconds:g} [--trial PLANE:0.1@0] (a random mass per plane: seed S); balance influence "
+               f"--max-rpm {max_rpm:g}", holds,
+               "" if holds else f"one step ≤ 10 % in {one_step * 100:.0f} % (95 %), within 10 %/10° in "
+                                f"{within * 100:.0f} % (95 %), intervals cover {cover * 100:.0f} % (90 %)",
+               {"one_step": one_step, "within": within, "cover": cover, "grade_cover": grade_cover})
+
+
 # --- the campaign --------------------------------------------------------------------------
 
 SMALL: list[Callable[[], Row]] = [
@@ -773,6 +848,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: bearing_gains(range(1, 13)),
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5),
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5, machine="flexible-long"),
+    lambda: balancing(range(1, 101)),
+    lambda: balancing(range(101, 151), rpm=30000.0),
 ]
 
 
