@@ -5,7 +5,6 @@ balancing instrument shows them (ISO 21940-13's vector diagrams)."""
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.ticker import MaxNLocator
 
 from . import pyplot
 
@@ -27,6 +26,8 @@ def draw_balancing(result):
         Influence coefficients (m per kg m), the run's 1X (m), the correction (kg m) and its masses.
     """
     plt = pyplot()
+    from matplotlib.ticker import MaxNLocator
+
     n = len(result.planes) + 2
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 5.2), subplot_kw={"projection": "polar"},
                              constrained_layout=True)
