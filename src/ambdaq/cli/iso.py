@@ -108,20 +108,20 @@ def stability(recordings, device, description, speeds, axes, amplitude, duration
         if compared is not None:
             click.echo(f"against {Path(design_file).name}'s prediction (within {COMPARE_TOLERANCE_DB:g} dB):")
             for c in compared:
-                click.echo(f"{c['speed_rpm']:>10,.0f}  {c['axis']:<9} measured {c['measured_db']:6.2f} dB  predicted "
+                click.echo(f"{round(c['speed_rpm']):>10,}  {c['axis']:<9} measured {c['measured_db']:6.2f} dB  predicted "
                            f"{c['predicted_db']:6.2f} dB  {c['difference_db']:+.2f} dB  {'ok' if c['within'] else 'NOT AS PREDICTED'}")
     click.echo(f"-> {out}" + (f", {plot_path}" if plot_path else ""), err=True)
     ungraded = [r for r in runs if r.grade.zone is None]
     if ungraded:  # the results are kept, but an acceptance run with an ungraded axis has not passed
         first = ungraded[0]
-        raise BadInputError(f"{len(ungraded)} of {len(runs)} runs not graded; {first.axis} at {first.speed_rpm:,.0f} rpm: "
+        raise BadInputError(f"{len(ungraded)} of {len(runs)} runs not graded; {first.axis} at {round(first.speed_rpm):,} rpm: "
                             f"{first.grade.reason}")
     off = [c for c in compared or [] if not c["within"]]
     if off:
         from ..errors import AmbdaqError
 
         raise AmbdaqError(f"{len(off)} of {len(compared)} peaks are not as {Path(design_file).name} predicted: "
-                          f"{off[0]['axis']} at {off[0]['speed_rpm']:,.0f} rpm measured {off[0]['measured_db']:.2f} dB, "
+                          f"{off[0]['axis']} at {round(off[0]['speed_rpm']):,} rpm measured {off[0]['measured_db']:.2f} dB, "
                           f"predicted {off[0]['predicted_db']:.2f} dB")
 
 
@@ -133,10 +133,10 @@ def stability_table(runs, limits: ZoneLimits) -> str:
     for r in runs:
         g = r.grade
         if np.isnan(g.peak):
-            lines.append(f"{r.speed_rpm:>10,.0f}  {r.axis:<9} not measured: {g.reason}")
+            lines.append(f"{round(r.speed_rpm):>10,}  {r.axis:<9} not measured: {g.reason}")
             continue
         zone = g.zone if g.zone else f"not measured: {g.reason}"
-        lines.append(f"{r.speed_rpm:>10,.0f}  {r.axis:<9} {g.peak:>9.3f} {g.peak_db:>6.2f} {g.peak_hz:>7g} "
+        lines.append(f"{round(r.speed_rpm):>10,}  {r.axis:<9} {g.peak:>9.3f} {g.peak_db:>6.2f} {g.peak_hz:>7g} "
                      f"{g.coherence_at_peak:>9.3f}  {zone}")
     return "\n".join(lines)
 
