@@ -795,6 +795,65 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                {"one_step": one_step, "within": within, "cover": cover, "grade_cover": grade_cover})
 
 
+def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds: float = 1.0,
+                    slow_s: float = 4.0) -> Row:
+    """``balance forces`` (no trial run) on the spindle, one job per case as :func:`balancing`'s (its
+    own slow roll and noise, a random mass per plane), with the controller's feedforward ``ff``
+    (``off`` or ``lms``): the unbalance per plane against the simulator's, its stated 95 %
+    intervals, and what one correction by it leaves."""
+    from ambdaq.machines.balance_masses import BalanceMass
+    from ambdaq.workflows.balancing import force_balancing as estimate
+    from ambdaq.workflows.runout import identify_recordings
+
+    planes, radius = ("front", "rear"), 0.03
+    left, rel, z = [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases:
+            d = Path(tmp) / str(case)
+            d.mkdir()
+            rng = np.random.default_rng(case)
+            added = [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), radius)
+                     for p in planes]
+            slow = SimSource("spindle", seed=4 * case, speed=SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), truth=True)
+            slow.rig.add_masses(added)
+            coef = identify_recordings([load(_write(slow, d / "slow.mcap", slow_s))], [1, 2, 3, 4, 5, 6],
+                                       "fit").coef.save(d / "coef.json")
+            source = SimSource("spindle", seed=4 * case + 1, speed=SpeedProfile(rpm, rpm), truth=True)
+            source.rig.add_masses(added)
+            if ff != "off":
+                source.rig.set_feedforward(ff)
+            run = _write(source, d / "run.mcap", seconds)
+            got = estimate(run, coef)
+            cal = load(run, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
+            truth = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(
+                float(cal[f"truth.unbalance.{p}_deg"]))) for p in planes])
+            left.append(np.abs(truth - got.unbalance) / np.abs(truth))
+            rel.append(got.unbalance / truth - 1)
+            z.append(np.abs(got.unbalance - truth) / got.std)
+    left, rel, z = np.array(left), np.array(rel), np.array(z)
+    one_step = float(np.mean(left.max(axis=1) <= 0.10))
+    within = float(np.mean((np.abs(np.abs(rel + 1) - 1) < 0.10) & (np.abs(np.degrees(np.angle(rel + 1))) < 10.0)))
+    cover = float(np.mean(z <= 2.45))
+    ratio = float(np.sqrt(np.mean(z**2) / 2))
+    holds = cover >= 0.90 and 0.7 <= ratio <= 1.4  # what it states; the issue's 95 % one-step goal is reported
+    return Row("unbalance per plane from the bearing forces, no trial run (`balance forces`)",
+               f"spindle at {rpm:,.0f} rpm, feedforward {ff}, {seconds:g} s run, a {slow_s:g} s slow roll per job; "
+               "unbalance 0.01-0.4 g per plane at any angle",
+               "1σ per part (the windows' scatter, and FORCE_MODEL of the bearing's 1X force); issue 43: one step "
+               "leaves ≤ 10 % in 95 % of cases",
+               f"magnitude median {np.median(np.abs(rel + 1) - 1) * 100:+.2f} %, angle median "
+               f"{np.median(np.degrees(np.angle(rel + 1))):+.2f}°",
+               f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
+               f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
+               f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f})",
+               len(cases), f"{cases.start}-{cases.stop - 1}",
+               f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
+               f"--duration {seconds:g} --ff {ff} (a random mass per plane: seed S); balance forces", holds,
+               "" if holds else f"intervals cover {cover * 100:.0f} % (at least 90 %), error / stated {ratio:.2f} "
+                                "(0.7-1.4)",
+               {"one_step": one_step, "within": within, "cover": cover, "ratio": ratio})
+
+
 # --- the campaign --------------------------------------------------------------------------
 
 SMALL: list[Callable[[], Row]] = [
@@ -850,6 +909,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5, machine="flexible-long"),
     lambda: balancing(range(1, 101)),
     lambda: balancing(range(101, 151), rpm=30000.0),
+    lambda: force_balancing(range(1, 101)),
+    lambda: force_balancing(range(1, 101), ff="lms"),
 ]
 
 

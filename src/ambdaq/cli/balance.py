@@ -11,9 +11,25 @@ from ..errors import BadInputError
 from .options import plot_option
 
 
+def _correction_options(command):
+    """--holes, --max-rpm and --record: where the masses go, the grade's speed, the job's record."""
+    for option in (click.option("--record", type=click.Path(dir_okay=False),
+                                help="Save the balancing record (sealed JSON): the runs and files it used, what "
+                                     "--json prints (the correction masses, the grade)."),
+                   click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True),
+                                help="The machine's maximum service speed, rpm: the balance grade (ISO 21940-11) of "
+                                     "the unbalance the run holds is stated for it."),
+                   click.option("--holes", type=click.IntRange(min=3, max=360),
+                                help="Correction masses only in N holes per plane, evenly spaced from the "
+                                     "key-phasor's mark: each plane's correction split between the two either side.")):
+        command = option(command)
+    return command
+
+
 @click.group("balance")
 def command() -> None:
-    """Balance the rotor: influence coefficients from a reference run and a trial run per plane."""
+    """Balance the rotor: influence coefficients from a reference run and a trial run per plane, or
+    the unbalance from one run's bearing forces."""
 
 
 @command.command("influence")
@@ -26,15 +42,9 @@ def command() -> None:
                    "through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
-@click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
-              "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
-@click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True), help="The machine's maximum service speed, "
-              "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
+@_correction_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
-@click.option("--record", type=click.Path(dir_okay=False),
-              help="Save the balancing record (sealed JSON): the runs and files it used, the coefficients, the "
-                   "correction masses and the grade.")
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
@@ -84,13 +94,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 @click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
               help="Runout coefficients (runout identify of a slow roll).")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
-@click.option("--holes", type=click.IntRange(min=3, max=360), help="Correction masses only in N holes per plane, "
-              "evenly spaced from the key-phasor's mark: each plane's correction split between the two either side.")
-@click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True), help="The machine's maximum service speed, "
-              "rpm: the balance grade (ISO 21940-11) of the unbalance the run holds is stated for it.")
-@click.option("--record", type=click.Path(dir_okay=False),
-              help="Save the balancing record (sealed JSON): the runs and files it used, the coefficients, the "
-                   "correction masses and the grade.")
+@_correction_options
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
@@ -109,6 +113,48 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, record, 
     result.holes, result.max_rpm = holes or 0, max_rpm
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
+
+
+@command.command("forces")
+@click.argument("run", type=click.Path(dir_okay=False))
+@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
+              help="Runout coefficients (runout identify of a slow roll): the runout out of the gap, the rotor's motion left.")
+@click.option("--machine", default="spindle", show_default=True,
+              help="The machine model: its rigid rotor, its bearings' force law and balancing planes (machines/).")
+@_correction_options
+@click.option("--overwrite", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the unbalance and the correction as JSON.")
+def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_json):
+    """The unbalance per balancing plane from ONE run at a steady speed, without a trial mass: the
+    force each bearing applies at 1X (current gain x coil current + negative stiffness x position)
+    and the rigid rotor's mass and inertia give the unbalance force on each plane. The feedforward
+    may run (its currents are what the bearings apply).
+
+    \b
+    Example:
+      ambdaq balance forces run.mcap --coefficients coef.json --max-rpm 60000
+    """
+    from ..workflows.balancing import force_balancing, save_record
+
+    _writable(record, overwrite)
+    result = force_balancing(run, Path(coefficients), machine)
+    result.holes, result.max_rpm = holes or 0, max_rpm
+    d = result.as_dict()
+    if as_json:
+        click.echo(json.dumps(d, indent=2))
+    else:
+        click.echo(f"{d['rpm']:,.0f} rpm, feedforward {'on' if d['feedforward'] else 'off'}; unbalance from the "
+                   f"bearings' forces ({d['windows']} windows):")
+        for p, u in d["unbalance_estimated"].items():
+            click.echo(f"  {p:<6} {u['g_mm']:.4g} +- {u['std_g_mm']:.2g} g mm at {u['deg']:.1f} deg")
+        for m in d["correction"]:
+            click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm")
+        if d["grade_mm_s"] is not None:
+            click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm): {d['grade_mm_s']:.3g} +- "
+                       f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
+    if record:
+        save_record(result, record, [("run", run)], coefficients, machine)
+        click.echo(f"-> {record}", err=True)
 
 
 def _writable(record: str | None, overwrite: bool) -> None:

@@ -42,6 +42,10 @@ class LoopModel:
         The rotor's balancing planes (empty: none modelled).
     balance_radius_m : float
         The radius of their holes, m.
+    plane_unbalance : callable or None
+        ``plane_unbalance(rpm, position, current)``: the unbalance per balancing plane (kg m) that
+        the rotor's 1X position and coil currents (phasors per axis by name, m and A) imply, from
+        the rotor's model and its bearings' force law alone; None: not given.
     """
 
     at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -51,6 +55,7 @@ class LoopModel:
     runout_response: Callable[[float, Mapping[str, complex]], dict[str, complex]] | None = None
     balance_planes: tuple[str, ...] = ()
     balance_radius_m: float = 0.0
+    plane_unbalance: Callable[[float, Mapping[str, complex], Mapping[str, complex]], np.ndarray] | None = None
 
 
 def loop_model(machine: str, calibration: Mapping[str, str]) -> LoopModel:

@@ -242,6 +242,32 @@ class SpindleLoop:
         return 1j * state[:5]
 
 
+    def plane_unbalance(self, rpm: float, position: np.ndarray, current: np.ndarray) -> np.ndarray:
+        """The unbalance on each balancing plane (at the bearings; kg m, as
+        :attr:`~ambdaq.machines.balance_masses.BalanceMass.unbalance`) that the rotor's 1X motion
+        and its bearings' 1X forces imply at ``rpm`` (rpm), from no model of the loop: Newton's law
+        for the rigid rotor at 1X, (-Omega^2 M + j Omega G) q = Kx q + Ki i + F_u (the bearings'
+        linearised force, Ro et al. eq. 1), solved for the unbalance force F_u = U Omega^2 along
+        theta + phase (x: cos, y: sin), each plane from its bearing's x and y averaged.
+
+        Parameters
+        ----------
+        rpm : float
+            The speed, rpm.
+        position, current : ndarray of complex, shape (5,)
+            The rotor's 1X position at each bearing axis (m; the gap's with the runout out) and the
+            coil control currents' (A), in ``AXES`` order, as phasors ``a + j b`` of
+            ``a sin theta + b cos theta``.
+        """
+        p = self.params
+        omega = rpm * RPM_TO_RAD_S
+        M, G = p.rotor.mass_gyro(omega)
+        kx, ki = np.array([ax.kx for ax in p.axes]), np.array([ax.ki for ax in p.axes])
+        q, i = -1j * np.asarray(position), -1j * np.asarray(current)  # Re(P exp(j theta)) phasors
+        force = (-omega**2 * M + 1j * omega * G) @ q - kx * q - ki * i
+        return np.array([(force[2 * k] + 1j * force[2 * k + 1]) / 2 for k in range(len(BALANCE_PLANES))]) / omega**2
+
+
 GAIN_KEYS = ("controller.pid.p", "controller.pid.i", "controller.pid.d")
 """The calibration entries that state the PID gains the controller ran (its parameters ``pid.p``,
 ``pid.i``, ``pid.d``: V/V, 1/s, s), one value per axis in ``AXES`` order, comma-separated."""
@@ -289,8 +315,12 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
     def runout_response(rpm: float, runout: Mapping[str, complex]) -> dict[str, complex]:
         return dict(zip(AXES, loop.runout_response(float(rpm), np.array([runout.get(a, 0j) for a in AXES]))))
 
+    def plane_unbalance(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> np.ndarray:
+        return loop.plane_unbalance(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
+                                    np.array([current.get(a, 0j) for a in AXES]))
+
     extra = {"response": response, "runout_response": runout_response, "balance_planes": BALANCE_PLANES,
-             "balance_radius_m": loop.params.balance_radius}
+             "balance_radius_m": loop.params.balance_radius, "plane_unbalance": plane_unbalance}
     if gains is None:
         return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
                              f"({', '.join(GAIN_KEYS)})", assumed=True, **extra)

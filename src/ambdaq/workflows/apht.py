@@ -63,6 +63,7 @@ class Apht:
     ff_unit: str
     compensation: str
     window_s: float
+    current: np.ndarray | None = None  # the coil control currents' vectors (A), where asked (currents=True)
 
     def as_dict(self, recording: str, runout_removed: str | None) -> dict:
         """What ``apht --json`` prints: every window's vectors, per order and axis (µm and degrees;
@@ -103,7 +104,7 @@ def _vector(v: complex, scale: float) -> dict:
 
 
 def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficients: Path | None = None,
-         max_lost: float = MAX_LOST) -> Apht:
+         max_lost: float = MAX_LOST, currents: bool = False) -> Apht:
     """The APHT of a steady recording (see the module docstring).
 
     Parameters
@@ -119,10 +120,14 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
         A runout coefficient file: its runout is taken out of the gap first.
     max_lost : float
         The share of samples (0..1) the recording may have lost (:mod:`ambdaq.daq.quality`).
+    currents : bool
+        Also the coil control currents' vectors per window (A; the role ``current`` must be there).
     """
     if not rec.has_role("rotor"):
         raise BadInputError(f"{rec.path}: no rotor angle (/amb/rotor): APHT needs the key-phasor")
-    roles = [r for r in ("gap", "rotor", "error", "ff") if rec.has_role(r)]
+    if currents and not rec.has_role("current"):
+        raise BadInputError(f"{rec.path}: no coil currents (/amb/current): the bearings' forces need them")
+    roles = [r for r in ("gap", "rotor", "error", "ff", *(("current",) if currents else ())) if rec.has_role(r)]
     rec.load_roles(roles)
     require_complete(rec, [rec.role(r).topic for r in roles], "APHT", max_lost)
     signals = dict(zip(roles, rec.together(*roles)))  # gap first: the others at its instants
@@ -156,7 +161,7 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
 
     ff_unit = signals["ff"].units.get(axes[0], "") if "ff" in signals else ""
     return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation,
-                window_s)
+                window_s, of("current") if currents else None)
 
 
 __all__ = ["Apht", "WINDOW_S", "apht"]

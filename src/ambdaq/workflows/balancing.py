@@ -113,6 +113,33 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
                      rec.machine.rotor_mass_kg, np.sqrt(noise))
 
 
+def balance_grade(unbalance_kg_m: float, rotor_mass_kg: float, max_rpm: float) -> float:
+    """ISO 21940-11's e_per Omega_max, mm/s, of an unbalance (kg m) on a rotor of ``rotor_mass_kg``
+    (kg) at its maximum service speed ``max_rpm`` (rpm)."""
+    return unbalance_kg_m / rotor_mass_kg * max_rpm * RPM_TO_RAD_S * 1e3
+
+
+def plane_masses(planes: list[str], correction: np.ndarray, radius_m: dict[str, float], holes: int) -> list[BalanceMass]:
+    """A correction (kg m per plane) as masses at each plane's radius (m): one per plane at the
+    correction's angle, or, with ``holes`` per plane, split between the two holes either side of
+    it (each plane's unbalance the same vector sum, so the predicted residual holds)."""
+    out = []
+    for p, u in zip(planes, correction):
+        r = radius_m[p]
+        if not holes:
+            out.append(BalanceMass(p, float(abs(u)) / r * 1e3, float(np.degrees(np.angle(u))) % 360.0, r))
+            continue
+        pitch = 2 * np.pi / holes
+        k = int(np.floor((np.angle(u) % (2 * np.pi)) / pitch))
+        lo, hi = k * pitch, (k + 1) * pitch
+        # u = a e^{j lo} + b e^{j hi}, a and b >= 0: the two holes' share of the vector
+        a, b = np.linalg.solve(np.array([[np.cos(lo), np.cos(hi)], [np.sin(lo), np.sin(hi)]]), [u.real, u.imag])
+        for share, at in ((a, lo), (b, hi)):
+            if share * 1e3 / r > 1e-6:  # a microgram: the hole is not used
+                out.append(BalanceMass(p, float(share) / r * 1e3, float(np.degrees(at)) % 360.0, r))
+    return out
+
+
 @dataclass
 class Balancing:
     """Influence coefficients and the correction they give."""
@@ -170,28 +197,11 @@ class Balancing:
         return self._grade(float(np.abs(self.correction).sum()))
 
     def _grade(self, unbalance_kg_m: float) -> float:
-        """e_per Omega_max (mm/s) of an unbalance (kg m) on this rotor at its maximum speed."""
-        return unbalance_kg_m / self.rotor_mass_kg * self.max_rpm * RPM_TO_RAD_S * 1e3
+        return balance_grade(unbalance_kg_m, self.rotor_mass_kg, self.max_rpm)
 
     def masses(self) -> list[BalanceMass]:
-        """The correction as masses at each plane's radius: one per plane at the correction's angle,
-        or, with ``holes``, split between the two holes either side of it (each plane's unbalance
-        the same vector sum, so the predicted residual holds)."""
-        out = []
-        for p, u in zip(self.planes, self.correction):
-            r = self.radius_m[p]
-            if not self.holes:
-                out.append(BalanceMass(p, float(abs(u)) / r * 1e3, float(np.degrees(np.angle(u))) % 360.0, r))
-                continue
-            pitch = 2 * np.pi / self.holes
-            k = int(np.floor((np.angle(u) % (2 * np.pi)) / pitch))
-            lo, hi = k * pitch, (k + 1) * pitch
-            # u = a e^{j lo} + b e^{j hi}, a and b >= 0: the two holes' share of the vector
-            a, b = np.linalg.solve(np.array([[np.cos(lo), np.cos(hi)], [np.sin(lo), np.sin(hi)]]), [u.real, u.imag])
-            for share, at in ((a, lo), (b, hi)):
-                if share * 1e3 / r > 1e-6:  # a microgram: the hole is not used
-                    out.append(BalanceMass(p, float(share) / r * 1e3, float(np.degrees(at)) % 360.0, r))
-        return out
+        """The correction as masses at each plane's radius (:func:`plane_masses`)."""
+        return plane_masses(self.planes, self.correction, self.radius_m, self.holes)
 
     def as_dict(self) -> dict:
         """What ``balance influence --json`` prints."""
@@ -332,7 +342,7 @@ def correct_with(path: str | Path, run: RunVector) -> Balancing:
 RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
 
 
-def save_record(result: Balancing, path: str | Path, runs: list[tuple[str, str | Path]], coefficients: str | Path,
+def save_record(result: Balancing | ForceBalancing, path: str | Path, runs: list[tuple[str, str | Path]], coefficients: str | Path,
                 machine: str, influence_file: str | Path | None = None, *, overwrite: bool = False) -> Path:
     """The balancing job as a sealed record (ISO 21940-13's record of a balancing): the machine,
     each run with its role (``reference``, ``trial PLANE:GRAMS@DEG:RADIUS_MM``, ``run``) and
@@ -345,3 +355,100 @@ def save_record(result: Balancing, path: str | Path, runs: list[tuple[str, str |
            "runs": [{"role": role, **source(f)} for role, f in runs], "runout_coefficients": source(coefficients),
            "influence_file": None if influence_file is None else source(influence_file), "result": result.as_dict()}
     return write_sealed(path, doc, overwrite=overwrite, indent=1)
+
+
+FORCE_MODEL = 0.002
+"""Each plane's unbalance from the bearing forces is known no better than this fraction of the 1X
+force its bearing applies (Ki times the coil currents' 1X, over Omega^2), beside the noise: the
+force law is linearised and its gains are the machine's data, and with the feedforward off the
+controller fights the runout with forces ten times the unbalance's (a 0.4 % error in them was
+0.14e-6 kg m on the rear plane with no unbalance at all)."""
+FORCE_RELATIVE = 0.01
+"""... and no better than this fraction of itself (the corrections came out 1.0-1.2 % small in the
+median, with the feedforward off and on; the influence coefficients' 1.0 % too). Both sized by
+the validation campaign (40 jobs at 20,000 rpm each way, then its 100): with the noise alone the
+errors were 21 (feedforward off) and 3.5 (on) times the stated deviations; with both, 0.93 and 0.94."""
+
+
+FORCE_WINDOW_S = 0.05
+"""The windows the force-based unbalance is averaged over, s (16 revolutions at 20,000 rpm; 20 in a
+1 s run, so their scatter states the noise)."""
+
+
+@dataclass
+class ForceBalancing:
+    """The unbalance per plane from one run's bearing forces (issue 43, item 3)."""
+
+    path: str
+    planes: list[str]
+    rpm: float
+    unbalance: np.ndarray  # (planes,) complex, kg m: the rotor's, as BalanceMass.unbalance
+    std: np.ndarray  # (planes,): each part's deviation, kg m
+    noise: np.ndarray  # (planes,): the part of it that is the windows' scatter, kg m
+    windows: int
+    radius_m: dict[str, float]
+    feedforward: bool
+    rotor_mass_kg: float | None = None
+    max_rpm: float | None = None
+    holes: int = 0
+
+    @property
+    def correction(self) -> np.ndarray:
+        """The unbalance per plane a correction adds: the negative of the rotor's, kg m."""
+        return -self.unbalance
+
+    @property
+    def grade_mm_s(self) -> float | None:
+        """The ISO 21940-11 grade of the unbalance this run holds (:func:`balance_grade`)."""
+        if not self.rotor_mass_kg or not self.max_rpm:
+            return None
+        return balance_grade(float(np.abs(self.unbalance).sum()), self.rotor_mass_kg, self.max_rpm)
+
+    @property
+    def grade_std_mm_s(self) -> float | None:
+        if self.grade_mm_s is None:
+            return None
+        return balance_grade(float(self.std.sum()), self.rotor_mass_kg, self.max_rpm)
+
+    def as_dict(self) -> dict:
+        """What ``balance forces --json`` prints."""
+        return {"method": "bearing forces (no trial run)", "recording": Path(self.path).name, "rpm": round(self.rpm, 1),
+                "planes": self.planes, "feedforward": self.feedforward, "windows": self.windows,
+                "unbalance_estimated": {p: {"g_mm": round(abs(u) * 1e6, 4), "deg": round(float(np.degrees(np.angle(u))) % 360, 2),
+                                            "std_g_mm": round(float(sd) * 1e6, 4)}
+                                        for p, u, sd in zip(self.planes, self.unbalance, self.std)},
+                "holes": self.holes or None,
+                "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
+                                "radius_mm": m.radius_m * 1e3}
+                               for m in plane_masses(self.planes, self.correction, self.radius_m, self.holes)],
+                "grade_mm_s": None if self.grade_mm_s is None else round(self.grade_mm_s, 3),
+                "grade_std_mm_s": None if self.grade_std_mm_s is None else round(self.grade_std_mm_s, 3),
+                "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm}
+
+
+def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindle") -> ForceBalancing:
+    """The unbalance per plane of the rotor in ``path`` (one run at a steady speed, the feedforward
+    on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
+    ``coefficients`` taken out (the rotor's motion) and the coil currents' 1X, through ``machine``'s
+    rigid rotor and force law (its ``plane_unbalance``); the windows averaged, their scatter the
+    noise, FORCE_MODEL and FORCE_RELATIVE beside it."""
+    rec = load(path)
+    result = apht(rec, orders=(1,), coefficients=coefficients, currents=True, window_s=FORCE_WINDOW_S)
+    if result.gap.shape[0] < 2:
+        raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
+    model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
+    if model.plane_unbalance is None or not model.balance_planes:
+        raise BadInputError(f"the {machine} model has no rotor and force law for balancing from the bearings' forces")
+    axes = list(result.axes)
+    u = np.array([model.plane_unbalance(result.rpm, dict(zip(axes, result.gap[w, 0])), dict(zip(axes, result.current[w, 0])))
+                  for w in range(result.gap.shape[0])])
+    noise = np.sqrt((np.var(u.real, axis=0, ddof=1) + np.var(u.imag, axis=0, ddof=1)) / 2 / u.shape[0])
+    current = np.abs(result.current[:, 0]).mean(axis=0)  # per axis, A
+    # the scale of each bearing's 1X force as an unbalance, Ki |I| / Omega^2 (kg m): the currents'
+    # magnitudes alone through the same law
+    force = model.plane_unbalance(result.rpm, {}, dict(zip(axes, current)))
+    unbalance = u.mean(axis=0)
+    std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (FORCE_RELATIVE * np.abs(unbalance)) ** 2)
+    on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
+    return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
+                          {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg)
