@@ -3,6 +3,7 @@ spindle's balancing planes (``sim generate --trial/--correction``), the unbalanc
 as the simulator's truth, and the rotor's 1X moved by what the machine's model predicts."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -71,7 +72,24 @@ def test_the_cone_rig_has_no_balancing_planes_yet(run_cli, tmp_path):
     assert r.exit_code == 2 and "has no balancing planes" in r.output, r.output
 
 
-def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path):
+@pytest.fixture
+def runout_coefficients(build_once) -> Path:
+    """The runout of the simulated spindle from a 4 s slow roll (docs/balancing.md's first step),
+    identified once per run and shared by every balancing job here: the coefficient file."""
+    from click.testing import CliRunner
+
+    from ambdaq.cli.main import cli
+
+    def build(d: Path) -> None:
+        for args in (("sim", "generate", "--rpm", "slowroll", "--duration", "4", "-q", "-o", str(d / "slow.mcap")),
+                     ("runout", "identify", str(d / "slow.mcap"), "-o", str(d / "coef.json"))):
+            r = CliRunner().invoke(cli, list(args))
+            assert r.exit_code == 0, r.output
+
+    return build_once("balancing-runout", build) / "coef.json"
+
+
+def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path, runout_coefficients):
     """ISO 21940-13 on the simulated spindle at 20,000 rpm: the runout from a slow roll, a reference
     run, a 0.1 g trial mass on each plane in turn; balance influence gives a correction mass per
     plane within 10 % and 10 degrees of the one that cancels the rotor's own unbalance (the truth:
@@ -84,12 +102,11 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
         assert r.exit_code == 0, r.output
         return path
 
-    slow = generate("slow", rpm="slowroll", seconds=4.0)
-    assert run_cli("runout", "identify", slow, "-o", tmp_path / "coef.json").exit_code == 0
+    coef = runout_coefficients
     ref = generate("ref")
     front, rear = generate("t_front", "--trial", "front:0.1@0"), generate("t_rear", "--trial", "rear:0.1@0")
     r = run_cli("balance", "influence", ref, front, rear, "--mass", "front:0.1@0", "--mass", "rear:0.1@0",
-                "--coefficients", tmp_path / "coef.json", "--max-rpm", 60000, "-o", tmp_path / "infl.json", "--json",
+                "--coefficients", coef, "--max-rpm", 60000, "-o", tmp_path / "infl.json", "--json",
                 "--record", tmp_path / "job.json", "--plot", tmp_path / "job.png")
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout)
@@ -101,7 +118,7 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
     assert [(run["role"], run["file"], run["sha256"]) for run in record["runs"]] == [
         ("reference", "ref.mcap", file_sha256(ref)), ("trial front:0.1@0:30", "t_front.mcap", file_sha256(front)),
         ("trial rear:0.1@0:30", "t_rear.mcap", file_sha256(rear))]
-    assert record["runout_coefficients"]["sha256"] == file_sha256(tmp_path / "coef.json")
+    assert record["runout_coefficients"]["sha256"] == file_sha256(coef)
     assert record["result"] == out and record["machine"] == "spindle" and record["influence_file"] is None
     assert (tmp_path / "job.png").stat().st_size > 30_000
     # an independent solver, hsbalance (cvxpy's least squares), from the saved influence coefficients
@@ -136,7 +153,7 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
     # in 12 holes per plane: each correction split between the two holes either side of its angle,
     # the same vector per plane (to the JSON's 4 decimals of a gram)
     r = run_cli("balance", "influence", ref, front, rear, "--mass", "front:0.1@0", "--mass", "rear:0.1@0",
-                "--coefficients", tmp_path / "coef.json", "--holes", "12", "--json")
+                "--coefficients", coef, "--holes", "12", "--json")
     assert r.exit_code == 0, r.output
     split = json.loads(r.stdout)["correction"]
     assert all(m["deg"] % 30 == 0 for m in split) and len(split) <= 4, split
@@ -158,7 +175,7 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
 
     assert abs(out["grade_mm_s"] - truth_grade(ref)) < 3 * out["grade_std_mm_s"], out
     r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients",
-                tmp_path / "coef.json", "--max-rpm", 60000, "--json", "--record", tmp_path / "after.json")
+                coef, "--max-rpm", 60000, "--json", "--record", tmp_path / "after.json")
     assert r.exit_code == 0, r.output
     after = json.loads(r.stdout)
     record = read_sealed(tmp_path / "after.json", "ambdaq.balancing_record", 1, "balancing record")
@@ -166,7 +183,7 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
     assert record["influence_file"] == {"file": "infl.json", "sha256": file_sha256(tmp_path / "infl.json")}
     # a record is not replaced without --overwrite, and that is said before any work
     r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients",
-                tmp_path / "coef.json", "--record", tmp_path / "after.json")
+                coef, "--record", tmp_path / "after.json")
     assert r.exit_code == 2 and "after.json exists" in r.output, r.output
     assert abs(after["grade_mm_s"] - truth_grade(fixed)) < 3 * after["grade_std_mm_s"], after
     assert after["grade_mm_s"] < 0.1 * out["grade_mm_s"] and after["grade"] == "G0.4", after
@@ -177,7 +194,7 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path)
                                                                           - model_one_x(0j, 0j)) + 0.05e-6)
 
 
-def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli, tmp_path):
+def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli, tmp_path, runout_coefficients):
     """The influence coefficients saved by one job (balance influence -o) and the next job on the
     same machine: the rotor has changed (0.05 g more at 45 degrees on the front plane), one run,
     balance correct: the correction cancels the rotor's whole unbalance within 10 % and 10 degrees.
@@ -189,9 +206,7 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
         assert run_cli("sim", "generate", "--rpm", rpm, "--duration", seconds, "-q", "-o", path, *extra).exit_code == 0
         return path
 
-    slow = generate("slow", rpm="slowroll", seconds=4.0)
-    coef = tmp_path / "coef.json"
-    assert run_cli("runout", "identify", slow, "-o", coef).exit_code == 0
+    coef = runout_coefficients
     runs = [generate("ref"), generate("tf", "--trial", "front:0.1@0"), generate("tr", "--trial", "rear:0.1@0")]
     infl = tmp_path / "influence.json"
     r = run_cli("balance", "influence", *runs, "--mass", "front:0.1@0", "--mass", "rear:0.1@0", "--coefficients", coef,
@@ -215,7 +230,7 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
 
 
 @pytest.mark.parametrize("ff", ["off", "lms"])
-def test_the_bearing_forces_give_the_unbalance_without_a_trial_run(run_cli, tmp_path, ff):
+def test_the_bearing_forces_give_the_unbalance_without_a_trial_run(run_cli, tmp_path, ff, runout_coefficients):
     """Issue 43, item 3: one run at 20,000 rpm, the feedforward off or on (its currents are what the
     bearings apply), 0.15 g added at 200 degrees on the front plane: balance forces finds each
     plane's unbalance within 10 % and 10 degrees of the simulator's and within 3.5 of its stated
@@ -224,9 +239,7 @@ def test_the_bearing_forces_give_the_unbalance_without_a_trial_run(run_cli, tmp_
     and its correction, put on the rotor, leaves at most 10 % of the unbalance."""
     import json
 
-    slow, run, coef = tmp_path / "slow.mcap", tmp_path / "run.mcap", tmp_path / "coef.json"
-    assert run_cli("sim", "generate", "--rpm", "slowroll", "--duration", 4, "-q", "-o", slow).exit_code == 0
-    assert run_cli("runout", "identify", slow, "-o", coef).exit_code == 0
+    run, coef = tmp_path / "run.mcap", runout_coefficients
     r = run_cli("sim", "generate", "--rpm", RPM, "--duration", 1, "--ff", ff, "--truth", "--correction", "front:0.15@200",
                 "-q", "-o", run)
     assert r.exit_code == 0, r.output
