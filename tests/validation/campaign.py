@@ -758,8 +758,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             ref = run("ref", [], 4 * case + 1, steady, seconds)
             result = influence_balancing(run_vector(ref, coef), [
                 (m, run_vector(run(f"t{k}", [m], 4 * case + 2 + k, steady, seconds), coef))
-                for k, m in enumerate(trials)])
-            result.max_rpm = max_rpm
+                for k, m in enumerate(trials)], max_rpm=max_rpm)
             cal = load(ref, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
             truth = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(
                 float(cal[f"truth.unbalance.{p}_deg"]))) for p in planes])

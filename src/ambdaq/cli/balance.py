@@ -73,12 +73,12 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
         raise BadInputError(f"the {machine} model has no balancing planes")
     parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
     result = influence_balancing(run_vector(reference, coef, machine),
-                                 [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)])
+                                 [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)],
+                                 holes=holes or 0, max_rpm=max_rpm)
     if output:
         from ..workflows.balancing import save_influence
 
         save_influence(result, output, [reference, *trials], overwrite=overwrite)
-    result.holes, result.max_rpm = holes or 0, max_rpm
     runs = [("reference", reference), *((f"trial {m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}", t)
                                         for m, t in zip(parsed, trials))]
     _show(result, as_json)
@@ -109,8 +109,8 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, record, 
     from ..workflows.balancing import correct_with, run_vector
 
     _writable(record, overwrite)
-    result = correct_with(influence_file, run_vector(run, Path(coefficients), machine))
-    result.holes, result.max_rpm = holes or 0, max_rpm
+    result = correct_with(influence_file, run_vector(run, Path(coefficients), machine), holes=holes or 0,
+                          max_rpm=max_rpm)
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
 
@@ -137,8 +137,7 @@ def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_jso
     from ..workflows.balancing import force_balancing, save_record
 
     _writable(record, overwrite)
-    result = force_balancing(run, Path(coefficients), machine)
-    result.holes, result.max_rpm = holes or 0, max_rpm
+    result = force_balancing(run, Path(coefficients), machine, holes=holes or 0, max_rpm=max_rpm)
     d = result.as_dict()
     if as_json:
         click.echo(json.dumps(d, indent=2))

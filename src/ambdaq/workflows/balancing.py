@@ -238,9 +238,10 @@ def _grade_class(g: float | None) -> str | None:
     return next((f"G{v:g}" for v in GRADES if g <= v), f"beyond G{GRADES[-1]:g}")
 
 
-def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]) -> Balancing:
+def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]], *, holes: int = 0,
+                        max_rpm: float | None = None) -> Balancing:
     """Influence coefficients from ``reference`` and one trial run per plane, and the correction
-    (module docstring)."""
+    (module docstring), in ``holes`` per plane (0: at any angle), graded at ``max_rpm`` (rpm)."""
     planes = [m.plane for m, _ in trials]
     if len(set(planes)) != len(planes):
         raise BadInputError(f"one trial run per plane: {', '.join(planes)}")
@@ -260,16 +261,17 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
                                 f"less than ten times its noise ({noise * 1e6:.3f} um): use a larger trial mass")
     noise = InfluenceNoise(reference.noise, np.column_stack([r.noise for _, r in trials]),
                            np.array([m.unbalance for m, _ in trials]), same_run=True)
-    return _correct(planes, reference, A, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials], noise)
+    return _correct(planes, reference, A, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials], noise,
+                    holes, max_rpm)
 
 
 def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[str, float],
-             trials: list[BalanceMass], noise: InfluenceNoise | None) -> Balancing:
+             trials: list[BalanceMass], noise: InfluenceNoise | None, holes: int, max_rpm: float | None) -> Balancing:
     """The correction per plane that cancels ``run``'s 1X over its axes by least squares."""
     correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
     return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, radius_m, trials,
-                     rotor_mass_kg=run.rotor_mass_kg, reference_std=run.std, reference_noise=run.noise,
-                     influence_noise=noise)
+                     holes=holes, rotor_mass_kg=run.rotor_mass_kg, max_rpm=max_rpm, reference_std=run.std,
+                     reference_noise=run.noise, influence_noise=noise)
 
 
 FORMAT, VERSION = "ambdaq.balance_influence", 1
@@ -304,9 +306,10 @@ def _complex(re, im) -> np.ndarray:
     return out
 
 
-def correct_with(path: str | Path, run: RunVector) -> Balancing:
+def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: float | None = None) -> Balancing:
     """The correction for ``run`` by the influence coefficients of the file ``path`` (one run of
-    the same machine at the same speed instead of three)."""
+    the same machine at the same speed instead of three); ``holes`` and ``max_rpm`` as
+    :func:`influence_balancing`'s."""
     doc = read_sealed(path, FORMAT, VERSION, "influence file")
     try:
         planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
@@ -336,7 +339,7 @@ def correct_with(path: str | Path, run: RunVector) -> Balancing:
         raise BadInputError(f"{run.path}: axes {', '.join(run.axes)}; the influence file's are {', '.join(axes)}")
     if abs(run.rpm / rpm - 1) > SAME_SPEED:
         raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
-    return _correct(planes, run, A, radius, [], noise)
+    return _correct(planes, run, A, radius, [], noise, holes, max_rpm)
 
 
 RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
@@ -426,12 +429,14 @@ class ForceBalancing:
                 "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm}
 
 
-def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindle") -> ForceBalancing:
+def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindle", *, holes: int = 0,
+                    max_rpm: float | None = None) -> ForceBalancing:
     """The unbalance per plane of the rotor in ``path`` (one run at a steady speed, the feedforward
     on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
     ``coefficients`` taken out (the rotor's motion) and the coil currents' 1X, through ``machine``'s
     rigid rotor and force law (its ``plane_unbalance``); the windows averaged, their scatter the
-    noise, FORCE_MODEL and FORCE_RELATIVE beside it."""
+    noise, FORCE_MODEL and FORCE_RELATIVE beside it; ``holes`` and ``max_rpm`` as
+    :func:`influence_balancing`'s."""
     rec = load(path)
     result = apht(rec, orders=(1,), coefficients=coefficients, currents=True, window_s=FORCE_WINDOW_S)
     if result.gap.shape[0] < 2:
@@ -451,4 +456,5 @@ def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindl
     std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (FORCE_RELATIVE * np.abs(unbalance)) ** 2)
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
-                          {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg)
+                          {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg,
+                          max_rpm, holes)
