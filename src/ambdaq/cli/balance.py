@@ -26,6 +26,13 @@ def _correction_options(command):
     return command
 
 
+def _max_grams_option(command):
+    """--max-grams: the largest mass a plane takes."""
+    return click.option("--max-grams", type=click.FloatRange(min=0, min_open=True),
+                        help="The largest correction mass a plane takes, g (at its radius): where the least squares "
+                             "asks more, the best correction with every plane within it.")(command)
+
+
 @click.group("balance")
 def command() -> None:
     """Balance the rotor: influence coefficients from a reference run and a trial run per plane, or
@@ -43,13 +50,14 @@ def command() -> None:
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
 @_correction_options
+@_max_grams_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Save the influence coefficients (sealed JSON) for the next job: balance correct.")
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, output, record, plot_path,
-              overwrite, as_json):
+def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, max_grams, output, record,
+              plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -74,7 +82,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
     result = influence_balancing(run_vector(reference, coef, machine),
                                  [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)],
-                                 holes=holes or 0, max_rpm=max_rpm)
+                                 holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     if output:
         from ..workflows.balancing import save_influence
 
@@ -95,10 +103,12 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
               help="Runout coefficients (runout identify of a slow roll).")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
 @_correction_options
+@_max_grams_option
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, holes, max_rpm, record, plot_path, overwrite, as_json):
+def correct(run, influence_file, coefficients, machine, holes, max_rpm, max_grams, record, plot_path, overwrite,
+            as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane.
 
@@ -110,7 +120,7 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, record, 
 
     _writable(record, overwrite)
     result = correct_with(influence_file, run_vector(run, Path(coefficients), machine), holes=holes or 0,
-                          max_rpm=max_rpm)
+                          max_rpm=max_rpm, max_grams=max_grams)
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
 
@@ -192,6 +202,8 @@ def _show(result, as_json: bool) -> None:
     for m in d["correction"]:
         click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm"
                    + (" (with the trial masses taken off)" if result.trials else ""))
+    if d["limited_by_max_grams"]:
+        click.echo(f"held to {d['max_grams']:g} g: {', '.join(d['limited_by_max_grams'])} (the best correction within it)")
     click.echo(f"predicted residual 1X: {d['predicted_reduction'] * 100:.1f} % of the reference's")
     if d["grade_mm_s"] is not None:
         click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm, the unbalance this run holds): "

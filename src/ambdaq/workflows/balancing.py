@@ -113,6 +113,32 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
                      rec.machine.rotor_mass_kg, np.sqrt(noise))
 
 
+def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """The correction u (kg m per plane) that leaves the least 1X, ||v + A u||, with every plane's
+    |u_p| at most ``limit`` (kg m): ``free`` (the unconstrained least squares) where it is within,
+    otherwise the convex problem solved by SLSQP from ``free`` drawn back inside the limits."""
+    if np.all(np.abs(free) <= limit):
+        return free
+    from scipy.optimize import minimize
+
+    n, scale = len(free), float(np.linalg.norm(v)) or 1.0
+    unit = limit.max()  # the variables in units of the largest limit, the objective in the 1X's
+
+    def residual(x: np.ndarray) -> float:
+        u = (x[:n] + 1j * x[n:]) * unit
+        return float(np.sum(np.abs(v + A @ u) ** 2)) / scale**2
+
+    start = free * np.minimum(1.0, limit / np.abs(free)) / unit
+    bounds = [{"type": "ineq", "fun": (lambda x, p=p: (limit[p] / unit) ** 2 - x[p] ** 2 - x[n + p] ** 2)}
+              for p in range(n)]
+    found = minimize(residual, np.concatenate([start.real, start.imag]), method="SLSQP", constraints=bounds,
+                     options={"ftol": 1e-14, "maxiter": 500})
+    u = (found.x[:n] + 1j * found.x[n:]) * unit
+    over = np.abs(u) > limit
+    u[over] *= limit[over] / np.abs(u[over])  # the solver's tolerance, not beyond the limit
+    return u
+
+
 def balance_grade(unbalance_kg_m: float, rotor_mass_kg: float, max_rpm: float) -> float:
     """ISO 21940-11's e_per Omega_max, mm/s, of an unbalance (kg m) on a rotor of ``rotor_mass_kg``
     (kg) at its maximum service speed ``max_rpm`` (rpm)."""
@@ -149,7 +175,7 @@ class Balancing:
     rpm: float
     influence: np.ndarray  # (axes, planes) complex, m per kg m
     reference: np.ndarray  # (axes,) complex, m
-    correction: np.ndarray  # (planes,) complex, kg m
+    correction: np.ndarray  # (planes,) complex, kg m: the least squares', the whole unbalance's negative
     radius_m: dict[str, float]
     trials: list[BalanceMass]
     holes: int = 0  # holes per plane, evenly spaced from the key-phasor's mark; 0: a mass at any angle
@@ -158,11 +184,27 @@ class Balancing:
     reference_std: np.ndarray | None = None  # (axes,): each part's deviation of the reference vector, m
     reference_noise: np.ndarray | None = None  # (axes,): the part of it that is the run's own noise, m
     influence_noise: InfluenceNoise | None = None  # the noise the influence coefficients were measured with
+    max_grams: float | None = None  # the largest mass a plane takes, g (at its radius)
+
+    @property
+    def placed(self) -> np.ndarray:
+        """The correction the masses put on the rotor, kg m per plane: the least squares', or where a
+        plane's would need more than ``max_grams``, the best with every plane within it
+        (:func:`limited_correction`)."""
+        if self.max_grams is None:
+            return self.correction
+        limit = np.array([self.max_grams * 1e-3 * self.radius_m[p] for p in self.planes])
+        return limited_correction(self.influence, self.reference, self.correction, limit)
+
+    @property
+    def limited(self) -> list[str]:
+        """The planes whose correction ``max_grams`` holds back."""
+        return [p for p, u, v in zip(self.planes, self.correction, self.placed) if abs(u - v) > 1e-9 * abs(u)]
 
     @property
     def residual(self) -> np.ndarray:
-        """The 1X the correction leaves, predicted, per axis (complex, m)."""
-        return self.reference + self.influence @ self.correction
+        """The 1X the placed correction leaves, predicted, per axis (complex, m)."""
+        return self.reference + self.influence @ self.placed
 
     @property
     def correction_std(self) -> np.ndarray | None:
@@ -201,7 +243,7 @@ class Balancing:
 
     def masses(self) -> list[BalanceMass]:
         """The correction as masses at each plane's radius (:func:`plane_masses`)."""
-        return plane_masses(self.planes, self.correction, self.radius_m, self.holes)
+        return plane_masses(self.planes, self.placed, self.radius_m, self.holes)
 
     def as_dict(self) -> dict:
         """What ``balance influence --json`` prints."""
@@ -223,6 +265,7 @@ class Balancing:
                 "max_rpm": self.max_rpm,
                 "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
                                 "radius_mm": m.radius_m * 1e3} for m in self.masses()],
+                "max_grams": self.max_grams, "limited_by_max_grams": self.limited,
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
                 "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4)}
 
@@ -239,9 +282,10 @@ def _grade_class(g: float | None) -> str | None:
 
 
 def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]], *, holes: int = 0,
-                        max_rpm: float | None = None) -> Balancing:
+                        max_rpm: float | None = None, max_grams: float | None = None) -> Balancing:
     """Influence coefficients from ``reference`` and one trial run per plane, and the correction
-    (module docstring), in ``holes`` per plane (0: at any angle), graded at ``max_rpm`` (rpm)."""
+    (module docstring), in ``holes`` per plane (0: at any angle), no mass above ``max_grams`` (g),
+    graded at ``max_rpm`` (rpm)."""
     planes = [m.plane for m, _ in trials]
     if len(set(planes)) != len(planes):
         raise BadInputError(f"one trial run per plane: {', '.join(planes)}")
@@ -262,16 +306,17 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
     noise = InfluenceNoise(reference.noise, np.column_stack([r.noise for _, r in trials]),
                            np.array([m.unbalance for m, _ in trials]), same_run=True)
     return _correct(planes, reference, A, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials], noise,
-                    holes, max_rpm)
+                    holes, max_rpm, max_grams)
 
 
 def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[str, float],
-             trials: list[BalanceMass], noise: InfluenceNoise | None, holes: int, max_rpm: float | None) -> Balancing:
+             trials: list[BalanceMass], noise: InfluenceNoise | None, holes: int, max_rpm: float | None,
+             max_grams: float | None) -> Balancing:
     """The correction per plane that cancels ``run``'s 1X over its axes by least squares."""
     correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
     return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, radius_m, trials,
                      holes=holes, rotor_mass_kg=run.rotor_mass_kg, max_rpm=max_rpm, reference_std=run.std,
-                     reference_noise=run.noise, influence_noise=noise)
+                     reference_noise=run.noise, influence_noise=noise, max_grams=max_grams)
 
 
 FORMAT, VERSION = "ambdaq.balance_influence", 1
@@ -306,10 +351,11 @@ def _complex(re, im) -> np.ndarray:
     return out
 
 
-def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: float | None = None) -> Balancing:
+def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: float | None = None,
+                 max_grams: float | None = None) -> Balancing:
     """The correction for ``run`` by the influence coefficients of the file ``path`` (one run of
-    the same machine at the same speed instead of three); ``holes`` and ``max_rpm`` as
-    :func:`influence_balancing`'s."""
+    the same machine at the same speed instead of three); ``holes``, ``max_rpm`` and ``max_grams``
+    as :func:`influence_balancing`'s."""
     doc = read_sealed(path, FORMAT, VERSION, "influence file")
     try:
         planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
@@ -339,7 +385,7 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         raise BadInputError(f"{run.path}: axes {', '.join(run.axes)}; the influence file's are {', '.join(axes)}")
     if abs(run.rpm / rpm - 1) > SAME_SPEED:
         raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
-    return _correct(planes, run, A, radius, [], noise, holes, max_rpm)
+    return _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams)
 
 
 RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
