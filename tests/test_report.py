@@ -41,6 +41,8 @@ def session(tmp_path_factory):
     run("sim", "generate", "--rpm", "0:30000:3", "--duration", "3", "-q", "-o", d / "runup.mcap")
     run("sim", "generate", "--rpm", "30000", "--duration", "2", "-q", "-o", d / "before.mcap")
     run("sim", "generate", "--rpm", "30000", "--duration", "2", "--ff", "lms", "-q", "-o", d / "after.mcap")
+    run("balance", "forces", d / "after.mcap", "--coefficients", d / "coef.json", "--max-rpm", "60000", "--record",
+        d / "balance.json")
     os.environ["AMBDAQ_STATE_DIR"] = str(d / "state")
     try:  # the push log as push writes it: one entry of these coefficients, one of another file
         append_local_log({"host_time": "2026-11-23T10:00:00Z", "bank": 1, "crc32": "0x1a2b3c4d", "file": "coef.json",
@@ -59,7 +61,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     r = run_cli("report", "--stability", session / "stability.json", "--runup", session / "runup.mcap",
                 "--coefficients", session / "coef.json", "--before", session / "before.mcap", "--after",
                 session / "after.mcap", "--push-log", session / "state" / "push.log", "--model", "spindle", "--operating", "1000:20000", "-o", page,
-                "--pdf", pdf, "--json")
+                "--pdf", pdf, "--json", "--balancing", session / "balance.json")
     assert r.exit_code == 0, r.output
     data = json.loads(r.stdout)
     # self-contained: no file or address outside the page
@@ -143,6 +145,17 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
                                                      for u in ("um", "deg"))] for row in a["rows"]]
     for row in a["rows"]:
         assert row["error_last"]["amplitude"] < 0.2 * row["error_first"]["amplitude"], row
+    # the balancing record: what balance forces --json printed for the run after, its unbalance and
+    # correction masses in the tables (g mm to 0.001, degrees to 0.1, grams to 0.0001)
+    b = data["balancing"]
+    alone = json.loads(run_cli("balance", "forces", session / "after.mcap", "--coefficients", session / "coef.json",
+                               "--max-rpm", 60000, "--json").stdout)
+    assert b["unbalance"] == alone["unbalance_estimated"] and b["correction"] == alone["correction"]
+    assert (b["grade"], b["grade_mm_s"], b["grade_std_mm_s"]) == (alone["grade"], alone["grade_mm_s"], alone["grade_std_mm_s"])
+    assert tables.tables["balancing-unbalance"] == [[p, f"{u['g_mm']:.3f}", f"{u['std_g_mm']:.3f}", f"{u['deg']:.1f}"]
+                                                    for p, u in b["unbalance"].items()]
+    assert tables.tables["balancing-correction"] == [[m["plane"], f"{m['grams']:.4f}", f"{m['deg']:.1f}",
+                                                      f"{m['radius_mm']:g}"] for m in b["correction"]]
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
@@ -158,7 +171,8 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     worst_band = max(data["vibration"]["bands"], key=lambda b: b["ratio_cmin"])
     assert [(line["standard"], line["zone"]) for line in verdict["lines"]] == [
         ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("API 684", None),
-        ("Ro et al. runout feedforward", None)]
+        ("Ro et al. runout feedforward", None), ("ISO 21940-11", None)]
+    assert verdict["lines"][4]["result"].startswith(f"{b['grade']} ({b['grade_mm_s']:.3g} ± ")
     assert verdict["lines"][2]["result"] == f"{sum(c['passed'] for c in crit)} of {len(crit)} verified against the spindle model"
     assert tables.tables["verdict"][0][2].startswith(f"zone {worst_gs['zone']} (") and worst_gs["axis"] in \
         tables.tables["verdict"][0][2]
@@ -172,7 +186,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
              for p in PdfReader(pdf).pages]  # NFKC: the PDF's ligatures (ﬁ, ﬃ) as letters
     assert len(pages) >= 3
     sections = re.findall(r"<h2>(.*?)</h2>(.*?)(?=<h2>|</body>)", dom.stdout, re.S)
-    assert len(sections) == 9
+    assert len(sections) == 10
     for heading, body in sections:
         table = re.search(r"<tr>(.*?)</tr>", body, re.S)  # the first table's header row, else the first paragraph
         first = table.group(1) if table else re.search(r"<p[^>]*>(.*?)</p>", body, re.S).group(1)
@@ -200,6 +214,9 @@ def test_what_a_report_refuses_is_one_line_exit_2(session, run_cli, tmp_path):
     r = run_cli("report", "--stability", session / "stability.json", "--push-log", tmp_path / "none.log",
                 "-o", tmp_path / "r.html")
     assert r.exit_code == 2 and "no such push log" in r.output
+    r = run_cli("report", "--stability", session / "stability.json", "--balancing", session / "coef.json",
+                "-o", tmp_path / "r.html")
+    assert r.exit_code == 2 and "not an ambdaq balancing record" in r.output, r.output
     assert not (tmp_path / "r.html").exists()
 
 

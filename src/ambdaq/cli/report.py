@@ -51,13 +51,15 @@ def _drop_files(given: tuple[str, ...], more: tuple[str, ...]) -> list[str]:
 @click.argument("more_drops", nargs=-1, type=click.Path(dir_okay=False), metavar="[DROPS]...")
 @click.option("--design", type=click.Path(dir_okay=False),
               help="The controller design that was pushed (controller design): its prediction beside --stability.")
+@click.option("--balancing", type=click.Path(dir_okay=False),
+              help="A balancing record (balance ... --record): the unbalance, the correction masses, the grade.")
 @click.option("--title", default="AMB commissioning report", show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="The report (.html).")
 @click.option("--pdf", type=click.Path(dir_okay=False), help="Also print it to this PDF (headless Chromium).")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the numbers of the report's tables as JSON.")
 def command(stability, runup, coefficients, before, after, push_log, cmin, model, operating, limits, drops, more_drops,
-            design, title, output, pdf, overwrite, as_json):
+            design, balancing, title, output, pdf, overwrite, as_json):
     """One self-contained HTML commissioning report from a session's files: the machine, the ISO
     14839-3 table and plots, the ISO 14839-2 zones through the run-up, the runout before and after the
     push with the push log and the APHT of the run after it, the run-up's order tracking, the rotor drops
@@ -84,7 +86,8 @@ def command(stability, runup, coefficients, before, after, push_log, cmin, model
     opened = (lambda v: open_recording(v) if v else None)
     found = gather(SessionFiles(as_path(stability), opened(runup), as_path(coefficients), opened(before),
                                 opened(after), as_path(push_log), None if cmin is None else cmin * 1e-6, model,
-                                [open_recording(p) for p in drops], operating, limits, as_path(design)))
+                                [open_recording(p) for p in drops], operating, limits, as_path(design),
+                                as_path(balancing)))
     out.write_text(render(found, title))
     if pdf:
         print_pdf(out, Path(pdf))

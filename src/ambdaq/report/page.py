@@ -39,7 +39,7 @@ p.note { font-size: 0.9em; color: #444; }
 FORMATS = {  # a column's number as the report writes it: the --json value rounded for reading
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
     "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}", "s": "{:.3f}", "m_s": "{:.3f}",
-    "j": "{:.3g}", "deg": "{:.1f}", "u": "{:.3f}",
+    "j": "{:.3g}", "deg": "{:.1f}", "u": "{:.3f}", "g": "{:.4f}", "g_mm": "{:.3f}", "mm": "{:g}",
 }
 
 
@@ -163,6 +163,19 @@ def render(found, title: str) -> str:
                                            pred["axes"], c["sections"])),
                           "Predicted peak |Gs| in dB against speed in rpm per axis: the design (solid) and the stock "
                           "controller (dashed), its unstable speeds shaded; dotted: the zone limits.")]
+    b = d.get("balancing")
+    if b:
+        unbalance = [[_cell(p, "text"), _cell(u["g_mm"], kind="g_mm"), _cell(u["std_g_mm"], kind="g_mm"),
+                      _cell(u["deg"], kind="deg")] for p, u in b["unbalance"].items()]
+        masses = [[_cell(m["plane"], "text"), _cell(m["grams"], kind="g"), _cell(m["deg"], kind="deg"),
+                   _cell(m["radius_mm"], kind="mm")] for m in b["correction"]]
+        runs = ", ".join(f"{r.get('file')} ({r.get('role')})" for r in b["runs"])
+        parts += ["<h2>Balancing</h2>",
+                  f'<p class="note">From the balancing record {html.escape(b["file"])}: {html.escape(b["method"])} at '
+                  f"{number(b['rpm'], 'rpm')} rpm, from {html.escape(runs)}; angles from the key-phasor's mark in the "
+                  "direction of rotation (docs/balancing.md).</p>",
+                  _table(["plane", "unbalance [g mm]", "± 1σ [g mm]", "at [deg]"], unbalance, "balancing-unbalance"),
+                  _table(["plane", "correction [g]", "at [deg]", "radius [mm]"], masses, "balancing-correction")]
     v = d["vibration"]
     if v:
         limits = ZoneLimits(*v["limits_ratio_cmin"])

@@ -504,3 +504,32 @@ def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindl
     return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
                           {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg,
                           max_rpm, holes)
+
+
+def load_record(path: str | Path) -> dict:
+    """A sealed balancing record (:func:`save_record`) as the commissioning report shows it: the
+    record's file name, machine and runs, and its result as ``--json`` printed it."""
+    doc = read_sealed(path, RECORD_FORMAT, RECORD_VERSION, "balancing record")
+    try:
+        result, runs = dict(doc["result"]), [dict(r) for r in doc["runs"]]
+        masses = [{"plane": str(m["plane"]), "grams": float(m["grams"]), "deg": float(m["deg"]),
+                   "radius_mm": float(m["radius_mm"])} for m in result["correction"]]
+        unbalance = {str(p): {k: float(u[k]) for k in ("g_mm", "deg")} | {"std_g_mm": _optional(u.get("std_g_mm"))}
+                     for p, u in dict(result["unbalance_estimated"]).items()}
+        grade = {k: _optional(result.get(k)) for k in ("grade_mm_s", "grade_std_mm_s", "max_rpm")}
+        rpm = float(result["rpm"])
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise BadInputError(f"{path}: a balancing record needs its runs and a result with rpm, unbalance_estimated "
+                            "and correction") from None
+    std = result.get("correction_std_g_mm") or {}  # influence coefficients state it under the correction
+    for p, u in unbalance.items():
+        if u["std_g_mm"] is None and isinstance(std, dict) and p in std:
+            u["std_g_mm"] = _optional(std[p])
+    return {"file": Path(path).name, "machine": str(doc.get("machine")), "runs": runs,
+            "method": str(result.get("method", "influence coefficients (ISO 21940-13)")), "rpm": rpm,
+            "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade}
+
+
+def _optional(value) -> float | None:
+    """A JSON number or null as a float or None (BadInputError's caller catches the rest)."""
+    return None if value is None else float(value)

@@ -19,6 +19,7 @@ from ..acquisition.touchdowns import recorded_drop
 from ..errors import BadInputError
 from . import iso_stability, iso_vibration, runup_diagnostics
 from .apht import Apht, apht
+from .balancing import load_record
 from .push import push_log_entries
 from .runout import RUNOUT_REMOVED, check_recordings, held_unbalance, runout_table, with_rotor
 
@@ -57,6 +58,9 @@ class SessionFiles:
     design : Path or None
         The controller design that was pushed (``controller design``): its prediction beside the
         stability measurement.
+    balancing : Path or None
+        A balancing record (``balance influence/correct/forces --record``): the unbalance, the
+        correction masses and the ISO 21940-11 grade.
     """
 
     stability: Path | None = None
@@ -71,6 +75,7 @@ class SessionFiles:
     operating_rpm: tuple[float, float] | None = None
     limits: CriticalLimits = CriticalLimits()
     design: Path | None = None
+    balancing: Path | None = None
 
 
 def machine_identity(recs: list[Recording]) -> dict:
@@ -189,6 +194,7 @@ def gather(files: SessionFiles) -> Commissioning:
     if files.drops:
         out["files"]["drops"] = [str(r.path) for r in files.drops]
     out["controller"] = None if files.design is None else controller_section(files.design, doc)
+    out["balancing"] = None if files.balancing is None else load_record(files.balancing)
     out["verdict"] = verdict(out, notes, pushed=files.coefficients is not None)
     return Commissioning(out, doc, diag, after)
 
@@ -311,6 +317,13 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
         lines.append({"check": "runout (command error 1X)", "standard": "Ro et al. runout feedforward", "zone": None,
                       "result": f"{worst[0]} {h['before_um']:.2f} -> {h['after_um']:.2f} µm ({h['change_db']:+.1f} dB), "
                                 f"the worst axis after, at {r['after']['rpm']:,.0f} rpm"})
+    b = data.get("balancing")
+    if b is not None:
+        masses = ", ".join(f"{m['plane']} {m['grams']:.4f} g at {m['deg']:.1f}°" for m in b["correction"])
+        grade = ("no grade (the record has no maximum speed: --max-rpm)" if b["grade_mm_s"] is None else
+                 f"{b['grade']} ({b['grade_mm_s']:.3g} ± {b['grade_std_mm_s']:.2g} mm/s at {b['max_rpm']:,.0f} rpm)")
+        lines.append({"check": "rotor balance", "standard": "ISO 21940-11", "zone": None,
+                      "result": f"{grade} at {b['rpm']:,.0f} rpm, by {b['method']}; correction {masses}"})
     t = data.get("touchdowns")
     if t is not None:
         drops = [row["drop"] for row in t if row["drop"] is not None]
