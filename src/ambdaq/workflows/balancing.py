@@ -15,6 +15,7 @@ the rotor as it ran in the reference run: the trial masses come off.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -186,11 +187,11 @@ class Balancing:
     influence_noise: InfluenceNoise | None = None  # the noise the influence coefficients were measured with
     max_grams: float | None = None  # the largest mass a plane takes, g (at its radius)
 
-    @property
+    @functools.cached_property
     def placed(self) -> np.ndarray:
         """The correction the masses put on the rotor, kg m per plane: the least squares', or where a
         plane's would need more than ``max_grams``, the best with every plane within it
-        (:func:`limited_correction`)."""
+        (:func:`limited_correction`, solved once: the fields it is of are set when the result is built)."""
         if self.max_grams is None:
             return self.correction
         limit = np.array([self.max_grams * 1e-3 * self.radius_m[p] for p in self.planes])
