@@ -77,10 +77,10 @@ a machine), added to the reference vector's deviation: on the simulated spindle 
 runout drives 33 um) the corrections came within 3.6e-8 kg m of the truth, 0.1 % of that 1X seen
 through the influence coefficients; set at twice that, from one seed: a bound, not a scatter."""
 LINEARITY = 0.005
-"""Each plane's correction is known no better than this fraction of itself, beside the noise: the
-influence coefficients are the bearings' response to the trial masses, linearised, and the
-bearings are not linear (the corrections came out 1.0 % small in the median with 0.1 g trial
-masses, 2.3 % with 1 g). Sized by the validation campaign's balancing rows (100 jobs at 20,000 rpm):
+"""Each plane's correction is known no better than this fraction of itself, beside the noise: a
+systematic error the campaign measured and this tool does not yet explain (the corrections came
+out 1.0 % small in the median with 0.1 g trial masses, 2.3 % with 1 g, so it grows with the trial
+mass; the bearing-force estimate, with no trial mass, is 1.0-1.2 % small as well). Sized by the validation campaign's balancing rows (100 jobs at 20,000 rpm):
 with the noise alone the 95 % intervals held the truth in 90 % of jobs, the errors 1.18 times the
 stated deviations; with this floor 96 % and 0.95 (1 % gave 99 % and 0.70, over-stated)."""
 
