@@ -722,6 +722,51 @@ def bearing_gains(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0
 
 # --- balancing -------------------------------------------------------------------------------
 
+PLANES, RADIUS_M = ("front", "rear"), 0.03  # the spindle's balancing planes and their holes' radius
+
+
+@dataclass
+class _BalancingJob:
+    """One balancing job on the simulated spindle, a campaign's case: a random mass per plane
+    (0.02-0.3 g at any angle) beside the rotor's own unbalance, and its runs, each with its own
+    noise (seed 4 case + k), in the folder ``d``."""
+
+    d: Path
+    case: int
+    added: list
+
+    @classmethod
+    def new(cls, tmp: str, case: int) -> "_BalancingJob":
+        from ambdaq.machines.balance_masses import BalanceMass
+
+        d = Path(tmp) / str(case)
+        d.mkdir()
+        rng = np.random.default_rng(case)
+        return cls(d, case, [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), RADIUS_M)
+                             for p in PLANES])
+
+    def run(self, name: str, k: int, speed: SpeedProfile, seconds: float, masses=(), ff: str = "off") -> Path:
+        source = SimSource("spindle", seed=4 * self.case + k, speed=speed, truth=True)
+        source.rig.add_masses([*self.added, *masses])
+        if ff != "off":
+            source.rig.set_feedforward(ff)
+        return _write(source, self.d / f"{name}.mcap", seconds)
+
+    def coefficients(self, slow_s: float) -> Path:
+        """The job's runout: its own slow roll (run 0), identified as docs/balancing.md does."""
+        from ambdaq.workflows.runout import identify_recordings
+
+        slow = self.run("slow", 0, SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), slow_s)
+        return identify_recordings([load(slow)], [1, 2, 3, 4, 5, 6], "fit").coef.save(self.d / "coef.json")
+
+
+def _plane_truth(path: Path) -> tuple[np.ndarray, float]:
+    """The simulator's unbalance per plane in a recording (kg m phasors) and its rotor's mass (kg)."""
+    cal = load(path, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
+    return np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
+                     for p in PLANES]), float(cal["rotor.mass_kg"])
+
+
 def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
               max_rpm: float = 60000.0, trial_g: float = 0.1) -> Row:
     """``balance influence`` on the spindle as docs/balancing.md does it, one job per case: its own
@@ -733,40 +778,25 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     (circular, 2.45 deviations) holding it (at least 90 %), and the ISO 21940-11 grade before.
     The default suite's version is tests/test_balancing.py (one job, the same checks)."""
     from ambdaq.machines.balance_masses import BalanceMass
-    from ambdaq.workflows.balancing import influence_balancing, run_vector
-    from ambdaq.workflows.runout import identify_recordings
+    from ambdaq.workflows.balancing import balance_grade, influence_balancing, run_vector
 
-    planes, radius = ("front", "rear"), 0.03
-    trials = [BalanceMass(p, trial_g, 0.0, radius) for p in planes]
+    trials = [BalanceMass(p, trial_g, 0.0, RADIUS_M) for p in PLANES]
     left, mag_err, ang_err, z, grade_z = [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
-            d = Path(tmp) / str(case)  # one job's files
-            d.mkdir()
-            rng = np.random.default_rng(case)
-            added = [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), radius)
-                     for p in planes]
-
-            def run(name: str, masses: list, seed: int, speed: SpeedProfile, secs: float) -> Path:
-                source = SimSource("spindle", seed=seed, speed=speed, truth=True)
-                source.rig.add_masses(added + masses)
-                return _write(source, d / f"{name}.mcap", secs)
-
-            slow = run("slow", [], 4 * case, SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), slow_s)
-            coef = identify_recordings([load(slow)], [1, 2, 3, 4, 5, 6], "fit").coef.save(d / "coef.json")
+            job = _BalancingJob.new(tmp, case)
+            coef = job.coefficients(slow_s)
             steady = SpeedProfile(rpm, rpm)
-            ref = run("ref", [], 4 * case + 1, steady, seconds)
+            ref = job.run("ref", 1, steady, seconds)
             result = influence_balancing(run_vector(ref, coef), [
-                (m, run_vector(run(f"t{k}", [m], 4 * case + 2 + k, steady, seconds), coef))
+                (m, run_vector(job.run(f"t{k}", 2 + k, steady, seconds, [m]), coef))
                 for k, m in enumerate(trials)], max_rpm=max_rpm)
-            cal = load(ref, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
-            truth = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(
-                float(cal[f"truth.unbalance.{p}_deg"]))) for p in planes])
+            truth, mass = _plane_truth(ref)
             left.append(np.abs(truth + result.correction) / np.abs(truth))  # the correction adds its vector
             mag_err.append(np.abs(result.correction) / np.abs(truth) - 1)
             ang_err.append(np.degrees(np.angle(-result.correction / truth)))
             z.append(np.abs(-result.correction - truth) / result.correction_std)
-            true_grade = np.abs(truth).sum() / float(cal["rotor.mass_kg"]) * max_rpm * 2 * np.pi / 60 * 1e3
+            true_grade = balance_grade(float(np.abs(truth).sum()), mass, max_rpm)
             grade_z.append((result.grade_mm_s - true_grade) / result.grade_std_mm_s)
     left, mag_err, ang_err, z = (np.array(v) for v in (left, mag_err, ang_err, z))
     grade_z = np.array(grade_z)
@@ -800,32 +830,15 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
     own slow roll and noise, a random mass per plane), with the controller's feedforward ``ff``
     (``off`` or ``lms``): the unbalance per plane against the simulator's, its stated 95 %
     intervals, and what one correction by it leaves."""
-    from ambdaq.machines.balance_masses import BalanceMass
     from ambdaq.workflows.balancing import force_balancing as estimate
-    from ambdaq.workflows.runout import identify_recordings
 
-    planes, radius = ("front", "rear"), 0.03
     left, rel, z = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
-            d = Path(tmp) / str(case)
-            d.mkdir()
-            rng = np.random.default_rng(case)
-            added = [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), radius)
-                     for p in planes]
-            slow = SimSource("spindle", seed=4 * case, speed=SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), truth=True)
-            slow.rig.add_masses(added)
-            coef = identify_recordings([load(_write(slow, d / "slow.mcap", slow_s))], [1, 2, 3, 4, 5, 6],
-                                       "fit").coef.save(d / "coef.json")
-            source = SimSource("spindle", seed=4 * case + 1, speed=SpeedProfile(rpm, rpm), truth=True)
-            source.rig.add_masses(added)
-            if ff != "off":
-                source.rig.set_feedforward(ff)
-            run = _write(source, d / "run.mcap", seconds)
-            got = estimate(run, coef)
-            cal = load(run, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
-            truth = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(
-                float(cal[f"truth.unbalance.{p}_deg"]))) for p in planes])
+            job = _BalancingJob.new(tmp, case)
+            coef = job.coefficients(slow_s)
+            got = estimate(job.run("run", 1, SpeedProfile(rpm, rpm), seconds, ff=ff), coef)
+            truth, _mass = _plane_truth(job.d / "run.mcap")
             left.append(np.abs(truth - got.unbalance) / np.abs(truth))
             rel.append(got.unbalance / truth - 1)
             z.append(np.abs(got.unbalance - truth) / got.std)

@@ -144,7 +144,7 @@ def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_jso
     Example:
       ambdaq balance forces run.mcap --coefficients coef.json --max-rpm 60000
     """
-    from ..workflows.balancing import force_balancing, save_record
+    from ..workflows.balancing import force_balancing
 
     _writable(record, overwrite)
     result = force_balancing(run, Path(coefficients), machine, holes=holes or 0, max_rpm=max_rpm)
@@ -161,9 +161,7 @@ def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_jso
         if d["grade_mm_s"] is not None:
             click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm): {d['grade_mm_s']:.3g} +- "
                        f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
-    if record:
-        save_record(result, record, [("run", run)], coefficients, machine)
-        click.echo(f"-> {record}", err=True)
+    _keep(result, record, None, [("run", run)], coefficients, machine, None, overwrite)
 
 
 def _writable(record: str | None, overwrite: bool) -> None:

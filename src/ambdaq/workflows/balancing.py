@@ -167,6 +167,12 @@ def plane_masses(planes: list[str], correction: np.ndarray, radius_m: dict[str, 
     return out
 
 
+def mass_rows(masses: list[BalanceMass]) -> list[dict]:
+    """Correction masses as every balance command's --json gives them: g to 4 decimals, degrees to 2."""
+    return [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2), "radius_mm": m.radius_m * 1e3}
+            for m in masses]
+
+
 @dataclass
 class Balancing:
     """Influence coefficients and the correction they give."""
@@ -264,8 +270,7 @@ class Balancing:
                 {p: round(float(sd) * 1e6, 4) for p, sd in zip(self.planes, self.correction_std)},
                 "grade": _grade_class(self.grade_mm_s),
                 "max_rpm": self.max_rpm,
-                "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
-                                "radius_mm": m.radius_m * 1e3} for m in self.masses()],
+                "correction": mass_rows(self.masses()),
                 "max_grams": self.max_grams, "limited_by_max_grams": self.limited,
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
                 "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4)}
@@ -468,9 +473,7 @@ class ForceBalancing:
                                             "std_g_mm": round(float(sd) * 1e6, 4)}
                                         for p, u, sd in zip(self.planes, self.unbalance, self.std)},
                 "holes": self.holes or None,
-                "correction": [{"plane": m.plane, "grams": round(m.grams, 4), "deg": round(m.deg, 2),
-                                "radius_mm": m.radius_m * 1e3}
-                               for m in plane_masses(self.planes, self.correction, self.radius_m, self.holes)],
+                "correction": mass_rows(plane_masses(self.planes, self.correction, self.radius_m, self.holes)),
                 "grade_mm_s": None if self.grade_mm_s is None else round(self.grade_mm_s, 3),
                 "grade_std_mm_s": None if self.grade_std_mm_s is None else round(self.grade_std_mm_s, 3),
                 "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm}
