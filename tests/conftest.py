@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 # One BLAS thread per process, set before anything loads numpy here, and inherited by the xdist
-# workers and every subprocess the tests start: the suite is already parallel (two workers, a
+# workers and every subprocess the tests start: the suite is already parallel (three workers, a
 # hundred subprocesses, real-time devices), and OpenBLAS's own threads, spinning while they wait for
 # work, took a third of the CPU on this 2-core machine (the plant, LMS, runout and FRF tests: 116
 # CPU-s with OpenBLAS's default threads, 79 with one; wall 59 s and 43 s). Our matrices are small
@@ -22,6 +22,8 @@ for _blas in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_blas, "1")
 
 from ambdaq.cli.main import cli  # noqa: E402  (after the threads are set)
+
+import scheduling  # noqa: E402  (tests/scheduling.py: the third worker)
 
 
 WARM = """import sys
@@ -70,8 +72,27 @@ def pytest_configure(config):
     os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
-    if not hasattr(config, "workerinput"):
+    worker = getattr(config, "workerinput", None)
+    if worker is None:
+        os.environ[scheduling.OFFLINE_LIST] = str(Path(tempfile.mkdtemp(prefix="ambdaq-sched-")) / "offline.txt")
         _WARMING.extend(_warm_rigs())
+    elif worker["workerid"] == scheduling.background_worker(worker["workercount"]):
+        scheduling.run_in_background()
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """With three workers or more, the last one runs on idle CPU only and takes the ``offline``
+    tests (tests/scheduling.py); with two, pytest-xdist's own ``loadgroup``."""
+    if scheduling.background_worker(config.option.numprocesses):
+        return scheduling.BackgroundScheduling(config, log)
+    return None
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """Each worker names the ``offline`` tests it collected, for the scheduler."""
+    if hasattr(config, "workerinput"):
+        scheduling.write_offline(items)
 
 
 _WARMING: list[subprocess.Popen] = []

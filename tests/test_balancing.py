@@ -13,6 +13,8 @@ from ambdaq.daq import load
 from ambdaq.machines.spindle import SPINDLE
 from ambdaq.machines.spindle_loop import SpindleLoop
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 RPM = 20000.0
 RADIAL = ("front_x", "front_y", "rear_x", "rear_y")
 

@@ -6,6 +6,8 @@ import pytest
 
 from ambdaq.analysis.beam_rotor import STEEL, BeamRotor, Disk, ShaftElement
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def uniform(length: float, d: float, n: int, **kw) -> BeamRotor:
     return BeamRotor(tuple(ShaftElement(length / n, d) for _ in range(n)), **kw)

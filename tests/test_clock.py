@@ -5,6 +5,8 @@ import pytest
 
 from ambdaq.acquisition.clock import ClockMap
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def simulate(drift_ppm, offset_ns, seconds=30.0, block_s=0.01, seed=0):
     """Blocks every 10 ms; arrival = true time + latency (100 us + exponential jitter, mean 300 us)."""

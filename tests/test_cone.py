@@ -6,6 +6,8 @@ import pytest
 from ambdaq.analysis.cone import (MU0, PdLoop, force_factor, linear_gains, magnet_force, routh_stable,
                                   shape_factor, stable_region)
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 TAU, TAU_C = 8e-5, 6e-5  # the paper's Routh-Hurwitz example
 
 

@@ -13,6 +13,8 @@ from ambdaq.daq import load
 from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.sim.rigs.cone import CONE, ConeRig
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 ROTOR = ConeRotor()
 
 

@@ -39,6 +39,8 @@ from ambdaq.daq.info import describe
 from ambdaq.acquisition.recover import recover
 from ambdaq.errors import BadInputError
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "mcap"
 PROFILES = ("spindle", "cone", "base-motion", "lorentz")
 CODECS = ("zstd", "lz4", "none")

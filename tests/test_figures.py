@@ -11,6 +11,8 @@ import pytest
 from ambdaq.figures import pyplot
 from ambdaq.daq import load, open_recording
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def overlapping_tick_labels(ax) -> list[tuple[str, str]]:
     """Pairs of visible tick labels on one axis whose boxes intersect."""

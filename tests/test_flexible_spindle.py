@@ -7,6 +7,8 @@ import pytest
 from ambdaq.analysis.iso14839 import model_sensitivity
 from ambdaq.machines.flexible_spindle import FLEXIBLE, MAX_RPM, FlexibleLoop
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 @pytest.fixture(scope="module")
 def loop():

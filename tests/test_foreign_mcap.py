@@ -14,6 +14,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from ambdaq.daq import load
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "mcap"
 
 

@@ -3,10 +3,13 @@
 import random
 import struct
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ambdaq.drivers.serial.framing import FrameDecoder, cobs_decode, cobs_encode, encode_frame
+
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
 
 
 @settings(deadline=None)  # the first call compiles the numba kernels

@@ -12,6 +12,8 @@ import pytest
 from ambdaq.documents.coefficients import Coefficients
 from ambdaq.documents.sealed import seal
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 NOWHERE = "serial:///dev/null"  # a broken file fails before any device is opened
 
 

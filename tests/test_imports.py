@@ -5,6 +5,10 @@ since the suite's own workers have imported everything already."""
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def mf4_state(first_import: str) -> list[str]:
     code = (f"import sys; import {first_import}; import can, canopen; import can.io.mf4 as mf4; "

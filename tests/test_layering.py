@@ -10,6 +10,8 @@ import pytest
 
 import ambdaq
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 ROOT = Path(ambdaq.__file__).parent
 
 MAY_IMPORT = {  # part -> the parts it may import (itself always)

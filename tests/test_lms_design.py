@@ -12,6 +12,8 @@ from ambdaq.machines.spindle import FRONT_LOOP
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import SpindleRig
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 FRONT = FRONT_LOOP  # Ro et al.: m 1.5 kg, Table 1 front, PID P 1.6, I 1, D 0.0015, Nd 15, h 100 us
 
 

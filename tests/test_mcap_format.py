@@ -12,6 +12,8 @@ from mcap_ros2.decoder import DecoderFactory
 from ambdaq.daq import load
 from ambdaq.mcap.mcapfile import McapFile
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 SPINDLE_TOPICS = {"/amb/gap", "/amb/current", "/amb/error", "/amb/ff", "/amb/accel", "/amb/rotor",
                   "/truth/runout", "/truth/position"}
 

@@ -50,6 +50,7 @@ def true_residues() -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return np.sqrt(np.abs(w2)) / (2 * np.pi), out
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 @pytest.mark.parametrize("rpm", [0, 20000])
 def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_error(rpm, run_cli, tmp_path):
     """Four runs of 4 s, 2 um RMS of white noise at one axis's summing point each (sim generate,
@@ -168,6 +169,7 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
     assert r.exit_code == 2 and "does not reach the measurement" in r.output, r.output
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_the_model_fitted_to_the_machines_own_plant_returns_its_poles():
     """The model against the plant it models, without noise: the flexible machine's P(e^{jwh}) at
     standstill on a 5 Hz grid, each element trusted where a measurement trusts it (the front

@@ -26,6 +26,8 @@ from ambdaq.drivers.rigfile import load_rig
 from ambdaq.drivers.serial.framing import FrameDecoder, encode_frame
 from ambdaq.errors import BadInputError
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 QUICK = settings(max_examples=40, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                      HealthCheck.too_slow])
 SOAK = settings(max_examples=3000, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture,

@@ -8,6 +8,8 @@ import json
 
 import pytest
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):

@@ -9,6 +9,8 @@ from ambdaq.daq import load
 from ambdaq.mcap.mcapfile import McapFile
 from ambdaq.errors import BadInputError
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def test_load_selected_topics_and_time_window(spindle_file):
     rec = load(spindle_file, topics=["/amb/gap"], start=0.5, end=1.0)

@@ -19,6 +19,8 @@ from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SpeedProfile
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 RATE = 10_000.0
 
 

@@ -10,6 +10,8 @@ from ambdaq.machines.spindle_loop import SpindleLoop
 from ambdaq.speed import SpeedProfile
 from ambdaq.sim.rigs.spindle import AXES, SPINDLE, SpindleRig
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def quiet_params(**kw):
     return replace(SPINDLE, runout_amp=np.zeros_like(SPINDLE.runout_amp), **kw)

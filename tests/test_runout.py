@@ -10,6 +10,8 @@ from ambdaq.analysis.runout import (harmonic_fit, lms_offline, notch_filter, run
 from ambdaq.speed import RPM_TO_RAD_S, SpeedProfile
 from ambdaq.sim.rigs.spindle import SPINDLE, SpindleRig
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 P = SPINDLE
 ROTOR = RigidRotor(P.mass, P.jt, P.jp, P.a, P.b, tuple(ax.kx for ax in P.axes), tuple(ax.ki for ax in P.axes))
 TRUE = P.runout_amp[:, :6] * np.exp(1j * P.runout_phase[:, :6])  # (axis, harmonic)

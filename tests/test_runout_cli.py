@@ -56,6 +56,7 @@ def test_over_the_real_drivers(tmp_path, run_cli):
     assert_matches_truth(phasors(tmp_path / "coef.json"))
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_several_speeds_separate_1x_and_one_fast_recording_warns(tmp_path, run_cli):
     files = []
     for rpm in (3000, 9000, 15000, 21000):
@@ -96,6 +97,7 @@ def test_coefficient_file_is_checked(tmp_path, run_cli):
         Coefficients.load(tmp_path / "x.json")
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_report_orbit_after_is_the_true_rotor_motion(tmp_path, run_cli):
     """The report's "after" orbit (sensor minus the identified runout, synthesised at the recorded
     angle) is the rotor's true motion at the sensor, and the report is written."""
@@ -137,6 +139,7 @@ def before_after(tmp_path_factory):
     return d / "before.mcap", d / "after.mcap"
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_check_reports_the_fall_of_the_command_error(before_after, tmp_path, run_cli):
     from ambdaq.daq import load
 
@@ -163,6 +166,7 @@ def test_check_reports_the_fall_of_the_command_error(before_after, tmp_path, run
     assert all(h["change_db"] < -20 for row in doc["axes"].values() for h in row["harmonics"])
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_check_fails_with_exit_1_when_the_error_did_not_fall_enough(before_after, run_cli):
     before, after = before_after
     r = run_cli("runout", "check", before, after, "--min-db", "60")
@@ -173,6 +177,7 @@ def test_check_fails_with_exit_1_when_the_error_did_not_fall_enough(before_after
     assert r.exit_code == 1 and f"front_x RMS {rms:.2f} um after (>= 5 um)" in r.stderr, (rms, r.stderr)
 
 
+@pytest.mark.offline  # no device, no wall clock (tests/scheduling.py)
 def test_runout_identified_at_speed_is_flagged_wherever_it_is_taken_out(run_cli, tmp_path):
     """Coefficients identified at 30,000 rpm hold the unbalance response in their 1X (identify
     says so); every command that takes them out as runout (here apht, iso vibration) says so too,

@@ -11,6 +11,8 @@ from ambdaq.analysis.orders import CRITICAL_AMPLIFICATION, one_x_peaks, order_tr
 from ambdaq.analysis.runout import harmonic_fit
 from ambdaq.daq import load, open_recording
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 @pytest.mark.parametrize("zeta, critical", [(0.1, True), (0.15, True), (0.3, False)])
 def test_one_x_peak_of_a_resonance_of_known_speed_and_damping(zeta, critical):

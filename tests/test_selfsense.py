@@ -12,6 +12,8 @@ from ambdaq.cli.main import cli
 from ambdaq.sim.rigs.lorentz import LORENTZ, POLE_PAIRS, LorentzRig, machine
 from ambdaq.speed import SpeedProfile
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def generate(path, rpm, duration):
     r = CliRunner().invoke(cli, ["sim", "generate", "--profile", "lorentz", "--rpm", rpm, "--duration", str(duration),

@@ -2,9 +2,12 @@
 restarts, the missing tail, and a file's counts read back through ``ambdaq info``."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from ambdaq.acquisition.sequence import SequenceTracker, WRAP
+
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
 
 
 def judge(seq, times, tracker=None):

@@ -16,6 +16,8 @@ from ambdaq.daq.recording import load, open_recording
 from ambdaq.acquisition.touchdowns import recorded_drop
 from report_page import Tables
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 RATE_HZ = 10_000.0  # both rigs' sample rate
 DROPS = {  # name: (rig, rpm, amplifiers off at s, for s, snapshot's pre-trigger time s)
     "short": ("cone", 600, 0.5, 0.1, 0.4),

@@ -8,6 +8,8 @@ import pytest
 import campaign
 from ambdaq.speed import SLOW_ROLL_RPM
 
+pytestmark = pytest.mark.offline  # no device, no wall clock: the third worker may run it (tests/scheduling.py)
+
 
 def test_runout_on_a_slow_roll_is_the_truth_within_its_uncertainty():
     """Eight 1 s slow rolls without unbalance (so the 1X is the runout alone), 1X-6X: the
