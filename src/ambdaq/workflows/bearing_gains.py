@@ -12,8 +12,10 @@ are. So the machine's model is fitted to the measurement with the four bearing v
 and rear; x and y share a bearing's magnet), by weighted least squares over the elements of each
 plane the coherence trusts, below :data:`BAND` of the first bending mode, where the rotor's
 rigid-body dynamics carry them and a lightly damped mode's window bias does not reach. What the
-fit holds apart is ki ka: ki alone needs ka (the amplifier's DC gain, from its data or from the
-coil currents), and a sensor's scale error would read as a scale on ki ka.
+fit holds apart is ki ka: ki alone needs ka, the amplifier's DC gain. Where the runs recorded the
+coil currents, the plant file holds each axis's amplifier (current per controller volt,
+:mod:`ambdaq.analysis.amplifier`): its fitted ka (a bearing's two axes weighed by their variances)
+divides ki ka into ki. A sensor's scale error would read as a scale on ki ka and ki, not on ka.
 
 Their covariance is the weighted Jacobian's, sandwiched with the correlation of the H1 errors at
 neighbouring frequencies (:data:`~ambdaq.analysis.frf.NEIGHBOUR_CORRELATION`), as :mod:`plant_fit`'s.
@@ -25,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..analysis import amplifier
 from ..analysis.closed_loop import window_bias
 from ..analysis.frf import COHERENT, NEIGHBOUR_CORRELATION
 from ..errors import BadInputError
@@ -35,7 +38,8 @@ BAND = 0.8
 """The fit's band ends at this fraction of the first free-free bending mode: the flexible rotor's
 394 Hz gives 315 Hz, the longer rotor's 301 Hz 241 Hz."""
 NAMES = ("front_ki_ka", "front_kx", "rear_ki_ka", "rear_kx")
-UNITS = {"ki_ka": "N/V", "kx": "N/m"}
+SPLIT_NAMES = ("front_ka", "front_ki", "rear_ka", "rear_ki")  # from the coil currents, where recorded
+UNITS = {"ki_ka": "N/V", "kx": "N/m", "ka": "A/V", "ki": "N/A"}
 MIN_POINTS = 20  # trusted points per plane the fit needs
 MODEL_FLOOR = 0.001
 """Each value is stated no better than this fraction of itself, added to its variance: what the fit
@@ -60,16 +64,22 @@ class BearingGains:
     chi2_reduced: float
     points: int
     band_hz: float
+    split: np.ndarray | None = None  # SPLIT_NAMES' order, SI: ka and ki per bearing, or None
+    split_std: np.ndarray | None = None
+    split_nominal: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
         return np.sqrt(np.diag(self.covariance))
 
     def rows(self) -> list[dict]:
-        """Per parameter: value, standard deviation, unit, the machine's data and the ratio to it."""
+        """Per parameter: value, standard deviation, unit, the machine's data and the ratio to it
+        (ki ka and kx per bearing; ka and ki where the coil currents were recorded)."""
+        table = list(zip(NAMES, self.values, self.std, self.nominal))
+        if self.split is not None:
+            table += list(zip(SPLIT_NAMES, self.split, self.split_std, self.split_nominal))
         return [{"parameter": n, "value": float(v), "std": float(s), "unit": UNITS[n.split("_", 1)[1]],
-                 "machine": float(m), "ratio": float(v / m)}
-                for n, v, s, m in zip(NAMES, self.values, self.std, self.nominal)]
+                 "machine": float(m), "ratio": float(v / m)} for n, v, s, m in table]
 
     def as_dict(self) -> dict:
         """What ``plant gains --json`` prints."""
@@ -183,4 +193,37 @@ def fit_bearing_gains(measured: PlantMeasurement, params: FlexibleSpindleParams,
                             "this machine's model? No gains stated.")
     values = sol.x * base
     covariance = cov_scale * np.outer(base, base) + np.diag((MODEL_FLOOR * values) ** 2)
-    return BearingGains(machine, values, covariance, base, chi2, points, band_hz)
+    gains = BearingGains(machine, values, covariance, base, chi2, points, band_hz)
+    if measured.amplifier is not None:
+        _split(gains, measured, params)
+    return gains
+
+
+def _split(gains: BearingGains, measured: PlantMeasurement, params: FlexibleSpindleParams) -> None:
+    """ka per bearing from its axes' amplifiers (each fitted over the points the plant's own
+    element trusts, from the machine's amplifier data), weighed by their variances, and ki = ki ka
+    / ka, their relative variances added (the currents' errors and the gaps' are of different runs'
+    parts: independent to first order)."""
+    f = measured.freq_hz
+    ka, var = {}, {}
+    for i, axis in enumerate(measured.axes):
+        good = measured.plant.coherence[:, i, i] >= COHERENT
+        data = params.axes[AXES.index(axis)]
+        if good.sum() < MIN_POINTS:
+            raise BadInputError(f"{good.sum()} trusted points of {axis}'s amplifier: measure longer or with a larger "
+                                "test signal")
+        fitted = amplifier.fit(f[good], measured.amplifier[good, i], measured.amplifier_variance[good, i],
+                               params.sample_rate, (data.amp_gain, data.amp_wn_hz, data.amp_zeta))
+        ka[axis], var[axis] = fitted.values[0], fitted.covariance[0, 0]
+    split, std = [], []
+    for b, bearing in enumerate(("front", "rear")):
+        w = {a: 1 / var[a] for a in (f"{bearing}_x", f"{bearing}_y")}
+        ka_b = sum(w[a] * ka[a] for a in w) / sum(w.values())
+        var_ka = 1 / sum(w.values())
+        ki_ka, var_ki_ka = gains.values[2 * b], gains.covariance[2 * b, 2 * b]
+        ki = ki_ka / ka_b
+        split += [ka_b, ki]
+        std += [np.sqrt(var_ka), abs(ki) * np.sqrt(var_ki_ka / ki_ka**2 + var_ka / ka_b**2)]
+    f_ax, r_ax = params.front, params.rear
+    gains.split, gains.split_std = np.array(split), np.array(std)
+    gains.split_nominal = np.array([f_ax.amp_gain, f_ax.ki, r_ax.amp_gain, r_ax.ki])

@@ -17,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis import amplifier
 from ..analysis.closed_loop import ClosedLoopPlant, joint_input_output
 from ..analysis.frf import COHERENT
 from ..daq.quality import MAX_LOST
 from ..daq.recording import Recording
 from ..documents.sealed import read_sealed, write_sealed
 from ..errors import BadInputError
-from ..roles import CONTROL, ERROR, FF, GAP
+from ..roles import CONTROL, CURRENT, ERROR, FF, GAP
 from .frf import ExcitedRun, check_runs, estimate_run
 
 FORMAT, VERSION = "ambdaq-plant-frf", 2  # 2: the error covariance across elements, the controller's response
@@ -51,6 +52,11 @@ class PlantMeasurement:
         Per run: path, sha256, speed_rpm, segments, the axis it excited.
     controller : dict
         The controller's gains the recordings state (``controller.pid.*`` of their calibration).
+    amplifier : ndarray of complex, shape (n, axes), optional
+        Per axis, its coil current per controller output (A/V), where every run records the coil
+        currents (:func:`ambdaq.analysis.amplifier.response`); None otherwise.
+    amplifier_variance : ndarray, shape (n, axes), optional
+        Its error's variance, A^2/V^2.
     """
 
     axes: list[str]
@@ -60,6 +66,8 @@ class PlantMeasurement:
     speed_rpm: float
     sources: list[dict] = field(default_factory=list)
     controller: dict = field(default_factory=dict)
+    amplifier: np.ndarray | None = None
+    amplifier_variance: np.ndarray | None = None
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -68,8 +76,10 @@ class PlantMeasurement:
     def subset(self, axes: list[str]) -> "PlantMeasurement":
         """The diagonal view of some axes (their own responses, sensitivities and sources)."""
         idx = [self.axes.index(a) for a in axes]
+        amp = None if self.amplifier is None else (self.amplifier[:, idx], self.amplifier_variance[:, idx])
         return PlantMeasurement(list(axes), self.plant.subset(idx), self.sensitivity[:, idx], self.sensitivity_coherence[:, idx],
-                                self.speed_rpm, [s for s in self.sources if s.get("excited") in axes], self.controller)
+                                self.speed_rpm, [s for s in self.sources if s.get("excited") in axes], self.controller,
+                                *(amp or (None, None)))
 
     def rows(self) -> list[dict]:
         """Per axis, what a table shows: the sensitivity's peak (dB, Hz), the plant's coherent band
@@ -119,7 +129,11 @@ class PlantMeasurement:
                 "plant": cells, "controller_response": h_ru,
                 "error_covariance": {"elements": [[out, inp] for out in self.axes for inp in self.axes],
                                      "re": _digits(tri.real), "im": _digits(tri.imag)},
-                "sensitivity": sens, "sources": self.sources, "controller": self.controller}
+                "sensitivity": sens, "sources": self.sources, "controller": self.controller,
+                **({} if self.amplifier is None else {"amplifier": {
+                    "input": CONTROL, "output": CURRENT, "unit": "A/V",
+                    **{a: {"re": self.amplifier[:, i].real.tolist(), "im": self.amplifier[:, i].imag.tolist(),
+                           "variance": _digits(self.amplifier_variance[:, i])} for i, a in enumerate(self.axes)}}})}
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         return write_sealed(path, self.to_document(), overwrite=overwrite)
@@ -169,8 +183,9 @@ def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float
             raise BadInputError(f"{rec.path}: no controller output ({CONTROL}): the plant is measured from what the "
                                 "controller sent to the amplifiers, which this controller does not stream")
     runs: list[ExcitedRun] = []
+    currents = all(rec.has_role("current") for rec in recs)  # the amplifiers too (ka apart from ki)
     for rec in recs:  # each checked against those before it as it comes
-        runs.append(estimate_run(rec, resolution_hz, None, FF, [GAP, CONTROL, ERROR], max_lost))
+        runs.append(estimate_run(rec, resolution_hz, None, FF, [GAP, CONTROL, ERROR] + [CURRENT] * currents, max_lost))
         check_runs(runs)
     axes = [run.axis for run in runs]
     speeds = [run.source["speed_rpm"] for run in runs]
@@ -203,7 +218,26 @@ def identify(recs: list[Recording], resolution_hz: float = 10.0, max_lost: float
     sens = -np.stack([run.estimate.response[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
     sens_coh = np.stack([run.estimate.coherence[:, order[2 * k + j, j]] for j, run in enumerate(runs)], axis=1)
     sources = [{**run.source, "excited": run.axis} for run in runs]
-    return PlantMeasurement(axes, plant, sens, sens_coh, median, sources, _controller_gains(recs[0]))
+    amp = _amplifiers(runs) if currents else (None, None)
+    return PlantMeasurement(axes, plant, sens, sens_coh, median, sources, _controller_gains(recs[0]), *amp)
+
+
+def _amplifiers(runs: list[ExcitedRun]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Per run, its excited axis's coil current per controller output (A/V) and the variance of
+    its error, both referred to the test signal; (None, None) where a run's currents do not name
+    its axis (a rig file that maps other fields)."""
+    out, var = [], []
+    for run in runs:
+        try:
+            i, u = run.outputs.index((CURRENT, run.axis)), run.outputs.index((CONTROL, run.axis))
+        except ValueError:
+            return None, None
+        est = run.estimate
+        a, v = amplifier.response(est.response[:, i], est.response[:, u], est.error[:, i, i].real,
+                                  est.error[:, i, u], est.error[:, u, u].real)
+        out.append(a)
+        var.append(v)
+    return np.stack(out, axis=1), np.stack(var, axis=1)
 
 
 def load_measurement(path: str | Path) -> PlantMeasurement:
@@ -239,6 +273,15 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
         sens_coh = np.stack([np.array(doc["sensitivity"][a]["coherence"], float) for a in axes], axis=1)
         speed = float(doc["speed_rpm"])
         sources, controller = doc.get("sources", []), doc.get("controller", {})
+        amp = amp_var = None
+        if "amplifier" in doc:  # written where the runs recorded the coil currents
+            amp = np.stack([np.array(doc["amplifier"][a]["re"], float) + 1j * np.array(doc["amplifier"][a]["im"], float)
+                            for a in axes], axis=1)
+            amp_var = np.stack([np.array(doc["amplifier"][a]["variance"], float) for a in axes], axis=1)
+            if amp.shape != (n, k) or amp_var.shape != (n, k) or np.any(amp_var < 0) or not (
+                    np.all(np.isfinite(amp)) and np.all(np.isfinite(amp_var))):
+                raise ValueError("the amplifier's response must be finite, one value per frequency and axis, "
+                                 "its variances at least 0")
         if not isinstance(sources, list) or not all(isinstance(x, dict) for x in sources) or not isinstance(controller, dict):
             raise ValueError("sources must be a list of objects, controller an object")
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as err:
@@ -254,4 +297,4 @@ def load_measurement(path: str | Path) -> PlantMeasurement:
                             "one (variances at least 0, correlations at most 1), its coherences within 0..1 and its "
                             "speed at least 0")
     plant = ClosedLoopPlant(f, resp, cov.reshape(n, k, k, k, k), coh, h_ru)
-    return PlantMeasurement(list(axes), plant, sens, sens_coh, speed, sources, controller)
+    return PlantMeasurement(list(axes), plant, sens, sens_coh, speed, sources, controller, amp, amp_var)
