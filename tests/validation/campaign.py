@@ -772,7 +772,7 @@ def _plane_truth(path: Path) -> tuple[np.ndarray, float]:
 
 
 def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
-              max_rpm: float = 60000.0, trial_g: float = 0.1) -> Row:
+              max_rpm: float = 60000.0, trial_g: float = 0.1, ff: str = "off") -> Row:
     """``balance influence`` on the spindle as docs/balancing.md does it, one job per case: its own
     slow roll (the runout), a reference run and a 0.1 g trial run per plane, each with its own noise;
     the rotor's unbalance its own plus a random mass per plane (0.02-0.3 g at any angle on the 30 mm
@@ -780,6 +780,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     correction leaves (issue 43: at most 10 % in 95 % of cases), the correction within 10 % and 10
     degrees of the one that cancels the whole unbalance, the stated 95 % intervals of the unbalance
     (circular, 2.45 deviations) holding it (at least 90 %), and the ISO 21940-11 grade before.
+    With the controller's feedforward ``ff`` (``off``, or ``lms`` adapting from each run's start).
     The default suite's version is tests/test_balancing.py (one job, the same checks)."""
     from ambdaq.machines.balance_masses import BalanceMass
     from ambdaq.workflows.balancing import balance_grade, influence_balancing, run_vector
@@ -791,9 +792,9 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             job = _BalancingJob.new(tmp, case)
             coef = job.coefficients(slow_s)
             steady = SpeedProfile(rpm, rpm)
-            ref = job.run("ref", 1, steady, seconds)
+            ref = job.run("ref", 1, steady, seconds, ff=ff)
             result = influence_balancing(run_vector(ref, coef), [
-                (m, run_vector(job.run(f"t{k}", 2 + k, steady, seconds, [m]), coef))
+                (m, run_vector(job.run(f"t{k}", 2 + k, steady, seconds, [m], ff=ff), coef))
                 for k, m in enumerate(trials)], max_rpm=max_rpm)
             truth, mass = _plane_truth(ref)
             left.append(np.abs(truth + result.correction) / np.abs(truth))  # the correction adds its vector
@@ -810,10 +811,10 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     grade_cover = float(np.mean(np.abs(grade_z) <= 1.96))
     holds = one_step >= 0.95 and within >= 0.95 and cover >= 0.90
     return Row("correction masses and unbalance per plane (`balance influence`), ISO 21940-11 grade",
-               f"spindle at {rpm:,.0f} rpm, feedforward off, {seconds:g} s runs, 0.1 g trial masses, a {slow_s:g} s "
+               f"spindle at {rpm:,.0f} rpm, feedforward {ff}, {seconds:g} s runs, 0.1 g trial masses, a {slow_s:g} s "
                "slow roll per job; unbalance 0.01-0.4 g per plane at any angle",
-               "1σ per part of each plane's unbalance (the runs' noise and 0.2 % of the runout-driven 1X, "
-               "RUNOUT_MODEL); issue 43: one step leaves ≤ 10 % in 95 % of cases",
+               "1σ per part of each plane's unbalance (the runs' noise, 0.2 % of the runout-driven 1X, RUNOUT_MODEL, "
+               "and 0.5 % of the correction, LINEARITY); issue 43: one step leaves ≤ 10 % in 95 % of cases",
                f"magnitude median {np.median(mag_err) * 100:+.2f} %, angle median {np.median(ang_err):+.2f}°",
                f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
@@ -821,7 +822,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                f"grade within its 95 % interval in {grade_cover * 100:.0f} %",
                len(cases), f"{cases.start}-{cases.stop - 1}",
                f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
-               f"--duration {seconds:g} [--trial PLANE:0.1@0] (a random mass per plane: seed S); balance influence "
+               f"--duration {seconds:g} --ff {ff} [--trial PLANE:0.1@0] (a random mass per plane: seed S); balance influence "
                f"--max-rpm {max_rpm:g}", holds,
                "" if holds else f"one step ≤ 10 % in {one_step * 100:.0f} % (95 %), within 10 %/10° in "
                                 f"{within * 100:.0f} % (95 %), intervals cover {cover * 100:.0f} % (90 %)",
@@ -925,6 +926,7 @@ FULL: list[Callable[[], Row]] = [
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5, machine="flexible-long"),
     lambda: balancing(range(1, 101)),
     lambda: balancing(range(101, 151), rpm=30000.0),
+    lambda: balancing(range(151, 251), ff="lms", seconds=3.0),
     lambda: force_balancing(range(1, 101)),
     lambda: force_balancing(range(1, 101), ff="lms"),
 ]

@@ -194,7 +194,8 @@ def _show(result, as_json: bool) -> None:
         click.echo(json.dumps(result.as_dict(), indent=2))
         return
     d = result.as_dict()
-    click.echo(f"{d['rpm']:,.0f} rpm; influence coefficients, um per g mm:")
+    click.echo(f"{d['rpm']:,.0f} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients, "
+               "um per g mm:")
     for plane, row in d["influence_um_per_g_mm"].items():
         click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v['um']:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
     for m in d["correction"]:

@@ -46,6 +46,7 @@ class RunVector:
     std: np.ndarray  # of each part, per axis: the windows' scatter and the runout model's (RUNOUT_MODEL)
     rotor_mass_kg: float | None = None  # the recording's rotor model's
     noise: np.ndarray | None = None  # of each part, per axis: the windows' scatter alone
+    feedforward: bool = False  # the controller's feedforward ran (its loop: FF_SETTLE)
 
 
 @dataclass
@@ -85,33 +86,73 @@ with the noise alone the 95 % intervals held the truth in 90 % of jobs, the erro
 stated deviations; with this floor 96 % and 0.95 (1 % gave 99 % and 0.70, over-stated)."""
 
 
+FF_WINDOW_S = 0.05
+"""With the feedforward on, the 1X is taken in windows this long (FORCE_WINDOW_S's): enough of them
+to tell where the rotor's 1X has settled (:func:`settled`)."""
+FF_SETTLE = 5.0
+"""A window's 1X within this many of the settled windows' deviations of their mean is settled."""
+
+
+def settled(v: np.ndarray) -> int:
+    """The first window of ``v`` (windows x axes, complex) from which the 1X holds still: the
+    feedforward adapts after a start (Ro et al.'s LMS: about 0.5 s at 20,000 rpm on the simulated
+    spindle), and the rotor's 1X moves with it until it has. Every window from the first one
+    within FF_SETTLE deviations of the last half's mean (each axis's deviation from that half),
+    and then as many again: the transient decays, and the windows just inside the bound still hold
+    some of it."""
+    tail = v[v.shape[0] // 2:]
+    mean = tail.mean(axis=0)
+    sigma = np.sqrt((np.var(tail.real, axis=0, ddof=1) + np.var(tail.imag, axis=0, ddof=1)) / 2)
+    outside = np.flatnonzero(np.any(np.abs(v - mean) > FF_SETTLE * np.maximum(sigma, 1e-300), axis=1))
+    first = int(outside[-1]) + 1 if outside.size else 0
+    return 2 * first
+
+
 def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -> RunVector:
     """The rotor's 1X at ``path``'s steady speed from its unbalance alone: the gaps' 1X with the
     runout of ``coefficients`` taken out, less what that runout itself drives through the loop
     (the controller follows its sensors: at 20,000 rpm the spindle's runout moves the rotor by up to
     33 um at 1X, ten times its unbalance), by ``machine``'s loop model at the gains the recording
-    states. A run with its feedforward on is refused: its loop is another, not modelled here yet."""
+    states.
+
+    With the feedforward on, its loop is another: the feedforward takes the 1X out of the
+    command error (Ro et al.'s LMS), so the controller follows neither the runout nor the rotor at
+    1X, and the runout drives nothing; the rotor's 1X is its response to the unbalance with no
+    control force at 1X. That holds once the feedforward has adapted: the windows before
+    (:func:`settled`) are left out, in windows of FF_WINDOW_S."""
     rec = load(path)
     result = apht(rec, orders=(1,), coefficients=coefficients)
-    if result.feedforward is not None and np.abs(result.feedforward).max() > FF_ON:
-        raise BadInputError(f"{path}: its feedforward runs (1X up to {np.abs(result.feedforward).max():.3g} "
-                            f"{result.ff_unit}): balance with the feedforward off (the runout's path through a loop "
-                            "with the feedforward on is not modelled yet)")
-    v = result.gap[:, 0, :]  # (windows, axes)
+    on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
+    if on:
+        result = apht(rec, orders=(1,), coefficients=coefficients, window_s=FF_WINDOW_S)
+        v = result.gap[:, 0, :]
+        if v.shape[0] < 8:
+            raise BadInputError(f"{path}: {v.shape[0]} windows of {FF_WINDOW_S:g} s with the feedforward on; record "
+                                "longer (it adapts for about 0.5 s)")
+        start = settled(v)
+        if v.shape[0] - start < 4:
+            raise BadInputError(f"{path}: the rotor's 1X still moved at the end of the run ({start * FF_WINDOW_S:.2f} s "
+                                "to settle twice over): the feedforward was adapting; record longer")
+        v = v[start:]
+    else:
+        v = result.gap[:, 0, :]  # (windows, axes)
     if v.shape[0] < 2:
         raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
-    model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
-    if model.runout_response is None:
-        raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
-    coef = Coefficients.load(coefficients)
-    runout = (runout_phasors(coef, list(result.axes))[coef.harmonics.index(1)] if 1 in coef.harmonics
-              else np.zeros(len(result.axes), dtype=complex))
-    driven = model.runout_response(result.rpm, dict(zip(result.axes, runout)))
     noise = (np.var(v.real, axis=0, ddof=1) + np.var(v.imag, axis=0, ddof=1)) / 2 / v.shape[0]
-    driven_1x = np.array([driven[a] for a in result.axes])
+    if on:
+        driven_1x = np.zeros(len(result.axes), dtype=complex)
+    else:
+        model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
+        if model.runout_response is None:
+            raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
+        coef = Coefficients.load(coefficients)
+        runout = (runout_phasors(coef, list(result.axes))[coef.harmonics.index(1)] if 1 in coef.harmonics
+                  else np.zeros(len(result.axes), dtype=complex))
+        driven = model.runout_response(result.rpm, dict(zip(result.axes, runout)))
+        driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + (RUNOUT_MODEL * np.abs(driven_1x)) ** 2)
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
-                     rec.machine.rotor_mass_kg, np.sqrt(noise))
+                     rec.machine.rotor_mass_kg, np.sqrt(noise), on)
 
 
 def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -192,6 +233,7 @@ class Balancing:
     reference_noise: np.ndarray | None = None  # (axes,): the part of it that is the run's own noise, m
     influence_noise: InfluenceNoise | None = None  # the noise the influence coefficients were measured with
     max_grams: float | None = None  # the largest mass a plane takes, g (at its radius)
+    feedforward: bool = False  # the runs' feedforward ran: the coefficients are of that loop
 
     @functools.cached_property
     def placed(self) -> np.ndarray:
@@ -257,7 +299,7 @@ class Balancing:
         def um(v: complex) -> dict:
             return {"um": round(abs(v) * 1e6, 4), "deg": round(float(np.degrees(np.angle(v))), 2)}
 
-        return {"rpm": round(self.rpm, 1), "planes": self.planes, "axes": self.axes,
+        return {"rpm": round(self.rpm, 1), "feedforward": self.feedforward, "planes": self.planes, "axes": self.axes,
                 "influence_um_per_g_mm": {p: {a: um(self.influence[i, k] * 1e-6) for i, a in enumerate(self.axes)}
                                           for k, p in enumerate(self.planes)},
                 "reference": {a: um(v) for a, v in zip(self.axes, self.reference)},
@@ -301,6 +343,9 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
         if abs(run.rpm / reference.rpm - 1) > SAME_SPEED:
             raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm, the reference at {reference.rpm:,.0f}: "
                                 "balance at one speed")
+        if run.feedforward != reference.feedforward:
+            raise BadInputError(f"{run.path} ran with the feedforward {_on_off(run.feedforward)}, the reference with it "
+                                f"{_on_off(reference.feedforward)}: one loop for every run of a job")
     A = np.column_stack([(run.one_x - reference.one_x) / mass.unbalance for mass, run in trials])
     moved = np.abs(A * np.array([m.unbalance for m, _ in trials])).max(axis=0)
     # a trial run less the reference: the runout's part is the same in both, only the noise moves
@@ -322,7 +367,12 @@ def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[st
     correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
     return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, radius_m, trials,
                      holes=holes, rotor_mass_kg=run.rotor_mass_kg, max_rpm=max_rpm, reference_std=run.std,
-                     reference_noise=run.noise, influence_noise=noise, max_grams=max_grams)
+                     reference_noise=run.noise, influence_noise=noise, max_grams=max_grams,
+                     feedforward=run.feedforward)
+
+
+def _on_off(on: bool) -> str:
+    return "on" if on else "off"
 
 
 FORMAT, VERSION = "ambdaq.balance_influence", 1
@@ -332,7 +382,8 @@ def save_influence(result: Balancing, path: str | Path, sources: list[str | Path
     """The influence coefficients as a sealed file, to balance the same machine again from one run
     (``balance correct``): planes, axes, speed, coefficients (m per kg m), radii, the trial masses
     and the runs they came from (name and SHA-256)."""
-    doc = {"format": FORMAT, "version": VERSION, "rpm": result.rpm, "planes": result.planes, "axes": result.axes,
+    doc = {"format": FORMAT, "version": VERSION, "rpm": result.rpm, "feedforward": result.feedforward,
+           "planes": result.planes, "axes": result.axes,
            "influence_re": result.influence.real.tolist(), "influence_im": result.influence.imag.tolist(),
            "radius_m": result.radius_m, "trials": [f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}"
                                                    for m in result.trials],
@@ -367,6 +418,7 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
         A = _complex(doc["influence_re"], doc["influence_im"])
         radius = {str(k): float(v) for k, v in doc["radius_m"].items()}
+        feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
         noise = None
         if "noise_m" in doc:
             n = doc["noise_m"]
@@ -391,6 +443,11 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         raise BadInputError(f"{run.path}: axes {', '.join(run.axes)}; the influence file's are {', '.join(axes)}")
     if abs(run.rpm / rpm - 1) > SAME_SPEED:
         raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
+    if not isinstance(feedforward, bool):
+        raise BadInputError(f"{path}: its feedforward is not true or false")
+    if run.feedforward != feedforward:
+        raise BadInputError(f"{run.path} ran with the feedforward {_on_off(run.feedforward)}; the influence "
+                            f"coefficients are of the loop with it {_on_off(feedforward)}")
     return _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams)
 
 
