@@ -11,7 +11,9 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -299,3 +301,41 @@ def test_a_dataset_written_with_another_row_layout_is_refused(tmp_path):
                  ("fleet", "scan", str(tmp_path / "a.mcap"), "-o", str(tmp_path / "old.parquet"))):
         res = CliRunner().invoke(cli, list(args))
         assert res.exit_code == 2 and "laid out as another ambdaq version wrote them" in res.output, res.output
+
+
+def test_a_balancing_record_grades_its_recording_and_the_machines_rows_after_it(fleet, scheduler, tmp_path):
+    """Issue 43, item 4: a balancing record (``balance forces --record``) beside one machine's
+    recordings; ``fleet scan`` keeps its ISO 21940-11 grade, and the rows carry it: the recording it
+    assessed its own grade, every row of that machine from then on the latest grade (none before).
+    A record whose seal is broken is left out with a line; other JSON files are passed over."""
+    import shutil
+
+    _root, good = fleet
+    days = sorted(p for p in good if p.parent.name == "AMB-03")
+    plant = tmp_path / "plant"
+    plant.mkdir()
+    copies = [Path(shutil.copy(p, plant / p.name)) for p in days]
+    coef = plant / "coef.json"  # a runout file: JSON, and no balancing record
+    run("runout", "identify", str(copies[0]), "-o", str(coef))
+    graded = json.loads(run("balance", "forces", str(copies[1]), "--coefficients", str(coef), "--max-rpm", "60000",
+                            "--json", "--record", str(plant / "job.json")).stdout)
+    broken = plant / "broken.json"
+    broken.write_text((plant / "job.json").read_text().replace('"max_rpm": 60000', '"max_rpm": 6000'))
+    ds = tmp_path / "fleet.parquet"
+    res = ambdaq("fleet", "scan", str(plant), "-o", str(ds), "--scheduler", scheduler, "--json")
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert report["balancing_records"] == 1 and [e["path"] for e in report["balancing_errors"]] == [str(broken)]
+    df = read(ds).set_index("path")
+    rows = [df.loc[str(p.resolve())] for p in copies]
+    assert rows[1]["balance_grade_mm_s"] == graded["grade_mm_s"] and rows[1]["balance_grade"] == graded["grade"]
+    assert rows[1]["balance_grade_std_mm_s"] == graded["grade_std_mm_s"]
+    assert rows[1]["balance_record"] == str((plant / "job.json").resolve())
+    assert np.isnan(rows[0]["latest_balance_grade_mm_s"]) and rows[0]["latest_balance_grade"] is None
+    for row in rows[1:]:
+        assert (row["latest_balance_grade_mm_s"], row["latest_balance_grade"]) == (graded["grade_mm_s"], graded["grade"])
+    for row in rows[2:]:
+        assert np.isnan(row["balance_grade_mm_s"])  # graded by no record of its own
+    text = run("fleet", "trend", str(ds)).stdout
+    (line,) = [x for x in text.splitlines() if x.startswith("AMB-03 ")]
+    assert f"{graded['grade_mm_s']:.3g} mm/s {graded['grade']}" in line, line

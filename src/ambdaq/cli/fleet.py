@@ -50,16 +50,19 @@ def command() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print what was scanned as JSON.")
 def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
     """One row per recording (or split part): machine, time, speed, drops, runout and 1X per axis and
-    harmonic, the ISO 14839-2 zone; files already scanned and unchanged are skipped.
+    harmonic, the ISO 14839-2 zone; files already scanned and unchanged are skipped. Balancing
+    records (balance ... --record) found there give the recordings they grade their ISO 21940-11
+    balance grade.
 
     \b
     Examples:
       ambdaq fleet scan recordings/ -o fleet.parquet
       ambdaq fleet scan 'plant/**/*.mcap' -o fleet.parquet --scheduler tcp://10.0.0.5:8786
     """
-    from ..workflows.fleet import check_layout, recordings, scan
+    from ..workflows.fleet import add_balancing, balancing_records, check_layout, recordings, scan
 
     paths = recordings(inputs)
+    records = balancing_records(inputs)
     check_layout(Path(dataset))  # a dataset this version cannot add to is refused before a cluster starts
     client = _client(scheduler, workers)
     try:
@@ -80,8 +83,11 @@ def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
                 bar.stop()
     finally:
         client.close()
+    record_errors = add_balancing(Path(dataset), records)
     if as_json:
         click.echo(json.dumps({"scanned": len(report.scanned), "unchanged": report.unchanged,
+                               "balancing_records": len(records) - len(record_errors),
+                               "balancing_errors": [{"path": p, "error": e} for p, e in record_errors],
                                "writing": report.writing, "errors": [{"path": p, "error": e} for p, e in report.errors],
                                "interrupted": report.interrupted, "seconds": round(report.seconds, 3),
                                "warm_s": round(report.warm_s, 3),
@@ -93,6 +99,10 @@ def scan_command(inputs, dataset, scheduler, workers, quiet, as_json):
             click.echo(f"  skipped, no footer yet (being written?): {p}", err=True)
         for p, e in report.errors:
             click.echo(f"  error: {p}: {e}", err=True)
+        if records:
+            click.echo(f"{len(records) - len(record_errors)} balancing records", err=True)
+        for p, e in record_errors:
+            click.echo(f"  balancing record left out: {p}: {e}", err=True)
     if report.interrupted:
         raise DeviceError(f"interrupted: {len(report.scanned)} rows written to {dataset}; run the same scan "
                           "again to go on")
@@ -145,7 +155,8 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
         save(draw_trend(df, machine), plot_path)
     if as_json:
         cols = ["path", "machine", "start", "duration_s", "rpm_min", "rpm_max", "drops", "zone", "error", "note",
-                "coefficients_sha256", *figures]
+                "coefficients_sha256", "balance_grade_mm_s", "balance_grade", "latest_balance_grade_mm_s",
+                "latest_balance_grade", *figures]
         rows = json.loads(df[cols].to_json(orient="records", date_format="iso"))
         click.echo(json.dumps({"rows": rows, "moved": [
             {"machine": m.machine, "figure": m.figure, "first_um": round(m.first, 3), "last_um": round(m.last, 3),
@@ -159,15 +170,18 @@ def trend_command(dataset, machine, threshold, touchdown_limit, touchdown_energy
     good = df[df["error"].isna()]
     # "lost": the samples the recordings lost (the dataset's drops column), not the rotor drops below
     click.echo(f"{'machine':10s} {'recordings':>10s} {'from':>17s} {'to':>17s} {'lost':>6s} {'zone now':>8s} "
-               f"{'largest 1X now':>22s} {'errors':>6s}")
+               f"{'largest 1X now':>22s} {'balance grade':>20s} {'errors':>6s}")
     for m, rows in df.groupby("machine"):
         ok = good[good["machine"] == m].sort_values("start")
         last = ok.iloc[-1] if len(ok) else None
         one_x = {a: last[f"onex_{a}_um"] for a in axes if last is not None and np.isfinite(last[f"onex_{a}_um"])}
         biggest = f"{max(one_x.values()):.2f} um {max(one_x, key=one_x.get)}" if one_x else "-"
+        graded = rows.dropna(subset=["balance_grade_mm_s"])  # the latest a record states, with its class
+        grade = (f"{graded.iloc[-1]['balance_grade_mm_s']:.3g} mm/s {graded.iloc[-1]['balance_grade']}"
+                 if len(graded) else "-")
         click.echo(f"{m:10s} {len(rows):10d} {str(ok['start'].min())[:16]:>17s} {str(ok['start'].max())[:16]:>17s} "
                    f"{int(rows['drops'].sum()):6d} {str(last['zone'] if last is not None else '-'):>8s} "
-                   f"{biggest:>22s} {int(rows['error'].notna().sum()):6d}")
+                   f"{biggest:>22s} {grade:>20s} {int(rows['error'].notna().sum()):6d}")
     if movements:
         click.echo(f"moved more than {threshold:g} um since the first recording:")
         for mv in movements:

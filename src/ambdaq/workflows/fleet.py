@@ -266,6 +266,83 @@ def recordings(inputs: Iterable[str]) -> list[Path]:
     return list(out)
 
 
+BALANCING_FILE = "_balancing.json"
+"""The balancing records a scan found, in the dataset's folder: the ISO 21940-11 grade each states,
+by the SHA-256 of the run it assessed. Its leading underscore and its suffix keep it out of every
+reader of the Parquet dataset (pyarrow, pandas, Dask and DuckDB skip it)."""
+ASSESSED = ("reference", "run")  # a record's run whose unbalance its grade is (balance influence; correct, forces)
+
+
+def balancing_records(inputs: Iterable[str]) -> list[Path]:
+    """The sealed balancing records (``balance ... --record``) among the folders (searched
+    recursively) and globs of ``inputs``: every .json file there whose format is a balancing
+    record's, each once (coefficient, plant and other files are passed over)."""
+    import glob
+
+    from .balancing import RECORD_FORMAT
+
+    out: dict[Path, None] = {}
+    for item in inputs:
+        p = Path(item)
+        found = sorted(p.rglob("*.json")) if p.is_dir() else sorted(Path(g) for g in glob.glob(item, recursive=True))
+        for f in found:
+            if f.suffix == ".json" and f.is_file() and f'"format": "{RECORD_FORMAT}"' in f.read_text(errors="replace")[:4096]:
+                out[f.resolve()] = None
+    return list(out)
+
+
+def add_balancing(dataset: Path, records: list[Path]) -> list[tuple[str, str]]:
+    """Keep the grade of each record in ``dataset``'s BALANCING_FILE (added to what it holds, written
+    whole and renamed) by the SHA-256 of the run it assessed; returns (path, error) for the records
+    that cannot be read (a broken seal, no grade), which are left out."""
+    import json
+
+    from .balancing import load_record
+
+    target = dataset / BALANCING_FILE
+    held = json.loads(target.read_text()) if target.exists() else {}
+    errors = []
+    for path in records:
+        try:
+            rec = load_record(path)
+        except AmbdaqError as err:
+            errors.append((str(path), str(err)))
+            continue
+        assessed = next((r for r in rec["runs"] if r.get("role") in ASSESSED), None)
+        if assessed is None or rec["grade_mm_s"] is None:
+            errors.append((str(path), "no run it grades, or no grade (balance ... --max-rpm states one)"))
+            continue
+        held[str(assessed["sha256"])] = {"record": str(path), "method": rec["method"], "grade_mm_s": rec["grade_mm_s"],
+                                         "grade_std_mm_s": rec["grade_std_mm_s"], "grade": rec["grade"],
+                                         "max_rpm": rec["max_rpm"]}
+    if held:
+        dataset.mkdir(parents=True, exist_ok=True)
+        part = target.with_suffix(".part")
+        part.write_text(json.dumps(held, indent=1, sort_keys=True))
+        part.replace(target)
+    return errors
+
+
+def _with_balancing(df, dataset: Path):
+    """``df`` with each row's balance grade where a record graded its recording (``balance_grade_mm_s``,
+    ``balance_grade_std_mm_s``, ``balance_grade``, ``balance_record``), and the latest grade its
+    machine had at that row's start (``latest_balance_grade_mm_s``, ``latest_balance_grade``)."""
+    import json
+
+    target = dataset / BALANCING_FILE
+    held = json.loads(target.read_text()) if target.exists() else {}
+    rows = [held.get(sha) if isinstance(sha, str) else None for sha in df["sha256"]]
+    for col, key in (("balance_grade_mm_s", "grade_mm_s"), ("balance_grade_std_mm_s", "grade_std_mm_s")):
+        df[col] = [math.nan if r is None or r[key] is None else float(r[key]) for r in rows]
+    df["balance_grade"] = [None if r is None else r["grade"] for r in rows]
+    df["balance_record"] = [None if r is None else r["record"] for r in rows]
+    by_machine = df.groupby(PARTITION, sort=False)  # rows in time order within each machine (read's sort)
+    df["latest_balance_grade_mm_s"] = by_machine["balance_grade_mm_s"].ffill()
+    latest = by_machine["balance_grade"].ffill()
+    df["latest_balance_grade"] = latest.astype(object).where(latest.notna(), None)  # None, as balance_grade's
+    return df
+
+
 def _part_file(dataset: Path, machine: str, path: str) -> Path:
     """Where a recording's row lives: its machine's partition, a name from its path."""
     return dataset / f"{PARTITION}={machine}" / f"{_key(path)}.parquet"
@@ -437,7 +514,7 @@ def _touch(old: dict, mtime_ns: int) -> None:
 def read(dataset: Path, machine: str | None = None):
     """The dataset as a pandas DataFrame (the machine column from the partition), sorted by machine and
     start; only ``machine``'s rows if given.  Each row's axes and bearings are flat columns named
-    after them (:func:`flat`)."""
+    after them (:func:`flat`), and its balance grades beside them (:func:`_with_balancing`)."""
     import pyarrow.dataset as ds
 
     if not dataset.exists():
@@ -449,7 +526,7 @@ def read(dataset: Path, machine: str | None = None):
         known = sorted(set(d.to_table(columns=[PARTITION]).column(PARTITION).to_pylist()))
         raise BadInputError(f"{dataset}: no machine {machine!r} (machines: {', '.join(known)})")
     df[PARTITION] = df[PARTITION].astype(str)
-    return flat(df.sort_values([PARTITION, "start", "path"]).reset_index(drop=True))
+    return _with_balancing(flat(df.sort_values([PARTITION, "start", "path"]).reset_index(drop=True)), dataset)
 
 
 def flat(df):
@@ -551,5 +628,5 @@ def moved(df, figures: list[str], threshold_um: float) -> list[Movement]:
 
 
 __all__ = ["HARMONICS", "ScanReport", "Movement", "TouchdownSummary", "touchdowns", "axes_of", "bearings_of", "flat",
-           "check_layout", "has_footer", "index", "moved", "read",
+           "add_balancing", "balancing_records", "check_layout", "has_footer", "index", "moved", "read",
            "recordings", "scan", "scan_into", "scan_recording"]
