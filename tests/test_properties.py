@@ -113,8 +113,8 @@ def _influence(tmp: Path):
         return RunVector(name, 20000.0, axes, c + shift, noise, 4.4, noise)
 
     masses = [BalanceMass("front", 0.1, 0.0, 0.03), BalanceMass("rear", 0.1, 90.0, 0.03)]
-    result = influence_balancing(run("r", 0), [(masses[0], run("a", np.array([3e-6, 3e-6j]))),
-                                               (masses[1], run("b", np.array([1e-6j, 2e-6])))], max_rpm=60000.0)
+    result = influence_balancing([(run("r", 0), [(masses[0], run("a", np.array([3e-6, 3e-6j]))),
+                                                 (masses[1], run("b", np.array([1e-6j, 2e-6])))])], max_rpm=60000.0)
     for name in ("r", "a", "b"):
         (tmp / name).write_bytes(name.encode())
     save_influence(result, tmp / "i.json", [tmp / "r", tmp / "a", tmp / "b"])

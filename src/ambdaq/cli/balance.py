@@ -43,7 +43,8 @@ def command() -> None:
 @click.argument("reference", type=click.Path(dir_okay=False))
 @click.argument("trials", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--mass", "masses", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True, required=True,
-              help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear).")
+              help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear); at "
+                   "several speeds, the same for each.")
 @click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
               help="Runout coefficients (runout identify of a slow roll): the sensor runout, and what it drives "
                    "through the loop, taken out of every run.")
@@ -61,34 +62,42 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
-    residual 1X it predicts (ISO 21940-13's influence-coefficient method).
+    residual 1X it predicts (ISO 21940-13's influence-coefficient method). At several speeds, the
+    runs of each speed in turn (its reference, then its trial runs in the order of --mass): one
+    least squares over every speed and axis.
 
     \b
-    Example:
+    Examples:
       ambdaq balance influence ref.mcap t_front.mcap t_rear.mcap --mass front:0.1@0 --mass rear:0.1@0 \\
           --coefficients coef.json
+      ambdaq balance influence ref20k.mcap tf20k.mcap tr20k.mcap ref30k.mcap tf30k.mcap tr30k.mcap \\
+          --mass front:0.1@0 --mass rear:0.1@0 --coefficients coef.json
     """
     from ..machines.balance_masses import BalanceMass
     from ..machines.models import loop_model
     from ..workflows.balancing import influence_balancing, run_vector
 
     _writable(record, overwrite)
-    if len(masses) != len(trials):
-        raise BadInputError(f"{len(trials)} trial runs and {len(masses)} --mass: one trial mass per trial run")
+    files, per_speed = [reference, *trials], 1 + len(masses)
+    if len(files) % per_speed:
+        raise BadInputError(f"{len(files)} runs and {len(masses)} --mass: per speed, a reference and one trial run per "
+                            "trial mass")
     coef = Path(coefficients)
     model = loop_model(machine, {})
     if not model.balance_planes:
         raise BadInputError(f"the {machine} model has no balancing planes")
     parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
-    result = influence_balancing(run_vector(reference, coef, machine),
-                                 [(m, run_vector(t, coef, machine)) for m, t in zip(parsed, trials)],
-                                 holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
+    groups = [files[i:i + per_speed] for i in range(0, len(files), per_speed)]
+    result = influence_balancing([(run_vector(ref, coef, machine), [(m, run_vector(t, coef, machine))
+                                                                    for m, t in zip(parsed, rest)])
+                                  for ref, *rest in groups], holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     if output:
         from ..workflows.balancing import save_influence
 
-        save_influence(result, output, [reference, *trials], overwrite=overwrite)
-    runs = [("reference", reference), *((f"trial {m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}", t)
-                                        for m, t in zip(parsed, trials))]
+        save_influence(result, output, files, overwrite=overwrite)
+    runs = [run for ref, *rest in groups for run in
+            [("reference", ref), *((f"trial {m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}", t)
+                                   for m, t in zip(parsed, rest))]]
     _show(result, as_json)
     _keep(result, record, plot_path, runs, coef, machine, None, overwrite)
     if output:
@@ -194,8 +203,8 @@ def _show(result, as_json: bool) -> None:
         click.echo(json.dumps(result.as_dict(), indent=2))
         return
     d = result.as_dict()
-    click.echo(f"{d['rpm']:,.0f} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients, "
-               "um per g mm:")
+    speeds = " and ".join(f"{r:,.0f}" for r in d.get("speeds_rpm", [d["rpm"]]))
+    click.echo(f"{speeds} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients, um per g mm:")
     for plane, row in d["influence_um_per_g_mm"].items():
         click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v['um']:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
     for m in d["correction"]:

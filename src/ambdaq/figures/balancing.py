@@ -29,7 +29,8 @@ def draw_balancing(result):
     from matplotlib.ticker import MaxNLocator
 
     n = len(result.planes) + 2
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 5.2), subplot_kw={"projection": "polar"},
+    # the legends below the panels grow with the rows (axes, or axes at each speed): the figure with them
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.4 + 0.2 * len(result.axes)), subplot_kw={"projection": "polar"},
                              constrained_layout=True)
     colors = {a: c for a, c in zip(result.axes, plt.rcParams["axes.prop_cycle"].by_key()["color"])}
     for k, (ax, plane) in enumerate(zip(axes, result.planes)):
@@ -56,6 +57,7 @@ def draw_balancing(result):
         ax.yaxis.set_major_locator(MaxNLocator(3))
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(-0.1, -0.08), ncol=2, frameon=False)
-    fig.suptitle(f"balancing at {result.rpm:,.0f} rpm (angles from the key-phasor's mark, in the direction of "
-                 "rotation)", fontsize=10)
+    speeds = " and ".join(f"{r:,.0f}" for r in (result.speeds_rpm or [result.rpm]))
+    fig.suptitle(f"balancing at {speeds} rpm (angles from the key-phasor's mark, in the direction of rotation)",
+                 fontsize=10)
     return fig

@@ -234,6 +234,7 @@ class Balancing:
     influence_noise: InfluenceNoise | None = None  # the noise the influence coefficients were measured with
     max_grams: float | None = None  # the largest mass a plane takes, g (at its radius)
     feedforward: bool = False  # the runs' feedforward ran: the coefficients are of that loop
+    speeds_rpm: list[float] | None = None  # at several speeds, each one's (the rows: an axis at a speed)
 
     @functools.cached_property
     def placed(self) -> np.ndarray:
@@ -315,7 +316,8 @@ class Balancing:
                 "correction": mass_rows(self.masses()),
                 "max_grams": self.max_grams, "limited_by_max_grams": self.limited,
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
-                "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4)}
+                "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4),
+                **({"speeds_rpm": [round(r, 1) for r in self.speeds_rpm]} if self.speeds_rpm else {})}
 
 
 GRADES = (0.4, 1.0, 2.5, 6.3, 16.0, 40.0, 100.0, 250.0, 630.0, 1600.0, 4000.0)
@@ -329,11 +331,54 @@ def _grade_class(g: float | None) -> str | None:
     return next((f"G{v:g}" for v in GRADES if g <= v), f"beyond G{GRADES[-1]:g}")
 
 
-def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]], *, holes: int = 0,
-                        max_rpm: float | None = None, max_grams: float | None = None) -> Balancing:
-    """Influence coefficients from ``reference`` and one trial run per plane, and the correction
-    (module docstring), in ``holes`` per plane (0: at any angle), no mass above ``max_grams`` (g),
-    graded at ``max_rpm`` (rpm)."""
+Job = tuple[RunVector, list[tuple[BalanceMass, RunVector]]]
+"""One speed of a balancing job: its reference run and one trial run per plane with its mass."""
+
+
+def influence_balancing(speeds: list[Job], *, holes: int = 0, max_rpm: float | None = None,
+                        max_grams: float | None = None) -> Balancing:
+    """Influence coefficients from a reference run and one trial run per plane at each of
+    ``speeds``, and the correction that cancels the references' 1X over every speed and axis by
+    least squares (module docstring; ISO 21940-13's several speeds), in ``holes`` per plane (0: at
+    any angle), no mass above ``max_grams`` (g), graded at ``max_rpm`` (rpm). At several speeds
+    each row of the coefficients is an axis at a speed (``front_x@30000rpm``), and every speed has
+    the same trial masses, put on once and run at each speed, as the procedure has it."""
+    if not speeds:
+        raise BadInputError("no runs: a reference and one trial run per plane")
+    parts = [_influence(reference, trials) for reference, trials in speeds]
+    if len(parts) == 1:
+        (reference, trials), (A, noise) = speeds[0], parts[0]
+        return _correct([m.plane for m, _ in trials], reference, A, {m.plane: m.radius_m for m, _ in trials},
+                        [m for m, _ in trials], noise, holes, max_rpm, max_grams)
+    first, masses = speeds[0][0], [m for m, _ in speeds[0][1]]
+    for (reference, trials), earlier in zip(speeds[1:], speeds):
+        if [m for m, _ in trials] != masses:
+            raise BadInputError(f"{reference.path}: its trial masses are not the first speed's "
+                                f"({', '.join(f'{m.plane}:{m.grams:g}@{m.deg:g}' for m in masses)}): put each on once "
+                                "and run it at every speed")
+        if reference.feedforward != first.feedforward:
+            raise BadInputError(f"{reference.path} ran with the feedforward {_on_off(reference.feedforward)}, "
+                                f"{first.path} with it {_on_off(first.feedforward)}: one loop for every run of a job")
+    rpms = sorted(reference.rpm for reference, _ in speeds)
+    if any(b / a - 1 <= SAME_SPEED for a, b in zip(rpms, rpms[1:])):
+        raise BadInputError("two references ran at one speed (" + ", ".join(f"{r:,.0f}" for r in rpms)
+                            + " rpm): one reference and its trial runs per speed")
+    rows = RunVector(", ".join(reference.path for reference, _ in speeds), first.rpm,
+                     [f"{a}@{reference.rpm:.0f}rpm" for reference, _ in speeds for a in reference.axes],
+                     np.concatenate([reference.one_x for reference, _ in speeds]),
+                     np.concatenate([reference.std for reference, _ in speeds]), first.rotor_mass_kg,
+                     np.concatenate([reference.noise for reference, _ in speeds]), first.feedforward)
+    noise = InfluenceNoise(rows.noise, np.vstack([n.trials for _, n in parts]), parts[0][1].trial_unbalance,
+                           same_run=True)
+    result = _correct([m.plane for m in masses], rows, np.vstack([A for A, _ in parts]),
+                      {m.plane: m.radius_m for m in masses}, masses, noise, holes, max_rpm, max_grams)
+    result.speeds_rpm = [reference.rpm for reference, _ in speeds]
+    return result
+
+
+def _influence(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]) -> tuple[np.ndarray, InfluenceNoise]:
+    """One speed's influence coefficients (axes x planes, m per kg m) and the noise they were
+    measured with, each trial run checked against its reference."""
     planes = [m.plane for m, _ in trials]
     if len(set(planes)) != len(planes):
         raise BadInputError(f"one trial run per plane: {', '.join(planes)}")
@@ -341,8 +386,8 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
         if run.axes != reference.axes:
             raise BadInputError(f"{run.path}: its axes are not the reference's ({', '.join(reference.axes)})")
         if abs(run.rpm / reference.rpm - 1) > SAME_SPEED:
-            raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm, the reference at {reference.rpm:,.0f}: "
-                                "balance at one speed")
+            raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm, its reference at {reference.rpm:,.0f}: a "
+                                "reference and its trial runs at one speed")
         if run.feedforward != reference.feedforward:
             raise BadInputError(f"{run.path} ran with the feedforward {_on_off(run.feedforward)}, the reference with it "
                                 f"{_on_off(reference.feedforward)}: one loop for every run of a job")
@@ -354,10 +399,8 @@ def influence_balancing(reference: RunVector, trials: list[tuple[BalanceMass, Ru
         if m < 10 * noise:
             raise BadInputError(f"{run.path}: the trial mass on {mass.plane} moved the 1X by {m * 1e6:.3f} um at most, "
                                 f"less than ten times its noise ({noise * 1e6:.3f} um): use a larger trial mass")
-    noise = InfluenceNoise(reference.noise, np.column_stack([r.noise for _, r in trials]),
-                           np.array([m.unbalance for m, _ in trials]), same_run=True)
-    return _correct(planes, reference, A, {m.plane: m.radius_m for m, _ in trials}, [m for m, _ in trials], noise,
-                    holes, max_rpm, max_grams)
+    return A, InfluenceNoise(reference.noise, np.column_stack([r.noise for _, r in trials]),
+                             np.array([m.unbalance for m, _ in trials]), same_run=True)
 
 
 def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[str, float],
@@ -383,7 +426,7 @@ def save_influence(result: Balancing, path: str | Path, sources: list[str | Path
     (``balance correct``): planes, axes, speed, coefficients (m per kg m), radii, the trial masses
     and the runs they came from (name and SHA-256)."""
     doc = {"format": FORMAT, "version": VERSION, "rpm": result.rpm, "feedforward": result.feedforward,
-           "planes": result.planes, "axes": result.axes,
+           **({"speeds_rpm": result.speeds_rpm} if result.speeds_rpm else {}), "planes": result.planes, "axes": result.axes,
            "influence_re": result.influence.real.tolist(), "influence_im": result.influence.imag.tolist(),
            "radius_m": result.radius_m, "trials": [f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}"
                                                    for m in result.trials],
@@ -419,6 +462,7 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         A = _complex(doc["influence_re"], doc["influence_im"])
         radius = {str(k): float(v) for k, v in doc["radius_m"].items()}
         feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
+        speeds = doc.get("speeds_rpm")
         noise = None
         if "noise_m" in doc:
             n = doc["noise_m"]
@@ -428,6 +472,9 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         raise BadInputError(f"{path}: an influence file needs planes, axes, rpm, influence_re/_im and radius_m") from None
     if not all(isinstance(n, str) for n in (*planes, *axes)) or not (np.isfinite(rpm) and rpm > 0):
         raise BadInputError(f"{path}: its planes and axes are not names, or its speed not one above 0 rpm")
+    if speeds is not None:
+        raise BadInputError(f"{path}: influence coefficients of several speeds ({speeds}); balance correct takes one "
+                            "run at one speed: save a job at that speed (balance influence -o)")
     if A.shape != (len(axes), len(planes)) or not np.all(np.isfinite(A)) or set(radius) != set(planes):
         raise BadInputError(f"{path}: its coefficients are not one finite value per axis and plane")
     if not all(np.isfinite(r) and r > 0 for r in radius.values()):
