@@ -210,6 +210,24 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path,
     assert r.exit_code == 2 and "after.json exists" in r.output, r.output
     assert abs(after["grade_mm_s"] - truth_grade(fixed)) < 3 * after["grade_std_mm_s"], after
     assert after["grade_mm_s"] < 0.1 * out["grade_mm_s"] and after["grade"] == "G0.4", after
+    # ISO 21940-14's acceptance against a grade asked for: the residual with its error (twice its
+    # deviation) within G1 after balancing (the truth, 0.096 mm/s, is); against G0.1 the error alone
+    # (0.22 mm/s) is beyond it, so not after balancing, while a user's check (within G0.1 and the
+    # error) would take it; a grade without the speed it is judged at is refused
+    def judged(grade):
+        r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients", coef,
+                    "--max-rpm", 60000, "--grade", grade, "--json")
+        assert r.exit_code == 0, r.output
+        return json.loads(r.stdout)["acceptance"]
+
+    g1, g01 = judged("G1"), judged("0.1")
+    # (the error from the unrounded deviation, the JSON's from the rounded one: 1e-3 apart at most)
+    assert g1 == {"target": "G1", "permissible_mm_s": 1.0, "error_mm_s": pytest.approx(2 * after["grade_std_mm_s"], abs=2e-3),
+                  "after_balancing": True, "check": True} and truth_grade(fixed) <= 1.0, g1
+    assert (g01["after_balancing"], g01["check"]) == (False, True), g01
+    r = run_cli("balance", "correct", fixed, "--influence", tmp_path / "infl.json", "--coefficients", coef,
+                "--grade", "G1")
+    assert r.exit_code == 2 and "--grade judges the grade at the machine's maximum service speed" in r.output
     # and what is left of the rotor's 1X is what the sensor runout drives through the loop (33 um
     # at 20,000 rpm, ten times the unbalance's): balancing cannot take that out, the feedforward does
     runout_only = np.abs(model_one_x(0j, 0j))

@@ -41,8 +41,8 @@ def session(tmp_path_factory):
     run("sim", "generate", "--rpm", "0:30000:3", "--duration", "3", "-q", "-o", d / "runup.mcap")
     run("sim", "generate", "--rpm", "30000", "--duration", "2", "-q", "-o", d / "before.mcap")
     run("sim", "generate", "--rpm", "30000", "--duration", "2", "--ff", "lms", "-q", "-o", d / "after.mcap")
-    run("balance", "forces", d / "after.mcap", "--coefficients", d / "coef.json", "--max-rpm", "60000", "--record",
-        d / "balance.json")
+    run("balance", "forces", d / "after.mcap", "--coefficients", d / "coef.json", "--max-rpm", "60000", "--grade",
+        "G16", "--record", d / "balance.json")
     os.environ["AMBDAQ_STATE_DIR"] = str(d / "state")
     try:  # the push log as push writes it: one entry of these coefficients, one of another file
         append_local_log({"host_time": "2026-11-23T10:00:00Z", "bank": 1, "crc32": "0x1a2b3c4d", "file": "coef.json",
@@ -149,7 +149,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     # correction masses in the tables (g mm to 0.001, degrees to 0.1, grams to 0.0001)
     b = data["balancing"]
     alone = json.loads(run_cli("balance", "forces", session / "after.mcap", "--coefficients", session / "coef.json",
-                               "--max-rpm", 60000, "--json").stdout)
+                               "--max-rpm", 60000, "--grade", "G16", "--json").stdout)
     assert b["unbalance"] == alone["unbalance_estimated"] and b["correction"] == alone["correction"]
     assert (b["grade"], b["grade_mm_s"], b["grade_std_mm_s"]) == (alone["grade"], alone["grade_mm_s"], alone["grade_std_mm_s"])
     assert tables.tables["balancing-unbalance"] == [[p, f"{u['g_mm']:.3f}", f"{u['std_g_mm']:.3f}", f"{u['deg']:.1f}"]
@@ -171,8 +171,12 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
     worst_band = max(data["vibration"]["bands"], key=lambda b: b["ratio_cmin"])
     assert [(line["standard"], line["zone"]) for line in verdict["lines"]] == [
         ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("API 684", None),
-        ("Ro et al. runout feedforward", None), ("ISO 21940-11", None)]
+        ("Ro et al. runout feedforward", None), ("ISO 21940-11", None), ("ISO 21940-14", None)]
     assert verdict["lines"][4]["result"].startswith(f"{b['grade']} ({b['grade_mm_s']:.3g} ± ")
+    # the job asked for G16 (--grade): ISO 21940-14's acceptance, as balance forces --json states it
+    assert b["acceptance"] == alone["acceptance"] and verdict["lines"][5]["check"] == "rotor balance against G16"
+    assert verdict["lines"][5]["result"].startswith("accepted after balancing" if alone["acceptance"]["after_balancing"]
+                                                    else "not accepted")
     assert verdict["lines"][2]["result"] == f"{sum(c['passed'] for c in crit)} of {len(crit)} verified against the spindle model"
     assert tables.tables["verdict"][0][2].startswith(f"zone {worst_gs['zone']} (") and worst_gs["axis"] in \
         tables.tables["verdict"][0][2]

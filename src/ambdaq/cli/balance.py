@@ -11,9 +11,26 @@ from ..errors import BadInputError
 from .options import plot_option
 
 
+def _grade(_ctx, _param, value: str | None) -> float | None:
+    """``--grade G2.5`` (or ``2.5``): the balance grade asked for, mm/s."""
+    if value is None:
+        return None
+    try:
+        g = float(value.strip().upper().removeprefix("G"))
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: a balance grade, G2.5 or 2.5 (mm/s)") from None
+    if not (g > 0 and g < float("inf")):
+        raise click.BadParameter(f"{value!r}: a balance grade above 0 mm/s")
+    return g
+
+
 def _correction_options(command):
-    """--holes, --max-rpm and --record: where the masses go, the grade's speed, the job's record."""
-    for option in (click.option("--record", type=click.Path(dir_okay=False),
+    """--holes, --max-rpm, --grade and --record: where the masses go, the grade's speed and the grade
+    asked for, the job's record."""
+    for option in (click.option("--grade", "target", callback=_grade, metavar="G",
+                                help="The balance grade asked for (ISO 21940-11, e.g. G2.5): the residual unbalance "
+                                     "with its error judged against it (ISO 21940-14); needs --max-rpm."),
+                   click.option("--record", type=click.Path(dir_okay=False),
                                 help="Save the balancing record (sealed JSON): the runs and files it used, what "
                                      "--json prints (the correction masses, the grade)."),
                    click.option("--max-rpm", type=click.FloatRange(min=0, min_open=True),
@@ -57,7 +74,7 @@ def command() -> None:
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, max_grams, output, record,
+def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, target, max_grams, output, record,
               plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
@@ -77,7 +94,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     from ..machines.models import loop_model
     from ..workflows.balancing import influence_balancing, run_vector
 
-    _writable(record, overwrite)
+    _writable(record, overwrite, max_rpm, target)
     files, per_speed = [reference, *trials], 1 + len(masses)
     if len(files) % per_speed:
         raise BadInputError(f"{len(files)} runs and {len(masses)} --mass: per speed, a reference and one trial run per "
@@ -91,6 +108,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     result = influence_balancing([(run_vector(ref, coef, machine), [(m, run_vector(t, coef, machine))
                                                                     for m, t in zip(parsed, rest)])
                                   for ref, *rest in groups], holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
+    result.target_mm_s = target
     if output:
         from ..workflows.balancing import save_influence
 
@@ -116,7 +134,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, holes, max_rpm, max_grams, record, plot_path, overwrite,
+def correct(run, influence_file, coefficients, machine, holes, max_rpm, target, max_grams, record, plot_path, overwrite,
             as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane.
@@ -127,9 +145,10 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, max_gram
     """
     from ..workflows.balancing import correct_with, run_vector
 
-    _writable(record, overwrite)
+    _writable(record, overwrite, max_rpm, target)
     result = correct_with(influence_file, run_vector(run, Path(coefficients), machine), holes=holes or 0,
                           max_rpm=max_rpm, max_grams=max_grams)
+    result.target_mm_s = target
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
 
@@ -143,7 +162,7 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, max_gram
 @_correction_options
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the unbalance and the correction as JSON.")
-def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_json):
+def forces(run, coefficients, machine, holes, max_rpm, target, record, overwrite, as_json):
     """The unbalance per balancing plane from ONE run at a steady speed, without a trial mass: the
     force each bearing applies at 1X (current gain x coil current + negative stiffness x position)
     and the rigid rotor's mass and inertia give the unbalance force on each plane. The feedforward
@@ -155,8 +174,9 @@ def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_jso
     """
     from ..workflows.balancing import force_balancing
 
-    _writable(record, overwrite)
+    _writable(record, overwrite, max_rpm, target)
     result = force_balancing(run, Path(coefficients), machine, holes=holes or 0, max_rpm=max_rpm)
+    result.target_mm_s = target
     d = result.as_dict()
     if as_json:
         click.echo(json.dumps(d, indent=2))
@@ -170,11 +190,27 @@ def forces(run, coefficients, machine, holes, max_rpm, record, overwrite, as_jso
         if d["grade_mm_s"] is not None:
             click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm): {d['grade_mm_s']:.3g} +- "
                        f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
+        _show_acceptance(d)
     _keep(result, record, None, [("run", run)], coefficients, machine, None, overwrite)
 
 
-def _writable(record: str | None, overwrite: bool) -> None:
-    """Refuse before any work a --record that would replace a file without --overwrite."""
+def _show_acceptance(d: dict) -> None:
+    """ISO 21940-14's verdict line, where --grade asked for one."""
+    if "acceptance" not in d:
+        return
+    a = d["acceptance"]
+    verdict = ("within it: accepted after balancing" if a["after_balancing"] else
+               "not within it after balancing; a check of a balanced rotor would accept it" if a["check"] else
+               "beyond it: not accepted")
+    click.echo(f"against {a['target']} (ISO 21940-14): {d['grade_mm_s']:.3g} mm/s with an error of {a['error_mm_s']:.2g} "
+               f"mm/s, {verdict}")
+
+
+def _writable(record: str | None, overwrite: bool, max_rpm: float | None = None, target: float | None = None) -> None:
+    """Refuse before any work a --record that would replace a file without --overwrite, and a
+    --grade without the speed it is judged at."""
+    if target is not None and max_rpm is None:
+        raise BadInputError("--grade judges the grade at the machine's maximum service speed: give --max-rpm too")
     if record:
         from ..output import check_output
 
@@ -216,3 +252,4 @@ def _show(result, as_json: bool) -> None:
     if d["grade_mm_s"] is not None:
         click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm, the unbalance this run holds): "
                    f"{d['grade_mm_s']:.3g} +- {d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
+        _show_acceptance(d)

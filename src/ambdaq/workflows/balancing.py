@@ -235,6 +235,7 @@ class Balancing:
     max_grams: float | None = None  # the largest mass a plane takes, g (at its radius)
     feedforward: bool = False  # the runs' feedforward ran: the coefficients are of that loop
     speeds_rpm: list[float] | None = None  # at several speeds, each one's (the rows: an axis at a speed)
+    target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
 
     @functools.cached_property
     def placed(self) -> np.ndarray:
@@ -317,11 +318,37 @@ class Balancing:
                 "max_grams": self.max_grams, "limited_by_max_grams": self.limited,
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
                 "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4),
-                **({"speeds_rpm": [round(r, 1) for r in self.speeds_rpm]} if self.speeds_rpm else {})}
+                **({"speeds_rpm": [round(r, 1) for r in self.speeds_rpm]} if self.speeds_rpm else {}),
+                **_acceptance(self)}
+
+
+def _acceptance(result) -> dict:
+    """The ``acceptance`` member of a result's --json where a grade was asked for and one is stated."""
+    if result.target_mm_s is None or result.grade_mm_s is None:
+        return {}
+    return {"acceptance": acceptance(result.grade_mm_s, result.grade_std_mm_s, result.target_mm_s)}
 
 
 GRADES = (0.4, 1.0, 2.5, 6.3, 16.0, 40.0, 100.0, 250.0, 630.0, 1600.0, 4000.0)
 """ISO 21940-11's balance quality grades G, mm/s."""
+
+
+ERROR_COVERAGE = 2.0
+"""The balance error ISO 21940-14 counts against the permissible residual unbalance, in the grade's
+stated deviations: its random part (the runs' noise) and the bounds on its systematic ones
+(RUNOUT_MODEL, LINEARITY; FORCE_MODEL, FORCE_RELATIVE) are in that deviation together, and twice it
+held the truth in 95-100 % of the validation campaign's jobs (docs/validation.md)."""
+
+
+def acceptance(grade_mm_s: float, std_mm_s: float, target_mm_s: float) -> dict:
+    """ISO 21940-14's acceptance (clause 7) of a residual unbalance as a grade ``grade_mm_s`` with
+    its deviation ``std_mm_s`` against the grade ``target_mm_s`` (all mm/s, ISO 21940-11's e_per
+    Omega_max): directly after balancing the residual and its error must be within the permissible,
+    e + de <= e_per; a user checking a balanced rotor accepts it within the permissible and the
+    error, e <= e_per + de; de is ERROR_COVERAGE deviations."""
+    error = ERROR_COVERAGE * std_mm_s
+    return {"target": f"G{target_mm_s:g}", "permissible_mm_s": target_mm_s, "error_mm_s": round(error, 3),
+            "after_balancing": bool(grade_mm_s + error <= target_mm_s), "check": bool(grade_mm_s <= target_mm_s + error)}
 
 
 def _grade_class(g: float | None) -> str | None:
@@ -550,6 +577,7 @@ class ForceBalancing:
     rotor_mass_kg: float | None = None
     max_rpm: float | None = None
     holes: int = 0
+    target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
 
     @property
     def correction(self) -> np.ndarray:
@@ -580,7 +608,7 @@ class ForceBalancing:
                 "correction": mass_rows(plane_masses(self.planes, self.correction, self.radius_m, self.holes)),
                 "grade_mm_s": None if self.grade_mm_s is None else round(self.grade_mm_s, 3),
                 "grade_std_mm_s": None if self.grade_std_mm_s is None else round(self.grade_std_mm_s, 3),
-                "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm}
+                "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm, **_acceptance(self)}
 
 
 def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindle", *, holes: int = 0,
@@ -635,7 +663,24 @@ def load_record(path: str | Path) -> dict:
             u["std_g_mm"] = _optional(std[p])
     return {"file": Path(path).name, "machine": str(doc.get("machine")), "runs": runs,
             "method": str(result.get("method", "influence coefficients (ISO 21940-13)")), "rpm": rpm,
-            "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade}
+            "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade,
+            "acceptance": _record_acceptance(result.get("acceptance"))}
+
+
+def _record_acceptance(value) -> dict | None:
+    """A record's ISO 21940-14 acceptance (where its job asked for a grade), checked: None if absent."""
+    if value is None:
+        return None
+    try:
+        out = {"target": str(value["target"]), "permissible_mm_s": float(value["permissible_mm_s"]),
+               "error_mm_s": float(value["error_mm_s"]), "after_balancing": value["after_balancing"],
+               "check": value["check"]}
+    except (KeyError, TypeError, ValueError):
+        raise BadInputError("a balancing record's acceptance needs target, permissible_mm_s, error_mm_s, "
+                            "after_balancing and check") from None
+    if not isinstance(out["after_balancing"], bool) or not isinstance(out["check"], bool):
+        raise BadInputError("a balancing record's acceptance states after_balancing and check as true or false")
+    return out
 
 
 def _optional(value) -> float | None:

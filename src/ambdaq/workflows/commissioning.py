@@ -324,6 +324,13 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
                  f"{b['grade']} ({b['grade_mm_s']:.3g} ± {b['grade_std_mm_s']:.2g} mm/s at {b['max_rpm']:,.0f} rpm)")
         lines.append({"check": "rotor balance", "standard": "ISO 21940-11", "zone": None,
                       "result": f"{grade} at {b['rpm']:,.0f} rpm, by {b['method']}; correction {masses}"})
+        a = b.get("acceptance")
+        if a is not None:  # the job asked for a grade (--grade): ISO 21940-14's acceptance
+            lines.append({"check": f"rotor balance against {a['target']}", "standard": "ISO 21940-14", "zone": None,
+                          "result": ("accepted after balancing" if a["after_balancing"] else
+                                     "not accepted after balancing; within a user's check" if a["check"] else
+                                     "not accepted") + f" ({b['grade_mm_s']:.3g} mm/s with an error of "
+                                    f"{a['error_mm_s']:.2g} mm/s, permissible {a['permissible_mm_s']:g} mm/s)"})
     t = data.get("touchdowns")
     if t is not None:
         drops = [row["drop"] for row in t if row["drop"] is not None]
