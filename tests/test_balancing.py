@@ -275,7 +275,7 @@ def test_one_least_squares_over_two_speeds(run_cli, tmp_path, runout_coefficient
     one least squares over both speeds' axes; the correction within 10 % and 10 degrees (seed 0:
     1.6 % and 1 % small, within 0.2 degree), its stated deviation below one speed's (more
     equations, the same unknowns), and each row an axis at a speed. The runs' count and speeds are
-    checked; an influence file of two speeds is not one balance correct can use."""
+    checked; the saved coefficients correct the next job from one run at each speed."""
     import json
 
     def generate(name, rpm, *extra):
@@ -311,8 +311,16 @@ def test_one_least_squares_over_two_speeds(run_cli, tmp_path, runout_coefficient
     assert r.exit_code == 2 and "5 runs and 2 --mass: per speed, a reference and one trial run" in r.output, r.output
     r = run_cli("balance", "influence", *runs[:3], *runs[:3], *masses, "--coefficients", coef)
     assert r.exit_code == 2 and "two references ran at one speed" in r.output, r.output
+    # the next job from the saved coefficients: one run at each speed, in any order (here the two
+    # references again: the same correction as the job's); one run for two speeds is refused
+    r = run_cli("balance", "correct", runs[3], runs[0], "--influence", tmp_path / "two.json", "--coefficients", coef,
+                "--json")
+    assert r.exit_code == 0, r.output
+    again = json.loads(r.stdout)
+    assert again["correction"] == two["correction"] and again["speeds_rpm"] == two["speeds_rpm"], (again, two)
     r = run_cli("balance", "correct", runs[0], "--influence", tmp_path / "two.json", "--coefficients", coef)
-    assert r.exit_code == 2 and "influence coefficients of several speeds" in r.output, r.output
+    assert r.exit_code == 2 and "1 run for influence coefficients of 20,000 and 30,000 rpm: one run at each speed" \
+        in r.output, r.output
 
 
 def test_influence_coefficients_with_the_feedforward_running(run_cli, tmp_path, runout_coefficients):

@@ -118,7 +118,7 @@ def _influence(tmp: Path):
     for name in ("r", "a", "b"):
         (tmp / name).write_bytes(name.encode())
     save_influence(result, tmp / "i.json", [tmp / "r", tmp / "a", tmp / "b"])
-    return json.loads((tmp / "i.json").read_text()), lambda path: correct_with(path, run("r", 0)).as_dict()
+    return json.loads((tmp / "i.json").read_text()), lambda path: correct_with(path, [run("r", 0)]).as_dict()
 
 
 def _points_doc(tmp: Path) -> dict:

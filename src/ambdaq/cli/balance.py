@@ -123,7 +123,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 
 
 @command.command("correct")
-@click.argument("run", type=click.Path(dir_okay=False))
+@click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="RUN...")
 @click.option("--influence", "influence_file", type=click.Path(dir_okay=False), required=True,
               help="The influence coefficients an earlier balance influence saved (-o) for this machine and speed.")
 @click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
@@ -134,10 +134,11 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(run, influence_file, coefficients, machine, holes, max_rpm, target, max_grams, record, plot_path, overwrite,
-            as_json):
+def correct(runs, influence_file, coefficients, machine, holes, max_rpm, target, max_grams, record, plot_path,
+            overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
-    same machine at the same speed, one run instead of a reference and a trial run per plane.
+    same machine at the same speed, one run instead of a reference and a trial run per plane (one
+    run at each speed of influence coefficients saved from several).
 
     \b
     Example:
@@ -146,11 +147,11 @@ def correct(run, influence_file, coefficients, machine, holes, max_rpm, target, 
     from ..workflows.balancing import correct_with, run_vector
 
     _writable(record, overwrite, max_rpm, target)
-    result = correct_with(influence_file, run_vector(run, Path(coefficients), machine), holes=holes or 0,
-                          max_rpm=max_rpm, max_grams=max_grams)
+    result = correct_with(influence_file, [run_vector(run, Path(coefficients), machine) for run in runs],
+                          holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     result.target_mm_s = target
     _show(result, as_json)
-    _keep(result, record, plot_path, [("run", run)], coefficients, machine, influence_file, overwrite)
+    _keep(result, record, plot_path, [("run", run) for run in runs], coefficients, machine, influence_file, overwrite)
 
 
 @command.command("forces")

@@ -390,17 +390,24 @@ def influence_balancing(speeds: list[Job], *, holes: int = 0, max_rpm: float | N
     if any(b / a - 1 <= SAME_SPEED for a, b in zip(rpms, rpms[1:])):
         raise BadInputError("two references ran at one speed (" + ", ".join(f"{r:,.0f}" for r in rpms)
                             + " rpm): one reference and its trial runs per speed")
-    rows = RunVector(", ".join(reference.path for reference, _ in speeds), first.rpm,
-                     [f"{a}@{reference.rpm:.0f}rpm" for reference, _ in speeds for a in reference.axes],
-                     np.concatenate([reference.one_x for reference, _ in speeds]),
-                     np.concatenate([reference.std for reference, _ in speeds]), first.rotor_mass_kg,
-                     np.concatenate([reference.noise for reference, _ in speeds]), first.feedforward)
+    rows = stacked([reference for reference, _ in speeds])
     noise = InfluenceNoise(rows.noise, np.vstack([n.trials for _, n in parts]), parts[0][1].trial_unbalance,
                            same_run=True)
     result = _correct([m.plane for m in masses], rows, np.vstack([A for A, _ in parts]),
                       {m.plane: m.radius_m for m in masses}, masses, noise, holes, max_rpm, max_grams)
     result.speeds_rpm = [reference.rpm for reference, _ in speeds]
     return result
+
+
+def stacked(runs: list[RunVector]) -> RunVector:
+    """Runs at several speeds as one vector: each row an axis at a speed (``front_x@30000rpm``), in
+    the runs' order; one run as it is."""
+    if len(runs) == 1:
+        return runs[0]
+    first = runs[0]
+    return RunVector(", ".join(r.path for r in runs), first.rpm, [f"{a}@{r.rpm:.0f}rpm" for r in runs for a in r.axes],
+                     np.concatenate([r.one_x for r in runs]), np.concatenate([r.std for r in runs]),
+                     first.rotor_mass_kg, np.concatenate([r.noise for r in runs]), first.feedforward)
 
 
 def _influence(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]) -> tuple[np.ndarray, InfluenceNoise]:
@@ -478,11 +485,11 @@ def _complex(re, im) -> np.ndarray:
     return out
 
 
-def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: float | None = None,
+def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max_rpm: float | None = None,
                  max_grams: float | None = None) -> Balancing:
-    """The correction for ``run`` by the influence coefficients of the file ``path`` (one run of
-    the same machine at the same speed instead of three); ``holes``, ``max_rpm`` and ``max_grams``
-    as :func:`influence_balancing`'s."""
+    """The correction for ``runs`` by the influence coefficients of the file ``path``: one run of
+    the same machine at each of the file's speeds, instead of a reference and a trial run per plane
+    at each; ``holes``, ``max_rpm`` and ``max_grams`` as :func:`influence_balancing`'s."""
     doc = read_sealed(path, FORMAT, VERSION, "influence file")
     try:
         planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
@@ -499,9 +506,22 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
         raise BadInputError(f"{path}: an influence file needs planes, axes, rpm, influence_re/_im and radius_m") from None
     if not all(isinstance(n, str) for n in (*planes, *axes)) or not (np.isfinite(rpm) and rpm > 0):
         raise BadInputError(f"{path}: its planes and axes are not names, or its speed not one above 0 rpm")
-    if speeds is not None:
-        raise BadInputError(f"{path}: influence coefficients of several speeds ({speeds}); balance correct takes one "
-                            "run at one speed: save a job at that speed (balance influence -o)")
+    try:
+        speeds = [rpm] if speeds is None else [float(v) for v in speeds]
+    except (TypeError, ValueError):
+        raise BadInputError(f"{path}: its speeds_rpm is not a list of speeds") from None
+    if len(runs) != len(speeds):
+        raise BadInputError(f"{len(runs)} run{'s' * (len(runs) != 1)} for influence coefficients of "
+                            + " and ".join(f"{r:,.0f}" for r in speeds) + " rpm: one run at each speed")
+    ordered = []
+    for at in speeds:  # each speed's run, in the file's order
+        match = next((r for r in runs if abs(r.rpm / at - 1) <= SAME_SPEED and r not in ordered), None)
+        if match is None:
+            raise BadInputError(f"no run at {at:,.0f} rpm (the runs ran at "
+                                + ", ".join(f"{r.rpm:,.0f}" for r in runs) + " rpm); the influence coefficients are of "
+                                + " and ".join(f"{r:,.0f}" for r in speeds) + " rpm")
+        ordered.append(match)
+    run = stacked(ordered)
     if A.shape != (len(axes), len(planes)) or not np.all(np.isfinite(A)) or set(radius) != set(planes):
         raise BadInputError(f"{path}: its coefficients are not one finite value per axis and plane")
     if not all(np.isfinite(r) and r > 0 for r in radius.values()):
@@ -515,14 +535,15 @@ def correct_with(path: str | Path, run: RunVector, *, holes: int = 0, max_rpm: f
                             "unbalance per plane")
     if run.axes != axes:
         raise BadInputError(f"{run.path}: axes {', '.join(run.axes)}; the influence file's are {', '.join(axes)}")
-    if abs(run.rpm / rpm - 1) > SAME_SPEED:
-        raise BadInputError(f"{run.path} ran at {run.rpm:,.0f} rpm; the influence coefficients are of {rpm:,.0f} rpm")
     if not isinstance(feedforward, bool):
         raise BadInputError(f"{path}: its feedforward is not true or false")
-    if run.feedforward != feedforward:
-        raise BadInputError(f"{run.path} ran with the feedforward {_on_off(run.feedforward)}; the influence "
-                            f"coefficients are of the loop with it {_on_off(feedforward)}")
-    return _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams)
+    for r in ordered:
+        if r.feedforward != feedforward:
+            raise BadInputError(f"{r.path} ran with the feedforward {_on_off(r.feedforward)}; the influence "
+                                f"coefficients are of the loop with it {_on_off(feedforward)}")
+    result = _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams)
+    result.speeds_rpm = [r.rpm for r in ordered] if len(ordered) > 1 else None
+    return result
 
 
 RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
