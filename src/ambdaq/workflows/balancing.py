@@ -373,12 +373,8 @@ def influence_balancing(speeds: list[Job], *, holes: int = 0, max_rpm: float | N
     if not speeds:
         raise BadInputError("no runs: a reference and one trial run per plane")
     parts = [_influence(reference, trials) for reference, trials in speeds]
-    if len(parts) == 1:
-        (reference, trials), (A, noise) = speeds[0], parts[0]
-        return _correct([m.plane for m, _ in trials], reference, A, {m.plane: m.radius_m for m, _ in trials},
-                        [m for m, _ in trials], noise, holes, max_rpm, max_grams)
     first, masses = speeds[0][0], [m for m, _ in speeds[0][1]]
-    for (reference, trials), earlier in zip(speeds[1:], speeds):
+    for reference, trials in speeds[1:]:
         if [m for m, _ in trials] != masses:
             raise BadInputError(f"{reference.path}: its trial masses are not the first speed's "
                                 f"({', '.join(f'{m.plane}:{m.grams:g}@{m.deg:g}' for m in masses)}): put each on once "
@@ -395,7 +391,7 @@ def influence_balancing(speeds: list[Job], *, holes: int = 0, max_rpm: float | N
                            same_run=True)
     result = _correct([m.plane for m in masses], rows, np.vstack([A for A, _ in parts]),
                       {m.plane: m.radius_m for m in masses}, masses, noise, holes, max_rpm, max_grams)
-    result.speeds_rpm = [reference.rpm for reference, _ in speeds]
+    result.speeds_rpm = [reference.rpm for reference, _ in speeds] if len(speeds) > 1 else None
     return result
 
 
