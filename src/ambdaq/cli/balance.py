@@ -179,6 +179,10 @@ def forces(run, coefficients, machine, holes, max_rpm, target, record, overwrite
     result = force_balancing(run, Path(coefficients), machine, holes=holes or 0, max_rpm=max_rpm)
     result.target_mm_s = target
     d = result.as_dict()
+    # the slow roll's part (workflows.balancing.SLOW_ROLL): this command cannot size it, so it says so
+    click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
+               "roll; if it has been corrected since, that part is not in the deviation: record a new slow roll "
+               "(docs/balancing.md, section 4)", err=True)
     if as_json:
         click.echo(json.dumps(d, indent=2))
     else:
