@@ -286,9 +286,18 @@ def test_an_emcy_fires_a_snapshot_fault_trigger(can_rig, tmp_path):
 
     channel, *_ = can_rig
     amp = open_device(f"can://virtual/{channel}?kind=amplifier&sync=500", name="amp")
-    threading.Timer(1.0, amp.write_param, ("current_limit", 0.05)).start()  # far below the running currents
+    streaming = threading.Event()
+
+    def limit_once_streaming(progress):
+        # 1 s after the first samples arrive, not after the call: a loaded host once took 0.99 s to
+        # open the device, and the 0.4 s before the fault had not been recorded yet
+        if progress.samples and not streaming.is_set():
+            streaming.set()
+            threading.Timer(1.0, amp.write_param, ("current_limit", 0.05)).start()  # far below the running currents
+
     snap = SnapshotOptions(pre_s=0.4, post_s=0.3, max_bytes=64 << 20, triggers=[parse_trigger("fault")])
-    Recorder([amp], tmp_path / "emcy.mcap", RecordOptions(duration_s=2.5, snapshot=snap)).run()
+    Recorder([amp], tmp_path / "emcy.mcap", RecordOptions(duration_s=2.5, snapshot=snap)).run(
+        on_progress=limit_once_streaming, progress_interval_s=0.05)
     (f,) = sorted(tmp_path.glob("emcy_*.mcap"))
     assert f.name.endswith("_fault.mcap")
     rec = load(f)

@@ -322,9 +322,7 @@ def test_a_balancing_record_grades_its_recording_and_the_machines_rows_after_it(
     broken = plant / "broken.json"
     broken.write_text((plant / "job.json").read_text().replace('"max_rpm": 60000', '"max_rpm": 6000'))
     ds = tmp_path / "fleet.parquet"
-    res = ambdaq("fleet", "scan", str(plant), "-o", str(ds), "--scheduler", scheduler, "--json")
-    assert res.returncode == 0, res.stderr
-    report = json.loads(res.stdout)
+    report = json.loads(run("fleet", "scan", str(plant), "-o", str(ds), "--scheduler", scheduler, "--json").stdout)
     assert report["balancing_records"] == 1 and [e["path"] for e in report["balancing_errors"]] == [str(broken)]
     df = read(ds).set_index("path")
     rows = [df.loc[str(p.resolve())] for p in copies]
