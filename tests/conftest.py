@@ -76,8 +76,31 @@ def pytest_configure(config):
     if worker is None:
         os.environ[scheduling.OFFLINE_LIST] = str(Path(tempfile.mkdtemp(prefix="ambdaq-sched-")) / "offline.txt")
         _WARMING.extend(_warm_rigs())
+        if _WARMING:  # a fresh clone: what the workers' collection imports, compiled once before they start
+            _import_tests_once()
     elif worker["workerid"] == scheduling.background_worker(worker["workercount"]):
         scheduling.run_in_background()
+
+
+IMPORT_TESTS = """import importlib, pathlib, sys
+root = pathlib.Path(sys.argv[1])
+for folder in (root, root / "validation"):
+    sys.path.insert(0, str(folder))
+for path in sorted(root.glob("test_*.py")) + sorted((root / "validation").glob("test_*.py")):
+    try:
+        importlib.import_module(path.stem)
+    except Exception:
+        pass  # the workers' collection reports it
+"""
+
+
+def _import_tests_once() -> None:
+    """Import every test module once, in one process, beside the kernels' compilers and before the
+    workers start: in a fresh environment (uv installs no bytecode) each worker collecting at the
+    same time compiled the same modules of numpy, scipy, pandas ... again (18 s each); one process
+    writes them, and the workers read them."""
+    subprocess.run([sys.executable, "-c", IMPORT_TESTS, str(Path(__file__).parent)], stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL, timeout=300)
 
 
 def pytest_xdist_make_scheduler(config, log):
