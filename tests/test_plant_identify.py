@@ -69,7 +69,8 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         assert r.exit_code == 0, r.output
         runs.append(path)
     out = tmp_path / "plant.json"
-    r = run_cli("plant", "identify", *runs, "--resolution", "5", "-o", out, "--json", "--plot", tmp_path / "plant.png")
+    figure = () if rpm else ("--plot", tmp_path / "plant.png")  # drawn once, at standstill
+    r = run_cli("plant", "identify", *runs, "--resolution", "5", "-o", out, "--json", *figure)
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
     assert summary["axes"] == list(AXES) and abs(summary["speed_rpm"] - rpm) < 1
@@ -83,7 +84,7 @@ def test_the_plant_measured_in_closed_loop_is_the_simulators_within_its_stated_e
         normalised = np.abs(p - t) / s
         assert np.median(np.abs(p / t - 1)) < 0.04, axis
         assert np.mean(normalised < 2) >= 0.9 and np.sqrt(np.mean(normalised**2)) < 1.4, (axis, np.mean(normalised < 2))
-    assert (tmp_path / "plant.png").stat().st_size > 10_000
+    assert rpm or (tmp_path / "plant.png").stat().st_size > 10_000
 
     # item 3: the parametric model of every element, its poles shared
     r = run_cli("plant", "fit", out, "-o", tmp_path / "model.json", "--json", "--plot", tmp_path / "fit.png")
