@@ -72,14 +72,11 @@ def pytest_configure(config):
     os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
-    worker = getattr(config, "workerinput", None)
-    if worker is None:
+    if not hasattr(config, "workerinput"):
         os.environ[scheduling.OFFLINE_LIST] = str(Path(tempfile.mkdtemp(prefix="ambdaq-sched-")) / "offline.txt")
         _WARMING.extend(_warm_rigs())
         if _WARMING:  # a fresh clone: what the workers' collection imports, compiled once before they start
             _import_tests_once()
-    elif worker["workerid"] == scheduling.background_worker(worker["workercount"]):
-        scheduling.run_in_background()
 
 
 IMPORT_TESTS = """import importlib, pathlib, sys
@@ -132,10 +129,16 @@ def pytest_runtestloop(session):
 
 
 def pytest_collection_finish(session):
-    """On an xdist worker with ``--dist loadgroup``, a grouped test's id ends with ``@GROUP``: that is
+    """The background worker (tests/scheduling.py) goes to idle CPU once it has collected: the run
+    starts when every worker has, and collecting at the others' priority it is not the last.
+
+    On an xdist worker with ``--dist loadgroup``, a grouped test's id ends with ``@GROUP``: that is
     how pytest-xdist keeps a group (the fleet tests' one fixture) on one worker.  pytest 9.2 computes
     ids in a way xdist 3.8 cannot amend, and groups were then silently ignored: refuse to run
     instead (pyproject.toml pins pytest below 9.2)."""
+    worker = getattr(session.config, "workerinput", None)
+    if worker is not None and worker["workerid"] == scheduling.background_worker(worker["workercount"]):
+        scheduling.run_in_background()
     if not getattr(session.config.option, "loadgroup", False):
         return
     lost = [i.nodeid for i in session.items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
