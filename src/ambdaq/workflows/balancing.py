@@ -530,7 +530,7 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
                             + " and ".join(f"{r:,.0f}" for r in speeds) + " rpm: one run at each speed")
     ordered = []
     for at in speeds:  # each speed's run, in the file's order
-        match = next((r for r in runs if abs(r.rpm / at - 1) <= SAME_SPEED and r not in ordered), None)
+        match = next((r for r in runs if abs(r.rpm / at - 1) <= SAME_SPEED and all(r is not o for o in ordered)), None)
         if match is None:
             raise BadInputError(f"no run at {at:,.0f} rpm (the runs ran at "
                                 + ", ".join(f"{r.rpm:,.0f}" for r in runs) + " rpm); the influence coefficients are of "

@@ -286,9 +286,16 @@ def balancing_records(inputs: Iterable[str]) -> list[Path]:
         p = Path(item)
         found = sorted(p.rglob("*.json")) if p.is_dir() else sorted(Path(g) for g in glob.glob(item, recursive=True))
         for f in found:
-            if f.suffix == ".json" and f.is_file() and f'"format": "{RECORD_FORMAT}"' in f.read_text(errors="replace")[:4096]:
+            if f.suffix == ".json" and f.is_file() and f'"format": "{RECORD_FORMAT}"' in _head(f):
                 out[f.resolve()] = None
     return list(out)
+
+
+def _head(path: Path) -> str:
+    """A file's first 4 kB as text: where a sealed document states its format (a plant file of tens of
+    MB is not read whole to be passed over)."""
+    with open(path, "rb") as fh:
+        return fh.read(4096).decode("utf-8", errors="replace")
 
 
 def add_balancing(dataset: Path, records: list[Path]) -> list[tuple[str, str]]:
