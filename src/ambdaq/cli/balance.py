@@ -43,6 +43,30 @@ def _correction_options(command):
     return command
 
 
+def _runout_option(what: str):
+    """--coefficients FILE (the runout a slow roll identified, taken out of every run: ``what``) or
+    --no-runout (none to take out): one of the two."""
+    def decorate(command):
+        command = click.option("--no-runout", is_flag=True,
+                               help="No runout coefficients: the gaps' 1X taken as the rotor's (a machine whose "
+                                    "sensors have no runout to speak of, as the simulated cone rig); warned.")(command)
+        return click.option("--coefficients", type=click.Path(dir_okay=False),
+                            help=f"Runout coefficients (runout identify of a slow roll): {what}")(command)
+    return decorate
+
+
+def _runout(coefficients: str | None, no_runout: bool) -> Path | None:
+    """The runout coefficient file, or None with --no-runout (and a warning): exactly one of the two."""
+    if (coefficients is None) == (not no_runout):
+        raise BadInputError("give the runout coefficients of a slow roll (--coefficients FILE), or --no-runout if the "
+                            "sensors have none: one of the two")
+    if no_runout:
+        click.echo("ambdaq: warning: --no-runout: the gaps' 1X is taken as the rotor's; a sensor runout would stay in "
+                   "it and in the correction (runout identify of a slow roll takes it out)", err=True)
+        return None
+    return Path(coefficients)
+
+
 def _max_grams_option(command):
     """--max-grams: the largest mass a plane takes."""
     return click.option("--max-grams", type=click.FloatRange(min=0, min_open=True),
@@ -62,9 +86,7 @@ def command() -> None:
 @click.option("--mass", "masses", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True, required=True,
               help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear); at "
                    "several speeds, the same for each.")
-@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
-              help="Runout coefficients (runout identify of a slow roll): the sensor runout, and what it drives "
-                   "through the loop, taken out of every run.")
+@_runout_option("the sensor runout, and what it drives through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
 @_correction_options
@@ -74,7 +96,7 @@ def command() -> None:
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, target, max_grams, output, record,
+def influence(reference, trials, masses, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, output, record,
               plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
@@ -99,7 +121,7 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
     if len(files) % per_speed:
         raise BadInputError(f"{len(files)} runs and {len(masses)} --mass: per speed, a reference and one trial run per "
                             "trial mass")
-    coef = Path(coefficients)
+    coef = _runout(coefficients, no_runout)
     model = loop_model(machine, {})
     if not model.balance_planes:
         raise BadInputError(f"the {machine} model has no balancing planes")
@@ -126,15 +148,14 @@ def influence(reference, trials, masses, coefficients, machine, holes, max_rpm, 
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="RUN...")
 @click.option("--influence", "influence_file", type=click.Path(dir_okay=False), required=True,
               help="The influence coefficients an earlier balance influence saved (-o) for this machine and speed.")
-@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
-              help="Runout coefficients (runout identify of a slow roll).")
+@_runout_option("the sensor runout, and what it drives through the loop, taken out of each run.")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
 @_correction_options
 @_max_grams_option
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(runs, influence_file, coefficients, machine, holes, max_rpm, target, max_grams, record, plot_path,
+def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record, plot_path,
             overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane (one
@@ -147,23 +168,23 @@ def correct(runs, influence_file, coefficients, machine, holes, max_rpm, target,
     from ..workflows.balancing import correct_with, run_vector
 
     _writable(record, overwrite, max_rpm, target)
-    result = correct_with(influence_file, [run_vector(run, Path(coefficients), machine) for run in runs],
+    coef = _runout(coefficients, no_runout)
+    result = correct_with(influence_file, [run_vector(run, coef, machine) for run in runs],
                           holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     result.target_mm_s = target
     _show(result, as_json)
-    _keep(result, record, plot_path, [("run", run) for run in runs], coefficients, machine, influence_file, overwrite)
+    _keep(result, record, plot_path, [("run", run) for run in runs], coef, machine, influence_file, overwrite)
 
 
 @command.command("forces")
 @click.argument("run", type=click.Path(dir_okay=False))
-@click.option("--coefficients", type=click.Path(dir_okay=False), required=True,
-              help="Runout coefficients (runout identify of a slow roll): the runout out of the gap, the rotor's motion left.")
+@_runout_option("the runout out of the gap, the rotor's motion left.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its rigid rotor, its bearings' force law and balancing planes (machines/).")
 @_correction_options
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the unbalance and the correction as JSON.")
-def forces(run, coefficients, machine, holes, max_rpm, target, record, overwrite, as_json):
+def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, record, overwrite, as_json):
     """The unbalance per balancing plane from ONE run at a steady speed, without a trial mass: the
     force each bearing applies at 1X (current gain x coil current + negative stiffness x position)
     and the rigid rotor's mass and inertia give the unbalance force on each plane. The feedforward
@@ -176,13 +197,15 @@ def forces(run, coefficients, machine, holes, max_rpm, target, record, overwrite
     from ..workflows.balancing import force_balancing
 
     _writable(record, overwrite, max_rpm, target)
-    result = force_balancing(run, Path(coefficients), machine, holes=holes or 0, max_rpm=max_rpm)
+    coef = _runout(coefficients, no_runout)
+    result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm)
     result.target_mm_s = target
     d = result.as_dict()
     # the slow roll's part (workflows.balancing.SLOW_ROLL): this command cannot size it, so it says so
-    click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
-               "roll; if it has been corrected since, that part is not in the deviation: record a new slow roll "
-               "(docs/balancing.md, section 4)", err=True)
+    if coef is not None:
+        click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
+                   "roll; if it has been corrected since, that part is not in the deviation: record a new slow roll "
+                   "(docs/balancing.md, section 4)", err=True)
     if as_json:
         click.echo(json.dumps(d, indent=2))
     else:
@@ -196,7 +219,7 @@ def forces(run, coefficients, machine, holes, max_rpm, target, record, overwrite
             click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm): {d['grade_mm_s']:.3g} +- "
                        f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
         _show_acceptance(d)
-    _keep(result, record, None, [("run", run)], coefficients, machine, None, overwrite)
+    _keep(result, record, None, [("run", run)], coef, machine, None, overwrite)
 
 
 def _show_acceptance(d: dict) -> None:

@@ -53,13 +53,14 @@ def command() -> None:
               help="Cone and spindle rigs: the amplifiers off at AT_S for DURATION_S (a power loss): the rotor drops "
                    "onto its touchdown bearings, then levitates again.")
 @click.option("--trial", "trials", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True,
-              help="Spindle: a trial mass on a balancing plane (front, rear), its angle from the key-phasor's mark "
-                   "in the direction of rotation; the radius the machine's balancing holes' by default (30 mm).")
+              help="Spindle and cone rigs: a trial mass on a balancing plane (the spindle's front, rear; the cone's upper, "
+                   "lower), its angle from the key-phasor's mark in the direction of rotation; the radius the "
+                   "machine's balancing holes' by default (spindle 30 mm, cone 25 mm).")
 @click.option("--correction", "corrections", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True,
-              help="Spindle: a correction mass, as --trial (recorded as the rig's masses either way).")
+              help="Spindle and cone rigs: a correction mass, as --trial (recorded as the rig's masses either way).")
 @click.option("--unbalance", metavar="UPPER_KGM:LOWER_KGM[:DEG]",
               help="Cone rig: a mass unbalance at its two bearing planes, kg m, the lower one DEG ahead (Jeong et al. "
-                   "give none, so the rig has none unless asked).")
+                   "give none, so the rig has none unless asked); --trial and --correction masses add to it.")
 @click.option("--param", "params", metavar="NAME=VALUES", multiple=True,
               help="Write a parameter of the rig's controller before the run, as `ambdaq controller param NAME VALUES` "
                    "does on the served one: VALUES comma-separated (e.g. pid.d=0.00075,0.00075,0.001,0.001,0.002). "
@@ -116,21 +117,21 @@ def generate(profile, seed, speed, duration, truth, ff, noise, excitation, base,
             from ..sim.rigs.drop import Drop
 
             source.rig.set_drop(Drop.parse(drop))
-        if trials or corrections:
-            if "balancing" not in source.rig.inputs:
-                raise BadInputError(f"--trial/--correction: the {profile} rig has no balancing planes (use --profile "
-                                    "spindle)")
-            from ..machines.balance_masses import BalanceMass
-
-            rig = source.rig
-            source.rig.add_masses([BalanceMass.parse(spec, rig.balance_planes, rig.params.balance_radius)
-                                   for spec in (*trials, *corrections)])
         if unbalance is not None:
             if "unbalance" not in source.rig.inputs:
                 raise BadInputError(f"--unbalance: the {profile} rig's unbalance is its own (use --profile cone)")
             from ..sim.rigs.cone import Unbalance
 
             source.rig.set_unbalance(Unbalance.parse(unbalance))
+        if trials or corrections:
+            if "balancing" not in source.rig.inputs:
+                raise BadInputError(f"--trial/--correction: the {profile} rig has no balancing planes (the spindle "
+                                    "and cone rigs have)")
+            from ..machines.balance_masses import BalanceMass
+
+            rig = source.rig
+            source.rig.add_masses([BalanceMass.parse(spec, rig.balance_planes, rig.params.balance_radius)
+                                   for spec in (*trials, *corrections)])
         for spec in params:
             _write_param(source.rig, profile, spec)
     except ValueError as err:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from ..analysis.cone_rotor import AXES, ConeControl, ConeRotor, closed_loop_state_space
+from ..analysis.cone_rotor import AXES, COILS, ConeControl, ConeRotor, closed_loop_state_space
 from ..analysis.orders import loop_modes
 from ..units import RPM_TO_RAD_S
 from .models import LoopModel
@@ -33,6 +33,9 @@ class ConeParams:
     contact_damping: float = 400.0  # N s/m
     gap_noise: float = 0.1e-6  # m RMS
     hammer_noise: float = 0.05  # N RMS
+    # assumed: balancing holes on a 25 mm radius in a plane at each bearing, inside the 30 mm core
+    # (Jeong et al. give none)
+    balance_radius: float = 0.025  # m
 
     @property
     def amp_gain(self) -> float:
@@ -50,6 +53,9 @@ CONE = ConeParams()
 
 BEARING_PAIRS = ((AXES.index("y1"), AXES.index("z1")), (AXES.index("y2"), AXES.index("z2")))
 """Each bearing's (x, y) of the full spectrum in ``AXES``: the spin turns y towards z."""
+BALANCE_PLANES = ("upper", "lower")
+"""The cone rotor's balancing planes, at bearings 1 (y1/z1) and 2 (y2/z2), where the rig's
+unbalance acts: a plane's unbalance U pushes with U Omega^2 along theta + its angle, y = cos, z = sin."""
 
 
 def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -63,8 +69,64 @@ def campbell_modes(rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return loop_modes(expm(A * h), h, fmax_hz=2000.0, outputs=Cq, pairs=BEARING_PAIRS)
 
 
+def runout_response(rpm: float, runout: Mapping[str, complex]) -> dict[str, complex]:
+    """The rotor's steady 1X at ``rpm`` (rpm) that a 1X sensor runout alone drives through Jeong et
+    al.'s loop (eq. 10-16: the PD and the current loop act on what the sensor reads, q + r): per
+    bearing coordinate by name, phasors ``a + j b`` of ``a sin theta + b cos theta`` (m), the
+    runout's likewise (an axis it does not name has none)."""
+    omega = float(rpm) * RPM_TO_RAD_S
+    M, C, K, Kib = CONE.rotor.bearing_model(omega)
+    A, _B, Cq = closed_loop_state_space(M, C, K, Kib, CONE.control)
+    c, n = CONE.control, len(AXES)
+    # the runout enters where q does on the controller's side: the derivative filter's input and
+    # the current loop's PD (the rows of d and i in closed_loop_state_space)
+    kp, kd = np.diag(c.kp), np.diag(c.kd)
+    Br = np.vstack([np.zeros((2 * n, n)), np.eye(n) / c.tau, -(c.kc * c.ks / c.tau_c) * (kp + kd / c.tau),
+                    np.zeros((n, n))])
+    r = -1j * np.array([runout.get(a, 0j) for a in AXES], dtype=complex)  # Re(R exp(j theta)) phasors
+    q = Cq @ np.linalg.solve(1j * omega * np.eye(A.shape[0]) - A, Br @ r)
+    return dict(zip(AXES, 1j * q))
+
+
+def plane_unbalance(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> np.ndarray:
+    """The unbalance on each balancing plane (:data:`BALANCE_PLANES`, kg m as
+    :attr:`~ambdaq.machines.balance_masses.BalanceMass.unbalance`) that the rotor's 1X motion and
+    its eight coils' 1X currents imply at ``rpm`` (rpm), from no model of the controller: Newton's
+    law for the rigid rotor in bearing coordinates at 1X (Jeong et al. eq. 10 with the magnets
+    linearised, eq. 4), (-Omega^2 M_b + j Omega C_b + K_b) q = K_ig' i_e + F_u, each coil's force
+    following its current through the eddy-current lag (eq. 16, i_e = i / (1 + j Omega tau_e));
+    solved for the unbalance force F_u = U Omega^2, each plane from its bearing's y and z averaged.
+
+    Parameters
+    ----------
+    rpm : float
+        The speed, rpm.
+    position : mapping of str to complex
+        The rotor's 1X position per bearing coordinate (``x``, ``y1``, ``y2``, ``z1``, ``z2``; m,
+        the gap's with the runout out); one not given is 0.
+    current : mapping of str to complex
+        Each coil's 1X current (``m1`` to ``m8``, A); one not given is 0.
+
+    Both as phasors ``a + j b`` of ``a sin theta + b cos theta``.
+    """
+    omega = float(rpm) * RPM_TO_RAD_S
+    rotor = CONE.rotor
+    M, C, K, _Kib = rotor.bearing_model(omega)
+    Ti = np.linalg.inv(rotor.transform())
+    _K, Kig = rotor.linearise()
+    q = -1j * np.array([position.get(a, 0j) for a in AXES], dtype=complex)  # Re(P exp(j theta)) phasors
+    i = -1j * np.array([current.get(c, 0j) for c in COILS], dtype=complex)
+    i_e = i / (1 + 1j * omega * CONE.control.tau_e)
+    force = (-omega**2 * M + 1j * omega * C + K) @ q - Ti.T @ Kig @ i_e
+    pairs = [(AXES.index(y), AXES.index(z)) for y, z in (("y1", "z1"), ("y2", "z2"))]
+    return np.array([(force[y] + 1j * force[z]) / 2 for y, z in pairs]) / omega**2
+
+
 def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
-    """Jeong et al.'s loop (:func:`campbell_modes`): the simulated cone rig's controller has no
-    gains to retune, so a recording's calibration changes nothing."""
+    """Jeong et al.'s loop (:func:`campbell_modes`, :func:`runout_response`) and the rotor's force
+    law for balancing (:func:`plane_unbalance`): the simulated cone rig's controller has no gains
+    to retune, so a recording's calibration changes nothing."""
     return LoopModel(campbell_modes, "Jeong et al.'s PD control, current loop and eddy-current lag (eq. 10-16)",
-                     assumed=False)
+                     assumed=False, runout_response=runout_response, balance_planes=BALANCE_PLANES,
+                     balance_radius_m=CONE.balance_radius, plane_unbalance=plane_unbalance, axes=AXES,
+                     currents=COILS)

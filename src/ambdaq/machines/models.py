@@ -44,8 +44,13 @@ class LoopModel:
         The radius of their holes, m.
     plane_unbalance : callable or None
         ``plane_unbalance(rpm, position, current)``: the unbalance per balancing plane (kg m) that
-        the rotor's 1X position and coil currents (phasors per axis by name, m and A) imply, from
-        the rotor's model and its bearings' force law alone; None: not given.
+        the rotor's 1X position (phasors per bearing axis by name, m) and coil currents (per
+        current channel by name, A) imply, from the rotor's model and its bearings' force law
+        alone; None: not given.
+    axes : tuple of str
+        The bearing axes the model knows, by the names its recordings give them.
+    currents : tuple of str
+        The current channels ``plane_unbalance`` reads (``/amb/current``'s fields).
     """
 
     at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -56,6 +61,19 @@ class LoopModel:
     balance_planes: tuple[str, ...] = ()
     balance_radius_m: float = 0.0
     plane_unbalance: Callable[[float, Mapping[str, complex], Mapping[str, complex]], np.ndarray] | None = None
+    axes: tuple[str, ...] = ()
+    currents: tuple[str, ...] = ()
+
+    def require(self, machine: str, path: object, axes: list[str], currents: tuple[str, ...] = ()) -> None:
+        """BadInputError unless every one of ``axes`` (a recording's radial axes) and ``currents``
+        (its current channels, where the forces are asked for) is one the model knows: a model
+        read on another machine's recording would see no motion where it looks, and say so with
+        numbers."""
+        for kind, given, known in (("axes", axes, self.axes), ("current channels", currents, self.currents)):
+            unknown = [a for a in given if a not in known]
+            if unknown:
+                raise BadInputError(f"{path}: its {kind} ({', '.join(given) or 'none'}) are not the {machine} model's "
+                                    f"({', '.join(known)}): is --machine {machine} this recording's machine?")
 
 
 def loop_model(machine: str, calibration: Mapping[str, str]) -> LoopModel:

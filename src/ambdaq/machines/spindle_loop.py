@@ -320,7 +320,8 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
                                     np.array([current.get(a, 0j) for a in AXES]))
 
     extra = {"response": response, "runout_response": runout_response, "balance_planes": BALANCE_PLANES,
-             "balance_radius_m": loop.params.balance_radius, "plane_unbalance": plane_unbalance}
+             "balance_radius_m": loop.params.balance_radius, "plane_unbalance": plane_unbalance, "axes": AXES,
+             "currents": AXES}
     if gains is None:
         return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
                              f"({', '.join(GAIN_KEYS)})", assumed=True, **extra)

@@ -63,7 +63,8 @@ class Apht:
     ff_unit: str
     compensation: str
     window_s: float
-    current: np.ndarray | None = None  # the coil control currents' vectors (A), where asked (currents=True)
+    current: np.ndarray | None = None  # the coil currents' vectors (A), where asked (currents=True)
+    current_names: tuple[str, ...] = ()  # their channels (/amb/current's fields: per axis or per coil)
 
     def as_dict(self, recording: str, runout_removed: str | None) -> dict:
         """What ``apht --json`` prints: every window's vectors, per order and axis (µm and degrees;
@@ -121,7 +122,8 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
     max_lost : float
         The share of samples (0..1) the recording may have lost (:mod:`ambdaq.daq.quality`).
     currents : bool
-        Also the coil control currents' vectors per window (A; the role ``current`` must be there).
+        Also the coil currents' vectors per window (A; the role ``current`` must be there), every
+        channel it records.
     """
     if not rec.has_role("rotor"):
         raise BadInputError(f"{rec.path}: no rotor angle (/amb/rotor): APHT needs the key-phasor")
@@ -161,7 +163,15 @@ def apht(rec: Recording, *, orders=(1,), window_s: float = WINDOW_S, coefficient
 
     ff_unit = signals["ff"].units.get(axes[0], "") if "ff" in signals else ""
     return Apht(gap.time[list(starts)], rpm, axes, orders, vectors(x), of("error"), of("ff"), ff_unit, compensation,
-                window_s, of("current") if currents else None)
+                window_s, *(_channels(signals["current"], n, vectors) if currents else (None, ())))
+
+
+def _channels(signal, n: int, vectors) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Every field of ``signal`` (its first ``n`` samples) through ``vectors``, and their names: the
+    coil currents by the names the machine gives them (per bearing axis on the spindle, per coil on
+    the cone rig)."""
+    names = tuple(signal.fields)
+    return vectors(np.column_stack([signal[c][:n] for c in names])), names
 
 
 __all__ = ["Apht", "WINDOW_S", "apht"]

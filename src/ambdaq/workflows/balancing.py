@@ -47,6 +47,7 @@ class RunVector:
     rotor_mass_kg: float | None = None  # the recording's rotor model's
     noise: np.ndarray | None = None  # of each part, per axis: the windows' scatter alone
     feedforward: bool = False  # the controller's feedforward ran (its loop: FF_SETTLE)
+    runout_removed: bool = True  # a slow roll's runout coefficients were taken out (False: --no-runout)
 
 
 @dataclass
@@ -122,12 +123,13 @@ validation campaign's grade after, measured from a new run, held the truth withi
 interval in 20-40 % of the jobs with the feedforward on or at two speeds without it)."""
 
 
-def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -> RunVector:
+def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spindle") -> RunVector:
     """The rotor's 1X at ``path``'s steady speed from its unbalance alone: the gaps' 1X with the
     runout of ``coefficients`` taken out, less what that runout itself drives through the loop
     (the controller follows its sensors: at 20,000 rpm the spindle's runout moves the rotor by up to
     33 um at 1X, ten times its unbalance), by ``machine``'s loop model at the gains the recording
-    states.
+    states. ``coefficients`` None: the gaps' 1X as it is (a machine whose sensors have no runout
+    to speak of; ``balance --no-runout``, which warns).
 
     With the feedforward on, its loop is another: the feedforward takes the 1X out of the
     command error (Ro et al.'s LMS), so the controller follows neither the runout nor the rotor at
@@ -136,6 +138,8 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
     (:func:`settled`) are left out, in windows of FF_WINDOW_S."""
     rec = load(path)
     result = apht(rec, orders=(1,), coefficients=coefficients)
+    model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
+    model.require(machine, path, list(result.axes))
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     if on:
         result = apht(rec, orders=(1,), coefficients=coefficients, window_s=FF_WINDOW_S)
@@ -153,10 +157,9 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
     if v.shape[0] < 2:
         raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
     noise = (np.var(v.real, axis=0, ddof=1) + np.var(v.imag, axis=0, ddof=1)) / 2 / v.shape[0]
-    if on:
+    if on or coefficients is None:
         driven_1x = np.zeros(len(result.axes), dtype=complex)
     else:
-        model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
         if model.runout_response is None:
             raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
         coef = Coefficients.load(coefficients)
@@ -166,7 +169,7 @@ def run_vector(path: str | Path, coefficients: Path, machine: str = "spindle") -
         driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + (RUNOUT_MODEL * np.abs(driven_1x)) ** 2)
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
-                     rec.machine.rotor_mass_kg, np.sqrt(noise), on)
+                     rec.machine.rotor_mass_kg, np.sqrt(noise), on, coefficients is not None)
 
 
 def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -511,7 +514,8 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
         feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
         speeds = doc.get("speeds_rpm")
         noise, slow_roll = None, None
-        if "reference_unbalance_kg_m" in doc:  # the job's unbalance, which its slow roll's runout holds a part of
+        if "reference_unbalance_kg_m" in doc and all(r.runout_removed for r in runs):
+            # the job's unbalance, which the slow roll's runout taken out of the runs holds a part of
             slow_roll = SLOW_ROLL * np.array([float(doc["reference_unbalance_kg_m"][p]) for p in planes])
         if "noise_m" in doc:
             n = doc["noise_m"]
@@ -567,17 +571,19 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
 RECORD_FORMAT, RECORD_VERSION = "ambdaq.balancing_record", 1
 
 
-def save_record(result: Balancing | ForceBalancing, path: str | Path, runs: list[tuple[str, str | Path]], coefficients: str | Path,
-                machine: str, influence_file: str | Path | None = None, *, overwrite: bool = False) -> Path:
+def save_record(result: Balancing | ForceBalancing, path: str | Path, runs: list[tuple[str, str | Path]],
+                coefficients: str | Path | None, machine: str, influence_file: str | Path | None = None, *,
+                overwrite: bool = False) -> Path:
     """The balancing job as a sealed record (ISO 21940-13's record of a balancing): the machine,
     each run with its role (``reference``, ``trial PLANE:GRAMS@DEG:RADIUS_MM``, ``run``) and
-    SHA-256, the runout coefficient file and, for ``balance correct``, the influence file used;
+    SHA-256, the runout coefficient file (null: none, ``--no-runout``) and, for ``balance
+    correct``, the influence file used;
     then what ``--json`` prints (coefficients, correction masses, the unbalance and the grade)."""
     def source(f: str | Path) -> dict:
         return {"file": Path(f).name, "sha256": file_sha256(f)}
 
     doc = {"format": RECORD_FORMAT, "version": RECORD_VERSION, "machine": machine,
-           "runs": [{"role": role, **source(f)} for role, f in runs], "runout_coefficients": source(coefficients),
+           "runs": [{"role": role, **source(f)} for role, f in runs], "runout_coefficients": None if coefficients is None else source(coefficients),
            "influence_file": None if influence_file is None else source(influence_file), "result": result.as_dict()}
     return write_sealed(path, doc, overwrite=overwrite, indent=1)
 
@@ -650,11 +656,11 @@ class ForceBalancing:
                 "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm, **_acceptance(self)}
 
 
-def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindle", *, holes: int = 0,
+def force_balancing(path: str | Path, coefficients: Path | None, machine: str = "spindle", *, holes: int = 0,
                     max_rpm: float | None = None) -> ForceBalancing:
     """The unbalance per plane of the rotor in ``path`` (one run at a steady speed, the feedforward
     on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
-    ``coefficients`` taken out (the rotor's motion) and the coil currents' 1X, through ``machine``'s
+    ``coefficients`` taken out (the rotor's motion; None: the gap's as it is) and the coil currents' 1X, through ``machine``'s
     rigid rotor and force law (its ``plane_unbalance``); the windows averaged, their scatter the
     noise, FORCE_MODEL and FORCE_RELATIVE beside it; ``holes`` and ``max_rpm`` as
     :func:`influence_balancing`'s."""
@@ -665,14 +671,17 @@ def force_balancing(path: str | Path, coefficients: Path, machine: str = "spindl
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.plane_unbalance is None or not model.balance_planes:
         raise BadInputError(f"the {machine} model has no rotor and force law for balancing from the bearings' forces")
-    axes = list(result.axes)
-    u = np.array([model.plane_unbalance(result.rpm, dict(zip(axes, result.gap[w, 0])), dict(zip(axes, result.current[w, 0])))
+    model.require(machine, path, list(result.axes), result.current_names)
+    axes, channels = list(result.axes), result.current_names
+    u = np.array([model.plane_unbalance(result.rpm, dict(zip(axes, result.gap[w, 0])),
+                                        dict(zip(channels, result.current[w, 0])))
                   for w in range(result.gap.shape[0])])
     noise = np.sqrt((np.var(u.real, axis=0, ddof=1) + np.var(u.imag, axis=0, ddof=1)) / 2 / u.shape[0])
-    current = np.abs(result.current[:, 0]).mean(axis=0)  # per axis, A
-    # the scale of each bearing's 1X force as an unbalance, Ki |I| / Omega^2 (kg m): the currents'
-    # magnitudes alone through the same law
-    force = model.plane_unbalance(result.rpm, {}, dict(zip(axes, current)))
+    current = np.abs(result.current[:, 0]).mean(axis=0)  # per channel, A
+    # the scale of each bearing's 1X force as an unbalance, Ki |I| / Omega^2 (kg m): each current
+    # channel's magnitude alone through the same law, root-sum-square (opposite coils of a cone
+    # bearing would cancel if taken together)
+    force = np.sqrt(sum(np.abs(model.plane_unbalance(result.rpm, {}, {c: i})) ** 2 for c, i in zip(channels, current)))
     unbalance = u.mean(axis=0)
     std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (FORCE_RELATIVE * np.abs(unbalance)) ** 2)
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ...drivers.signals import SampleBlock, SignalGroup
+from ...machines.balance_masses import BalanceMass
 from ...speed import SpeedProfile
 from ...units import RPM_TO_RAD_S
 
@@ -37,7 +38,8 @@ class Rig(ABC):
     """What can act on the rig besides its speed, declared by each rig class: ``"excitation"``
     (the controller's test signal, :class:`~.excitation.ExcitationInput`), ``"feedforward"`` (Ro
     et al.'s runout feedforward, ``ff_mode`` table or lms), ``"fir"`` (FIR feedforward u = W d),
-    ``"base"`` (a moving base), ``"impact"`` (hammer strikes and a touchdown start)."""
+    ``"base"`` (a moving base), ``"impact"`` (hammer strikes and a touchdown start), ``"balancing"``
+    (masses on its balancing planes, ``balance_planes``: :class:`~ambdaq.machines.balance_masses.BalanceMass`)."""
 
     def __init__(self, params: Any, *, seed: int, speed: SpeedProfile, truth: bool, noise: bool) -> None:
         self.params = params
@@ -98,3 +100,15 @@ class CommandedSpeed:
     def _angle_speed(self, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rotor's angle (rad) and speed (rad/s) at control steps ``steps``."""
         return self.speed.angle_speed(steps * self.h - self._speed_t0, self._theta0)
+
+
+def balancing_truth(masses: list[BalanceMass], unbalance: dict[str, complex] | None) -> dict[str, str]:
+    """A rig's calibration entries of a balancing job: the masses put on its planes
+    (``sim.mass.K``) and, where ``unbalance`` is given (the rig's truth), the unbalance per plane
+    they leave (``truth.unbalance.PLANE_kg_m`` and ``_deg`` from the key-phasor's mark): what a
+    balancing job is checked against."""
+    out = {f"sim.mass.{k}": f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}" for k, m in enumerate(masses)}
+    for plane, u in (unbalance or {}).items():
+        out[f"truth.unbalance.{plane}_kg_m"] = repr(float(abs(u)))
+        out[f"truth.unbalance.{plane}_deg"] = repr(float(np.degrees(np.angle(u))))
+    return out

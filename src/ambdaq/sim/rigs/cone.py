@@ -17,7 +17,9 @@ Everything runs in continuous time with ``SUBSTEPS`` steps per 10 kHz sample: fi
 are advanced exactly over a step, the rotor by semi-implicit Euler.  An instrumented hammer
 (``/amb/hammer``) strikes the rotor at one bearing coordinate: a half-sine pulse.  The run starts
 levitated, or with ``start="touchdown"`` at rest on the touchdown bearings with the amplifiers
-just enabled (Jeong et al. Fig. 7a and 8).  :meth:`ConeRig.modes` gives the simulator's own
+just enabled (Jeong et al. Fig. 7a and 8).  A mass unbalance per balancing plane (one at each
+bearing, :data:`~ambdaq.machines.cone.BALANCE_PLANES`) and trial or correction masses on them
+(issue 43) push with U Omega^2 along the rotor angle.  :meth:`ConeRig.modes` gives the simulator's own
 linearisation, the ground truth for ``ambdaq identify modal``.
 """
 
@@ -30,10 +32,11 @@ from numba import njit
 
 from ...analysis.cone_rotor import AXES, COILS, DISTRIBUTION
 from ...errors import BadInputError
-from ...machines.cone import CONE, ConeParams
+from ...machines.balance_masses import BalanceMass, plane_unbalance
+from ...machines.cone import BALANCE_PLANES, CONE, ConeParams
 from ...drivers.signals import SampleBlock, SignalGroup
 from ..profiles import Profile
-from .base import Rig
+from .base import Rig, balancing_truth
 from .drop import Drop
 from ...speed import RPM_TO_RAD_S, SpeedProfile
 
@@ -41,6 +44,9 @@ SUBSTEPS = 50  # 2 us steps: the kernel's modes within 0.2% (frequency) and 2.5%
 N_STATE = 31  # q_g (5), v_g (5), derivative filters (5), coil currents (8), eddy-lagged currents (8)
 IMPACT_S = 0.5e-3  # hammer pulse length
 TOUCHDOWN_START_UM = (-250.0, -200.0, -120.0, 110.0, -80.0)  # q_b at rest (Jeong et al. Fig. 8's shape, in the clearance)
+SETTLE_S = 0.1
+"""After its unbalance changes, the loop runs this long unrecorded (:meth:`ConeRig.settle`): its
+slowest radial mode decays in a few ms, the axial one (57 Hz, zeta 0.3) in about 30 ms."""
 
 
 
@@ -107,13 +113,9 @@ class Unbalance:
             raise BadInputError(f"bad unbalance {spec!r}: each between 0 and {MAX_UNBALANCE:g} kg m")
         return u
 
-    def forces(self, theta: np.ndarray, spin: np.ndarray) -> np.ndarray:
-        """Forces (N) on the bearing coordinates y1, y2, z1, z2 at rotor angles ``theta`` (rad) and
-        spins ``spin`` (rad/s): shape (n, 4)."""
-        lower = theta + np.deg2rad(self.lower_phase_deg)
-        push = spin**2
-        return np.column_stack([self.upper * push * np.cos(theta), self.lower * push * np.cos(lower),
-                                self.upper * push * np.sin(theta), self.lower * push * np.sin(lower)])
+    def planes(self) -> dict[str, complex]:
+        """Per balancing plane, kg m as a phasor (its angle from the key-phasor's mark)."""
+        return {"upper": complex(self.upper), "lower": self.lower * np.exp(1j * np.deg2rad(self.lower_phase_deg))}
 
 
 MAX_UNBALANCE = 1e-3
@@ -260,19 +262,27 @@ class ConeRig(Rig):
         Hammer strikes.
     unbalance : Unbalance, optional
         A mass unbalance (Jeong et al. give none: the rig has none unless asked).
+
+    Attributes
+    ----------
+    masses : list of BalanceMass
+        The trial and correction masses put on its balancing planes (:meth:`add_masses`).
     """
 
     profile = "cone"
-    inputs = frozenset({"impact", "drop", "unbalance"})
+    inputs = frozenset({"impact", "drop", "unbalance", "balancing"})
+    balance_planes = BALANCE_PLANES
 
     def __init__(self, params: ConeParams = CONE, *, seed: int = 0, speed: SpeedProfile = SpeedProfile(0.0, 0.0),
                  truth: bool = False, noise: bool = True, start: str = "levitated",
                  impact: Impact | None = None, unbalance: "Unbalance | None" = None) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
-        self.unbalance = unbalance
+        self._unbalance = {plane: 0j for plane in BALANCE_PLANES} if unbalance is None else unbalance.planes()
+        self.masses: list[BalanceMass] = []
         self.drop: Drop | None = None
         self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)
+        self._theta0 = 0.0  # the rotor angle at step 0 (rad): where a settle left it
         r = params.rotor
         self._Minv = np.linalg.inv(r.mass_matrix())
         n, J = r.frames()
@@ -308,8 +318,41 @@ class ConeRig(Rig):
         self.drop = drop
 
     def set_unbalance(self, unbalance: "Unbalance | None") -> None:
-        """Spin with this mass unbalance from now on (None: a balanced rotor)."""
-        self.unbalance = unbalance
+        """Spin with this mass unbalance (None: a balanced rotor), the masses put on before kept,
+        and let the loop settle (:meth:`settle`)."""
+        base = {plane: 0j for plane in BALANCE_PLANES} if unbalance is None else unbalance.planes()
+        self._unbalance = plane_unbalance(base, self.masses)
+        self.settle(SETTLE_S)
+
+    def plane_unbalance(self) -> dict[str, complex]:
+        """The rotor's unbalance per balancing plane now, kg m as a phasor (its angle from the
+        key-phasor's mark in the direction of rotation)."""
+        return dict(self._unbalance)
+
+    def add_masses(self, masses: list[BalanceMass]) -> None:
+        """Put ``masses`` (trial or correction) on the balancing planes before a recording: the
+        unbalance changes, and the loop settles again (:meth:`settle`)."""
+        self._unbalance = plane_unbalance(self._unbalance, masses)
+        self.masses = [*self.masses, *masses]
+        self.settle(SETTLE_S)
+
+    def settle(self, seconds: float) -> None:
+        """Run the closed loop for ``seconds`` at the start speed, unrecorded, with no hammer and the
+        amplifiers on, and start the clock at 0 from there: the rotor's 1X is its steady response
+        when the first sample is taken, as on a machine running before a recording starts.  The
+        angle runs on continuously.  A run that starts on the touchdown bearings starts there: it
+        does not settle."""
+        n = int(round(seconds / self.h))
+        if self.start != "levitated" or n <= 0:
+            return
+        speed, impact, drop = self.speed, self.impact, self.drop
+        self.speed, self.impact, self.drop = SpeedProfile(speed.rpm_start, speed.rpm_start), None, None
+        try:
+            self.run(n)
+        finally:
+            self.speed, self.impact, self.drop = speed, impact, drop
+        self._theta0 = float((self._theta0 + speed.rpm_start * RPM_TO_RAD_S * n * self.h) % (2 * np.pi))
+        self.step_index, self._last_rev = 0, 0.0
 
     def _constants(self) -> np.ndarray:
         p, r, c = self.params, self.params.rotor, self.params.control
@@ -341,7 +384,8 @@ class ConeRig(Rig):
                 "machine.min_clearance_m": repr(p.clearance), "machine.voltage_limit_v": repr(p.supply),
                 "machine.axial_axes": "x",  # the spin axis (AXIAL_KEY): its gap has no orbit
                 "machine.bearings": "1=y1/z1, 2=y2/z2",  # each cone bearing's two radial axes (BEARINGS_KEY)
-                "machine.rotor_mass_kg": repr(r.mass)}
+                "machine.rotor_mass_kg": repr(r.mass),
+                **balancing_truth(self.masses, self.plane_unbalance() if self.truth else None)}
 
     def run(self, n: int) -> SampleBlock:
         """Advance by ``n`` samples and return them."""
@@ -353,10 +397,11 @@ class ConeRig(Rig):
             noise[:] = 0.0
         outs = [np.empty((n, 5)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 5)), np.empty((n, 5))]
         enabled = self.drop.enabled(steps * self.h) if self.drop else np.ones(n)
-        theta, spin = self.speed.angle_speed(steps * self.h)
-        unb = np.zeros((n, 5))
-        if self.unbalance is not None:
-            unb[:, 1:] = self.unbalance.forces(theta + spin * self.h / 2, spin)  # at mid-sample
+        theta, spin = self.speed.angle_speed(steps * self.h, self._theta0)
+        # each plane's U Omega^2 along theta + its angle, y = cos, z = sin, at mid-sample
+        turn = np.exp(1j * (theta + spin * self.h / 2))[:, None] * (spin**2)[:, None]
+        push = turn * np.array([self._unbalance[p] for p in BALANCE_PLANES])[None, :]  # (n, planes)
+        unb = np.column_stack([np.zeros(n), push.real, push.imag])  # x, y1, y2, z1, z2
         # the gyroscopic term at the block's first spin
         _simulate(self.state, hammer, unb, enabled, noise[:, :5] * self.params.gap_noise, float(spin[0]),
                   self._constants(), self._Minv, self._A, self._T, DISTRIBUTION, self._V0, *outs)

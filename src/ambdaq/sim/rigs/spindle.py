@@ -50,7 +50,7 @@ from ...drivers.signals import SampleBlock, SignalGroup
 from ...drivers.coefbank import BankImage
 from ..devices.firmware import EXCITATION, SPEED, Feedforward, Firmware, Param
 from ..profiles import Profile
-from .base import CommandedSpeed, Rig
+from .base import CommandedSpeed, Rig, balancing_truth
 from .drop import Drop
 from .excitation import ExcitationInput
 from ...machines.balance_masses import BalanceMass, plane_unbalance
@@ -564,18 +564,8 @@ class SpindleRig(CommandedSpeed, Rig, ExcitationInput):
             # the gains the loop runs at now (a retune through `controller param` included): what
             # `runup --model spindle` predicts the critical speeds at
             **{GAIN_KEYS[k]: ",".join(repr(float(v)) for v in g) for k, g in enumerate(self.pid_gains)},
-            **self._balancing_truth(),
+            **balancing_truth(self.masses, self.plane_unbalance() if self.truth else None),
         }
-
-    def _balancing_truth(self) -> dict[str, str]:
-        """The masses put on the planes and, with ``truth``, the unbalance per plane they leave
-        (kg m and degrees from the key-phasor's mark): what a balancing job is checked against."""
-        out = {f"sim.mass.{k}": f"{m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}" for k, m in enumerate(self.masses)}
-        if self.truth:
-            for plane, u in self.plane_unbalance().items():
-                out[f"truth.unbalance.{plane}_kg_m"] = repr(float(abs(u)))
-                out[f"truth.unbalance.{plane}_deg"] = repr(float(np.degrees(np.angle(u))))
-        return out
 
     # --- stepping --------------------------------------------------------------------------
 
