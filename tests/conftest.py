@@ -21,14 +21,6 @@ from click.testing import CliRunner
 for _blas in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_blas, "1")
 
-# Bytecode cached, in this process and every one it starts: where PYTHONDONTWRITEBYTECODE is set
-# (it is on this CI machine) each of the hundred Python processes the suite starts compiles every
-# module it imports from source again, numpy's, scipy's and ambdaq's: 9.4 s to import the command
-# line with its analysis stack, 3.0 s with the bytecode cached (a fresh venv from uv has none).
-# The cache goes where Python puts it, the throwaway venv and the clone's git-ignored __pycache__.
-os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
-sys.dont_write_bytecode = False
-
 from ambdaq.cli.main import cli  # noqa: E402  (after the threads are set)
 
 import scheduling  # noqa: E402  (tests/scheduling.py: the third worker)
