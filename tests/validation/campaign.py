@@ -726,57 +726,99 @@ def bearing_gains(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0
 
 # --- balancing -------------------------------------------------------------------------------
 
-PLANES, RADIUS_M = ("front", "rear"), 0.03  # the spindle's balancing planes and their holes' radius
+@dataclass(frozen=True)
+class _BalancingRig:
+    """A simulated rig balancing jobs run on: its balancing planes, their holes' radius (m), the
+    random mass added per plane (g, uniform), and whether its sensors have runout (a slow roll per
+    job) or none (``--no-runout``: the cone rig's, which Jeong et al. model without)."""
+
+    planes: tuple[str, ...]
+    radius_m: float
+    added_g: tuple[float, float]
+    runout: bool
+
+
+BALANCING_RIGS = {
+    # beside the rotor's own unbalance (2 and 3 g mm): a total of 0.01-0.4 g per plane at 30 mm
+    "spindle": _BalancingRig(("front", "rear"), 0.03, (0.02, 0.3), True),
+    # the only unbalance (the rig has none of its own): 2-30 g mm, G 0.7-11 mm/s at 6,000 rpm
+    "cone": _BalancingRig(("upper", "lower"), 0.025, (0.08, 1.2), False),
+}
 
 
 @dataclass
 class _BalancingJob:
-    """One balancing job on the simulated spindle, a campaign's case: a random mass per plane
-    (0.02-0.3 g at any angle) beside the rotor's own unbalance, and its runs, each with its own
+    """One balancing job on a simulated rig (:data:`BALANCING_RIGS`), a campaign's case: a random
+    mass per plane at any angle beside the rotor's own unbalance, and its runs, each with its own
     noise (seed 10 case + k), in the folder ``d``."""
 
     d: Path
     case: int
     added: list
+    profile: str = "spindle"
 
     @classmethod
-    def new(cls, tmp: str, case: int) -> "_BalancingJob":
+    def new(cls, tmp: str, case: int, profile: str = "spindle") -> "_BalancingJob":
         from ambdaq.machines.balance_masses import BalanceMass
 
         d = Path(tmp) / str(case)
         d.mkdir()
-        rng = np.random.default_rng(case)
-        return cls(d, case, [BalanceMass(p, float(rng.uniform(0.02, 0.3)), float(rng.uniform(0.0, 360.0)), RADIUS_M)
-                             for p in PLANES])
+        rng, rig = np.random.default_rng(case), BALANCING_RIGS[profile]
+        return cls(d, case, [BalanceMass(p, float(rng.uniform(*rig.added_g)), float(rng.uniform(0.0, 360.0)), rig.radius_m)
+                             for p in rig.planes], profile)
 
     def run(self, name: str, k: int, speed: SpeedProfile, seconds: float, masses=(), ff: str = "off") -> Path:
-        source = SimSource("spindle", seed=10 * self.case + k, speed=speed, truth=True)
+        source = SimSource(self.profile, seed=10 * self.case + k, speed=speed, truth=True)
         source.rig.add_masses([*self.added, *masses])
         if ff != "off":
             source.rig.set_feedforward(ff)
         return _write(source, self.d / f"{name}.mcap", seconds)
 
-    def coefficients(self, slow_s: float) -> Path:
-        """The job's runout: its own slow roll (run 0), identified as docs/balancing.md does."""
+    def coefficients(self, slow_s: float) -> Path | None:
+        """The job's runout: its own slow roll (run 0), identified as docs/balancing.md does; None
+        on a rig whose sensors have none (--no-runout)."""
         from ambdaq.workflows.runout import identify_recordings
 
+        if not BALANCING_RIGS[self.profile].runout:
+            return None
         slow = self.run("slow", 0, SpeedProfile(SLOW_ROLL_RPM, SLOW_ROLL_RPM), slow_s)
         return identify_recordings([load(slow)], [1, 2, 3, 4, 5, 6], "fit").coef.save(self.d / "coef.json")
 
+    def truth(self, path: Path) -> tuple[np.ndarray, float]:
+        """The simulator's unbalance per plane in a recording of this job (kg m phasors) and its
+        rotor's mass (kg)."""
+        rec = load(path, topics=["/amb/rotor"])
+        cal = rec.metadata["ambdaq.calibration.rig"]
+        return np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
+                         for p in BALANCING_RIGS[self.profile].planes]), float(rec.machine.rotor_mass_kg)
 
-def _plane_truth(path: Path) -> tuple[np.ndarray, float]:
-    """The simulator's unbalance per plane in a recording (kg m phasors) and its rotor's mass (kg)."""
-    cal = load(path, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
-    return np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
-                     for p in PLANES]), float(cal["rotor.mass_kg"])
+    def commands(self, rpm: float, seconds: float, ff: str, slow_s: float, trial_g: float | None) -> str:
+        """The commands that regenerate its runs, up to the balancing command (with ``trial_g``, g,
+        the trial runs')."""
+        trial = "" if trial_g is None else f"[--trial PLANE:{trial_g:g}@0] "
+        if not BALANCING_RIGS[self.profile].runout:
+            return (f"sim generate --profile {self.profile} --rpm {rpm:g} --duration {seconds:g} {trial}"
+                    "(a random mass per plane: seed S)")
+        return (f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
+                f"--duration {seconds:g} --ff {ff} {trial}(a random mass per plane: seed S)")
+
+    def setting(self, seconds: float, slow_s: float) -> str:
+        """The job's runs and unbalance, in words (docs/validation.md's operating point)."""
+        rig = BALANCING_RIGS[self.profile]
+        if not rig.runout:
+            return (f"{seconds:g} s runs, no sensor runout (--no-runout); unbalance {rig.added_g[0] * rig.radius_m * 1e3:g}-"
+                    f"{rig.added_g[1] * rig.radius_m * 1e3:g} g mm per plane at any angle")
+        return f"{seconds:g} s runs, a {slow_s:g} s slow roll per job; unbalance 0.01-0.4 g per plane at any angle"
 
 
 def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
-              max_rpm: float = 60000.0, trial_g: float = 0.1, ff: str = "off", also_rpm: float | None = None) -> Row:
+              max_rpm: float = 60000.0, trial_g: float = 0.1, ff: str = "off", also_rpm: float | None = None,
+              profile: str = "spindle") -> Row:
     """``balance influence`` on the spindle as docs/balancing.md does it, one job per case: its own
     slow roll (the runout), a reference run and a 0.1 g trial run per plane, each with its own noise;
     the rotor's unbalance its own plus a random mass per plane (0.02-0.3 g at any angle on the 30 mm
-    radius: a total of 0.01-0.4 g per plane). Against the simulator's truth: the unbalance one
+    radius: a total of 0.01-0.4 g per plane); or on the cone rig (``profile``), no slow roll
+    (:data:`BALANCING_RIGS`). Against the simulator's truth: the unbalance one
     correction leaves (issue 43: at most 10 % in 95 % of cases), the correction within 10 % and 10
     degrees of the one that cancels the whole unbalance, the stated 95 % intervals of the unbalance
     (circular, 2.45 deviations) holding it (at least 90 %), and the ISO 21940-11 grade before.
@@ -786,23 +828,24 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     from ambdaq.machines.balance_masses import BalanceMass
     from ambdaq.workflows.balancing import balance_grade, correct_with, influence_balancing, run_vector, save_influence
 
-    trials = [BalanceMass(p, trial_g, 0.0, RADIUS_M) for p in PLANES]
+    rig = BALANCING_RIGS[profile]
+    trials = [BalanceMass(p, trial_g, 0.0, rig.radius_m) for p in rig.planes]
     left, mag_err, ang_err, z, grade_z, after_z = [], [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
-            job = _BalancingJob.new(tmp, case)
+            job = _BalancingJob.new(tmp, case, profile)
             coef = job.coefficients(slow_s)
             speeds = [rpm] if also_rpm is None else [rpm, also_rpm]
             groups = []
             for j, at in enumerate(speeds):  # each speed's runs with their own noise (seeds 10 case + 1-3, + 5-7)
                 steady, k0 = SpeedProfile(at, at), 1 + 4 * j
                 ref = job.run(f"ref{j}", k0, steady, seconds, ff=ff)
-                groups.append((run_vector(ref, coef), [
-                    (m, run_vector(job.run(f"t{j}{k}", k0 + 1 + k, steady, seconds, [m], ff=ff), coef))
+                groups.append((run_vector(ref, coef, profile), [
+                    (m, run_vector(job.run(f"t{j}{k}", k0 + 1 + k, steady, seconds, [m], ff=ff), coef, profile))
                     for k, m in enumerate(trials)]))
             ref = job.d / "ref0.mcap"
             result = influence_balancing(groups, max_rpm=max_rpm)
-            truth, mass = _plane_truth(ref)
+            truth, mass = job.truth(ref)
             left.append(np.abs(truth + result.correction) / np.abs(truth))  # the correction adds its vector
             mag_err.append(np.abs(result.correction) / np.abs(truth) - 1)
             ang_err.append(np.degrees(np.angle(-result.correction / truth)))
@@ -816,8 +859,8 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             saved = save_influence(result, job.d / "influence.json", files)
             fixed = [job.run(f"fixed{j}", 4 + 4 * j, SpeedProfile(at, at), seconds, result.masses(), ff=ff)
                      for j, at in enumerate(speeds)]
-            after = correct_with(saved, [run_vector(f, coef) for f in fixed], max_rpm=max_rpm)
-            left_truth, _mass = _plane_truth(fixed[0])
+            after = correct_with(saved, [run_vector(f, coef, profile) for f in fixed], max_rpm=max_rpm)
+            left_truth, _mass = job.truth(fixed[0])
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
     left, mag_err, ang_err, z = (np.array(v) for v in (left, mag_err, ang_err, z))
@@ -829,11 +872,11 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     grade_cover = float(np.mean(np.abs(grade_z) <= 1.96))
     holds = one_step >= 0.95 and within >= 0.95 and cover >= 0.90 and after_cover >= 0.90
     return Row("correction masses and unbalance per plane (`balance influence`), ISO 21940-11 grade before and after",
-               f"spindle at {' and '.join(f'{r:,.0f}' for r in speeds)} rpm{' (one least squares)' if also_rpm else ''}, "
-               f"feedforward {ff}, {seconds:g} s runs, 0.1 g trial masses, a {slow_s:g} s "
-               "slow roll per job; unbalance 0.01-0.4 g per plane at any angle",
-               "1σ per part of each plane's unbalance (the runs' noise, 0.2 % of the runout-driven 1X, RUNOUT_MODEL, "
-               "and 0.5 % of the correction, LINEARITY); issue 43: one step leaves ≤ 10 % in 95 % of cases",
+               f"{profile} at {' and '.join(f'{r:,.0f}' for r in speeds)} rpm{' (one least squares)' if also_rpm else ''}, "
+               f"feedforward {ff}, {trial_g:g} g trial masses, " + job.setting(seconds, slow_s),
+               "1σ per part of each plane's unbalance (the runs' noise, "
+               + ("0.2 % of the runout-driven 1X, RUNOUT_MODEL, " if rig.runout else "")
+               + "and 0.5 % of the correction, LINEARITY); issue 43: one step leaves ≤ 10 % in 95 % of cases",
                f"magnitude median {np.median(mag_err) * 100:+.2f} %, angle median {np.median(ang_err):+.2f}°",
                f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
@@ -841,9 +884,8 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                f"grade within its 95 % interval in {grade_cover * 100:.0f} % before, in {after_cover * 100:.0f} % "
                "after (measured: the correction on, a new run, balance correct)",
                len(cases), f"{cases.start}-{cases.stop - 1}",
-               f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
-               f"--duration {seconds:g} --ff {ff} [--trial PLANE:0.1@0] (a random mass per plane: seed S); balance influence "
-               f"--max-rpm {max_rpm:g}", holds,
+               job.commands(rpm, seconds, ff, slow_s, trial_g) + "; balance influence "
+               + ("" if rig.runout else f"--machine {profile} --no-runout ") + f"--max-rpm {max_rpm:g}", holds,
                "" if holds else f"one step ≤ 10 % in {one_step * 100:.0f} % (95 %), within 10 %/10° in "
                                 f"{within * 100:.0f} % (95 %), intervals cover {cover * 100:.0f} % (90 %), the grade "
                                 f"after within its interval in {after_cover * 100:.0f} % (90 %)",
@@ -852,20 +894,21 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
 
 
 def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds: float = 1.0,
-                    slow_s: float = 4.0) -> Row:
-    """``balance forces`` (no trial run) on the spindle, one job per case as :func:`balancing`'s (its
-    own slow roll and noise, a random mass per plane), with the controller's feedforward ``ff``
-    (``off`` or ``lms``): the unbalance per plane against the simulator's, its stated 95 %
-    intervals, and what one correction by it leaves."""
+                    slow_s: float = 4.0, profile: str = "spindle") -> Row:
+    """``balance forces`` (no trial run) on the spindle or the cone rig (``profile``), one job per
+    case as :func:`balancing`'s (its own slow roll where the rig has runout, its noise, a random
+    mass per plane), with the controller's feedforward ``ff`` (``off`` or ``lms``): the unbalance
+    per plane against the simulator's, its stated 95 % intervals, and what one correction by it
+    leaves."""
     from ambdaq.workflows.balancing import force_balancing as estimate
 
     left, rel, z = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
-            job = _BalancingJob.new(tmp, case)
+            job = _BalancingJob.new(tmp, case, profile)
             coef = job.coefficients(slow_s)
-            got = estimate(job.run("run", 1, SpeedProfile(rpm, rpm), seconds, ff=ff), coef)
-            truth, _mass = _plane_truth(job.d / "run.mcap")
+            got = estimate(job.run("run", 1, SpeedProfile(rpm, rpm), seconds, ff=ff), coef, profile)
+            truth, _mass = job.truth(job.d / "run.mcap")
             left.append(np.abs(truth - got.unbalance) / np.abs(truth))
             rel.append(got.unbalance / truth - 1)
             z.append(np.abs(got.unbalance - truth) / got.std)
@@ -876,8 +919,7 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
     ratio = float(np.sqrt(np.mean(z**2) / 2))
     holds = cover >= 0.90 and 0.7 <= ratio <= 1.4  # what it states; the issue's 95 % one-step goal is reported
     return Row("unbalance per plane from the bearing forces, no trial run (`balance forces`)",
-               f"spindle at {rpm:,.0f} rpm, feedforward {ff}, {seconds:g} s run, a {slow_s:g} s slow roll per job; "
-               "unbalance 0.01-0.4 g per plane at any angle",
+               f"{profile} at {rpm:,.0f} rpm, feedforward {ff}, " + job.setting(seconds, slow_s),
                "1σ per part (the windows' scatter, and FORCE_MODEL of the bearing's 1X force); issue 43: one step "
                "leaves ≤ 10 % in 95 % of cases",
                f"magnitude median {np.median(np.abs(rel + 1) - 1) * 100:+.2f} %, angle median "
@@ -886,8 +928,8 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
                f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f})",
                len(cases), f"{cases.start}-{cases.stop - 1}",
-               f"sim generate --rpm slowroll --duration {slow_s:g}; runout identify; sim generate --rpm {rpm:g} "
-               f"--duration {seconds:g} --ff {ff} (a random mass per plane: seed S); balance forces", holds,
+               job.commands(rpm, seconds, ff, slow_s, None) + "; balance forces"
+               + ("" if BALANCING_RIGS[profile].runout else f" --machine {profile} --no-runout"), holds,
                "" if holds else f"intervals cover {cover * 100:.0f} % (at least 90 %), error / stated {ratio:.2f} "
                                 "(0.7-1.4)",
                {"one_step": one_step, "within": within, "cover": cover, "ratio": ratio})
@@ -952,6 +994,8 @@ FULL: list[Callable[[], Row]] = [
     lambda: balancing(range(251, 301), also_rpm=30000.0),
     lambda: force_balancing(range(1, 101)),
     lambda: force_balancing(range(1, 101), ff="lms"),
+    lambda: balancing(range(1, 101), rpm=6000.0, max_rpm=6000.0, trial_g=0.5, profile="cone"),
+    lambda: force_balancing(range(1, 101), rpm=6000.0, profile="cone"),
 ]
 
 

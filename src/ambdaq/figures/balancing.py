@@ -42,7 +42,8 @@ def draw_balancing(result):
         _arrow(ax, result.reference[i] * 1e6, color=colors[a], label=f"{a} run", ms=6)
         _arrow(ax, result.residual[i] * 1e6, color=colors[a], ls=":", lw=1.0, marker="x", ms=6,
                label=f"{a} predicted after")
-    ax.set_title("1X, runout out [µm]", fontsize=9, pad=14)
+    ax.set_title("1X, runout out [µm]" if result.runout_removed else "1X, no runout taken out [µm]", fontsize=9,
+                 pad=14)
     ax = axes[-1]
     for m in result.masses():
         _arrow(ax, m.grams * np.exp(1j * np.radians(m.deg)), color=f"C{3 + result.planes.index(m.plane)}",
