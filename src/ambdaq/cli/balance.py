@@ -84,8 +84,8 @@ def command() -> None:
 @click.argument("reference", type=click.Path(dir_okay=False))
 @click.argument("trials", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--mass", "masses", metavar="PLANE:GRAMS@DEG[:RADIUS_MM]", multiple=True, required=True,
-              help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear; the cone's: upper, lower); at "
-                   "several speeds, the same for each.")
+              help="The trial mass of each trial run, in the runs' order (the spindle's planes: front, rear; the "
+                   "cone's: upper, lower); at several speeds, the same for each.")
 @_runout_option("the sensor runout, and what it drives through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
