@@ -595,7 +595,10 @@ def stability(rpm: float, axes: tuple[str, ...], seeds: range, seconds: float = 
 def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) -> Row:
     """``plant identify`` (the joint input-output estimate from one white-noise run per axis) on the
     flexible rotor against the machine's own plant: the diagonal where the coherence is 0.9 or more,
-    its scatter about the truth against the stated random error, per axis and pooled."""
+    its scatter about the truth against the stated random error, per axis and pooled, and the share
+    of those points within 5 % and 5 degrees of the truth (issue 42 asks it "wherever the coherence
+    is at least 0.9": reported, not required of the row, as the random error at a coherence of 0.9
+    is near 5 % by itself)."""
     from ambdaq.drivers.excitation import ExcitationRequest
     from ambdaq.machines.flexible_spindle import AXES as FLEX_AXES, FlexibleLoop
     from ambdaq.workflows.plant_identification import identify
@@ -603,6 +606,7 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
     loop = FlexibleLoop()
     norm: dict[str, list[np.ndarray]] = {a: [] for a in FLEX_AXES}
     rel: list[np.ndarray] = []
+    close: list[np.ndarray] = []  # per point: within 5 % in magnitude and 5 degrees in phase
     with tempfile.TemporaryDirectory() as d:
         for seed in seeds:
             runs = [load(_record(Path(d) / f"p{seed}{a}.mcap", seconds, seed=seed, speed=SpeedProfile(rpm, rpm),
@@ -614,6 +618,7 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
                 p, t, sd = m.plant.response[good, i, i], truth[good, i, i], m.plant.sigma[good, i, i]
                 norm[a].append(np.abs(p - t) / sd)
                 rel.append(np.abs(p / t - 1))
+                close.append((np.abs(np.abs(p / t) - 1) <= 0.05) & (np.abs(np.degrees(np.angle(p / t))) <= 5.0))
     per_axis = {a: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for a, v in norm.items()}
     pooled = float(np.sqrt(np.mean(np.concatenate([np.concatenate(v) for v in norm.values()]) ** 2)))
     rel_all = np.concatenate(rel) * 100
@@ -623,7 +628,9 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
                "where the coherence is 0.9 or more",
                "its random error (first order, per point, the gap's and the output's errors correlated)",
                f"median {np.median(rel_all):.2f} % of \\|P\\|",
-               f"{pooled:.2f} x stated pooled; per axis {', '.join(f'{r:.2f}' for r in per_axis.values())}",
+               f"{pooled:.2f} x stated pooled; per axis {', '.join(f'{r:.2f}' for r in per_axis.values())}; "
+               + (f"within 5 % and 5° at {np.mean(np.concatenate(close)) * 100:.1f} % of the points (issue 42 asks "
+                  "every point)" if not np.all(np.concatenate(close)) else "within 5 % and 5° at every point"),
                len(seeds), f"{seeds.start}-{seeds.stop - 1}",
                f"sim generate --profile flexible --rpm {rpm:g} --excite AXIS:2 --duration {seconds:g} --seed S; "
                f"plant identify --resolution {resolution_hz:g}", holds,
