@@ -61,8 +61,10 @@ def test_touchdown_fires_on_the_cone_rigs_touchdown_start(tmp_path):
     first_gap = max(abs(gap[a][0]) for a in ("x", "y1", "y2", "z1", "z2"))
     assert first_gap >= 0.9 * cmin  # on the touchdown bearing
     assert max(abs(volt[m][0]) for m in volt.fields) >= 0.98 * supply  # an amplifier at its limit
-    # nothing before the start: the file is the first 0.3 s, every sample
+    # nothing before the start: the file is the first 0.3 s, every sample, and its metadata says it
+    # holds nothing before the trigger where 0.2 s were asked for
     assert len(gap) == round(0.3 * RATE) and gap.seq[0] == 0 and np.all(np.diff(gap.seq.astype(np.int64)) == 1)
+    assert snap_meta(rec)["pre_s"] == "0.2" and snap_meta(rec)["pre_held_s"] == "0"
 
 
 def test_speed_band_entered_on_a_ramp_writes_the_window_around_it(tmp_path):
@@ -87,6 +89,7 @@ def test_speed_band_entered_on_a_ramp_writes_the_window_around_it(tmp_path):
     assert np.array_equal(snap["speed"], whole["speed"][snap.seq])
     assert np.array_equal(rec["/amb/gap"]["front_x"], load(tmp_path / "whole.mcap")["/amb/gap"]["front_x"][snap.seq])
     assert snap.log_time[0] == t0 + (k - 2000) * SAMPLE_NS and meta["pre_s"] == "0.2" and meta["post_s"] == "0.1"
+    assert meta["pre_held_s"] == "0.2"  # the whole window before the trigger is in the file
     # named by the trigger's UTC time, to the millisecond
     stamp = datetime.fromtimestamp(int(meta["trigger_ns"]) / 1e9, timezone.utc).strftime("%Y%m%dT%H%M%S.%f")[:-3]
     assert f.name == f"sp_{stamp}Z_speed-10000-12000.mcap"

@@ -252,6 +252,7 @@ class _Capture:
     end_ns: int
     firings: list[Firing]
     done: dict[str, int] = field(default_factory=dict)  # device -> host time of its last sample written
+    first_ns: int | None = None  # host time of the earliest sample written (after start_ns where the recording began later)
     drop: DropSamples | None = None  # what it holds of the gap's device, as its drop needs it
 
 
@@ -405,6 +406,8 @@ class Snapshots(Sink):
         for piece in self._rings[device].after(cap.done.get(device, cap.start_ns - 1), cap.end_ns):
             cap.writer.write(device, piece.block, piece.counts(device, device not in cap.done))
             cap.done[device] = int(piece.block.host_time_ns[-1])
+            first = int(piece.block.host_time_ns[0])
+            cap.first_ns = first if cap.first_ns is None else min(cap.first_ns, first)
             if cap.drop is not None and device == self._drops.device:
                 cap.drop.add(piece.block)
 
@@ -440,7 +443,10 @@ class Snapshots(Sink):
         meta = {"cause": first.cause, "trigger_time": when, "trigger_ns": str(first.t_ns),
                 "triggers": "; ".join(f"{f.cause} at {f.t_ns}: {f.detail}" for f in cap.firings),
                 "pre_s": f"{self.options.pre_s:g}", "post_s": f"{self.options.post_s:g}",
-                "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns)}
+                "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns),
+                # what the file holds before the trigger: less than pre_s where the recording (or
+                # the device) began after start_ns
+                "pre_held_s": f"{max(0, first.t_ns - max(cap.start_ns, cap.first_ns or first.t_ns)) / 1e9:g}"}
         drop = self._drops.record(cap.drop) if cap.drop is not None else None
         if drop is not None:
             cap.writer.add_metadata(DROP_RECORD, drop)
