@@ -68,15 +68,32 @@ def pytest_configure(config):
     a fresh clone here). The first to import a module writes it (atomically: importlib writes a
     temporary file and renames it), the rest read it; compiling the whole environment before the
     workers started instead took 30 s of a fresh clone, most of it on packages no test imports."""
-    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="ambdaq-cache-")
-    os.environ["AMBDAQ_STATE_DIR"] = tempfile.mkdtemp(prefix="ambdaq-state-")
+    os.environ["XDG_CACHE_HOME"] = _run_dir("ambdaq-cache-")
+    os.environ["AMBDAQ_STATE_DIR"] = _run_dir("ambdaq-state-")
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
     if not hasattr(config, "workerinput"):
-        os.environ[scheduling.OFFLINE_LIST] = str(Path(tempfile.mkdtemp(prefix="ambdaq-sched-")) / "offline.txt")
+        os.environ[scheduling.OFFLINE_LIST] = str(Path(_run_dir("ambdaq-sched-")) / "offline.txt")
         _WARMING.extend(_warm_rigs())
         if _WARMING:  # a fresh clone: what the workers' collection imports, compiled once before they start
             _import_tests_once()
+
+
+_RUN_DIRS: list[str] = []
+"""The folders this process made for the run (:func:`_run_dir`), removed when it ends."""
+
+
+def _run_dir(prefix: str) -> str:
+    """A fresh folder for this run, removed at its end (pytest_unconfigure): each process of every
+    run made three and left them (458 of each kind had gathered in /tmp here)."""
+    _RUN_DIRS.append(tempfile.mkdtemp(prefix=prefix))
+    return _RUN_DIRS[-1]
+
+
+def pytest_unconfigure(config):
+    """The run's folders go (:func:`_run_dir`), each process its own."""
+    while _RUN_DIRS:
+        shutil.rmtree(_RUN_DIRS.pop(), ignore_errors=True)
 
 
 IMPORT_TESTS = """import importlib, pathlib, sys
