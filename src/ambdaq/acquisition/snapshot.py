@@ -439,6 +439,7 @@ class Snapshots(Sink):
 
     def _finish_capture(self, cap: _Capture) -> None:
         first = cap.firings[0]
+        held = first.t_ns if cap.first_ns is None else cap.first_ns  # the earliest sample written
         when = datetime.fromtimestamp(first.t_ns / 1e9, timezone.utc).isoformat(timespec="microseconds")
         meta = {"cause": first.cause, "trigger_time": when, "trigger_ns": str(first.t_ns),
                 "triggers": "; ".join(f"{f.cause} at {f.t_ns}: {f.detail}" for f in cap.firings),
@@ -446,7 +447,7 @@ class Snapshots(Sink):
                 "start_ns": str(cap.start_ns), "end_ns": str(cap.end_ns),
                 # what the file holds before the trigger: less than pre_s where the recording (or
                 # the device) began after start_ns
-                "pre_held_s": f"{max(0, first.t_ns - max(cap.start_ns, cap.first_ns or first.t_ns)) / 1e9:g}"}
+                "pre_held_s": f"{max(0, first.t_ns - max(cap.start_ns, held)) / 1e9:g}"}
         drop = self._drops.record(cap.drop) if cap.drop is not None else None
         if drop is not None:
             cap.writer.add_metadata(DROP_RECORD, drop)

@@ -96,8 +96,8 @@ def command() -> None:
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, output, record,
-              plot_path, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, output,
+              record, plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -155,8 +155,8 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, holes
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record, plot_path,
-            overwrite, as_json):
+def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record,
+            plot_path, overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane (one
     run at each speed of influence coefficients saved from several).

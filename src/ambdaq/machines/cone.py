@@ -5,6 +5,7 @@ The simulator (:mod:`ambdaq.sim.rigs.cone`) steps this machine."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -110,16 +111,23 @@ def plane_unbalance(rpm: float, position: Mapping[str, complex], current: Mappin
     Both as phasors ``a + j b`` of ``a sin theta + b cos theta``.
     """
     omega = float(rpm) * RPM_TO_RAD_S
-    rotor = CONE.rotor
-    M, C, K, _Kib = rotor.bearing_model(omega)
-    Ti = np.linalg.inv(rotor.transform())
-    _K, Kig = rotor.linearise()
+    stiffness, coils = _force_law(omega)
     q = -1j * np.array([position.get(a, 0j) for a in AXES], dtype=complex)  # Re(P exp(j theta)) phasors
     i = -1j * np.array([current.get(c, 0j) for c in COILS], dtype=complex)
     i_e = i / (1 + 1j * omega * CONE.control.tau_e)
-    force = (-omega**2 * M + 1j * omega * C + K) @ q - Ti.T @ Kig @ i_e
-    pairs = [(AXES.index(y), AXES.index(z)) for y, z in (("y1", "z1"), ("y2", "z2"))]
-    return np.array([(force[y] + 1j * force[z]) / 2 for y, z in pairs]) / omega**2
+    force = stiffness @ q - coils @ i_e
+    return np.array([(force[y] + 1j * force[z]) / 2 for y, z in BEARING_PAIRS]) / omega**2
+
+
+@functools.lru_cache(maxsize=8)
+def _force_law(omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """At spin ``omega`` (rad/s): the rotor's dynamic stiffness in bearing coordinates at 1X,
+    -Omega^2 M_b + j Omega C_b + K_b (eq. 10), and the eight coils' forces on them per ampere,
+    T^-T K_ig (eq. 4): the same for every window of a run, so computed once per speed."""
+    rotor = CONE.rotor
+    M, C, K, _Kib = rotor.bearing_model(omega)
+    _K, Kig = rotor.linearise()
+    return -omega**2 * M + 1j * omega * C + K, np.linalg.inv(rotor.transform()).T @ Kig
 
 
 def loop_model(_calibration: Mapping[str, str]) -> LoopModel:

@@ -142,9 +142,9 @@ def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spin
     control force at 1X. That holds once the feedforward has adapted: the windows before
     (:func:`settled`) are left out, in windows of FF_WINDOW_S."""
     rec = load(path)
-    result = apht(rec, orders=(1,), coefficients=coefficients)
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
-    model.require(machine, path, list(result.axes))
+    model.require(machine, path, list(rec.machine.radial))  # the axes APHT reads: refused before it runs
+    result = apht(rec, orders=(1,), coefficients=coefficients)
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     if on:
         result = apht(rec, orders=(1,), coefficients=coefficients, window_s=FF_WINDOW_S)
@@ -591,7 +591,8 @@ def save_record(result: Balancing | ForceBalancing, path: str | Path, runs: list
         return {"file": Path(f).name, "sha256": file_sha256(f)}
 
     doc = {"format": RECORD_FORMAT, "version": RECORD_VERSION, "machine": machine,
-           "runs": [{"role": role, **source(f)} for role, f in runs], "runout_coefficients": None if coefficients is None else source(coefficients),
+           "runs": [{"role": role, **source(f)} for role, f in runs],
+           "runout_coefficients": None if coefficients is None else source(coefficients),
            "influence_file": None if influence_file is None else source(influence_file), "result": result.as_dict()}
     return write_sealed(path, doc, overwrite=overwrite, indent=1)
 

@@ -113,9 +113,14 @@ class Unbalance:
             raise BadInputError(f"bad unbalance {spec!r}: each between 0 and {MAX_UNBALANCE:g} kg m")
         return u
 
-    def planes(self) -> dict[str, complex]:
-        """Per balancing plane, kg m as a phasor (its angle from the key-phasor's mark)."""
-        return {"upper": complex(self.upper), "lower": self.lower * np.exp(1j * np.deg2rad(self.lower_phase_deg))}
+    @staticmethod
+    def planes(unbalance: "Unbalance | None") -> dict[str, complex]:
+        """``unbalance`` per balancing plane, kg m as a phasor (its angle from the key-phasor's
+        mark); None: a balanced rotor, zero on every plane."""
+        if unbalance is None:
+            return {plane: 0j for plane in BALANCE_PLANES}
+        return {"upper": complex(unbalance.upper),
+                "lower": unbalance.lower * np.exp(1j * np.deg2rad(unbalance.lower_phase_deg))}
 
 
 MAX_UNBALANCE = 1e-3
@@ -278,7 +283,7 @@ class ConeRig(Rig):
                  impact: Impact | None = None, unbalance: "Unbalance | None" = None) -> None:
         super().__init__(params, seed=seed, speed=speed, truth=truth, noise=noise)
         self.impact = impact
-        self._unbalance = {plane: 0j for plane in BALANCE_PLANES} if unbalance is None else unbalance.planes()
+        self._unbalance = Unbalance.planes(unbalance)
         self.masses: list[BalanceMass] = []
         self.drop: Drop | None = None
         self._last_rev = 0.0  # revolutions begun before this block (the key-phasor's count)
@@ -320,8 +325,7 @@ class ConeRig(Rig):
     def set_unbalance(self, unbalance: "Unbalance | None") -> None:
         """Spin with this mass unbalance (None: a balanced rotor), the masses put on before kept,
         and let the loop settle (:meth:`settle`)."""
-        base = {plane: 0j for plane in BALANCE_PLANES} if unbalance is None else unbalance.planes()
-        self._unbalance = plane_unbalance(base, self.masses)
+        self._unbalance = plane_unbalance(Unbalance.planes(unbalance), self.masses)
         self.settle(SETTLE_S)
 
     def plane_unbalance(self) -> dict[str, complex]:
