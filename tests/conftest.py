@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import shutil
 import subprocess
@@ -143,6 +144,19 @@ def pytest_runtestloop(session):
     the kernels' 10.6 s no longer add to), and before it hands them a test."""
     while _WARMING:
         _WARMING.pop().wait()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """After each test on a worker, its garbage collected and what outlives it frozen (gc.freeze):
+    the collector's full passes then walk only what the tests since made, not the whole heap of a
+    worker that imported numpy, scipy, pandas, matplotlib, numba ... and kept what the earlier tests
+    cached. A worker held 450,000 to 720,000 objects by the end, and its full passes (13 to 19 per
+    run) took 10 to 27 s of its time; the one pytest adds at the end ran while every worker waited."""
+    yield
+    if hasattr(item.config, "workerinput"):
+        gc.collect()
+        gc.freeze()
 
 
 def pytest_collection_finish(session):

@@ -390,20 +390,29 @@ def test_devices_asks_a_named_port_for_an_slcan_adapter(run_cli):
 def test_the_heap_is_frozen_out_of_garbage_collection_while_recording(tmp_path):
     """With numpy, scipy, numba and canopen loaded a full collection walks ~150,000 objects with the
     GIL held (90-100 ms here), long enough for the in-process CAN rig to miss SYNCs.  While a
-    recording runs those objects are frozen out of the collector, and let back in after it.  (That
-    the rig then keeps up beside one busy process is test_record_stress.py's subject; with more load
-    than that, misses are counted, so this test checks the mechanism, not the host's luck.)"""
+    recording runs those objects are frozen out of the collector, and let back in after it, unless
+    the process had frozen its heap itself.  (That the rig then keeps up beside one busy process is
+    test_record_stress.py's subject; with more load than that, misses are counted, so this test
+    checks the mechanism, not the host's luck.)"""
     import gc
 
-    tracked = []
-    with open_url("sim://spindle", speed="10000") as rig:
-        res = Recorder(rig.sources, tmp_path / "gc.mcap", RecordOptions(duration_s=0.6)).run(
-            on_progress=lambda p: tracked.append(len(gc.get_objects())), progress_interval_s=0.1)
-    assert tracked and res.samples > 0
-    # what a full collection would walk mid-recording: the objects made since it began (a few
-    # thousand), not the heap (measured 150,000; 20,000 leaves room for other test modules' objects)
-    assert max(tracked) < 20_000, tracked
+    def record(name):
+        tracked = []
+        with open_url("sim://spindle", speed="10000") as rig:
+            res = Recorder(rig.sources, tmp_path / name, RecordOptions(duration_s=0.6)).run(
+                on_progress=lambda p: tracked.append(len(gc.get_objects())), progress_interval_s=0.1)
+        assert tracked and res.samples > 0
+        # what a full collection would walk mid-recording: the objects made since it began (a few
+        # thousand), not the heap (measured 150,000; 20,000 leaves room for other test modules' objects)
+        assert max(tracked) < 20_000, tracked
+
+    gc.unfreeze()  # a process that froze nothing (the suite's workers freeze after each test)
+    record("gc.mcap")
     assert gc.get_freeze_count() == 0  # let back in
+    gc.freeze()  # a process that froze its heap itself: the recording leaves it frozen
+    frozen = gc.get_freeze_count()
+    record("host.mcap")
+    assert gc.get_freeze_count() >= frozen
 
 
 @pytest.mark.long  # a kill -9 mid-recording runs by default in test_crash_safety.py

@@ -150,7 +150,7 @@ def _after_stop(old, until: float) -> Callable:
     return handler
 
 
-def _freeze_heap(sources: list[Source]) -> None:
+def _freeze_heap(sources: list[Source]) -> bool:
     """Where a device is paced by the wall clock: leave every object that exists now out of the
     collector's full passes until the acquisition ends (``gc.freeze``).  After numpy, scipy, numba
     and canopen are loaded a full collection walks about 150,000 objects with the GIL held: 90-100
@@ -159,9 +159,15 @@ def _freeze_heap(sources: list[Source]) -> None:
     Nothing is collected first: that would be the same pause once, at the start (and seconds in a
     process that holds more, as a test runner does); garbage that exists now waits for the end of
     the recording.  A run of unpaced sources only (``sim generate``) loses nothing to a pause and
-    is left alone."""
-    if any(s.paced for s in sources):
-        gc.freeze()
+    is left alone.  A heap the host process froze itself (a server that froze what it loaded
+    before it forks, a test runner) stays frozen after the acquisition: ``gc.unfreeze`` thaws every
+    frozen object, the host's too, so the acquisition thaws only where nothing was frozen before
+    it.  Returns whether the heap is to be thawed at the end."""
+    if not any(s.paced for s in sources):
+        return False
+    host_froze = gc.get_freeze_count() > 0
+    gc.freeze()
+    return not host_froze
 
 
 class Acquisition:
@@ -242,7 +248,7 @@ class Acquisition:
             for sig, handler in {signal.SIGINT: on_signal, signal.SIGTERM: on_signal, **(signals or {})}.items():
                 handlers[sig] = signal.signal(sig, handler)
         self.t0 = time.monotonic()
-        _freeze_heap(self.sources)
+        thaw = _freeze_heap(self.sources)
         try:
             for sink in sinks:
                 sink.start(self)
@@ -251,7 +257,8 @@ class Acquisition:
                 s.start(self.due[s.name])
                 started[s.name] = time.monotonic()
         except BaseException:  # nothing recorded: every device is closed, nothing empty is left
-            gc.unfreeze()
+            if thaw:
+                gc.unfreeze()
             self._close_sources()
             for sink in sinks:
                 sink.abort()
@@ -311,7 +318,8 @@ class Acquisition:
             until = time.monotonic() + REPEAT_GRACE_S
             for sig, old in handlers.items():
                 signal.signal(sig, _after_stop(old, until) if count[0] and sig in (signal.SIGINT, signal.SIGTERM) else old)
-            gc.unfreeze()
+            if thaw:
+                gc.unfreeze()
         return failure
 
     @property
