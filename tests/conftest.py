@@ -70,6 +70,8 @@ def pytest_configure(config):
     temporary file and renames it), the rest read it; compiling the whole environment before the
     workers started instead took 30 s of a fresh clone, most of it on packages no test imports."""
     os.environ["XDG_CACHE_HOME"] = _run_dir("ambdaq-cache-")
+    if hasattr(config, "workerinput"):
+        gc.set_threshold(*WORKER_GC_THRESHOLDS)
     os.environ["AMBDAQ_STATE_DIR"] = _run_dir("ambdaq-state-")
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
@@ -78,6 +80,14 @@ def pytest_configure(config):
         _WARMING.extend(_warm_rigs())
         if _WARMING:  # a fresh clone: what the workers' collection imports, compiled once before they start
             _import_tests_once()
+
+
+WORKER_GC_THRESHOLDS = (700, 10, 100)
+"""The workers' garbage collector: a full pass after 100 of the middle generation's, not Python's 10.
+A worker holds 450,000 to 720,000 objects by the end of a run (numpy, scipy, pandas, matplotlib,
+numba ... and what the tests cached) and Python's thresholds walked all of them 13 to 19 times a
+run: 10 to 27 s of each worker's time, measured by gc.callbacks. The young generations are as
+Python sets them; cyclic garbage lives longer (a test that needs it gone calls gc.collect)."""
 
 
 _RUN_DIRS: list[str] = []
@@ -144,19 +154,6 @@ def pytest_runtestloop(session):
     the kernels' 10.6 s no longer add to), and before it hands them a test."""
     while _WARMING:
         _WARMING.pop().wait()
-
-
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item, nextitem):
-    """After each test on a worker, its garbage collected and what outlives it frozen (gc.freeze):
-    the collector's full passes then walk only what the tests since made, not the whole heap of a
-    worker that imported numpy, scipy, pandas, matplotlib, numba ... and kept what the earlier tests
-    cached. A worker held 450,000 to 720,000 objects by the end, and its full passes (13 to 19 per
-    run) took 10 to 27 s of its time; the one pytest adds at the end ran while every worker waited."""
-    yield
-    if hasattr(item.config, "workerinput"):
-        gc.collect()
-        gc.freeze()
 
 
 def pytest_collection_finish(session):

@@ -159,15 +159,13 @@ def _freeze_heap(sources: list[Source]) -> bool:
     Nothing is collected first: that would be the same pause once, at the start (and seconds in a
     process that holds more, as a test runner does); garbage that exists now waits for the end of
     the recording.  A run of unpaced sources only (``sim generate``) loses nothing to a pause and
-    is left alone.  A heap the host process froze itself (a server that froze what it loaded
-    before it forks, a test runner) stays frozen after the acquisition: ``gc.unfreeze`` thaws every
-    frozen object, the host's too, so the acquisition thaws only where nothing was frozen before
-    it.  Returns whether the heap is to be thawed at the end."""
-    if not any(s.paced for s in sources):
+    is left alone, and so is a heap the host process froze itself (a server that froze what it
+    loaded before it forks): ``gc.unfreeze`` would thaw every frozen object, the host's too.
+    Returns whether it froze (and is to thaw at the end)."""
+    if gc.get_freeze_count() or not any(s.paced for s in sources):
         return False
-    host_froze = gc.get_freeze_count() > 0
     gc.freeze()
-    return not host_froze
+    return True
 
 
 class Acquisition:
