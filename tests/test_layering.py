@@ -64,11 +64,18 @@ def from_imports(path: Path, tree: ast.AST):
                 yield target, [a.name for a in node.names]
 
 
+@functools.lru_cache(maxsize=None)
+def parsed(path: Path) -> ast.Module:
+    """``path``'s syntax tree, parsed once for every test here (three read each module: 10 s of a
+    worker's setup on a loaded host when each parsed it again)."""
+    return ast.parse(path.read_text())
+
+
 def imports(path: Path) -> set[str]:
     """The ambdaq modules ``path`` imports, resolved (relative imports included; a name imported
     from a package counts as its submodule where there is one)."""
     out = set()
-    tree = ast.parse(path.read_text())
+    tree = parsed(path)
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.startswith("ambdaq")}
@@ -133,7 +140,7 @@ def _defined(path: Path) -> frozenset[str]:
     """The names a module defines or imports at its top level (what ``from it import NAME`` finds);
     each module parsed once (its importers ask for it again and again)."""
     names = set()
-    for node in ast.parse(path.read_text()).body:
+    for node in parsed(path).body:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
             names.add(node.name)
         elif isinstance(node, (ast.Assign, ast.AnnAssign)):
@@ -151,7 +158,7 @@ def test_every_name_imported_from_ambdaq_is_there():
     the rename of ``drivers/can/profiles.py`` by a commit)."""
     missing = []
     for path in ROOT.rglob("*.py"):
-        for target, names in from_imports(path, ast.parse(path.read_text())):
+        for target, names in from_imports(path, parsed(path)):
             where = ROOT.parent / target.replace(".", "/")
             source = where.with_suffix(".py") if where.with_suffix(".py").exists() else where / "__init__.py"
             if not source.exists():
