@@ -119,6 +119,13 @@ def test_the_cone_rig_is_balanced_by_both_methods(run_cli, tmp_path):
     assert r.exit_code == 2 and "is --machine cone this recording's machine?" in r.output, r.output
     r = run_cli("balance", "forces", ref, "--machine", "cone")
     assert r.exit_code == 2 and "--coefficients FILE), or --no-runout" in r.output, r.output
+    # the cone's recording with the spindle's model (the default) and a spindle's runout file: the
+    # machine is what is wrong, and that is said (it said the file had no runout for y1 ... z2)
+    slow = tmp_path / "slow.mcap"
+    assert run_cli("sim", "generate", "--rpm", "slowroll", "--duration", 1, "-q", "-o", slow).exit_code == 0
+    assert run_cli("runout", "identify", slow, "-o", tmp_path / "coef.json").exit_code == 0
+    r = run_cli("balance", "forces", ref, "--coefficients", tmp_path / "coef.json")
+    assert r.exit_code == 2 and "is --machine spindle this recording's machine?" in r.output, r.output
 
 
 @pytest.fixture

@@ -682,13 +682,14 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     beside it; ``holes`` and ``max_rpm`` as
     :func:`influence_balancing`'s."""
     rec = load(path)
-    result = apht(rec, orders=(1,), coefficients=coefficients, currents=True, window_s=FORCE_WINDOW_S)
-    if result.gap.shape[0] < 2:
-        raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.plane_unbalance is None or not model.balance_planes:
         raise BadInputError(f"the {machine} model has no rotor and force law for balancing from the bearings' forces")
-    model.require(machine, path, list(result.axes), result.current_names)
+    if rec.has_role("current"):  # refused before APHT runs (without currents, APHT says so)
+        model.require(machine, path, list(rec.machine.radial), tuple(rec.role("current").fields))
+    result = apht(rec, orders=(1,), coefficients=coefficients, currents=True, window_s=FORCE_WINDOW_S)
+    if result.gap.shape[0] < 2:
+        raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
     axes, channels = list(result.axes), result.current_names
     u = np.array([model.plane_unbalance(result.rpm, dict(zip(axes, result.gap[w, 0])),
                                         dict(zip(channels, result.current[w, 0])))
