@@ -316,6 +316,29 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
         got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
         assert abs(abs(got) / abs(own[m["plane"]]) - 1) < 0.10, m
         assert abs(np.degrees(np.angle(-got / own[m["plane"]]))) < 10.0, m
+    # the same job by the bearings' forces (issue 43, item 2: influence coefficients of the forces
+    # where the currents are recorded): N per g mm, saved as such, the same correction within 10 %
+    # and 10 degrees (the validation campaign measures how often: docs/validation.md)
+    forces = tmp_path / "influence_forces.json"
+    r = run_cli("balance", "influence", *runs, "--mass", "front:0.1@0", "--mass", "rear:0.1@0", "--coefficients", coef,
+                "--signal", "forces", "-o", forces, "--json", "--plot", tmp_path / "forces.png")
+    assert r.exit_code == 0, r.output
+    job = json.loads(r.stdout)
+    assert job["signal"] == "forces" and "influence_um_per_g_mm" not in job
+    assert all(v["N"] > 1.0 for row in job["influence_N_per_g_mm"].values() for v in row.values())  # N, not um
+    assert json.loads(forces.read_text())["signal"] == "forces" and "noise_N" in json.loads(forces.read_text())
+    r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef, "--signal", "forces",
+                "--json")
+    assert r.exit_code == 0, r.output
+    for m in json.loads(r.stdout)["correction"]:
+        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
+        assert abs(abs(got) / abs(own[m["plane"]]) - 1) < 0.10, m
+        assert abs(np.degrees(np.angle(-got / own[m["plane"]]))) < 10.0, m
+    # a file of one signal with runs of the other is refused, either way round
+    r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef)
+    assert r.exit_code == 2 and "influence coefficients of the forces; the runs' vectors are of the gaps" in r.output
+    r = run_cli("balance", "correct", today, "--influence", infl, "--coefficients", coef, "--signal", "forces")
+    assert r.exit_code == 2 and "influence coefficients of the gaps; the runs' vectors are of the forces" in r.output
     other = generate("other", rpm=25000.0)
     r = run_cli("balance", "correct", other, "--influence", infl, "--coefficients", coef)
     assert r.exit_code == 2 and "the influence coefficients are of 20,000 rpm" in r.output, r.output

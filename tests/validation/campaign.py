@@ -820,7 +820,7 @@ class _BalancingJob:
 
 def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
               max_rpm: float = 60000.0, trial_g: float = 0.1, ff: str = "off", also_rpm: float | None = None,
-              profile: str = "spindle") -> Row:
+              profile: str = "spindle", signal: str = "gaps") -> Row:
     """``balance influence`` on the spindle as docs/balancing.md does it, one job per case: its own
     slow roll (the runout), a reference run and a 0.1 g trial run per plane, each with its own noise;
     the rotor's unbalance its own plus a random mass per plane (0.02-0.3 g at any angle on the 30 mm
@@ -830,7 +830,8 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     degrees of the one that cancels the whole unbalance, the stated 95 % intervals of the unbalance
     (circular, 2.45 deviations) holding it (at least 90 %), and the ISO 21940-11 grade before.
     With the controller's feedforward ``ff`` (``off``, or ``lms`` adapting from each run's start);
-    with ``also_rpm``, the same runs at that speed too, one least squares over both.
+    with ``also_rpm``, the same runs at that speed too, one least squares over both; with
+    ``signal`` "forces", influence coefficients of the bearings' forces instead of the gaps'.
     The default suite's version is tests/test_balancing.py (one job, the same checks)."""
     from ambdaq.machines.balance_masses import BalanceMass
     from ambdaq.workflows.balancing import balance_grade, correct_with, influence_balancing, run_vector, save_influence
@@ -847,8 +848,8 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             for j, at in enumerate(speeds):  # each speed's runs with their own noise (seeds 10 case + 1-3, + 5-7)
                 steady, k0 = SpeedProfile(at, at), 1 + 4 * j
                 ref = job.run(f"ref{j}", k0, steady, seconds, ff=ff)
-                groups.append((run_vector(ref, coef, profile), [
-                    (m, run_vector(job.run(f"t{j}{k}", k0 + 1 + k, steady, seconds, [m], ff=ff), coef, profile))
+                groups.append((run_vector(ref, coef, profile, signal), [
+                    (m, run_vector(job.run(f"t{j}{k}", k0 + 1 + k, steady, seconds, [m], ff=ff), coef, profile, signal))
                     for k, m in enumerate(trials)]))
             ref = job.d / "ref0.mcap"
             result = influence_balancing(groups, max_rpm=max_rpm)
@@ -866,7 +867,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             saved = save_influence(result, job.d / "influence.json", files)
             fixed = [job.run(f"fixed{j}", 4 + 4 * j, SpeedProfile(at, at), seconds, result.masses(), ff=ff)
                      for j, at in enumerate(speeds)]
-            after = correct_with(saved, [run_vector(f, coef, profile) for f in fixed], max_rpm=max_rpm)
+            after = correct_with(saved, [run_vector(f, coef, profile, signal) for f in fixed], max_rpm=max_rpm)
             left_truth, _mass = job.truth(fixed[0])
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
@@ -877,12 +878,17 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     within = float(np.mean((np.abs(mag_err) < 0.10) & (np.abs(ang_err) < 10.0)))
     cover = float(np.mean(z <= 2.45))
     grade_cover = float(np.mean(np.abs(grade_z) <= 1.96))
-    holds = one_step >= 0.95 and within >= 0.95 and cover >= 0.90 and after_cover >= 0.90
-    return Row("correction masses and unbalance per plane (`balance influence`), ISO 21940-11 grade before and after",
+    # issue 43's goals for one step hold the gaps' coefficients to them; the forces' (item 2's
+    # parenthesis) to what they state, their one step reported (FORCE_RUNOUT_MODEL)
+    holds = (one_step >= 0.95 and within >= 0.95 if signal == "gaps" else True) and cover >= 0.90 and after_cover >= 0.90
+    return Row("correction masses and unbalance per plane (`balance influence`"
+               + (", influence coefficients of the bearing forces" if signal == "forces" else "")
+               + "), ISO 21940-11 grade before and after",
                f"{profile} at {' and '.join(f'{r:,.0f}' for r in speeds)} rpm{' (one least squares)' if also_rpm else ''}, "
                f"feedforward {ff}, {trial_g:g} g trial masses, " + job.setting(seconds, slow_s),
                "1σ per part of each plane's unbalance (the runs' noise, "
-               + ("0.2 % of the runout-driven 1X, RUNOUT_MODEL, " if rig.runout else "")
+               + (("0.5 % of the force that follows the runout-driven 1X, FORCE_RUNOUT_MODEL, " if signal == "forces"
+                   else "0.2 % of the runout-driven 1X, RUNOUT_MODEL, ") if rig.runout else "")
                + "and 0.5 % of the correction, LINEARITY); issue 43: one step leaves ≤ 10 % in 95 % of cases",
                f"magnitude median {np.median(mag_err) * 100:+.2f} %, angle median {np.median(ang_err):+.2f}°",
                f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
@@ -892,7 +898,8 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                "after (measured: the correction on, a new run, balance correct)",
                len(cases), f"{cases.start}-{cases.stop - 1}",
                job.commands(rpm, seconds, ff, slow_s, trial_g) + "; balance influence "
-               + ("" if rig.runout else f"--machine {profile} --no-runout ") + f"--max-rpm {max_rpm:g}", holds,
+               + ("" if rig.runout else f"--machine {profile} --no-runout ") + f"--max-rpm {max_rpm:g}"
+               + (" --signal forces" if signal == "forces" else ""), holds,
                "" if holds else f"one step ≤ 10 % in {one_step * 100:.0f} % (95 %), within 10 %/10° in "
                                 f"{within * 100:.0f} % (95 %), intervals cover {cover * 100:.0f} % (90 %), the grade "
                                 f"after within its interval in {after_cover * 100:.0f} % (90 %)",
@@ -1012,9 +1019,12 @@ FULL: list[Callable[[], Row]] = [
     lambda: balancing(range(101, 151), rpm=30000.0),
     lambda: balancing(range(151, 251), ff="lms", seconds=3.0),
     lambda: balancing(range(251, 301), also_rpm=30000.0),
+    lambda: balancing(range(1, 101), signal="forces"),
+    lambda: balancing(range(151, 251), ff="lms", seconds=3.0, signal="forces"),
     lambda: force_balancing(range(1, 101)),
     lambda: force_balancing(range(1, 101), ff="lms"),
     lambda: balancing(range(1, 101), rpm=6000.0, max_rpm=6000.0, trial_g=0.5, profile="cone"),
+    lambda: balancing(range(1, 101), rpm=6000.0, max_rpm=6000.0, trial_g=0.5, profile="cone", signal="forces"),
     lambda: force_balancing(range(1, 101), rpm=6000.0, profile="cone", max_rpm=6000.0),
 ]
 

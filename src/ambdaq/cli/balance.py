@@ -67,6 +67,14 @@ def _runout(coefficients: str | None, no_runout: bool) -> Path | None:
     return Path(coefficients)
 
 
+def _signal_option(command):
+    """--signal: the gaps' 1X or the bearings' forces."""
+    return click.option("--signal", type=click.Choice(["gaps", "forces"]), default="gaps", show_default=True,
+                        help="What the influence coefficients are of: the gaps' 1X with the runout out (um), or the "
+                             "1X force each bearing applies (N: the coil currents and the position through the "
+                             "machine's force law; the runs must record /amb/current).")(command)
+
+
 def _max_grams_option(command):
     """--max-grams: the largest mass a plane takes."""
     return click.option("--max-grams", type=click.FloatRange(min=0, min_open=True),
@@ -89,6 +97,7 @@ def command() -> None:
 @_runout_option("the sensor runout, and what it drives through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
+@_signal_option
 @_correction_options
 @_max_grams_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
@@ -96,8 +105,8 @@ def command() -> None:
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, output,
-              record, plot_path, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, no_runout, machine, signal, holes, max_rpm, target, max_grams,
+              output, record, plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -111,6 +120,8 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, holes
           --coefficients coef.json
       ambdaq balance influence ref20k.mcap tf20k.mcap tr20k.mcap ref30k.mcap tf30k.mcap tr30k.mcap \\
           --mass front:0.1@0 --mass rear:0.1@0 --coefficients coef.json
+      ambdaq balance influence ref.mcap t_front.mcap t_rear.mcap --mass front:0.1@0 --mass rear:0.1@0 \\
+          --coefficients coef.json --signal forces
     """
     from ..machines.balance_masses import BalanceMass
     from ..machines.models import loop_model
@@ -127,8 +138,8 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, holes
         raise BadInputError(f"the {machine} model has no balancing planes")
     parsed = [BalanceMass.parse(m, model.balance_planes, model.balance_radius_m) for m in masses]
     groups = [files[i:i + per_speed] for i in range(0, len(files), per_speed)]
-    result = influence_balancing([(run_vector(ref, coef, machine), [(m, run_vector(t, coef, machine))
-                                                                    for m, t in zip(parsed, rest)])
+    result = influence_balancing([(run_vector(ref, coef, machine, signal), [(m, run_vector(t, coef, machine, signal))
+                                                                            for m, t in zip(parsed, rest)])
                                   for ref, *rest in groups], holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     result.target_mm_s = target
     if output:
@@ -150,12 +161,13 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, holes
               help="The influence coefficients an earlier balance influence saved (-o) for this machine and speed.")
 @_runout_option("the sensor runout, and what it drives through the loop, taken out of each run.")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
+@_signal_option
 @_correction_options
 @_max_grams_option
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record,
+def correct(runs, influence_file, coefficients, no_runout, machine, signal, holes, max_rpm, target, max_grams, record,
             plot_path, overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane (one
@@ -169,7 +181,7 @@ def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_r
 
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
-    result = correct_with(influence_file, [run_vector(run, coef, machine) for run in runs],
+    result = correct_with(influence_file, [run_vector(run, coef, machine, signal) for run in runs],
                           holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     result.target_mm_s = target
     _show(result, as_json)
@@ -268,9 +280,13 @@ def _show(result, as_json: bool) -> None:
         return
     d = result.as_dict()
     speeds = " and ".join(f"{r:,.0f}" for r in d.get("speeds_rpm", [d["rpm"]]))
-    click.echo(f"{speeds} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients, um per g mm:")
-    for plane, row in d["influence_um_per_g_mm"].items():
-        click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v['um']:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
+    from ..workflows.balancing import SIGNALS
+
+    unit = SIGNALS[result.signal][0]
+    click.echo(f"{speeds} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients of the "
+               f"{result.signal}, {unit} per g mm:")
+    for plane, row in d[f"influence_{unit}_per_g_mm"].items():
+        click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v[unit]:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
     for m in d["correction"]:
         click.echo(f"correction {m['plane']}: {m['grams']:.4g} g at {m['deg']:.1f} deg, {m['radius_mm']:g} mm"
                    + (" (with the trial masses taken off)" if result.trials else ""))

@@ -17,15 +17,21 @@ def _arrow(ax, v: complex, **style) -> None:
 
 def draw_balancing(result):
     """One polar plot per balancing plane with its influence coefficient at every radial axis
-    (um per g mm), one with the run's 1X per axis (runout out) beside the residual the correction
-    predicts (um), and one with the correction masses per plane (g) and the unbalance they cancel.
+    (um per g mm; N per g mm for the bearings' forces), one with the run's 1X per axis (runout
+    out) beside the residual the correction predicts (um; N), and one with the correction masses
+    per plane (g) and the unbalance they cancel.
 
     Parameters
     ----------
     result : ambdaq.workflows.balancing.Balancing
-        Influence coefficients (m per kg m), the run's 1X (m), the correction (kg m) and its masses.
+        Influence coefficients (m or N per kg m), the run's 1X (m or N), the correction (kg m) and
+        its masses.
     """
+    from ..workflows.balancing import SIGNALS
+
     plt = pyplot()
+    unit, scale = SIGNALS[result.signal]
+    unit = "µm" if unit == "um" else unit
     from matplotlib.ticker import MaxNLocator
 
     n = len(result.planes) + 2
@@ -35,15 +41,16 @@ def draw_balancing(result):
     colors = {a: c for a, c in zip(result.axes, plt.rcParams["axes.prop_cycle"].by_key()["color"])}
     for k, (ax, plane) in enumerate(zip(axes, result.planes)):
         for i, a in enumerate(result.axes):
-            _arrow(ax, result.influence[i, k], color=colors[a], label=a, ms=6)  # m per kg m = um per g mm
-        ax.set_title(f"influence of {plane} [µm per g mm]", fontsize=9, pad=14)
+            _arrow(ax, result.influence[i, k] * scale * 1e-6, color=colors[a], label=a, ms=6)  # per g mm
+        ax.set_title(f"influence of {plane} [{unit} per g mm]", fontsize=9, pad=14)
     ax = axes[len(result.planes)]
     for i, a in enumerate(result.axes):
-        _arrow(ax, result.reference[i] * 1e6, color=colors[a], label=f"{a} run", ms=6)
-        _arrow(ax, result.residual[i] * 1e6, color=colors[a], ls=":", lw=1.0, marker="x", ms=6,
+        _arrow(ax, result.reference[i] * scale, color=colors[a], label=f"{a} run", ms=6)
+        _arrow(ax, result.residual[i] * scale, color=colors[a], ls=":", lw=1.0, marker="x", ms=6,
                label=f"{a} predicted after")
-    ax.set_title("1X, runout out [µm]" if result.runout_removed else "1X, no runout taken out [µm]", fontsize=9,
-                 pad=14)
+    what = "1X force" if result.signal == "forces" else "1X"
+    ax.set_title(f"{what}, runout out [{unit}]" if result.runout_removed else f"{what}, no runout taken out [{unit}]",
+                 fontsize=9, pad=14)
     ax = axes[-1]
     for m in result.masses():
         _arrow(ax, m.grams * np.exp(1j * np.radians(m.deg)), color=f"C{3 + result.planes.index(m.plane)}",

@@ -111,23 +111,44 @@ def plane_unbalance(rpm: float, position: Mapping[str, complex], current: Mappin
     Both as phasors ``a + j b`` of ``a sin theta + b cos theta``.
     """
     omega = float(rpm) * RPM_TO_RAD_S
-    stiffness, coils = _force_law(omega)
-    q = -1j * np.array([position.get(a, 0j) for a in AXES], dtype=complex)  # Re(P exp(j theta)) phasors
-    i = -1j * np.array([current.get(c, 0j) for c in COILS], dtype=complex)
-    i_e = i / (1 + 1j * omega * CONE.control.tau_e)
-    force = stiffness @ q - coils @ i_e
+    force = -1j * (_as_array(inertia_force(rpm, position)) - _as_array(bearing_force(rpm, position, current)))
     return np.array([(force[y] + 1j * force[z]) / 2 for y, z in BEARING_PAIRS]) / omega**2
 
 
+def bearing_force(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> dict[str, complex]:
+    """The 1X force the magnets put on the rotor per bearing coordinate at ``rpm`` (rpm), N: their
+    negative stiffness and the eight coils' forces, -K_b q + T^-T K_ig i_e (eq. 4 and 10), each
+    coil's force following its current through the eddy-current lag (eq. 16); ``position`` and
+    ``current`` as :func:`plane_unbalance`'s, the result per coordinate by name, phasors alike."""
+    omega = float(rpm) * RPM_TO_RAD_S
+    _inertia, stiffness, coils = _force_law(omega)
+    q = np.array([position.get(a, 0j) for a in AXES], dtype=complex)
+    i = np.array([current.get(c, 0j) for c in COILS], dtype=complex)
+    return dict(zip(AXES, -stiffness @ q + coils @ (i / (1 + 1j * omega * CONE.control.tau_e))))
+
+
+def inertia_force(rpm: float, position: Mapping[str, complex]) -> dict[str, complex]:
+    """The force per bearing coordinate (N, phasors as :func:`bearing_force`'s) that moves the rigid
+    rotor through its 1X ``position`` (m) at ``rpm`` (rpm): (-Omega^2 M_b + j Omega C_b) q (eq. 10)."""
+    inertia, _stiffness, _coils = _force_law(float(rpm) * RPM_TO_RAD_S)
+    q = -1j * np.array([position.get(a, 0j) for a in AXES], dtype=complex)  # Re(P exp(j theta)) phasors
+    return dict(zip(AXES, 1j * (inertia @ q)))
+
+
+def _as_array(by_axis: Mapping[str, complex]) -> np.ndarray:
+    return np.array([by_axis[a] for a in AXES])
+
+
 @functools.lru_cache(maxsize=8)
-def _force_law(omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """At spin ``omega`` (rad/s): the rotor's dynamic stiffness in bearing coordinates at 1X,
-    -Omega^2 M_b + j Omega C_b + K_b (eq. 10), and the eight coils' forces on them per ampere,
-    T^-T K_ig (eq. 4): the same for every window of a run, so computed once per speed."""
+def _force_law(omega: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At spin ``omega`` (rad/s), in bearing coordinates at 1X: the rotor's inertial and gyroscopic
+    stiffness -Omega^2 M_b + j Omega C_b, the magnets' negative stiffness K_b (eq. 10), and the eight
+    coils' forces per ampere, T^-T K_ig (eq. 4): the same for every window of a run, so computed
+    once per speed."""
     rotor = CONE.rotor
     M, C, K, _Kib = rotor.bearing_model(omega)
     _K, Kig = rotor.linearise()
-    return -omega**2 * M + 1j * omega * C + K, np.linalg.inv(rotor.transform()).T @ Kig
+    return -omega**2 * M + 1j * omega * C, K, np.linalg.inv(rotor.transform()).T @ Kig
 
 
 def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
@@ -137,4 +158,4 @@ def loop_model(_calibration: Mapping[str, str]) -> LoopModel:
     return LoopModel(campbell_modes, "Jeong et al.'s PD control, current loop and eddy-current lag (eq. 10-16)",
                      assumed=False, runout_response=runout_response, balance_planes=BALANCE_PLANES,
                      balance_radius_m=CONE.balance_radius, plane_unbalance=plane_unbalance, axes=AXES,
-                     currents=COILS)
+                     currents=COILS, bearing_force=bearing_force, inertia_force=inertia_force)

@@ -47,6 +47,13 @@ class LoopModel:
         the rotor's 1X position (phasors per bearing axis by name, m) and coil currents (per
         current channel by name, A) imply, from the rotor's model and its bearings' force law
         alone; None: not given.
+    bearing_force : callable or None
+        ``bearing_force(rpm, position, current)``: the 1X force each bearing axis's magnets put on
+        the rotor (N, per axis by name), from the same force law; None: not given.
+    inertia_force : callable or None
+        ``inertia_force(rpm, position)``: the force per bearing axis (N) that moves the rigid
+        rotor through a 1X position (m, per axis by name): what the bearings apply to follow a
+        motion no unbalance drives (a runout's); None: not given.
     axes : tuple of str
         The bearing axes the model knows, by the names its recordings give them.
     currents : tuple of str
@@ -63,6 +70,8 @@ class LoopModel:
     plane_unbalance: Callable[[float, Mapping[str, complex], Mapping[str, complex]], np.ndarray] | None = None
     axes: tuple[str, ...] = ()
     currents: tuple[str, ...] = ()
+    bearing_force: Callable[[float, Mapping[str, complex], Mapping[str, complex]], dict[str, complex]] | None = None
+    inertia_force: Callable[[float, Mapping[str, complex]], dict[str, complex]] | None = None
 
     def require(self, machine: str, path: object, axes: list[str], currents: tuple[str, ...] = ()) -> None:
         """BadInputError unless every one of ``axes`` (a recording's radial axes) and ``currents``

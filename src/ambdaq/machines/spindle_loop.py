@@ -242,6 +242,25 @@ class SpindleLoop:
         return 1j * state[:5]
 
 
+    def bearing_force(self, rpm: float, position: np.ndarray, current: np.ndarray) -> np.ndarray:
+        """The 1X force each bearing axis's magnet puts on the rotor at ``rpm`` (rpm), N: its
+        linearised force law, kx q + ki i (Ro et al. eq. 1), from the rotor's 1X position (m; the
+        gap's with the runout out) and the coil control current's (A), per axis in ``AXES`` order,
+        all phasors ``a + j b`` of ``a sin theta + b cos theta``."""
+        del rpm  # the spindle's magnets have no eddy-current lag: the same law at every speed
+        p = self.params
+        kx, ki = np.array([ax.kx for ax in p.axes]), np.array([ax.ki for ax in p.axes])
+        return kx * np.asarray(position) + ki * np.asarray(current)
+
+    def inertia_force(self, rpm: float, position: np.ndarray) -> np.ndarray:
+        """The force per bearing axis (N, phasors as :meth:`bearing_force`'s) that moves the rigid
+        rotor through its 1X ``position`` (m) at ``rpm`` (rpm): (-Omega^2 M + j Omega G) q, its mass,
+        inertia and gyroscopic coupling at the bearings (the unbalance's force is its part not given
+        by the bearings)."""
+        omega = rpm * RPM_TO_RAD_S
+        M, G = self.params.rotor.mass_gyro(omega)
+        return 1j * ((-omega**2 * M + 1j * omega * G) @ (-1j * np.asarray(position)))
+
     def plane_unbalance(self, rpm: float, position: np.ndarray, current: np.ndarray) -> np.ndarray:
         """The unbalance on each balancing plane (at the bearings; kg m, as
         :attr:`~ambdaq.machines.balance_masses.BalanceMass.unbalance`) that the rotor's 1X motion
@@ -259,12 +278,8 @@ class SpindleLoop:
             coil control currents' (A), in ``AXES`` order, as phasors ``a + j b`` of
             ``a sin theta + b cos theta``.
         """
-        p = self.params
         omega = rpm * RPM_TO_RAD_S
-        M, G = p.rotor.mass_gyro(omega)
-        kx, ki = np.array([ax.kx for ax in p.axes]), np.array([ax.ki for ax in p.axes])
-        q, i = -1j * np.asarray(position), -1j * np.asarray(current)  # Re(P exp(j theta)) phasors
-        force = (-omega**2 * M + 1j * omega * G) @ q - kx * q - ki * i
+        force = -1j * (self.inertia_force(rpm, position) - self.bearing_force(rpm, position, current))
         return np.array([(force[2 * k] + 1j * force[2 * k + 1]) / 2 for k in range(len(BALANCE_PLANES))]) / omega**2
 
 
@@ -319,9 +334,16 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
         return loop.plane_unbalance(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
                                     np.array([current.get(a, 0j) for a in AXES]))
 
+    def bearing_force(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> dict[str, complex]:
+        return dict(zip(AXES, loop.bearing_force(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
+                                                 np.array([current.get(a, 0j) for a in AXES]))))
+
+    def inertia_force(rpm: float, position: Mapping[str, complex]) -> dict[str, complex]:
+        return dict(zip(AXES, loop.inertia_force(float(rpm), np.array([position.get(a, 0j) for a in AXES]))))
+
     extra = {"response": response, "runout_response": runout_response, "balance_planes": BALANCE_PLANES,
              "balance_radius_m": loop.params.balance_radius, "plane_unbalance": plane_unbalance, "axes": AXES,
-             "currents": AXES}
+             "currents": AXES, "bearing_force": bearing_force, "inertia_force": inertia_force}
     if gains is None:
         return LoopModel(at, "Ro et al.'s PID gains (Table 1): the recording does not state its controller's "
                              f"({', '.join(GAIN_KEYS)})", assumed=True, **extra)
