@@ -283,8 +283,8 @@ def _show(result, as_json: bool) -> None:
     from ..workflows.balancing import SIGNALS
 
     unit = SIGNALS[result.signal][0]
-    click.echo(f"{speeds} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients of the "
-               f"{result.signal}, {unit} per g mm:")
+    click.echo(f"{speeds} rpm{', feedforward on' if d['feedforward'] else ''}; influence coefficients"
+               f"{' of the bearing forces' if result.signal == 'forces' else ''}, {unit} per g mm:")
     for plane, row in d[f"influence_{unit}_per_g_mm"].items():
         click.echo(f"  {plane:<6} " + "  ".join(f"{a} {v[unit]:.4f} @ {v['deg']:.1f}" for a, v in row.items()))
     for m in d["correction"]:

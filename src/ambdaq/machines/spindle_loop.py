@@ -334,7 +334,8 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
         return loop.plane_unbalance(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
                                     np.array([current.get(a, 0j) for a in AXES]))
 
-    def bearing_force(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> dict[str, complex]:
+    def bearing_force(rpm: float, position: Mapping[str, complex],
+                      current: Mapping[str, complex]) -> dict[str, complex]:
         return dict(zip(AXES, loop.bearing_force(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
                                                  np.array([current.get(a, 0j) for a in AXES]))))
 

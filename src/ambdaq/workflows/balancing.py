@@ -140,7 +140,8 @@ validation campaign's grade after, measured from a new run, held the truth withi
 interval in 20-40 % of the jobs with the feedforward on or at two speeds without it)."""
 
 
-def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spindle", signal: str = "gaps") -> RunVector:
+def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spindle",
+               signal: str = "gaps") -> RunVector:
     """The rotor's 1X at ``path``'s steady speed from its unbalance alone: the gaps' 1X with the
     runout of ``coefficients`` taken out, less what that runout itself drives through the loop
     (the controller follows its sensors: at 20,000 rpm the spindle's runout moves the rotor by up to
