@@ -326,7 +326,26 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
     job = json.loads(r.stdout)
     assert job["signal"] == "forces" and "influence_um_per_g_mm" not in job
     assert all(v["N"] > 1.0 for row in job["influence_N_per_g_mm"].values() for v in row.values())  # N, not um
-    assert json.loads(forces.read_text())["signal"] == "forces" and "noise_N" in json.loads(forces.read_text())
+    saved = json.loads(forces.read_text())
+    assert saved["signal"] == "forces" and "noise_N" in saved
+    # the independent solver on the forces' coefficients: hsbalance's least squares from the saved
+    # coefficients (N per kg m) and the reference vector --json printed (4 decimals of a N, 2 of a
+    # degree), the same correction within 1 % (issue 43, item 5)
+    import warnings
+
+    from hsbalance.IC_matrix import Alpha
+    from hsbalance.model import LeastSquares
+
+    alpha = Alpha()
+    alpha.add(direct_matrix=np.array(saved["influence_re"]) + 1j * np.array(saved["influence_im"]))
+    v = np.array([[job["reference"][a]["N"] * np.exp(1j * np.radians(job["reference"][a]["deg"]))] for a in job["axes"]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the solver's licence notice
+        w = LeastSquares(v, alpha).solve().ravel()
+    for m in job["correction"]:
+        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
+        theirs = w[job["planes"].index(m["plane"])]
+        assert abs(got - theirs) < 0.01 * abs(theirs), (m, theirs)
     r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef, "--signal", "forces",
                 "--json")
     assert r.exit_code == 0, r.output
