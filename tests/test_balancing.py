@@ -346,18 +346,28 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
         got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
         theirs = w[job["planes"].index(m["plane"])]
         assert abs(got - theirs) < 0.01 * abs(theirs), (m, theirs)
-    r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef, "--signal", "forces",
-                "--json")
+    # balance correct reads the runs as the file's coefficients were measured: the forces here
+    r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef, "--json")
     assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["signal"] == "forces"
     for m in json.loads(r.stdout)["correction"]:
         got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
         assert abs(abs(got) / abs(own[m["plane"]]) - 1) < 0.10, m
         assert abs(np.degrees(np.angle(-got / own[m["plane"]]))) < 10.0, m
-    # a file of one signal with runs of the other is refused, either way round
-    r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef)
-    assert r.exit_code == 2 and "influence coefficients of the forces; the runs' vectors are of the gaps" in r.output
-    r = run_cli("balance", "correct", today, "--influence", infl, "--coefficients", coef, "--signal", "forces")
-    assert r.exit_code == 2 and "influence coefficients of the gaps; the runs' vectors are of the forces" in r.output
+    # and a file of one signal is never applied to vectors of the other (the workflow's own check)
+    from ambdaq.errors import BadInputError
+    from ambdaq.workflows.balancing import correct_with, run_vector
+
+    with pytest.raises(BadInputError, match="influence coefficients of the forces; the runs' vectors are of the gaps"):
+        correct_with(forces, [run_vector(today, coef)])
+    # a file from before the signal was kept holds the gaps' coefficients
+    from ambdaq.documents.sealed import read_sealed, write_sealed
+
+    older = read_sealed(infl, "ambdaq.balance_influence", 1, "influence file")
+    assert older.pop("signal") == "gaps"
+    write_sealed(tmp_path / "older.json", older)
+    r = run_cli("balance", "correct", today, "--influence", tmp_path / "older.json", "--coefficients", coef, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["signal"] == "gaps", r.output
     other = generate("other", rpm=25000.0)
     r = run_cli("balance", "correct", other, "--influence", infl, "--coefficients", coef)
     assert r.exit_code == 2 and "the influence coefficients are of 20,000 rpm" in r.output, r.output

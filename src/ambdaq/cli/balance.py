@@ -161,26 +161,27 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, signa
               help="The influence coefficients an earlier balance influence saved (-o) for this machine and speed.")
 @_runout_option("the sensor runout, and what it drives through the loop, taken out of each run.")
 @click.option("--machine", default="spindle", show_default=True, help="The machine model (machines/).")
-@_signal_option
 @_correction_options
 @_max_grams_option
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(runs, influence_file, coefficients, no_runout, machine, signal, holes, max_rpm, target, max_grams, record,
+def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record,
             plot_path, overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane (one
-    run at each speed of influence coefficients saved from several).
+    run at each speed of influence coefficients saved from several). The runs are read as the
+    coefficients were measured: the gaps, or the bearings' forces (balance influence --signal).
 
     \b
     Example:
       ambdaq balance correct today.mcap --influence influence.json --coefficients coef.json
     """
-    from ..workflows.balancing import correct_with, run_vector
+    from ..workflows.balancing import correct_with, influence_signal, run_vector
 
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
+    signal = influence_signal(influence_file)
     result = correct_with(influence_file, [run_vector(run, coef, machine, signal) for run in runs],
                           holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
     result.target_mm_s = target

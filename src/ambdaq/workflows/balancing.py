@@ -557,6 +557,15 @@ def _complex(re, im) -> np.ndarray:
     return out
 
 
+def influence_signal(path: str | Path) -> str:
+    """What the influence file ``path`` holds coefficients of (SIGNALS: "gaps" or "forces"): the
+    vector its next job's runs are to give (``balance correct`` takes it from the file)."""
+    signal = read_sealed(path, FORMAT, VERSION, "influence file").get("signal", "gaps")  # files before it: gaps
+    if not isinstance(signal, str) or signal not in SIGNALS:
+        raise BadInputError(f"{path}: its signal is {signal!r}, not one of {', '.join(SIGNALS)}")
+    return signal
+
+
 def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max_rpm: float | None = None,
                  max_grams: float | None = None) -> Balancing:
     """The correction for ``runs`` by the influence coefficients of the file ``path``: one run of
@@ -568,9 +577,7 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
         A = _complex(doc["influence_re"], doc["influence_im"])
         radius = {str(k): float(v) for k, v in doc["radius_m"].items()}
         feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
-        signal = doc.get("signal", "gaps")  # files before it was kept: the gaps' 1X
-        if not isinstance(signal, str) or signal not in SIGNALS:
-            raise BadInputError(f"{path}: its signal is {signal!r}, not one of {', '.join(SIGNALS)}")
+        signal = influence_signal(path)
         speeds = doc.get("speeds_rpm")
         noise, slow_roll = None, None
         if "reference_unbalance_kg_m" in doc and all(r.runout_removed for r in runs):
@@ -616,8 +623,7 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
     if not isinstance(feedforward, bool):
         raise BadInputError(f"{path}: its feedforward is not true or false")
     if run.signal != signal:
-        raise BadInputError(f"{path}: influence coefficients of the {signal}; the runs' vectors are of the {run.signal} "
-                            f"(--signal {signal})")
+        raise BadInputError(f"{path}: influence coefficients of the {signal}; the runs' vectors are of the {run.signal}")
     for r in ordered:
         if r.feedforward != feedforward:
             raise BadInputError(f"{r.path} ran with the feedforward {_on_off(r.feedforward)}; the influence "
