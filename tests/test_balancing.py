@@ -34,6 +34,31 @@ def model_one_x(front: complex, rear: complex) -> np.ndarray:
     return SpindleLoop(params).unbalance_response(RPM)[:4]
 
 
+def hsbalance_agrees(saved: dict, out: dict, unit: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """An independent solver, hsbalance (cvxpy's least squares), given the saved influence
+    coefficients and the reference vector ``--json`` printed (in ``unit``, ``scale`` per SI unit;
+    4 decimals, 2 of a degree: 1e-4 of it), finds each correction ``out`` states within 1 %, the
+    bound issue 43 sets (measured: 2e-9 on exact inputs). Returns the coefficients and the vector."""
+    import warnings
+
+    from hsbalance.IC_matrix import Alpha
+    from hsbalance.model import LeastSquares
+
+    A = np.array(saved["influence_re"]) + 1j * np.array(saved["influence_im"])
+    v = np.array([[out["reference"][a][unit] / scale * np.exp(1j * np.radians(out["reference"][a]["deg"]))]
+                  for a in out["axes"]])
+    alpha = Alpha()
+    alpha.add(direct_matrix=A)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the solver's licence notice
+        w = LeastSquares(v, alpha).solve().ravel()
+    for m in out["correction"]:
+        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
+        theirs = w[out["planes"].index(m["plane"])]
+        assert abs(got - theirs) < 0.01 * abs(theirs), (m, theirs)
+    return A, v
+
+
 def test_a_trial_mass_moves_the_1x_as_the_machines_model_says(run_cli, tmp_path):
     """0.1 g at 90 degrees on the front plane's 30 mm radius (3e-6 kg m, as large as the rotor's own
     unbalance there): the recording states the masses and the unbalance per plane they leave, and the
@@ -177,27 +202,8 @@ def test_one_influence_coefficient_step_removes_the_unbalance(run_cli, tmp_path,
     assert record["runout_coefficients"]["sha256"] == file_sha256(coef)
     assert record["result"] == out and record["machine"] == "spindle" and record["influence_file"] is None
     assert (tmp_path / "job.png").stat().st_size > 30_000
-    # an independent solver, hsbalance (cvxpy's least squares), from the saved influence coefficients
-    # and the reference vector --json printed (4 decimals of a um, 2 of a degree: 1e-4 of it): the
-    # same correction within 1 %, the bound issue 43 sets (measured: 2e-9 on exact inputs)
-    import warnings
-
-    from hsbalance.IC_matrix import Alpha
-    from hsbalance.model import LeastSquares
-
-    saved = json.loads((tmp_path / "infl.json").read_text())
-    A = np.array(saved["influence_re"]) + 1j * np.array(saved["influence_im"])
-    v = np.array([[out["reference"][a]["um"] * 1e-6 * np.exp(1j * np.radians(out["reference"][a]["deg"]))]
-                  for a in out["axes"]])
-    alpha = Alpha()
-    alpha.add(direct_matrix=A)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the solver's licence notice
-        w = LeastSquares(v, alpha).solve().ravel()
-    for m in out["correction"]:
-        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
-        theirs = w[out["planes"].index(m["plane"])]
-        assert abs(got - theirs) < 0.01 * abs(theirs), (m, theirs)
+    # an independent solver, hsbalance, on the saved coefficients: the same correction within 1 %
+    A, v = hsbalance_agrees(json.loads((tmp_path / "infl.json").read_text()), out, "um", 1e6)
     own = {p: u * np.exp(1j * ph) for p, u, ph in zip(("front", "rear"), SPINDLE.unbalance, SPINDLE.unbalance_phase)}
     for m in out["correction"]:
         got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
@@ -328,24 +334,8 @@ def test_saved_influence_coefficients_balance_the_next_job_from_one_run(run_cli,
     assert all(v["N"] > 1.0 for row in job["influence_N_per_g_mm"].values() for v in row.values())  # N, not um
     saved = json.loads(forces.read_text())
     assert saved["signal"] == "forces" and "noise_N" in saved
-    # the independent solver on the forces' coefficients: hsbalance's least squares from the saved
-    # coefficients (N per kg m) and the reference vector --json printed (4 decimals of a N, 2 of a
-    # degree), the same correction within 1 % (issue 43, item 5)
-    import warnings
-
-    from hsbalance.IC_matrix import Alpha
-    from hsbalance.model import LeastSquares
-
-    alpha = Alpha()
-    alpha.add(direct_matrix=np.array(saved["influence_re"]) + 1j * np.array(saved["influence_im"]))
-    v = np.array([[job["reference"][a]["N"] * np.exp(1j * np.radians(job["reference"][a]["deg"]))] for a in job["axes"]])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the solver's licence notice
-        w = LeastSquares(v, alpha).solve().ravel()
-    for m in job["correction"]:
-        got = m["grams"] * 1e-3 * m["radius_mm"] * 1e-3 * np.exp(1j * np.radians(m["deg"]))
-        theirs = w[job["planes"].index(m["plane"])]
-        assert abs(got - theirs) < 0.01 * abs(theirs), (m, theirs)
+    # the independent solver on the forces' coefficients (N per kg m): the same correction within 1 %
+    hsbalance_agrees(saved, job, "N", 1.0)
     # balance correct reads the runs as the file's coefficients were measured: the forces here
     r = run_cli("balance", "correct", today, "--influence", forces, "--coefficients", coef, "--json")
     assert r.exit_code == 0, r.output

@@ -67,14 +67,6 @@ def _runout(coefficients: str | None, no_runout: bool) -> Path | None:
     return Path(coefficients)
 
 
-def _signal_option(command):
-    """--signal: the gaps' 1X or the bearings' forces."""
-    return click.option("--signal", type=click.Choice(["gaps", "forces"]), default="gaps", show_default=True,
-                        help="What the influence coefficients are of: the gaps' 1X with the runout out (um), or the "
-                             "1X force each bearing applies (N: the coil currents and the position through the "
-                             "machine's force law; the runs must record /amb/current).")(command)
-
-
 def _max_grams_option(command):
     """--max-grams: the largest mass a plane takes."""
     return click.option("--max-grams", type=click.FloatRange(min=0, min_open=True),
@@ -97,7 +89,10 @@ def command() -> None:
 @_runout_option("the sensor runout, and what it drives through the loop, taken out of every run.")
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its balancing planes and its loop's response to runout (machines/).")
-@_signal_option
+@click.option("--signal", type=click.Choice(["gaps", "forces"]), default="gaps", show_default=True,
+              help="What the influence coefficients are of: the gaps' 1X with the runout out (um), or the 1X force "
+                   "each bearing applies (N: the coil currents and the position through the machine's force law; "
+                   "the runs must record /amb/current). balance correct reads its runs as they were.")
 @_correction_options
 @_max_grams_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False),

@@ -327,20 +327,21 @@ def loop_model(calibration: Mapping[str, str]) -> LoopModel:
     def response(rpm: float) -> dict[str, complex]:
         return dict(zip(AXES, loop.unbalance_response(float(rpm))))
 
+    def per_axis(values: Mapping[str, complex]) -> np.ndarray:  # phasors by axis name, in AXES order (0: none)
+        return np.array([values.get(a, 0j) for a in AXES])
+
     def runout_response(rpm: float, runout: Mapping[str, complex]) -> dict[str, complex]:
-        return dict(zip(AXES, loop.runout_response(float(rpm), np.array([runout.get(a, 0j) for a in AXES]))))
+        return dict(zip(AXES, loop.runout_response(float(rpm), per_axis(runout))))
 
     def plane_unbalance(rpm: float, position: Mapping[str, complex], current: Mapping[str, complex]) -> np.ndarray:
-        return loop.plane_unbalance(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
-                                    np.array([current.get(a, 0j) for a in AXES]))
+        return loop.plane_unbalance(float(rpm), per_axis(position), per_axis(current))
 
     def bearing_force(rpm: float, position: Mapping[str, complex],
                       current: Mapping[str, complex]) -> dict[str, complex]:
-        return dict(zip(AXES, loop.bearing_force(float(rpm), np.array([position.get(a, 0j) for a in AXES]),
-                                                 np.array([current.get(a, 0j) for a in AXES]))))
+        return dict(zip(AXES, loop.bearing_force(float(rpm), per_axis(position), per_axis(current))))
 
     def inertia_force(rpm: float, position: Mapping[str, complex]) -> dict[str, complex]:
-        return dict(zip(AXES, loop.inertia_force(float(rpm), np.array([position.get(a, 0j) for a in AXES]))))
+        return dict(zip(AXES, loop.inertia_force(float(rpm), per_axis(position))))
 
     extra = {"response": response, "runout_response": runout_response, "balance_planes": BALANCE_PLANES,
              "balance_radius_m": loop.params.balance_radius, "plane_unbalance": plane_unbalance, "axes": AXES,

@@ -560,7 +560,12 @@ def _complex(re, im) -> np.ndarray:
 def influence_signal(path: str | Path) -> str:
     """What the influence file ``path`` holds coefficients of (SIGNALS: "gaps" or "forces"): the
     vector its next job's runs are to give (``balance correct`` takes it from the file)."""
-    signal = read_sealed(path, FORMAT, VERSION, "influence file").get("signal", "gaps")  # files before it: gaps
+    return _signal_of(read_sealed(path, FORMAT, VERSION, "influence file"), path)
+
+
+def _signal_of(doc: dict, path: str | Path) -> str:
+    """An influence file's signal, checked; a file from before it was kept holds the gaps'."""
+    signal = doc.get("signal", "gaps")
     if not isinstance(signal, str) or signal not in SIGNALS:
         raise BadInputError(f"{path}: its signal is {signal!r}, not one of {', '.join(SIGNALS)}")
     return signal
@@ -577,7 +582,7 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
         A = _complex(doc["influence_re"], doc["influence_im"])
         radius = {str(k): float(v) for k, v in doc["radius_m"].items()}
         feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
-        signal = influence_signal(path)
+        signal = _signal_of(doc, path)
         speeds = doc.get("speeds_rpm")
         noise, slow_roll = None, None
         if "reference_unbalance_kg_m" in doc and all(r.runout_removed for r in runs):
