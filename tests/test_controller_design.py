@@ -60,7 +60,10 @@ def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cl
     is unstable above 32,400 rpm, every axis in ISO 14839-3 zone A; the identified loop at
     standstill below 9.5 dB too; all 200 plants drawn within the identified uncertainty stable, and
     all 200 perturbed by +-10 % frequency, +-20 % damping and +-5 % gain (exit 0).
-    With the stock damping the same measurement reaches zone B only: exit 1, saying so."""
+    With a quarter of the stock damping (1,000 N s/m) the same measurement reaches zone B only
+    (10.0 dB at the rear): exit 1, saying so; the stock damping reaches zone A (9.1 dB; 10.1 dB,
+    zone B, before each mode's residues were one shape, when the identified loop at standstill read
+    0.1-0.3 dB above the machine's and the drawn plants spread wider)."""
     runs = []
     for axis in AXES:
         path = tmp_path / f"run_{axis}.mcap"
@@ -80,9 +83,9 @@ def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cl
     for row in design["axes"]:
         assert row["zone"] == "A" and row["stock_unstable_from_rpm"] == 32400.0, row
         assert row["identified_standstill_db"] < 9.5, row
-    r = run_cli("controller", "design", tmp_path / "model.json", "-o", tmp_path / "stock_damping.json")
+    r = run_cli("controller", "design", tmp_path / "model.json", "--damping", "1000", "-o", tmp_path / "soft.json")
     assert r.exit_code == 1 and "reaches zone B, not A" in r.output, r.output
-    r = run_cli("push", tmp_path / "stock_damping.json", "--device", "sim://flexible", "--dry-run")
+    r = run_cli("push", tmp_path / "soft.json", "--device", "sim://flexible", "--dry-run")
     assert r.exit_code == 2 and "did not meet its target" in r.output, r.output
     monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")
     push_measure_undo(run_cli, tmp_path, tmp_path / "ctl.json", design)
@@ -161,14 +164,55 @@ def push_measure_undo(run_cli, tmp_path, ctl, design):
         a2l = tmp_path / "flexible.a2l"
         assert run_cli("sim", "a2l", "--profile", "flexible", "-o", a2l).exit_code == 0
         xcp = f"{urls['xcp']}?a2l={a2l}"
+        port = int(urls["xcp"].rsplit(":", 1)[1])
+        before = held_by_the_slave(port, a2l)
         r = run_cli("push", ctl, "--device", xcp, "--yes")
         assert r.exit_code == 0 and "device-verified" in r.output, r.output
+        # what the slave runs, read by a master that is not ours (pyxcp) at the addresses pya2ldb
+        # reads from the A2L: the design's PID and sections, FLOAT64 both ways, so bit for bit; the
+        # sections the design leaves free pass the signal (b0 = 1, the rest 0)
+        from ambdaq.sim.rigs.flexible import IDENTITY_SECTION
+        from ambdaq.workflows.controller_design import load_design
+
+        pushed, design_file = held_by_the_slave(port, a2l), load_design(ctl)
+        order = [design_file.axes.index(axis) for axis in AXES]
+        for k, name in enumerate(("pid.p", "pid.i", "pid.d")):
+            np.testing.assert_array_equal(pushed[name], design_file.pid[order, k])
+        used = design_file.biquads.shape[1]
+        np.testing.assert_array_equal(pushed["filter.sections"][:, :used], design_file.biquads[order])
+        assert np.all(pushed["filter.sections"][:, used:] == IDENTITY_SECTION)
         assert run_cli("push", "--rollback", "--device", xcp, "--yes").exit_code == 0
         assert json.loads(run_cli("controller", "status", "--device", xcp, "--json").stdout)["active_crc32"] == \
             stock["active_crc32"]
+        after = held_by_the_slave(port, a2l)
+        assert all(np.array_equal(after[name], before[name]) for name in before), (before, after)
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def held_by_the_slave(port: int, a2l) -> dict[str, np.ndarray]:
+    """The controller's PID gains (per axis) and sections ((axes, sections, 5)) as pyxcp uploads
+    them from the XCP slave on ``port``, at the addresses and sizes of the A2L's CHARACTERISTICs
+    as pya2ldb reads them (no ambdaq code between the slave and the numbers)."""
+    import struct
+
+    from pya2l import import_a2l, model
+
+    from test_xcp import master
+
+    session = import_a2l(str(a2l), in_memory=True, loglevel="ERROR", progress_bar=False)
+    found = {c.name: (c.address, c.number.number if c.number else 1) for c in session.query(model.Characteristic)
+             if c.name in ("pid.p", "pid.i", "pid.d", "filter.sections")}
+    out = {}
+    with master(port) as x:
+        x.connect()
+        for name, (address, count) in found.items():
+            x.setMta(address)
+            out[name] = np.array(struct.unpack(f"<{count}d", x.fetch(8 * count)))
+        x.disconnect()
+    out["filter.sections"] = out["filter.sections"].reshape(len(AXES), -1, 5)
+    return out
 
 
 def test_the_second_rotor_needs_tuning_and_is_not_the_first():
@@ -187,11 +231,13 @@ def test_the_second_rotor_needs_tuning_and_is_not_the_first():
 @pytest.mark.long  # four 10 s measurements, fit, design, push, three measurements: about 3 minutes
 def test_the_whole_job_on_a_rotor_the_design_was_not_written_for(run_cli, tmp_path, monkeypatch):
     """Identify -> fit -> design -> push -> measure -> undo on the longer rotor (seed 9): its
-    poles within 3 of their stated deviations; a design to zone B (200 drawn and 200 perturbed
-    plants stable; the stock PID was zone D); after the push every measured peak within 0.5 dB
-    of the prediction, at standstill and at 36,000 rpm; the rollback restores the stock bank.
-    Measured here: fitted bending modes 295.25, 596.52, 1192.4, 1888.7, 2828.4, 3675.6 Hz for
-    295.26 ... 3675.1; peaks +0.06 and -0.03 dB at standstill, -0.38 and -0.07 dB at 36,000 rpm."""
+    poles within 3 of their stated deviations; a design for 4,000 N s/m of damping to zone A (9.2
+    dB at the rear at 36,000 rpm; 200 drawn and 200 perturbed plants stable; the stock PID was zone
+    D; zone B, 10.4 dB, before each mode's residues were one shape); after the push every
+    measured peak within 0.5 dB of the prediction, at standstill and at 36,000 rpm; the rollback
+    restores the stock bank.
+    Measured here: fitted bending modes 295.26, 596.53, 1192.4, 1888.7, 2828.4, 3675.6 Hz for
+    295.26 ... 3675.1; peaks +0.04 and -0.09 dB at standstill, -0.03 and -0.02 dB at 36,000 rpm."""
     from ambdaq.machines.flexible_spindle import LONG_ROTOR
 
     runs = []
@@ -211,7 +257,8 @@ def test_the_whole_job_on_a_rotor_the_design_was_not_written_for(run_cli, tmp_pa
         value, std = got[f"mode{k}_hz"]
         assert abs(value - hz) < 3 * std, (k, value, std, hz)
     # the identified plant (the fitted model) is the machine's within 5 % and 5 degrees wherever the
-    # measurement's coherence is 0.9 or more (issue 42; seed 9: within 4.7 % and 2.1 degrees)
+    # measurement's coherence is 0.9 or more (issue 42; seed 9: within 3.9 % and 2.1 degrees, on the
+    # diagonal; 4.7 % before each mode's residues were one shape)
     from ambdaq.workflows.plant_fit import load_model
     from ambdaq.workflows.plant_identification import load_measurement
 
@@ -228,11 +275,11 @@ def test_the_whole_job_on_a_rotor_the_design_was_not_written_for(run_cli, tmp_pa
     for name, row in json.loads(r.stdout)["parameters"].items():
         assert abs(row["value"] / row["machine"] - 1) < 0.05 and abs(row["value"] - row["machine"]) < 3 * row["std"]
     ctl = tmp_path / "ctl.json"
-    r = run_cli("controller", "design", tmp_path / "model.json", "--machine", "flexible-long", "--zone", "B",
+    r = run_cli("controller", "design", tmp_path / "model.json", "--machine", "flexible-long", "--damping", "4000",
                 "-o", ctl, "--json")
     assert r.exit_code == 0, r.output
     design = json.loads(r.stdout)
-    assert design["meets_target"] and design["zone"] in ("A", "B")
+    assert design["meets_target"] and design["zone"] == "A"
     assert design["robustness"]["stable"] == design["perturbed"]["stable"] == 200
     assert all(row["stock_peak_db"] > 14.0 for row in design["axes"]), design["axes"]
     monkeypatch.setenv("AMBDAQ_UNLOCK_KEY", "ambdaq-sim")

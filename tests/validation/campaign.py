@@ -639,17 +639,24 @@ def plant(rpm: float, seeds: range, seconds: float = 4.0, resolution_hz: float =
                {"pooled": pooled, **per_axis})
 
 
-def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) -> Row:
+def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0, pointwise: bool = False,
+                machine: str = "flexible") -> Row:
     """``plant fit`` (the modal model, its poles shared by every element) of the flexible rotor at
     standstill against the machine's own poles: each bending mode's frequency and damping and each
     rigid-body pole, their errors against the stated standard deviations; issue 42 asks the 95 %
-    intervals to cover the truth in 90 % of runs."""
+    intervals to cover the truth in 90 % of runs. And the identified plant the model is, against the
+    machine's, wherever the measurement's coherence is 0.9 or more (every fitted element): issue 42
+    asks 5 % and 5 degrees at every such point; the runs where it held are counted, and required
+    of the row where ``pointwise`` (the measurement docs/tuning.md sends users to)."""
     from ambdaq.drivers.excitation import ExcitationRequest
-    from ambdaq.machines.flexible_spindle import AXES as FLEX_AXES, FLEXIBLE, FlexibleLoop
+    from ambdaq.machines.flexible_spindle import AXES as FLEX_AXES, FlexibleLoop, flexible_machine
     from ambdaq.workflows.plant_fit import fit_measurement
     from ambdaq.workflows.plant_identification import identify
 
-    poles = FlexibleLoop().plant_poles(0.0)
+    params, _top = flexible_machine(machine)
+    loop = FlexibleLoop(params)
+    poles = loop.plant_poles(0.0)
+    largest: list[tuple[float, float]] = []  # per run: the model's largest error at a trusted point, %, deg
     # each pole twice at standstill (the x and the y plane): one of each
     rigid = sorted({round(p.real / (2 * np.pi), 6) for p in poles if abs(p.imag) < 1e-6 and p.real > 0})
     bend = sorted({(round(abs(p) / (2 * np.pi), 6), round(-p.real / abs(p), 9)) for p in poles
@@ -659,9 +666,21 @@ def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) 
     with tempfile.TemporaryDirectory() as d:
         for seed in seeds:
             runs = [load(_record(Path(d) / f"m{seed}{a}.mcap", seconds, seed=seed, speed=SpeedProfile(0.0, 0.0),
-                                 profile="flexible", excite=ExcitationRequest(a, 2.0))) for a in FLEX_AXES]
-            fitted = fit_measurement(identify(runs, resolution_hz), 1.0 / FLEXIBLE.sample_rate)
+                                 profile=machine, excite=ExcitationRequest(a, 2.0))) for a in FLEX_AXES]
+            measured = identify(runs, resolution_hz)
+            fitted = fit_measurement(measured, 1.0 / params.sample_rate)
             got = {n: (v, s) for n, v, s in zip(fitted.fit.names, fitted.fit.values, fitted.fit.std)}
+            truth_p = loop.plant_response(0.0, measured.freq_hz)
+            worst = (0.0, 0.0)
+            for label in fitted.responses:
+                out, _, inp = label.partition("<-")
+                i, j = measured.axes.index(out), measured.axes.index(inp or out)
+                good = measured.plant.coherence[:, i, j] >= 0.9
+                ratio = (fitted.response(out, measured.freq_hz[good], inp or None)
+                         / truth_p[good, FLEX_AXES.index(out), FLEX_AXES.index(inp or out)])
+                worst = (max(worst[0], float(np.abs(np.abs(ratio) - 1).max()) * 100),
+                         max(worst[1], float(np.degrees(np.abs(np.angle(ratio))).max())))
+            largest.append(worst)
             for k, (hz, zeta) in enumerate(bend, 1):
                 for what, name, truth in (("frequency", f"mode{k}_hz", hz), ("damping", f"mode{k}_zeta", zeta)):
                     value, std = got[name]
@@ -673,20 +692,26 @@ def plant_model(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0) 
                 rel["rigid"].append(value / hz - 1)
     cover = {k: float(np.mean(np.abs(v) <= 1.96)) for k, v in z.items()}
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in z.items()}
-    holds = all(c >= 0.9 for c in cover.values())
-    return Row("modal model of the plant (`plant fit`): bending modes, their damping, rigid-body poles",
-               f"flexible rotor, 0 rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz",
+    within = sum(pct <= 5.0 and deg <= 5.0 for pct, deg in largest)
+    holds = all(c >= 0.9 for c in cover.values()) and (within == len(largest) or not pointwise)
+    return Row("modal model of the plant (`plant fit`): bending modes, their damping, rigid-body poles; the "
+               "plant it gives where the coherence is 0.9 or more",
+               f"{machine} rotor, 0 rpm, 2 µm RMS noise per axis, {seconds:g} s runs, {resolution_hz:g} Hz",
                "1σ per parameter (its covariance; each bending mode's damping with the frequency step's floor, "
                "plant_fit.RESOLUTION_FLOOR)",
                "median " + ", ".join(f"{k} {np.median(v) * 100:+.2f} %" for k, v in rel.items()),
                "error / stated RMS " + ", ".join(f"{k} {rms[k]:.1f}" for k in z) + "; 95 % intervals cover "
-               + ", ".join(f"{k} {cover[k] * 100:.0f} %" for k in z),
+               + ", ".join(f"{k} {cover[k] * 100:.0f} %" for k in z)
+               + f"; the plant within 5 % and 5° at every trusted point in {within} of {len(largest)} runs (largest "
+               f"{max(p for p, _ in largest):.1f} %, {max(d for _, d in largest):.1f}°"
+               + ("; issue 42 asks every run)" if pointwise else "; not required here: measure 20 s at 2.5 Hz)"),
                len(seeds), f"{seeds.start}-{seeds.stop - 1}",
-               f"sim generate --profile flexible --rpm 0 --excite AXIS:2 --duration {seconds:g} --seed S; "
+               f"sim generate --profile {machine} --rpm 0 --excite AXIS:2 --duration {seconds:g} --seed S; "
                f"plant identify --resolution {resolution_hz:g}; plant fit", holds,
                "" if holds else "95 % intervals cover " + ", ".join(f"{k} {cover[k] * 100:.0f} %" for k in z)
-               + " (at least 90 %)",
-               {**{f"cover_{k}": v for k, v in cover.items()}, **{f"rms_{k}": v for k, v in rms.items()}})
+               + f" (at least 90 %); the plant within 5 % and 5° in {within} of {len(largest)} runs",
+               {**{f"cover_{k}": v for k, v in cover.items()}, **{f"rms_{k}": v for k, v in rms.items()},
+                "pointwise_runs": within / len(largest)})
 
 
 def bearing_gains(seeds: range, seconds: float = 4.0, resolution_hz: float = 5.0,
@@ -1011,7 +1036,10 @@ FULL: list[Callable[[], Row]] = [
     lambda: plant(20000.0, range(1, 9)),
     lambda: plant(0.0, range(1, 5), seconds=10.0, resolution_hz=2.5),  # where docs/tuning.md sends users
     lambda: plant_model(range(1, 17)),
-    lambda: plant_model(range(1, 9), seconds=10.0, resolution_hz=2.5),
+    lambda: plant_model(range(1, 9), seconds=10.0, resolution_hz=2.5),  # where docs/tuning.md sends a design
+    # where docs/tuning.md sends users who need the plant within 5 % and 5 degrees at every trusted point
+    lambda: plant_model(range(1, 9), seconds=20.0, resolution_hz=2.5, pointwise=True),
+    lambda: plant_model(range(1, 7), seconds=20.0, resolution_hz=2.5, pointwise=True, machine="flexible-long"),
     lambda: bearing_gains(range(1, 13)),
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5),
     lambda: bearing_gains(range(1, 9), seconds=10.0, resolution_hz=2.5, machine="flexible-long"),

@@ -6,7 +6,20 @@ standstill the x and y planes do not reach each other, and those elements hold o
 they do, the rotor's gyroscopic coupling at speed, the measurement is refused: the model's modes
 are planar) is fitted over them, weighted by its random error, every element with the same poles (they are the
 rotor's) and its own residues: a diagonal element is named by its axis, another ``OUT<-IN``; the bending modes start at the measured resonances, the rigid-body modes at
-``RIGID_START_HZ``.  The model file is sealed JSON naming the plant file it came from (path,
+``RIGID_START_HZ``.
+
+A mode's residues over the bearings of one plane are the products of its shape at each sensor
+and at each actuator, r_ij = c_i b_j: the mode's residue matrix has rank one (Ewins, Modal
+Testing, 2nd ed., section 4.3: the modal constants of one mode are not independent), so where a
+plane's two diagonal elements and both elements between them are fitted, each mode they share
+holds r_ii r_jj = r_ij r_ji.  The fit states each element's residues on its own; the constraints
+are then imposed by restricted (minimum-distance) least squares on the fitted parameters and
+their covariance (Seber & Wild, Nonlinear Regression, section 3.2: the linearised projection,
+iterated), which moves the poorly seen residues (the rear sensor near the first bending mode's
+node: 3 % alone, under 1 % from the three others) and states the covariance that remains.  A Wald
+test of the constraints at the unconstrained fit (chi-square, one degree per constraint) guards
+it: a plant whose residues are not rank one beyond MODE_SHAPE_LEVEL keeps its unconstrained fit,
+and the model says so (``mode_shapes``).  The model file is sealed JSON naming the plant file it came from (path,
 SHA-256), its speed and the controller's gains the runs stated.
 """
 
@@ -47,6 +60,9 @@ AMPLIFIER_START = (2000.0, 0.7)  # Hz, damping: a current amplifier's bandwidth 
 
 MERGE = 0.01  # resonances of different axes within 1 % are one mode
 MIN_POINTS = 20  # trusted points an element needs to be fitted
+MODE_SHAPE_LEVEL = 0.001
+"""The Wald test's level: the mode-shape constraints are imposed unless the unconstrained fit
+rejects them at this level (their chi-square beyond its 99.9 % quantile)."""
 CHI2_LIMIT = 4.0
 """Largest reduced chi-square a model is kept at: its residual's RMS twice the measurement's random
 error (the flexible rotor at standstill fits at 0.6-0.8); beyond, the model misses something the
@@ -62,6 +78,9 @@ class FittedPlant:
     h: float
     source: dict = field(default_factory=dict)
     controller: dict = field(default_factory=dict)
+    mode_shapes: dict = field(default_factory=dict)
+    """The mode-shape constraints (module docstring): how many, their Wald chi-square at the
+    unconstrained fit, whether imposed; empty in a file from before them."""
 
     @property
     def responses(self) -> list[str]:
@@ -78,6 +97,7 @@ class FittedPlant:
         f = self.fit
         return {"speed_rpm": self.speed_rpm, "source": self.source, "responses": f.axes,
                 "chi2_reduced": round(f.chi2_reduced, 3), "points": f.points, "std_holds": STD_HOLDS,
+                "mode_shapes": self.mode_shapes,
                 "parameters": {n: {"value": float(f"{v:.6g}"), "std": float(f"{s:.3g}")}
                                for n, v, s in zip(f.names, f.values, f.std)}}
 
@@ -94,7 +114,7 @@ class FittedPlant:
                "source": self.source, "controller": self.controller, "responses": f.axes,
                "rigid_modes": len(f.model.rigid), "bending_modes": len(f.model.bending),
                "names": f.names, "values": f.values.tolist(), "covariance": f.covariance.tolist(),
-               "chi2_reduced": f.chi2_reduced, "points": f.points}
+               "chi2_reduced": f.chi2_reduced, "points": f.points, "mode_shapes": self.mode_shapes}
         return write_sealed(path, doc, overwrite=overwrite)
 
 
@@ -153,8 +173,62 @@ def fit_measurement(measured: PlantMeasurement, h: float, axes: list[str] | None
                  amplifier_zeta=named["amplifier_zeta"], neighbour_correlation=NEIGHBOUR_CORRELATION,
                  cross_covariance=cross)
     _check(result, modes, measured.speed_rpm)
+    result, shapes = _mode_shapes(result, h)
     return FittedPlant(_resolution_floor(result, float(np.median(np.diff(f)))), measured.speed_rpm, h, source or {},
-                       measured.controller)
+                       measured.controller, shapes)
+
+
+def _mode_shapes(result: PlantFit, h: float) -> tuple[PlantFit, dict]:
+    """``result`` with each mode's residues over a plane's pair of bearings made rank one (the
+    module docstring), and what was done; ``h`` the control period (s)."""
+    index = {name: k for k, name in enumerate(result.names)}
+    constraints = []  # the positions of (r_ii, r_jj, r_ij, r_ji), one mode and one pair each
+    diagonal = [a for a in result.axes if "<-" not in a]
+    for n, a in enumerate(diagonal):
+        for b in diagonal[n + 1 :]:
+            if _plane(a) is None or _plane(a) != _plane(b):
+                continue
+            for mode in mode_names(len(result.model.rigid), len(result.model.bending)):
+                four = [f"{label}.{mode}_residue" for label in (a, b, f"{a}<-{b}", f"{b}<-{a}")]
+                if all(name in index for name in four):
+                    constraints.append([index[name] for name in four])
+    if not constraints:
+        return result, {}
+    c = np.array(constraints)
+    fitted, cov = result.values, result.covariance
+
+    def residual_and_jacobian(v):  # g = r_ii r_jj - r_ij r_ji and its derivative
+        g = v[c[:, 0]] * v[c[:, 1]] - v[c[:, 2]] * v[c[:, 3]]
+        jac = np.zeros((len(c), v.size))
+        rows = np.arange(len(c))
+        jac[rows, c[:, 0]], jac[rows, c[:, 1]] = v[c[:, 1]], v[c[:, 0]]
+        jac[rows, c[:, 2]], jac[rows, c[:, 3]] = -v[c[:, 3]], -v[c[:, 2]]
+        return g, jac
+
+    g, jac = residual_and_jacobian(fitted)
+    wald = float(g @ np.linalg.solve(jac @ cov @ jac.T, g))
+    from scipy.stats import chi2
+
+    shapes = {"constraints": len(c), "wald_chi2": round(wald, 3),
+              "limit": round(float(chi2.ppf(1 - MODE_SHAPE_LEVEL, len(c))), 3)}
+    shapes["imposed"] = wald <= shapes["limit"]
+    if not shapes["imposed"]:
+        return result, shapes
+    values = fitted
+    for _ in range(20):  # Gauss-Newton on the linearised constraints, from the fit outward
+        g, jac = residual_and_jacobian(values)
+        gain = cov @ jac.T @ np.linalg.inv(jac @ cov @ jac.T)
+        moved = fitted - gain @ (g + jac @ (fitted - values))
+        done = np.max(np.abs(moved - values) / np.sqrt(np.diag(cov))) < 1e-9
+        values = moved
+        if done:
+            break
+    g, jac = residual_and_jacobian(values)
+    covariance = cov - cov @ jac.T @ np.linalg.solve(jac @ cov @ jac.T, jac @ cov)
+    covariance = (covariance + covariance.T) / 2
+    m, b = len(result.model.rigid), len(result.model.bending)
+    model = model_from_values(Path("fit"), values, result.names, m, b, result.axes, h)
+    return replace(result, model=model, values=values, covariance=covariance), shapes
 
 
 def _resolution_floor(result: PlantFit, step_hz: float) -> PlantFit:
@@ -226,8 +300,9 @@ def load_model(path: str | Path) -> FittedPlant:
             raise ValueError(f"{values.size} values for {len(names)} names, {m} rigid and {b} bending modes")
         chi2, points, speed = float(doc["chi2_reduced"]), int(doc["points"]), float(doc.get("speed_rpm", 0.0))
         source, controller = doc.get("source", {}), doc.get("controller", {})
-        if not isinstance(source, dict) or not isinstance(controller, dict):
-            raise ValueError("source and controller must be objects")
+        shapes = doc.get("mode_shapes", {})
+        if not all(isinstance(x, dict) for x in (source, controller, shapes)):
+            raise ValueError("source, controller and mode_shapes must be objects")
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
         raise BadInputError(f"{path}: malformed plant model file ({err})") from None
     if not (np.all(np.isfinite(values)) and np.all(np.isfinite(cov)) and np.isfinite(h) and h > 0 and np.isfinite(chi2)
@@ -237,7 +312,7 @@ def load_model(path: str | Path) -> FittedPlant:
         raise BadInputError(f"{path}: the plant model's frequencies must be above 0 and its damping at least 0")
     result = PlantFit(model_from_values(path, values, names, m, b, axes, h), list(axes), list(names), values, cov, chi2,
                       points)
-    return FittedPlant(result, speed, h, source, controller)
+    return FittedPlant(result, speed, h, source, controller, shapes)
 
 
 def model_from_values(path: Path, values: np.ndarray, names: list[str], m: int, b: int, axes: list[str],
