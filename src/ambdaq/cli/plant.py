@@ -116,7 +116,10 @@ def fit(plant_file, axes, sample_rate, output, overwrite, plot_path, as_json):
             click.echo(f"  {row['parameter']:<26} {row['value']:12.5g} +- {row['std']:.3g}")
         click.echo(f"warning: the deviations (+-) hold {STD_HOLDS}", err=True)
     shapes = fitted.mode_shapes
-    if shapes and not shapes["imposed"]:
+    if shapes.get("unsettled"):
+        click.echo(f"warning: the {shapes['constraints']} mode-shape constraints did not settle in 20 steps: each "
+                   "element's residues are stated on their own, with their wider deviations", err=True)
+    elif shapes and not shapes["imposed"]:
         click.echo(f"warning: the modes' residues are not one shape per mode over each plane's bearings (Wald "
                    f"chi-square {shapes['wald_chi2']:g} over {shapes['constraints']} constraints, beyond "
                    f"{shapes['limit']:g}): each element's residues are stated on their own, with their wider "

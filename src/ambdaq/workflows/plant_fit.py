@@ -217,14 +217,13 @@ def _mode_shapes(result: PlantFit, h: float) -> tuple[PlantFit, dict]:
     values = fitted
     for _ in range(20):  # Gauss-Newton on the linearised constraints, from the fit outward
         g, jac = residual_and_jacobian(values)
-        gain = cov @ jac.T @ np.linalg.inv(jac @ cov @ jac.T)
-        moved = fitted - gain @ (g + jac @ (fitted - values))
-        done = np.max(np.abs(moved - values) / np.sqrt(np.diag(cov))) < 1e-9
-        values = moved
-        if done:
+        spread = jac @ cov @ jac.T
+        if np.all(np.abs(g) <= 1e-9 * np.sqrt(np.diag(spread))):  # each constraint held to a billionth of its deviation
             break
-    g, jac = residual_and_jacobian(values)
-    covariance = cov - cov @ jac.T @ np.linalg.solve(jac @ cov @ jac.T, jac @ cov)
+        values = fitted - cov @ jac.T @ np.linalg.solve(spread, g + jac @ (fitted - values))
+    else:
+        return result, {**shapes, "imposed": False, "unsettled": True}
+    covariance = cov - cov @ jac.T @ np.linalg.solve(spread, jac @ cov)
     covariance = (covariance + covariance.T) / 2
     m, b = len(result.model.rigid), len(result.model.bending)
     model = model_from_values(Path("fit"), values, result.names, m, b, result.axes, h)
