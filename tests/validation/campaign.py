@@ -938,10 +938,9 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
     case as :func:`balancing`'s (its own slow roll where the rig has runout, its noise, a random
     mass per plane), with the controller's feedforward ``ff`` (``off`` or ``lms``): the unbalance
     per plane against the simulator's, its stated 95 % intervals, and what one correction by it
-    leaves; then the correction put on, a new run (seed 10 case + 2) and ``balance forces`` again:
-    its ISO 21940-11 grade at ``max_rpm`` against the truth's (reported, not required of the row:
-    after a correction the slow roll's part of the runout, SLOW_ROLL, is not in its deviation, as
-    the command's note says)."""
+    leaves; then the correction put on, a new run (seed 10 case + 2) and ``balance forces --before``
+    the first estimate again: its ISO 21940-11 grade at ``max_rpm`` against the truth's (reported,
+    not required of the row)."""
     from ambdaq.workflows.balancing import balance_grade, force_balancing as estimate, plane_masses
 
     left, rel, z, after_z = [], [], [], []
@@ -956,7 +955,8 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
             rel.append(got.unbalance / truth - 1)
             z.append(np.abs(got.unbalance - truth) / got.std)
             fix = plane_masses(got.planes, got.correction, got.radius_m, 0)
-            after = estimate(job.run("fixed", 2, steady, seconds, fix, ff=ff), coef, profile, max_rpm=max_rpm)
+            after = estimate(job.run("fixed", 2, steady, seconds, fix, ff=ff), coef, profile, max_rpm=max_rpm,
+                             before=dict(zip(got.planes, np.abs(got.unbalance))))
             left_truth, _mass = job.truth(job.d / "fixed.mcap")
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
@@ -976,9 +976,8 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
                f"left after one step: median {np.median(left) * 100:.1f} %, largest {left.max() * 100:.1f} %; "
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
                f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f}); "
-               f"grade after (the correction on, a new run, balance forces again) within its 95 % interval in "
-               f"{after_cover * 100:.0f} %" + (" (reported: the slow roll's part is not in its deviation)"
-                                               if BALANCING_RIGS[profile].runout else ""),
+               f"grade after (the correction on, a new run, balance forces --before again) within its 95 % "
+               f"interval in {after_cover * 100:.0f} %",
                len(cases), f"{cases.start}-{cases.stop - 1}",
                job.commands(rpm, seconds, ff, slow_s, None) + "; balance forces"
                + ("" if BALANCING_RIGS[profile].runout else f" --machine {profile} --no-runout"), holds,

@@ -190,9 +190,12 @@ def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_r
 @click.option("--machine", default="spindle", show_default=True,
               help="The machine model: its rigid rotor, its bearings' force law and balancing planes (machines/).")
 @_correction_options
+@click.option("--before", "before_record", type=click.Path(dir_okay=False),
+              help="The balancing record (--record) of the run the correction since came from, with the same "
+                   "runout coefficients: the part of its unbalance their slow roll holds is stated in the deviation.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the unbalance and the correction as JSON.")
-def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, record, overwrite, as_json):
+def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, before_record, record, overwrite, as_json):
     """The unbalance per balancing plane from ONE run at a steady speed, without a trial mass: the
     force each bearing applies at 1X (current gain x coil current + negative stiffness x position)
     and the rigid rotor's mass and inertia give the unbalance force on each plane. The feedforward
@@ -200,20 +203,23 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, record
 
     \b
     Example:
-      ambdaq balance forces run.mcap --coefficients coef.json --max-rpm 60000
+      ambdaq balance forces run.mcap --coefficients coef.json --max-rpm 60000 --record before.json
+      ambdaq balance forces after.mcap --coefficients coef.json --max-rpm 60000 --before before.json
     """
     from ..workflows.balancing import force_balancing
 
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
-    result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm)
+    before = _before(before_record, coef, machine) if before_record else None
+    result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm, before=before)
     result.target_mm_s = target
     d = result.as_dict()
-    # the slow roll's part (workflows.balancing.SLOW_ROLL): this command cannot size it, so it says so
-    if coef is not None:
+    # the slow roll's part (workflows.balancing.SLOW_ROLL): without --before this command cannot size it
+    if coef is not None and before is None:
         click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
-                   "roll; if it has been corrected since, that part is not in the deviation: record a new slow roll "
-                   "(docs/balancing.md, section 4)", err=True)
+                   "roll; if it has been corrected since, that part is not in the deviation: pass --before with the "
+                   "record of the run the correction came from, or record a new slow roll (docs/balancing.md, "
+                   "section 4)", err=True)
     if as_json:
         click.echo(json.dumps(d, indent=2))
     else:
@@ -228,6 +234,21 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, record
                        f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
         _show_acceptance(d)
     _keep(result, record, None, [("run", run)], coef, machine, None, overwrite)
+
+
+def _before(path: str, coefficients: Path | None, machine: str) -> dict[str, float]:
+    """The unbalance per plane (kg m) the balancing record at ``path`` estimated, refused where it
+    is of another machine or of other runout coefficients than ``coefficients``."""
+    from ..documents.coefficients import file_sha256
+    from ..workflows.balancing import load_record
+
+    rec = load_record(path)
+    if rec["machine"] != machine:
+        raise BadInputError(f"{path}: a balancing record of the {rec['machine']} machine, not the {machine}")
+    if coefficients is not None and rec["runout_sha256"] != file_sha256(coefficients):
+        raise BadInputError(f"{path}: its run's runout coefficients were not {coefficients}: their slow roll's part "
+                            "of its unbalance is not the one these hold")
+    return {p: u["g_mm"] * 1e-6 for p, u in rec["unbalance"].items()}
 
 
 def _show_acceptance(d: dict) -> None:

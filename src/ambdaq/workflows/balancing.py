@@ -16,6 +16,7 @@ the rotor as it ran in the reference run: the trial masses come off.
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -137,7 +138,9 @@ the rotor holds now. A correction from saved influence coefficients (balance cor
 this fraction of the unbalance the influence job estimated (its reference's, recorded beside the
 slow roll), beside its other deviations: after a correction it is most of what is left (the
 validation campaign's grade after, measured from a new run, held the truth within its 95 %
-interval in 20-40 % of the jobs with the feedforward on or at two speeds without it)."""
+interval in 20-40 % of the jobs with the feedforward on or at two speeds without it). ``balance
+forces --before RECORD`` states it of the unbalance the record estimated (16 % held with the
+feedforward on before it did)."""
 
 
 def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spindle",
@@ -703,6 +706,7 @@ class ForceBalancing:
     holes: int = 0
     runout_removed: bool = True  # the run's runout coefficients were taken out (False: --no-runout)
     target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
+    slow_roll: np.ndarray | None = None  # (planes,): the slow roll's runout's part, kg m (SLOW_ROLL), in std
 
     @property
     def correction(self) -> np.ndarray:
@@ -734,18 +738,24 @@ class ForceBalancing:
                 "correction": mass_rows(plane_masses(self.planes, self.correction, self.radius_m, self.holes)),
                 "grade_mm_s": None if self.grade_mm_s is None else round(self.grade_mm_s, 3),
                 "grade_std_mm_s": None if self.grade_std_mm_s is None else round(self.grade_std_mm_s, 3),
-                "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm, **_acceptance(self)}
+                "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm,
+                "slow_roll_g_mm": None if self.slow_roll is None else {p: round(float(v) * 1e6, 4) for p, v in
+                                                                        zip(self.planes, self.slow_roll)},
+                **_acceptance(self)}
 
 
 def force_balancing(path: str | Path, coefficients: Path | None, machine: str = "spindle", *, holes: int = 0,
-                    max_rpm: float | None = None) -> ForceBalancing:
+                    max_rpm: float | None = None, before: Mapping[str, float] | None = None) -> ForceBalancing:
     """The unbalance per plane of the rotor in ``path`` (one run at a steady speed, the feedforward
     on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
     ``coefficients`` taken out (the rotor's motion; None: the gap's as it is) and the coil currents' 1X, through ``machine``'s
     rigid rotor and force law (its ``plane_unbalance``); the windows averaged, their scatter the
     noise, FORCE_MODEL and FORCE_RELATIVE (FORCE_RELATIVE_NO_RUNOUT without runout coefficients)
     beside it; ``holes`` and ``max_rpm`` as
-    :func:`influence_balancing`'s."""
+    :func:`influence_balancing`'s.  ``before``: the unbalance per plane (kg m, by name) the rotor
+    had when the slow roll of ``coefficients`` was recorded (the estimate the correction since came
+    from): SLOW_ROLL of it is in the runout coefficients and reads as unbalance now, and is stated
+    beside the other deviations."""
     rec = load(path)
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.plane_unbalance is None or not model.balance_planes:
@@ -768,10 +778,17 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     unbalance = u.mean(axis=0)
     relative = FORCE_RELATIVE if coefficients is not None else FORCE_RELATIVE_NO_RUNOUT
     std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (relative * np.abs(unbalance)) ** 2)
+    slow_roll = None
+    if before is not None and coefficients is not None:
+        if sorted(before) != sorted(model.balance_planes) or not all(np.isfinite(v) for v in before.values()):
+            raise BadInputError(f"the unbalance before is of planes {', '.join(before)}; the {machine}'s are "
+                                f"{', '.join(model.balance_planes)}")
+        slow_roll = SLOW_ROLL * np.abs([before[p] for p in model.balance_planes])
+        std = np.sqrt(std**2 + slow_roll**2)
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
                           {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg,
-                          max_rpm, holes, runout_removed=coefficients is not None)
+                          max_rpm, holes, runout_removed=coefficients is not None, slow_roll=slow_roll)
 
 
 def load_record(path: str | Path) -> dict:
@@ -793,7 +810,9 @@ def load_record(path: str | Path) -> dict:
     for p, u in unbalance.items():
         if u["std_g_mm"] is None and isinstance(std, dict) and p in std:
             u["std_g_mm"] = _optional(std[p])
+    runout = doc.get("runout_coefficients")
     return {"file": Path(path).name, "machine": str(doc.get("machine")), "runs": runs,
+            "runout_sha256": runout.get("sha256") if isinstance(runout, dict) else None,
             "method": str(result.get("method", "influence coefficients (ISO 21940-13)")), "rpm": rpm,
             "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade,
             "acceptance": _record_acceptance(result.get("acceptance"))}
