@@ -1069,14 +1069,21 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="the default suite's version, printed only")
     ap.add_argument("--doc", type=Path, default=Path(__file__).resolve().parents[2] / "docs" / "validation.md")
+    ap.add_argument("--rows", help="re-run only these rows of the full campaign (1-based, comma-separated: "
+                                   "what a change touched) and put them in place in --doc's table; its stamp says so")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
+    chosen = [int(k) for k in args.rows.split(",")] if args.rows else []
+    if any(not 1 <= k <= len(FULL) for k in chosen):
+        ap.error(f"--rows are 1 to {len(FULL)}")
     rows = []
-    for make in SMALL if args.small else FULL:
+    for make in [FULL[k - 1] for k in chosen] if chosen else SMALL if args.small else FULL:
         rows.append(make())
         print(table(rows[-1:]).splitlines()[-1], flush=True)
     took = time.monotonic() - t0
-    if not args.small:
+    if chosen:
+        _replace_rows(args.doc, dict(zip(chosen, table(rows).splitlines()[2:])), took)
+    elif not args.small:
         text = args.doc.read_text()
         begin, end = "<!-- campaign table: tests/validation/campaign.py -->", "<!-- end of the campaign table -->"
         stamp = (f"Last run {datetime.date.today().isoformat()} on this project's 2-core machine, "
@@ -1085,6 +1092,26 @@ def main(argv: list[str] | None = None) -> int:
         _, after = rest.split(end)
         args.doc.write_text(before + begin + "\n" + stamp + table(rows) + end + after)
     return 0 if all(r.holds for r in rows) else 1
+
+
+def _replace_rows(doc: Path, lines: dict[int, str], took: float) -> None:
+    """Put the re-run rows ``lines`` (1-based row -> Markdown line) in place in ``doc``'s campaign
+    table, a stamp beside the whole run's saying which rows were re-run, when and at which commit."""
+    text = doc.read_text()
+    begin, end = "<!-- campaign table: tests/validation/campaign.py -->", "<!-- end of the campaign table -->"
+    before, rest = text.split(begin)
+    inside, after = rest.split(end)
+    kept = inside.strip("\n").split("\n")  # a stamp of rows re-run before stays: they were run then
+    start = next(k for k, line in enumerate(kept) if line.startswith("|---")) + 1
+    if len(kept) - start != len(FULL):
+        raise SystemExit(f"{doc}: its table has {len(kept) - start} rows, the campaign {len(FULL)}: run it whole")
+    for k, line in lines.items():
+        kept[start + k - 1] = line
+    stamp = (f"Rows {', '.join(str(k) for k in sorted(lines))} re-run {datetime.date.today().isoformat()}, "
+             f"{took / 60:.0f} min, ambdaq at `{_head()}`.")
+    head = [line for line in kept[:start - 2] if line.strip()]
+    doc.write_text(before + begin + "\n" + "\n\n".join(head + [stamp]) + "\n\n" + "\n".join(kept[start - 2:]) + "\n"
+                   + end + after)
 
 
 def _head() -> str:
