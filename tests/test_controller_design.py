@@ -53,7 +53,7 @@ def test_the_identified_plant_closed_by_the_controller_is_the_machines_loop():
     assert np.all(np.abs(db(peak) - db(machine[1])) < 0.5), (db(peak), db(machine[1]))
 
 
-@pytest.mark.long  # four 10 s measurements, their fit and a design: about 2 minutes (docs/tuning.md)
+@pytest.mark.long  # four 10 s measurements, fit, designs (the refused one searches nine times), push, measure: about 11 minutes
 def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cli, tmp_path, monkeypatch, chromium):
     """docs/tuning.md's steps: four runs of 10 s at 2.5 Hz, the model fitted, a design for 4,000 N s/m
     of damping. On the machine's model it is stable at every speed of the 1 % grid where the stock PID
