@@ -65,13 +65,7 @@ def test_a_design_from_the_measured_plant_is_zone_a_over_speed_and_robust(run_cl
     zone A, 9.1 dB: zone B, 10.1 dB, before each mode's residues were one shape, when the identified
     loop at standstill read 0.1-0.3 dB above the machine's; a quarter of it, 1,000 N s/m, reached
     zone B or A by the greedy path the last digits of the fit set, so it is not the test's case.)"""
-    runs = []
-    for axis in AXES:
-        path = tmp_path / f"run_{axis}.mcap"
-        assert run_cli("sim", "generate", "--profile", "flexible", "--excite", f"{axis}:2", "--duration", "10",
-                       "--seed", "5", "-q", "-o", path).exit_code == 0
-        runs.append(path)
-    assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
+    measure_plant(run_cli, tmp_path, "flexible", 5)
     assert run_cli("plant", "fit", tmp_path / "plant.json", "-o", tmp_path / "model.json").exit_code == 0
     r = run_cli("controller", "design", tmp_path / "model.json", "--damping", "4000", "-o", tmp_path / "ctl.json",
                 "--json", "--plot", tmp_path / "design.png")
@@ -103,12 +97,7 @@ def test_a_search_that_ends_unstable_starts_again_from_another_first_section(run
     section could bring back (unstable on the machine's model from 11,160 rpm, 38 of 200 drawn plants
     stable: exit 1); started again from the next-best first section it reaches zone A, every drawn
     and perturbed plant stable (7.7 dB at the front, 7.4 dB at the rear, measured)."""
-    runs = []
-    for axis in AXES:
-        runs.append(tmp_path / f"run_{axis}.mcap")
-        assert run_cli("sim", "generate", "--profile", "flexible", "--excite", f"{axis}:2", "--duration", "10",
-                       "--seed", "1", "-q", "-o", runs[-1]).exit_code == 0
-    assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
+    measure_plant(run_cli, tmp_path, "flexible", 1)
     assert run_cli("plant", "fit", tmp_path / "plant.json", "-o", tmp_path / "model.json").exit_code == 0
     r = run_cli("controller", "design", tmp_path / "model.json", "--damping", "4000", "-o", tmp_path / "ctl.json",
                 "--json")
@@ -158,6 +147,17 @@ def served_flexible(*extra: str, profile: str = "flexible"):
         kind, where = line.split()
         urls[kind] = f"serial://{where}" if kind == "controller" else where
     return proc, urls
+
+
+def measure_plant(run_cli, tmp_path, profile: str, seed: int) -> None:
+    """docs/tuning.md's measurement on the simulated ``profile`` rotor: four runs of 10 s, 2 um of
+    white noise at one axis's summing point each (``seed``), identified at 2.5 Hz into
+    tmp_path/plant.json."""
+    runs = [tmp_path / f"run_{axis}.mcap" for axis in AXES]
+    for axis, path in zip(AXES, runs):
+        assert run_cli("sim", "generate", "--profile", profile, "--excite", f"{axis}:2", "--duration", "10",
+                       "--seed", str(seed), "-q", "-o", path).exit_code == 0
+    assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
 
 
 def push_measure_undo(run_cli, tmp_path, ctl, design):
@@ -266,12 +266,7 @@ def test_the_whole_job_on_a_rotor_the_design_was_not_written_for(run_cli, tmp_pa
     295.26 ... 3675.1; peaks +0.04 and -0.09 dB at standstill, -0.03 and -0.02 dB at 36,000 rpm."""
     from ambdaq.machines.flexible_spindle import LONG_ROTOR
 
-    runs = []
-    for axis in AXES:
-        runs.append(tmp_path / f"run_{axis}.mcap")
-        assert run_cli("sim", "generate", "--profile", "flexible-long", "--excite", f"{axis}:2", "--duration", "10",
-                       "--seed", "9", "-q", "-o", runs[-1]).exit_code == 0
-    assert run_cli("plant", "identify", *runs, "--resolution", "2.5", "-o", tmp_path / "plant.json").exit_code == 0
+    measure_plant(run_cli, tmp_path, "flexible-long", 9)
     r = run_cli("plant", "fit", tmp_path / "plant.json", "-o", tmp_path / "model.json", "--json")
     assert r.exit_code == 0, r.output
     got = {k: (v["value"], v["std"]) for k, v in json.loads(r.stdout)["parameters"].items()}
