@@ -540,3 +540,56 @@ def test_the_grade_after_a_force_correction_states_the_slow_rolls_part(run_cli, 
     assert run_cli("runout", "identify", coef.parent / "slow.mcap", "--harmonics", 5, "-o", other).exit_code == 0
     r = run_cli("balance", "forces", after, "--coefficients", other, "--before", tmp_path / "before.json")
     assert r.exit_code == 2 and "runout coefficients were not" in r.output, r.output
+
+
+def test_the_grade_predicted_after_a_correction_holds_the_simulators(run_cli, tmp_path, runout_coefficients):
+    """ISO 21940-11's grade before and after, predicted and then measured (issue 43, item 4), with
+    the correction's own errors counted (ISO 21940-14): ``balance forces --mass-tolerance 0.002
+    --angle-tolerance 1`` predicts the grade once its masses are on; the masses then go on at the
+    far corner of those tolerances (2 mg heavier, a degree on), and the simulator's grade after is
+    within the predicted bound; ``--before`` states the prediction beside the grade measured now.
+    The bound counts what it is told: with no tolerance it is lower, and with a tenfold angle
+    error the predicted bound rises with it (the validation campaign checks the 95 % over 100 jobs
+    per row, docs/validation.md)."""
+    import json
+
+    from ambdaq.workflows.balancing import balance_grade
+
+    coef, before, after = runout_coefficients, tmp_path / "before.mcap", tmp_path / "after.mcap"
+    assert run_cli("sim", "generate", "--rpm", RPM, "--duration", 1, "--truth", "-q", "-o", before).exit_code == 0
+    told = ("--mass-tolerance", 0.002, "--angle-tolerance", 1)
+    r = run_cli("balance", "forces", before, "--coefficients", coef, "--max-rpm", 60000, *told, "--record",
+                tmp_path / "before.json", "--json", "--grade", "G1")
+    assert r.exit_code == 0, r.output
+    got = json.loads(r.stdout)
+    predicted = got["predicted_after"]
+    assert predicted["mass_tolerance_g"] == 0.002 and predicted["angle_tolerance_deg"] == 1.0
+    assert predicted["within_target"] is (predicted["at_most_mm_s"] <= 1.0)
+    assert 0 < predicted["grade_mm_s"] < predicted["at_most_mm_s"] < got["grade_mm_s"]
+    fix = [f"{m['plane']}:{m['grams'] + 0.002}@{m['deg'] + 1}:{m['radius_mm']}" for m in got["correction"]]
+    r = run_cli("sim", "generate", "--rpm", RPM, "--duration", 1, "--truth", "--seed", 2,
+                *[a for f in fix for a in ("--correction", f)], "-q", "-o", after)
+    assert r.exit_code == 0, r.output
+    rec = load(after, topics=["/amb/rotor"])
+    cal = rec.metadata["ambdaq.calibration.rig"]
+    truth = balance_grade(sum(float(cal[f"truth.unbalance.{p}_kg_m"]) for p in ("front", "rear")),
+                          rec.machine.rotor_mass_kg, 60000)
+    assert truth <= predicted["at_most_mm_s"], (truth, predicted)
+    r = run_cli("balance", "forces", after, "--coefficients", coef, "--max-rpm", 60000, "--before",
+                tmp_path / "before.json")
+    assert r.exit_code == 0 and "before.json predicted" in r.output and "within the prediction" in r.output, r.output
+    r = run_cli("balance", "forces", after, "--coefficients", coef, "--max-rpm", 60000, "--before",
+                tmp_path / "before.json", "--json")
+    b = json.loads(r.stdout)["before"]
+    assert b["predicted_after"]["at_most_mm_s"] == predicted["at_most_mm_s"] and b["within_prediction"] is True
+    # at another maximum speed the grades are not comparable: said, not compared
+    r = run_cli("balance", "forces", after, "--coefficients", coef, "--max-rpm", 30000, "--before",
+                tmp_path / "before.json")
+    assert r.exit_code == 0 and "give --max-rpm 60000 to compare" in r.output, r.output
+
+    def bound(*tolerance) -> float:
+        r = run_cli("balance", "forces", before, "--coefficients", coef, "--max-rpm", 60000, *tolerance, "--json")
+        assert r.exit_code == 0, r.output
+        return json.loads(r.stdout)["predicted_after"]["at_most_mm_s"]
+
+    assert bound() < predicted["at_most_mm_s"] < bound("--mass-tolerance", 0.002, "--angle-tolerance", 10)

@@ -39,6 +39,7 @@ from ambdaq.daq import load
 from ambdaq.acquisition.recorder import Recorder, RecordOptions
 from ambdaq.sim.source import SimSource
 from ambdaq.speed import SLOW_ROLL_RPM, SpeedProfile
+from ambdaq.workflows.balancing import MassTolerance
 
 AXES = ("front_x", "front_y", "rear_x", "rear_y", "axial")
 POOLED = (0.9, 1.1)  # stated uncertainty / scatter, pooled over axes and harmonics (issue 39)
@@ -778,6 +779,12 @@ BALANCING_RIGS = {
 }
 
 
+MASS_TOLERANCE = {"spindle": MassTolerance(0.002, 1.0), "cone": MassTolerance(0.005, 1.0)}
+"""How far each correction mass is off when a job puts it on (g, degrees; uniform within), and what
+the grade predicted after the correction is told: its errors (ISO 21940-14's sources in the masses).
+A 2 mg scale error and a degree on the spindle's 0.01-0.4 g masses; 5 mg on the cone's 0.1-1.2 g."""
+
+
 @dataclass
 class _BalancingJob:
     """One balancing job on a simulated rig (:data:`BALANCING_RIGS`), a campaign's case: a random
@@ -805,6 +812,16 @@ class _BalancingJob:
         if ff != "off":
             source.rig.set_feedforward(ff)
         return _write(source, self.d / f"{name}.mcap", seconds)
+
+    def placed(self, masses: list) -> list:
+        """``masses`` as a workshop puts them on: each one's weight and angle off by up to the rig's
+        MASS_TOLERANCE (uniform, seeded by the case), what ``balance`` is told with
+        --mass-tolerance and --angle-tolerance."""
+        from ambdaq.machines.balance_masses import BalanceMass
+
+        rng, tol = np.random.default_rng(1000 + self.case), MASS_TOLERANCE[self.profile]
+        return [BalanceMass(m.plane, m.grams + tol.grams * rng.uniform(-1, 1), m.deg + tol.deg * rng.uniform(-1, 1),
+                            m.radius_m) for m in masses]
 
     def coefficients(self, slow_s: float) -> Path | None:
         """The job's runout: its own slow roll (run 0), identified as docs/balancing.md does; None
@@ -843,6 +860,21 @@ class _BalancingJob:
         return f"{seconds:g} s runs, a {slow_s:g} s slow roll per job; unbalance 0.01-0.4 g per plane at any angle"
 
 
+def _prediction_check(predicted: list[tuple[float, dict]], profile: str) -> tuple[float, str]:
+    """How often the simulator's grade after a correction (the masses on as :meth:`_BalancingJob.
+    placed` put them) stayed within the bound predicted before it (``predicted_after``, told the
+    rig's MASS_TOLERANCE), and the row's words for it. A 95 % bound over 100 jobs is held to 90 %:
+    2.3 binomial deviations below 95 %."""
+    true = np.array([t for t, _ in predicted])
+    bound = np.array([p["at_most_mm_s"] for _, p in predicted])
+    median = np.array([p["grade_mm_s"] for _, p in predicted])
+    held = float(np.mean(true <= bound))
+    tol = MASS_TOLERANCE[profile]
+    return held, (f"grade after within the 95 % bound predicted before it (the masses put on within "
+                  f"{tol.grams * 1e3:g} mg and {tol.deg:g}°, --mass-tolerance/--angle-tolerance) in {held * 100:.0f} %, "
+                  f"true / predicted median {np.median(true / median):.2f}")
+
+
 def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: float = 4.0,
               max_rpm: float = 60000.0, trial_g: float = 0.1, ff: str = "off", also_rpm: float | None = None,
               profile: str = "spindle", signal: str = "gaps") -> Row:
@@ -863,7 +895,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
 
     rig = BALANCING_RIGS[profile]
     trials = [BalanceMass(p, trial_g, 0.0, rig.radius_m) for p in rig.planes]
-    left, mag_err, ang_err, z, grade_z, after_z = [], [], [], [], [], []
+    left, mag_err, ang_err, z, grade_z, after_z, predicted = [], [], [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
             job = _BalancingJob.new(tmp, case, profile)
@@ -878,6 +910,7 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                     for k, m in enumerate(trials)]))
             ref = job.d / "ref0.mcap"
             result = influence_balancing(groups, max_rpm=max_rpm)
+            result.tolerance = MASS_TOLERANCE[profile]
             truth, mass = job.truth(ref)
             left.append(np.abs(truth + result.correction) / np.abs(truth))  # the correction adds its vector
             mag_err.append(np.abs(result.correction) / np.abs(truth) - 1)
@@ -890,12 +923,14 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             files = [job.d / f"ref{j}.mcap" for j in range(len(speeds))] + [
                 job.d / f"t{j}{k}.mcap" for j in range(len(speeds)) for k in range(len(trials))]
             saved = save_influence(result, job.d / "influence.json", files)
-            fixed = [job.run(f"fixed{j}", 4 + 4 * j, SpeedProfile(at, at), seconds, result.masses(), ff=ff)
+            on = job.placed(result.masses())
+            fixed = [job.run(f"fixed{j}", 4 + 4 * j, SpeedProfile(at, at), seconds, on, ff=ff)
                      for j, at in enumerate(speeds)]
             after = correct_with(saved, [run_vector(f, coef, profile, signal) for f in fixed], max_rpm=max_rpm)
             left_truth, _mass = job.truth(fixed[0])
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
+            predicted.append((true_after, result.predicted_after))
     left, mag_err, ang_err, z = (np.array(v) for v in (left, mag_err, ang_err, z))
     grade_z, after_z = np.array(grade_z), np.array(after_z)
     after_cover = float(np.mean(np.abs(after_z) <= 1.96))
@@ -903,9 +938,11 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
     within = float(np.mean((np.abs(mag_err) < 0.10) & (np.abs(ang_err) < 10.0)))
     cover = float(np.mean(z <= 2.45))
     grade_cover = float(np.mean(np.abs(grade_z) <= 1.96))
+    bound, prediction = _prediction_check(predicted, profile)
     # issue 43's goals for one step hold the gaps' coefficients to them; the forces' (item 2's
     # parenthesis) to what they state, their one step reported (FORCE_RUNOUT_MODEL)
-    holds = (one_step >= 0.95 and within >= 0.95 if signal == "gaps" else True) and cover >= 0.90 and after_cover >= 0.90
+    holds = ((one_step >= 0.95 and within >= 0.95 if signal == "gaps" else True) and cover >= 0.90
+             and after_cover >= 0.90 and bound >= 0.90)
     return Row("correction masses and unbalance per plane (`balance influence`"
                + (", influence coefficients of the bearing forces" if signal == "forces" else "")
                + "), ISO 21940-11 grade before and after",
@@ -920,16 +957,17 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
                f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f}); "
                f"grade within its 95 % interval in {grade_cover * 100:.0f} % before, in {after_cover * 100:.0f} % "
-               "after (measured: the correction on, a new run, balance correct)",
+               "after (measured: the correction on, a new run, balance correct); " + prediction,
                len(cases), f"{cases.start}-{cases.stop - 1}",
                job.commands(rpm, seconds, ff, slow_s, trial_g) + "; balance influence "
                + ("" if rig.runout else f"--machine {profile} --no-runout ") + f"--max-rpm {max_rpm:g}"
                + (" --signal forces" if signal == "forces" else ""), holds,
                "" if holds else f"one step ≤ 10 % in {one_step * 100:.0f} % (95 %), within 10 %/10° in "
                                 f"{within * 100:.0f} % (95 %), intervals cover {cover * 100:.0f} % (90 %), the grade "
-                                f"after within its interval in {after_cover * 100:.0f} % (90 %)",
+                                f"after within its interval in {after_cover * 100:.0f} % (90 %), within its predicted "
+                                f"bound in {bound * 100:.0f} % (90 %)",
                {"one_step": one_step, "within": within, "cover": cover, "grade_cover": grade_cover,
-                "after_cover": after_cover})
+                "after_cover": after_cover, "predicted_bound": bound})
 
 
 def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds: float = 1.0,
@@ -943,30 +981,34 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
     not required of the row)."""
     from ambdaq.workflows.balancing import balance_grade, force_balancing as estimate, plane_masses
 
-    left, rel, z, after_z = [], [], [], []
+    left, rel, z, after_z, predicted = [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
             job = _BalancingJob.new(tmp, case, profile)
             coef = job.coefficients(slow_s)
             steady = SpeedProfile(rpm, rpm)
-            got = estimate(job.run("run", 1, steady, seconds, ff=ff), coef, profile)
+            got = estimate(job.run("run", 1, steady, seconds, ff=ff), coef, profile, max_rpm=max_rpm)
+            got.tolerance = MASS_TOLERANCE[profile]
             truth, mass = job.truth(job.d / "run.mcap")
             left.append(np.abs(truth - got.unbalance) / np.abs(truth))
             rel.append(got.unbalance / truth - 1)
             z.append(np.abs(got.unbalance - truth) / got.std)
             fix = plane_masses(got.planes, got.correction, got.radius_m, 0)
-            after = estimate(job.run("fixed", 2, steady, seconds, fix, ff=ff), coef, profile, max_rpm=max_rpm,
-                             before=dict(zip(got.planes, np.abs(got.unbalance))))
+            after = estimate(job.run("fixed", 2, steady, seconds, job.placed(fix), ff=ff), coef, profile,
+                             max_rpm=max_rpm, before=dict(zip(got.planes, np.abs(got.unbalance))))
             left_truth, _mass = job.truth(job.d / "fixed.mcap")
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
+            predicted.append((true_after, got.predicted_after))
     left, rel, z = np.array(left), np.array(rel), np.array(z)
     after_cover = float(np.mean(np.abs(np.array(after_z)) <= 1.96))
     one_step = float(np.mean(left.max(axis=1) <= 0.10))
     within = float(np.mean((np.abs(np.abs(rel + 1) - 1) < 0.10) & (np.abs(np.degrees(np.angle(rel + 1))) < 10.0)))
     cover = float(np.mean(z <= 2.45))
     ratio = float(np.sqrt(np.mean(z**2) / 2))
-    holds = cover >= 0.90 and 0.7 <= ratio <= 1.4  # what it states; the issue's 95 % one-step goal is reported
+    bound, prediction = _prediction_check(predicted, profile)
+    # what it states; the issue's 95 % one-step goal is reported
+    holds = cover >= 0.90 and 0.7 <= ratio <= 1.4 and bound >= 0.90
     return Row("unbalance per plane from the bearing forces, no trial run (`balance forces`)",
                f"{profile} at {rpm:,.0f} rpm, feedforward {ff}, " + job.setting(seconds, slow_s),
                "1σ per part (the windows' scatter, and FORCE_MODEL of the bearing's 1X force); issue 43: one step "
@@ -977,13 +1019,14 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
                f"≤ 10 % in {one_step * 100:.0f} % of cases; within 10 % and 10° in {within * 100:.0f} %; "
                f"95 % intervals cover {cover * 100:.0f} % (error / stated RMS {np.sqrt(np.mean(z ** 2) / 2):.2f}); "
                f"grade after (the correction on, a new run, balance forces --before again) within its 95 % "
-               f"interval in {after_cover * 100:.0f} %",
+               f"interval in {after_cover * 100:.0f} %; " + prediction,
                len(cases), f"{cases.start}-{cases.stop - 1}",
                job.commands(rpm, seconds, ff, slow_s, None) + "; balance forces"
                + ("" if BALANCING_RIGS[profile].runout else f" --machine {profile} --no-runout"), holds,
                "" if holds else f"intervals cover {cover * 100:.0f} % (at least 90 %), error / stated {ratio:.2f} "
-                                "(0.7-1.4)",
-               {"one_step": one_step, "within": within, "cover": cover, "ratio": ratio, "after_cover": after_cover})
+                                f"(0.7-1.4), the grade after within its predicted bound in {bound * 100:.0f} % (90 %)",
+               {"one_step": one_step, "within": within, "cover": cover, "ratio": ratio, "after_cover": after_cover,
+                "predicted_bound": bound})
 
 
 # --- the campaign --------------------------------------------------------------------------

@@ -25,9 +25,17 @@ def _grade(_ctx, _param, value: str | None) -> float | None:
 
 
 def _correction_options(command):
-    """--holes, --max-rpm, --grade and --record: where the masses go, the grade's speed and the grade
-    asked for, the job's record."""
-    for option in (click.option("--grade", "target", callback=_grade, metavar="G",
+    """--holes, --max-rpm, --grade, --mass-tolerance, --angle-tolerance and --record: where the
+    masses go, the grade's speed and the grade asked for, the masses' own errors, the job's record."""
+    for option in (click.option("--mass-tolerance", type=click.FloatRange(min=0), default=0.0, show_default=True,
+                                metavar="GRAMS",
+                                help="The largest weighing error of each correction mass, g: counted in the grade "
+                                     "predicted after the correction (ISO 21940-14; a radius off by dr as m dr / r)."),
+                   click.option("--angle-tolerance", type=click.FloatRange(min=0, max=180), default=0.0,
+                                show_default=True, metavar="DEG",
+                                help="The largest error of the angle each correction mass is fitted at, degrees: "
+                                     "counted in the grade predicted after the correction."),
+                   click.option("--grade", "target", callback=_grade, metavar="G",
                                 help="The balance grade asked for (ISO 21940-11, e.g. G2.5): the residual unbalance "
                                      "with its error judged against it (ISO 21940-14); needs --max-rpm."),
                    click.option("--record", type=click.Path(dir_okay=False),
@@ -100,8 +108,8 @@ def command() -> None:
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the influence coefficients and the correction as JSON.")
-def influence(reference, trials, masses, coefficients, no_runout, machine, signal, holes, max_rpm, target, max_grams,
-              output, record, plot_path, overwrite, as_json):
+def influence(reference, trials, masses, coefficients, no_runout, machine, signal, holes, max_rpm, target,
+              mass_tolerance, angle_tolerance, max_grams, output, record, plot_path, overwrite, as_json):
     """Influence coefficients of each balancing plane from REFERENCE and one run per plane with a
     trial mass on it (TRIALS, each with its --mass), all at one steady speed; the correction mass
     per plane that cancels the reference's 1X over the radial axes (least squares), and the
@@ -136,7 +144,7 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, signa
     result = influence_balancing([(run_vector(ref, coef, machine, signal), [(m, run_vector(t, coef, machine, signal))
                                                                             for m, t in zip(parsed, rest)])
                                   for ref, *rest in groups], holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
-    result.target_mm_s = target
+    _judged(result, target, mass_tolerance, angle_tolerance)
     if output:
         from ..workflows.balancing import save_influence
 
@@ -161,8 +169,8 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, signa
 @plot_option("Polar figure of the influence coefficients, the 1X now and predicted after, and the correction.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the correction as JSON.")
-def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, max_grams, record,
-            plot_path, overwrite, as_json):
+def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_rpm, target, mass_tolerance,
+            angle_tolerance, max_grams, record, plot_path, overwrite, as_json):
     """The correction masses for RUN from saved influence coefficients: the next balancing job on the
     same machine at the same speed, one run instead of a reference and a trial run per plane (one
     run at each speed of influence coefficients saved from several). The runs are read as the
@@ -179,7 +187,7 @@ def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_r
     signal = influence_signal(influence_file)
     result = correct_with(influence_file, [run_vector(run, coef, machine, signal) for run in runs],
                           holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
-    result.target_mm_s = target
+    _judged(result, target, mass_tolerance, angle_tolerance)
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run) for run in runs], coef, machine, influence_file, overwrite)
 
@@ -195,7 +203,8 @@ def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_r
                    "runout coefficients: the part of its unbalance their slow roll holds is stated in the deviation.")
 @click.option("--overwrite", is_flag=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the unbalance and the correction as JSON.")
-def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, before_record, record, overwrite, as_json):
+def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, mass_tolerance, angle_tolerance, before_record,
+           record, overwrite, as_json):
     """The unbalance per balancing plane from ONE run at a steady speed, without a trial mass: the
     force each bearing applies at 1X (current gain x coil current + negative stiffness x position)
     and the rigid rotor's mass and inertia give the unbalance force on each plane. The feedforward
@@ -210,10 +219,13 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, before
 
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
-    before = _before(before_record, coef, machine) if before_record else None
+    earlier = _before(before_record, coef, machine) if before_record else None
+    before = None if earlier is None else {p: u["g_mm"] * 1e-6 for p, u in earlier["unbalance"].items()}
     result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm, before=before)
-    result.target_mm_s = target
+    _judged(result, target, mass_tolerance, angle_tolerance)
     d = result.as_dict()
+    if earlier is not None:
+        d["before"] = _predicted_and_measured(earlier, d)
     # the slow roll's part (workflows.balancing.SLOW_ROLL): without --before this command cannot size it
     if coef is not None and before is None:
         click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
@@ -233,12 +245,23 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, before
             click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm): {d['grade_mm_s']:.3g} +- "
                        f"{d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
         _show_acceptance(d)
+        _show_prediction(d)
+        if "before" in d:
+            b = d["before"]
+            if b["within_prediction"] is None:
+                click.echo(f"{b['record']}'s prediction not compared: {b['why_not']}")
+            else:
+                p = b["predicted_after"]
+                click.echo(f"{b['record']} predicted {p['grade_mm_s']:.2g} mm/s after its correction, at most "
+                           f"{p['at_most_mm_s']:.2g} ({p['level'] * 100:.0f} %); measured now {b['measured_mm_s']:.2g} "
+                           f"+- {b['measured_std_mm_s']:.2g} mm/s: {'within' if b['within_prediction'] else 'beyond'} "
+                           "the prediction")
     _keep(result, record, None, [("run", run)], coef, machine, None, overwrite)
 
 
-def _before(path: str, coefficients: Path | None, machine: str) -> dict[str, float]:
-    """The unbalance per plane (kg m) the balancing record at ``path`` estimated, refused where it
-    is of another machine or of other runout coefficients than ``coefficients``."""
+def _before(path: str, coefficients: Path | None, machine: str) -> dict:
+    """The balancing record at ``path`` (:func:`~ambdaq.workflows.balancing.load_record`), refused
+    where it is of another machine or of other runout coefficients than ``coefficients``."""
     from ..documents.coefficients import file_sha256
     from ..workflows.balancing import load_record
 
@@ -248,7 +271,24 @@ def _before(path: str, coefficients: Path | None, machine: str) -> dict[str, flo
     if coefficients is not None and rec["runout_sha256"] != file_sha256(coefficients):
         raise BadInputError(f"{path}: its run's runout coefficients were not {coefficients}: their slow roll's part "
                             "of its unbalance is not the one these hold")
-    return {p: u["g_mm"] * 1e-6 for p, u in rec["unbalance"].items()}
+    return rec
+
+
+def _predicted_and_measured(earlier: dict, d: dict) -> dict:
+    """The grade the record ``earlier`` predicted after its correction beside the one measured now
+    (``d``, this run's --json): issue 43's "predicted and then measured". Compared where both are
+    stated at one maximum speed; otherwise why not."""
+    p = earlier["predicted_after"]
+    out = {"record": earlier["file"], "predicted_after": p, "measured_mm_s": d["grade_mm_s"],
+           "measured_std_mm_s": d["grade_std_mm_s"], "within_prediction": None}
+    if p is None:
+        out["why_not"] = "the record states no grade predicted after its correction (no --max-rpm)"
+    elif d["grade_mm_s"] is None or earlier["max_rpm"] != d["max_rpm"]:
+        out["why_not"] = (f"the record's grade is at {earlier['max_rpm']:,.0f} rpm; give --max-rpm "
+                          f"{earlier['max_rpm']:g} to compare")
+    else:
+        out["within_prediction"] = bool(d["grade_mm_s"] <= p["at_most_mm_s"])
+    return out
 
 
 def _show_acceptance(d: dict) -> None:
@@ -261,6 +301,28 @@ def _show_acceptance(d: dict) -> None:
                "beyond it: not accepted")
     click.echo(f"against {a['target']} (ISO 21940-14): {d['grade_mm_s']:.3g} mm/s with an error of {a['error_mm_s']:.2g} "
                f"mm/s, {verdict}")
+
+
+def _judged(result, target: float | None, mass_tolerance: float, angle_tolerance: float) -> None:
+    """The grade asked for and the correction masses' own errors, on a result."""
+    from ..workflows.balancing import MassTolerance
+
+    result.target_mm_s = target
+    result.tolerance = MassTolerance(mass_tolerance, angle_tolerance)
+
+
+def _show_prediction(d: dict) -> None:
+    """The grade predicted once the correction is on, where a grade is stated."""
+    p = d.get("predicted_after")
+    if p is None:
+        return
+    masses = (f"the masses within {p['mass_tolerance_g']:g} g and {p['angle_tolerance_deg']:g} deg"
+              if p["mass_tolerance_g"] or p["angle_tolerance_deg"] else
+              "the masses put on exactly: --mass-tolerance and --angle-tolerance count their errors")
+    target = "" if "within_target" not in d["predicted_after"] else (
+        f"; {'within' if p['within_target'] else 'not within'} {d['acceptance']['target']}")
+    click.echo(f"predicted after the correction: {p['grade_mm_s']:.2g} mm/s, at most {p['at_most_mm_s']:.2g} mm/s "
+               f"({p['level'] * 100:.0f} %, {p['grade']}{target}; the estimate's deviation, {masses})")
 
 
 def _writable(record: str | None, overwrite: bool, max_rpm: float | None = None, target: float | None = None) -> None:
@@ -314,3 +376,4 @@ def _show(result, as_json: bool) -> None:
         click.echo(f"balance grade now (ISO 21940-11, {d['max_rpm']:,.0f} rpm, the unbalance this run holds): "
                    f"{d['grade_mm_s']:.3g} +- {d['grade_std_mm_s']:.2g} mm/s ({d['grade']})")
         _show_acceptance(d)
+        _show_prediction(d)

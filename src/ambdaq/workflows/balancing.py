@@ -244,7 +244,7 @@ def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np
     return u
 
 
-def balance_grade(unbalance_kg_m: float, rotor_mass_kg: float, max_rpm: float) -> float:
+def balance_grade(unbalance_kg_m: float | np.ndarray, rotor_mass_kg: float, max_rpm: float) -> float | np.ndarray:
     """ISO 21940-11's e_per Omega_max, mm/s, of an unbalance (kg m) on a rotor of ``rotor_mass_kg``
     (kg) at its maximum service speed ``max_rpm`` (rpm)."""
     return unbalance_kg_m / rotor_mass_kg * max_rpm * RPM_TO_RAD_S * 1e3
@@ -277,6 +277,54 @@ def mass_rows(masses: list[BalanceMass]) -> list[dict]:
             for m in masses]
 
 
+@dataclass(frozen=True)
+class MassTolerance:
+    """The errors of the correction's own making (ISO 21940-14, clause 4's sources in the masses):
+    the largest weighing error of each correction mass, g, and the largest error of the angle it
+    is fitted at, degrees; each taken as equally likely anywhere within its bound. A radius off
+    by dr counts as a mass off by m dr / r."""
+
+    grams: float = 0.0
+    deg: float = 0.0
+
+
+PREDICTION_DRAWS = 20000
+"""Draws of the estimate's error and the masses' from which the grade after a correction is
+predicted: the 95th percentile's own scatter over draws is then about 0.5 % of it (sqrt(p (1 - p)
+/ N) over the density there)."""
+PREDICTION_LEVEL = 0.95
+"""The grade after is stated as its median and the bound it stays within with this probability."""
+
+
+def grade_after(planes: list[str], residual: np.ndarray, std: np.ndarray, masses: list[BalanceMass],
+                    tolerance: MassTolerance, rotor_mass_kg: float | None, max_rpm: float | None) -> dict | None:
+    """The ISO 21940-11 grade the rotor is predicted to have once ``masses`` are on (ISO 21940-14's
+    residual unbalance after balancing, with its errors): per plane, the unbalance the estimate
+    says is left (``residual``, kg m, in the order of ``planes``: none unless a limit held a mass
+    back), plus the estimate's
+    own error (a circular normal of ``std`` per part, kg m, per plane: what the stated deviation
+    means), plus each mass's weighing and fitting error within ``tolerance``; the grade of their
+    magnitudes summed, drawn PREDICTION_DRAWS times. Its median and the bound it stays within with
+    PREDICTION_LEVEL, mm/s, at ``max_rpm`` (rpm) for a rotor of ``rotor_mass_kg`` (kg); None
+    without both. The draws are seeded: one job always predicts the same."""
+    if not rotor_mass_kg or not max_rpm:
+        return None
+    rng = np.random.default_rng(0)
+    shape = (PREDICTION_DRAWS, len(planes))
+    after = residual + std * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+    index = {p: k for k, p in enumerate(planes)}
+    for m in masses:  # each mass as put on: its weight and angle each off within the tolerance
+        grams = m.grams + tolerance.grams * rng.uniform(-1.0, 1.0, PREDICTION_DRAWS)
+        deg = m.deg + tolerance.deg * rng.uniform(-1.0, 1.0, PREDICTION_DRAWS)
+        placed = grams * 1e-3 * m.radius_m * np.exp(1j * np.radians(deg))
+        after[:, index[m.plane]] += placed - m.unbalance
+    grades = balance_grade(np.abs(after).sum(axis=1), rotor_mass_kg, max_rpm)
+    median, bound = np.quantile(grades, [0.5, PREDICTION_LEVEL])
+    return {"grade_mm_s": round(float(median), 3), "at_most_mm_s": round(float(bound), 3),
+            "level": PREDICTION_LEVEL, "grade": _grade_class(float(bound)),
+            "mass_tolerance_g": tolerance.grams, "angle_tolerance_deg": tolerance.deg}
+
+
 @dataclass
 class Balancing:
     """Influence coefficients and the correction they give."""
@@ -299,6 +347,7 @@ class Balancing:
     feedforward: bool = False  # the runs' feedforward ran: the coefficients are of that loop
     speeds_rpm: list[float] | None = None  # at several speeds, each one's (the rows: an axis at a speed)
     target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
+    tolerance: MassTolerance = MassTolerance()  # the correction masses' own errors (predicted_after)
     slow_roll: np.ndarray | None = None  # (planes,): the slow roll's runout's part, kg m (SLOW_ROLL)
     runout_removed: bool = True  # the runs' runout coefficients were taken out (False: --no-runout)
     signal: str = "gaps"  # what the vectors are of (SIGNALS): m and m per kg m, or N and N per kg m
@@ -363,6 +412,16 @@ class Balancing:
         """The correction as masses at each plane's radius (:func:`plane_masses`)."""
         return plane_masses(self.planes, self.placed, self.radius_m, self.holes)
 
+    @property
+    def predicted_after(self) -> dict | None:
+        """The grade once the masses are on (:func:`grade_after`): what a limit held back
+        (placed less the least squares' correction), the correction's deviation, the masses' own
+        errors."""
+        if self.correction_std is None:
+            return None
+        return grade_after(self.planes, self.placed - self.correction, self.correction_std, self.masses(),
+                               self.tolerance, self.rotor_mass_kg, self.max_rpm)
+
     def as_dict(self) -> dict:
         """What ``balance influence --json`` prints (the vectors in um, or N for the bearings' forces)."""
         unit, scale = SIGNALS[self.signal]
@@ -389,7 +448,7 @@ class Balancing:
                 "predicted_residual": {a: um(v) for a, v in zip(self.axes, self.residual)},
                 "predicted_reduction": round(float(np.linalg.norm(self.residual) / np.linalg.norm(self.reference)), 4),
                 **({"speeds_rpm": [round(r, 1) for r in self.speeds_rpm]} if self.speeds_rpm else {}),
-                **_acceptance(self)}
+                **_acceptance(self), **_prediction(self)}
 
 
 def _acceptance(result) -> dict:
@@ -397,6 +456,17 @@ def _acceptance(result) -> dict:
     if result.target_mm_s is None or result.grade_mm_s is None:
         return {}
     return {"acceptance": acceptance(result.grade_mm_s, result.grade_std_mm_s, result.target_mm_s)}
+
+
+def _prediction(result) -> dict:
+    """The ``predicted_after`` member of a result's --json where a grade is stated: with a grade
+    asked for, whether the bound is within it (ISO 21940-14's e + de <= e_per, the bound as e + de)."""
+    p = result.predicted_after
+    if p is None:
+        return {}
+    if result.target_mm_s is not None:
+        p["within_target"] = bool(p["at_most_mm_s"] <= result.target_mm_s)
+    return {"predicted_after": p}
 
 
 GRADES = (0.4, 1.0, 2.5, 6.3, 16.0, 40.0, 100.0, 250.0, 630.0, 1600.0, 4000.0)
@@ -707,6 +777,15 @@ class ForceBalancing:
     runout_removed: bool = True  # the run's runout coefficients were taken out (False: --no-runout)
     target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
     slow_roll: np.ndarray | None = None  # (planes,): the slow roll's runout's part, kg m (SLOW_ROLL), in std
+    tolerance: MassTolerance = MassTolerance()  # the correction masses' own errors (predicted_after)
+
+    @property
+    def predicted_after(self) -> dict | None:
+        """The grade once the correction masses are on (:func:`grade_after`): the estimate's
+        deviation and the masses' own errors."""
+        return grade_after(self.planes, np.zeros(len(self.planes), dtype=complex), self.std,
+                               plane_masses(self.planes, self.correction, self.radius_m, self.holes), self.tolerance,
+                               self.rotor_mass_kg, self.max_rpm)
 
     @property
     def correction(self) -> np.ndarray:
@@ -741,7 +820,7 @@ class ForceBalancing:
                 "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm,
                 "slow_roll_g_mm": None if self.slow_roll is None else {p: round(float(v) * 1e6, 4) for p, v in
                                                                         zip(self.planes, self.slow_roll)},
-                **_acceptance(self)}
+                **_acceptance(self), **_prediction(self)}
 
 
 def force_balancing(path: str | Path, coefficients: Path | None, machine: str = "spindle", *, holes: int = 0,
@@ -815,7 +894,24 @@ def load_record(path: str | Path) -> dict:
             "runout_sha256": runout.get("sha256") if isinstance(runout, dict) else None,
             "method": str(result.get("method", "influence coefficients (ISO 21940-13)")), "rpm": rpm,
             "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade,
-            "acceptance": _record_acceptance(result.get("acceptance"))}
+            "acceptance": _record_acceptance(result.get("acceptance")),
+            "predicted_after": _record_prediction(result.get("predicted_after"))}
+
+
+def _record_prediction(value) -> dict | None:
+    """A record's grade predicted after its correction (where it stated a grade), checked: None if
+    absent (a record from before it was kept)."""
+    if value is None:
+        return None
+    try:
+        out = {k: float(value[k]) for k in ("grade_mm_s", "at_most_mm_s", "level", "mass_tolerance_g",
+                                            "angle_tolerance_deg")}
+    except (KeyError, TypeError, ValueError):
+        raise BadInputError("a balancing record's predicted_after needs grade_mm_s, at_most_mm_s, level, "
+                            "mass_tolerance_g and angle_tolerance_deg") from None
+    if not all(np.isfinite(v) and v >= 0 for v in out.values()):
+        raise BadInputError("a balancing record's predicted_after holds a value that is not a finite number >= 0")
+    return out
 
 
 def _record_acceptance(value) -> dict | None:
