@@ -156,6 +156,13 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
                                                     for p, u in b["unbalance"].items()]
     assert tables.tables["balancing-correction"] == [[m["plane"], f"{m['grams']:.4f}", f"{m['deg']:.1f}",
                                                       f"{m['radius_mm']:g}"] for m in b["correction"]]
+    # the grade now and the grade predicted after the correction (ISO 21940-11/-14), as --json states them
+    p = alone["predicted_after"]
+    assert b["predicted_after"] == {k: p[k] for k in ("grade_mm_s", "at_most_mm_s", "level", "grade",
+                                                      "mass_tolerance_g", "angle_tolerance_deg")}
+    assert tables.tables["balancing-grade"] == [
+        ["now (this record's run)", f"{b['grade_mm_s']:.3g}", f"{b['grade_std_mm_s']:.3g}", "–", b["grade"]],
+        ["predicted after the correction", f"{p['grade_mm_s']:.3g}", "–", f"{p['at_most_mm_s']:.3g}", p["grade"]]]
     (entry,) = data["push_log"]  # only the push of these coefficients
     assert tables.tables["push-log"] == [["2026-11-23 10:00:00 UTC", "1", "0x1a2b3c4d", "coef.json",
                                           entry["file_sha256"][:16], "serial:///dev/pts/5", "123456"]]
@@ -173,6 +180,7 @@ def test_report_renders_in_chromium_with_the_numbers_of_json(session, run_cli, c
         ("ISO 14839-3", worst_gs["zone"]), ("ISO 14839-2", worst_band["zone"]), ("API 684", None),
         ("Ro et al. runout feedforward", None), ("ISO 21940-11", None), ("ISO 21940-14", None)]
     assert verdict["lines"][4]["result"].startswith(f"{b['grade']} ({b['grade_mm_s']:.3g} ± ")
+    assert verdict["lines"][4]["result"].endswith(f"; predicted after it at most {p['at_most_mm_s']:.3g} mm/s ({p['grade']})")
     # the job asked for G16 (--grade): ISO 21940-14's acceptance, as balance forces --json states it
     assert b["acceptance"] == alone["acceptance"] and verdict["lines"][5]["check"] == "rotor balance against G16"
     assert verdict["lines"][5]["result"].startswith("accepted after balancing" if alone["acceptance"]["after_balancing"]

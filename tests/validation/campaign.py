@@ -922,11 +922,12 @@ def balancing(cases: range, rpm: float = 20000.0, seconds: float = 1.0, slow_s: 
             # case + 4, + 8), balance correct with the job's saved coefficients, against the truth
             files = [job.d / f"ref{j}.mcap" for j in range(len(speeds))] + [
                 job.d / f"t{j}{k}.mcap" for j in range(len(speeds)) for k in range(len(trials))]
-            saved = save_influence(result, job.d / "influence.json", files)
+            saved = save_influence(result, job.d / "influence.json", files, coef)
             on = job.placed(result.masses())
             fixed = [job.run(f"fixed{j}", 4 + 4 * j, SpeedProfile(at, at), seconds, on, ff=ff)
                      for j, at in enumerate(speeds)]
-            after = correct_with(saved, [run_vector(f, coef, profile, signal) for f in fixed], max_rpm=max_rpm)
+            after = correct_with(saved, [run_vector(f, coef, profile, signal) for f in fixed], max_rpm=max_rpm,
+                                 coefficients=coef)
             left_truth, _mass = job.truth(fixed[0])
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)

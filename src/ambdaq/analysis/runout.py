@@ -360,6 +360,27 @@ class Separation:
     residual: float
 
 
+PLANE_FORCES = np.array([[1j, 0], [1, 0], [0, 1j], [0, 1], [0, 0]], dtype=complex)
+"""Unbalance per plane (front, rear; kg m, as Separation's) to the 1X force at each bearing axis per
+Omega^2 (x, y of each bearing, then the axial): x gets j u, y gets u (see Separation)."""
+
+
+def unbalance_in_runout(spin: float, rotor: RigidRotor) -> np.ndarray:
+    """What a 1X runout estimate of :func:`runout_from_sensor` at ``spin`` (rad/s) holds of the
+    rotor's unbalance, per kg m on each plane: H(Omega) B Omega^2, the force the currents do not
+    explain through the rigid rotor's own dynamics, D(Omega) = -Omega^2 M + j Omega G - Kx.
+
+    Returns
+    -------
+    ndarray of complex, shape (5, 2)
+        Per axis (the rotor model's order: front x, y, rear x, y, axial), m per kg m on the front
+        and rear planes.
+    """
+    M, G = rotor.mass_gyro(spin)
+    D = -(spin**2) * M + 1j * spin * G - np.diag(rotor.kx)
+    return np.linalg.solve(D, PLANE_FORCES) * spin**2
+
+
 def separate_unbalance(estimates: np.ndarray, spins: np.ndarray, rotor: RigidRotor) -> Separation:
     """Split 1X runout estimates made at several speeds into runout and unbalance response.
 
@@ -381,14 +402,9 @@ def separate_unbalance(estimates: np.ndarray, spins: np.ndarray, rotor: RigidRot
     spins = np.asarray(spins, dtype=float)
     if est.shape[0] < 2 or np.ptp(spins) <= 0:
         raise ValueError("separating runout from unbalance needs recordings at two or more different speeds")
-    # unbalance u (front, rear) -> bearing forces: x gets j u W^2, y gets u W^2 (see Separation)
-    B = np.array([[1j, 0], [1, 0], [0, 1j], [0, 1], [0, 0]], dtype=complex)
     rows, rhs = [], []
     for r_est, w in zip(est, spins):
-        M, G = rotor.mass_gyro(w)
-        D = -(w**2) * M + 1j * w * G - np.diag(rotor.kx)
-        H = np.linalg.solve(D, B) * w**2
-        rows.append(np.concatenate([np.eye(5), H], axis=1))
+        rows.append(np.concatenate([np.eye(5), unbalance_in_runout(w, rotor)], axis=1))
         rhs.append(r_est)
     A = np.concatenate(rows)
     y = np.concatenate(rhs)

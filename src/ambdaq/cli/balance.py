@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import cmath
 import json
+import math
 from pathlib import Path
 
 import click
@@ -148,7 +150,7 @@ def influence(reference, trials, masses, coefficients, no_runout, machine, signa
     if output:
         from ..workflows.balancing import save_influence
 
-        save_influence(result, output, files, overwrite=overwrite)
+        save_influence(result, output, files, coef, overwrite=overwrite)
     runs = [run for ref, *rest in groups for run in
             [("reference", ref), *((f"trial {m.plane}:{m.grams:g}@{m.deg:g}:{m.radius_m * 1e3:g}", t)
                                    for m, t in zip(parsed, rest))]]
@@ -186,7 +188,7 @@ def correct(runs, influence_file, coefficients, no_runout, machine, holes, max_r
     coef = _runout(coefficients, no_runout)
     signal = influence_signal(influence_file)
     result = correct_with(influence_file, [run_vector(run, coef, machine, signal) for run in runs],
-                          holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams)
+                          holes=holes or 0, max_rpm=max_rpm, max_grams=max_grams, coefficients=coef)
     _judged(result, target, mass_tolerance, angle_tolerance)
     _show(result, as_json)
     _keep(result, record, plot_path, [("run", run) for run in runs], coef, machine, influence_file, overwrite)
@@ -220,18 +222,19 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, mass_t
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
     earlier = _before(before_record, coef, machine) if before_record else None
-    before = None if earlier is None else {p: u["g_mm"] * 1e-6 for p, u in earlier["unbalance"].items()}
+    before = None if earlier is None else {p: u["g_mm"] * 1e-6 * cmath.rect(1.0, math.radians(u["deg"]))
+                                           for p, u in earlier["unbalance"].items()}
     result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm, before=before)
     _judged(result, target, mass_tolerance, angle_tolerance)
     d = result.as_dict()
     if earlier is not None:
         d["before"] = _predicted_and_measured(earlier, d)
-    # the slow roll's part (workflows.balancing.SLOW_ROLL): without --before this command cannot size it
+    # the slow roll's part (workflows.balancing.force_balancing): without --before, of the rotor as it is
     if coef is not None and before is None:
-        click.echo("ambdaq: note: the runout coefficients hold about 1 % of the unbalance the rotor had at their slow "
-                   "roll; if it has been corrected since, that part is not in the deviation: pass --before with the "
-                   "record of the run the correction came from, or record a new slow roll (docs/balancing.md, "
-                   "section 4)", err=True)
+        click.echo("ambdaq: note: the runout coefficients' slow roll held the rotor's response to its unbalance then, "
+                   "given back as the unbalance this run holds; if the rotor has been corrected since that slow roll, "
+                   "pass --before with the record of the run the correction came from, or record a new slow roll "
+                   "(docs/balancing.md, section 4)", err=True)
     if as_json:
         click.echo(json.dumps(d, indent=2))
     else:
@@ -323,6 +326,9 @@ def _show_prediction(d: dict) -> None:
         f"; {'within' if p['within_target'] else 'not within'} {d['acceptance']['target']}")
     click.echo(f"predicted after the correction: {p['grade_mm_s']:.2g} mm/s, at most {p['at_most_mm_s']:.2g} mm/s "
                f"({p['level'] * 100:.0f} %, {p['grade']}{target}; the estimate's deviation, {masses})")
+    if not p["improves"]:
+        click.echo("ambdaq: warning: the correction is not predicted to lower the grade: the unbalance is within what "
+                   "the estimate can tell, and its error would go on with the masses; leave them off", err=True)
 
 
 def _writable(record: str | None, overwrite: bool, max_rpm: float | None = None, target: float | None = None) -> None:

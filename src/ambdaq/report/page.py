@@ -40,6 +40,7 @@ FORMATS = {  # a column's number as the report writes it: the --json value round
     "rpm": "{:,.0f}", "gain": "{:.2f}", "db": "{:.1f}", "hz": "{:,.0f}", "coherence": "{:.3f}", "um": "{:.2f}",
     "ratio": "{:.3f}", "count": "{:d}", "change_db": "{:+.1f}", "factor": "{:.2f}", "s": "{:.3f}", "m_s": "{:.3f}",
     "j": "{:.3g}", "deg": "{:.1f}", "u": "{:.3f}", "g": "{:.4f}", "g_mm": "{:.3f}", "mm": "{:g}",
+    "mm_s": "{:.3g}",
 }
 
 
@@ -176,6 +177,17 @@ def render(found, title: str) -> str:
                   "direction of rotation (docs/balancing.md).</p>",
                   _table(["plane", "unbalance [g mm]", "± 1σ [g mm]", "at [deg]"], unbalance, "balancing-unbalance"),
                   _table(["plane", "correction [g]", "at [deg]", "radius [mm]"], masses, "balancing-correction")]
+        p = b["predicted_after"]
+        if b["grade_mm_s"] is not None and p is not None:
+            rows = [[_cell("now (this record's run)", "text"), _cell(b["grade_mm_s"], kind="mm_s"),
+                     _cell(b["grade_std_mm_s"], kind="mm_s"), _cell("–"), _cell(b["grade"], "text")],
+                    [_cell("predicted after the correction", "text"), _cell(p["grade_mm_s"], kind="mm_s"), _cell("–"),
+                     _cell(p["at_most_mm_s"], kind="mm_s"), _cell(p["grade"], "text")]]
+            parts += [f'<p class="note">ISO 21940-11 grade at {number(b["max_rpm"], "rpm")} rpm; after the correction '
+                      f"the median and the bound it stays within with {p['level'] * 100:.0f} % (the estimate's deviation "
+                      f"and the masses within {p['mass_tolerance_g']:g} g and {p['angle_tolerance_deg']:g}°, ISO "
+                      "21940-14).</p>",
+                      _table(["", "grade [mm/s]", "± 1σ [mm/s]", "at most [mm/s]", "class"], rows, "balancing-grade")]
     v = d["vibration"]
     if v:
         limits = ZoneLimits(*v["limits_ratio_cmin"])

@@ -30,7 +30,7 @@ from ..machines.balance_masses import BalanceMass
 from ..machines.models import loop_model
 from ..units import RPM_TO_RAD_S
 from .apht import apht
-from .runout import runout_phasors
+from .runout import runout_phasors, unbalance_held
 
 SAME_SPEED = 0.01
 """Runs more than this fraction apart in speed are not one balancing speed: refused."""
@@ -54,6 +54,7 @@ class RunVector:
     feedforward: bool = False  # the controller's feedforward ran (its loop: FF_SETTLE)
     runout_removed: bool = True  # a slow roll's runout coefficients were taken out (False: --no-runout)
     signal: str = "gaps"  # what the vector is of (SIGNALS): the gaps' 1X (m) or the bearings' forces (N)
+    held: np.ndarray | None = None  # (axes, planes): what the vector lost per kg m of the slow roll's unbalance
 
 
 @dataclass
@@ -214,8 +215,34 @@ def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spin
             driven = model.inertia_force(result.rpm, driven)
         driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + ((FORCE_RUNOUT_MODEL if forces else RUNOUT_MODEL) * np.abs(driven_1x)) ** 2)
+    held = None if coefficients is None else _held(model, machine, rec, result.rpm, list(result.axes),
+                                                   Coefficients.load(coefficients), on, forces)
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
-                     rec.machine.rotor_mass_kg, np.sqrt(noise), on, coefficients is not None, signal)
+                     rec.machine.rotor_mass_kg, np.sqrt(noise), on, coefficients is not None, signal, held)
+
+
+def _held(model, machine: str, rec, rpm: float, axes: list[str], coef: Coefficients, on: bool,
+          forces: bool) -> np.ndarray:
+    """What a run's vector (:func:`run_vector`) loses per kg m of the unbalance the rotor had at the
+    runout's slow roll, on each plane (axes x planes): the coefficients' 1X holds the rotor's
+    response to it there (:func:`~ambdaq.workflows.runout.unbalance_held`, s per plane), and
+    taking it out as runout takes s from the gap, with the feedforward off also the motion s
+    would drive through the loop (``runout_response``); of the bearings' forces, the magnets'
+    force on s (``bearing_force`` at no current) and, feedforward off, the inertia's on what s drives."""
+    if len(model.balance_planes) != 2:
+        raise BadInputError(f"the {machine} model's planes ({', '.join(model.balance_planes)}) are not a rigid rotor's "
+                            "two at its bearings: its runout coefficients' slow roll cannot be told from its unbalance")
+    s = unbalance_held(coef, rec, axes)
+    out = np.zeros_like(s)
+    for k in range(s.shape[1]):
+        part = dict(zip(axes, s[:, k]))
+        driven = {a: 0j for a in axes} if on else model.runout_response(rpm, part)
+        if forces:
+            magnets, follows = model.bearing_force(rpm, part, {}), model.inertia_force(rpm, driven)
+            out[:, k] = [magnets[a] + (0j if on else follows[a]) for a in axes]
+        else:
+            out[:, k] = [part[a] + driven[a] for a in axes]
+    return out
 
 
 def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -460,12 +487,16 @@ def _acceptance(result) -> dict:
 
 def _prediction(result) -> dict:
     """The ``predicted_after`` member of a result's --json where a grade is stated: with a grade
-    asked for, whether the bound is within it (ISO 21940-14's e + de <= e_per, the bound as e + de)."""
+    asked for, whether the bound is within it (ISO 21940-14's e + de <= e_per, the bound as e + de);
+    whether its median is below the grade now (``improves``)."""
     p = result.predicted_after
     if p is None:
         return {}
     if result.target_mm_s is not None:
         p["within_target"] = bool(p["at_most_mm_s"] <= result.target_mm_s)
+    # a rotor within its noise: the masses carry the estimate's error on, and the median after is
+    # not below the grade now
+    p["improves"] = bool(p["grade_mm_s"] < result.grade_mm_s)
     return {"predicted_after": p}
 
 
@@ -544,7 +575,8 @@ def stacked(runs: list[RunVector]) -> RunVector:
     return RunVector(", ".join(r.path for r in runs), first.rpm, [f"{a}@{r.rpm:.0f}rpm" for r in runs for a in r.axes],
                      np.concatenate([r.one_x for r in runs]), np.concatenate([r.std for r in runs]),
                      first.rotor_mass_kg, np.concatenate([r.noise for r in runs]), first.feedforward,
-                     all(r.runout_removed for r in runs), first.signal)
+                     all(r.runout_removed for r in runs), first.signal,
+                     None if any(r.held is None for r in runs) else np.vstack([r.held for r in runs]))
 
 
 def _influence(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]) -> tuple[np.ndarray, InfluenceNoise]:
@@ -580,10 +612,19 @@ def _influence(reference: RunVector, trials: list[tuple[BalanceMass, RunVector]]
 
 def _correct(planes: list[str], run: RunVector, A: np.ndarray, radius_m: dict[str, float],
              trials: list[BalanceMass], noise: InfluenceNoise | None, holes: int, max_rpm: float | None,
-             max_grams: float | None) -> Balancing:
-    """The correction per plane that cancels ``run``'s 1X over its axes by least squares."""
-    correction, *_ = np.linalg.lstsq(A, -run.one_x, rcond=None)
-    return Balancing(planes, run.axes, run.rpm, A, run.one_x, correction, radius_m, trials,
+             max_grams: float | None, before: np.ndarray | None = None) -> Balancing:
+    """The correction per plane that cancels ``run``'s 1X over its axes by least squares, with the
+    part of the rotor's unbalance its runout coefficients' slow roll held (``run.held``) given back
+    to it: of ``before`` (kg m per plane) where the slow roll was recorded with that unbalance on
+    the rotor, else of the run's own, v = (A - H) U, solved as one least squares. The reference
+    it keeps is the run's 1X with that part given back."""
+    v = run.one_x
+    if run.held is not None and before is not None:
+        v = v + run.held @ before
+    elif run.held is not None:
+        v = v + run.held @ np.linalg.lstsq(A - run.held, v, rcond=None)[0]
+    correction, *_ = np.linalg.lstsq(A, -v, rcond=None)
+    return Balancing(planes, run.axes, run.rpm, A, v, correction, radius_m, trials,
                      holes=holes, rotor_mass_kg=run.rotor_mass_kg, max_rpm=max_rpm, reference_std=run.std,
                      reference_noise=run.noise, influence_noise=noise, max_grams=max_grams,
                      feedforward=run.feedforward, runout_removed=run.runout_removed, signal=run.signal)
@@ -598,10 +639,13 @@ NOISE_KEY = {"gaps": "noise_m", "forces": "noise_N"}
 """The influence file's member with the deviations its runs were measured with, named by their unit."""
 
 
-def save_influence(result: Balancing, path: str | Path, sources: list[str | Path], *, overwrite: bool = False) -> Path:
+def save_influence(result: Balancing, path: str | Path, sources: list[str | Path], coefficients: str | Path | None = None,
+                   *, overwrite: bool = False) -> Path:
     """The influence coefficients as a sealed file, to balance the same machine again from one run
     (``balance correct``): planes, axes, speed, coefficients (m per kg m), radii, the trial masses
-    and the runs they came from (name and SHA-256)."""
+    and the runs they came from (name and SHA-256); the unbalance the job estimated (magnitude and
+    angle per plane) with the SHA-256 of the runout ``coefficients`` its runs were read with: a
+    later run read with the same holds that unbalance's part of their slow roll."""
     doc = {"format": FORMAT, "version": VERSION, "rpm": result.rpm, "feedforward": result.feedforward,
            "signal": result.signal,
            **({"speeds_rpm": result.speeds_rpm} if result.speeds_rpm else {}), "planes": result.planes, "axes": result.axes,
@@ -612,6 +656,9 @@ def save_influence(result: Balancing, path: str | Path, sources: list[str | Path
     if result.influence_noise is not None:  # what the next job's deviation needs of this one's
         n = result.influence_noise
         doc["reference_unbalance_kg_m"] = {p: float(abs(u)) for p, u in zip(result.planes, result.correction)}
+        doc["reference_unbalance_deg"] = {p: float(np.degrees(np.angle(-u))) for p, u in zip(result.planes,
+                                                                                           result.correction)}
+        doc["runout_sha256"] = None if coefficients is None else file_sha256(coefficients)
         doc[NOISE_KEY[result.signal]] = {"reference": n.reference.tolist(), "trials": n.trials.tolist(),
                                           "trial_unbalance_re": n.trial_unbalance.real.tolist(),
                                           "trial_unbalance_im": n.trial_unbalance.imag.tolist()}
@@ -645,10 +692,15 @@ def _signal_of(doc: dict, path: str | Path) -> str:
 
 
 def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max_rpm: float | None = None,
-                 max_grams: float | None = None) -> Balancing:
+                 max_grams: float | None = None, coefficients: str | Path | None = None) -> Balancing:
     """The correction for ``runs`` by the influence coefficients of the file ``path``: one run of
     the same machine at each of the file's speeds, instead of a reference and a trial run per plane
-    at each; ``holes``, ``max_rpm`` and ``max_grams`` as :func:`influence_balancing`'s."""
+    at each; ``holes``, ``max_rpm`` and ``max_grams`` as :func:`influence_balancing`'s.
+
+    The runs read with the runout ``coefficients`` of the influence job hold the part of its
+    unbalance their slow roll held, given back (:func:`_correct`'s ``before``); read with others, a
+    slow roll since, that of the rotor as it is now. A file that does not say which it was read with
+    (from before this was kept) states SLOW_ROLL of its job's unbalance in the deviation instead."""
     doc = read_sealed(path, FORMAT, VERSION, "influence file")
     try:
         planes, axes, rpm = list(doc["planes"]), list(doc["axes"]), float(doc["rpm"])
@@ -657,10 +709,14 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
         feedforward = doc.get("feedforward", False)  # files before it was kept: the feedforward was off
         signal = _signal_of(doc, path)
         speeds = doc.get("speeds_rpm")
-        noise, slow_roll = None, None
+        noise, slow_roll, before = None, None, None
         if "reference_unbalance_kg_m" in doc and all(r.runout_removed for r in runs):
             # the job's unbalance, which the slow roll's runout taken out of the runs holds a part of
-            slow_roll = SLOW_ROLL * np.array([float(doc["reference_unbalance_kg_m"][p]) for p in planes])
+            job = np.array([float(doc["reference_unbalance_kg_m"][p]) for p in planes])
+            if "runout_sha256" not in doc:
+                slow_roll = SLOW_ROLL * job
+            elif coefficients is not None and doc["runout_sha256"] == file_sha256(coefficients):
+                before = job * np.exp(1j * np.radians([float(doc["reference_unbalance_deg"][p]) for p in planes]))
         if NOISE_KEY.get(signal) in doc:
             n = doc[NOISE_KEY[signal]]
             noise = InfluenceNoise(np.array(n["reference"], dtype=float), np.array(n["trials"], dtype=float),
@@ -708,7 +764,9 @@ def correct_with(path: str | Path, runs: list[RunVector], *, holes: int = 0, max
                                 f"coefficients are of the loop with it {_on_off(feedforward)}")
     if slow_roll is not None and not np.all(np.isfinite(slow_roll) & (slow_roll >= 0)):
         raise BadInputError(f"{path}: its reference_unbalance_kg_m is not one finite value of at least 0 per plane")
-    result = _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams)
+    if before is not None and not np.all(np.isfinite(before)):
+        raise BadInputError(f"{path}: its reference_unbalance_kg_m and _deg are not one finite value per plane")
+    result = _correct(planes, run, A, radius, [], noise, holes, max_rpm, max_grams, before)
     result.speeds_rpm = [r.rpm for r in ordered] if len(ordered) > 1 else None
     result.slow_roll = slow_roll
     return result
@@ -776,7 +834,8 @@ class ForceBalancing:
     holes: int = 0
     runout_removed: bool = True  # the run's runout coefficients were taken out (False: --no-runout)
     target_mm_s: float | None = None  # the balance grade asked for (ISO 21940-14's acceptance), mm/s
-    slow_roll: np.ndarray | None = None  # (planes,): the slow roll's runout's part, kg m (SLOW_ROLL), in std
+    held: np.ndarray | None = None  # (planes,): the unbalance the slow roll's runout held, given back, kg m
+    held_from: str | None = None  # whose unbalance that is: "before" (a record's) or "this run" (its own)
     tolerance: MassTolerance = MassTolerance()  # the correction masses' own errors (predicted_after)
 
     @property
@@ -818,23 +877,28 @@ class ForceBalancing:
                 "grade_mm_s": None if self.grade_mm_s is None else round(self.grade_mm_s, 3),
                 "grade_std_mm_s": None if self.grade_std_mm_s is None else round(self.grade_std_mm_s, 3),
                 "grade": _grade_class(self.grade_mm_s), "max_rpm": self.max_rpm,
-                "slow_roll_g_mm": None if self.slow_roll is None else {p: round(float(v) * 1e6, 4) for p, v in
-                                                                        zip(self.planes, self.slow_roll)},
+                "slow_roll_held": None if self.held is None else {
+                    "of": self.held_from, "planes": {p: {"g_mm": round(float(abs(v)) * 1e6, 4),
+                                                         "deg": round(float(np.degrees(np.angle(v))) % 360, 2)}
+                                                     for p, v in zip(self.planes, self.held)}},
                 **_acceptance(self), **_prediction(self)}
 
 
 def force_balancing(path: str | Path, coefficients: Path | None, machine: str = "spindle", *, holes: int = 0,
-                    max_rpm: float | None = None, before: Mapping[str, float] | None = None) -> ForceBalancing:
+                    max_rpm: float | None = None, before: Mapping[str, complex] | None = None) -> ForceBalancing:
     """The unbalance per plane of the rotor in ``path`` (one run at a steady speed, the feedforward
     on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
-    ``coefficients`` taken out (the rotor's motion; None: the gap's as it is) and the coil currents' 1X, through ``machine``'s
-    rigid rotor and force law (its ``plane_unbalance``); the windows averaged, their scatter the
-    noise, FORCE_MODEL and FORCE_RELATIVE (FORCE_RELATIVE_NO_RUNOUT without runout coefficients)
-    beside it; ``holes`` and ``max_rpm`` as
-    :func:`influence_balancing`'s.  ``before``: the unbalance per plane (kg m, by name) the rotor
-    had when the slow roll of ``coefficients`` was recorded (the estimate the correction since came
-    from): SLOW_ROLL of it is in the runout coefficients and reads as unbalance now, and is stated
-    beside the other deviations."""
+    ``coefficients`` taken out (the rotor's motion; None: the gap's as it is) and the coil currents'
+    1X, through ``machine``'s rigid rotor and force law (its ``plane_unbalance``); the windows
+    averaged, their scatter the noise, FORCE_MODEL and FORCE_RELATIVE (FORCE_RELATIVE_NO_RUNOUT
+    without runout coefficients) beside it; ``holes`` and ``max_rpm`` as
+    :func:`influence_balancing`'s.
+
+    The runout coefficients' 1X holds the rotor's response to the unbalance it had at their slow
+    roll (:func:`~ambdaq.workflows.runout.unbalance_held`), and taking it out of the gap takes P U0
+    from each window's unbalance (P: that response through ``plane_unbalance``). It is given back:
+    of ``before`` (the unbalance per plane by name, kg m phasors, the rotor had then: the estimate a
+    correction since came from), else of the run's own unbalance, u = (I - P)^-1 u_window."""
     rec = load(path)
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.plane_unbalance is None or not model.balance_planes:
@@ -848,6 +912,19 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     u = np.array([model.plane_unbalance(result.rpm, dict(zip(axes, result.gap[w, 0])),
                                         dict(zip(channels, result.current[w, 0])))
                   for w in range(result.gap.shape[0])])
+    held = None
+    if coefficients is not None:
+        s = unbalance_held(Coefficients.load(coefficients), rec, axes)
+        P = np.column_stack([model.plane_unbalance(result.rpm, dict(zip(axes, s[:, k])), {}) for k in range(s.shape[1])])
+        if before is not None:
+            if sorted(before) != sorted(model.balance_planes) or not all(np.isfinite(v) for v in before.values()):
+                raise BadInputError(f"the unbalance before is of planes {', '.join(before)}; the {machine}'s are "
+                                    f"{', '.join(model.balance_planes)}")
+            held = P @ np.array([before[p] for p in model.balance_planes])
+            u = u + held
+        else:
+            u = np.linalg.solve(np.eye(len(P)) - P, u.T).T
+            held = P @ u.mean(axis=0)
     noise = np.sqrt((np.var(u.real, axis=0, ddof=1) + np.var(u.imag, axis=0, ddof=1)) / 2 / u.shape[0])
     current = np.abs(result.current[:, 0]).mean(axis=0)  # per channel, A
     # the scale of each bearing's 1X force as an unbalance, Ki |I| / Omega^2 (kg m): each current
@@ -857,17 +934,11 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     unbalance = u.mean(axis=0)
     relative = FORCE_RELATIVE if coefficients is not None else FORCE_RELATIVE_NO_RUNOUT
     std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (relative * np.abs(unbalance)) ** 2)
-    slow_roll = None
-    if before is not None and coefficients is not None:
-        if sorted(before) != sorted(model.balance_planes) or not all(np.isfinite(v) for v in before.values()):
-            raise BadInputError(f"the unbalance before is of planes {', '.join(before)}; the {machine}'s are "
-                                f"{', '.join(model.balance_planes)}")
-        slow_roll = SLOW_ROLL * np.abs([before[p] for p in model.balance_planes])
-        std = np.sqrt(std**2 + slow_roll**2)
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
                           {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg,
-                          max_rpm, holes, runout_removed=coefficients is not None, slow_roll=slow_roll)
+                          max_rpm, holes, runout_removed=coefficients is not None, held=held,
+                          held_from="before" if before is not None else "this run" if held is not None else None)
 
 
 def load_record(path: str | Path) -> dict:
@@ -911,6 +982,7 @@ def _record_prediction(value) -> dict | None:
                             "mass_tolerance_g and angle_tolerance_deg") from None
     if not all(np.isfinite(v) and v >= 0 for v in out.values()):
         raise BadInputError("a balancing record's predicted_after holds a value that is not a finite number >= 0")
+    out["grade"] = _grade_class(out["at_most_mm_s"])
     return out
 
 

@@ -322,8 +322,10 @@ def verdict(data: dict, notes: list[str], *, pushed: bool) -> dict:
         masses = ", ".join(f"{m['plane']} {m['grams']:.4f} g at {m['deg']:.1f}°" for m in b["correction"])
         grade = ("no grade (the record has no maximum speed: --max-rpm)" if b["grade_mm_s"] is None else
                  f"{b['grade']} ({b['grade_mm_s']:.3g} ± {b['grade_std_mm_s']:.2g} mm/s at {b['max_rpm']:,.0f} rpm)")
+        p = b["predicted_after"]
+        after = "" if p is None else f"; predicted after it at most {p['at_most_mm_s']:.3g} mm/s ({p['grade']})"
         lines.append({"check": "rotor balance", "standard": "ISO 21940-11", "zone": None,
-                      "result": f"{grade} at {b['rpm']:,.0f} rpm, by {b['method']}; correction {masses}"})
+                      "result": f"{grade} at {b['rpm']:,.0f} rpm, by {b['method']}; correction {masses}{after}"})
         a = b.get("acceptance")
         if a is not None:  # the job asked for a grade (--grade): ISO 21940-14's acceptance
             lines.append({"check": f"rotor balance against {a['target']}", "standard": "ISO 21940-14", "zone": None,

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.runout import (harmonic_fit, lms_offline, runout_from_sensor, runout_uncertainty, model_bound,
-                               separate_unbalance,
+                               separate_unbalance, unbalance_in_runout,
                                synchronous_average, synthesise)
 from ..documents.coefficients import Coefficients, file_sha256, now_iso
 from ..daq.quality import MAX_LOST, require_complete, require_same_machine, require_same_speed
 from ..daq.recording import Recording
 from ..errors import AmbdaqWarning, BadInputError
-from ..units import RAD_S_TO_RPM, phasor_um_deg
+from ..units import RAD_S_TO_RPM, RPM_TO_RAD_S, phasor_um_deg
 
 UNBALANCE_NEGLIGIBLE_RPM = 2000.0  # at or below this the rotor's unbalance response at 1X is negligible:
 # a recording this slow is a slow roll for identification (the speed spec's `slowroll` is 800 rpm)
@@ -67,6 +67,32 @@ def held_unbalance(coef: Coefficients, where: Path | str) -> str | None:
         return None
     return (f"{where}: its 1X was identified at {speeds[0]:,.0f} rpm and holds the rotor's unbalance response there; "
             "taken out as runout it takes that response out too (identify from a slow roll for the runout alone)")
+
+
+def unbalance_held(coef: Coefficients, rec: Recording, axes: list[str]) -> np.ndarray:
+    """How much of the rotor's unbalance ``coef``'s 1X holds, per kg m on each balancing plane (front,
+    rear), at ``axes`` (m per kg m; shape (len(axes), 2)): the rotor's response to it at the speed
+    its 1X was identified at, which the coil currents do not explain
+    (:func:`~ambdaq.analysis.runout.unbalance_in_runout`, through ``rec``'s rigid rotor). From slow
+    rolls, their speeds' mean (8-18 nm for the simulated spindle's 2-3 g mm at 800 rpm); from one
+    faster speed, that speed's; separated over several speeds (no slow roll), none. The rotor's
+    unbalance then times this is in the runout the file takes out of a recording."""
+    if 1 not in coef.harmonics:
+        return np.zeros((len(axes), 2), dtype=complex)
+    rotor = rec.machine.rotor
+    if rotor is None:
+        raise BadInputError(f"{rec.path}: no rotor model (rotor.* calibration) in the recording: the runout's slow "
+                            "roll cannot be told from the unbalance it held")
+    order = rigid_rotor_axes(rec)
+    missing = [a for a in axes if a not in order]
+    if missing:
+        raise BadInputError(f"{rec.path}: no rigid-rotor axis {', '.join(missing)}")
+    speeds = [float(r.get("speed_rpm", 0.0)) for r in coef.source.get("recordings", []) if isinstance(r, dict)]
+    slow = [w for w in speeds if 0 < w <= UNBALANCE_NEGLIGIBLE_RPM]
+    if not slow and len({round(w) for w in speeds}) != 1:
+        return np.zeros((len(axes), 2), dtype=complex)  # separated over the speeds (or not said: none known)
+    held = np.mean([unbalance_in_runout(w * RPM_TO_RAD_S, rotor) for w in (slow or speeds[:1])], axis=0)
+    return held[[order.index(a) for a in axes]]
 
 
 def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
