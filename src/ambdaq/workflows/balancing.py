@@ -30,7 +30,7 @@ from ..machines.balance_masses import BalanceMass
 from ..machines.models import loop_model
 from ..units import RPM_TO_RAD_S
 from .apht import apht
-from .runout import runout_phasors, unbalance_held
+from .runout import runout_1x_deviation, runout_phasors, unbalance_held
 
 SAME_SPEED = 0.01
 """Runs more than this fraction apart in speed are not one balancing speed: refused."""
@@ -93,21 +93,16 @@ a machine), added to the reference vector's deviation: on the simulated spindle 
 runout drives 33 um) the corrections came within 3.6e-8 kg m of the truth, 0.1 % of that 1X seen
 through the influence coefficients; set at twice that, from one seed: a bound, not a scatter."""
 LINEARITY = 0.005
-"""Each plane's correction is known no better than this fraction of itself, beside the noise: a
-systematic error the campaign measured (the corrections came out 1.0 % small in the median with
-0.1 g trial masses, 2.3 % with 1 g; the bearing-force estimate, with no trial mass, 1.0-1.2 %
-small as well). Its main part is the slow roll's: the runout a slow roll identifies holds the
-rotor's 1X response to the unbalance it had then (8-18 nm at 800 rpm on the simulated spindle,
-0.06-0.09 % of the runout's 1X), which then reads as about 1 % less unbalance at speed; with the
-simulator's true runout instead, the corrections came within 0.1 % (20,000 rpm, feedforward on,
-seed 0). See SLOW_ROLL for a later run. Sized by the validation campaign's balancing rows (100 jobs at 20,000 rpm):
-with the noise alone the 95 % intervals held the truth in 90 % of jobs, the errors 1.18 times the
-stated deviations; with this floor 96 % and 0.95 (1 % gave 99 % and 0.70, over-stated).
-On the simulated cone rig (no runout, no slow roll) what it bounds is the force law's
-nonlinearity: its 1X of tens of micrometres in a 0.5 mm gap moves the influence coefficients
-with the unbalance, and the corrections of 30 jobs (2-30 g mm per plane at 6,000 rpm) were off
-by up to 1.7 % (median -0.02 %), hundreds of times their noise; this floor held 98 % of them in
-their 95 % intervals, the errors 0.52 times the stated deviations: a conservative bound there."""
+"""Each plane's correction is known no better than this fraction of itself, beside the noise: what
+the influence coefficients' linear model misses. On the simulated cone rig (no runout) its 1X of
+tens of micrometres in a 0.5 mm gap is where the force law is no longer linear, and the
+influence coefficients move with the unbalance: the corrections of 30 jobs (2-30 g mm per plane at
+6,000 rpm) were off by up to 1.7 % (median -0.02 %), hundreds of times their noise; this floor
+held 98 % of them in their 95 % intervals, the errors 0.52 times the stated deviations. On the
+simulated spindle, once the slow roll's part of the unbalance is given back (:func:`_correct`),
+the corrections come within 0.5 % in the median (0.1 g trial masses, 40 jobs at 20,000 rpm) and
+this floor is conservative there (errors 0.58 of the stated with the feedforward off, 0.38 on):
+it stays for the trial masses and force laws the campaign did not try."""
 
 
 FF_WINDOW_S = 0.05
@@ -133,15 +128,13 @@ def settled(v: np.ndarray) -> int:
 
 
 SLOW_ROLL = 0.01
-"""What the slow roll's runout holds of the rotor's unbalance then (LINEARITY's main part) stays in
-the runout coefficients: in a later run it reads as an unbalance of about 1 % of that one, whatever
-the rotor holds now. A correction from saved influence coefficients (balance correct) states it as
-this fraction of the unbalance the influence job estimated (its reference's, recorded beside the
-slow roll), beside its other deviations: after a correction it is most of what is left (the
-validation campaign's grade after, measured from a new run, held the truth within its 95 %
-interval in 20-40 % of the jobs with the feedforward on or at two speeds without it). ``balance
-forces --before RECORD`` states it of the unbalance the record estimated (16 % held with the
-feedforward on before it did)."""
+"""The slow roll's runout holds the rotor's response to the unbalance it had then (8-18 nm at 800
+rpm on the simulated spindle), which read as about 1 % less unbalance at speed until it was given
+back (:func:`_correct`). An influence file from before its runs' runout coefficients were kept
+(no ``runout_sha256``) cannot say whose unbalance that was: ``balance correct`` with it states
+this fraction of the job's unbalance beside its other deviations instead (the validation
+campaign's grade after had held the truth within its 95 % interval in 20-40 % of the jobs
+without it, in all with it)."""
 
 
 def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spindle",
@@ -215,34 +208,50 @@ def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spin
             driven = model.inertia_force(result.rpm, driven)
         driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + ((FORCE_RUNOUT_MODEL if forces else RUNOUT_MODEL) * np.abs(driven_1x)) ** 2)
-    held = None if coefficients is None else _held(model, machine, rec, result.rpm, list(result.axes),
-                                                   Coefficients.load(coefficients), on, forces)
+    held = None
+    if coefficients is not None:
+        coef, axes = Coefficients.load(coefficients), list(result.axes)
+        held = _held(model, machine, rec, result.rpm, axes, coef, on, forces)
+        std = np.hypot(std, _runout_error(model, result.rpm, axes, coef, on, forces))
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
                      rec.machine.rotor_mass_kg, np.sqrt(noise), on, coefficients is not None, signal, held)
+
+
+def _through_loop(model, rpm: float, axes: list[str], runout: Mapping[str, complex], on: bool,
+                  forces: bool) -> np.ndarray:
+    """What a 1X runout error ``runout`` (m per axis by name) changes a run's vector by (per axis:
+    m, or N for the bearings' forces), :func:`run_vector`'s path: taken out of the gap it moves
+    the gap's 1X by itself and, with the feedforward off, by the motion it would drive through the
+    loop (``runout_response``); of the bearings' forces, the magnets' force on it (``bearing_force``
+    at no current) and, feedforward off, the inertia's on what it drives."""
+    driven = {a: 0j for a in axes} if on else model.runout_response(rpm, runout)
+    if forces:
+        magnets, follows = model.bearing_force(rpm, runout, {}), model.inertia_force(rpm, driven)
+        return np.array([magnets[a] + (0j if on else follows[a]) for a in axes])
+    return np.array([runout.get(a, 0j) + driven[a] for a in axes])
 
 
 def _held(model, machine: str, rec, rpm: float, axes: list[str], coef: Coefficients, on: bool,
           forces: bool) -> np.ndarray:
     """What a run's vector (:func:`run_vector`) loses per kg m of the unbalance the rotor had at the
     runout's slow roll, on each plane (axes x planes): the coefficients' 1X holds the rotor's
-    response to it there (:func:`~ambdaq.workflows.runout.unbalance_held`, s per plane), and
-    taking it out as runout takes s from the gap, with the feedforward off also the motion s
-    would drive through the loop (``runout_response``); of the bearings' forces, the magnets'
-    force on s (``bearing_force`` at no current) and, feedforward off, the inertia's on what s drives."""
+    response to it there (:func:`~ambdaq.workflows.runout.unbalance_held`), taken out as runout
+    (:func:`_through_loop`)."""
     if len(model.balance_planes) != 2:
         raise BadInputError(f"the {machine} model's planes ({', '.join(model.balance_planes)}) are not a rigid rotor's "
                             "two at its bearings: its runout coefficients' slow roll cannot be told from its unbalance")
     s = unbalance_held(coef, rec, axes)
-    out = np.zeros_like(s)
-    for k in range(s.shape[1]):
-        part = dict(zip(axes, s[:, k]))
-        driven = {a: 0j for a in axes} if on else model.runout_response(rpm, part)
-        if forces:
-            magnets, follows = model.bearing_force(rpm, part, {}), model.inertia_force(rpm, driven)
-            out[:, k] = [magnets[a] + (0j if on else follows[a]) for a in axes]
-        else:
-            out[:, k] = [part[a] + driven[a] for a in axes]
-    return out
+    return np.column_stack([_through_loop(model, rpm, axes, dict(zip(axes, s[:, k])), on, forces)
+                            for k in range(s.shape[1])])
+
+
+def _runout_error(model, rpm: float, axes: list[str], coef: Coefficients, on: bool, forces: bool) -> np.ndarray:
+    """Per axis, the deviation (m or N, each part) a run's vector takes from the runout
+    coefficients' own 1X error (:func:`~ambdaq.workflows.runout.runout_1x_deviation`), each axis's
+    independent of the others', through :func:`_through_loop`."""
+    e = runout_1x_deviation(coef, axes)
+    moved = [_through_loop(model, rpm, axes, {a: complex(e[b])}, on, forces) for b, a in enumerate(axes)]
+    return np.sqrt(np.sum(np.abs(moved) ** 2, axis=0))
 
 
 def limited_correction(A: np.ndarray, v: np.ndarray, free: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -799,16 +808,14 @@ force its bearing applies (Ki times the coil currents' 1X, over Omega^2), beside
 force law is linearised and its gains are the machine's data, and with the feedforward off the
 controller fights the runout with forces ten times the unbalance's (a 0.4 % error in them was
 0.14e-6 kg m on the rear plane with no unbalance at all)."""
-FORCE_RELATIVE = 0.01
-"""... and no better than this fraction of itself (the corrections came out 1.0-1.2 % small in the
-median, with the feedforward off and on; the influence coefficients' 1.0 % too). Both sized by
-the validation campaign (40 jobs at 20,000 rpm each way, then its 100): with the noise alone the
-errors were 21 (feedforward off) and 3.5 (on) times the stated deviations; with both, 0.93 and 0.94."""
-FORCE_RELATIVE_NO_RUNOUT = 0.0015
-"""FORCE_RELATIVE where no runout was taken out (``--no-runout``): its main part, the slow roll's,
-is not there. Sized on the simulated cone rig (30 jobs at 6,000 rpm, 2-30 g mm per plane): with
-the noise and FORCE_MODEL alone the errors were 1.28 times the stated deviations, with 0.1 % of
-the unbalance 1.06, with 0.2 % 0.85 (the campaign's cone row checks it over 100)."""
+FORCE_RELATIVE = 0.001
+"""... and no better than this fraction of itself: what the rigid rotor's force law misses (on the
+cone rig its nonlinearity in a 0.5 mm gap). Sized on the cone rig (30 jobs at 6,000 rpm, 2-30 g
+mm per plane, no runout): with the noise and FORCE_MODEL alone the errors were 1.28 times the
+stated deviations, with 0.1 % of the unbalance 1.06; on the spindle, with the slow roll's part
+given back and the runout coefficients' own 1X error counted (40 jobs at 20,000 rpm), 1.00 with
+the feedforward off (FORCE_MODEL dominates) and 0.80 with it on (1.91 without either; 1 %, sized
+while the slow roll's 1 % bias stood, gave 0.27)."""
 
 
 FORCE_WINDOW_S = 0.05
@@ -890,8 +897,9 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     on or off) from its bearings' 1X forces: per APHT window, the gap's 1X with the runout of
     ``coefficients`` taken out (the rotor's motion; None: the gap's as it is) and the coil currents'
     1X, through ``machine``'s rigid rotor and force law (its ``plane_unbalance``); the windows
-    averaged, their scatter the noise, FORCE_MODEL and FORCE_RELATIVE (FORCE_RELATIVE_NO_RUNOUT
-    without runout coefficients) beside it; ``holes`` and ``max_rpm`` as
+    averaged, their scatter the noise, FORCE_MODEL and FORCE_RELATIVE beside it, and the runout
+    coefficients' own 1X error (:func:`~ambdaq.workflows.runout.runout_1x_deviation`, each
+    axis's through the same law); ``holes`` and ``max_rpm`` as
     :func:`influence_balancing`'s.
 
     The runout coefficients' 1X holds the rotor's response to the unbalance it had at their slow
@@ -914,8 +922,13 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
                   for w in range(result.gap.shape[0])])
     held = None
     if coefficients is not None:
-        s = unbalance_held(Coefficients.load(coefficients), rec, axes)
+        coef = Coefficients.load(coefficients)
+        s = unbalance_held(coef, rec, axes)
         P = np.column_stack([model.plane_unbalance(result.rpm, dict(zip(axes, s[:, k])), {}) for k in range(s.shape[1])])
+        # the coefficients' own 1X error, each axis's through the same law (independent)
+        e = runout_1x_deviation(coef, axes)
+        runout_error = np.sqrt(sum(np.abs(model.plane_unbalance(result.rpm, {a: complex(e[b])}, {})) ** 2
+                                   for b, a in enumerate(axes)))
         if before is not None:
             if sorted(before) != sorted(model.balance_planes) or not all(np.isfinite(v) for v in before.values()):
                 raise BadInputError(f"the unbalance before is of planes {', '.join(before)}; the {machine}'s are "
@@ -932,8 +945,8 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     # bearing would cancel if taken together)
     force = np.sqrt(sum(np.abs(model.plane_unbalance(result.rpm, {}, {c: i})) ** 2 for c, i in zip(channels, current)))
     unbalance = u.mean(axis=0)
-    relative = FORCE_RELATIVE if coefficients is not None else FORCE_RELATIVE_NO_RUNOUT
-    std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (relative * np.abs(unbalance)) ** 2)
+    std = np.sqrt(noise**2 + (FORCE_MODEL * np.abs(force)) ** 2 + (FORCE_RELATIVE * np.abs(unbalance)) ** 2
+                  + (runout_error**2 if coefficients is not None else 0.0))
     on = result.feedforward is not None and bool(np.abs(result.feedforward).max() > FF_ON)
     return ForceBalancing(str(path), list(model.balance_planes), result.rpm, unbalance, std, noise, u.shape[0],
                           {p: model.balance_radius_m for p in model.balance_planes}, on, rec.machine.rotor_mass_kg,

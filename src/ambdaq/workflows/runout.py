@@ -95,6 +95,23 @@ def unbalance_held(coef: Coefficients, rec: Recording, axes: list[str]) -> np.nd
     return held[[order.index(a) for a in axes]]
 
 
+def runout_1x_deviation(coef: Coefficients, axes: list[str]) -> np.ndarray:
+    """Each of ``axes``' 1X runout's deviation (m, of each part) as ``coef`` states it: its standard
+    uncertainty and its bound on what the noise does not cover (``model_bound_m``, read as the
+    limit of an error equally likely anywhere within it: bound / sqrt(3), GUM 4.3.7), root sum
+    of squares; zero where the file states neither or has no 1X."""
+    if 1 not in coef.harmonics:
+        return np.zeros(len(axes))
+    i = coef.harmonics.index(1)
+
+    def stated(key: str, axis: str) -> float:
+        values = (coef.source.get(key) or {}).get(axis) or []
+        v = values[i] if i < len(values) else None
+        return float(v) if v is not None and np.isfinite(float(v)) else 0.0
+
+    return np.array([np.hypot(stated("uncertainty_m", a), stated("model_bound_m", a) / np.sqrt(3)) for a in axes])
+
+
 def runout_at(coef: Coefficients, axes: list[str], theta: np.ndarray, where: Path) -> np.ndarray:
     """The sensor runout a coefficient file describes, at the rotor angles ``theta`` (rad), for
     ``axes``: shape (n, len(axes)), in m. A file whose 1X holds an unbalance response
