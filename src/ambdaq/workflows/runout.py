@@ -83,7 +83,11 @@ def unbalance_held(coef: Coefficients, rec: Recording, axes: list[str]) -> np.nd
     if rotor is None:
         raise BadInputError(f"{rec.path}: no rotor model (rotor.* calibration) in the recording: the runout's slow "
                             "roll cannot be told from the unbalance it held")
-    order = rigid_rotor_axes(rec)
+    machine = rec.machine
+    if len(machine.bearings) != 2 or len(machine.axial) != 1:
+        raise BadInputError(f"{rec.path}: its gap axes ({', '.join(machine.axes)}) are not a rigid rotor's on two radial "
+                            "bearings and one axial axis: the runout's slow roll cannot be told from its unbalance")
+    order = [*machine.bearing_axes, *machine.axial]  # the rotor model's order (rigid_rotor_axes's, no currents needed)
     missing = [a for a in axes if a not in order]
     if missing:
         raise BadInputError(f"{rec.path}: no rigid-rotor axis {', '.join(missing)}")
