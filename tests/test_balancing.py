@@ -548,6 +548,9 @@ def test_the_grade_after_a_force_correction_gives_back_the_slow_rolls_part(run_c
     assert run_cli("runout", "identify", coef.parent / "slow.mcap", "--harmonics", 5, "-o", other).exit_code == 0
     r = run_cli("balance", "forces", after, "--coefficients", other, "--before", tmp_path / "before.json")
     assert r.exit_code == 2 and "runout coefficients were not" in r.output, r.output
+    # and with no runout taken out there is no slow roll's part to give back
+    r = run_cli("balance", "forces", after, "--no-runout", "--before", tmp_path / "before.json")
+    assert r.exit_code == 2 and "none to give back" in r.output, r.output
 
 
 def test_the_grade_predicted_after_a_correction_holds_the_simulators(run_cli, tmp_path, runout_coefficients):

@@ -996,7 +996,7 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
             z.append(np.abs(got.unbalance - truth) / got.std)
             fix = plane_masses(got.planes, got.correction, got.radius_m, 0)
             after = estimate(job.run("fixed", 2, steady, seconds, job.placed(fix), ff=ff), coef, profile,
-                             max_rpm=max_rpm, before=dict(zip(got.planes, np.abs(got.unbalance))))
+                             max_rpm=max_rpm, before=dict(zip(got.planes, got.unbalance)))
             left_truth, _mass = job.truth(job.d / "fixed.mcap")
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)

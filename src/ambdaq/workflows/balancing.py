@@ -907,6 +907,9 @@ def force_balancing(path: str | Path, coefficients: Path | None, machine: str = 
     from each window's unbalance (P: that response through ``plane_unbalance``). It is given back:
     of ``before`` (the unbalance per plane by name, kg m phasors, the rotor had then: the estimate a
     correction since came from), else of the run's own unbalance, u = (I - P)^-1 u_window."""
+    if before is not None and coefficients is None:
+        raise BadInputError("an unbalance before (--before) is what a slow roll's runout held: with no runout "
+                            "coefficients (--no-runout) there is none to give back")
     rec = load(path)
     model = loop_model(machine, rec.metadata.get("ambdaq.calibration.rig", {}))
     if model.plane_unbalance is None or not model.balance_planes:
