@@ -978,7 +978,7 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
     mass per plane), with the controller's feedforward ``ff`` (``off`` or ``lms``): the unbalance
     per plane against the simulator's, its stated 95 % intervals, and what one correction by it
     leaves; then the correction put on, a new run (seed 10 case + 2) and ``balance forces --before``
-    the first estimate again: its ISO 21940-11 grade at ``max_rpm`` against the truth's (reported,
+    the first estimate again (on a rig with runout; without, no slow roll's part to give back): its ISO 21940-11 grade at ``max_rpm`` against the truth's (reported,
     not required of the row)."""
     from ambdaq.workflows.balancing import balance_grade, force_balancing as estimate, plane_masses
 
@@ -996,7 +996,7 @@ def force_balancing(cases: range, rpm: float = 20000.0, ff: str = "off", seconds
             z.append(np.abs(got.unbalance - truth) / got.std)
             fix = plane_masses(got.planes, got.correction, got.radius_m, 0)
             after = estimate(job.run("fixed", 2, steady, seconds, job.placed(fix), ff=ff), coef, profile,
-                             max_rpm=max_rpm, before=dict(zip(got.planes, got.unbalance)))
+                             max_rpm=max_rpm, before=None if coef is None else dict(zip(got.planes, got.unbalance)))
             left_truth, _mass = job.truth(job.d / "fixed.mcap")
             true_after = balance_grade(float(np.abs(left_truth).sum()), mass, max_rpm)
             after_z.append((after.grade_mm_s - true_after) / after.grade_std_mm_s)
