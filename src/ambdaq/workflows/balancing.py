@@ -100,9 +100,10 @@ influence coefficients move with the unbalance: the corrections of 30 jobs (2-30
 6,000 rpm) were off by up to 1.7 % (median -0.02 %), hundreds of times their noise; this floor
 held 98 % of them in their 95 % intervals, the errors 0.52 times the stated deviations. On the
 simulated spindle, once the slow roll's part of the unbalance is given back (:func:`_correct`),
-the corrections come within 0.5 % in the median (0.1 g trial masses, 40 jobs at 20,000 rpm) and
-this floor is conservative there (errors 0.58 of the stated with the feedforward off, 0.38 on):
-it stays for the trial masses and force laws the campaign did not try."""
+the corrections come within 0.1 % in the median (0.1 g trial masses, the validation campaign's 100
+jobs at 20,000 rpm) and this floor is conservative there (the errors 0.51 of the stated deviations
+with the feedforward off, 0.36 on): it stays for the trial masses and force laws the campaign did
+not try."""
 
 
 FF_WINDOW_S = 0.05
@@ -813,9 +814,10 @@ FORCE_RELATIVE = 0.001
 cone rig its nonlinearity in a 0.5 mm gap). Sized on the cone rig (30 jobs at 6,000 rpm, 2-30 g
 mm per plane, no runout): with the noise and FORCE_MODEL alone the errors were 1.28 times the
 stated deviations, with 0.1 % of the unbalance 1.06; on the spindle, with the slow roll's part
-given back and the runout coefficients' own 1X error counted (40 jobs at 20,000 rpm), 1.00 with
-the feedforward off (FORCE_MODEL dominates) and 0.80 with it on (1.91 without either; 1 %, sized
-while the slow roll's 1 % bias stood, gave 0.27)."""
+given back and the runout coefficients' own 1X error counted, 1.00 with the feedforward off
+(FORCE_MODEL dominates) and 1.06 with it on (the validation campaign's 100 jobs each at 20,000 rpm;
+over 40 of them, 1.91 with neither this floor nor the runout's error, and 0.27 with the 1 % this
+was while the slow roll's part was stated instead of given back)."""
 
 
 FORCE_WINDOW_S = 0.05
