@@ -322,7 +322,7 @@ def _show_prediction(d: dict) -> None:
     masses = (f"the masses within {p['mass_tolerance_g']:g} g and {p['angle_tolerance_deg']:g} deg"
               if p["mass_tolerance_g"] or p["angle_tolerance_deg"] else
               "the masses put on exactly: --mass-tolerance and --angle-tolerance count their errors")
-    target = "" if "within_target" not in d["predicted_after"] else (
+    target = "" if "within_target" not in p else (
         f"; {'within' if p['within_target'] else 'not within'} {d['acceptance']['target']}")
     click.echo(f"predicted after the correction: {p['grade_mm_s']:.2g} mm/s, at most {p['at_most_mm_s']:.2g} mm/s "
                f"({p['level'] * 100:.0f} %, {p['grade']}{target}; the estimate's deviation, {masses})")

@@ -334,13 +334,13 @@ PREDICTION_LEVEL = 0.95
 
 
 def grade_after(planes: list[str], residual: np.ndarray, std: np.ndarray, masses: list[BalanceMass],
-                    tolerance: MassTolerance, rotor_mass_kg: float | None, max_rpm: float | None) -> dict | None:
+                tolerance: MassTolerance, rotor_mass_kg: float | None, max_rpm: float | None) -> dict | None:
     """The ISO 21940-11 grade the rotor is predicted to have once ``masses`` are on (ISO 21940-14's
     residual unbalance after balancing, with its errors): per plane, the unbalance the estimate
     says is left (``residual``, kg m, in the order of ``planes``: none unless a limit held a mass
-    back), plus the estimate's
-    own error (a circular normal of ``std`` per part, kg m, per plane: what the stated deviation
-    means), plus each mass's weighing and fitting error within ``tolerance``; the grade of their
+    back), plus the estimate's own error (a circular normal of ``std`` per part, kg m, per plane:
+    what the stated deviation means), plus each mass's weighing and fitting error within
+    ``tolerance``; the grade of their
     magnitudes summed, drawn PREDICTION_DRAWS times. Its median and the bound it stays within with
     PREDICTION_LEVEL, mm/s, at ``max_rpm`` (rpm) for a rotor of ``rotor_mass_kg`` (kg); None
     without both. The draws are seeded: one job always predicts the same."""
@@ -457,7 +457,7 @@ class Balancing:
         if self.correction_std is None:
             return None
         return grade_after(self.planes, self.placed - self.correction, self.correction_std, self.masses(),
-                               self.tolerance, self.rotor_mass_kg, self.max_rpm)
+                           self.tolerance, self.rotor_mass_kg, self.max_rpm)
 
     def as_dict(self) -> dict:
         """What ``balance influence --json`` prints (the vectors in um, or N for the bearings' forces)."""
@@ -852,8 +852,8 @@ class ForceBalancing:
         """The grade once the correction masses are on (:func:`grade_after`): the estimate's
         deviation and the masses' own errors."""
         return grade_after(self.planes, np.zeros(len(self.planes), dtype=complex), self.std,
-                               plane_masses(self.planes, self.correction, self.radius_m, self.holes), self.tolerance,
-                               self.rotor_mass_kg, self.max_rpm)
+                           plane_masses(self.planes, self.correction, self.radius_m, self.holes), self.tolerance,
+                           self.rotor_mass_kg, self.max_rpm)
 
     @property
     def correction(self) -> np.ndarray:

@@ -93,8 +93,12 @@ def unbalance_held(coef: Coefficients, rec: Recording, axes: list[str]) -> np.nd
         raise BadInputError(f"{rec.path}: no rigid-rotor axis {', '.join(missing)}")
     speeds = [float(r.get("speed_rpm", 0.0)) for r in coef.source.get("recordings", []) if isinstance(r, dict)]
     slow = [w for w in speeds if 0 < w <= UNBALANCE_NEGLIGIBLE_RPM]
+    if not speeds:
+        warnings.warn(f"{rec.path}: the runout coefficients do not say the speed their 1X was identified at: the "
+                      "part of the unbalance it holds (about 1 % from an 800 rpm slow roll) is not given back",
+                      AmbdaqWarning, stacklevel=2)
     if not slow and len({round(w) for w in speeds}) != 1:
-        return np.zeros((len(axes), 2), dtype=complex)  # separated over the speeds (or not said: none known)
+        return np.zeros((len(axes), 2), dtype=complex)  # separated over the speeds, or not said (warned)
     held = np.mean([unbalance_in_runout(w * RPM_TO_RAD_S, rotor) for w in (slow or speeds[:1])], axis=0)
     return held[[order.index(a) for a in axes]]
 
