@@ -606,3 +606,36 @@ def test_the_grade_predicted_after_a_correction_holds_the_simulators(run_cli, tm
         return json.loads(r.stdout)["predicted_after"]["at_most_mm_s"]
 
     assert bound() < predicted["at_most_mm_s"] < bound("--mass-tolerance", 0.002, "--angle-tolerance", 10)
+
+
+def test_a_slow_rolls_runout_holds_the_unbalance_response_the_rigid_rotor_predicts(run_cli, tmp_path):
+    """What balancing gives back (workflows.runout.unbalance_held): a slow roll's 1X runout, as
+    runout identify finds it, is the sensors' runout plus the rotor's response to its unbalance at
+    800 rpm, which the coil currents do not explain, H(Omega) B U Omega^2 through the recording's
+    rigid rotor. With 0.3 g added at 60 degrees on the front plane and 0.6 g at 200 degrees on the
+    rear (9 and 18 g mm), the identified 1X is off the simulator's runout beyond the bound runout
+    identify states for it, and less the predicted part, within that bound (the bound holds the
+    model's own error on slow rolls, docs/coefficients.md; seed 0, 10 s: off by 41-112 nm, bounds
+    9.2 and 16.2 nm; 1.4-5.7 nm left)."""
+    from ambdaq.documents.coefficients import Coefficients
+    from ambdaq.machines.spindle import SPINDLE
+    from ambdaq.workflows.runout import runout_phasors, unbalance_held
+
+    slow, coef = tmp_path / "slow.mcap", tmp_path / "coef.json"
+    for args in (("sim", "generate", "--rpm", "slowroll", "--duration", 10, "--correction", "front:0.3@60",
+                  "--correction", "rear:0.6@200", "--truth", "-q", "-o", slow), ("runout", "identify", slow, "-o", coef)):
+        r = run_cli(*args)
+        assert r.exit_code == 0, r.output
+    rec, c = load(slow), Coefficients.load(coef)
+    axes = list(RADIAL)
+    found = runout_phasors(c, axes)[c.harmonics.index(1)]
+    s, k = SPINDLE.runout_sin_cos()
+    runout = (s[:, 0] + 1j * k[:, 0])[:4]  # the simulator's, as harmonic_fit's a sin + b cos -> a + j b
+    cal = rec.metadata["ambdaq.calibration.rig"]
+    unbalance = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
+                          for p in ("front", "rear")])
+    bound = np.array([c.source["model_bound_m"][a][0] for a in axes])
+    u = np.array([c.source["uncertainty_m"][a][0] for a in axes])
+    assert np.all(np.abs(found - runout) > bound), (np.abs(found - runout), bound)
+    left = np.abs(found - runout - unbalance_held(c, rec, axes) @ unbalance)
+    assert np.all(left <= bound + 3 * u), (left, bound, u)
