@@ -27,6 +27,13 @@ def one_x(path) -> np.ndarray:
     return harmonic_fit(x, theta, (1, 2, 3, 4, 5, 6))[0]
 
 
+def true_unbalance(calibration: dict, plane: str) -> complex:
+    """The simulator's unbalance on ``plane`` as a recording's calibration states it (``--truth``),
+    a phasor in kg m (as BalanceMass.unbalance)."""
+    return float(calibration[f"truth.unbalance.{plane}_kg_m"]) * np.exp(
+        1j * np.radians(float(calibration[f"truth.unbalance.{plane}_deg"])))
+
+
 def model_one_x(front: complex, rear: complex) -> np.ndarray:
     """The machine model's 1X at RPM with these unbalances per plane (kg m phasors)."""
     params = dataclasses.replace(SPINDLE, unbalance=(abs(front), abs(rear)),
@@ -119,8 +126,7 @@ def test_the_cone_rig_is_balanced_by_both_methods(run_cli, tmp_path):
 
     ref, upper, lower = generate("ref"), generate("t_up", "--trial", "upper:0.5@0"), generate("t_lo", "--trial", "lower:0.5@0")
     cal = load(ref, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
-    truth = {p: float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
-             for p in ("upper", "lower")}
+    truth = {p: true_unbalance(cal, p) for p in ("upper", "lower")}
     assert truth["upper"] == pytest.approx(1.5e-5) and truth["lower"] == pytest.approx(1e-5 * np.exp(2j * np.pi / 3))
     assert load(upper, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]["sim.mass.0"] == "upper:0.5@0:25"
     influence = run_cli("balance", "influence", ref, upper, lower, "--mass", "upper:0.5@0", "--mass", "lower:0.5@0",
@@ -491,7 +497,7 @@ def test_the_bearing_forces_give_the_unbalance_without_a_trial_run(run_cli, tmp_
     cal = load(run, topics=["/amb/rotor"]).metadata["ambdaq.calibration.rig"]
     left = {}
     for plane, got in out["unbalance_estimated"].items():
-        truth = float(cal[f"truth.unbalance.{plane}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{plane}_deg"])))
+        truth = true_unbalance(cal, plane)
         est = got["g_mm"] * 1e-6 * np.exp(1j * np.radians(got["deg"]))
         assert abs(abs(est) / abs(truth) - 1) < 0.10 and abs(np.degrees(np.angle(est / truth))) < 10.0, (plane, got, truth)
         assert abs(est - truth) < 3.5 * got["std_g_mm"] * 1e-6, (plane, got, abs(est - truth), truth)
@@ -537,7 +543,7 @@ def test_the_grade_after_a_force_correction_gives_back_the_slow_rolls_part(run_c
     assert got["slow_roll_held"]["of"] == "before" and set(got["slow_roll_held"]["planes"]) == {"front", "rear"}
     assert abs(got["grade_mm_s"] - truth) <= 1.96 * got["grade_std_mm_s"], (got["grade_mm_s"], got["grade_std_mm_s"], truth)
     for p, u in got["unbalance_estimated"].items():  # each plane's vector within its 95 % circle (2.45 deviations)
-        true = float(cal[f"truth.unbalance.{p}_kg_m"]) * 1e6 * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
+        true = true_unbalance(cal, p) * 1e6
         assert abs(u["g_mm"] * np.exp(1j * np.radians(u["deg"])) - true) <= 2.45 * u["std_g_mm"], (p, u, true)
     # without it the part is given back as this run's own unbalance, and the note says what to do
     r = run_cli("balance", "forces", after, "--coefficients", coef, "--max-rpm", 60000, "--json")
@@ -632,8 +638,7 @@ def test_a_slow_rolls_runout_holds_the_unbalance_response_the_rigid_rotor_predic
     s, k = SPINDLE.runout_sin_cos()
     runout = (s[:, 0] + 1j * k[:, 0])[:4]  # the simulator's, as harmonic_fit's a sin + b cos -> a + j b
     cal = rec.metadata["ambdaq.calibration.rig"]
-    unbalance = np.array([float(cal[f"truth.unbalance.{p}_kg_m"]) * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
-                          for p in ("front", "rear")])
+    unbalance = np.array([true_unbalance(cal, p) for p in ("front", "rear")])
     bound = np.array([c.source["model_bound_m"][a][0] for a in axes])
     u = np.array([c.source["uncertainty_m"][a][0] for a in axes])
     assert np.all(np.abs(found - runout) > bound), (np.abs(found - runout), bound)
@@ -675,9 +680,9 @@ def test_balance_correct_gives_back_the_slow_roll_of_the_coefficients_it_is_give
         assert r.exit_code == 0, r.output
         out = json.loads(r.stdout)
         for p, u in out["unbalance_estimated"].items():
-            true = float(cal[f"truth.unbalance.{p}_kg_m"]) * 1e6 * np.exp(1j * np.radians(float(cal[f"truth.unbalance.{p}_deg"])))
+            true = true_unbalance(cal, p) * 1e6
             got = u["g_mm"] * np.exp(1j * np.radians(u["deg"]))
             assert abs(got - true) <= 2.45 * out["correction_std_g_mm"][p], (runout.name, p, got, true, out)
         front = out["unbalance_estimated"]["front"]
-        true = float(cal["truth.unbalance.front_kg_m"]) * 1e6 * np.exp(1j * np.radians(float(cal["truth.unbalance.front_deg"])))
+        true = true_unbalance(cal, "front") * 1e6
         assert abs(front["g_mm"] * np.exp(1j * np.radians(front["deg"])) - true) < 0.006 * abs(true), (runout.name, front)

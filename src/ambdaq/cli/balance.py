@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import cmath
 import json
-import math
 from pathlib import Path
 
 import click
@@ -217,13 +215,12 @@ def forces(run, coefficients, no_runout, machine, holes, max_rpm, target, mass_t
       ambdaq balance forces run.mcap --coefficients coef.json --max-rpm 60000 --record before.json
       ambdaq balance forces after.mcap --coefficients coef.json --max-rpm 60000 --before before.json
     """
-    from ..workflows.balancing import force_balancing
+    from ..workflows.balancing import force_balancing, record_unbalance
 
     _writable(record, overwrite, max_rpm, target)
     coef = _runout(coefficients, no_runout)
     earlier = _before(before_record, coef, machine) if before_record else None
-    before = None if earlier is None else {p: u["g_mm"] * 1e-6 * cmath.rect(1.0, math.radians(u["deg"]))
-                                           for p, u in earlier["unbalance"].items()}
+    before = None if earlier is None else record_unbalance(earlier)
     result = force_balancing(run, coef, machine, holes=holes or 0, max_rpm=max_rpm, before=before)
     _judged(result, target, mass_tolerance, angle_tolerance)
     d = result.as_dict()

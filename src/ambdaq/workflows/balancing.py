@@ -196,12 +196,12 @@ def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spin
     if v.shape[0] < 2:
         raise BadInputError(f"{path}: one window of 1X; record at least two ({result.window_s:g} s each)")
     noise = (np.var(v.real, axis=0, ddof=1) + np.var(v.imag, axis=0, ddof=1)) / 2 / v.shape[0]
-    if on or coefficients is None:
+    coef = None if coefficients is None else Coefficients.load(coefficients)
+    if on or coef is None:
         driven_1x = np.zeros(len(result.axes), dtype=complex)
     else:
         if model.runout_response is None:
             raise BadInputError(f"the {machine} model does not give the loop's response to runout: no balancing with it")
-        coef = Coefficients.load(coefficients)
         runout = (runout_phasors(coef, list(result.axes))[coef.harmonics.index(1)] if 1 in coef.harmonics
                   else np.zeros(len(result.axes), dtype=complex))
         driven = model.runout_response(result.rpm, dict(zip(result.axes, runout)))
@@ -210,8 +210,8 @@ def run_vector(path: str | Path, coefficients: Path | None, machine: str = "spin
         driven_1x = np.array([driven[a] for a in result.axes])
     std = np.sqrt(noise + ((FORCE_RUNOUT_MODEL if forces else RUNOUT_MODEL) * np.abs(driven_1x)) ** 2)
     held = None
-    if coefficients is not None:
-        coef, axes = Coefficients.load(coefficients), list(result.axes)
+    if coef is not None:
+        axes = list(result.axes)
         held = _held(model, machine, rec, result.rpm, axes, coef, on, forces)
         std = np.hypot(std, _runout_error(model, result.rpm, axes, coef, on, forces))
     return RunVector(str(path), result.rpm, list(result.axes), v.mean(axis=0) - driven_1x, std,
@@ -985,6 +985,12 @@ def load_record(path: str | Path) -> dict:
             "unbalance": unbalance, "correction": masses, "grade": result.get("grade"), **grade,
             "acceptance": _record_acceptance(result.get("acceptance")),
             "predicted_after": _record_prediction(result.get("predicted_after"))}
+
+
+def record_unbalance(record: dict) -> dict[str, complex]:
+    """A balancing record's (:func:`load_record`) estimated unbalance per plane as phasors, kg m
+    (as :attr:`~ambdaq.machines.balance_masses.BalanceMass.unbalance`)."""
+    return {p: u["g_mm"] * 1e-6 * complex(np.exp(1j * np.radians(u["deg"]))) for p, u in record["unbalance"].items()}
 
 
 def _record_prediction(value) -> dict | None:

@@ -39,16 +39,22 @@ def with_rotor(rec: Recording, purpose: str) -> Recording:
     return rec.load_roles(["gap", "rotor"])
 
 
-def rigid_rotor_axes(rec: Recording) -> list[str]:
+def rotor_axis_order(rec: Recording, purpose: str) -> list[str]:
     """The gap axes of ``rec`` in the order the rigid-rotor model takes them: two radial bearings
-    (x, y each) and one axial axis, whatever their names; their coil currents must be recorded under
-    the same names. One line, exit 2, for a machine of another shape, which this model does not
-    describe (its rotor motion cannot be told from the currents)."""
+    (x, y each) and one axial axis, whatever their names. One line, exit 2, for a machine of another
+    shape, which this model does not describe (``purpose``: what needed it, in words)."""
     machine = rec.machine
     if len(machine.bearings) != 2 or len(machine.axial) != 1:
-        raise BadInputError(f"{rec.path}: runout identification separates the rotor's motion with a rigid rotor on two "
-                            f"radial bearings and one axial axis; its gap axes are {', '.join(machine.axes)}")
-    axes = [*machine.bearing_axes, *machine.axial]
+        raise BadInputError(f"{rec.path}: {purpose} with a rigid rotor on two radial bearings and one axial axis; its "
+                            f"gap axes are {', '.join(machine.axes)}")
+    return [*machine.bearing_axes, *machine.axial]
+
+
+def rigid_rotor_axes(rec: Recording) -> list[str]:
+    """:func:`rotor_axis_order` for runout identification, each axis with its coil current recorded
+    under the same name (the rotor's motion is told from the currents); one line, exit 2, where one
+    has none."""
+    axes = rotor_axis_order(rec, "runout identification separates the rotor's motion")
     missing = [a for a in axes if a not in rec.role("current").fields]
     if missing:
         raise BadInputError(f"{rec.path}: the coil currents have no {', '.join(missing)}: each gap axis needs its coil "
@@ -83,11 +89,8 @@ def unbalance_held(coef: Coefficients, rec: Recording, axes: list[str]) -> np.nd
     if rotor is None:
         raise BadInputError(f"{rec.path}: no rotor model (rotor.* calibration) in the recording: the runout's slow "
                             "roll cannot be told from the unbalance it held")
-    machine = rec.machine
-    if len(machine.bearings) != 2 or len(machine.axial) != 1:
-        raise BadInputError(f"{rec.path}: its gap axes ({', '.join(machine.axes)}) are not a rigid rotor's on two radial "
-                            "bearings and one axial axis: the runout's slow roll cannot be told from its unbalance")
-    order = [*machine.bearing_axes, *machine.axial]  # the rotor model's order (rigid_rotor_axes's, no currents needed)
+    # no coil currents needed: the gaps' balancing reads none
+    order = rotor_axis_order(rec, "the runout's slow roll is told from the unbalance it held")
     missing = [a for a in axes if a not in order]
     if missing:
         raise BadInputError(f"{rec.path}: no rigid-rotor axis {', '.join(missing)}")
